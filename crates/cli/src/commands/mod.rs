@@ -1,0 +1,5 @@
+//! One module per subcommand: argument parsing (clap derive) and the code that runs it.
+
+pub mod demo;
+pub mod info;
+pub mod synth;

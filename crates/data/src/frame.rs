@@ -1,0 +1,91 @@
+//! One RGB-D frame and the [`FrameSource`] trait every dataset reader (and the renderer)
+//! implements, so that the reconstruction and the CLI never care where frames come from.
+
+use glam::Affine3A;
+
+use crate::camera::Intrinsics;
+
+/// One RGB-D frame at the depth camera's resolution.
+///
+/// # Shapes
+/// `depth`, `color` and (when present) `labels` are row-major, `width * height` long,
+/// with `width`/`height` from `intrinsics`.
+#[derive(Debug, Clone)]
+pub struct Frame {
+    /// Index of the frame in its source (0-based).
+    pub index: usize,
+    /// Capture time in seconds (from the dataset, or `index / 30` when it has none).
+    pub timestamp: f64,
+    /// Depth along the optical axis in metres; 0 marks a missing measurement.
+    pub depth: Vec<f32>,
+    /// Colour registered to the depth image (resampled by the reader where the colour camera
+    /// has another resolution).
+    pub color: Vec<[u8; 3]>,
+    /// Camera intrinsics of `depth`.
+    pub intrinsics: Intrinsics,
+    /// Ground-truth `world_from_camera` pose, when the dataset has one.
+    pub world_from_camera: Option<Affine3A>,
+    /// Per-pixel class ids (rendered data only; [`crate::class::UNLABELED`] where nothing).
+    pub labels: Option<Vec<u8>>,
+}
+
+impl Frame {
+    /// Checks that the buffers match the intrinsics' size and that depth and pose are
+    /// finite; readers call this so that downstream code can index without checks.
+    pub fn validate(&self) -> Result<(), String> {
+        let n = self.intrinsics.pixel_count();
+        if self.depth.len() != n {
+            return Err(format!("depth has {} pixels, expected {n}", self.depth.len()));
+        }
+        if self.color.len() != n {
+            return Err(format!("colour has {} pixels, expected {n}", self.color.len()));
+        }
+        if let Some(l) = &self.labels {
+            if l.len() != n {
+                return Err(format!("labels have {} pixels, expected {n}", l.len()));
+            }
+        }
+        if let Some(i) = self.depth.iter().position(|d| !d.is_finite() || *d < 0.0) {
+            return Err(format!("depth pixel {i} is {} (not a distance)", self.depth[i]));
+        }
+        if let Some(pose) = &self.world_from_camera {
+            if !pose.is_finite() {
+                return Err("ground-truth pose is not finite".into());
+            }
+        }
+        Ok(())
+    }
+
+    /// Smallest and largest valid depth in metres; `None` when no pixel is valid.
+    pub fn depth_range(&self) -> Option<(f32, f32)> {
+        self.depth.iter().filter(|d| **d > 0.0).fold(None, |acc, &d| match acc {
+            None => Some((d, d)),
+            Some((lo, hi)) => Some((lo.min(d), hi.max(d))),
+        })
+    }
+}
+
+/// A sequence of RGB-D frames with one camera.
+///
+/// Random access by index so that evaluations can sub-sample and the live pipeline can
+/// read ahead; `Send + Sync` so that a reader thread can own it.
+pub trait FrameSource: Send + Sync {
+    /// A short description (`7scenes:/path`, `synth:3`).
+    fn name(&self) -> String;
+    /// Number of frames.
+    fn len(&self) -> usize;
+    /// Whether the source has no frame.
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Intrinsics of the depth images (every frame has the same).
+    fn intrinsics(&self) -> Intrinsics;
+    /// Whether frames carry ground-truth poses.
+    fn has_ground_truth(&self) -> bool;
+    /// Nominal frame rate in Hz (30 where the dataset does not say).
+    fn frame_rate(&self) -> f64 {
+        30.0
+    }
+    /// Loads frame `index`; errors name the file and what is wrong with it.
+    fn frame(&self, index: usize) -> crate::Result<Frame>;
+}

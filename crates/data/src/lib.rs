@@ -1,0 +1,22 @@
+//! Data for semrecon: the semantic classes, cameras and frames, every file format the
+//! system reads or writes (PLY, TUM trajectories, S3DIS rooms, ScanNet labelled meshes),
+//! readers for the common RGB-D dataset layouts behind one [`FrameSource`] trait, a
+//! procedural generator of labelled indoor rooms, and a z-buffer RGB-D renderer with a
+//! Kinect-like sensor model.
+//!
+//! Conventions: metres; world frame z up with the floor at z = 0; camera frame x right,
+//! y down, z forward (the pinhole convention of every dataset read here); poses are
+//! `world_from_camera` rigid transforms.
+#![warn(missing_docs)]
+
+pub mod camera;
+pub mod class;
+pub mod error;
+pub mod frame;
+pub mod mesh;
+
+pub use camera::Intrinsics;
+pub use class::SemanticClass;
+pub use error::{DataError, Result};
+pub use frame::{Frame, FrameSource};
+pub use mesh::LabeledMesh;
