@@ -11,6 +11,7 @@
 
 pub mod camera;
 pub mod class;
+pub mod depth_image;
 pub mod error;
 pub mod frame;
 pub mod mesh;
