@@ -10,14 +10,15 @@ use semrecon_data::depth_image::{write_color_png, write_depth_png, write_label_p
 use semrecon_data::trajectory::{parse_pose_matrix, read_pose_matrix};
 use semrecon_data::{open_dataset, DataError, DatasetSpec, Frame, FrameSource, Intrinsics, Trajectory};
 
+/// `<workspace root>/../shared/data`; also one level further up, so that the tests find the
+/// data from a git worktree kept in a subfolder beside the main checkout.
 fn shared_data() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
-    if p.is_dir() {
-        Some(p)
-    } else {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let found = ["../shared/data", "../../shared/data"].iter().map(|r| root.join(r)).find(|p| p.is_dir());
+    if found.is_none() {
         println!("skipping: ../shared/data not found");
-        None
     }
+    found
 }
 
 fn sample(rel: &str) -> Option<PathBuf> {
@@ -48,6 +49,38 @@ fn assert_pose_eq(a: &Affine3A, b: &Affine3A, tol: f32) {
 
 // ---------------------------------------------------------------- shared samples
 
+/// Median |predicted - measured| depth (metres) when frame `a`'s depth is moved into frame
+/// `b` with the ground-truth poses, and the number of pixels compared: checks the pose
+/// convention (`world_from_camera`), the depth scale and the intrinsics together.
+fn reprojection_error(a: &Frame, b: &Frame) -> (f32, usize) {
+    let k = a.intrinsics;
+    let b_from_a = b.world_from_camera.expect("pose").inverse() * a.world_from_camera.expect("pose");
+    let mut errors = Vec::new();
+    for v in (0..k.height).step_by(4) {
+        for u in (0..k.width).step_by(4) {
+            let z = a.depth[(v * k.width + u) as usize];
+            if z <= 0.0 {
+                continue;
+            }
+            let p = b_from_a.transform_point3(k.unproject(u as f32, v as f32, z));
+            if p.z <= 0.1 {
+                continue;
+            }
+            let uv = k.project(p).round();
+            if uv.x < 0.0 || uv.y < 0.0 || uv.x >= k.width as f32 || uv.y >= k.height as f32 {
+                continue;
+            }
+            let zb = b.depth[(uv.y as u32 * k.width + uv.x as u32) as usize];
+            if zb > 0.0 {
+                errors.push((zb - p.z).abs());
+            }
+        }
+    }
+    errors.sort_by(f32::total_cmp);
+    (errors.get(errors.len() / 2).copied().unwrap_or(f32::INFINITY), errors.len())
+}
+
+
 #[test]
 fn seven_scenes_redkitchen() {
     let Some(dir) = sample("7scenes-redkitchen") else { return };
@@ -69,6 +102,9 @@ fn seven_scenes_redkitchen() {
     let a = src.frame(0).expect("frame").world_from_camera.expect("pose");
     let b = src.frame(499).expect("frame").world_from_camera.expect("pose");
     assert!((a.translation - b.translation).length() > 0.1);
+    let (err, n) = reprojection_error(&src.frame(0).expect("frame"), &src.frame(20).expect("frame"));
+    println!("7-Scenes frames 0 -> 20: median depth disagreement {err} m over {n} pixels");
+    assert!(err < 0.03 && n > 5000, "{err} m over {n} pixels");
 }
 
 #[test]
@@ -83,6 +119,9 @@ fn sun3d_sequence_with_gaps_and_parent_intrinsics() {
     assert_eq!(f.index, 3);
     assert!((f.timestamp - 116.0 / 30.0).abs() < 1e-9);
     assert!(f.world_from_camera.is_some());
+    let (err, n) = reprojection_error(&src.frame(0).expect("frame"), &src.frame(2).expect("frame"));
+    println!("SUN3D frames 0 -> 2: median depth disagreement {err} m over {n} pixels");
+    assert!(err < 0.03 && n > 5000, "{err} m over {n} pixels");
 }
 
 #[test]
@@ -99,6 +138,9 @@ fn redwood_icl_nuim() {
         check_frame(&f, &src);
         assert_pose_eq(&f.world_from_camera.expect("pose"), &log.poses[i], 1e-6);
     }
+    let (err, n) = reprojection_error(&src.frame(0).expect("frame"), &src.frame(4).expect("frame"));
+    println!("ICL-NUIM frames 0 -> 4: median depth disagreement {err} m over {n} pixels");
+    assert!(err < 0.03 && n > 5000, "{err} m over {n} pixels");
 }
 
 #[test]
@@ -118,6 +160,24 @@ fn replica_office0_from_sequence_or_parent() {
     let f = src.frame(2).expect("frame");
     check_frame(&f, &src);
     assert_pose_eq(&f.world_from_camera.expect("pose"), &traj.poses[2], 1e-6);
+    let (err, n) = reprojection_error(&src.frame(0).expect("frame"), &src.frame(3).expect("frame"));
+    println!("Replica frames 0 -> 3: median depth disagreement {err} m over {n} pixels");
+    assert!(err < 0.01 && n > 5000, "{err} m over {n} pixels");
+}
+
+#[test]
+fn sixteen_bit_pgm_depth() {
+    let Some(dir) = sample("formats") else { return };
+    let d = semrecon_data::depth_image::load_depth(dir.join("kinect-slambook/depth/1.pgm"), 1000.0, &[])
+        .expect("pgm");
+    assert_eq!((d.width, d.height), (640, 480));
+    let valid: Vec<f32> = d.depth.iter().copied().filter(|v| *v > 0.0).collect();
+    let max = valid.iter().copied().fold(0.0f32, f32::max);
+    assert!(valid.len() > 100_000 && max < 12.0, "{} valid, max {max}", valid.len());
+    // NYU's PGM holds raw Kinect disparity rather than depth; it must still decode as 16-bit.
+    let nyu = dir.join("icl-nuim-open3d/RGBD/other_formats/NYU_depth.pgm");
+    let d = semrecon_data::depth_image::load_depth(nyu, 1.0, &[]).expect("pgm");
+    assert_eq!(d.depth.len(), 640 * 480);
 }
 
 #[test]
