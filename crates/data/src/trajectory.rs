@@ -77,13 +77,16 @@ impl Trajectory {
                 ));
             }
             let q = DQuat::from_xyzw(values[4], values[5], values[6], values[7]);
-            let norm = q.length();
-            if !(norm > 1e-9) {
+            // Divide by the largest component first so that huge components cannot overflow.
+            let largest = q.to_array().iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            if !(largest > 1e-12) {
                 return Err(DataError::parse(path, Some(line_no), "quaternion has zero length"));
             }
-            let q = q / norm;
+            let q = (q / largest).normalize();
             let t = DVec3::new(values[1], values[2], values[3]);
-            out.push(values[0], affine_from_f64(DMat3::from_quat(q), t));
+            let pose = affine_from_f64(DMat3::from_quat(q), t)
+                .map_err(|m| DataError::parse(path, Some(line_no), m))?;
+            out.push(values[0], pose);
         }
         Ok(out)
     }
@@ -422,7 +425,7 @@ fn rigid_from_rows(rows: &[[f64; 4]; 4]) -> Result<Affine3A, String> {
         return Err(format!("not a rigid transform: rotation rows are not orthonormal (error {off:.3})"));
     }
     let t = DVec3::new(rows[0][3], rows[1][3], rows[2][3]);
-    Ok(affine_from_f64(orthonormalize(r), t))
+    affine_from_f64(orthonormalize(r), t)
 }
 
 /// Nearest rotation to an almost-orthonormal `r` (polar decomposition by the Newton
@@ -439,14 +442,20 @@ fn orthonormalize(mut r: DMat3) -> DMat3 {
     r
 }
 
-fn affine_from_f64(r: DMat3, t: DVec3) -> Affine3A {
-    Affine3A {
+/// The pose in single precision; fails when a value does not fit.
+fn affine_from_f64(r: DMat3, t: DVec3) -> Result<Affine3A, String> {
+    let pose = Affine3A {
         matrix3: Mat3A::from_cols(
             Vec3A::new(r.x_axis.x as f32, r.x_axis.y as f32, r.x_axis.z as f32),
             Vec3A::new(r.y_axis.x as f32, r.y_axis.y as f32, r.y_axis.z as f32),
             Vec3A::new(r.z_axis.x as f32, r.z_axis.y as f32, r.z_axis.z as f32),
         ),
         translation: Vec3A::new(t.x as f32, t.y as f32, t.z as f32),
+    };
+    if pose.is_finite() {
+        Ok(pose)
+    } else {
+        Err(format!("translation {} {} {} is out of single-precision range", t.x, t.y, t.z))
     }
 }
 
@@ -519,6 +528,10 @@ mod tests {
         assert!(e.to_string().contains(":2") && e.to_string().contains("zero"), "{e}");
         let e = Trajectory::parse_tum("1 nan 0 0 0 0 0 1\n", p()).expect_err("nan");
         assert!(e.to_string().contains("non-finite"), "{e}");
+        let e = Trajectory::parse_tum("1 1e300 0 0 0 0 0 1\n", p()).expect_err("huge");
+        assert!(e.to_string().contains("out of single-precision range"), "{e}");
+        let t = Trajectory::parse_tum("1 0 0 0 1e300 0 0 1e300\n", p()).expect("huge quaternion");
+        assert!(t.poses[0].is_finite());
         let e = Trajectory::parse_tum("1 x 0 0 0 0 0 1\n", p()).expect_err("word");
         assert!(e.to_string().contains("`x` is not a number"), "{e}");
     }

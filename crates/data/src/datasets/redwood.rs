@@ -1,4 +1,4 @@
-//! The Redwood / Open3D RGB-D layout: `color/*.jpg|png` and `depth/*.png` (16-bit
+//! The Redwood / Open3D RGB-D layout: `color/*.jpg|png` and `depth/*.png|pgm` (16-bit
 //! millimetres) paired in sorted order, an optional `trajectory.log` of ground-truth
 //! `world_from_camera` poses (one per frame, in order), and intrinsics from an Open3D
 //! `PinholeCameraIntrinsic` JSON in the folder or its parent (PrimeSense defaults otherwise).
@@ -44,9 +44,9 @@ impl Redwood {
             }
         }
         let color = images_in(&dir.join("color"), &["jpg", "jpeg", "png"])?;
-        let depth = images_in(&dir.join("depth"), &["png"])?;
+        let depth = images_in(&dir.join("depth"), &["png", "pgm"])?;
         if depth.is_empty() {
-            return Err(DataError::dataset(&dir, format!("depth/ has no .png image; expected {WHAT}")));
+            return Err(DataError::dataset(&dir, format!("depth/ has no .png or .pgm image; expected {WHAT}")));
         }
         if color.len() != depth.len() {
             return Err(DataError::dataset(
