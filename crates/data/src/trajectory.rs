@@ -70,16 +70,13 @@ impl Trajectory {
                 return Err(DataError::parse(
                     path,
                     Some(line_no),
-                    format!(
-                        "expected 8 fields (timestamp tx ty tz qx qy qz qw), found {}",
-                        values.len()
-                    ),
+                    format!("expected 8 fields (timestamp tx ty tz qx qy qz qw), found {}", values.len()),
                 ));
             }
             let q = DQuat::from_xyzw(values[4], values[5], values[6], values[7]);
             // Divide by the largest component first so that huge components cannot overflow.
             let largest = q.to_array().iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            if !(largest > 1e-12) {
+            if largest <= 1e-12 {
                 return Err(DataError::parse(path, Some(line_no), "quaternion has zero length"));
             }
             let q = (q / largest).normalize();
@@ -147,7 +144,8 @@ impl Trajectory {
                 }
                 row.copy_from_slice(&values);
             }
-            let pose = rigid_from_rows(&rows).map_err(|m| DataError::parse(path, Some(header_line + 1), m))?;
+            let pose =
+                rigid_from_rows(&rows).map_err(|m| DataError::parse(path, Some(header_line + 1), m))?;
             out.push(ids[0], pose);
         }
         Ok(out)
@@ -344,9 +342,8 @@ pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
     };
-    let name = path
-        .file_name()
-        .ok_or_else(|| DataError::io(path, std::io::Error::other("not a file path")))?;
+    let name =
+        path.file_name().ok_or_else(|| DataError::io(path, std::io::Error::other("not a file path")))?;
     let tmp = dir.join(format!(
         ".{}.tmp-{}-{}",
         name.to_string_lossy(),
@@ -378,8 +375,7 @@ fn parse_numbers(fields: &[&str], path: &Path, line: usize) -> Result<Vec<f64>> 
     fields
         .iter()
         .map(|f| {
-            f.parse::<f64>()
-                .map_err(|_| DataError::parse(path, Some(line), format!("`{f}` is not a number")))
+            f.parse::<f64>().map_err(|_| DataError::parse(path, Some(line), format!("`{f}` is not a number")))
         })
         .collect()
 }
@@ -539,7 +535,10 @@ mod tests {
     #[test]
     fn log_round_trip_and_errors() {
         let mut t = Trajectory::default();
-        t.push(0.0, Affine3A::from_rotation_translation(Quat::from_rotation_y(0.3), glam::Vec3::new(1.0, 2.0, 3.0)));
+        t.push(
+            0.0,
+            Affine3A::from_rotation_translation(Quat::from_rotation_y(0.3), glam::Vec3::new(1.0, 2.0, 3.0)),
+        );
         t.push(1.0, Affine3A::IDENTITY);
         let back = Trajectory::parse_log(&t.to_log_string(), p()).expect("round trip");
         assert_eq!(back.timestamps, t.timestamps);
@@ -548,7 +547,8 @@ mod tests {
         }
         let e = Trajectory::parse_log("0 0 1\n1 0 0 0\n0 1 0 0\n", p()).expect_err("truncated");
         assert!(e.to_string().contains("truncated"), "{e}");
-        let e = Trajectory::parse_log("0 0 1\n2 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", p()).expect_err("scaled");
+        let e =
+            Trajectory::parse_log("0 0 1\n2 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", p()).expect_err("scaled");
         assert!(e.to_string().contains("determinant"), "{e}");
     }
 

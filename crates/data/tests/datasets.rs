@@ -80,7 +80,6 @@ fn reprojection_error(a: &Frame, b: &Frame) -> (f32, usize) {
     (errors.get(errors.len() / 2).copied().unwrap_or(f32::INFINITY), errors.len())
 }
 
-
 #[test]
 fn seven_scenes_redkitchen() {
     let Some(dir) = sample("7scenes-redkitchen") else { return };
@@ -322,15 +321,24 @@ fn scannet_fixture_registers_colour_and_handles_lost_poses() {
         std::fs::create_dir_all(dir.join(sub)).expect("mkdir");
     }
     // Depth 40x30 with f=36, colour 81x61 with f=60 (a wider, finer colour camera).
-    write_matrix(&dir.join("intrinsic/intrinsic_depth.txt"), &[[36.0, 0.0, 19.5, 0.0], [0.0, 36.0, 14.5, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]);
-    write_matrix(&dir.join("intrinsic/intrinsic_color.txt"), &[[60.0, 0.0, 40.0, 0.0], [0.0, 60.0, 30.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]);
+    write_matrix(
+        &dir.join("intrinsic/intrinsic_depth.txt"),
+        &[[36.0, 0.0, 19.5, 0.0], [0.0, 36.0, 14.5, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
+    );
+    write_matrix(
+        &dir.join("intrinsic/intrinsic_color.txt"),
+        &[[60.0, 0.0, 40.0, 0.0], [0.0, 60.0, 30.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
+    );
     let (cw, ch) = (81usize, 61usize);
     let color: Vec<[u8; 3]> = (0..cw * ch).map(|i| [(i % cw) as u8, (i / cw) as u8, 200]).collect();
     for n in 0..2 {
         write_depth_png(dir.join(format!("depth/{n}.png")), 40, 30, &vec![2.0; 1200], 1000.0).expect("depth");
         write_color_png(dir.join(format!("color/{n}.png")), cw as u32, ch as u32, &color).expect("color");
     }
-    write_matrix(&dir.join("pose/0.txt"), &[[1.0, 0.0, 0.0, 0.5], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]);
+    write_matrix(
+        &dir.join("pose/0.txt"),
+        &[[1.0, 0.0, 0.0, 0.5], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
+    );
     std::fs::write(dir.join("pose/1.txt"), "-inf -inf -inf -inf\n".repeat(4)).expect("write");
 
     let src = ScanNet::open(dir).expect("open");
@@ -345,7 +353,10 @@ fn scannet_fixture_registers_colour_and_handles_lost_poses() {
         let uc = 60.0 * (u as f32 - 19.5) / 36.0 + 40.0;
         let vc = 60.0 * (v as f32 - 14.5) / 36.0 + 30.0;
         let px = f0.color[v * 40 + u];
-        assert!((px[0] as f32 - uc).abs() <= 0.51 && (px[1] as f32 - vc).abs() <= 0.51, "{u},{v}: {px:?} vs {uc},{vc}");
+        assert!(
+            (px[0] as f32 - uc).abs() <= 0.51 && (px[1] as f32 - vc).abs() <= 0.51,
+            "{u},{v}: {px:?} vs {uc},{vc}"
+        );
         assert_eq!(px[2], 200);
     }
 }

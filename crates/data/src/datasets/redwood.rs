@@ -46,12 +46,19 @@ impl Redwood {
         let color = images_in(&dir.join("color"), &["jpg", "jpeg", "png"])?;
         let depth = images_in(&dir.join("depth"), &["png", "pgm"])?;
         if depth.is_empty() {
-            return Err(DataError::dataset(&dir, format!("depth/ has no .png or .pgm image; expected {WHAT}")));
+            return Err(DataError::dataset(
+                &dir,
+                format!("depth/ has no .png or .pgm image; expected {WHAT}"),
+            ));
         }
         if color.len() != depth.len() {
             return Err(DataError::dataset(
                 &dir,
-                format!("color/ has {} images but depth/ has {}; they pair in sorted order", color.len(), depth.len()),
+                format!(
+                    "color/ has {} images but depth/ has {}; they pair in sorted order",
+                    color.len(),
+                    depth.len()
+                ),
             ));
         }
         let log = dir.join("trajectory.log");
@@ -77,7 +84,8 @@ impl Redwood {
             }
             None => {
                 let [fx, fy, cx, cy] = DEFAULT_K;
-                Intrinsics::new(width, height, fx, fy, cx, cy).map_err(|e| DataError::dataset(&dir, e.to_string()))?
+                Intrinsics::new(width, height, fx, fy, cx, cy)
+                    .map_err(|e| DataError::dataset(&dir, e.to_string()))?
             }
         };
         Ok(Self { dir, intrinsics, depth, color, poses })

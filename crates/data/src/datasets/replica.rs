@@ -63,18 +63,25 @@ impl Replica {
         let traj = if traj_path.is_file() { Some(Trajectory::read_replica(&traj_path)?) } else { None };
         let mut frames = Vec::new();
         for (number, digits) in numbers {
-            let Some(color) =
-                ["jpg", "png"].iter().map(|e| format!("frame{digits}.{e}")).find(|n| set.contains(n.as_str()))
+            let Some(color) = ["jpg", "png"]
+                .iter()
+                .map(|e| format!("frame{digits}.{e}"))
+                .find(|n| set.contains(n.as_str()))
             else {
                 continue;
             };
             let pose = match &traj {
-                Some(t) => Some(*usize::try_from(number).ok().and_then(|i| t.poses.get(i)).ok_or_else(|| {
-                    DataError::dataset(
-                        &traj_path,
-                        format!("{} poses, but results/ has frame {number}; expected a pose per frame", t.len()),
-                    )
-                })?),
+                Some(t) => {
+                    Some(*usize::try_from(number).ok().and_then(|i| t.poses.get(i)).ok_or_else(|| {
+                        DataError::dataset(
+                            &traj_path,
+                            format!(
+                                "{} poses, but results/ has frame {number}; expected a pose per frame",
+                                t.len()
+                            ),
+                        )
+                    })?)
+                }
                 None => None,
             };
             frames.push(Entry {
@@ -85,12 +92,16 @@ impl Replica {
             });
         }
         if frames.is_empty() {
-            return Err(DataError::dataset(&results, format!("no depthNNNNNN.png with a frameNNNNNN.jpg; expected {WHAT}")));
+            return Err(DataError::dataset(
+                &results,
+                format!("no depthNNNNNN.png with a frameNNNNNN.jpg; expected {WHAT}"),
+            ));
         }
-        let (width, height, [fx, fy, cx, cy], units_per_metre) = match find_here_or_parent(&dir, "cam_params.json") {
-            Some(p) => read_cam_params(&p)?,
-            None => DEFAULT_CAMERA,
-        };
+        let (width, height, [fx, fy, cx, cy], units_per_metre) =
+            match find_here_or_parent(&dir, "cam_params.json") {
+                Some(p) => read_cam_params(&p)?,
+                None => DEFAULT_CAMERA,
+            };
         let intrinsics = Intrinsics::new(width, height, fx, fy, cx, cy)
             .map_err(|e| DataError::dataset(&dir, e.to_string()))?;
         Ok(Self { dir, intrinsics, units_per_metre, frames, has_ground_truth: traj.is_some() })
@@ -109,14 +120,15 @@ fn sequence_folder(root: &Path, what: &str) -> Result<PathBuf> {
         return Ok(root.to_path_buf());
     }
     let entries = std::fs::read_dir(root).map_err(|e| DataError::io(root, e))?;
-    let mut found: Vec<PathBuf> = entries
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.join("results").is_dir())
-        .collect();
+    let mut found: Vec<PathBuf> =
+        entries.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.join("results").is_dir()).collect();
     found.sort();
     match found.len() {
         1 => Ok(found.remove(0)),
-        0 => Err(DataError::dataset(root, format!("no results/ folder here or in a subfolder; expected {what}"))),
+        0 => Err(DataError::dataset(
+            root,
+            format!("no results/ folder here or in a subfolder; expected {what}"),
+        )),
         n => Err(DataError::dataset(
             root,
             format!("{n} subfolders have results/ ({}); name one of them", names(&found)),
@@ -132,16 +144,13 @@ fn names(paths: &[PathBuf]) -> String {
 fn read_cam_params(path: &Path) -> Result<(u32, u32, [f32; 4], f32)> {
     let value: serde_json::Value = serde_json::from_str(&read_text(path)?)
         .map_err(|e| DataError::parse(path, Some(e.line()), format!("invalid JSON: {e}")))?;
-    let camera = value
-        .get("camera")
-        .ok_or_else(|| DataError::parse(path, None, "no `camera` object"))?;
-    let number = |key: &str| {
-        camera
-            .get(key)
-            .and_then(|v| v.as_f64())
-            .filter(|v| v.is_finite())
-            .ok_or_else(|| DataError::parse(path, None, format!("`camera.{key}` missing or not a number")))
-    };
+    let camera = value.get("camera").ok_or_else(|| DataError::parse(path, None, "no `camera` object"))?;
+    let number =
+        |key: &str| {
+            camera.get(key).and_then(|v| v.as_f64()).filter(|v| v.is_finite()).ok_or_else(|| {
+                DataError::parse(path, None, format!("`camera.{key}` missing or not a number"))
+            })
+        };
     let size = |key: &str| {
         let v = number(key)?;
         if v >= 1.0 && v <= u32::MAX as f64 && v.fract() == 0.0 {
@@ -154,7 +163,7 @@ fn read_cam_params(path: &Path) -> Result<(u32, u32, [f32; 4], f32)> {
         None => DEFAULT_CAMERA.3,
         Some(_) => number("scale")? as f32,
     };
-    if !(scale > 0.0) {
+    if !scale.is_finite() || scale <= 0.0 {
         return Err(DataError::parse(path, None, format!("`camera.scale` = {scale} must be positive")));
     }
     let k = [number("fx")? as f32, number("fy")? as f32, number("cx")? as f32, number("cy")? as f32];
@@ -180,7 +189,11 @@ impl FrameSource for Replica {
 
     fn frame(&self, index: usize) -> Result<Frame> {
         let entry = self.frames.get(index).ok_or_else(|| {
-            DataError::InvalidArgument(format!("frame {index} of {} frames in {}", self.frames.len(), self.name()))
+            DataError::InvalidArgument(format!(
+                "frame {index} of {} frames in {}",
+                self.frames.len(),
+                self.name()
+            ))
         })?;
         let depth = load_depth_checked(&entry.depth, self.units_per_metre, &[], &self.intrinsics)?;
         let color = load_color_registered(&entry.color, &self.intrinsics, None)?;

@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 
 use crate::camera::Intrinsics;
 use crate::datasets::{
-    image_size, list_files, load_color_registered, load_depth_checked, number_between, read_intrinsics_matrix,
-    require_dir, validated,
+    image_size, list_files, load_color_registered, load_depth_checked, number_between,
+    read_intrinsics_matrix, require_dir, validated,
 };
 use crate::error::{DataError, Result};
 use crate::frame::{Frame, FrameSource};
@@ -42,7 +42,8 @@ impl ScanNet {
     /// Indexes `depth/`, `color/`, `pose/` and reads `intrinsic/`.
     pub fn open(path: impl AsRef<Path>) -> Result<Self> {
         let dir = path.as_ref().to_path_buf();
-        const WHAT: &str = "a ScanNet export with color/N.jpg, depth/N.png, pose/N.txt and intrinsic/intrinsic_depth.txt";
+        const WHAT: &str =
+            "a ScanNet export with color/N.jpg, depth/N.png, pose/N.txt and intrinsic/intrinsic_depth.txt";
         require_dir(&dir, WHAT)?;
         for sub in ["color", "depth"] {
             if !dir.join(sub).is_dir() {
@@ -51,11 +52,15 @@ impl ScanNet {
         }
         let depth_k_path = dir.join("intrinsic").join("intrinsic_depth.txt");
         if !depth_k_path.is_file() {
-            return Err(DataError::dataset(&dir, format!("no intrinsic/intrinsic_depth.txt; expected {WHAT}")));
+            return Err(DataError::dataset(
+                &dir,
+                format!("no intrinsic/intrinsic_depth.txt; expected {WHAT}"),
+            ));
         }
         let [fx, fy, cx, cy] = read_intrinsics_matrix(&depth_k_path, 4)?;
         let color_k_path = dir.join("intrinsic").join("intrinsic_color.txt");
-        let color_k = if color_k_path.is_file() { Some(read_intrinsics_matrix(&color_k_path, 4)?) } else { None };
+        let color_k =
+            if color_k_path.is_file() { Some(read_intrinsics_matrix(&color_k_path, 4)?) } else { None };
 
         let color_names = list_files(&dir.join("color"))?;
         let color_set: HashSet<&str> = color_names.iter().map(String::as_str).collect();
@@ -112,7 +117,11 @@ impl FrameSource for ScanNet {
 
     fn frame(&self, index: usize) -> Result<Frame> {
         let entry = self.frames.get(index).ok_or_else(|| {
-            DataError::InvalidArgument(format!("frame {index} of {} frames in {}", self.frames.len(), self.name()))
+            DataError::InvalidArgument(format!(
+                "frame {index} of {} frames in {}",
+                self.frames.len(),
+                self.name()
+            ))
         })?;
         let depth = load_depth_checked(&entry.depth, DEPTH_UNITS_PER_METRE, &[], &self.intrinsics)?;
         let color = load_color_registered(&entry.color, &self.intrinsics, self.color_k)?;

@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 
 use crate::camera::Intrinsics;
 use crate::datasets::{
-    find_here_or_parent, image_size, list_files, load_color_registered, load_depth_checked,
-    number_between, read_intrinsics_matrix, require_dir, validated,
+    find_here_or_parent, image_size, list_files, load_color_registered, load_depth_checked, number_between,
+    read_intrinsics_matrix, require_dir, validated,
 };
 use crate::depth_image::{check_size, load_labels, write_color_png, write_depth_png, write_label_png};
 use crate::error::{DataError, Result};
@@ -62,7 +62,10 @@ impl SevenScenes {
         stems.sort_unstable();
         stems.dedup_by_key(|(n, _)| *n);
         if stems.is_empty() {
-            return Err(DataError::dataset(&dir, format!("no frame-NNNNNN.depth.png files; expected {WHAT}")));
+            return Err(DataError::dataset(
+                &dir,
+                format!("no frame-NNNNNN.depth.png files; expected {WHAT}"),
+            ));
         }
         let mut frames = Vec::with_capacity(stems.len());
         for (number, stem) in stems {
@@ -71,7 +74,10 @@ impl SevenScenes {
                 .map(|ext| format!("{stem}{ext}"))
                 .find(|n| set.contains(n.as_str()))
                 .ok_or_else(|| {
-                    DataError::dataset(&dir, format!("{stem}.depth.png has no {stem}.color.png or {stem}.color.jpg"))
+                    DataError::dataset(
+                        &dir,
+                        format!("{stem}.depth.png has no {stem}.color.png or {stem}.color.jpg"),
+                    )
                 })?;
             let optional = |ext: &str| {
                 let n = format!("{stem}{ext}");
@@ -121,7 +127,11 @@ impl FrameSource for SevenScenes {
 
     fn frame(&self, index: usize) -> Result<Frame> {
         let entry = self.frames.get(index).ok_or_else(|| {
-            DataError::InvalidArgument(format!("frame {index} of {} frames in {}", self.frames.len(), self.name()))
+            DataError::InvalidArgument(format!(
+                "frame {index} of {} frames in {}",
+                self.frames.len(),
+                self.name()
+            ))
         })?;
         let depth_path = &entry.depth;
         let depth = load_depth_checked(depth_path, DEPTH_UNITS_PER_METRE, &INVALID_DEPTH, &self.intrinsics)?;
@@ -186,9 +196,7 @@ impl SevenScenesWriter {
                 k.height
             )));
         }
-        frame
-            .validate()
-            .map_err(|m| DataError::InvalidArgument(format!("frame {}: {m}", frame.index)))?;
+        frame.validate().map_err(|m| DataError::InvalidArgument(format!("frame {}: {m}", frame.index)))?;
         let stem = self.dir.join(format!("frame-{:06}", frame.index));
         let path = |ext: &str| {
             let mut p = stem.clone().into_os_string();

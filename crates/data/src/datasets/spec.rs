@@ -35,7 +35,10 @@ impl FromStr for DatasetSpec {
 
     fn from_str(s: &str) -> Result<Self> {
         let Some((kind, rest)) = s.split_once(':') else {
-            return Err(DataError::dataset(s, format!("not a KIND:PATH dataset specification; expected one of {KINDS}")));
+            return Err(DataError::dataset(
+                s,
+                format!("not a KIND:PATH dataset specification; expected one of {KINDS}"),
+            ));
         };
         if rest.is_empty() {
             return Err(DataError::dataset(s, format!("nothing after `{kind}:`; expected one of {KINDS}")));
@@ -48,10 +51,16 @@ impl FromStr for DatasetSpec {
             "scannet" => Self::ScanNet(path()),
             "replica" => Self::Replica(path()),
             "synth" => Self::Synth(rest.parse().map_err(|_| {
-                DataError::dataset(s, format!("`{rest}` is not a seed (a non-negative integer) for synth:SEED"))
+                DataError::dataset(
+                    s,
+                    format!("`{rest}` is not a seed (a non-negative integer) for synth:SEED"),
+                )
             })?),
             _ => {
-                return Err(DataError::dataset(s, format!("unknown dataset kind `{kind}`; expected one of {KINDS}")))
+                return Err(DataError::dataset(
+                    s,
+                    format!("unknown dataset kind `{kind}`; expected one of {KINDS}"),
+                ))
             }
         })
     }
@@ -105,7 +114,12 @@ mod tests {
             assert!(e.contains(s), "{e}");
         }
         let e = "kinect:/x".parse::<DatasetSpec>().expect_err("unknown").to_string();
-        assert!(e.contains("unknown dataset kind `kinect`") && e.contains("7scenes:PATH") && e.contains("synth:SEED"), "{e}");
+        assert!(
+            e.contains("unknown dataset kind `kinect`")
+                && e.contains("7scenes:PATH")
+                && e.contains("synth:SEED"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -131,9 +131,9 @@ pub(crate) fn parse_list(text: &str, path: &Path) -> Result<Vec<(f64, String)>> 
                 format!("expected `timestamp filename`, found {} fields", fields.len()),
             ));
         }
-        let t: f64 = fields[0]
-            .parse()
-            .map_err(|_| DataError::parse(path, Some(i + 1), format!("`{}` is not a timestamp", fields[0])))?;
+        let t: f64 = fields[0].parse().map_err(|_| {
+            DataError::parse(path, Some(i + 1), format!("`{}` is not a timestamp", fields[0]))
+        })?;
         if !t.is_finite() {
             return Err(DataError::parse(path, Some(i + 1), format!("non-finite timestamp {t}")));
         }
@@ -161,7 +161,11 @@ impl FrameSource for Tum {
 
     fn frame(&self, index: usize) -> Result<Frame> {
         let entry = self.frames.get(index).ok_or_else(|| {
-            DataError::InvalidArgument(format!("frame {index} of {} frames in {}", self.frames.len(), self.name()))
+            DataError::InvalidArgument(format!(
+                "frame {index} of {} frames in {}",
+                self.frames.len(),
+                self.name()
+            ))
         })?;
         let depth = load_depth_checked(&entry.depth, DEPTH_UNITS_PER_METRE, &[], &self.intrinsics)?;
         let color = load_color_registered(&entry.color, &self.intrinsics, None)?;
