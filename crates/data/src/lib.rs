@@ -11,12 +11,17 @@
 
 pub mod camera;
 pub mod class;
+pub mod datasets;
+pub mod depth_image;
 pub mod error;
 pub mod frame;
 pub mod mesh;
+pub mod trajectory;
 
 pub use camera::Intrinsics;
+pub use datasets::{open_dataset, DatasetSpec};
 pub use class::SemanticClass;
 pub use error::{DataError, Result};
 pub use frame::{Frame, FrameSource};
 pub use mesh::LabeledMesh;
+pub use trajectory::Trajectory;
