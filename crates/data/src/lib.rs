@@ -14,9 +14,15 @@ pub mod class;
 pub mod error;
 pub mod frame;
 pub mod mesh;
+pub mod ply;
+pub mod point_cloud;
+pub mod s3dis;
+pub mod scannet_mesh;
 
 pub use camera::Intrinsics;
 pub use class::SemanticClass;
 pub use error::{DataError, Result};
 pub use frame::{Frame, FrameSource};
 pub use mesh::LabeledMesh;
+pub use ply::{read_ply, write_ply, PlyEncoding};
+pub use point_cloud::LabeledPointCloud;
