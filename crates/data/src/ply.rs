@@ -95,6 +95,39 @@ impl ScalarType {
     pub fn is_integer(self) -> bool {
         !matches!(self, Self::Float | Self::Double)
     }
+
+    /// Range of an integer type (list counts); `None` for float types.
+    fn int_range(self) -> Option<(i64, i64)> {
+        Some(match self {
+            Self::Char => (i8::MIN.into(), i8::MAX.into()),
+            Self::UChar => (0, u8::MAX.into()),
+            Self::Short => (i16::MIN.into(), i16::MAX.into()),
+            Self::UShort => (0, u16::MAX.into()),
+            Self::Int => (i32::MIN.into(), i32::MAX.into()),
+            Self::UInt => (0, u32::MAX.into()),
+            Self::Float | Self::Double => return None,
+        })
+    }
+
+    /// Decodes a binary integer of this type (`b.len()` = size); `None` for float types.
+    #[inline]
+    fn decode_int(self, b: &[u8], big: bool) -> Option<i64> {
+        Some(match self {
+            Self::Char => i8::from_bytes(b, big).into(),
+            Self::UChar => u8::from_bytes(b, big).into(),
+            Self::Short => i16::from_bytes(b, big).into(),
+            Self::UShort => u16::from_bytes(b, big).into(),
+            Self::Int => i32::from_bytes(b, big).into(),
+            Self::UInt => u32::from_bytes(b, big).into(),
+            Self::Float | Self::Double => return None,
+        })
+    }
+
+    /// Parses a text integer of this type; `None` when it is not one or out of range.
+    fn parse_int(self, token: &str) -> Option<i64> {
+        let (lo, hi) = self.int_range()?;
+        token.parse::<i64>().ok().filter(|v| (lo..=hi).contains(v))
+    }
 }
 
 /// The encoding of a PLY body as declared by the `format` header line.
@@ -238,8 +271,9 @@ impl Column {
     }
 
     /// Value `i` as `f64` (exact for every PLY type); `None` past the end.
+    #[allow(clippy::useless_conversion)] // the macro also expands the f64 arm
     pub fn get_f64(&self, i: usize) -> Option<f64> {
-        with_column!(self, v => v.get(i).map(|&x| x as f64))
+        with_column!(self, v => v.get(i).map(|&x| f64::from(x)))
     }
 
     /// Value `i` of an integer column as `i64`; `None` past the end or for float columns.
@@ -257,6 +291,7 @@ impl Column {
 
     /// All values converted to `f32` (rounded for `double`, exact for the others up to
     /// 2^24).
+    #[allow(clippy::unnecessary_cast)] // the macro also expands the f32 arm
     pub fn to_f32_vec(&self) -> Vec<f32> {
         match self {
             Self::Float(v) => v.clone(),
@@ -487,14 +522,7 @@ impl Element {
 
 /// Largest list length a count of type `ty` can express.
 fn max_count(ty: ScalarType) -> u64 {
-    match ty {
-        ScalarType::Char => i8::MAX as u64,
-        ScalarType::UChar => u8::MAX as u64,
-        ScalarType::Short => i16::MAX as u64,
-        ScalarType::UShort => u16::MAX as u64,
-        ScalarType::Int => i32::MAX as u64,
-        ScalarType::UInt | ScalarType::Float | ScalarType::Double => u32::MAX as u64,
-    }
+    ty.int_range().map_or(0, |(_, hi)| hi as u64)
 }
 
 fn check_name(name: &str, what: &str) -> std::result::Result<(), String> {
@@ -896,9 +924,7 @@ fn read_binary_element(
                 PropertyData::List(l) => {
                     let ct = l.count_type;
                     let b = body.get(p..p + ct.size()).ok_or_else(|| truncated(p))?;
-                    let mut tmp = Column::with_capacity(ct, 1);
-                    tmp.push_bytes(b, big);
-                    let n = tmp.get_i64(0).unwrap_or(-1);
+                    let n = ct.decode_int(b, big).unwrap_or(-1);
                     let n = usize::try_from(n).map_err(|_| {
                         format!("element '{}' row {row} property '{}': negative list length {n}", el.name, d.name)
                     })?;
@@ -995,9 +1021,10 @@ fn read_ascii_element(
                 }
                 PropertyData::List(l) => {
                     let (tok, line) = next(&format!("the length of list '{}'", d.name))?;
-                    let mut tmp = Column::with_capacity(l.count_type, 1);
-                    tmp.push_text(tok).map_err(|m| ctx(line, m))?;
-                    let n = tmp.get_i64(0).unwrap_or(-1);
+                    let ct = l.count_type;
+                    let n = ct
+                        .parse_int(tok)
+                        .ok_or_else(|| ctx(line, format!("list length '{tok}' is not a valid {} value", ct.name())))?;
                     let n = usize::try_from(n).map_err(|_| ctx(line, format!("negative list length {n}")))?;
                     for _ in 0..n {
                         let (tok, line) = next(&format!("an item of list '{}'", d.name))?;

@@ -98,11 +98,11 @@ mod tests {
     #[test]
     fn validate_rejects_bad_clouds() {
         let mut c = LabeledPointCloud { positions: vec![Vec3::ZERO], colors: vec![[0; 3]], labels: vec![13] };
-        assert!(c.validate().unwrap_err().contains("label 13"));
+        assert!(c.validate().expect_err("invalid").contains("label 13"));
         c.labels = vec![];
         assert!(c.validate().is_err());
         c.labels = vec![0];
         c.positions[0].x = f32::NAN;
-        assert!(c.validate().unwrap_err().contains("non-finite"));
+        assert!(c.validate().expect_err("invalid").contains("non-finite"));
     }
 }
