@@ -1085,7 +1085,11 @@ pub fn write_ply(path: impl AsRef<Path>, mesh: &LabeledMesh, encoding: PlyEncodi
 ///   mapping as vertex labels) labels every triangle of its polygon.
 /// - Without a `face` element the result is a point cloud (no triangles). Other elements
 ///   are ignored.
+/// - Fails (never panics) on a [`PlyFile`] assembled in code whose columns disagree with
+///   the element counts.
 pub fn mesh_from_ply(ply: &PlyFile, path: &Path) -> Result<LabeledMesh> {
+    // A parsed file is consistent; one assembled in code may not be.
+    ply.check().map_err(|m| DataError::parse(path, None, m))?;
     let vertex = ply
         .element("vertex")
         .ok_or_else(|| DataError::parse(path, None, "PLY file has no 'vertex' element"))?;
@@ -1366,6 +1370,29 @@ property list uchar int vertex_indices\nend_header\n\x03\x00\x00\x00\x00";
         assert_eq!(v.properties.len(), 8);
         assert_eq!(v.scalar("alpha"), Some(&Column::UChar(vec![9; 4])));
         assert_eq!(v.scalar("label"), Some(&Column::UChar(vec![5; 4])));
+    }
+
+    #[test]
+    fn inconsistent_files_in_code_fail_cleanly() {
+        let mut ply = parse(QUAD).expect("parse");
+        let face = ply.element_mut("face").expect("face");
+        face.count = 3;
+        let e = mesh_from_ply(&ply, Path::new("x.ply")).expect_err("inconsistent").to_string();
+        assert!(e.contains("rows"), "{e}");
+        assert!(ply.to_bytes(PlyEncoding::Ascii).is_err());
+        let dir = tempfile::tempdir().expect("tempdir");
+        assert!(ply.write(dir.path().join("x.ply"), PlyEncoding::BinaryLittleEndian).is_err());
+    }
+
+    #[test]
+    fn crlf_headers_aliases_and_small_index_types() {
+        let text = b"ply\r\nformat ascii 1.0\r\nelement vertex 3\r\nproperty float32 x\r\nproperty float64 y\r\n\
+property int16 z\r\nelement edge 1\r\nproperty int8 a\r\nelement face 1\r\n\
+property list int8 uint16 vertex_index\r\nproperty char label\r\nend_header\r\n0 0 0\r\n1 0 0\r\n0 1 2\r\n-1\r\n3 2 1 0 -5\r\n";
+        let m = mesh_of(text).expect("parse");
+        assert_eq!(m.triangles, vec![[2, 1, 0]]);
+        assert_eq!(m.triangle_labels, vec![UNLABELED]);
+        assert_eq!(m.positions[2], Vec3::new(0.0, 1.0, 2.0));
     }
 
     #[test]
