@@ -335,7 +335,10 @@ impl Column {
     /// bytes, the value at byte `offset` of each row. `body.len() >= count * stride`.
     fn decode_strided(ty: ScalarType, body: &[u8], count: usize, stride: usize, offset: usize, big: bool) -> Self {
         fn go<T: PlyScalar>(body: &[u8], count: usize, stride: usize, offset: usize, big: bool) -> Vec<T> {
-            body.chunks_exact(stride).take(count).map(|row| T::from_bytes(&row[offset..offset + T::SIZE], big)).collect()
+            body.chunks_exact(stride)
+                .take(count)
+                .map(|row| T::from_bytes(&row[offset..offset + T::SIZE], big))
+                .collect()
         }
         match ty {
             ScalarType::Char => Self::Char(go(body, count, stride, offset, big)),
@@ -730,9 +733,8 @@ fn put_count(ty: ScalarType, n: usize, out: &mut Vec<u8>, format: PlyFormat) {
 /// Writes `path` through a temporary sibling file renamed into place, so that readers never
 /// see a half-written file and a failure leaves any previous file untouched.
 fn write_atomic(path: &Path, write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>) -> Result<()> {
-    let name = path
-        .file_name()
-        .ok_or_else(|| DataError::InvalidArgument(format!("{} is not a file path", path.display())))?;
+    let name =
+        path.file_name().ok_or_else(|| DataError::InvalidArgument(format!("{} is not a file path", path.display())))?;
     let mut tmp_name = std::ffi::OsString::from(".");
     tmp_name.push(name);
     tmp_name.push(format!(".tmp{}", std::process::id()));
@@ -829,7 +831,9 @@ fn parse_header(bytes: &[u8], path: &Path) -> Result<(PlyFile, Vec<Vec<PropertyD
                     _ => {
                         return Err(err(
                             line_no,
-                            format!("expected 'property TYPE NAME' or 'property list COUNT_TYPE TYPE NAME', got '{text}'"),
+                            format!(
+                                "expected 'property TYPE NAME' or 'property list COUNT_TYPE TYPE NAME', got '{text}'"
+                            ),
                         ))
                     }
                 };
@@ -1013,7 +1017,8 @@ fn read_ascii_element(
                 }
                 Ok((tok, line))
             };
-            let ctx = |line: usize, m: String| (line, format!("element '{}' row {row} property '{}': {m}", el.name, d.name));
+            let ctx =
+                |line: usize, m: String| (line, format!("element '{}' row {row} property '{}': {m}", el.name, d.name));
             match data {
                 PropertyData::Scalar(c) => {
                     let (tok, line) = next(&format!("property '{}'", d.name))?;
@@ -1063,7 +1068,8 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<LabeledMesh> {
 /// Writes `mesh` as PLY, atomically; see [`mesh_to_ply`] for the layout.
 pub fn write_ply(path: impl AsRef<Path>, mesh: &LabeledMesh, encoding: PlyEncoding) -> Result<()> {
     let path = path.as_ref();
-    let ply = mesh_to_ply(mesh).map_err(|m| DataError::InvalidArgument(format!("cannot write {}: {m}", path.display())))?;
+    let ply =
+        mesh_to_ply(mesh).map_err(|m| DataError::InvalidArgument(format!("cannot write {}: {m}", path.display())))?;
     ply.write(path, encoding)
 }
 
@@ -1090,18 +1096,17 @@ pub fn write_ply(path: impl AsRef<Path>, mesh: &LabeledMesh, encoding: PlyEncodi
 pub fn mesh_from_ply(ply: &PlyFile, path: &Path) -> Result<LabeledMesh> {
     // A parsed file is consistent; one assembled in code may not be.
     ply.check().map_err(|m| DataError::parse(path, None, m))?;
-    let vertex = ply
-        .element("vertex")
-        .ok_or_else(|| DataError::parse(path, None, "PLY file has no 'vertex' element"))?;
+    let vertex =
+        ply.element("vertex").ok_or_else(|| DataError::parse(path, None, "PLY file has no 'vertex' element"))?;
     let row_err = |el: &Element, row: usize, msg: String| {
         let line = el.line_of_row(row);
         let at = if line.is_some() { String::new() } else { format!(" (element '{}' row {row})", el.name) };
         DataError::parse(path, line, format!("{msg}{at}"))
     };
     let coord = |name: &str| -> Result<Vec<f32>> {
-        let col = vertex.scalar(name).ok_or_else(|| {
-            DataError::parse(path, None, format!("element 'vertex' has no scalar property '{name}'"))
-        })?;
+        let col = vertex
+            .scalar(name)
+            .ok_or_else(|| DataError::parse(path, None, format!("element 'vertex' has no scalar property '{name}'")))?;
         Ok(col.to_f32_vec())
     };
     let (xs, ys, zs) = (coord("x")?, coord("y")?, coord("z")?);
@@ -1126,11 +1131,13 @@ pub fn mesh_from_ply(ply: &PlyFile, path: &Path) -> Result<LabeledMesh> {
     };
 
     let channel = |names: [&str; 2]| names.iter().find_map(|n| vertex.scalar(n)).map(color_channel);
-    let colors = match (channel(["red", "diffuse_red"]), channel(["green", "diffuse_green"]), channel(["blue", "diffuse_blue"])) {
-        (Some(r), Some(g), Some(b)) => r.iter().zip(&g).zip(&b).map(|((&r, &g), &b)| [r, g, b]).collect(),
-        (None, None, None) => vec![[128, 128, 128]; positions.len()],
-        _ => return Err(DataError::parse(path, None, "element 'vertex' has some but not all of red, green, blue")),
-    };
+    let colors =
+        match (channel(["red", "diffuse_red"]), channel(["green", "diffuse_green"]), channel(["blue", "diffuse_blue"]))
+        {
+            (Some(r), Some(g), Some(b)) => r.iter().zip(&g).zip(&b).map(|((&r, &g), &b)| [r, g, b]).collect(),
+            (None, None, None) => vec![[128, 128, 128]; positions.len()],
+            _ => return Err(DataError::parse(path, None, "element 'vertex' has some but not all of red, green, blue")),
+        };
 
     let vertex_labels = match vertex.property("label") {
         None => Vec::new(),
@@ -1194,9 +1201,9 @@ pub fn mesh_from_ply(ply: &PlyFile, path: &Path) -> Result<LabeledMesh> {
 fn color_channel(col: &Column) -> Vec<u8> {
     match col {
         Column::UChar(v) => v.clone(),
-        Column::Float(_) | Column::Double(_) => (0..col.len())
-            .map(|i| (col.get_f64(i).unwrap_or(0.0) * 255.0).round().clamp(0.0, 255.0) as u8)
-            .collect(),
+        Column::Float(_) | Column::Double(_) => {
+            (0..col.len()).map(|i| (col.get_f64(i).unwrap_or(0.0) * 255.0).round().clamp(0.0, 255.0) as u8).collect()
+        }
         _ => (0..col.len()).map(|i| col.get_i64(i).unwrap_or(0).clamp(0, 255) as u8).collect(),
     }
 }
@@ -1313,7 +1320,11 @@ property int label\nend_header\n0 0 0 255 0 0 9 1\n1 0 0 0 255 0 9 300\n1 1 0 0 
             (b"ply\nformat ascii 1.0\nelement vertex 1\nproperty flot x\nend_header\n", 4, "unknown property type"),
             (b"ply\nformat ascii 1.0\nproperty float x\nend_header\n", 3, "before any"),
             (b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n", 5, "end_header"),
-            (b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nend_header\n1.5\n2.x\n", 7, "not a valid float"),
+            (
+                b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nend_header\n1.5\n2.x\n",
+                7,
+                "not a valid float",
+            ),
             (b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nend_header\n1.5\n", 7, "end of file"),
             (b"ply\nformat ascii 1.0\nelement vertex -2\nend_header\n", 3, "count"),
             (b"ply\nformat ascii 1.0\nfoo\nend_header\n", 3, "unknown header keyword"),
@@ -1363,7 +1374,9 @@ property list uchar int vertex_indices\nend_header\n\x03\x00\x00\x00\x00";
         let v = ply.element_mut("vertex").expect("vertex");
         v.set_property(Property { name: "label".into(), data: PropertyData::Scalar(Column::UChar(vec![5; 4])) })
             .expect("set");
-        assert!(v.set_property(Property { name: "q".into(), data: PropertyData::Scalar(Column::UChar(vec![5; 3])) }).is_err());
+        assert!(v
+            .set_property(Property { name: "q".into(), data: PropertyData::Scalar(Column::UChar(vec![5; 3])) })
+            .is_err());
         let bytes = ply.to_bytes(PlyEncoding::Ascii).expect("bytes");
         let again = parse(&bytes).expect("parse");
         let v = again.element("vertex").expect("vertex");

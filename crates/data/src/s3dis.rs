@@ -170,10 +170,7 @@ mod tests {
 
     #[test]
     fn parses_lines() {
-        assert_eq!(
-            parse_s3dis_line("1.5 -2 3e-1 255 0 12").expect("ok"),
-            (Vec3::new(1.5, -2.0, 0.3), [255, 0, 12])
-        );
+        assert_eq!(parse_s3dis_line("1.5 -2 3e-1 255 0 12").expect("ok"), (Vec3::new(1.5, -2.0, 0.3), [255, 0, 12]));
         assert_eq!(parse_s3dis_line(" 0 0 0 1.0 2 3\r").expect("ok").1, [1, 2, 3]);
         for bad in ["1 2 3 4 5", "1 2 3 4 5 6 7", "1 2 nan 0 0 0", "1 2 3 256 0 0", "103.0\u{10}00 1 2 3 4 5"] {
             assert!(parse_s3dis_line(bad).is_err(), "{bad}");

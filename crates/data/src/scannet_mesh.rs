@@ -61,9 +61,8 @@ pub fn read_scannet_mesh(path: impl AsRef<Path>) -> Result<LabeledMesh> {
     let given = path.as_ref();
     let path = if given.is_dir() { scannet_labels_path(given) } else { given.to_path_buf() };
     let mut ply = PlyFile::read(&path)?;
-    let vertex = ply
-        .element_mut("vertex")
-        .ok_or_else(|| DataError::parse(&path, None, "PLY file has no 'vertex' element"))?;
+    let vertex =
+        ply.element_mut("vertex").ok_or_else(|| DataError::parse(&path, None, "PLY file has no 'vertex' element"))?;
     let label = vertex
         .remove_property("label")
         .ok_or_else(|| DataError::parse(&path, None, "vertex element has no 'label' property (NYU-40 ids)"))?;

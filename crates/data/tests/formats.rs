@@ -72,7 +72,8 @@ fn s3dis_errors_name_file_and_line() {
     let e = read_s3dis_room(&room).expect_err("unknown class").to_string();
     assert!(e.contains("lamp_1.txt") && e.contains("'lamp'"), "{e}");
     std::fs::remove_file(ann.join("lamp_1.txt")).expect("rm");
-    std::fs::write(ann.join("ceiling_1.txt"), "1 2 3 4 5 6\n7 8 9 1 2 3\n103.0\u{1e}00 71.8 3.3 1 2 3\n").expect("write");
+    std::fs::write(ann.join("ceiling_1.txt"), "1 2 3 4 5 6\n7 8 9 1 2 3\n103.0\u{1e}00 71.8 3.3 1 2 3\n")
+        .expect("write");
     let e = read_s3dis_room(&room).expect_err("corrupt line").to_string();
     assert!(e.contains("ceiling_1.txt:3"), "{e}");
     assert_eq!(find_s3dis_rooms(dir.path()).expect("rooms"), vec![room]);
@@ -147,8 +148,11 @@ fn replica_office0_mesh_reads_and_round_trips() {
         write_ply(&out, &mesh, enc).expect("write");
         let again = read_ply(&out).expect("read back");
         assert_eq!(again, mesh, "{enc:?}");
-        assert!(again.positions.iter().zip(&mesh.positions).all(|(a, b)| a.to_array().map(f32::to_bits)
-            == b.to_array().map(f32::to_bits)));
+        assert!(again
+            .positions
+            .iter()
+            .zip(&mesh.positions)
+            .all(|(a, b)| a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits)));
     }
 
     // Low level: add a label and keep alpha and the rest.
@@ -186,7 +190,8 @@ fn ply_point_cloud_and_polygons() {
 property double z\nproperty float nx\nproperty float ny\nproperty float nz\nproperty int label\n\
 element face 1\nproperty list int uint vertex_index\nend_header\n\
 0 0 0 0 0 1 -1\n1 0 0 0 0 1 2\n1 1 0 0 0 1 254\n0 1 0 0 0 1 255\n0.5 1.5 0 0 0 1 3\n5 0 1 2 4 3\n";
-    let mesh = mesh_from_ply(&PlyFile::parse(text, Path::new("p.ply")).expect("parse"), Path::new("p.ply")).expect("mesh");
+    let mesh =
+        mesh_from_ply(&PlyFile::parse(text, Path::new("p.ply")).expect("parse"), Path::new("p.ply")).expect("mesh");
     assert_eq!(mesh.triangles, vec![[0, 1, 2], [0, 2, 4], [0, 4, 3]]);
     assert_eq!(mesh.vertex_labels, vec![UNLABELED, 2, 254, UNLABELED, 3]);
     assert_eq!(mesh.colors, vec![[128; 3]; 5]);
@@ -194,7 +199,8 @@ element face 1\nproperty list int uint vertex_index\nend_header\n\
 
     let cloud = b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n\
 property float red\nproperty float green\nproperty float blue\nend_header\n0 0 0 1 0.5 0\n1 1 1 0 0 0\n";
-    let mesh = mesh_from_ply(&PlyFile::parse(cloud, Path::new("c.ply")).expect("parse"), Path::new("c.ply")).expect("mesh");
+    let mesh =
+        mesh_from_ply(&PlyFile::parse(cloud, Path::new("c.ply")).expect("parse"), Path::new("c.ply")).expect("mesh");
     assert!(mesh.triangles.is_empty());
     assert_eq!(mesh.colors[0], [255, 128, 0]);
 }
