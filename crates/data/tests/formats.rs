@@ -206,6 +206,28 @@ property float red\nproperty float green\nproperty float blue\nend_header\n0 0 0
 }
 
 #[test]
+fn ply_write_errors_name_the_file() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mesh = LabeledMesh {
+        positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
+        colors: vec![[1, 2, 3]; 3],
+        triangles: vec![[0, 1, 2]],
+        ..Default::default()
+    };
+    let missing = dir.path().join("no/such/folder/m.ply");
+    let e = write_ply(&missing, &mesh, PlyEncoding::BinaryLittleEndian).expect_err("missing folder");
+    assert!(matches!(e, DataError::Io { .. }) && e.to_string().contains("m.ply"), "{e}");
+    let mut bad = mesh.clone();
+    bad.triangles.push([0, 1, 9]);
+    let path = dir.path().join("bad.ply");
+    let e = write_ply(&path, &bad, PlyEncoding::Ascii).expect_err("invalid mesh").to_string();
+    assert!(e.contains("bad.ply") && e.contains("out of range"), "{e}");
+    assert!(!path.exists());
+    let e = read_ply(dir.path().join("absent.ply")).expect_err("absent");
+    assert!(matches!(e, DataError::Io { .. }), "{e}");
+}
+
+#[test]
 fn ply_large_mesh_speed() {
     // 1M vertices, 2M triangles: a multi-million-element file must stay fast.
     let n = 1000usize;
