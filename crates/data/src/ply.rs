@@ -306,6 +306,16 @@ impl Column {
         with_column!(self, v => v.push(PlyScalar::from_bytes(b, big_endian)))
     }
 
+    /// Appends the values packed in `b` (a multiple of the type's size), with one type
+    /// dispatch for all of them.
+    #[inline]
+    fn extend_from_bytes(&mut self, b: &[u8], big_endian: bool) {
+        fn go<T: PlyScalar>(v: &mut Vec<T>, b: &[u8], big: bool) {
+            v.extend(b.chunks_exact(T::SIZE).map(|c| T::from_bytes(c, big)));
+        }
+        with_column!(self, v => go(v, b, big_endian))
+    }
+
     /// Appends one value parsed from ASCII text; the error says why it does not parse.
     fn push_text(&mut self, token: &str) -> std::result::Result<(), String> {
         fn parse<T: std::str::FromStr>(v: &mut Vec<T>, token: &str, ty: ScalarType) -> std::result::Result<(), String> {
@@ -937,9 +947,7 @@ fn read_binary_element(
                         .checked_mul(d.ty.size())
                         .and_then(|len| body.get(p..p.checked_add(len)?))
                         .ok_or_else(|| truncated(p))?;
-                    for item in bytes.chunks_exact(d.ty.size()) {
-                        l.values.push_bytes(item, big);
-                    }
+                    l.values.extend_from_bytes(bytes, big);
                     p += bytes.len();
                     l.offsets.push(l.values.len());
                 }
@@ -1165,36 +1173,74 @@ pub fn mesh_from_ply(ply: &PlyFile, path: &Path) -> Result<LabeledMesh> {
             })?),
         };
         let n = positions.len() as i64;
-        triangles.reserve(face.count);
-        for row in 0..face.count {
-            let range = list.row_range(row).unwrap_or(0..0);
-            let len = range.len();
-            if len < 3 {
-                return Err(row_err(face, row, format!("face {row} has {len} vertices; a polygon needs at least 3")));
-            }
-            let index = |k: usize| -> Result<u32> {
-                let v = list.values.get_i64(k).unwrap_or(-1);
-                if (0..n).contains(&v) {
-                    Ok(v as u32)
-                } else {
-                    Err(row_err(face, row, format!("face {row} has vertex index {v}, out of range for {n} vertices")))
+        // Pure triangle meshes (the usual case) convert in one pass per column; anything
+        // else, or any bad index, goes through the general loop, which names the face.
+        let all_triangles = list.offsets.iter().enumerate().all(|(i, &o)| o == 3 * i);
+        let direct = if all_triangles { triangles_direct(&list.values, n) } else { None };
+        if let Some(direct) = direct {
+            triangles = direct;
+            triangle_labels = face_labels.unwrap_or_default();
+        } else {
+            triangles.reserve(face.count);
+            for row in 0..face.count {
+                let range = list.row_range(row).unwrap_or(0..0);
+                let len = range.len();
+                if len < 3 {
+                    return Err(row_err(
+                        face,
+                        row,
+                        format!("face {row} has {len} vertices; a polygon needs at least 3"),
+                    ));
                 }
-            };
-            let v0 = index(range.start)?;
-            let mut prev = index(range.start + 1)?;
-            for k in range.start + 2..range.end {
-                let v = index(k)?;
-                triangles.push([v0, prev, v]);
-                if let Some(l) = &face_labels {
-                    triangle_labels.push(l[row]);
+                let index = |k: usize| -> Result<u32> {
+                    let v = list.values.get_i64(k).unwrap_or(-1);
+                    if (0..n).contains(&v) {
+                        Ok(v as u32)
+                    } else {
+                        Err(row_err(
+                            face,
+                            row,
+                            format!("face {row} has vertex index {v}, out of range for {n} vertices"),
+                        ))
+                    }
+                };
+                let v0 = index(range.start)?;
+                let mut prev = index(range.start + 1)?;
+                for k in range.start + 2..range.end {
+                    let v = index(k)?;
+                    triangles.push([v0, prev, v]);
+                    if let Some(l) = &face_labels {
+                        triangle_labels.push(l[row]);
+                    }
+                    prev = v;
                 }
-                prev = v;
             }
         }
     }
     let mesh = LabeledMesh { positions, colors, normals, vertex_labels, triangles, triangle_labels };
     debug_assert!(mesh.validate().is_ok());
     Ok(mesh)
+}
+
+/// Triangles from a flat index column of 3 items per face; `None` for float columns or
+/// any index outside `0..n` (the caller then reports the exact face).
+fn triangles_direct(values: &Column, n: i64) -> Option<Vec<[u32; 3]>> {
+    fn go<T: Copy + Into<i64>>(v: &[T], n: i64) -> Option<Vec<[u32; 3]>> {
+        let ok = |x: T| {
+            let x: i64 = x.into();
+            (0..n).contains(&x).then_some(x as u32)
+        };
+        v.chunks_exact(3).map(|t| Some([ok(t[0])?, ok(t[1])?, ok(t[2])?])).collect()
+    }
+    match values {
+        Column::Char(v) => go(v, n),
+        Column::UChar(v) => go(v, n),
+        Column::Short(v) => go(v, n),
+        Column::UShort(v) => go(v, n),
+        Column::Int(v) => go(v, n),
+        Column::UInt(v) => go(v, n),
+        Column::Float(_) | Column::Double(_) => None,
+    }
 }
 
 /// Colour channel as u8: integers clamped to 0..=255, floats read as 0..1.
