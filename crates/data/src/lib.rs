@@ -17,6 +17,10 @@ pub mod error;
 pub mod frame;
 pub mod mesh;
 pub mod trajectory;
+pub mod ply;
+pub mod point_cloud;
+pub mod s3dis;
+pub mod scannet_mesh;
 
 pub use camera::Intrinsics;
 pub use datasets::{open_dataset, DatasetSpec};
@@ -25,3 +29,5 @@ pub use error::{DataError, Result};
 pub use frame::{Frame, FrameSource};
 pub use mesh::LabeledMesh;
 pub use trajectory::Trajectory;
+pub use ply::{read_ply, write_ply, PlyEncoding};
+pub use point_cloud::LabeledPointCloud;
