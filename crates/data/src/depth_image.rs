@@ -14,7 +14,7 @@ use rayon::prelude::*;
 
 use crate::camera::Intrinsics;
 use crate::error::{DataError, Result};
-use crate::trajectory::write_atomic;
+use crate::atomic_file::write_atomic;
 
 /// A depth image in metres (0 = no measurement).
 ///

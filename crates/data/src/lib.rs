@@ -9,6 +9,7 @@
 //! `world_from_camera` rigid transforms.
 #![warn(missing_docs)]
 
+pub mod atomic_file;
 pub mod camera;
 pub mod class;
 pub mod datasets;

@@ -22,7 +22,7 @@
 use std::fmt::Display;
 use std::io::Write;
 use std::ops::Range;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use glam::Vec3;
 
@@ -621,7 +621,7 @@ impl PlyFile {
     pub fn write(&self, path: impl AsRef<Path>, encoding: PlyEncoding) -> Result<()> {
         let path = path.as_ref();
         self.check().map_err(|m| DataError::InvalidArgument(format!("cannot write {}: {m}", path.display())))?;
-        write_atomic(path, |w| self.write_unchecked(w, encoding.into()))
+        crate::atomic_file::write_atomic_with(path, |w| self.write_unchecked(w, encoding.into()))
     }
 
     /// Encodes the file into bytes.
@@ -738,29 +738,6 @@ fn put_count(ty: ScalarType, n: usize, out: &mut Vec<u8>, format: PlyFormat) {
         ScalarType::Float => (n as f32).put(out, big),
         ScalarType::Double => (n as f64).put(out, big),
     }
-}
-
-/// Writes `path` through a temporary sibling file renamed into place, so that readers never
-/// see a half-written file and a failure leaves any previous file untouched.
-fn write_atomic(path: &Path, write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>) -> Result<()> {
-    let name =
-        path.file_name().ok_or_else(|| DataError::InvalidArgument(format!("{} is not a file path", path.display())))?;
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(name);
-    tmp_name.push(format!(".tmp{}", std::process::id()));
-    let tmp: PathBuf = path.with_file_name(tmp_name);
-    let result = (|| {
-        let file = std::fs::File::create(&tmp)?;
-        let mut w = std::io::BufWriter::with_capacity(1 << 20, file);
-        write(&mut w)?;
-        let file = w.into_inner().map_err(|e| e.into_error())?;
-        file.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    result.map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        DataError::io(path, e)
-    })
 }
 
 /// Parses the header: the file skeleton with empty columns, the property definitions per

@@ -12,10 +12,10 @@
 
 use std::fmt::Write as _;
 use std::path::Path;
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use glam::{Affine3A, DMat3, DQuat, DVec3, Mat3A, Quat, Vec3A};
 
+use crate::atomic_file::write_atomic;
 use crate::error::{DataError, Result};
 
 /// How far the determinant of a parsed rotation may be from 1 before it is rejected.
@@ -334,31 +334,6 @@ pub(crate) fn read_text(path: &Path) -> Result<String> {
     std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))
 }
 
-/// Writes `bytes` to `path` through a temporary file in the same folder renamed over the
-/// target, so that readers never see a half-written file.
-pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let name =
-        path.file_name().ok_or_else(|| DataError::io(path, std::io::Error::other("not a file path")))?;
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}-{}",
-        name.to_string_lossy(),
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
-    let result = std::fs::write(&tmp, bytes)
-        .map_err(|e| DataError::io(&tmp, e))
-        .and_then(|()| std::fs::rename(&tmp, path).map_err(|e| DataError::io(path, e)));
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
-}
-
 /// Non-empty, non-comment lines split into fields, with 1-based line numbers.
 fn data_lines(text: &str) -> Vec<(usize, Vec<&str>)> {
     text.lines()
@@ -603,15 +578,5 @@ mod tests {
         assert!(t.pose_at(0.25, 0.5, 0.02).is_none());
         assert!(t.pose_at(0.99, 0.5, 0.02).is_some());
         assert!(t.pose_at(3.0, 5.0, 0.5).is_none());
-    }
-
-    #[test]
-    fn atomic_write_replaces_the_file() {
-        let dir = tempfile::tempdir().expect("tempdir");
-        let path = dir.path().join("a.txt");
-        write_atomic(&path, b"one").expect("write");
-        write_atomic(&path, b"two").expect("write");
-        assert_eq!(std::fs::read_to_string(&path).expect("read"), "two");
-        assert_eq!(std::fs::read_dir(dir.path()).expect("list").count(), 1);
     }
 }

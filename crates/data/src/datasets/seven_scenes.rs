@@ -16,7 +16,8 @@ use crate::datasets::{
 use crate::depth_image::{check_size, load_labels, write_color_png, write_depth_png, write_label_png};
 use crate::error::{DataError, Result};
 use crate::frame::{Frame, FrameSource};
-use crate::trajectory::{read_pose_matrix, write_atomic, write_pose_matrix};
+use crate::atomic_file::write_atomic;
+use crate::trajectory::{read_pose_matrix, write_pose_matrix};
 
 /// Millimetres.
 const DEPTH_UNITS_PER_METRE: f32 = 1000.0;
