@@ -14,6 +14,7 @@ pub mod class;
 pub mod error;
 pub mod frame;
 pub mod mesh;
+pub mod synth;
 
 pub use camera::Intrinsics;
 pub use class::SemanticClass;
