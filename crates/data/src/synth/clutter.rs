@@ -89,10 +89,11 @@ pub(crate) fn plant(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, ra
     let leaves = pal.leaves(rng);
     let crown = (height - stem_top) * 0.5;
     for _ in 0..rng.random_range(2..=4) {
-        let r = Vec3::new(radius * uniform(rng, 0.5, 0.9), radius * uniform(rng, 0.5, 0.9), crown * uniform(rng, 0.5, 0.9));
+        // Blobs stay inside the footprint radius, whatever the plant's yaw.
+        let r = Vec3::new(radius * uniform(rng, 0.45, 0.7), radius * uniform(rng, 0.45, 0.7), crown * uniform(rng, 0.5, 0.9));
         let c = Vec3::new(
-            uniform(rng, -0.3, 0.3) * radius,
-            uniform(rng, -0.3, 0.3) * radius,
+            uniform(rng, -0.2, 0.2) * radius,
+            uniform(rng, -0.2, 0.2) * radius,
             (stem_top + r.z).min(height - r.z),
         );
         b.ellipsoid(c, r, 10, 6, CLUTTER, jitter(rng, leaves, 0.05));

@@ -49,7 +49,7 @@ pub(crate) fn table(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, wi
             }
             // Apron under the top.
             if rng.random_bool(0.5) {
-                let a = uniform(rng, 0.06, 0.1);
+                let a = uniform(rng, 0.06, 0.1).min(z * 0.3);
                 let i = inset + leg * 0.5;
                 b.cuboid(Vec3::new(-hw + i, -hd + i, z - a), Vec3::new(hw - i, -hd + i + 0.02, z), SKIP_POS_Z, TABLE, top_color);
                 b.cuboid(Vec3::new(-hw + i, hd - i - 0.02, z - a), Vec3::new(hw - i, hd - i, z), SKIP_POS_Z, TABLE, top_color);
@@ -63,7 +63,7 @@ pub(crate) fn table(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, wi
                 b.cuboid(Vec3::new(x - p * 0.5, -hd + 0.03, 0.0), Vec3::new(x + p * 0.5, hd - 0.03, z), SKIP_POS_Z, TABLE, leg_color);
             }
             if rng.random_bool(0.6) {
-                let zp = uniform(rng, 0.3, 0.45);
+                let zp = uniform(rng, 0.3, 0.45).min(z * 0.6);
                 b.cuboid(Vec3::new(-hw + inset + p, -0.01, z - zp), Vec3::new(hw - inset - p, 0.01, z), SKIP_POS_Z, TABLE, leg_color);
             }
         }
@@ -76,7 +76,7 @@ pub(crate) fn table(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, wi
                 b.cuboid(Vec3::new(x - post * 0.5, -post * 0.5, 0.05), Vec3::new(x + post * 0.5, post * 0.5, z), SKIP_NEG_Z | SKIP_POS_Z, TABLE, leg_color);
             }
             let x = (hw - 0.15).max(0.1) - post * 0.5;
-            b.cuboid(Vec3::new(-x, -0.02, 0.25), Vec3::new(x, 0.02, 0.32), 0, TABLE, leg_color);
+            b.cuboid(Vec3::new(-x, -0.02, z * 0.35), Vec3::new(x, 0.02, z * 0.45), 0, TABLE, leg_color);
         }
     }
     top_color

@@ -105,7 +105,7 @@ pub struct SyntheticRoom {
 }
 
 /// Largest edge of a tessellation patch (metres).
-const PATCH: f32 = 0.4;
+const PATCH: f32 = 0.2;
 
 /// Generates the room described by `config`.
 pub fn generate_room(config: &RoomConfig) -> SyntheticRoom {

@@ -63,6 +63,11 @@ impl Furnisher<'_> {
     }
 
     fn office(&mut self) {
+        if let Some((slot, depth)) = self.sofa_on_wall(&ALL_WALLS, 1.4, 2.0) {
+            if self.rng.random_bool(0.5) {
+                self.coffee_table(&slot, depth);
+            }
+        }
         let n_desks = ((self.layout.width + self.layout.depth) / 3.5) as usize + self.rng.random_range(0..=1);
         for _ in 0..n_desks {
             let w = uniform(self.rng, 1.2, 1.8);
@@ -75,11 +80,6 @@ impl Furnisher<'_> {
         }
         let n = self.rng.random_range(1..=2);
         self.boards(&ALL_WALLS, n, 1.0, 2.0);
-        if let Some((slot, depth)) = self.sofa_on_wall(&ALL_WALLS, 1.4, 2.0) {
-            if self.rng.random_bool(0.5) {
-                self.coffee_table(&slot, depth);
-            }
-        }
         if self.rng.random_bool(0.5) {
             let r = uniform(self.rng, 0.4, 0.55);
             self.free_table(r * 2.0, r * 2.0, true, 0.5, false);
@@ -486,6 +486,13 @@ impl Furnisher<'_> {
                     self.b.place_on_floor(slot.center, slot.yaw);
                     furniture::chair(self.b, self.rng, self.pal, cs, cs, false);
                 }
+                let floor = self.layout.floor();
+                let yaw = uniform(self.rng, 0.0, std::f32::consts::TAU);
+                if !self.has(SemanticClass::Chair) {
+                    if let Some(c) = self.layout.free_slot(self.rng, floor, cs, cs, yaw, 0.3, 60) {
+                        self.chair_at(c, yaw, cs, false);
+                    }
+                }
             }
             if !self.has(SemanticClass::Sofa) {
                 let (w, d) = (0.85 * shrink.max(0.85), 0.8 * shrink.max(0.85));
@@ -494,9 +501,28 @@ impl Furnisher<'_> {
                     self.b.place_on_floor(slot.center, slot.yaw);
                     furniture::sofa(self.b, self.rng, self.pal, w, d);
                 }
+                let floor = self.layout.floor();
+                let yaw = f32::from(self.rng.random_range(0u8..4)) * FRAC_PI_2;
+                if !self.has(SemanticClass::Sofa) {
+                    if let Some(c) = self.layout.free_slot(self.rng, floor, w, d, yaw, 0.3, 60) {
+                        self.free_sofa_at(c, w, d, yaw);
+                    }
+                }
             }
             if !self.has(SemanticClass::Bookcase) {
                 self.bookcase(&ALL_WALLS, 0.8 * shrink, 0.3, 0.9 * shrink.max(0.8), 60);
+                if !self.has(SemanticClass::Bookcase) {
+                    // A free-standing low shelf.
+                    let (w, d, h) = (0.8 * shrink, 0.35, 0.8);
+                    let floor = self.layout.floor();
+                    let yaw = f32::from(self.rng.random_range(0u8..4)) * FRAC_PI_2;
+                    if let Some(c) = self.layout.free_slot(self.rng, floor, w, d, yaw, 0.3, 60) {
+                        self.layout.add_obstacle(footprint(c, w, d, yaw));
+                        self.layout.interest.push(c.extend(h * 0.5));
+                        self.b.place_on_floor(c, yaw);
+                        furniture::bookcase(self.b, self.rng, self.pal, w, d, h);
+                    }
+                }
             }
             if !self.has(SemanticClass::Board) {
                 self.boards(&ALL_WALLS, 1, 0.6 * shrink, 0.9 * shrink);
