@@ -119,24 +119,65 @@ pub(crate) fn round_table(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palet
     top
 }
 
-/// A chair in a `width` x `depth` footprint, seat at about 0.45 m: a four-legged chair or
-/// a swivel office chair on a five-star base.
-pub(crate) fn chair(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, width: f32, depth: f32, swivel: bool) {
-    let seat_color = if rng.random_bool(0.75) { pal.upholstery(rng) } else { pal.furniture(rng) };
-    let frame_color = if rng.random_bool(0.5) { pal.neutral(rng) } else { pal.furniture(rng) };
-    let back_color = if rng.random_bool(0.8) { seat_color } else { frame_color };
-    let seat_h = uniform(rng, 0.43, 0.49);
-    let seat_t = uniform(rng, 0.04, 0.08);
-    let back_t = uniform(rng, 0.03, 0.07);
-    let back_h = uniform(rng, 0.35, 0.55);
+/// The look and size of a chair, drawn once for a set of matching chairs (around one
+/// table, at the desks of one office).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct ChairStyle {
+    /// Swivel office chair on a five-star base, else four legs.
+    pub(crate) swivel: bool,
+    /// Side of the square footprint.
+    pub(crate) size: f32,
+    seat_color: Rgb,
+    frame_color: Rgb,
+    back_color: Rgb,
+    seat_h: f32,
+    seat_t: f32,
+    back_t: f32,
+    back_h: f32,
+    back_gap: f32,
+    arms: bool,
+    leg: f32,
+}
+
+impl ChairStyle {
+    /// Draws a chair style; `swivel` chooses the kind.
+    pub(crate) fn draw(rng: &mut ChaCha8Rng, pal: &Palette, swivel: bool) -> Self {
+        let seat_color = if rng.random_bool(0.75) { pal.upholstery(rng) } else { pal.furniture(rng) };
+        let frame_color = if rng.random_bool(0.5) { pal.neutral(rng) } else { pal.furniture(rng) };
+        let back_color = if rng.random_bool(0.8) { seat_color } else { frame_color };
+        Self {
+            swivel,
+            size: if swivel { uniform(rng, 0.56, 0.64) } else { uniform(rng, 0.45, 0.52) },
+            seat_color,
+            frame_color,
+            back_color,
+            seat_h: uniform(rng, 0.43, 0.49),
+            seat_t: uniform(rng, 0.04, 0.08),
+            back_t: uniform(rng, 0.03, 0.07),
+            back_h: uniform(rng, 0.35, 0.55),
+            back_gap: uniform(rng, 0.02, 0.12),
+            arms: rng.random_bool(0.6),
+            leg: uniform(rng, 0.025, 0.04),
+        }
+    }
+}
+
+/// A chair of `style` in its square footprint, seat at about 0.45 m, with a little
+/// per-chair colour variation.
+pub(crate) fn chair(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, style: &ChairStyle) {
+    let ChairStyle { swivel, size, seat_h, seat_t, back_t, back_h, back_gap, arms, leg, .. } = *style;
+    let seat_color = jitter(rng, style.seat_color, 0.02);
+    let frame_color = jitter(rng, style.frame_color, 0.02);
+    let back_color = jitter(rng, style.back_color, 0.02);
+    let (width, depth) = (size, size);
     let (hw, hd) = (width * 0.5, depth * 0.5);
     let sw = if swivel { width * 0.8 } else { width };
     let seat_min = Vec3::new(-sw * 0.5, -hd + back_t, seat_h - seat_t);
     let seat_max = Vec3::new(sw * 0.5, if swivel { hd - 0.05 } else { hd }, seat_h);
     b.cuboid(seat_min, seat_max, 0, CHAIR, seat_color);
     // Back rest behind the seat.
-    let back_w = sw * uniform(rng, 0.85, 1.0);
-    let back_z0 = seat_h + uniform(rng, 0.02, 0.12);
+    let back_w = sw * 0.92;
+    let back_z0 = seat_h + back_gap;
     b.cuboid(
         Vec3::new(-back_w * 0.5, -hd, back_z0),
         Vec3::new(back_w * 0.5, -hd + back_t, seat_h + back_h),
@@ -156,7 +197,7 @@ pub(crate) fn chair(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, wi
             b.cuboid(Vec3::new(reach - 0.04, -0.02, 0.0), Vec3::new(reach, 0.02, 0.05), 0, CHAIR, frame_color);
             b.pop(saved);
         }
-        if rng.random_bool(0.6) {
+        if arms {
             for sx in [-1.0, 1.0] {
                 let x = sx * (sw * 0.5 - 0.03);
                 b.cuboid(Vec3::new(x - 0.015, -0.05, seat_h), Vec3::new(x + 0.015, 0.0, seat_h + 0.2), SKIP_NEG_Z, CHAIR, frame_color);
@@ -164,7 +205,6 @@ pub(crate) fn chair(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, wi
             }
         }
     } else {
-        let leg = uniform(rng, 0.025, 0.04);
         let z = seat_h - seat_t;
         for (sx, sy) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
             let c = Vec3::new(sx * (sw * 0.5 - leg * 0.5 - 0.01), sy * (hd - leg * 0.5 - 0.01), 0.0);

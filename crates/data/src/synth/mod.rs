@@ -130,7 +130,7 @@ pub fn generate_room(config: &RoomConfig) -> SyntheticRoom {
     shell::add_structure(&mut builder, &mut layout, &mut rng, &pal, style);
     let openings = shell::plan_openings(&mut layout, &mut rng, style);
     shell::build_shell(&mut builder, &layout, &openings, &mut rng, &pal);
-    styles::Furnisher { b: &mut builder, layout: &mut layout, rng: &mut rng, pal: &pal }.furnish(style, &openings);
+    styles::Furnisher { b: &mut builder, layout: &mut layout, rng: &mut rng, pal: &pal, desk_chairs: None }.furnish(style, &openings);
 
     SyntheticRoom {
         style,

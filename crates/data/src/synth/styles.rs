@@ -9,7 +9,7 @@ use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
 use super::clutter::{self, FloorItem, WallItem};
-use super::furniture::{self, table_height, BoardKind};
+use super::furniture::{self, table_height, BoardKind, ChairStyle};
 use super::layout::{footprint, Layout, Rect2, WallSlot};
 use super::palette::{pick, uniform, Palette};
 use super::shapes::MeshBuilder;
@@ -25,6 +25,8 @@ pub(crate) struct Furnisher<'a> {
     pub(crate) layout: &'a mut Layout,
     pub(crate) rng: &'a mut ChaCha8Rng,
     pub(crate) pal: &'a Palette,
+    /// The chairs at the desks of this room, once drawn (most offices match).
+    pub(crate) desk_chairs: Option<ChairStyle>,
 }
 
 const ALL_WALLS: [usize; 4] = [0, 1, 2, 3];
@@ -223,27 +225,35 @@ impl Furnisher<'_> {
         self.b.place_on_floor(slot.center, slot.yaw);
         furniture::desk(self.b, self.rng, self.pal, w, d, h);
         clutter::table_items(self.b, self.rng, self.pal, w, d, h, true);
-        let swivel = self.rng.random_bool(0.7);
-        let cs = if swivel { uniform(self.rng, 0.58, 0.66) } else { uniform(self.rng, 0.45, 0.52) };
+        let style = match self.desk_chairs {
+            Some(style) if self.rng.random_bool(0.8) => style,
+            _ => {
+                let swivel = self.rng.random_bool(0.7);
+                let style = ChairStyle::draw(self.rng, self.pal, swivel);
+                self.desk_chairs.get_or_insert(style);
+                style
+            }
+        };
+        let cs = style.size;
         let normal = self.layout.walls[slot.wall].normal;
         let along = self.layout.walls[slot.wall].dir;
         let center = slot.center + normal * (d * 0.5 + uniform(self.rng, 0.06, 0.25) + cs * 0.5)
             + along * uniform(self.rng, -0.15, 0.15) * w;
         let yaw = slot.yaw + PI + uniform(self.rng, -0.35, 0.35);
-        self.chair_at(center, yaw, cs, swivel);
+        self.chair_at(center, yaw, &style);
         true
     }
 
     /// A chair of `size` x `size` at `center` turned by `yaw`, if the floor is free there.
-    fn chair_at(&mut self, center: Vec2, yaw: f32, size: f32, swivel: bool) -> bool {
-        let r = footprint(center, size, size, yaw);
+    fn chair_at(&mut self, center: Vec2, yaw: f32, style: &ChairStyle) -> bool {
+        let r = footprint(center, style.size, style.size, yaw);
         if !self.layout.floor_free(&r) {
             return false;
         }
         self.layout.add_obstacle(r);
         self.layout.interest.push(center.extend(0.5));
         self.b.place_on_floor(center, yaw);
-        furniture::chair(self.b, self.rng, self.pal, size, size, swivel);
+        furniture::chair(self.b, self.rng, style);
         true
     }
 
@@ -309,13 +319,14 @@ impl Furnisher<'_> {
         furniture::table(self.b, self.rng, self.pal, w, d, h);
         clutter::table_items(self.b, self.rng, self.pal, w, d, h, false);
         if chair {
-            let cs = uniform(self.rng, 0.45, 0.52);
+            let style = ChairStyle::draw(self.rng, self.pal, false);
+            let cs = style.size;
             for side in [1.0f32, -1.0] {
                 let s = slot.s + side * (w * 0.5 + 0.1 + cs * 0.5);
                 if let Some(cslot) = self.layout.wall_slot_at(slot.wall, s, cs, cs, 0.03, 1.0) {
                     self.layout.take_wall_slot(&cslot, cs, cs, 1.0);
                     self.b.place_on_floor(cslot.center, cslot.yaw);
-                    furniture::chair(self.b, self.rng, self.pal, cs, cs, false);
+                    furniture::chair(self.b, self.rng, &style);
                     break;
                 }
             }
@@ -341,7 +352,8 @@ impl Furnisher<'_> {
         }
         clutter::table_items(self.b, self.rng, self.pal, w, d, h, false);
         let swivel = self.rng.random_bool(0.5);
-        let cs = if swivel { uniform(self.rng, 0.56, 0.62) } else { uniform(self.rng, 0.45, 0.52) };
+        let style = ChairStyle::draw(self.rng, self.pal, swivel);
+        let cs = style.size;
         let gap = uniform(self.rng, 0.05, 0.2);
         let (dir, normal) = (Vec2::from_angle(yaw), Vec2::from_angle(yaw + FRAC_PI_2));
         let mut seats: Vec<(Vec2, f32)> = Vec::new();
@@ -361,7 +373,7 @@ impl Furnisher<'_> {
         }
         for (p, chair_yaw) in seats {
             let jitter = uniform(self.rng, -0.15, 0.15);
-            self.chair_at(p, chair_yaw + jitter, cs, swivel);
+            self.chair_at(p, chair_yaw + jitter, &style);
         }
         true
     }
@@ -480,17 +492,18 @@ impl Furnisher<'_> {
                 }
             }
             if !self.has(SemanticClass::Chair) {
-                let cs = 0.48 * shrink.max(0.9);
+                let style = ChairStyle::draw(self.rng, self.pal, false);
+                let cs = style.size;
                 if let Some(slot) = self.layout.wall_slot(self.rng, &ALL_WALLS, cs, cs, 0.03, 1.0, 60) {
                     self.layout.take_wall_slot(&slot, cs, cs, 1.0);
                     self.b.place_on_floor(slot.center, slot.yaw);
-                    furniture::chair(self.b, self.rng, self.pal, cs, cs, false);
+                    furniture::chair(self.b, self.rng, &style);
                 }
                 let floor = self.layout.floor();
                 let yaw = uniform(self.rng, 0.0, std::f32::consts::TAU);
                 if !self.has(SemanticClass::Chair) {
                     if let Some(c) = self.layout.free_slot(self.rng, floor, cs, cs, yaw, 0.3, 60) {
-                        self.chair_at(c, yaw, cs, false);
+                        self.chair_at(c, yaw, &style);
                     }
                 }
             }
