@@ -1,7 +1,8 @@
 //! Looks at generated rooms: for each style, rasterises one room into a PNG with four
 //! panels — top view in class colours, top view in vertex colours (ceiling and beams left
 //! out, highest surface wins), and an oblique cut-away view (back faces culled, so the near
-//! walls vanish) in class colours and in vertex colours.
+//! walls vanish) in class colours and in vertex colours; and a second PNG with the same
+//! oblique views, closer, of a 3.5 m square around the furniture nearest the room centre.
 //!
 //! Usage: `cargo run --release -p semrecon-data --example room_topdown -- [SEED] [OUT_DIR]`
 
@@ -41,26 +42,51 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         for (i, (view, cull, by_class)) in
             [(top, false, true), (top, false, false), (oblique, true, true), (oblique, true, false)].into_iter().enumerate()
         {
-            let panel = render(&room.mesh, view, cull, by_class);
+            let panel = render(&room.mesh, view, cull, by_class, &|_| true);
             image::imageops::overlay(&mut canvas, &panel, (i as u32 % 2 * PX) as i64, (i as u32 / 2 * PX) as i64);
         }
-        let path = out.join(format!("room_{}_{seed}.png", style.name()));
-        let tmp = path.with_extension("png.tmp");
-        canvas.save_with_format(&tmp, image::ImageFormat::Png)?;
-        std::fs::rename(&tmp, &path)?;
-        println!("  wrote {}", path.display());
+        save(&canvas, &out.join(format!("room_{}_{seed}.png", style.name())))?;
+        let mid = room.floor_max * 0.5;
+        let focus = room
+            .interest_points
+            .iter()
+            .filter(|p| p.z < 1.0)
+            .map(|p| p.truncate())
+            .min_by(|a, b| a.distance(mid).total_cmp(&b.distance(mid)))
+            .unwrap_or(mid);
+        let near = |p: Vec3| (p.truncate() - focus).abs().max_element() < 1.75;
+        let mut detail = image::RgbImage::new(PX * 2, PX);
+        for (i, by_class) in [true, false].into_iter().enumerate() {
+            let panel = render(&room.mesh, oblique, true, by_class, &near);
+            image::imageops::overlay(&mut detail, &panel, (i as u32 * PX) as i64, 0);
+        }
+        save(&detail, &out.join(format!("room_{}_{seed}_detail.png", style.name())))?;
     }
     Ok(())
 }
 
+/// Writes `img` as PNG through a temporary file.
+fn save(img: &image::RgbImage, path: &std::path::Path) -> Result<(), Box<dyn std::error::Error>> {
+    let tmp = path.with_extension("png.tmp");
+    img.save_with_format(&tmp, image::ImageFormat::Png)?;
+    std::fs::rename(&tmp, path)?;
+    println!("  wrote {}", path.display());
+    Ok(())
+}
+
 /// Orthographic render looking down the view's -z (after `view * p`): largest view z wins.
-fn render(mesh: &LabeledMesh, view: Mat3, cull: bool, by_class: bool) -> image::RgbImage {
-    let skip = |l: u8| l == SemanticClass::Ceiling.id() || (!cull && l == SemanticClass::Beam.id());
+/// Only triangles whose vertices all pass `keep` (world positions) are drawn.
+fn render(mesh: &LabeledMesh, view: Mat3, cull: bool, by_class: bool, keep: &dyn Fn(Vec3) -> bool) -> image::RgbImage {
+    // A close-up (a `keep` that drops far points) leaves beams out: they hide the furniture.
+    let partial = !keep(Vec3::splat(-1e3));
+    let skip = |l: u8| l == SemanticClass::Ceiling.id() || ((!cull || partial) && l == SemanticClass::Beam.id());
     let pts: Vec<Vec3> = mesh.positions.iter().map(|&p| view * p).collect();
     let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
-    for p in &pts {
-        lo = lo.min(*p);
-        hi = hi.max(*p);
+    for (p, &q) in pts.iter().zip(&mesh.positions) {
+        if keep(q) {
+            lo = lo.min(*p);
+            hi = hi.max(*p);
+        }
     }
     let scale = (PX as f32 - 8.0) / (hi.x - lo.x).max(hi.y - lo.y);
     let to_px = |p: Vec3| Vec3::new((p.x - lo.x) * scale + 4.0, (hi.y - p.y) * scale + 4.0, p.z);
@@ -68,7 +94,7 @@ fn render(mesh: &LabeledMesh, view: Mat3, cull: bool, by_class: bool) -> image::
     let mut depth = vec![f32::MIN; (PX * PX) as usize];
     let light = (view * Vec3::new(0.3, 0.5, 1.0)).normalize();
     for (t, &label) in mesh.triangles.iter().zip(&mesh.triangle_labels) {
-        if skip(label) {
+        if skip(label) || !t.iter().all(|&i| keep(mesh.positions[i as usize])) {
             continue;
         }
         let [a, b, c] = t.map(|i| to_px(pts[i as usize]));

@@ -157,13 +157,17 @@ pub(crate) fn table_items(
             cup(b, rng, pal, Vec3::new(side * (hw - 0.15), hd - 0.2, height));
             count += 1;
         }
-        if hw > 0.6 && rng.random_bool(0.5) {
-            desk_lamp(b, rng, pal, Vec3::new(side * (hw - 0.15), -hd + 0.15, height));
-            count += 1;
-        }
-        if rng.random_bool(0.5) {
-            papers(b, rng, Vec3::new(side * (hw - 0.5).max(0.0), hd - 0.25, height));
-            count += 1;
+        // The back corner away from the monitor holds a lamp or a pile of paper (the
+        // monitor reaches at most 0.33 m past the centre towards it).
+        if hw >= 0.6 {
+            let corner = Vec3::new(side * (hw - 0.17), -hd + 0.2, height);
+            if rng.random_bool(0.5) {
+                desk_lamp(b, rng, pal, corner);
+                count += 1;
+            } else if rng.random_bool(0.6) {
+                papers(b, rng, corner);
+                count += 1;
+            }
         }
         return count;
     }

@@ -10,9 +10,9 @@
 //! side a camera inside the room sees. Generation is deterministic: the same
 //! [`RoomConfig`] gives the same bits.
 //!
-//! Modules: [`shapes`] (mesh builders), [`shell`] (the room's structure), [`furniture`],
-//! [`clutter`], [`layout`] (occupancy of floor and walls), [`styles`] (per-style recipes),
-//! [`palette`] (colours).
+//! Inside: `shapes` (mesh builders), `shell` (the room's structure), `furniture`,
+//! `clutter`, `layout` (occupancy of floor and walls), `styles` (per-style recipes),
+//! `palette` (colours).
 
 mod clutter;
 mod furniture;

@@ -350,7 +350,9 @@ impl Furnisher<'_> {
         } else {
             furniture::table(self.b, self.rng, self.pal, w, d, h);
         }
-        clutter::table_items(self.b, self.rng, self.pal, w, d, h, false);
+        // Items on a round top stay inside its inscribed square.
+        let (iw, id) = if round { (w * 0.7, d * 0.7) } else { (w, d) };
+        clutter::table_items(self.b, self.rng, self.pal, iw, id, h, false);
         let swivel = self.rng.random_bool(0.5);
         let style = ChairStyle::draw(self.rng, self.pal, swivel);
         let cs = style.size;
