@@ -214,3 +214,40 @@ fn triangle_budget_and_timing() {
         println!("{style}: triangles min {lo} mean {} max {hi}; {ms:.2} ms per room", total / SEEDS.count());
     }
 }
+
+/// Colour must carry some but not all of the class signal: a nearest-mean-colour classifier
+/// (means learnt on some rooms, tested on others) beats chance but is far from perfect.
+#[test]
+fn colour_alone_does_not_decide_the_class() {
+    let n = SemanticClass::COUNT;
+    let mut sum = vec![Vec3::ZERO; n];
+    let mut count = vec![0usize; n];
+    for seed in 100..108 {
+        for style in RoomStyle::ALL {
+            let room = generate_room(&RoomConfig { seed, style: Some(style) });
+            for (c, &l) in room.mesh.colors.iter().zip(&room.mesh.vertex_labels) {
+                sum[l as usize] += Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32);
+                count[l as usize] += 1;
+            }
+        }
+    }
+    let means: Vec<Vec3> = sum.iter().zip(&count).map(|(s, &c)| *s / c.max(1) as f32).collect();
+    let mut hits = vec![0usize; n];
+    let mut totals = vec![0usize; n];
+    for seed in 200..208 {
+        for style in RoomStyle::ALL {
+            let room = generate_room(&RoomConfig { seed, style: Some(style) });
+            for (c, &l) in room.mesh.colors.iter().zip(&room.mesh.vertex_labels) {
+                let v = Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32);
+                let guess = (0..n).min_by(|&a, &b| means[a].distance(v).total_cmp(&means[b].distance(v))).expect("classes");
+                totals[l as usize] += 1;
+                hits[l as usize] += usize::from(guess == l as usize);
+            }
+        }
+    }
+    let recall: Vec<f32> = hits.iter().zip(&totals).map(|(&h, &t)| h as f32 / t.max(1) as f32).collect();
+    let balanced = recall.iter().sum::<f32>() / n as f32;
+    println!("nearest-mean-colour balanced accuracy {balanced:.3}; per class {recall:.2?}");
+    assert!(balanced > 1.5 / n as f32, "colour carries no class signal: {balanced}");
+    assert!(balanced < 0.6, "colour alone nearly decides the class: {balanced}");
+}

@@ -275,6 +275,21 @@ pub(crate) fn build_shell(b: &mut MeshBuilder, layout: &Layout, openings: &[Open
     b.set_noise(0.05);
     b.rect(Vec3::ZERO, Vec3::X * w, Vec3::Y * d, Vec3::Z, SemanticClass::Floor, pal.floor);
     b.rect(Vec3::Z * h, Vec3::X * w, Vec3::Y * d, -Vec3::Z, SemanticClass::Ceiling, pal.ceiling);
+    // Recessed light panels on a regular grid: part of the ceiling (as S3DIS labels
+    // them), but brighter than the paint around them.
+    let (pw, pd) = if rng.random_bool(0.5) { (0.6, 0.6) } else { (1.2, 0.3) };
+    let pitch = uniform(rng, 2.0, 2.8);
+    let (nx, ny) = (((w / pitch).floor() as usize).max(1), ((d / pitch).floor() as usize).max(1));
+    let light = jitter(rng, [0.97, 0.97, 0.95], 0.02);
+    b.set_noise(0.02);
+    for i in 0..nx {
+        for j in 0..ny {
+            let c = Vec2::new(w * (i as f32 + 0.5) / nx as f32, d * (j as f32 + 0.5) / ny as f32);
+            let corner = Vec3::new(c.x - pw * 0.5, c.y - pd * 0.5, h - 0.005);
+            b.rect(corner, Vec3::X * pw, Vec3::Y * pd, -Vec3::Z, SemanticClass::Ceiling, light);
+        }
+    }
+    b.set_noise(0.05);
     for (k, wall) in layout.walls.iter().enumerate() {
         let holes: Vec<[f32; 4]> =
             openings.iter().filter(|o| o.wall == k).map(|o| [o.s0, o.s1, o.z0, o.z1]).collect();
