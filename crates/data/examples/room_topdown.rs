@@ -40,7 +40,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let oblique = tilt * yaw;
         let mut canvas = image::RgbImage::new(PX * 2, PX * 2);
         for (i, (view, cull, by_class)) in
-            [(top, false, true), (top, false, false), (oblique, true, true), (oblique, true, false)].into_iter().enumerate()
+            [(top, false, true), (top, false, false), (oblique, true, true), (oblique, true, false)]
+                .into_iter()
+                .enumerate()
         {
             let panel = render(&room.mesh, view, cull, by_class, &|_| true);
             image::imageops::overlay(&mut canvas, &panel, (i as u32 % 2 * PX) as i64, (i as u32 / 2 * PX) as i64);

@@ -41,7 +41,11 @@ fn every_room_has_every_class_with_some_area() {
                 SemanticClass::Beam | SemanticClass::Column => 0.5,
                 _ => 0.1,
             };
-            assert!(area[class.id() as usize] >= min, "{style} seed {seed}: {class} covers {} m²", area[class.id() as usize]);
+            assert!(
+                area[class.id() as usize] >= min,
+                "{style} seed {seed}: {class} covers {} m²",
+                area[class.id() as usize]
+            );
         }
     }
 }
@@ -100,9 +104,13 @@ fn bounds_and_sizes_are_plausible() {
             _ => assert!(short >= 4.0 && long <= 10.0, "{style} seed {seed}: {w} x {d}"),
         }
         let (lo, hi) = room.mesh.bounds().expect("non-empty");
-        let lowest = (0..room.mesh.vertex_count()).min_by(|&a, &b| room.mesh.positions[a].z.total_cmp(&room.mesh.positions[b].z));
+        let lowest = (0..room.mesh.vertex_count())
+            .min_by(|&a, &b| room.mesh.positions[a].z.total_cmp(&room.mesh.positions[b].z));
         let lowest_class = lowest.and_then(|i| SemanticClass::from_id(room.mesh.vertex_labels[i]));
-        assert!(lo.z.abs() < 1e-5 && (hi.z - h).abs() < 1e-4, "{style} seed {seed}: z range {lo} {hi}, lowest {lowest_class:?}");
+        assert!(
+            lo.z.abs() < 1e-5 && (hi.z - h).abs() < 1e-4,
+            "{style} seed {seed}: z range {lo} {hi}, lowest {lowest_class:?}"
+        );
         // Only the openings (recessed panes and leaves, their reveals) lie outside the
         // interior box, and not by much.
         for (t, &l) in room.mesh.triangles.iter().zip(&room.mesh.triangle_labels) {
@@ -112,7 +120,10 @@ fn bounds_and_sizes_are_plausible() {
                 let out = (-p.x).max(p.x - w).max(-p.y).max(p.y - d);
                 if out > 1e-4 {
                     assert!(
-                        matches!(class, SemanticClass::Window | SemanticClass::Door | SemanticClass::Wall | SemanticClass::Floor),
+                        matches!(
+                            class,
+                            SemanticClass::Window | SemanticClass::Door | SemanticClass::Wall | SemanticClass::Floor
+                        ),
                         "{style} seed {seed}: {class} vertex {p} outside the room"
                     );
                     assert!(out <= 0.25, "{style} seed {seed}: opening {out} m deep");
@@ -146,12 +157,17 @@ fn obstacles_lie_inside_the_floor_and_do_not_overlap() {
         // (it stands where the layout says), and never inside a wall.
         for (t, &l) in room.mesh.triangles.iter().zip(&room.mesh.triangle_labels) {
             let class = SemanticClass::from_id(l).expect("class");
-            if !matches!(class, SemanticClass::Chair | SemanticClass::Table | SemanticClass::Sofa | SemanticClass::Bookcase) {
+            if !matches!(
+                class,
+                SemanticClass::Chair | SemanticClass::Table | SemanticClass::Sofa | SemanticClass::Bookcase
+            ) {
                 continue;
             }
             for &i in t {
                 let p = room.mesh.positions[i as usize];
-                assert!(p.x >= -1e-4 && p.y >= -1e-4 && p.x <= room.floor_max.x + 1e-4 && p.y <= room.floor_max.y + 1e-4);
+                assert!(
+                    p.x >= -1e-4 && p.y >= -1e-4 && p.x <= room.floor_max.x + 1e-4 && p.y <= room.floor_max.y + 1e-4
+                );
                 let inside = room
                     .obstacles
                     .iter()
@@ -170,20 +186,24 @@ fn shell_faces_into_the_room() {
             let n = triangle_normal(&room, t);
             let p = room.mesh.positions[t[0] as usize];
             match SemanticClass::from_id(l) {
-                Some(SemanticClass::Floor) if p.z.abs() < 1e-5 => assert!(n.z > 0.99, "{style} seed {seed}: floor faces {n}"),
+                Some(SemanticClass::Floor) if p.z.abs() < 1e-5 => {
+                    assert!(n.z > 0.99, "{style} seed {seed}: floor faces {n}")
+                }
                 Some(SemanticClass::Ceiling) => assert!(n.z < -0.99, "{style} seed {seed}: ceiling faces {n}"),
                 Some(SemanticClass::Wall) => {
                     // Wall surfaces lying in the wall planes face the room centre (reveals
                     // of openings are perpendicular to the planes and are left out).
                     let (w, d) = (room.floor_max.x, room.floor_max.y);
-                    let in_x_plane = n.x.abs() > 0.99 && t.iter().all(|&i| {
-                        let x = room.mesh.positions[i as usize].x;
-                        x.abs() < 1e-4 || (x - w).abs() < 1e-4
-                    });
-                    let in_y_plane = n.y.abs() > 0.99 && t.iter().all(|&i| {
-                        let y = room.mesh.positions[i as usize].y;
-                        y.abs() < 1e-4 || (y - d).abs() < 1e-4
-                    });
+                    let in_x_plane = n.x.abs() > 0.99
+                        && t.iter().all(|&i| {
+                            let x = room.mesh.positions[i as usize].x;
+                            x.abs() < 1e-4 || (x - w).abs() < 1e-4
+                        });
+                    let in_y_plane = n.y.abs() > 0.99
+                        && t.iter().all(|&i| {
+                            let y = room.mesh.positions[i as usize].y;
+                            y.abs() < 1e-4 || (y - d).abs() < 1e-4
+                        });
                     if in_x_plane || in_y_plane {
                         assert!(n.dot(center - p) > 0.0, "{style} seed {seed}: wall at {p} faces {n}");
                     }
@@ -239,7 +259,8 @@ fn colour_alone_does_not_decide_the_class() {
             let room = generate_room(&RoomConfig { seed, style: Some(style) });
             for (c, &l) in room.mesh.colors.iter().zip(&room.mesh.vertex_labels) {
                 let v = Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32);
-                let guess = (0..n).min_by(|&a, &b| means[a].distance(v).total_cmp(&means[b].distance(v))).expect("classes");
+                let guess =
+                    (0..n).min_by(|&a, &b| means[a].distance(v).total_cmp(&means[b].distance(v))).expect("classes");
                 totals[l as usize] += 1;
                 hits[l as usize] += usize::from(guess == l as usize);
             }

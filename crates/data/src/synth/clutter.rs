@@ -49,7 +49,15 @@ impl FloorItem {
 
 /// Builds a floor item of `kind` in a `width` x `depth` footprint, `height` tall (when the
 /// kind has a height).
-pub(crate) fn floor_item(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, kind: FloorItem, width: f32, depth: f32, height: f32) {
+pub(crate) fn floor_item(
+    b: &mut MeshBuilder,
+    rng: &mut ChaCha8Rng,
+    pal: &Palette,
+    kind: FloorItem,
+    width: f32,
+    depth: f32,
+    height: f32,
+) {
     match kind {
         FloorItem::Boxes => box_stack(b, rng, pal, width, depth),
         FloorItem::Bin => {
@@ -70,7 +78,13 @@ fn box_stack(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, width: f3
         let h = uniform(rng, 0.2, 0.45);
         let off = Vec2::new(uniform(rng, -0.5, 0.5) * (width - w), uniform(rng, -0.5, 0.5) * (depth - d));
         let color = if rng.random_bool(0.8) { pal.cardboard(rng) } else { pal.any(rng) };
-        b.cuboid(Vec3::new(off.x - w * 0.5, off.y - d * 0.5, z), Vec3::new(off.x + w * 0.5, off.y + d * 0.5, z + h), 0, CLUTTER, color);
+        b.cuboid(
+            Vec3::new(off.x - w * 0.5, off.y - d * 0.5, z),
+            Vec3::new(off.x + w * 0.5, off.y + d * 0.5, z + h),
+            0,
+            CLUTTER,
+            color,
+        );
         z += h;
         w *= uniform(rng, 0.7, 0.95);
         d *= uniform(rng, 0.7, 0.95);
@@ -83,14 +97,36 @@ pub(crate) fn plant(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, ra
     let pot_r = radius * uniform(rng, 0.5, 0.7);
     let pot = if rng.random_bool(0.5) { jitter(rng, [0.65, 0.35, 0.22], 0.08) } else { pal.any(rng) };
     b.frustum(Vec3::ZERO, pot_h, pot_r * 0.75, pot_r, 12, (false, false), CLUTTER, pot);
-    b.frustum(Vec3::Z * (pot_h - 0.02), 0.0001, pot_r * 0.97, pot_r * 0.97, 12, (false, true), CLUTTER, [0.25, 0.18, 0.12]);
+    b.frustum(
+        Vec3::Z * (pot_h - 0.02),
+        0.0001,
+        pot_r * 0.97,
+        pot_r * 0.97,
+        12,
+        (false, true),
+        CLUTTER,
+        [0.25, 0.18, 0.12],
+    );
     let stem_top = pot_h + (height - pot_h) * 0.4;
-    b.frustum(Vec3::Z * (pot_h - 0.02), stem_top - pot_h + 0.02, 0.015, 0.01, 6, (false, false), CLUTTER, [0.35, 0.25, 0.15]);
+    b.frustum(
+        Vec3::Z * (pot_h - 0.02),
+        stem_top - pot_h + 0.02,
+        0.015,
+        0.01,
+        6,
+        (false, false),
+        CLUTTER,
+        [0.35, 0.25, 0.15],
+    );
     let leaves = pal.leaves(rng);
     let crown = (height - stem_top) * 0.5;
     for _ in 0..rng.random_range(2..=4) {
         // Blobs stay inside the footprint radius, whatever the plant's yaw.
-        let r = Vec3::new(radius * uniform(rng, 0.45, 0.7), radius * uniform(rng, 0.45, 0.7), crown * uniform(rng, 0.5, 0.9));
+        let r = Vec3::new(
+            radius * uniform(rng, 0.45, 0.7),
+            radius * uniform(rng, 0.45, 0.7),
+            crown * uniform(rng, 0.5, 0.9),
+        );
         let c = Vec3::new(
             uniform(rng, -0.2, 0.2) * radius,
             uniform(rng, -0.2, 0.2) * radius,
@@ -126,7 +162,13 @@ fn cabinet(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, width: f32,
             CLUTTER,
             jitter(rng, color, 0.03),
         );
-        b.cuboid(Vec3::new(-0.06, hd, z + dh * 0.7), Vec3::new(0.06, hd + 0.02, z + dh * 0.7 + 0.02), SKIP_NEG_Y, CLUTTER, handle);
+        b.cuboid(
+            Vec3::new(-0.06, hd, z + dh * 0.7),
+            Vec3::new(0.06, hd + 0.02, z + dh * 0.7 + 0.02),
+            SKIP_NEG_Y,
+            CLUTTER,
+            handle,
+        );
     }
 }
 
@@ -207,7 +249,14 @@ fn monitor(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, at: Vec3) {
     let z0 = at.z + uniform(rng, 0.1, 0.16);
     b.cuboid(Vec3::new(at.x - w * 0.5, at.y - 0.03, z0), Vec3::new(at.x + w * 0.5, at.y, z0 + h), 0, CLUTTER, body);
     b.set_noise(0.02);
-    b.rect(Vec3::new(at.x - w * 0.5 + 0.015, at.y + 0.001, z0 + 0.02), Vec3::X * (w - 0.03), Vec3::Z * (h - 0.035), Vec3::Y, CLUTTER, screen);
+    b.rect(
+        Vec3::new(at.x - w * 0.5 + 0.015, at.y + 0.001, z0 + 0.02),
+        Vec3::X * (w - 0.03),
+        Vec3::Z * (h - 0.035),
+        Vec3::Y,
+        CLUTTER,
+        screen,
+    );
     b.set_noise(0.06);
 }
 
@@ -218,7 +267,13 @@ fn cup(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, at: Vec3) {
 
 fn papers(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, at: Vec3) {
     let t = uniform(rng, 0.003, 0.02);
-    b.cuboid(at + Vec3::new(-0.105, -0.15, 0.0), at + Vec3::new(0.105, 0.15, t), 0, CLUTTER, jitter(rng, [0.93, 0.93, 0.9], 0.04));
+    b.cuboid(
+        at + Vec3::new(-0.105, -0.15, 0.0),
+        at + Vec3::new(0.105, 0.15, t),
+        0,
+        CLUTTER,
+        jitter(rng, [0.93, 0.93, 0.9], 0.04),
+    );
 }
 
 fn laptop(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, at: Vec3, facing_front: bool) {
@@ -268,14 +323,30 @@ pub(crate) enum WallItem {
 /// A wall item in the wall frame centred at `s` along the wall and `z` high, `width` x
 /// `height`.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn wall_item(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, kind: WallItem, s: f32, z: f32, width: f32, height: f32) {
+pub(crate) fn wall_item(
+    b: &mut MeshBuilder,
+    rng: &mut ChaCha8Rng,
+    pal: &Palette,
+    kind: WallItem,
+    s: f32,
+    z: f32,
+    width: f32,
+    height: f32,
+) {
     let (s0, s1, z0, z1) = (s - width * 0.5, s + width * 0.5, z - height * 0.5, z + height * 0.5);
     match kind {
         WallItem::Picture => {
             let frame = pal.furniture(rng);
             b.cuboid(Vec3::new(s0, 0.0, z0), Vec3::new(s1, 0.02, z1), SKIP_NEG_Y, CLUTTER, frame);
             b.set_noise(0.12);
-            b.rect(Vec3::new(s0 + 0.04, 0.021, z0 + 0.04), Vec3::X * (width - 0.08), Vec3::Z * (height - 0.08), Vec3::Y, CLUTTER, pal.any(rng));
+            b.rect(
+                Vec3::new(s0 + 0.04, 0.021, z0 + 0.04),
+                Vec3::X * (width - 0.08),
+                Vec3::Z * (height - 0.08),
+                Vec3::Y,
+                CLUTTER,
+                pal.any(rng),
+            );
             b.set_noise(0.06);
         }
         WallItem::Clock => {

@@ -26,7 +26,14 @@ pub(crate) fn table_height(rng: &mut ChaCha8Rng) -> f32 {
 
 /// A rectangular table `width` x `depth` with its top at `height`: four legs, two panel
 /// legs, or a trestle frame. Returns the top's colour.
-pub(crate) fn table(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, width: f32, depth: f32, height: f32) -> Rgb {
+pub(crate) fn table(
+    b: &mut MeshBuilder,
+    rng: &mut ChaCha8Rng,
+    pal: &Palette,
+    width: f32,
+    depth: f32,
+    height: f32,
+) -> Rgb {
     let top_color = pal.furniture(rng);
     let leg_color = if rng.random_bool(0.5) { top_color } else { pal.neutral(rng) };
     let t = uniform(rng, 0.025, 0.05);
@@ -51,8 +58,20 @@ pub(crate) fn table(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, wi
             if rng.random_bool(0.5) {
                 let a = uniform(rng, 0.06, 0.1).min(z * 0.3);
                 let i = inset + leg * 0.5;
-                b.cuboid(Vec3::new(-hw + i, -hd + i, z - a), Vec3::new(hw - i, -hd + i + 0.02, z), SKIP_POS_Z, TABLE, top_color);
-                b.cuboid(Vec3::new(-hw + i, hd - i - 0.02, z - a), Vec3::new(hw - i, hd - i, z), SKIP_POS_Z, TABLE, top_color);
+                b.cuboid(
+                    Vec3::new(-hw + i, -hd + i, z - a),
+                    Vec3::new(hw - i, -hd + i + 0.02, z),
+                    SKIP_POS_Z,
+                    TABLE,
+                    top_color,
+                );
+                b.cuboid(
+                    Vec3::new(-hw + i, hd - i - 0.02, z - a),
+                    Vec3::new(hw - i, hd - i, z),
+                    SKIP_POS_Z,
+                    TABLE,
+                    top_color,
+                );
             }
         }
         1 => {
@@ -60,11 +79,23 @@ pub(crate) fn table(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, wi
             let inset = uniform(rng, 0.0, 0.1);
             for sx in [-1.0, 1.0] {
                 let x = sx * (hw - inset - p * 0.5);
-                b.cuboid(Vec3::new(x - p * 0.5, -hd + 0.03, 0.0), Vec3::new(x + p * 0.5, hd - 0.03, z), SKIP_POS_Z, TABLE, leg_color);
+                b.cuboid(
+                    Vec3::new(x - p * 0.5, -hd + 0.03, 0.0),
+                    Vec3::new(x + p * 0.5, hd - 0.03, z),
+                    SKIP_POS_Z,
+                    TABLE,
+                    leg_color,
+                );
             }
             if rng.random_bool(0.6) {
                 let zp = uniform(rng, 0.3, 0.45).min(z * 0.6);
-                b.cuboid(Vec3::new(-hw + inset + p, -0.01, z - zp), Vec3::new(hw - inset - p, 0.01, z), SKIP_POS_Z, TABLE, leg_color);
+                b.cuboid(
+                    Vec3::new(-hw + inset + p, -0.01, z - zp),
+                    Vec3::new(hw - inset - p, 0.01, z),
+                    SKIP_POS_Z,
+                    TABLE,
+                    leg_color,
+                );
             }
         }
         _ => {
@@ -72,8 +103,20 @@ pub(crate) fn table(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, wi
             let post = uniform(rng, 0.05, 0.08);
             for sx in [-1.0f32, 1.0] {
                 let x = sx * (hw - 0.15).max(0.1);
-                b.cuboid(Vec3::new(x - 0.03, -hd + 0.05, 0.0), Vec3::new(x + 0.03, hd - 0.05, 0.05), 0, TABLE, leg_color);
-                b.cuboid(Vec3::new(x - post * 0.5, -post * 0.5, 0.05), Vec3::new(x + post * 0.5, post * 0.5, z), SKIP_NEG_Z | SKIP_POS_Z, TABLE, leg_color);
+                b.cuboid(
+                    Vec3::new(x - 0.03, -hd + 0.05, 0.0),
+                    Vec3::new(x + 0.03, hd - 0.05, 0.05),
+                    0,
+                    TABLE,
+                    leg_color,
+                );
+                b.cuboid(
+                    Vec3::new(x - post * 0.5, -post * 0.5, 0.05),
+                    Vec3::new(x + post * 0.5, post * 0.5, z),
+                    SKIP_NEG_Z | SKIP_POS_Z,
+                    TABLE,
+                    leg_color,
+                );
             }
             let x = (hw - 0.15).max(0.1) - post * 0.5;
             b.cuboid(Vec3::new(-x, -0.02, z * 0.35), Vec3::new(x, 0.02, z * 0.45), 0, TABLE, leg_color);
@@ -83,14 +126,27 @@ pub(crate) fn table(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, wi
 }
 
 /// An office desk: a table, often with a drawer pedestal under one side (part of the desk).
-pub(crate) fn desk(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, width: f32, depth: f32, height: f32) -> Rgb {
+pub(crate) fn desk(
+    b: &mut MeshBuilder,
+    rng: &mut ChaCha8Rng,
+    pal: &Palette,
+    width: f32,
+    depth: f32,
+    height: f32,
+) -> Rgb {
     let color = table(b, rng, pal, width, depth, height);
     if rng.random_bool(0.6) && width > 1.0 {
         let pw = uniform(rng, 0.38, 0.45);
         let side = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
         let x0 = side * (width * 0.5 - 0.1 - pw * 0.5);
         let top = height - 0.06;
-        b.cuboid(Vec3::new(x0 - pw * 0.5, -depth * 0.5 + 0.08, 0.0), Vec3::new(x0 + pw * 0.5, depth * 0.5 - 0.1, top), 0, TABLE, color);
+        b.cuboid(
+            Vec3::new(x0 - pw * 0.5, -depth * 0.5 + 0.08, 0.0),
+            Vec3::new(x0 + pw * 0.5, depth * 0.5 - 0.1, top),
+            0,
+            TABLE,
+            color,
+        );
         // Drawer fronts as thin slabs on the front face.
         let n = rng.random_range(2..=4);
         let dh = (top - 0.05) / n as f32;
@@ -187,7 +243,13 @@ pub(crate) fn chair(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, style: &ChairStyl
     );
     if swivel {
         // Struts from seat to back, gas column, five-star base with casters.
-        b.cuboid(Vec3::new(-0.03, -hd + back_t, seat_h - seat_t - 0.02), Vec3::new(0.03, -hd + back_t + 0.12, back_z0 + 0.05), 0, CHAIR, frame_color);
+        b.cuboid(
+            Vec3::new(-0.03, -hd + back_t, seat_h - seat_t - 0.02),
+            Vec3::new(0.03, -hd + back_t + 0.12, back_z0 + 0.05),
+            0,
+            CHAIR,
+            frame_color,
+        );
         b.frustum(Vec3::Z * 0.08, seat_h - seat_t - 0.08, 0.028, 0.028, 8, (false, false), CHAIR, frame_color);
         let reach = hw.min(hd) - 0.03;
         for k in 0..5 {
@@ -200,8 +262,20 @@ pub(crate) fn chair(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, style: &ChairStyl
         if arms {
             for sx in [-1.0, 1.0] {
                 let x = sx * (sw * 0.5 - 0.03);
-                b.cuboid(Vec3::new(x - 0.015, -0.05, seat_h), Vec3::new(x + 0.015, 0.0, seat_h + 0.2), SKIP_NEG_Z, CHAIR, frame_color);
-                b.cuboid(Vec3::new(x - 0.03, -0.2, seat_h + 0.2), Vec3::new(x + 0.03, 0.1, seat_h + 0.23), 0, CHAIR, frame_color);
+                b.cuboid(
+                    Vec3::new(x - 0.015, -0.05, seat_h),
+                    Vec3::new(x + 0.015, 0.0, seat_h + 0.2),
+                    SKIP_NEG_Z,
+                    CHAIR,
+                    frame_color,
+                );
+                b.cuboid(
+                    Vec3::new(x - 0.03, -0.2, seat_h + 0.2),
+                    Vec3::new(x + 0.03, 0.1, seat_h + 0.23),
+                    0,
+                    CHAIR,
+                    frame_color,
+                );
             }
         }
     } else {
@@ -334,7 +408,16 @@ pub(crate) enum BoardKind {
 /// A board in the wall frame (local x along the wall, +y into the room): `s0..s1` along
 /// the wall, `z0..z1` high, with a frame and, for chalk and marker boards, a tray below.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn board(b: &mut MeshBuilder, rng: &mut ChaCha8Rng, pal: &Palette, s0: f32, s1: f32, z0: f32, z1: f32, kind: BoardKind) {
+pub(crate) fn board(
+    b: &mut MeshBuilder,
+    rng: &mut ChaCha8Rng,
+    pal: &Palette,
+    s0: f32,
+    s1: f32,
+    z0: f32,
+    z1: f32,
+    kind: BoardKind,
+) {
     let surface: Rgb = match kind {
         BoardKind::White => jitter(rng, [0.93, 0.93, 0.92], 0.03),
         BoardKind::Black => super::palette::jitter_pick(rng, &[[0.12, 0.2, 0.16], [0.12, 0.12, 0.13]], 0.03),

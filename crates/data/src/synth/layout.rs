@@ -49,10 +49,8 @@ impl Rect2 {
 pub(crate) fn footprint(center: Vec2, width: f32, depth: f32, yaw: f32) -> Rect2 {
     let (s, c) = yaw.sin_cos();
     let (s, c) = (snap(s), snap(c));
-    let half = Vec2::new(
-        (c * width).abs() * 0.5 + (s * depth).abs() * 0.5,
-        (s * width).abs() * 0.5 + (c * depth).abs() * 0.5,
-    );
+    let half =
+        Vec2::new((c * width).abs() * 0.5 + (s * depth).abs() * 0.5, (s * width).abs() * 0.5 + (c * depth).abs() * 0.5);
     Rect2::new(center - half, center + half)
 }
 
@@ -131,7 +129,13 @@ impl Layout {
         let walls = [
             Wall { start: Vec2::ZERO, dir: Vec2::X, normal: Vec2::Y, yaw: 0.0, length: width },
             Wall { start: Vec2::new(width, 0.0), dir: Vec2::Y, normal: -Vec2::X, yaw: FRAC_PI_2, length: depth },
-            Wall { start: Vec2::new(width, depth), dir: -Vec2::X, normal: -Vec2::Y, yaw: 2.0 * FRAC_PI_2, length: width },
+            Wall {
+                start: Vec2::new(width, depth),
+                dir: -Vec2::X,
+                normal: -Vec2::Y,
+                yaw: 2.0 * FRAC_PI_2,
+                length: width,
+            },
             Wall { start: Vec2::new(0.0, depth), dir: -Vec2::Y, normal: Vec2::X, yaw: 3.0 * FRAC_PI_2, length: depth },
         ];
         Self {
@@ -155,9 +159,7 @@ impl Layout {
     pub(crate) fn wall_free(&self, k: usize, s0: f32, s1: f32, z0: f32, z1: f32, margin: f32) -> bool {
         s0 >= 0.0
             && s1 <= self.walls[k].length
-            && self.spans[k]
-                .iter()
-                .all(|sp| s1 + margin <= sp.s0 || s0 - margin >= sp.s1 || z1 <= sp.z0 || z0 >= sp.z1)
+            && self.spans[k].iter().all(|sp| s1 + margin <= sp.s0 || s0 - margin >= sp.s1 || z1 <= sp.z0 || z0 >= sp.z1)
     }
 
     pub(crate) fn reserve_wall(&mut self, k: usize, s0: f32, s1: f32, z0: f32, z1: f32) {
@@ -210,7 +212,15 @@ impl Layout {
     }
 
     /// [`wall_slot`](Self::wall_slot) at one given position.
-    pub(crate) fn wall_slot_at(&self, k: usize, s: f32, width: f32, depth: f32, gap: f32, z_top: f32) -> Option<WallSlot> {
+    pub(crate) fn wall_slot_at(
+        &self,
+        k: usize,
+        s: f32,
+        width: f32,
+        depth: f32,
+        gap: f32,
+        z_top: f32,
+    ) -> Option<WallSlot> {
         let wall = self.walls[k];
         let center = wall.point(s, gap + depth * 0.5);
         let r = footprint(center, width, depth, wall.yaw);
@@ -247,15 +257,14 @@ impl Layout {
             }
             let c = Vec2::new(uniform(rng, lo.x, hi.x), uniform(rng, lo.y, hi.y));
             let r = footprint(c, width + 2.0 * clearance, depth + 2.0 * clearance, yaw);
-            if self.floor_free(&footprint(c, width, depth, yaw)) && self.obstacles.iter().all(|o| !o.overlaps(&r, 0.0)) {
+            if self.floor_free(&footprint(c, width, depth, yaw)) && self.obstacles.iter().all(|o| !o.overlaps(&r, 0.0))
+            {
                 return Some(c);
             }
         }
         None
     }
 }
-
-
 
 #[cfg(test)]
 mod tests {

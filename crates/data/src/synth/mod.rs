@@ -70,7 +70,9 @@ impl std::str::FromStr for RoomStyle {
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let lower = s.trim().to_ascii_lowercase();
         Self::ALL.into_iter().find(|st| st.name() == lower).ok_or_else(|| {
-            DataError::InvalidArgument(format!("unknown room style {s:?} (expected one of office, conference, lounge, hallway)"))
+            DataError::InvalidArgument(format!(
+                "unknown room style {s:?} (expected one of office, conference, lounge, hallway)"
+            ))
         })
     }
 }
@@ -130,7 +132,8 @@ pub fn generate_room(config: &RoomConfig) -> SyntheticRoom {
     shell::add_structure(&mut builder, &mut layout, &mut rng, &pal, style);
     let openings = shell::plan_openings(&mut layout, &mut rng, style);
     shell::build_shell(&mut builder, &layout, &openings, &mut rng, &pal);
-    styles::Furnisher { b: &mut builder, layout: &mut layout, rng: &mut rng, pal: &pal, desk_chairs: None }.furnish(style, &openings);
+    styles::Furnisher { b: &mut builder, layout: &mut layout, rng: &mut rng, pal: &pal, desk_chairs: None }
+        .furnish(style, &openings);
 
     SyntheticRoom {
         style,

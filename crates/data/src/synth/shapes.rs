@@ -338,10 +338,8 @@ pub(crate) fn world_from_object(origin: Vec3, yaw: f32) -> Affine3A {
 /// points between them that no cell is longer than `patch`. Near-duplicates are merged so
 /// that no cell is degenerate.
 fn breakpoints(length: f32, cuts: impl Iterator<Item = f32>, patch: f32) -> Vec<f32> {
-    let mut edges: Vec<f32> = std::iter::once(0.0)
-        .chain(cuts.filter(|c| *c > 0.0 && *c < length))
-        .chain(std::iter::once(length))
-        .collect();
+    let mut edges: Vec<f32> =
+        std::iter::once(0.0).chain(cuts.filter(|c| *c > 0.0 && *c < length)).chain(std::iter::once(length)).collect();
     edges.sort_by(f32::total_cmp);
     edges.dedup_by(|a, b| (*a - *b).abs() < 1e-3);
     if let Some(last) = edges.last_mut() {

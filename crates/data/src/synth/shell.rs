@@ -41,7 +41,13 @@ const BEAM_CLEARANCE: f32 = 2.3;
 
 /// Adds beams across the short side of the room and columns, registering columns as floor
 /// obstacles and both in the wall occupancy. Always adds at least one beam and one column.
-pub(crate) fn add_structure(b: &mut MeshBuilder, layout: &mut Layout, rng: &mut ChaCha8Rng, pal: &Palette, style: RoomStyle) {
+pub(crate) fn add_structure(
+    b: &mut MeshBuilder,
+    layout: &mut Layout,
+    rng: &mut ChaCha8Rng,
+    pal: &Palette,
+    style: RoomStyle,
+) {
     let (w, d, h) = (layout.width, layout.depth, layout.height);
     let along_x = w >= d; // beams at positions along x, spanning y
     let (long, short) = if along_x { (w, d) } else { (d, w) };
@@ -101,7 +107,16 @@ pub(crate) fn add_structure(b: &mut MeshBuilder, layout: &mut Layout, rng: &mut 
             if layout.floor_free(&Rect2::new(r.min - Vec2::splat(0.6), r.max + Vec2::splat(0.6))) {
                 b.place(c.extend(0.0), 0.0);
                 if rng.random_bool(0.5) {
-                    b.frustum(Vec3::ZERO, h, size * 0.5, size * 0.5, 16, (false, false), SemanticClass::Column, column_color);
+                    b.frustum(
+                        Vec3::ZERO,
+                        h,
+                        size * 0.5,
+                        size * 0.5,
+                        16,
+                        (false, false),
+                        SemanticClass::Column,
+                        column_color,
+                    );
                 } else {
                     let half = Vec3::new(size * 0.5, size * 0.5, 0.0);
                     b.cuboid(-half, half + Vec3::Z * h, SKIP_POS_Z | SKIP_NEG_Z, SemanticClass::Column, column_color);
@@ -121,7 +136,11 @@ pub(crate) fn add_structure(b: &mut MeshBuilder, layout: &mut Layout, rng: &mut 
         let cd = uniform(rng, 0.25, 0.5);
         let len = layout.walls[k].length;
         let s = if tries < 16 {
-            if rng.random_bool(0.5) { cw * 0.5 } else { len - cw * 0.5 }
+            if rng.random_bool(0.5) {
+                cw * 0.5
+            } else {
+                len - cw * 0.5
+            }
         } else {
             uniform(rng, cw, len - cw)
         };
@@ -134,7 +153,15 @@ pub(crate) fn add_structure(b: &mut MeshBuilder, layout: &mut Layout, rng: &mut 
 /// A column against wall `k` at `s`, `width` along the wall and `depth` into the room, if
 /// the wall and floor there are free.
 #[allow(clippy::too_many_arguments)]
-fn add_pilaster(b: &mut MeshBuilder, layout: &mut Layout, k: usize, s: f32, width: f32, depth: f32, color: [f32; 3]) -> bool {
+fn add_pilaster(
+    b: &mut MeshBuilder,
+    layout: &mut Layout,
+    k: usize,
+    s: f32,
+    width: f32,
+    depth: f32,
+    color: [f32; 3],
+) -> bool {
     let h = layout.height;
     let wall = layout.walls[k];
     let (s0, s1) = ((s - width * 0.5).max(0.0), (s + width * 0.5).min(wall.length));
@@ -197,7 +224,17 @@ pub(crate) fn plan_openings(layout: &mut Layout, rng: &mut ChaCha8Rng, style: Ro
         let k = if layout.width >= layout.depth { 1 } else { 0 };
         let len = layout.walls[k].length;
         let dw = uniform(rng, 0.85, 1.0).min(len - 0.8);
-        if try_add_opening(layout, &mut openings, k, len * 0.5, dw, 0.0, uniform(rng, 2.03, 2.2), OpeningKind::Door, 0.05) {
+        if try_add_opening(
+            layout,
+            &mut openings,
+            k,
+            len * 0.5,
+            dw,
+            0.0,
+            uniform(rng, 2.03, 2.2),
+            OpeningKind::Door,
+            0.05,
+        ) {
             let wall = layout.walls[k];
             layout.add_keepout(footprint(wall.point(len * 0.5, 0.5), dw + 0.2, 1.0, wall.yaw));
         }
@@ -207,11 +244,19 @@ pub(crate) fn plan_openings(layout: &mut Layout, rng: &mut ChaCha8Rng, style: Ro
         RoomStyle::Hallway => {
             let ends = if layout.width >= layout.depth { [1, 3] } else { [0, 2] };
             let long = if layout.width >= layout.depth { 2 } else { 1 };
-            if rng.random_bool(0.5) { vec![ends[rng.random_range(0..2)]] } else { vec![long] }
+            if rng.random_bool(0.5) {
+                vec![ends[rng.random_range(0..2)]]
+            } else {
+                vec![long]
+            }
         }
         _ => {
             let first = rng.random_range(0..4);
-            if rng.random_bool(0.35) { vec![first, (first + 1) % 4] } else { vec![first] }
+            if rng.random_bool(0.35) {
+                vec![first, (first + 1) % 4]
+            } else {
+                vec![first]
+            }
         }
     };
     let sill = uniform(rng, 0.8, 1.0);
@@ -269,7 +314,13 @@ fn try_add_opening(
 }
 
 /// Emits floor, ceiling and walls with their openings, panes, leaves, reveals and casings.
-pub(crate) fn build_shell(b: &mut MeshBuilder, layout: &Layout, openings: &[Opening], rng: &mut ChaCha8Rng, pal: &Palette) {
+pub(crate) fn build_shell(
+    b: &mut MeshBuilder,
+    layout: &Layout,
+    openings: &[Opening],
+    rng: &mut ChaCha8Rng,
+    pal: &Palette,
+) {
     let (w, d, h) = (layout.width, layout.depth, layout.height);
     b.place(Vec3::ZERO, 0.0);
     b.set_noise(0.05);
@@ -291,11 +342,18 @@ pub(crate) fn build_shell(b: &mut MeshBuilder, layout: &Layout, openings: &[Open
     }
     b.set_noise(0.05);
     for (k, wall) in layout.walls.iter().enumerate() {
-        let holes: Vec<[f32; 4]> =
-            openings.iter().filter(|o| o.wall == k).map(|o| [o.s0, o.s1, o.z0, o.z1]).collect();
+        let holes: Vec<[f32; 4]> = openings.iter().filter(|o| o.wall == k).map(|o| [o.s0, o.s1, o.z0, o.z1]).collect();
         b.place(wall.start.extend(0.0), wall.yaw);
         b.set_noise(0.05);
-        b.rect_with_holes(Vec3::ZERO, Vec3::X * wall.length, Vec3::Z * h, Vec3::Y, &holes, SemanticClass::Wall, pal.wall);
+        b.rect_with_holes(
+            Vec3::ZERO,
+            Vec3::X * wall.length,
+            Vec3::Z * h,
+            Vec3::Y,
+            &holes,
+            SemanticClass::Wall,
+            pal.wall,
+        );
     }
     for o in openings {
         let wall = layout.walls[o.wall];
@@ -310,7 +368,14 @@ pub(crate) fn build_shell(b: &mut MeshBuilder, layout: &Layout, openings: &[Open
 
 /// Reveals of an opening (wall frame): the four sides of the hole between the wall plane
 /// and the recessed pane or leaf, facing into the hole.
-fn reveals(b: &mut MeshBuilder, o: &Opening, side: SemanticClass, bottom: SemanticClass, color: [f32; 3], bottom_color: [f32; 3]) {
+fn reveals(
+    b: &mut MeshBuilder,
+    o: &Opening,
+    side: SemanticClass,
+    bottom: SemanticClass,
+    color: [f32; 3],
+    bottom_color: [f32; 3],
+) {
     let r = o.recess;
     let depth = Vec3::Y * -r;
     let (ws, hz) = (Vec3::X * (o.s1 - o.s0), Vec3::Z * (o.z1 - o.z0));
@@ -363,7 +428,14 @@ fn door(b: &mut MeshBuilder, o: &Opening, rng: &mut ChaCha8Rng, pal: &Palette) {
     reveals(b, o, SemanticClass::Door, SemanticClass::Floor, casing_color, pal.floor);
     let r = o.recess;
     let width = o.s1 - o.s0;
-    b.rect(Vec3::new(o.s0, -r, o.z0), Vec3::X * width, Vec3::Z * (o.z1 - o.z0), Vec3::Y, SemanticClass::Door, leaf_color);
+    b.rect(
+        Vec3::new(o.s0, -r, o.z0),
+        Vec3::X * width,
+        Vec3::Z * (o.z1 - o.z0),
+        Vec3::Y,
+        SemanticClass::Door,
+        leaf_color,
+    );
     // Casing around the opening, proud of the wall.
     let (cw, ct) = (uniform(rng, 0.05, 0.09), uniform(rng, 0.01, 0.025));
     let casing = |b: &mut MeshBuilder, s0: f32, s1: f32, z0: f32, z1: f32| {
@@ -375,7 +447,13 @@ fn door(b: &mut MeshBuilder, o: &Opening, rng: &mut ChaCha8Rng, pal: &Palette) {
     // Handles; a double door gets a centre seam and two.
     let metal = pal.neutral(rng);
     let handle = |b: &mut MeshBuilder, s: f32| {
-        b.cuboid(Vec3::new(s - 0.01, -r, 0.98), Vec3::new(s + 0.01, -r + 0.05, 1.02), SKIP_NEG_Y, SemanticClass::Door, metal);
+        b.cuboid(
+            Vec3::new(s - 0.01, -r, 0.98),
+            Vec3::new(s + 0.01, -r + 0.05, 1.02),
+            SKIP_NEG_Y,
+            SemanticClass::Door,
+            metal,
+        );
         b.cuboid(
             Vec3::new(s - 0.12, -r + 0.05, 0.985),
             Vec3::new(s + 0.01, -r + 0.07, 1.015),

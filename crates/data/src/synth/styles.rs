@@ -237,7 +237,8 @@ impl Furnisher<'_> {
         let cs = style.size;
         let normal = self.layout.walls[slot.wall].normal;
         let along = self.layout.walls[slot.wall].dir;
-        let center = slot.center + normal * (d * 0.5 + uniform(self.rng, 0.06, 0.25) + cs * 0.5)
+        let center = slot.center
+            + normal * (d * 0.5 + uniform(self.rng, 0.06, 0.25) + cs * 0.5)
             + along * uniform(self.rng, -0.15, 0.15) * w;
         let yaw = slot.yaw + PI + uniform(self.rng, -0.35, 0.35);
         self.chair_at(center, yaw, &style);
@@ -409,7 +410,15 @@ impl Furnisher<'_> {
 
     /// Finds `width` of free wall between `z0` and `z1` on one of `walls` and builds there
     /// (in the wall frame) with `build(self, s0, s1)`.
-    fn wall_piece(&mut self, walls: &[usize], width: f32, z0: f32, z1: f32, tries: usize, build: impl FnOnce(&mut Self, f32, f32)) -> bool {
+    fn wall_piece(
+        &mut self,
+        walls: &[usize],
+        width: f32,
+        z0: f32,
+        z1: f32,
+        tries: usize,
+        build: impl FnOnce(&mut Self, f32, f32),
+    ) -> bool {
         for _ in 0..tries {
             let k = walls[self.rng.random_range(0..walls.len())];
             let len = self.layout.walls[k].length;
@@ -453,7 +462,14 @@ impl Furnisher<'_> {
         for _ in 0..n {
             let kind = pick(
                 self.rng,
-                &[FloorItem::Boxes, FloorItem::Bin, FloorItem::Plant, FloorItem::Cabinet, FloorItem::Bin, FloorItem::Boxes],
+                &[
+                    FloorItem::Boxes,
+                    FloorItem::Bin,
+                    FloorItem::Plant,
+                    FloorItem::Cabinet,
+                    FloorItem::Bin,
+                    FloorItem::Boxes,
+                ],
             );
             self.floor_item(kind);
         }
