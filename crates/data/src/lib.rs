@@ -22,6 +22,7 @@ pub mod ply;
 pub mod point_cloud;
 pub mod s3dis;
 pub mod scannet_mesh;
+pub mod synth;
 
 pub use camera::Intrinsics;
 pub use datasets::{open_dataset, DatasetSpec};

@@ -1,0 +1,481 @@
+//! The shell of a room: floor, ceiling, four walls with window and door openings cut out,
+//! the recessed window panes and door leaves set into the openings, beams under the ceiling
+//! and columns (pilasters against walls and free-standing ones, under the beams as in a
+//! real frame structure). The shell is closed: from inside, every direction meets a
+//! surface, and the openings show glass or a door leaf a few centimetres behind the wall
+//! plane, with the reveals in between.
+
+use glam::{Vec2, Vec3};
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+
+use super::layout::{footprint, Layout, Rect2};
+use super::palette::{jitter, uniform, Palette};
+use super::shapes::{MeshBuilder, SKIP_NEG_Y, SKIP_NEG_Z, SKIP_POS_Y, SKIP_POS_Z};
+use super::RoomStyle;
+use crate::class::SemanticClass;
+
+/// Window pane or door leaf.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum OpeningKind {
+    Door,
+    Window,
+}
+
+/// A rectangular hole in a wall (wall frame: s along the wall, z up).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Opening {
+    pub(crate) wall: usize,
+    pub(crate) s0: f32,
+    pub(crate) s1: f32,
+    pub(crate) z0: f32,
+    pub(crate) z1: f32,
+    pub(crate) kind: OpeningKind,
+    /// How far behind the wall plane the pane or leaf sits.
+    pub(crate) recess: f32,
+}
+
+/// Lowest underside of a beam: above every door and window head and every piece of
+/// furniture, as in a real room.
+const BEAM_CLEARANCE: f32 = 2.3;
+
+/// Adds beams across the short side of the room and columns, registering columns as floor
+/// obstacles and both in the wall occupancy. Always adds at least one beam and one column.
+pub(crate) fn add_structure(
+    b: &mut MeshBuilder,
+    layout: &mut Layout,
+    rng: &mut ChaCha8Rng,
+    pal: &Palette,
+    style: RoomStyle,
+) {
+    let (w, d, h) = (layout.width, layout.depth, layout.height);
+    let along_x = w >= d; // beams at positions along x, spanning y
+    let (long, short) = if along_x { (w, d) } else { (d, w) };
+    let n_beams = match style {
+        RoomStyle::Hallway => ((long / 3.5) as usize).clamp(2, 5),
+        _ => rng.random_range(1..=3),
+    };
+    let beam_depth = uniform(rng, 0.25, 0.5).min(h - BEAM_CLEARANCE);
+    let beam_width = uniform(rng, 0.25, 0.45);
+    let beam_color = jitter(rng, pal.structure, 0.02);
+    let column_color = jitter(rng, pal.structure, 0.03);
+    let mut columns = 0;
+    b.place(Vec3::ZERO, 0.0);
+    for i in 0..n_beams {
+        let p = long * (i as f32 + 1.0) / (n_beams as f32 + 1.0) + uniform(rng, -0.3, 0.3);
+        let (min, max, skip) = if along_x {
+            (
+                Vec3::new(p - beam_width * 0.5, 0.0, h - beam_depth),
+                Vec3::new(p + beam_width * 0.5, d, h),
+                SKIP_NEG_Y | SKIP_POS_Y | SKIP_POS_Z,
+            )
+        } else {
+            (
+                Vec3::new(0.0, p - beam_width * 0.5, h - beam_depth),
+                Vec3::new(w, p + beam_width * 0.5, h),
+                super::shapes::SKIP_NEG_X | super::shapes::SKIP_POS_X | SKIP_POS_Z,
+            )
+        };
+        b.place(Vec3::ZERO, 0.0);
+        b.cuboid(min, max, skip, SemanticClass::Beam, beam_color);
+        layout.interest.push((min + max) * 0.5);
+        // The walls the beam rests on, and where along them.
+        let ends = if along_x { [(0usize, p), (2, w - p)] } else { [(1usize, p), (3, d - p)] };
+        for &(k, s) in &ends {
+            layout.reserve_wall(k, s - beam_width * 0.5, s + beam_width * 0.5, h - beam_depth, h);
+        }
+        let pilaster_p = if style == RoomStyle::Hallway { 0.5 } else { 0.35 };
+        for &(k, s) in &ends {
+            if rng.random_bool(pilaster_p) {
+                let cw = beam_width + uniform(rng, 0.0, 0.2);
+                let cd = uniform(rng, 0.15, 0.4);
+                if add_pilaster(b, layout, k, s, cw, cd, column_color) {
+                    columns += 1;
+                }
+            }
+        }
+        let free_p = match style {
+            RoomStyle::Hallway => 0.0,
+            RoomStyle::Conference => 0.15,
+            _ => 0.35,
+        };
+        if short >= 4.5 && rng.random_bool(free_p) {
+            let q = short * if rng.random_bool(0.5) { uniform(rng, 0.25, 0.35) } else { uniform(rng, 0.65, 0.75) };
+            let c = if along_x { Vec2::new(p, q) } else { Vec2::new(q, p) };
+            let size = uniform(rng, 0.3, 0.5).max(beam_width);
+            let r = footprint(c, size, size, 0.0);
+            if layout.floor_free(&Rect2::new(r.min - Vec2::splat(0.6), r.max + Vec2::splat(0.6))) {
+                b.place(c.extend(0.0), 0.0);
+                if rng.random_bool(0.5) {
+                    b.frustum(
+                        Vec3::ZERO,
+                        h,
+                        size * 0.5,
+                        size * 0.5,
+                        16,
+                        (false, false),
+                        SemanticClass::Column,
+                        column_color,
+                    );
+                } else {
+                    let half = Vec3::new(size * 0.5, size * 0.5, 0.0);
+                    b.cuboid(-half, half + Vec3::Z * h, SKIP_POS_Z | SKIP_NEG_Z, SemanticClass::Column, column_color);
+                }
+                layout.add_obstacle(r);
+                layout.interest.push(c.extend(h * 0.5));
+                columns += 1;
+            }
+        }
+    }
+    // Every room has a column: fall back to a corner column, then to any pilaster.
+    let mut tries = 0;
+    while columns == 0 && tries < 64 {
+        tries += 1;
+        let k = rng.random_range(0..4);
+        let cw = uniform(rng, 0.3, 0.6);
+        let cd = uniform(rng, 0.25, 0.5);
+        let len = layout.walls[k].length;
+        let s = if tries < 16 {
+            if rng.random_bool(0.5) {
+                cw * 0.5
+            } else {
+                len - cw * 0.5
+            }
+        } else {
+            uniform(rng, cw, len - cw)
+        };
+        if add_pilaster(b, layout, k, s, cw, cd, column_color) {
+            columns += 1;
+        }
+    }
+}
+
+/// A column against wall `k` at `s`, `width` along the wall and `depth` into the room, if
+/// the wall and floor there are free.
+#[allow(clippy::too_many_arguments)]
+fn add_pilaster(
+    b: &mut MeshBuilder,
+    layout: &mut Layout,
+    k: usize,
+    s: f32,
+    width: f32,
+    depth: f32,
+    color: [f32; 3],
+) -> bool {
+    let h = layout.height;
+    let wall = layout.walls[k];
+    let (s0, s1) = ((s - width * 0.5).max(0.0), (s + width * 0.5).min(wall.length));
+    let center = wall.point((s0 + s1) * 0.5, depth * 0.5);
+    let r = footprint(center, s1 - s0, depth, wall.yaw);
+    if s1 - s0 < 0.2 || !layout.wall_free(k, s0, s1, 0.0, BEAM_CLEARANCE, 0.05) || !layout.floor_free(&r) {
+        return false;
+    }
+    b.place(wall.start.extend(0.0), wall.yaw);
+    b.cuboid(Vec3::new(s0, 0.0, 0.0), Vec3::new(s1, depth, h), SKIP_NEG_Y | SKIP_POS_Z, SemanticClass::Column, color);
+    layout.reserve_wall(k, s0, s1, 0.0, h);
+    layout.add_obstacle(r);
+    layout.interest.push(center.extend(h * 0.5));
+    // A pilaster in a corner also takes the end of the neighbouring wall.
+    if s0 <= 1e-4 {
+        let prev = (k + 3) % 4;
+        let len = layout.walls[prev].length;
+        layout.reserve_wall(prev, len - depth, len, 0.0, h);
+    }
+    if s1 >= wall.length - 1e-4 {
+        layout.reserve_wall((k + 1) % 4, 0.0, depth, 0.0, h);
+    }
+    true
+}
+
+/// Chooses doors and windows for the style and reserves their wall spans (and the floor in
+/// front of doors). At least one door and one window.
+pub(crate) fn plan_openings(layout: &mut Layout, rng: &mut ChaCha8Rng, style: RoomStyle) -> Vec<Opening> {
+    let mut openings = Vec::new();
+    let h = layout.height;
+    // Doors.
+    let (door_walls, n_doors): (Vec<usize>, usize) = match style {
+        RoomStyle::Hallway => {
+            let long = if layout.width >= layout.depth { vec![0, 2] } else { vec![1, 3] };
+            (long, rng.random_range(2..=4))
+        }
+        _ => (vec![0, 1, 2, 3], rng.random_range(1..=2)),
+    };
+    let mut tries = 0;
+    while (openings.len() < n_doors || openings.is_empty()) && tries < 200 {
+        tries += 1;
+        let k = door_walls[rng.random_range(0..door_walls.len())];
+        let double = matches!(style, RoomStyle::Conference | RoomStyle::Lounge) && rng.random_bool(0.3);
+        let dw = if double { uniform(rng, 1.5, 1.8) } else { uniform(rng, 0.85, 1.0) };
+        let dh = uniform(rng, 2.03, 2.2);
+        let len = layout.walls[k].length;
+        if len < dw + 1.2 {
+            continue;
+        }
+        let s = uniform(rng, 0.5 + dw * 0.5, len - 0.5 - dw * 0.5);
+        if try_add_opening(layout, &mut openings, k, s, dw, 0.0, dh, OpeningKind::Door, uniform(rng, 0.03, 0.07)) {
+            // Also leave the swing of the door free on the floor.
+            let wall = layout.walls[k];
+            let swing = footprint(wall.point(s, 0.5), dw + 0.2, 1.0, wall.yaw);
+            layout.add_keepout(swing);
+        }
+    }
+    // Extra door at the end of a hallway.
+    if style == RoomStyle::Hallway && rng.random_bool(0.5) {
+        let k = if layout.width >= layout.depth { 1 } else { 0 };
+        let len = layout.walls[k].length;
+        let dw = uniform(rng, 0.85, 1.0).min(len - 0.8);
+        if try_add_opening(
+            layout,
+            &mut openings,
+            k,
+            len * 0.5,
+            dw,
+            0.0,
+            uniform(rng, 2.03, 2.2),
+            OpeningKind::Door,
+            0.05,
+        ) {
+            let wall = layout.walls[k];
+            layout.add_keepout(footprint(wall.point(len * 0.5, 0.5), dw + 0.2, 1.0, wall.yaw));
+        }
+    }
+    // Windows on one or two outside walls.
+    let outside: Vec<usize> = match style {
+        RoomStyle::Hallway => {
+            let ends = if layout.width >= layout.depth { [1, 3] } else { [0, 2] };
+            let long = if layout.width >= layout.depth { 2 } else { 1 };
+            if rng.random_bool(0.5) {
+                vec![ends[rng.random_range(0..2)]]
+            } else {
+                vec![long]
+            }
+        }
+        _ => {
+            let first = rng.random_range(0..4);
+            if rng.random_bool(0.35) {
+                vec![first, (first + 1) % 4]
+            } else {
+                vec![first]
+            }
+        }
+    };
+    let sill = uniform(rng, 0.8, 1.0);
+    let head = uniform(rng, 2.0, 2.2).min(h - 0.4);
+    let mut windows = 0;
+    let mut tries = 0;
+    let wanted = rng.random_range(1..=4);
+    while (windows < wanted && tries < 60) || (windows == 0 && tries < 400) {
+        tries += 1;
+        let k = outside[rng.random_range(0..outside.len())];
+        let k = if tries > 200 { rng.random_range(0..4) } else { k };
+        let len = layout.walls[k].length;
+        let ww = uniform(rng, 0.8, 1.8).min(len - 1.0);
+        if ww < 0.6 {
+            continue;
+        }
+        let s = uniform(rng, 0.4 + ww * 0.5, len - 0.4 - ww * 0.5);
+        if try_add_opening(layout, &mut openings, k, s, ww, sill, head, OpeningKind::Window, uniform(rng, 0.08, 0.2)) {
+            windows += 1;
+        }
+    }
+    openings
+}
+
+#[allow(clippy::too_many_arguments)]
+fn try_add_opening(
+    layout: &mut Layout,
+    openings: &mut Vec<Opening>,
+    k: usize,
+    s: f32,
+    width: f32,
+    z0: f32,
+    z1: f32,
+    kind: OpeningKind,
+    recess: f32,
+) -> bool {
+    let (s0, s1) = (s - width * 0.5, s + width * 0.5);
+    // Keep 10 cm of wall around openings for the casing.
+    if s0 < 0.25 || s1 > layout.walls[k].length - 0.25 || !layout.wall_free(k, s0 - 0.1, s1 + 0.1, 0.0, z1 + 0.1, 0.0) {
+        return false;
+    }
+    if kind == OpeningKind::Door {
+        let wall = layout.walls[k];
+        let swing = footprint(wall.point(s, 0.5), width + 0.2, 1.0, wall.yaw);
+        if !layout.floor_free(&swing) {
+            return false;
+        }
+    }
+    // Below a window sill the wall stays usable for desks and sofas, not for bookcases.
+    layout.reserve_wall(k, s0 - 0.1, s1 + 0.1, if kind == OpeningKind::Window { z0 - 0.02 } else { 0.0 }, z1 + 0.1);
+    let wall = layout.walls[k];
+    layout.interest.push(wall.point(s, 0.0).extend((z0 + z1) * 0.5));
+    openings.push(Opening { wall: k, s0, s1, z0, z1, kind, recess });
+    true
+}
+
+/// Emits floor, ceiling and walls with their openings, panes, leaves, reveals and casings.
+pub(crate) fn build_shell(
+    b: &mut MeshBuilder,
+    layout: &Layout,
+    openings: &[Opening],
+    rng: &mut ChaCha8Rng,
+    pal: &Palette,
+) {
+    let (w, d, h) = (layout.width, layout.depth, layout.height);
+    b.place(Vec3::ZERO, 0.0);
+    b.set_noise(0.05);
+    b.rect(Vec3::ZERO, Vec3::X * w, Vec3::Y * d, Vec3::Z, SemanticClass::Floor, pal.floor);
+    b.rect(Vec3::Z * h, Vec3::X * w, Vec3::Y * d, -Vec3::Z, SemanticClass::Ceiling, pal.ceiling);
+    // Recessed light panels on a regular grid: part of the ceiling (as S3DIS labels
+    // them), but brighter than the paint around them.
+    let (pw, pd) = if rng.random_bool(0.5) { (0.6, 0.6) } else { (1.2, 0.3) };
+    let pitch = uniform(rng, 2.0, 2.8);
+    let (nx, ny) = (((w / pitch).floor() as usize).max(1), ((d / pitch).floor() as usize).max(1));
+    let light = jitter(rng, [0.97, 0.97, 0.95], 0.02);
+    b.set_noise(0.02);
+    for i in 0..nx {
+        for j in 0..ny {
+            let c = Vec2::new(w * (i as f32 + 0.5) / nx as f32, d * (j as f32 + 0.5) / ny as f32);
+            let corner = Vec3::new(c.x - pw * 0.5, c.y - pd * 0.5, h - 0.005);
+            b.rect(corner, Vec3::X * pw, Vec3::Y * pd, -Vec3::Z, SemanticClass::Ceiling, light);
+        }
+    }
+    b.set_noise(0.05);
+    for (k, wall) in layout.walls.iter().enumerate() {
+        let holes: Vec<[f32; 4]> = openings.iter().filter(|o| o.wall == k).map(|o| [o.s0, o.s1, o.z0, o.z1]).collect();
+        b.place(wall.start.extend(0.0), wall.yaw);
+        b.set_noise(0.05);
+        b.rect_with_holes(
+            Vec3::ZERO,
+            Vec3::X * wall.length,
+            Vec3::Z * h,
+            Vec3::Y,
+            &holes,
+            SemanticClass::Wall,
+            pal.wall,
+        );
+    }
+    for o in openings {
+        let wall = layout.walls[o.wall];
+        b.place(wall.start.extend(0.0), wall.yaw);
+        match o.kind {
+            OpeningKind::Window => window(b, o, rng, pal),
+            OpeningKind::Door => door(b, o, rng, pal),
+        }
+    }
+    b.set_noise(0.06);
+}
+
+/// Reveals of an opening (wall frame): the four sides of the hole between the wall plane
+/// and the recessed pane or leaf, facing into the hole.
+fn reveals(
+    b: &mut MeshBuilder,
+    o: &Opening,
+    side: SemanticClass,
+    bottom: SemanticClass,
+    color: [f32; 3],
+    bottom_color: [f32; 3],
+) {
+    let r = o.recess;
+    let depth = Vec3::Y * -r;
+    let (ws, hz) = (Vec3::X * (o.s1 - o.s0), Vec3::Z * (o.z1 - o.z0));
+    let p00 = Vec3::new(o.s0, 0.0, o.z0);
+    b.rect(p00, depth, hz, Vec3::X, side, color);
+    b.rect(p00 + ws, depth, hz, -Vec3::X, side, color);
+    b.rect(p00 + hz, depth, ws, -Vec3::Z, side, color);
+    b.rect(p00, depth, ws, Vec3::Z, bottom, bottom_color);
+}
+
+fn window(b: &mut MeshBuilder, o: &Opening, rng: &mut ChaCha8Rng, pal: &Palette) {
+    reveals(b, o, SemanticClass::Wall, SemanticClass::Wall, pal.wall, jitter(rng, pal.wall, 0.03));
+    let r = o.recess;
+    b.set_noise(0.02);
+    let glass = jitter(rng, pal.glass, 0.04);
+    b.rect(
+        Vec3::new(o.s0, -r, o.z0),
+        Vec3::X * (o.s1 - o.s0),
+        Vec3::Z * (o.z1 - o.z0),
+        Vec3::Y,
+        SemanticClass::Window,
+        glass,
+    );
+    b.set_noise(0.04);
+    let frame = jitter(rng, pal.frame, 0.03);
+    let fw = uniform(rng, 0.04, 0.07);
+    let t0 = -r;
+    let t1 = -r + uniform(rng, 0.04, 0.07).min(r - 0.01);
+    let bar = |b: &mut MeshBuilder, s0: f32, s1: f32, z0: f32, z1: f32| {
+        b.cuboid(Vec3::new(s0, t0, z0), Vec3::new(s1, t1, z1), SKIP_NEG_Y, SemanticClass::Window, frame);
+    };
+    bar(b, o.s0, o.s0 + fw, o.z0, o.z1);
+    bar(b, o.s1 - fw, o.s1, o.z0, o.z1);
+    bar(b, o.s0 + fw, o.s1 - fw, o.z0, o.z0 + fw);
+    bar(b, o.s0 + fw, o.s1 - fw, o.z1 - fw, o.z1);
+    let panes = ((o.s1 - o.s0) / 0.7).round().max(1.0) as usize;
+    for i in 1..panes {
+        let s = o.s0 + (o.s1 - o.s0) * i as f32 / panes as f32;
+        bar(b, s - fw * 0.4, s + fw * 0.4, o.z0 + fw, o.z1 - fw);
+    }
+    if rng.random_bool(0.4) {
+        let z = o.z0 + (o.z1 - o.z0) * 0.7;
+        bar(b, o.s0 + fw, o.s1 - fw, z - fw * 0.4, z + fw * 0.4);
+    }
+}
+
+fn door(b: &mut MeshBuilder, o: &Opening, rng: &mut ChaCha8Rng, pal: &Palette) {
+    let leaf_color = jitter(rng, pal.door, 0.03);
+    let casing_color = if rng.random_bool(0.5) { jitter(rng, pal.door, 0.02) } else { jitter(rng, pal.frame, 0.03) };
+    reveals(b, o, SemanticClass::Door, SemanticClass::Floor, casing_color, pal.floor);
+    let r = o.recess;
+    let width = o.s1 - o.s0;
+    b.rect(
+        Vec3::new(o.s0, -r, o.z0),
+        Vec3::X * width,
+        Vec3::Z * (o.z1 - o.z0),
+        Vec3::Y,
+        SemanticClass::Door,
+        leaf_color,
+    );
+    // Casing around the opening, proud of the wall.
+    let (cw, ct) = (uniform(rng, 0.05, 0.09), uniform(rng, 0.01, 0.025));
+    let casing = |b: &mut MeshBuilder, s0: f32, s1: f32, z0: f32, z1: f32| {
+        b.cuboid(Vec3::new(s0, 0.0, z0), Vec3::new(s1, ct, z1), SKIP_NEG_Y, SemanticClass::Door, casing_color);
+    };
+    casing(b, o.s0 - cw, o.s0, 0.0, o.z1 + cw);
+    casing(b, o.s1, o.s1 + cw, 0.0, o.z1 + cw);
+    casing(b, o.s0, o.s1, o.z1, o.z1 + cw);
+    // Handles; a double door gets a centre seam and two.
+    let metal = pal.neutral(rng);
+    let handle = |b: &mut MeshBuilder, s: f32| {
+        b.cuboid(
+            Vec3::new(s - 0.01, -r, 0.98),
+            Vec3::new(s + 0.01, -r + 0.05, 1.02),
+            SKIP_NEG_Y,
+            SemanticClass::Door,
+            metal,
+        );
+        b.cuboid(
+            Vec3::new(s - 0.12, -r + 0.05, 0.985),
+            Vec3::new(s + 0.01, -r + 0.07, 1.015),
+            0,
+            SemanticClass::Door,
+            metal,
+        );
+    };
+    if width > 1.3 {
+        let mid = (o.s0 + o.s1) * 0.5;
+        b.cuboid(
+            Vec3::new(mid - 0.005, -r, 0.0),
+            Vec3::new(mid + 0.005, -r + 0.01, o.z1),
+            SKIP_NEG_Y | SKIP_NEG_Z | SKIP_POS_Z,
+            SemanticClass::Door,
+            casing_color,
+        );
+        handle(b, mid - 0.06);
+        handle(b, mid + 0.18);
+    } else if rng.random_bool(0.5) {
+        handle(b, o.s1 - 0.06);
+    } else {
+        handle(b, o.s0 + 0.18);
+    }
+}
