@@ -14,9 +14,11 @@ pub mod class;
 pub mod error;
 pub mod frame;
 pub mod mesh;
+pub mod render;
 
 pub use camera::Intrinsics;
 pub use class::SemanticClass;
 pub use error::{DataError, Result};
 pub use frame::{Frame, FrameSource};
 pub use mesh::LabeledMesh;
+pub use render::{PreparedMesh, RenderOutput, Renderer};
