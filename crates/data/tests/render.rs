@@ -1,0 +1,298 @@
+//! The rasteriser against two references: a slow per-pixel ray caster written here (small
+//! random scenes) and the depth images of the Replica dataset, rendered by someone else's
+//! renderer from the same mesh and poses.
+
+use std::path::{Path, PathBuf};
+
+use glam::{Affine3A, Mat3, Vec3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use semrecon_data::{Intrinsics, LabeledMesh, PreparedMesh, RenderOutput, Renderer};
+
+const Z_NEAR: f32 = 0.05;
+
+/// Per-pixel nearest hit (Moller-Trumbore in f64) of the camera-frame mesh: depth and
+/// label, keeping only hits at z >= `Z_NEAR` (what near-plane clipping leaves) and the
+/// lowest triangle index on ties.
+fn ray_cast(mesh: &LabeledMesh, k: &Intrinsics, world_from_camera: Affine3A) -> (Vec<f64>, Vec<u8>) {
+    let camera_from_world = world_from_camera.inverse();
+    let p: Vec<[f64; 3]> = mesh
+        .positions
+        .iter()
+        .map(|&q| {
+            let c = camera_from_world.transform_point3(q);
+            [c.x as f64, c.y as f64, c.z as f64]
+        })
+        .collect();
+    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let cross = |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let n = k.pixel_count();
+    let mut depth = vec![0.0; n];
+    let mut labels = vec![255u8; n];
+    for v in 0..k.height {
+        for u in 0..k.width {
+            let d = [(u as f64 - k.cx as f64) / k.fx as f64, (v as f64 - k.cy as f64) / k.fy as f64, 1.0];
+            let mut best = f64::INFINITY;
+            let mut label = 255;
+            for (t, tri) in mesh.triangles.iter().enumerate() {
+                let [a, b, c] = tri.map(|i| p[i as usize]);
+                let e1 = sub(b, a);
+                let e2 = sub(c, a);
+                let h = cross(d, e2);
+                let det = dot(e1, h);
+                if det.abs() < 1e-15 {
+                    continue;
+                }
+                let s = sub([0.0; 3], a);
+                let bu = dot(s, h) / det;
+                let q = cross(s, e1);
+                let bv = dot(d, q) / det;
+                if bu < 0.0 || bv < 0.0 || bu + bv > 1.0 {
+                    continue;
+                }
+                let z = dot(e2, q) / det; // ray parameter = z, as d.z = 1
+                if z >= Z_NEAR as f64 && z < best {
+                    best = z;
+                    label = mesh.triangle_labels[t];
+                }
+            }
+            let i = (v * k.width + u) as usize;
+            if best.is_finite() {
+                depth[i] = best;
+                labels[i] = label;
+            }
+        }
+    }
+    (depth, labels)
+}
+
+/// Fraction of pixels where both agree (both empty, or depths within 1e-4 relative), and
+/// the fraction of those hits whose labels agree.
+fn agreement(out: &RenderOutput, depth: &[f64], labels: &[u8]) -> (f64, f64) {
+    let mut agree = 0usize;
+    let mut hits = 0usize;
+    let mut same_label = 0usize;
+    for i in 0..depth.len() {
+        let (a, b) = (out.depth[i] as f64, depth[i]);
+        if a == 0.0 && b == 0.0 {
+            agree += 1;
+        } else if a > 0.0 && b > 0.0 && (a - b).abs() <= 1e-4 * b {
+            agree += 1;
+            hits += 1;
+            same_label += usize::from(out.labels[i] == labels[i]);
+        }
+    }
+    (agree as f64 / depth.len() as f64, same_label as f64 / hits.max(1) as f64)
+}
+
+fn random_scene(rng: &mut ChaCha8Rng, n: usize) -> LabeledMesh {
+    let mut mesh = LabeledMesh::default();
+    for t in 0..n {
+        let centre = Vec3::new(rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0), rng.random_range(-1.0..4.0));
+        for _ in 0..3 {
+            let off = Vec3::new(rng.random_range(-1.5..1.5), rng.random_range(-1.5..1.5), rng.random_range(-1.5..1.5));
+            mesh.positions.push(centre + off);
+            mesh.colors.push([rng.random(), rng.random(), rng.random()]);
+        }
+        let b = 3 * t as u32;
+        mesh.triangles.push([b, b + 1, b + 2]);
+        mesh.triangle_labels.push((t % 200) as u8);
+    }
+    mesh
+}
+
+fn random_pose(rng: &mut ChaCha8Rng) -> Affine3A {
+    let axis = Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)).normalize_or(Vec3::Z);
+    let angle = rng.random_range(-0.4..0.4);
+    let t = Vec3::new(rng.random_range(-0.3..0.3), rng.random_range(-0.3..0.3), rng.random_range(-0.5..0.5));
+    Affine3A::from_mat3_translation(Mat3::from_axis_angle(axis, angle), t)
+}
+
+#[test]
+fn rasteriser_matches_a_ray_caster_on_random_scenes() {
+    let k = Intrinsics::new(64, 48, 50.0, 52.0, 31.7, 23.2).expect("valid");
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let mut renderer = Renderer::new(k);
+    for scene in 0..8 {
+        let mesh = random_scene(&mut rng, 30);
+        let prepared = PreparedMesh::new(&mesh).expect("valid mesh");
+        let pose = random_pose(&mut rng);
+        let out = renderer.render(&prepared, pose);
+        let (depth, labels) = ray_cast(&mesh, &k, pose);
+        let (agree, label_agree) = agreement(out, &depth, &labels);
+        assert!(agree >= 0.99, "scene {scene}: only {:.2}% of pixels agree", 100.0 * agree);
+        assert!(label_agree >= 0.995, "scene {scene}: labels agree on {:.2}% of hits", 100.0 * label_agree);
+    }
+}
+
+#[test]
+fn triangles_crossing_the_near_plane_are_clipped_not_dropped() {
+    let k = Intrinsics::new(64, 48, 40.0, 40.0, 31.5, 23.5).expect("valid");
+    // A floor 1 m below the camera reaching behind it, and a wall whose corner pokes through
+    // the near plane: the part nearer than z_near must vanish and show the floor behind.
+    let mesh = LabeledMesh {
+        positions: vec![
+            Vec3::new(-10.0, 1.0, -5.0),
+            Vec3::new(10.0, 1.0, -5.0),
+            Vec3::new(0.0, 1.0, 30.0),
+            Vec3::new(-0.3, -2.0, 0.01),
+            Vec3::new(-0.3, 0.5, 0.01),
+            Vec3::new(1.5, -0.5, 3.0),
+        ],
+        colors: vec![[100; 3]; 6],
+        triangles: vec![[0, 1, 2], [3, 4, 5]],
+        triangle_labels: vec![1, 2],
+        ..Default::default()
+    };
+    let prepared = PreparedMesh::new(&mesh).expect("valid mesh");
+    let mut renderer = Renderer::new(k).with_near(Z_NEAR).expect("valid near");
+    let out = renderer.render(&prepared, Affine3A::IDENTITY);
+    let (depth, labels) = ray_cast(&mesh, &k, Affine3A::IDENTITY);
+    let (agree, label_agree) = agreement(out, &depth, &labels);
+    assert!(agree >= 0.99 && label_agree >= 0.995, "agree {agree}, labels {label_agree}");
+    let floor = out.labels.iter().filter(|&&l| l == 1).count();
+    let wall = out.labels.iter().filter(|&&l| l == 2).count();
+    assert!(floor > 300 && wall > 300, "floor {floor} and wall {wall} pixels");
+    // Floor depth is 1 / y' exactly.
+    for v in 30..48u32 {
+        let i = (v * 64 + 40) as usize;
+        if out.labels[i] == 1 {
+            let z = 1.0 / ((v as f32 - 23.5) / 40.0);
+            assert!((out.depth[i] - z).abs() < 1e-4 * z, "row {v}: {} vs {z}", out.depth[i]);
+        }
+    }
+}
+
+#[test]
+fn output_is_identical_for_any_thread_count() {
+    let k = Intrinsics::new(320, 240, 250.0, 250.0, 159.5, 119.5).expect("valid");
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let mesh = random_scene(&mut rng, 3000);
+    let prepared = PreparedMesh::new(&mesh).expect("valid mesh");
+    let pose = random_pose(&mut rng);
+    let render_with = |threads: usize| -> RenderOutput {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");
+        pool.install(|| Renderer::new(k).render(&prepared, pose).clone())
+    };
+    let one = render_with(1);
+    let two = render_with(2);
+    let three = render_with(3);
+    assert!(one.depth.iter().filter(|&&d| d > 0.0).count() > 1000);
+    assert!(one == two && one == three, "outputs differ between thread counts");
+}
+
+/// Workspace's shared data folder (`SEMRECON_SHARED_DATA` overrides it, for worktrees that
+/// do not sit beside it), `None` (with the skip message) when absent.
+fn shared_data() -> Option<PathBuf> {
+    let dir = std::env::var_os("SEMRECON_SHARED_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
+    if dir.is_dir() {
+        Some(dir)
+    } else {
+        println!("skipping: ../shared/data not found");
+        None
+    }
+}
+
+// TODO: use crate::ply once merged
+/// Minimal binary little-endian PLY reader: float x/y/z and uchar red/green/blue vertex
+/// properties (others skipped by size), faces as a `list uchar int|uint` of 3 indices.
+fn read_binary_ply(path: &Path) -> LabeledMesh {
+    let bytes = std::fs::read(path).expect("read ply");
+    let end = b"end_header\n";
+    let header_len = bytes.windows(end.len()).position(|w| w == end).expect("ply header") + end.len();
+    let header = std::str::from_utf8(&bytes[..header_len]).expect("ascii header");
+    assert!(header.contains("binary_little_endian"), "only binary little-endian PLY");
+    let size = |t: &str| match t {
+        "char" | "uchar" | "int8" | "uint8" => 1,
+        "short" | "ushort" | "int16" | "uint16" => 2,
+        "int" | "uint" | "float" | "int32" | "uint32" | "float32" => 4,
+        _ => 8,
+    };
+    let (mut n_vertices, mut n_faces) = (0usize, 0usize);
+    let mut in_vertex = false;
+    let mut stride = 0usize;
+    let mut offsets = std::collections::HashMap::new();
+    for line in header.lines() {
+        let w: Vec<&str> = line.split_whitespace().collect();
+        match w.as_slice() {
+            ["element", "vertex", n] => (n_vertices, in_vertex) = (n.parse().expect("count"), true),
+            ["element", "face", n] => (n_faces, in_vertex) = (n.parse().expect("count"), false),
+            ["property", t, name] if in_vertex => {
+                offsets.insert(name.to_string(), stride);
+                stride += size(t);
+            }
+            _ => {}
+        }
+    }
+    let f32_at = |o: usize| f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]]);
+    let mut mesh = LabeledMesh::default();
+    for v in 0..n_vertices {
+        let base = header_len + v * stride;
+        mesh.positions.push(Vec3::new(f32_at(base + offsets["x"]), f32_at(base + offsets["y"]), f32_at(base + offsets["z"])));
+        mesh.colors.push([bytes[base + offsets["red"]], bytes[base + offsets["green"]], bytes[base + offsets["blue"]]]);
+    }
+    let mut o = header_len + n_vertices * stride;
+    for _ in 0..n_faces {
+        assert_eq!(bytes[o], 3, "only triangles");
+        let idx = |j: usize| u32::from_le_bytes([bytes[o + 1 + 4 * j], bytes[o + 2 + 4 * j], bytes[o + 3 + 4 * j], bytes[o + 4 + 4 * j]]);
+        mesh.triangles.push([idx(0), idx(1), idx(2)]);
+        mesh.triangle_labels.push(0);
+        o += 13;
+    }
+    mesh
+}
+
+fn read_traj(path: &Path, n: usize) -> Vec<Affine3A> {
+    let text = std::fs::read_to_string(path).expect("read traj");
+    text.lines()
+        .take(n)
+        .map(|line| {
+            let m: Vec<f32> = line.split_whitespace().map(|v| v.parse().expect("float")).collect();
+            assert_eq!(m.len(), 16);
+            // Row-major camera-to-world.
+            Affine3A::from_cols_array(&[m[0], m[4], m[8], m[1], m[5], m[9], m[2], m[6], m[10], m[3], m[7], m[11]])
+        })
+        .collect()
+}
+
+#[test]
+fn replica_office0_depth_matches_the_dataset_renderer() {
+    let Some(data) = shared_data() else { return };
+    let dir = data.join("replica-office0");
+    let mesh = read_binary_ply(&dir.join("office0_mesh.ply"));
+    assert_eq!((mesh.positions.len(), mesh.triangles.len()), (25_149, 50_000));
+    let prepared = PreparedMesh::new(&mesh).expect("valid mesh");
+    let k = Intrinsics::new(1200, 680, 600.0, 600.0, 599.5, 339.5).expect("valid");
+    let mut renderer = Renderer::new(k);
+    for (i, pose) in read_traj(&dir.join("office0/traj.txt"), 4).into_iter().enumerate() {
+        let png = dir.join(format!("office0/results/depth{i:06}.png"));
+        let reference = image::open(&png).expect("depth png").into_luma16();
+        assert_eq!(reference.dimensions(), (1200, 680));
+        let out = renderer.render(&prepared, pose);
+        let mut diffs = Vec::new();
+        let mut valid_ref = 0usize;
+        for (j, r) in reference.as_raw().iter().enumerate() {
+            let zr = *r as f32 / 6553.5;
+            valid_ref += usize::from(*r > 0);
+            if *r > 0 && out.depth[j] > 0.0 {
+                diffs.push((out.depth[j] - zr).abs());
+            }
+        }
+        diffs.sort_by(f32::total_cmp);
+        let median = diffs.get(diffs.len() / 2).copied().unwrap_or(f32::INFINITY);
+        let both = diffs.len() as f64 / out.depth.len() as f64;
+        let within_1cm = diffs.iter().filter(|&&d| d < 0.01).count() as f64 / diffs.len().max(1) as f64;
+        println!(
+            "replica frame {i}: valid in both {:.1}% (reference {:.1}%), median |diff| {:.2} mm, {:.1}% within 1 cm",
+            100.0 * both,
+            100.0 * valid_ref as f64 / out.depth.len() as f64,
+            1000.0 * median,
+            100.0 * within_1cm
+        );
+        assert!(both > 0.5, "frame {i}: only {:.1}% valid in both", 100.0 * both);
+        assert!(median <= 0.005, "frame {i}: median difference {median} m");
+    }
+}
