@@ -207,6 +207,8 @@ pub struct Renderer {
     bins: Vec<Vec<u32>>,
     inv_z: Vec<f32>,
     ids: Vec<u32>,
+    /// x component of the pixel rays (z = 1) per image column.
+    ray_x: Vec<f32>,
     output: RenderOutput,
 }
 
@@ -223,6 +225,7 @@ impl Renderer {
             bins: Vec::new(),
             inv_z: vec![0.0; n],
             ids: vec![NO_HIT; n],
+            ray_x: Vec::new(),
             output: RenderOutput::default(),
         }
     }
@@ -390,6 +393,10 @@ impl Renderer {
         let k = self.intrinsics;
         let w = k.width as usize;
         self.output.resize(k.width, k.height);
+        if self.ray_x.len() != w {
+            self.ray_x = (0..w).map(|x| (x as f32 - k.cx) / k.fx).collect();
+        }
+        let ray_x = &self.ray_x;
         let chunks = &self.chunks;
         let ids = &self.ids;
         let inv_z = &self.inv_z;
@@ -401,35 +408,58 @@ impl Renderer {
             .zip(out.incidence.par_chunks_mut(w))
             .enumerate()
             .for_each(|(y, (((depth, color), labels), incidence))| {
+                // The pixel ray is d = (ray_x[x], dy, 1): its parameter along d is z.
                 let dy = (y as f32 - k.cy) / k.fy;
-                let row = y * w;
-                for x in 0..w {
-                    let id = ids[row + x];
+                let dy2 = dy * dy + 1.0;
+                let ids = &ids[y * w..(y + 1) * w];
+                let inv_z = &inv_z[y * w..(y + 1) * w];
+                let mut x = 0;
+                // Runs of pixels of one triangle share the triangle's constants.
+                while x < w {
+                    let id = ids[x];
+                    let mut end = x + 1;
+                    while end < w && ids[end] == id {
+                        end += 1;
+                    }
                     if id == NO_HIT {
-                        depth[x] = 0.0;
-                        color[x] = [0; 3];
-                        labels[x] = UNLABELED;
-                        incidence[x] = 0.0;
+                        depth[x..end].fill(0.0);
+                        color[x..end].fill([0; 3]);
+                        labels[x..end].fill(UNLABELED);
+                        incidence[x..end].fill(0.0);
+                        x = end;
                         continue;
                     }
                     let s = &chunks[(id >> LOCAL_BITS) as usize].shade[(id & ((1 << LOCAL_BITS) - 1)) as usize];
-                    let d = Vec3A::new((x as f32 - k.cx) / k.fx, dy, 1.0);
-                    let nd = s.n.dot(d);
-                    let mut z = s.n_dot_p0 / nd;
-                    if !(z.is_finite() && z > 0.0) {
-                        // Seen exactly edge-on: the rasterised 1/z is all there is.
-                        z = 1.0 / inv_z[row + x];
+                    let tri = s.triangle as usize;
+                    let [i0, i1, i2] = mesh.triangles[tri];
+                    // +0.5 so that the saturating float-to-u8 cast rounds.
+                    let c0 = mesh.colors[i0 as usize] + 0.5;
+                    let dc1 = mesh.colors[i1 as usize] + 0.5 - c0;
+                    let dc2 = mesh.colors[i2 as usize] + 0.5 - c0;
+                    labels[x..end].fill(mesh.labels[tri]);
+                    // n.d, m1.d and m2.d are affine in ray_x along the row.
+                    let nd_row = s.n.y * dy + s.n.z;
+                    let m1_row = s.m1.y * dy + s.m1.z;
+                    let m2_row = s.m2.y * dy + s.m2.z;
+                    let q1 = s.p0.dot(s.m1);
+                    let q2 = s.p0.dot(s.m2);
+                    for i in x..end {
+                        let dx = ray_x[i];
+                        let nd = s.n.x * dx + nd_row;
+                        let mut z = s.n_dot_p0 / nd;
+                        if !(z.is_finite() && z > 0.0) {
+                            // Seen exactly edge-on: the rasterised 1/z is all there is.
+                            z = 1.0 / inv_z[i];
+                        }
+                        // Barycentrics of the hit z * d: (z d - p0) . m.
+                        let b1 = z * (s.m1.x * dx + m1_row) - q1;
+                        let b2 = z * (s.m2.x * dx + m2_row) - q2;
+                        let c = c0 + dc1 * b1 + dc2 * b2;
+                        depth[i] = z;
+                        color[i] = [c.x as u8, c.y as u8, c.z as u8];
+                        incidence[i] = (nd.abs() * s.inv_n_len / (dx * dx + dy2).sqrt()).min(1.0);
                     }
-                    let r = d * z - s.p0;
-                    let b1 = r.dot(s.m1).clamp(0.0, 1.0);
-                    let b2 = r.dot(s.m2).clamp(0.0, 1.0 - b1);
-                    let b0 = 1.0 - b1 - b2;
-                    let [i0, i1, i2] = mesh.triangles[s.triangle as usize];
-                    let c = mesh.colors[i0 as usize] * b0 + mesh.colors[i1 as usize] * b1 + mesh.colors[i2 as usize] * b2;
-                    depth[x] = z;
-                    color[x] = [c.x, c.y, c.z].map(|v| (v + 0.5).clamp(0.0, 255.0) as u8);
-                    labels[x] = mesh.labels[s.triangle as usize];
-                    incidence[x] = (nd.abs() * s.inv_n_len / d.length()).min(1.0);
+                    x = end;
                 }
             });
     }
