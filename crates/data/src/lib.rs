@@ -15,6 +15,7 @@ pub mod error;
 pub mod frame;
 pub mod mesh;
 pub mod render;
+pub mod sensor;
 
 pub use camera::Intrinsics;
 pub use class::SemanticClass;
@@ -22,3 +23,4 @@ pub use error::{DataError, Result};
 pub use frame::{Frame, FrameSource};
 pub use mesh::LabeledMesh;
 pub use render::{PreparedMesh, RenderOutput, Renderer};
+pub use sensor::SensorModel;
