@@ -15,6 +15,7 @@ pub mod error;
 pub mod frame;
 pub mod mesh;
 pub mod render;
+pub mod scan_path;
 pub mod sensor;
 
 pub use camera::Intrinsics;
@@ -23,4 +24,5 @@ pub use error::{DataError, Result};
 pub use frame::{Frame, FrameSource};
 pub use mesh::LabeledMesh;
 pub use render::{PreparedMesh, RenderOutput, Renderer};
+pub use scan_path::{RoomLayout, ScanPlan};
 pub use sensor::SensorModel;
