@@ -141,16 +141,24 @@ impl ScanPlan {
         let once_speed = length / duration / (1.0 - ramp);
         let distance: Vec<f32> = if once_speed <= self.walking_speed {
             // Long scans go round several times rather than crawl.
-            let laps = (0.8 * self.walking_speed / once_speed).floor().max(1.0);
+            let laps = if once_speed > 0.0 { (0.8 * self.walking_speed / once_speed).floor().max(1.0) } else { 1.0 };
             let profile: Vec<f32> = times.iter().map(|&u| speed_profile(u, ramp)).collect();
-            cumulative(&profile, length * laps).into_iter().map(|s| if s >= length * laps { 0.0 } else { s % length }).collect()
+            cumulative(&profile, length * laps)
         } else {
             let reach = self.walking_speed * duration / PI;
             times.iter().map(|&u| reach * (1.0 - (TAU * u).cos()) * 0.5).collect()
         };
         let floor = room.floor_z;
         let eye_z = floor + self.eye_height.min(room.ceiling_height - 0.25).max(0.5f32.min(room.ceiling_height * 0.5));
-        let positions: Vec<Vec3> = distance.iter().map(|&s| path.at(s).extend(eye_z)).collect();
+        let positions: Vec<Vec3> = distance
+            .iter()
+            .map(|&s| {
+                let on_loop = if length > 0.0 { s % length } else { 0.0 };
+                // The end of the last lap is the start, whatever the rounding.
+                let on_loop = if length - on_loop < 1e-4 { 0.0 } else { on_loop };
+                path.at(on_loop).extend(eye_z)
+            })
+            .collect();
 
         // Walking direction (for choosing what to look at), and bobbing with the steps.
         let heading: Vec<Vec2> = (0..n)
@@ -648,6 +656,21 @@ mod tests {
             assert!(t.x > -1.6 && t.x < 2.6 && t.y > -0.6 && t.y < 2.1 && t.z > 1.4 && t.z < 1.8, "{t}");
         }
         assert!(ScanPlan::from_mesh_bounds(&LabeledMesh::default(), 0).is_err());
+    }
+
+    #[test]
+    fn a_tiny_room_gives_a_camera_standing_and_looking_around() {
+        let room = RoomLayout {
+            floor_min: Vec2::ZERO,
+            floor_max: Vec2::new(1.0, 1.0),
+            floor_z: 0.0,
+            ceiling_height: 2.5,
+            obstacles: Vec::new(),
+            interest_points: Vec::new(),
+        };
+        let plan = ScanPlan::new(room, 4);
+        let poses = plan.poses(300).expect("plan");
+        check_plausible(&plan, &poses);
     }
 
     #[test]
