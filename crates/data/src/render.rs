@@ -297,8 +297,8 @@ impl Renderer {
                     let x = k.fx * p.x * inv_z + k.cx;
                     let y = k.fy * p.y * inv_z + k.cy;
                     if (x - k.cx).abs() < GUARD_BAND && (y - k.cy).abs() < GUARD_BAND {
-                        sx = (x * SUBPIXEL).round() as i32;
-                        sy = (y * SUBPIXEL).round() as i32;
+                        sx = round_to_i32(x * SUBPIXEL);
+                        sy = round_to_i32(y * SUBPIXEL);
                     } else {
                         code |= CODE_GUARD;
                     }
@@ -465,6 +465,13 @@ impl Renderer {
     }
 }
 
+/// Rounds half away from zero; a cast instead of `f32::round`, which is a libm call on
+/// baseline x86-64.
+#[inline]
+fn round_to_i32(v: f32) -> i32 {
+    (v + 0.5f32.copysign(v)) as i32
+}
+
 /// Plane data of the camera-frame triangle `p`; `None` when it is degenerate.
 fn shade_triangle(p: [Vec3A; 3], triangle: u32) -> Option<ShadeTri> {
     let e1 = p[1] - p[0];
@@ -532,8 +539,8 @@ fn clip_and_setup(k: &Intrinsics, z_near: f32, p: [Vec3A; 3], shade: u32, out: &
         let q = poly[i];
         let inv = 1.0 / q.z.max(z_near);
         iz[i] = inv;
-        sx[i] = ((k.fx * q.x * inv + k.cx) * SUBPIXEL).round() as i32;
-        sy[i] = ((k.fy * q.y * inv + k.cy) * SUBPIXEL).round() as i32;
+        sx[i] = round_to_i32((k.fx * q.x * inv + k.cx) * SUBPIXEL);
+        sy[i] = round_to_i32((k.fy * q.y * inv + k.cy) * SUBPIXEL);
     }
     for i in 1..len - 1 {
         setup_screen_triangle(k, [sx[0], sx[i], sx[i + 1]], [sy[0], sy[i], sy[i + 1]], [iz[0], iz[i], iz[i + 1]], shade, out);

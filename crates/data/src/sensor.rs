@@ -11,8 +11,7 @@
 //! (seed, frame index, image row), so the result is the same for any thread count and any
 //! order of frames.
 
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
+use rand::{Rng, RngCore};
 use rand_distr::StandardNormal;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -157,14 +156,27 @@ impl SensorModel {
         let clean = out.depth.clone();
         let clean = &clean;
         let incidence = &out.incidence;
+        let lateral = LateralTable::new(self.lateral_sigma_px);
+        let lateral = &lateral;
+        // Colour noise by table: the rounded offset for each Irwin-Hall sum of three 7-bit
+        // uniforms (mean 190.5, standard deviation 64), an approximate normal bounded at
+        // +-3 sigma, which is fine for colour.
+        let color_noise: Option<Vec<i16>> = (self.color_sigma > 0.0).then(|| {
+            (0..382).map(|sum| ((sum as f32 - 190.5) / 64.0 * self.color_sigma).round().clamp(-255.0, 255.0) as i16).collect()
+        });
+        let color_noise = &color_noise;
         out.depth.par_chunks_mut(w).zip(out.color.par_chunks_mut(w)).enumerate().for_each(|(y, (depth, color))| {
-            let mut rng = ChaCha8Rng::seed_from_u64(row_seed(self.seed, frame_index as u64, y as u64));
+            let mut rng = PixelNoise::new(row_seed(self.seed, frame_index as u64, y as u64));
+            let image = Image { depth: clean, incidence, w, h };
             for x in 0..w {
-                depth[x] = self.measure(clean, incidence, w, h, x, y, &mut rng);
-                if self.color_sigma > 0.0 {
-                    for c in &mut color[x] {
-                        let n: f32 = rng.sample(StandardNormal);
-                        *c = (*c as f32 + n * self.color_sigma + 0.5).clamp(0.0, 255.0) as u8;
+                depth[x] = self.measure(&image, lateral, x, y, &mut rng);
+                if let Some(table) = &color_noise {
+                    // One draw for the three channels, 21 bits each.
+                    let bits = rng.next_u64();
+                    for (ch, c) in color[x].iter_mut().enumerate() {
+                        let b = bits >> (21 * ch);
+                        let sum = (b & 0x7F) + ((b >> 7) & 0x7F) + ((b >> 14) & 0x7F);
+                        *c = (i32::from(*c) + i32::from(table[sum as usize])).clamp(0, 255) as u8;
                     }
                 }
             }
@@ -172,20 +184,22 @@ impl SensorModel {
     }
 
     /// The measured depth of pixel (x, y) given the clean depth image.
-    #[allow(clippy::too_many_arguments)]
-    fn measure(&self, clean: &[f32], incidence: &[f32], w: usize, h: usize, x: usize, y: usize, rng: &mut ChaCha8Rng) -> f32 {
+    fn measure(&self, image: &Image, lateral: &LateralTable, x: usize, y: usize, rng: &mut PixelNoise) -> f32 {
+        let (w, h, clean) = (image.w, image.h, image.depth);
+        // One draw, four 16-bit uniforms: lateral x and y, edge and grazing dropout.
+        let bits = rng.next_u64();
+        let uniform = |k: u32| ((bits >> (16 * k)) & 0xFFFF) as f32 * (1.0 / 65536.0);
         let (mut sx, mut sy) = (x, y);
         if self.lateral_sigma_px > 0.0 {
-            let ox: f32 = rng.sample(StandardNormal);
-            let oy: f32 = rng.sample(StandardNormal);
-            sx = (x as f32 + (ox * self.lateral_sigma_px).round()).clamp(0.0, (w - 1) as f32) as usize;
-            sy = (y as f32 + (oy * self.lateral_sigma_px).round()).clamp(0.0, (h - 1) as f32) as usize;
+            sx = x.saturating_add_signed(lateral.offset(bits as u16)).min(w - 1);
+            sy = y.saturating_add_signed(lateral.offset((bits >> 16) as u16)).min(h - 1);
         }
         let i = sy * w + sx;
         let mut z = clean[i];
         if z <= 0.0 {
             return 0.0;
         }
+        let (u_edge, u_grazing) = (uniform(2), uniform(3));
         if let Some(e) = self.edge_dropout {
             let jump = e.relative_jump * z;
             let differs = |j: usize| clean[j] <= 0.0 || (clean[j] - z).abs() > jump;
@@ -193,20 +207,17 @@ impl SensorModel {
                 || (sx + 1 < w && differs(i + 1))
                 || (sy > 0 && differs(i - w))
                 || (sy + 1 < h && differs(i + w));
-            if edge && rng.random::<f32>() < e.probability {
+            if edge && u_edge < e.probability {
                 return 0.0;
             }
         }
         if let Some(g) = self.grazing_dropout {
-            let c = incidence.get(i).copied().unwrap_or(1.0);
+            let c = image.incidence.get(i).copied().unwrap_or(1.0);
             if c < g.cos_missing {
                 return 0.0;
             }
-            if c < g.cos_kept {
-                let p_missing = (g.cos_kept - c) / (g.cos_kept - g.cos_missing);
-                if rng.random::<f32>() < p_missing {
-                    return 0.0;
-                }
+            if c < g.cos_kept && u_grazing < (g.cos_kept - c) / (g.cos_kept - g.cos_missing) {
+                return 0.0;
             }
         }
         if let Some(a) = self.axial_noise {
@@ -215,11 +226,11 @@ impl SensorModel {
         }
         z = match self.quantization {
             Quantization::None => z,
-            Quantization::Step { metres } if metres > 0.0 => (z / metres).round() * metres,
+            Quantization::Step { metres } if metres > 0.0 => round_half_up(z / metres) * metres,
             Quantization::Step { .. } => z,
             Quantization::Disparity { focal_px, baseline_m, subpixel } => {
                 let fb = focal_px * baseline_m;
-                let d = (fb / z * subpixel).round() / subpixel;
+                let d = round_half_up(fb / z * subpixel) / subpixel;
                 if d > 0.0 {
                     fb / d
                 } else {
@@ -237,6 +248,100 @@ impl SensorModel {
         } else {
             0.0
         }
+    }
+}
+
+/// SplitMix64: the per-pixel random stream of one image row. A ChaCha stream (what the
+/// rest of the project uses) costs more than everything else of the model together at
+/// six 64-bit draws per pixel; noise only needs well-mixed, reproducible bits.
+struct PixelNoise {
+    state: u64,
+}
+
+impl PixelNoise {
+    fn new(seed: u64) -> Self {
+        Self { state: seed }
+    }
+}
+
+impl RngCore for PixelNoise {
+    #[inline]
+    fn next_u64(&mut self) -> u64 {
+        self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    #[inline]
+    fn next_u32(&mut self) -> u32 {
+        (self.next_u64() >> 32) as u32
+    }
+
+    fn fill_bytes(&mut self, dst: &mut [u8]) {
+        for chunk in dst.chunks_mut(8) {
+            let bytes = self.next_u64().to_le_bytes();
+            chunk.copy_from_slice(&bytes[..chunk.len()]);
+        }
+    }
+}
+
+/// The clean rendered images a sensor reads from.
+struct Image<'a> {
+    depth: &'a [f32],
+    incidence: &'a [f32],
+    w: usize,
+    h: usize,
+}
+
+/// Rounding of a non-negative value by a cast (`f32::round` is a libm call on baseline
+/// x86-64); saturates for huge values.
+#[inline]
+fn round_half_up(v: f32) -> f32 {
+    (v + 0.5) as u32 as f32
+}
+
+/// Lateral jitter as whole-pixel offsets: the normal N(0, sigma) rounded, drawn from a
+/// 16-bit uniform by inverting its cumulative distribution.
+struct LateralTable {
+    /// `thresholds[k]` = P(offset <= k - 3) scaled to 65536, for offsets -3..=2.
+    thresholds: [u32; 6],
+    /// No jitter at all.
+    off: bool,
+}
+
+impl LateralTable {
+    fn new(sigma: f32) -> Self {
+        let mut thresholds = [0u32; 6];
+        for (k, t) in thresholds.iter_mut().enumerate() {
+            let p = if sigma > 0.0 { normal_cdf((k as f64 - 3.0 + 0.5) / sigma as f64) } else { 0.0 };
+            *t = (p * 65536.0) as u32;
+        }
+        Self { thresholds, off: sigma <= 0.0 }
+    }
+
+    #[inline]
+    fn offset(&self, u: u16) -> isize {
+        let u = u as u32;
+        // Most pixels stay: test the middle interval first.
+        if self.off || (u >= self.thresholds[2] && u < self.thresholds[3]) {
+            return 0;
+        }
+        self.thresholds.iter().map(|&t| isize::from(u >= t)).sum::<isize>() - 3
+    }
+}
+
+/// Standard normal cumulative distribution (Abramowitz and Stegun 7.1.26, error < 1.5e-7).
+fn normal_cdf(x: f64) -> f64 {
+    let z = x.abs() / std::f64::consts::SQRT_2;
+    let t = 1.0 / (1.0 + 0.3275911 * z);
+    let poly = t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027 + t * 1.061405429))));
+    let erf = 1.0 - poly * (-z * z).exp();
+    if x >= 0.0 {
+        0.5 * (1.0 + erf)
+    } else {
+        0.5 * (1.0 - erf)
     }
 }
 
@@ -341,6 +446,34 @@ mod tests {
         let missing_inside = step.depth.chunks(32).filter(|r| r[8] == 0.0).count();
         assert!((60..140).contains(&missing_at_edge), "{missing_at_edge} of 200 edge pixels missing");
         assert_eq!(missing_inside, 0);
+    }
+
+    #[test]
+    fn lateral_jitter_moves_about_the_expected_share_of_pixels() {
+        let table = LateralTable::new(0.4);
+        let mut rng = PixelNoise::new(1);
+        let n = 100_000;
+        let moved = (0..n).filter(|_| table.offset(rng.next_u32() as u16) != 0).count() as f64 / n as f64;
+        // P(|N(0, 0.4)| > 0.5) = 2 (1 - Phi(1.25)) = 0.211.
+        assert!((moved - 0.211).abs() < 0.01, "{moved}");
+        assert_eq!(LateralTable::new(0.0).offset(u16::MAX), 0);
+        assert_eq!(LateralTable::new(0.0).offset(0), 0);
+    }
+
+    #[test]
+    fn colour_noise_has_the_configured_spread() {
+        let model = SensorModel { color_sigma: 3.0, ..SensorModel::ideal() };
+        let mut out = flat(200, 100, 2.0, 1.0);
+        model.apply(&mut out, 0);
+        for ch in 0..3 {
+            let v: Vec<f32> = out.color.iter().map(|c| c[ch] as f32).collect();
+            let mean = v.iter().sum::<f32>() / v.len() as f32;
+            let std = (v.iter().map(|x| (x - mean) * (x - mean)).sum::<f32>() / v.len() as f32).sqrt();
+            let base = [100.0, 150.0, 200.0][ch];
+            assert!((mean - base).abs() < 0.1, "channel {ch} mean {mean}");
+            // Rounding to integers adds 1/12 of variance.
+            assert!((std - (9.0f32 + 1.0 / 12.0).sqrt()).abs() < 0.1, "channel {ch} std {std}");
+        }
     }
 
     #[test]

@@ -7,14 +7,14 @@ use std::path::{Path, PathBuf};
 use glam::{Affine3A, Mat3, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use semrecon_data::{Intrinsics, LabeledMesh, PreparedMesh, RenderOutput, Renderer};
+use semrecon_data::{read_ply, Intrinsics, LabeledMesh, PreparedMesh, RenderOutput, Renderer};
 
 const Z_NEAR: f32 = 0.05;
 
 /// Per-pixel nearest hit (Moller-Trumbore in f64) of the camera-frame mesh: depth and
 /// label, keeping only hits at z >= `Z_NEAR` (what near-plane clipping leaves) and the
 /// lowest triangle index on ties.
-fn ray_cast(mesh: &LabeledMesh, k: &Intrinsics, world_from_camera: Affine3A) -> (Vec<f64>, Vec<u8>) {
+fn ray_cast(mesh: &LabeledMesh, k: &Intrinsics, world_from_camera: Affine3A) -> (Vec<f64>, Vec<u8>, Vec<[f64; 3]>) {
     let camera_from_world = world_from_camera.inverse();
     let p: Vec<[f64; 3]> = mesh
         .positions
@@ -30,11 +30,13 @@ fn ray_cast(mesh: &LabeledMesh, k: &Intrinsics, world_from_camera: Affine3A) -> 
     let n = k.pixel_count();
     let mut depth = vec![0.0; n];
     let mut labels = vec![255u8; n];
+    let mut colors = vec![[0.0; 3]; n];
     for v in 0..k.height {
         for u in 0..k.width {
             let d = [(u as f64 - k.cx as f64) / k.fx as f64, (v as f64 - k.cy as f64) / k.fy as f64, 1.0];
             let mut best = f64::INFINITY;
             let mut label = 255;
+            let mut color = [0.0; 3];
             for (t, tri) in mesh.triangles.iter().enumerate() {
                 let [a, b, c] = tri.map(|i| p[i as usize]);
                 let e1 = sub(b, a);
@@ -55,21 +57,24 @@ fn ray_cast(mesh: &LabeledMesh, k: &Intrinsics, world_from_camera: Affine3A) -> 
                 if z >= Z_NEAR as f64 && z < best {
                     best = z;
                     label = mesh.triangle_labels[t];
+                    let [c0, c1, c2] = tri.map(|i| mesh.colors[i as usize]);
+                    color = [0, 1, 2].map(|ch| (1.0 - bu - bv) * c0[ch] as f64 + bu * c1[ch] as f64 + bv * c2[ch] as f64);
                 }
             }
             let i = (v * k.width + u) as usize;
             if best.is_finite() {
                 depth[i] = best;
                 labels[i] = label;
+                colors[i] = color;
             }
         }
     }
-    (depth, labels)
+    (depth, labels, colors)
 }
 
 /// Fraction of pixels where both agree (both empty, or depths within 1e-4 relative), and
-/// the fraction of those hits whose labels agree.
-fn agreement(out: &RenderOutput, depth: &[f64], labels: &[u8]) -> (f64, f64) {
+/// the fraction of those hits whose labels agree and whose colours are within 1.5 levels.
+fn agreement(out: &RenderOutput, depth: &[f64], labels: &[u8], colors: &[[f64; 3]]) -> (f64, f64) {
     let mut agree = 0usize;
     let mut hits = 0usize;
     let mut same_label = 0usize;
@@ -80,7 +85,8 @@ fn agreement(out: &RenderOutput, depth: &[f64], labels: &[u8]) -> (f64, f64) {
         } else if a > 0.0 && b > 0.0 && (a - b).abs() <= 1e-4 * b {
             agree += 1;
             hits += 1;
-            same_label += usize::from(out.labels[i] == labels[i]);
+            let color_ok = (0..3).all(|ch| (out.color[i][ch] as f64 - colors[i][ch]).abs() <= 1.5);
+            same_label += usize::from(out.labels[i] == labels[i] && color_ok);
         }
     }
     (agree as f64 / depth.len() as f64, same_label as f64 / hits.max(1) as f64)
@@ -119,10 +125,11 @@ fn rasteriser_matches_a_ray_caster_on_random_scenes() {
         let prepared = PreparedMesh::new(&mesh).expect("valid mesh");
         let pose = random_pose(&mut rng);
         let out = renderer.render(&prepared, pose);
-        let (depth, labels) = ray_cast(&mesh, &k, pose);
-        let (agree, label_agree) = agreement(out, &depth, &labels);
+        let (depth, labels, colors) = ray_cast(&mesh, &k, pose);
+        let (agree, label_agree) = agreement(out, &depth, &labels, &colors);
+        println!("scene {scene}: {:.2}% pixels agree, labels+colours {:.2}%", 100.0 * agree, 100.0 * label_agree);
         assert!(agree >= 0.99, "scene {scene}: only {:.2}% of pixels agree", 100.0 * agree);
-        assert!(label_agree >= 0.995, "scene {scene}: labels agree on {:.2}% of hits", 100.0 * label_agree);
+        assert!(label_agree >= 0.995, "scene {scene}: labels and colours agree on {:.2}% of hits", 100.0 * label_agree);
     }
 }
 
@@ -148,8 +155,8 @@ fn triangles_crossing_the_near_plane_are_clipped_not_dropped() {
     let prepared = PreparedMesh::new(&mesh).expect("valid mesh");
     let mut renderer = Renderer::new(k).with_near(Z_NEAR).expect("valid near");
     let out = renderer.render(&prepared, Affine3A::IDENTITY);
-    let (depth, labels) = ray_cast(&mesh, &k, Affine3A::IDENTITY);
-    let (agree, label_agree) = agreement(out, &depth, &labels);
+    let (depth, labels, colors) = ray_cast(&mesh, &k, Affine3A::IDENTITY);
+    let (agree, label_agree) = agreement(out, &depth, &labels, &colors);
     assert!(agree >= 0.99 && label_agree >= 0.995, "agree {agree}, labels {label_agree}");
     let floor = out.labels.iter().filter(|&&l| l == 1).count();
     let wall = out.labels.iter().filter(|&&l| l == 2).count();
@@ -196,55 +203,6 @@ fn shared_data() -> Option<PathBuf> {
     }
 }
 
-// TODO: use crate::ply once merged
-/// Minimal binary little-endian PLY reader: float x/y/z and uchar red/green/blue vertex
-/// properties (others skipped by size), faces as a `list uchar int|uint` of 3 indices.
-fn read_binary_ply(path: &Path) -> LabeledMesh {
-    let bytes = std::fs::read(path).expect("read ply");
-    let end = b"end_header\n";
-    let header_len = bytes.windows(end.len()).position(|w| w == end).expect("ply header") + end.len();
-    let header = std::str::from_utf8(&bytes[..header_len]).expect("ascii header");
-    assert!(header.contains("binary_little_endian"), "only binary little-endian PLY");
-    let size = |t: &str| match t {
-        "char" | "uchar" | "int8" | "uint8" => 1,
-        "short" | "ushort" | "int16" | "uint16" => 2,
-        "int" | "uint" | "float" | "int32" | "uint32" | "float32" => 4,
-        _ => 8,
-    };
-    let (mut n_vertices, mut n_faces) = (0usize, 0usize);
-    let mut in_vertex = false;
-    let mut stride = 0usize;
-    let mut offsets = std::collections::HashMap::new();
-    for line in header.lines() {
-        let w: Vec<&str> = line.split_whitespace().collect();
-        match w.as_slice() {
-            ["element", "vertex", n] => (n_vertices, in_vertex) = (n.parse().expect("count"), true),
-            ["element", "face", n] => (n_faces, in_vertex) = (n.parse().expect("count"), false),
-            ["property", t, name] if in_vertex => {
-                offsets.insert(name.to_string(), stride);
-                stride += size(t);
-            }
-            _ => {}
-        }
-    }
-    let f32_at = |o: usize| f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]]);
-    let mut mesh = LabeledMesh::default();
-    for v in 0..n_vertices {
-        let base = header_len + v * stride;
-        mesh.positions.push(Vec3::new(f32_at(base + offsets["x"]), f32_at(base + offsets["y"]), f32_at(base + offsets["z"])));
-        mesh.colors.push([bytes[base + offsets["red"]], bytes[base + offsets["green"]], bytes[base + offsets["blue"]]]);
-    }
-    let mut o = header_len + n_vertices * stride;
-    for _ in 0..n_faces {
-        assert_eq!(bytes[o], 3, "only triangles");
-        let idx = |j: usize| u32::from_le_bytes([bytes[o + 1 + 4 * j], bytes[o + 2 + 4 * j], bytes[o + 3 + 4 * j], bytes[o + 4 + 4 * j]]);
-        mesh.triangles.push([idx(0), idx(1), idx(2)]);
-        mesh.triangle_labels.push(0);
-        o += 13;
-    }
-    mesh
-}
-
 fn read_traj(path: &Path, n: usize) -> Vec<Affine3A> {
     let text = std::fs::read_to_string(path).expect("read traj");
     text.lines()
@@ -262,7 +220,7 @@ fn read_traj(path: &Path, n: usize) -> Vec<Affine3A> {
 fn replica_office0_depth_matches_the_dataset_renderer() {
     let Some(data) = shared_data() else { return };
     let dir = data.join("replica-office0");
-    let mesh = read_binary_ply(&dir.join("office0_mesh.ply"));
+    let mesh = read_ply(dir.join("office0_mesh.ply")).expect("office0 mesh");
     assert_eq!((mesh.positions.len(), mesh.triangles.len()), (25_149, 50_000));
     let prepared = PreparedMesh::new(&mesh).expect("valid mesh");
     let k = Intrinsics::new(1200, 680, 600.0, 600.0, 599.5, 339.5).expect("valid");
