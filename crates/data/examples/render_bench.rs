@@ -81,7 +81,8 @@ fn process_cpu_seconds() -> Option<f64> {
 
 fn main() -> Result<(), String> {
     let args: Vec<String> = std::env::args().collect();
-    let frames: usize = args.get(1).map(|s| s.parse().map_err(|_| format!("bad frame count {s}"))).transpose()?.unwrap_or(300);
+    let frames: usize =
+        args.get(1).map(|s| s.parse().map_err(|_| format!("bad frame count {s}"))).transpose()?.unwrap_or(300);
     let (mesh, room, name) = match args.get(2) {
         Some(path) => (read_ply(Path::new(path)).map_err(|e| e.to_string())?, None, path.clone()),
         None => {

@@ -314,34 +314,38 @@ impl Renderer {
         let vertices = &self.vertices;
         let k = self.intrinsics;
         let z_near = self.z_near;
-        self.chunks.par_iter_mut().zip(mesh.triangles.par_chunks(CHUNK)).enumerate().for_each(
-            |(ci, (chunk, tris))| {
-                chunk.raster.clear();
-                chunk.shade.clear();
-                for (ti, tri) in tris.iter().enumerate() {
-                    let v = tri.map(|i| vertices[i as usize]);
-                    let outside = v[0].code & v[1].code & v[2].code & !CODE_GUARD;
-                    if outside != 0 {
-                        continue;
-                    }
-                    let before = chunk.raster.len();
-                    let shade_index = chunk.shade.len() as u32;
-                    if (v[0].code | v[1].code | v[2].code) & (CODE_NEAR | CODE_GUARD) == 0 {
-                        setup_screen_triangle(&k, [v[0].sx, v[1].sx, v[2].sx], [v[0].sy, v[1].sy, v[2].sy],
-                            [v[0].inv_z, v[1].inv_z, v[2].inv_z], shade_index, &mut chunk.raster);
+        self.chunks.par_iter_mut().zip(mesh.triangles.par_chunks(CHUNK)).enumerate().for_each(|(ci, (chunk, tris))| {
+            chunk.raster.clear();
+            chunk.shade.clear();
+            for (ti, tri) in tris.iter().enumerate() {
+                let v = tri.map(|i| vertices[i as usize]);
+                let outside = v[0].code & v[1].code & v[2].code & !CODE_GUARD;
+                if outside != 0 {
+                    continue;
+                }
+                let before = chunk.raster.len();
+                let shade_index = chunk.shade.len() as u32;
+                if (v[0].code | v[1].code | v[2].code) & (CODE_NEAR | CODE_GUARD) == 0 {
+                    setup_screen_triangle(
+                        &k,
+                        [v[0].sx, v[1].sx, v[2].sx],
+                        [v[0].sy, v[1].sy, v[2].sy],
+                        [v[0].inv_z, v[1].inv_z, v[2].inv_z],
+                        shade_index,
+                        &mut chunk.raster,
+                    );
+                } else {
+                    clip_and_setup(&k, z_near, [v[0].p, v[1].p, v[2].p], shade_index, &mut chunk.raster);
+                }
+                if chunk.raster.len() > before {
+                    if let Some(s) = shade_triangle([v[0].p, v[1].p, v[2].p], (ci * CHUNK + ti) as u32) {
+                        chunk.shade.push(s);
                     } else {
-                        clip_and_setup(&k, z_near, [v[0].p, v[1].p, v[2].p], shade_index, &mut chunk.raster);
-                    }
-                    if chunk.raster.len() > before {
-                        if let Some(s) = shade_triangle([v[0].p, v[1].p, v[2].p], (ci * CHUNK + ti) as u32) {
-                            chunk.shade.push(s);
-                        } else {
-                            chunk.raster.truncate(before);
-                        }
+                        chunk.raster.truncate(before);
                     }
                 }
-            },
-        );
+            }
+        });
     }
 
     fn bin(&mut self) {
@@ -543,24 +547,35 @@ fn clip_and_setup(k: &Intrinsics, z_near: f32, p: [Vec3A; 3], shade: u32, out: &
         sy[i] = round_to_i32((k.fy * q.y * inv + k.cy) * SUBPIXEL);
     }
     for i in 1..len - 1 {
-        setup_screen_triangle(k, [sx[0], sx[i], sx[i + 1]], [sy[0], sy[i], sy[i + 1]], [iz[0], iz[i], iz[i + 1]], shade, out);
+        setup_screen_triangle(
+            k,
+            [sx[0], sx[i], sx[i + 1]],
+            [sy[0], sy[i], sy[i + 1]],
+            [iz[0], iz[i], iz[i + 1]],
+            shade,
+            out,
+        );
     }
 }
 
 /// Sets up the edge functions of a screen triangle (fixed-point vertices) and pushes it
 /// when it covers at least one pixel centre's bounding box.
-fn setup_screen_triangle(k: &Intrinsics, sx: [i32; 3], sy: [i32; 3], iz: [f32; 3], shade: u32, out: &mut Vec<RasterTri>) {
+fn setup_screen_triangle(
+    k: &Intrinsics,
+    sx: [i32; 3],
+    sy: [i32; 3],
+    iz: [f32; 3],
+    shade: u32,
+    out: &mut Vec<RasterTri>,
+) {
     let (x, y) = (sx.map(i64::from), sy.map(i64::from));
     let area = (x[1] - x[0]) * (y[2] - y[0]) - (y[1] - y[0]) * (x[2] - x[0]);
     if area == 0 {
         return;
     }
     // No back-face culling: make every triangle positive so that inside is E >= 0.
-    let (x, y, iz) = if area < 0 {
-        ([x[0], x[2], x[1]], [y[0], y[2], y[1]], [iz[0], iz[2], iz[1]])
-    } else {
-        (x, y, iz)
-    };
+    let (x, y, iz) =
+        if area < 0 { ([x[0], x[2], x[1]], [y[0], y[2], y[1]], [iz[0], iz[2], iz[1]]) } else { (x, y, iz) };
     let s = 1i64 << SUBPIXEL_BITS;
     let xmin = x.iter().copied().min().unwrap_or(0);
     let xmax = x.iter().copied().max().unwrap_or(0);
@@ -619,7 +634,15 @@ fn setup_screen_triangle(k: &Intrinsics, sx: [i32; 3], sy: [i32; 3], iz: [f32; 3
 /// # Shapes
 /// `zbuf` and `ids` hold the band's rows, `(band_y1 - band_y0) * w` long.
 #[inline]
-fn raster_triangle(t: &RasterTri, id: u32, band_y0: usize, band_y1: usize, w: usize, zbuf: &mut [f32], ids: &mut [u32]) {
+fn raster_triangle(
+    t: &RasterTri,
+    id: u32,
+    band_y0: usize,
+    band_y1: usize,
+    w: usize,
+    zbuf: &mut [f32],
+    ids: &mut [u32],
+) {
     let y_start = (t.y0 as usize).max(band_y0);
     let y_end = (t.y1 as usize + 1).min(band_y1);
     let x0 = t.x0 as usize;

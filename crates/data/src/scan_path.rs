@@ -280,7 +280,16 @@ impl ScanPlan {
             // Wall middles and room corners at table height.
             let (a, b) = (room.floor_min, room.floor_max);
             let m = (a + b) * 0.5;
-            for p in [Vec2::new(a.x, m.y), Vec2::new(b.x, m.y), Vec2::new(m.x, a.y), Vec2::new(m.x, b.y), a, b, Vec2::new(a.x, b.y), Vec2::new(b.x, a.y)] {
+            for p in [
+                Vec2::new(a.x, m.y),
+                Vec2::new(b.x, m.y),
+                Vec2::new(m.x, a.y),
+                Vec2::new(m.x, b.y),
+                a,
+                b,
+                Vec2::new(a.x, b.y),
+                Vec2::new(b.x, a.y),
+            ] {
                 points.push(p.extend(floor + 1.0));
             }
         }
@@ -581,7 +590,12 @@ mod tests {
             floor_z: 0.0,
             ceiling_height: 2.7,
             obstacles: vec![(Vec2::new(2.4, 2.0), Vec2::new(3.8, 3.0)), (Vec2::new(0.0, 3.8), Vec2::new(2.0, 5.0))],
-            interest_points: vec![Vec3::new(3.1, 2.5, 0.75), Vec3::new(1.0, 4.4, 0.5), Vec3::new(6.0, 1.0, 1.5), Vec3::new(0.0, 1.0, 1.2)],
+            interest_points: vec![
+                Vec3::new(3.1, 2.5, 0.75),
+                Vec3::new(1.0, 4.4, 0.5),
+                Vec3::new(6.0, 1.0, 1.5),
+                Vec3::new(0.0, 1.0, 1.2),
+            ],
         }
     }
 

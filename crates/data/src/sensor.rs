@@ -162,7 +162,9 @@ impl SensorModel {
         // uniforms (mean 190.5, standard deviation 64), an approximate normal bounded at
         // +-3 sigma, which is fine for colour.
         let color_noise: Option<Vec<i16>> = (self.color_sigma > 0.0).then(|| {
-            (0..382).map(|sum| ((sum as f32 - 190.5) / 64.0 * self.color_sigma).round().clamp(-255.0, 255.0) as i16).collect()
+            (0..382)
+                .map(|sum| ((sum as f32 - 190.5) / 64.0 * self.color_sigma).round().clamp(-255.0, 255.0) as i16)
+                .collect()
         });
         let color_noise = &color_noise;
         out.depth.par_chunks_mut(w).zip(out.color.par_chunks_mut(w)).enumerate().for_each(|(y, (depth, color))| {
@@ -397,7 +399,10 @@ mod tests {
 
     #[test]
     fn axial_noise_has_the_configured_spread() {
-        let model = SensorModel { axial_noise: Some(AxialNoise { base: 0.0012, quadratic: 0.0019, offset: 0.4 }), ..SensorModel::ideal() };
+        let model = SensorModel {
+            axial_noise: Some(AxialNoise { base: 0.0012, quadratic: 0.0019, offset: 0.4 }),
+            ..SensorModel::ideal()
+        };
         let z = 3.0;
         let mut out = flat(200, 100, z, 1.0);
         model.apply(&mut out, 0);

@@ -25,7 +25,8 @@ fn ray_cast(mesh: &LabeledMesh, k: &Intrinsics, world_from_camera: Affine3A) -> 
         })
         .collect();
     let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let cross = |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+    let cross =
+        |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
     let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
     let n = k.pixel_count();
     let mut depth = vec![0.0; n];
@@ -58,7 +59,8 @@ fn ray_cast(mesh: &LabeledMesh, k: &Intrinsics, world_from_camera: Affine3A) -> 
                     best = z;
                     label = mesh.triangle_labels[t];
                     let [c0, c1, c2] = tri.map(|i| mesh.colors[i as usize]);
-                    color = [0, 1, 2].map(|ch| (1.0 - bu - bv) * c0[ch] as f64 + bu * c1[ch] as f64 + bv * c2[ch] as f64);
+                    color =
+                        [0, 1, 2].map(|ch| (1.0 - bu - bv) * c0[ch] as f64 + bu * c1[ch] as f64 + bv * c2[ch] as f64);
                 }
             }
             let i = (v * k.width + u) as usize;
@@ -109,7 +111,8 @@ fn random_scene(rng: &mut ChaCha8Rng, n: usize) -> LabeledMesh {
 }
 
 fn random_pose(rng: &mut ChaCha8Rng) -> Affine3A {
-    let axis = Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)).normalize_or(Vec3::Z);
+    let axis = Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0))
+        .normalize_or(Vec3::Z);
     let angle = rng.random_range(-0.4..0.4);
     let t = Vec3::new(rng.random_range(-0.3..0.3), rng.random_range(-0.3..0.3), rng.random_range(-0.5..0.5));
     Affine3A::from_mat3_translation(Mat3::from_axis_angle(axis, angle), t)
