@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use glam::{Affine3A, Mat3, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use semrecon_data::{read_ply, Intrinsics, LabeledMesh, PreparedMesh, RenderOutput, Renderer};
+use semrecon_data::{read_ply, Intrinsics, LabeledMesh, PreparedMesh, RenderOutput, Renderer, ScanPlan, SensorModel};
 
 const Z_NEAR: f32 = 0.05;
 
@@ -175,6 +175,37 @@ fn triangles_crossing_the_near_plane_are_clipped_not_dropped() {
 }
 
 #[test]
+fn huge_triangles_beyond_the_guard_band_are_clipped_exactly() {
+    let k = Intrinsics::new(48, 40, 40.0, 40.0, 23.5, 19.5).expect("valid");
+    // Vertices that project tens of thousands of pixels off-screen, and one behind the
+    // camera: the fixed-point rasteriser must clip them in the camera frame first.
+    let mesh = LabeledMesh {
+        positions: vec![
+            Vec3::new(-500.0, 1.0, 0.06),
+            Vec3::new(400.0, 1.2, 0.07),
+            Vec3::new(0.0, 0.2, 50.0),
+            Vec3::new(-3.0, -900.0, 0.055),
+            Vec3::new(2.0, -0.5, 3.0),
+            Vec3::new(1.0, 0.3, -1.0),
+        ],
+        colors: vec![[10, 200, 30]; 6],
+        triangles: vec![[0, 1, 2], [3, 4, 5]],
+        triangle_labels: vec![1, 2],
+        ..Default::default()
+    };
+    let prepared = PreparedMesh::new(&mesh).expect("valid mesh");
+    let mut renderer = Renderer::new(k);
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    for _ in 0..4 {
+        let pose = random_pose(&mut rng);
+        let out = renderer.render(&prepared, pose);
+        let (depth, labels, colors) = ray_cast(&mesh, &k, pose);
+        let (agree, label_agree) = agreement(out, &depth, &labels, &colors);
+        assert!(agree >= 0.99 && label_agree >= 0.995, "agree {agree}, labels {label_agree}");
+    }
+}
+
+#[test]
 fn output_is_identical_for_any_thread_count() {
     let k = Intrinsics::new(320, 240, 250.0, 250.0, 159.5, 119.5).expect("valid");
     let mut rng = ChaCha8Rng::seed_from_u64(3);
@@ -256,4 +287,30 @@ fn replica_office0_depth_matches_the_dataset_renderer() {
         assert!(both > 0.5, "frame {i}: only {:.1}% valid in both", 100.0 * both);
         assert!(median <= 0.005, "frame {i}: median difference {median} m");
     }
+}
+
+#[test]
+fn replica_office0_scan_plan_renders_plausible_frames() {
+    let Some(data) = shared_data() else { return };
+    let mesh = read_ply(data.join("replica-office0/office0_mesh.ply")).expect("office0 mesh");
+    let prepared = PreparedMesh::new(&mesh).expect("valid mesh");
+    let plan = ScanPlan::from_mesh_bounds(&mesh, 0).expect("plan");
+    let poses = plan.poses(300).expect("poses");
+    let k = Intrinsics::new(160, 120, 131.25, 131.25, 79.5, 59.5).expect("valid");
+    let mut renderer = Renderer::new(k);
+    let sensor = SensorModel::kinect();
+    let mut valid = 0.0;
+    for (i, pose) in poses.iter().enumerate().step_by(10) {
+        let mut out = renderer.render(&prepared, *pose).clone();
+        let seen = out.depth.iter().filter(|&&d| d > 0.0).count() as f64 / out.depth.len() as f64;
+        let mut sorted: Vec<f32> = out.depth.iter().copied().filter(|&d| d > 0.0).collect();
+        sorted.sort_by(f32::total_cmp);
+        let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
+        assert!(seen > 0.9 && median > 0.5, "frame {i}: {:.0}% seen, median depth {median} m", 100.0 * seen);
+        sensor.apply(&mut out, i);
+        valid += out.depth.iter().filter(|&&d| d > 0.0).count() as f64 / out.depth.len() as f64;
+    }
+    let valid = valid / 30.0;
+    println!("office0 scan plan: {:.1}% of pixels keep depth after the Kinect model", 100.0 * valid);
+    assert!(valid > 0.6 && valid < 0.995, "{valid}");
 }
