@@ -92,7 +92,7 @@ fn main() -> Result<(), String> {
     };
     let prepared = PreparedMesh::new(&mesh).map_err(|e| e.to_string())?;
     let k = Intrinsics::new(640, 480, 525.0, 525.0, 319.5, 239.5).map_err(|e| e.to_string())?;
-    let mut renderer = Renderer::new(k);
+    let mut renderer = Renderer::new(k).map_err(|e| e.to_string())?;
     let plan = match &room {
         Some(room) => ScanPlan::new(room.clone(), 1),
         None => ScanPlan::from_mesh_bounds(&mesh, 1).map_err(|e| e.to_string())?,

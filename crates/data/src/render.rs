@@ -30,8 +30,9 @@ use crate::mesh::LabeledMesh;
 /// Sub-pixel precision of the rasteriser: vertex positions snap to 1/256 pixel.
 const SUBPIXEL_BITS: u32 = 8;
 const SUBPIXEL: f32 = (1 << SUBPIXEL_BITS) as f32;
-/// Screen coordinates (pixels, from the image centre) beyond which a triangle is clipped in
-/// the camera frame; keeps fixed-point edge-function products far inside `i64`.
+/// Screen coordinates (pixels from the image centre, whatever the principal point) beyond
+/// which a triangle is clipped in the camera frame; keeps fixed-point coordinates inside
+/// `i32` and edge-function products far inside `i64`.
 const GUARD_BAND: f32 = 32768.0;
 /// Triangles per setup chunk; a chunk emits at most 6 screen triangles per input triangle,
 /// which fits in the 14 low bits of a [`key`].
@@ -213,10 +214,23 @@ pub struct Renderer {
 }
 
 impl Renderer {
-    /// A renderer for `intrinsics` with a near plane at 0.05 m.
-    pub fn new(intrinsics: Intrinsics) -> Self {
+    /// Largest image side: keeps pixel coordinates well inside the guard band, where the
+    /// fixed-point edge functions are exact.
+    pub const MAX_SIZE: u32 = 16384;
+
+    /// A renderer for `intrinsics` with a near plane at 0.05 m; images up to
+    /// [`Renderer::MAX_SIZE`] pixels wide and high.
+    pub fn new(intrinsics: Intrinsics) -> crate::Result<Self> {
+        if intrinsics.width > Self::MAX_SIZE || intrinsics.height > Self::MAX_SIZE {
+            return Err(crate::DataError::InvalidArgument(format!(
+                "cannot render {}x{} images (at most {} pixels a side)",
+                intrinsics.width,
+                intrinsics.height,
+                Self::MAX_SIZE
+            )));
+        }
         let n = intrinsics.pixel_count();
-        Self {
+        Ok(Self {
             intrinsics,
             z_near: 0.05,
             band_height: 16,
@@ -227,7 +241,7 @@ impl Renderer {
             ids: vec![NO_HIT; n],
             ray_x: Vec::new(),
             output: RenderOutput::default(),
-        }
+        })
     }
 
     /// Sets the near clipping distance in metres (surfaces closer than this are cut away).
@@ -269,6 +283,7 @@ impl Renderer {
         let right = (k.width as f32 - 0.5 - k.cx) / k.fx;
         let top = (-0.5 - k.cy) / k.fy;
         let bottom = (k.height as f32 - 0.5 - k.cy) / k.fy;
+        let (half_w, half_h) = (k.width as f32 * 0.5, k.height as f32 * 0.5);
         self.vertices.resize(mesh.positions.len(), CamVertex::default());
         self.vertices.par_chunks_mut(4096).zip(mesh.positions.par_chunks(4096)).for_each(|(out, inp)| {
             for (v, &p_world) in out.iter_mut().zip(inp) {
@@ -296,7 +311,7 @@ impl Renderer {
                     inv_z = 1.0 / p.z;
                     let x = k.fx * p.x * inv_z + k.cx;
                     let y = k.fy * p.y * inv_z + k.cy;
-                    if (x - k.cx).abs() < GUARD_BAND && (y - k.cy).abs() < GUARD_BAND {
+                    if (x - half_w).abs() < GUARD_BAND && (y - half_h).abs() < GUARD_BAND {
                         sx = round_to_i32(x * SUBPIXEL);
                         sy = round_to_i32(y * SUBPIXEL);
                     } else {
@@ -509,12 +524,16 @@ fn clip_and_setup(k: &Intrinsics, z_near: f32, p: [Vec3A; 3], shade: u32, out: &
     // Half-spaces `plane . (x, y, z, 1) >= 0`: near, then |screen - centre| < guard band,
     // slightly inside the projection's guard test so that clipped vertices pass it.
     let g = GUARD_BAND * 0.99;
+    // Screen x - width/2 = fx X/Z + ox, so |screen x - width/2| < g is
+    // fx X + (g + ox) Z > 0 and -fx X + (g - ox) Z > 0; the same for y.
+    let ox = k.cx - k.width as f32 * 0.5;
+    let oy = k.cy - k.height as f32 * 0.5;
     let planes = [
         [0.0, 0.0, 1.0, -z_near],
-        [k.fx, 0.0, g, 0.0],
-        [-k.fx, 0.0, g, 0.0],
-        [0.0, k.fy, g, 0.0],
-        [0.0, -k.fy, g, 0.0],
+        [k.fx, 0.0, g + ox, 0.0],
+        [-k.fx, 0.0, g - ox, 0.0],
+        [0.0, k.fy, g + oy, 0.0],
+        [0.0, -k.fy, g - oy, 0.0],
     ];
     let mut poly: [Vec3A; 9] = [Vec3A::ZERO; 9];
     let mut next: [Vec3A; 9] = [Vec3A::ZERO; 9];
@@ -706,7 +725,7 @@ mod tests {
     fn a_plane_filling_the_view_has_constant_depth_and_no_holes() {
         let k = Intrinsics::new(64, 48, 40.0, 40.0, 31.5, 23.5).expect("valid");
         let mesh = PreparedMesh::new(&quad_mesh(2.0)).expect("valid");
-        let mut r = Renderer::new(k);
+        let mut r = Renderer::new(k).expect("renderer");
         let out = r.render(&mesh, Affine3A::IDENTITY);
         assert!(out.depth.iter().all(|&d| (d - 2.0).abs() < 1e-5), "holes or wrong depth");
         assert!(out.labels.iter().all(|&l| l == 3 || l == 4));
@@ -722,9 +741,11 @@ mod tests {
     fn nothing_behind_the_camera_is_drawn() {
         let k = Intrinsics::new(32, 24, 20.0, 20.0, 15.5, 11.5).expect("valid");
         let mesh = PreparedMesh::new(&quad_mesh(-2.0)).expect("valid");
-        let mut r = Renderer::new(k);
+        let mut r = Renderer::new(k).expect("renderer");
         let out = r.render(&mesh, Affine3A::IDENTITY);
         assert!(out.depth.iter().all(|&d| d == 0.0));
+        let huge = Intrinsics::new(20000, 10, 1.0, 1.0, 0.0, 0.0).expect("valid");
+        assert!(Renderer::new(huge).is_err());
         assert!(out.labels.iter().all(|&l| l == UNLABELED));
     }
 }

@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use glam::{Affine3A, Mat3, Vec3};
+use glam::{Affine3A, Mat3, Quat, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use semrecon_data::{read_ply, Intrinsics, LabeledMesh, PreparedMesh, RenderOutput, Renderer, ScanPlan, SensorModel};
@@ -122,7 +122,7 @@ fn random_pose(rng: &mut ChaCha8Rng) -> Affine3A {
 fn rasteriser_matches_a_ray_caster_on_random_scenes() {
     let k = Intrinsics::new(64, 48, 50.0, 52.0, 31.7, 23.2).expect("valid");
     let mut rng = ChaCha8Rng::seed_from_u64(7);
-    let mut renderer = Renderer::new(k);
+    let mut renderer = Renderer::new(k).expect("renderer");
     for scene in 0..8 {
         let mesh = random_scene(&mut rng, 30);
         let prepared = PreparedMesh::new(&mesh).expect("valid mesh");
@@ -156,7 +156,7 @@ fn triangles_crossing_the_near_plane_are_clipped_not_dropped() {
         ..Default::default()
     };
     let prepared = PreparedMesh::new(&mesh).expect("valid mesh");
-    let mut renderer = Renderer::new(k).with_near(Z_NEAR).expect("valid near");
+    let mut renderer = Renderer::new(k).expect("renderer").with_near(Z_NEAR).expect("valid near");
     let out = renderer.render(&prepared, Affine3A::IDENTITY);
     let (depth, labels, colors) = ray_cast(&mesh, &k, Affine3A::IDENTITY);
     let (agree, label_agree) = agreement(out, &depth, &labels, &colors);
@@ -194,14 +194,26 @@ fn huge_triangles_beyond_the_guard_band_are_clipped_exactly() {
         ..Default::default()
     };
     let prepared = PreparedMesh::new(&mesh).expect("valid mesh");
-    let mut renderer = Renderer::new(k);
     let mut rng = ChaCha8Rng::seed_from_u64(11);
-    for _ in 0..4 {
-        let pose = random_pose(&mut rng);
-        let out = renderer.render(&prepared, pose);
-        let (depth, labels, colors) = ray_cast(&mesh, &k, pose);
-        let (agree, label_agree) = agreement(out, &depth, &labels, &colors);
-        assert!(agree >= 0.99 && label_agree >= 0.995, "agree {agree}, labels {label_agree}");
+    // Also with the principal point far outside the image (a crop of a larger sensor).
+    let shifted = Intrinsics::new(48, 40, 40.0, 40.0, -2000.0, 3000.0).expect("valid");
+    for k in [k, shifted] {
+        let mut renderer = Renderer::new(k).expect("renderer");
+        // Turn the image centre's ray towards a point inside the first triangle.
+        let centre_ray = k.unproject(24.0, 20.0, 1.0).normalize();
+        let target = Vec3::new(-30.0, 0.74, 20.04).normalize();
+        let aim = Affine3A::from_quat(Quat::from_rotation_arc(centre_ray, target));
+        for _ in 0..4 {
+            // The shifted camera sees a sliver of about a degree: only move it, then.
+            let wobble = random_pose(&mut rng);
+            let wobble = if k.cx < 0.0 { Affine3A::from_translation(wobble.translation.into()) } else { wobble };
+            let pose = wobble * aim;
+            let out = renderer.render(&prepared, pose);
+            let (depth, labels, colors) = ray_cast(&mesh, &k, pose);
+            let (agree, label_agree) = agreement(out, &depth, &labels, &colors);
+            assert!(agree >= 0.99 && label_agree >= 0.995, "agree {agree}, labels {label_agree}");
+            assert!(out.depth.iter().filter(|&&d| d > 0.0).count() > 300, "too little seen");
+        }
     }
 }
 
@@ -214,7 +226,7 @@ fn output_is_identical_for_any_thread_count() {
     let pose = random_pose(&mut rng);
     let render_with = |threads: usize| -> RenderOutput {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");
-        pool.install(|| Renderer::new(k).render(&prepared, pose).clone())
+        pool.install(|| Renderer::new(k).expect("renderer").render(&prepared, pose).clone())
     };
     let one = render_with(1);
     let two = render_with(2);
@@ -258,7 +270,7 @@ fn replica_office0_depth_matches_the_dataset_renderer() {
     assert_eq!((mesh.positions.len(), mesh.triangles.len()), (25_149, 50_000));
     let prepared = PreparedMesh::new(&mesh).expect("valid mesh");
     let k = Intrinsics::new(1200, 680, 600.0, 600.0, 599.5, 339.5).expect("valid");
-    let mut renderer = Renderer::new(k);
+    let mut renderer = Renderer::new(k).expect("renderer");
     for (i, pose) in read_traj(&dir.join("office0/traj.txt"), 4).into_iter().enumerate() {
         let png = dir.join(format!("office0/results/depth{i:06}.png"));
         let reference = image::open(&png).expect("depth png").into_luma16();
@@ -297,7 +309,7 @@ fn replica_office0_scan_plan_renders_plausible_frames() {
     let plan = ScanPlan::from_mesh_bounds(&mesh, 0).expect("plan");
     let poses = plan.poses(300).expect("poses");
     let k = Intrinsics::new(160, 120, 131.25, 131.25, 79.5, 59.5).expect("valid");
-    let mut renderer = Renderer::new(k);
+    let mut renderer = Renderer::new(k).expect("renderer");
     let sensor = SensorModel::kinect();
     let mut valid = 0.0;
     for (i, pose) in poses.iter().enumerate().step_by(10) {
