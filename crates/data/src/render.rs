@@ -167,6 +167,8 @@ struct RasterTri {
     za: f32,
     zb: f32,
     zc: f32,
+    /// `1 / ea` (0 where `ea` is 0), for finding where a row enters and leaves.
+    inv_ea: [f64; 3],
     /// Pixel bounding box, inclusive, clipped to the image.
     x0: u16,
     x1: u16,
@@ -179,15 +181,20 @@ struct RasterTri {
 /// The camera-frame plane of an original (unclipped) triangle, for the resolve pass.
 #[derive(Debug, Clone, Copy)]
 struct ShadeTri {
-    p0: Vec3A,
     /// Unnormalised normal `(p1 - p0) x (p2 - p0)`.
     n: Vec3A,
-    /// Barycentric 1 and 2 of a point `q` in the plane: `(q - p0) . m1`, `(q - p0) . m2`.
+    /// Barycentric 1 and 2 of a point `q` in the plane: `q . m1 - q1`, `q . m2 - q2`.
     m1: Vec3A,
     m2: Vec3A,
+    /// Colour of vertex 0 and its changes towards vertices 1 and 2.
+    c0: Vec3,
+    dc1: Vec3,
+    dc2: Vec3,
+    q1: f32,
+    q2: f32,
     n_dot_p0: f32,
     inv_n_len: f32,
-    triangle: u32,
+    label: u8,
 }
 
 #[derive(Debug, Default)]
@@ -265,7 +272,7 @@ impl Renderer {
         self.setup(mesh);
         self.bin();
         self.rasterise();
-        self.resolve(mesh);
+        self.resolve();
         &self.output
     }
 
@@ -353,7 +360,9 @@ impl Renderer {
                     clip_and_setup(&k, z_near, [v[0].p, v[1].p, v[2].p], shade_index, &mut chunk.raster);
                 }
                 if chunk.raster.len() > before {
-                    if let Some(s) = shade_triangle([v[0].p, v[1].p, v[2].p], (ci * CHUNK + ti) as u32) {
+                    let colors = tri.map(|i| mesh.colors[i as usize]);
+                    let label = mesh.labels[ci * CHUNK + ti];
+                    if let Some(s) = shade_triangle([v[0].p, v[1].p, v[2].p], colors, label) {
                         chunk.shade.push(s);
                     } else {
                         chunk.raster.truncate(before);
@@ -408,7 +417,7 @@ impl Renderer {
             });
     }
 
-    fn resolve(&mut self, mesh: &PreparedMesh) {
+    fn resolve(&mut self) {
         let k = self.intrinsics;
         let w = k.width as usize;
         self.output.resize(k.width, k.height);
@@ -449,18 +458,12 @@ impl Renderer {
                         continue;
                     }
                     let s = &chunks[(id >> LOCAL_BITS) as usize].shade[(id & ((1 << LOCAL_BITS) - 1)) as usize];
-                    let tri = s.triangle as usize;
-                    let [i0, i1, i2] = mesh.triangles[tri];
-                    let c0 = mesh.colors[i0 as usize];
-                    let dc1 = mesh.colors[i1 as usize] - c0;
-                    let dc2 = mesh.colors[i2 as usize] - c0;
-                    labels[x..end].fill(mesh.labels[tri]);
+                    labels[x..end].fill(s.label);
                     // n.d, m1.d and m2.d are affine in ray_x along the row.
                     let nd_row = s.n.y * dy + s.n.z;
                     let m1_row = s.m1.y * dy + s.m1.z;
                     let m2_row = s.m2.y * dy + s.m2.z;
-                    let q1 = s.p0.dot(s.m1);
-                    let q2 = s.p0.dot(s.m2);
+                    let (c0, dc1, dc2, q1, q2) = (s.c0, s.dc1, s.dc2, s.q1, s.q2);
                     for i in x..end {
                         let dx = ray_x[i];
                         let nd = s.n.x * dx + nd_row;
@@ -498,8 +501,10 @@ fn round_to_i32(v: f32) -> i32 {
     (v + 0.5f32.copysign(v)) as i32
 }
 
-/// Plane data of the camera-frame triangle `p`; `None` when it is degenerate.
-fn shade_triangle(p: [Vec3A; 3], triangle: u32) -> Option<ShadeTri> {
+/// Plane and colour data of the camera-frame triangle `p` (the plane of the original
+/// triangle, so one record serves every piece that clipping makes of it); `None` when it is
+/// degenerate.
+fn shade_triangle(p: [Vec3A; 3], colors: [Vec3; 3], label: u8) -> Option<ShadeTri> {
     let e1 = p[1] - p[0];
     let e2 = p[2] - p[0];
     let n = e1.cross(e2);
@@ -507,14 +512,20 @@ fn shade_triangle(p: [Vec3A; 3], triangle: u32) -> Option<ShadeTri> {
     if !(nn > 0.0 && nn.is_finite()) {
         return None;
     }
+    let m1 = e2.cross(n) / nn;
+    let m2 = n.cross(e1) / nn;
     Some(ShadeTri {
-        p0: p[0],
         n,
-        m1: e2.cross(n) / nn,
-        m2: n.cross(e1) / nn,
+        m1,
+        m2,
+        c0: colors[0],
+        dc1: colors[1] - colors[0],
+        dc2: colors[2] - colors[0],
+        q1: p[0].dot(m1),
+        q2: p[0].dot(m2),
         n_dot_p0: n.dot(p[0]),
         inv_n_len: nn.sqrt().recip(),
-        triangle,
+        label,
     })
 }
 
@@ -644,6 +655,7 @@ fn setup_screen_triangle(
         ea,
         eb,
         ec,
+        inv_ea: ea.map(|a| if a != 0 { 1.0 / a as f64 } else { 0.0 }),
         za: za as f32,
         zb: zb as f32,
         zc: zc as f32,
@@ -671,10 +683,30 @@ fn raster_triangle(
 ) {
     let y_start = (t.y0 as usize).max(band_y0);
     let y_end = (t.y1 as usize + 1).min(band_y1);
-    let x0 = t.x0 as usize;
-    let x1 = t.x1 as usize;
-    for y in y_start..y_end {
-        let (xf, yf) = (x0 as i64, y as i64);
+    let wide = t.x1 - t.x0 >= 8;
+    'rows: for y in y_start..y_end {
+        let yf = y as i64;
+        let (mut x0, mut x1) = (t.x0 as i64, t.x1 as i64);
+        if wide {
+            // Skip the parts of the bounding box left and right of the triangle: where each
+            // edge crosses the row, widened by a pixel against rounding (the exact test
+            // below decides).
+            for e in 0..3 {
+                let at_x0 = t.eb[e] * yf + t.ec[e];
+                if t.ea[e] > 0 {
+                    x0 = x0.max((-(at_x0 as f64) * t.inv_ea[e]) as i64 - 1);
+                } else if t.ea[e] < 0 {
+                    x1 = x1.min((-(at_x0 as f64) * t.inv_ea[e]) as i64 + 1);
+                } else if at_x0 < 0 {
+                    continue 'rows;
+                }
+            }
+            if x0 > x1 {
+                continue;
+            }
+        }
+        let (x0, x1) = (x0 as usize, x1 as usize);
+        let xf = x0 as i64;
         let mut e0 = t.ea[0] * xf + t.eb[0] * yf + t.ec[0];
         let mut e1 = t.ea[1] * xf + t.eb[1] * yf + t.ec[1];
         let mut e2 = t.ea[2] * xf + t.eb[2] * yf + t.ec[2];
