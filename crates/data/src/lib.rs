@@ -29,6 +29,6 @@ pub use frame::{Frame, FrameSource};
 pub use mesh::LabeledMesh;
 pub use ply::{read_ply, write_ply, PlyEncoding};
 pub use point_cloud::LabeledPointCloud;
-pub use render::{PreparedMesh, RenderOutput, Renderer};
+pub use render::{PreparedMesh, RenderOutput, RenderedScan, Renderer};
 pub use scan_path::{RoomLayout, ScanPlan};
 pub use sensor::SensorModel;
