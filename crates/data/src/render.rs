@@ -467,21 +467,22 @@ impl Renderer {
                     let m1_row = s.m1.y * dy + s.m1.z;
                     let m2_row = s.m2.y * dy + s.m2.z;
                     let (c0, dc1, dc2, q1, q2) = (s.c0, s.dc1, s.dc2, s.q1, s.q2);
-                    for i in x..end {
-                        let dx = ray_x[i];
+                    // Depth and incidence first, in a loop the compiler vectorises.
+                    let (dxs, zs, inc, izs) =
+                        (&ray_x[x..end], &mut depth[x..end], &mut incidence[x..end], &inv_z[x..end]);
+                    for j in 0..dxs.len() {
+                        let dx = dxs[j];
                         let nd = s.n.x * dx + nd_row;
-                        let mut z = s.n_dot_p0 / nd;
-                        if !(z > 0.0 && z < f32::MAX) {
-                            // Seen exactly edge-on: the rasterised 1/z is all there is.
-                            z = 1.0 / inv_z[i];
-                        }
+                        let z = s.n_dot_p0 / nd;
+                        // Seen exactly edge-on, the rasterised 1/z is all there is.
+                        zs[j] = if z > 0.0 && z < f32::MAX { z } else { 1.0 / izs[j] };
+                        inc[j] = (nd.abs() * s.inv_n_len / (dx * dx + dy2).sqrt()).min(1.0);
+                    }
+                    for ((c, &z), &dx) in color[x..end].iter_mut().zip(zs.iter()).zip(dxs) {
                         // Barycentrics of the hit z * d: (z d - p0) . m.
                         let b1 = z * (s.m1.x * dx + m1_row) - q1;
                         let b2 = z * (s.m2.x * dx + m2_row) - q2;
-                        let c = c0 + dc1 * b1 + dc2 * b2;
-                        depth[i] = z;
-                        color[i] = to_u8_rounded(c);
-                        incidence[i] = (nd.abs() * s.inv_n_len / (dx * dx + dy2).sqrt()).min(1.0);
+                        *c = to_u8_rounded(c0 + dc1 * b1 + dc2 * b2);
                     }
                     x = end;
                 }
@@ -670,7 +671,8 @@ fn setup_screen_triangle(
     });
 }
 
-/// Rasterises the rows of `t` inside the band `[band_y0, band_y1)`.
+/// Rasterises the rows of `t` inside the band `[band_y0, band_y1)`: per row, the run of
+/// pixel centres inside the triangle, then a depth test over the run.
 ///
 /// # Shapes
 /// `zbuf` and `ids` hold the band's rows, `(band_y1 - band_y0) * w` long.
@@ -686,53 +688,53 @@ fn raster_triangle(
 ) {
     let y_start = (t.y0 as usize).max(band_y0);
     let y_end = (t.y1 as usize + 1).min(band_y1);
-    let wide = t.x1 - t.x0 >= 8;
     'rows: for y in y_start..y_end {
         let yf = y as i64;
-        let (mut x0, mut x1) = (t.x0 as i64, t.x1 as i64);
-        if wide {
-            // Skip the parts of the bounding box left and right of the triangle: where each
-            // edge crosses the row, widened by a pixel against rounding (the exact test
-            // below decides).
-            for e in 0..3 {
-                let at_x0 = t.eb[e] * yf + t.ec[e];
-                if t.ea[e] > 0 {
-                    x0 = x0.max((-(at_x0 as f64) * t.inv_ea[e]) as i64 - 1);
-                } else if t.ea[e] < 0 {
-                    x1 = x1.min((-(at_x0 as f64) * t.inv_ea[e]) as i64 + 1);
-                } else if at_x0 < 0 {
-                    continue 'rows;
+        // The exact run of pixel centres inside all three edges: each edge function is
+        // monotonic along the row, so start from the floating-point crossing and settle it
+        // with the integer edge functions.
+        let (mut lo, mut hi) = (t.x0 as i64, t.x1 as i64);
+        for e in 0..3 {
+            let a = t.ea[e];
+            let r = t.eb[e] * yf + t.ec[e];
+            let guess = -(r as f64) * t.inv_ea[e];
+            if a > 0 {
+                // First x with a x + r >= 0.
+                let mut x = (guess as i64).clamp(lo, hi + 1);
+                while x <= hi && a * x + r < 0 {
+                    x += 1;
                 }
+                while x > lo && a * (x - 1) + r >= 0 {
+                    x -= 1;
+                }
+                lo = x;
+            } else if a < 0 {
+                // Last x with a x + r >= 0.
+                let mut x = (guess as i64).clamp(lo - 1, hi);
+                while x >= lo && a * x + r < 0 {
+                    x -= 1;
+                }
+                while x < hi && a * (x + 1) + r >= 0 {
+                    x += 1;
+                }
+                hi = x;
+            } else if r < 0 {
+                continue 'rows;
             }
-            if x0 > x1 {
-                continue;
+            if lo > hi {
+                continue 'rows;
             }
         }
-        let (x0, x1) = (x0 as usize, x1 as usize);
-        let xf = x0 as i64;
-        let mut e0 = t.ea[0] * xf + t.eb[0] * yf + t.ec[0];
-        let mut e1 = t.ea[1] * xf + t.eb[1] * yf + t.ec[1];
-        let mut e2 = t.ea[2] * xf + t.eb[2] * yf + t.ec[2];
+        let (lo, hi) = (lo as usize, hi as usize);
         let zrow = t.zb * y as f32 + t.zc;
         let row = (y - band_y0) * w;
-        let mut entered = false;
-        for x in x0..=x1 {
-            if (e0 | e1 | e2) >= 0 {
-                entered = true;
-                let iz = t.za * x as f32 + zrow;
-                let i = row + x;
-                let old = zbuf[i];
-                if iz > old || (iz == old && id < ids[i]) {
-                    zbuf[i] = iz;
-                    ids[i] = id;
-                }
-            } else if entered {
-                // Triangles are convex: once the row leaves, it does not come back.
-                break;
-            }
-            e0 += t.ea[0];
-            e1 += t.ea[1];
-            e2 += t.ea[2];
+        // Branch-free depth test (ties go to the lower id), so that it vectorises.
+        let span = row + lo..row + hi + 1;
+        for ((zb, ib), x) in zbuf[span.clone()].iter_mut().zip(&mut ids[span]).zip(lo..) {
+            let iz = t.za * x as f32 + zrow;
+            let take = iz > *zb || (iz == *zb && id < *ib);
+            *zb = if take { iz } else { *zb };
+            *ib = if take { id } else { *ib };
         }
     }
 }
