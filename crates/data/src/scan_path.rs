@@ -1,0 +1,696 @@
+//! Generated handheld-like camera trajectories through a room, for rendering synthetic
+//! RGB-D scans whose motion looks like a person scanning: walking a loop through free space
+//! at 0.3-0.5 m/s, eye height with a slight bob, gaze drifting between walls and furniture
+//! (sometimes down at tables and the floor, sometimes up), small smooth hand jitter, and
+//! back to the start pose at the end so that loop closure can be tested. Speeds stay within
+//! what frame-to-frame tracking at 30 fps handles (below 40 degrees/s).
+//!
+//! The walk: a clearance grid of the floor (distance to walls and obstacle footprints),
+//! waypoints on an ellipse around the room centre snapped into free space, shortest grid
+//! paths between them, then smoothing that never gives up the clearance.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+use std::f32::consts::{PI, TAU};
+
+use glam::{Affine3A, Mat3, Vec2, Vec3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::mesh::LabeledMesh;
+
+/// What a scan planner needs to know about a room (world frame, z up).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RoomLayout {
+    /// Floor rectangle corner with the smallest x and y, metres.
+    pub floor_min: Vec2,
+    /// Floor rectangle corner with the largest x and y, metres.
+    pub floor_max: Vec2,
+    /// Height of the floor (0 in generated rooms).
+    pub floor_z: f32,
+    /// Ceiling height above the floor, metres.
+    pub ceiling_height: f32,
+    /// Footprints of furniture the camera must walk around, as (min, max) corners.
+    pub obstacles: Vec<(Vec2, Vec2)>,
+    /// Points worth looking at (furniture, wall features); may be empty.
+    pub interest_points: Vec<Vec3>,
+}
+
+/// Parameters of a generated scan; [`ScanPlan::poses`] makes the trajectory.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ScanPlan {
+    /// The room to walk through.
+    pub room: RoomLayout,
+    /// Seed of every random choice (gaze targets, jitter).
+    pub seed: u64,
+    /// Frames per second of the trajectory.
+    pub frame_rate: f32,
+    /// Top walking speed, m/s.
+    pub walking_speed: f32,
+    /// Camera height above the floor, metres (bobs by about a centimetre while walking).
+    pub eye_height: f32,
+    /// Smallest distance kept from walls and obstacle footprints, metres.
+    pub clearance: f32,
+    /// Top turning speed of the gaze, degrees per second (hand jitter adds a little).
+    pub max_turn_rate_deg: f32,
+    /// Scale of the hand jitter (1 = a steady hand, 0 = none).
+    pub jitter: f32,
+}
+
+/// Floor grid resolution of the planner, metres.
+const CELL: f32 = 0.05;
+
+impl ScanPlan {
+    /// A plan with the defaults: 30 fps, 0.4 m/s, eye at 1.45 m, 0.4 m clearance, gaze
+    /// turning at most 22 degrees/s, steady hand.
+    pub fn new(room: RoomLayout, seed: u64) -> Self {
+        Self {
+            room,
+            seed,
+            frame_rate: 30.0,
+            walking_speed: 0.4,
+            eye_height: 1.45,
+            clearance: 0.4,
+            max_turn_rate_deg: 22.0,
+            jitter: 1.0,
+        }
+    }
+
+    /// A plan for an arbitrary mesh with z up: the floor is the bounding box's footprint at
+    /// its lowest z, without obstacles; the walk is an ellipse around the centre, looking
+    /// outward at points on the bounding box's sides.
+    pub fn from_mesh_bounds(mesh: &LabeledMesh, seed: u64) -> crate::Result<Self> {
+        let (lo, hi) = mesh
+            .bounds()
+            .ok_or_else(|| crate::DataError::InvalidArgument("cannot plan a scan of an empty mesh".into()))?;
+        let centre = (lo + hi) * 0.5;
+        let half = (hi - lo) * 0.5;
+        let height = hi.z - lo.z;
+        let look_z = lo.z + (1.1f32).min(height * 0.5);
+        let interest_points = (0..12)
+            .map(|i| {
+                let a = i as f32 / 12.0 * TAU;
+                let dir = Vec2::new(a.cos(), a.sin());
+                // Where the ray from the centre leaves the footprint.
+                let t = (half.x / dir.x.abs().max(1e-6)).min(half.y / dir.y.abs().max(1e-6));
+                Vec3::new(centre.x + dir.x * t, centre.y + dir.y * t, look_z)
+            })
+            .collect();
+        let mut plan = Self::new(
+            RoomLayout {
+                floor_min: lo.truncate(),
+                floor_max: hi.truncate(),
+                floor_z: lo.z,
+                ceiling_height: height,
+                obstacles: Vec::new(),
+                interest_points,
+            },
+            seed,
+        );
+        plan.clearance = plan.clearance.min(0.25 * half.x.min(half.y));
+        Ok(plan)
+    }
+
+    /// `n` `world_from_camera` poses (camera x right, y down, z forward) at
+    /// `frame_rate`; the last equals the first.
+    pub fn poses(&self, n: usize) -> crate::Result<Vec<Affine3A>> {
+        let room = &self.room;
+        let bad = |m: String| Err(crate::DataError::InvalidArgument(m));
+        let size = room.floor_max - room.floor_min;
+        if !(size.x > 0.0 && size.y > 0.0 && size.is_finite()) {
+            return bad(format!("floor rectangle {:?}..{:?} is empty", room.floor_min, room.floor_max));
+        }
+        if !(self.frame_rate > 0.0 && self.walking_speed > 0.0 && self.max_turn_rate_deg > 0.0) {
+            return bad("frame rate, walking speed and turn rate must be positive".into());
+        }
+        if n == 0 {
+            return Ok(Vec::new());
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
+        let grid = ClearanceGrid::new(room);
+        let path = self.walk(&grid)?;
+        let duration = n as f32 / self.frame_rate;
+        let dt = 1.0 / self.frame_rate;
+        let times: Vec<f32> = (0..n).map(|i| if n > 1 { i as f32 / (n - 1) as f32 } else { 0.0 }).collect();
+
+        // Distance along the path per frame: once round the loop with gentle start and
+        // stop when the time allows it, otherwise out along the loop and back.
+        let length = path.length();
+        let ramp = (2.0 / duration).min(0.2);
+        let once_speed = length / duration / (1.0 - ramp);
+        let distance: Vec<f32> = if once_speed <= self.walking_speed {
+            // Long scans go round several times rather than crawl.
+            let laps = if once_speed > 0.0 { (0.8 * self.walking_speed / once_speed).floor().max(1.0) } else { 1.0 };
+            let profile: Vec<f32> = times.iter().map(|&u| speed_profile(u, ramp)).collect();
+            cumulative(&profile, length * laps)
+        } else {
+            let reach = self.walking_speed * duration / PI;
+            times.iter().map(|&u| reach * (1.0 - (TAU * u).cos()) * 0.5).collect()
+        };
+        let floor = room.floor_z;
+        let eye_z = floor + self.eye_height.min(room.ceiling_height - 0.25).max(0.5f32.min(room.ceiling_height * 0.5));
+        let positions: Vec<Vec3> = distance
+            .iter()
+            .map(|&s| {
+                let on_loop = if length > 0.0 { s % length } else { 0.0 };
+                // The end of the last lap is the start, whatever the rounding.
+                let on_loop = if length - on_loop < 1e-4 { 0.0 } else { on_loop };
+                path.at(on_loop).extend(eye_z)
+            })
+            .collect();
+
+        // Walking direction (for choosing what to look at), and bobbing with the steps.
+        let heading: Vec<Vec2> = (0..n)
+            .map(|i| {
+                let a = positions[i.saturating_sub(3)].truncate();
+                let b = positions[(i + 3).min(n - 1)].truncate();
+                (b - a).try_normalize().unwrap_or(Vec2::X)
+            })
+            .collect();
+        let speeds: Vec<f32> = (0..n)
+            .map(|i| {
+                let a = distance[i.saturating_sub(1)];
+                let b = distance[(i + 1).min(n - 1)];
+                (b - a).abs() / (dt * ((i + 1).min(n - 1) - i.saturating_sub(1)).max(1) as f32)
+            })
+            .collect();
+        let mut step_phase = 0.0f32;
+        let mut eye: Vec<Vec3> = Vec::with_capacity(n);
+        for i in 0..n {
+            // About 1.8 steps/s at full speed; the bob fades as the walk slows down.
+            let rel = (speeds[i] / self.walking_speed).min(1.0);
+            step_phase += TAU * 1.8 * rel * dt;
+            eye.push(positions[i] + Vec3::Z * (0.012 * rel * step_phase.sin()));
+        }
+
+        // Gaze: a target point moving smoothly between chosen points of interest.
+        let targets = self.gaze_targets(&mut rng, &eye, &heading, duration);
+        let mut yaw_pitch: Vec<Vec2> = Vec::with_capacity(n);
+        let max_step = self.max_turn_rate_deg.to_radians() * dt;
+        for i in 0..n {
+            let t = i as f32 * dt;
+            let dir = (gaze_target_at(&targets, t) - eye[i]).try_normalize().unwrap_or(heading[i].extend(0.0));
+            let want = Vec2::new(dir.y.atan2(dir.x), dir.z.clamp(-1.0, 1.0).asin().clamp(-1.0, 0.7));
+            let next = match yaw_pitch.last() {
+                None => want,
+                Some(&prev) => {
+                    let delta = Vec2::new(wrap_angle(want.x - prev.x), want.y - prev.y);
+                    let len = delta.length();
+                    prev + if len > max_step { delta * (max_step / len) } else { delta }
+                }
+            };
+            yaw_pitch.push(next);
+        }
+        // Close the loop exactly: spread what is left of the way back to the first gaze
+        // over the last seconds.
+        let error = Vec2::new(wrap_angle(yaw_pitch[n - 1].x - yaw_pitch[0].x), yaw_pitch[n - 1].y - yaw_pitch[0].y);
+        // At most about 5 degrees/s on top of the gaze's own turning.
+        let fix_seconds = (error.length().to_degrees() / 5.0).max(3.0);
+        let fix_frames = ((fix_seconds * self.frame_rate) as usize).clamp(1, n);
+        for (j, yp) in yaw_pitch[n - fix_frames..].iter_mut().enumerate() {
+            let u = (j + 1) as f32 / fix_frames as f32;
+            *yp -= error * smoothstep(u);
+        }
+
+        // Hand jitter: sums of sinusoids with a whole number of periods over the scan, so
+        // the jitter ends where it started.
+        let jitter_t = PeriodicNoise::new(&mut rng, duration, 0.004 * self.jitter);
+        let jitter_r = PeriodicNoise::new(&mut rng, duration, 0.4f32.to_radians() * self.jitter);
+        Ok((0..n)
+            .map(|i| {
+                let t = i as f32 * dt;
+                let u = if n > 1 { times[i] * duration } else { t };
+                let [yaw, pitch] = yaw_pitch[i].to_array();
+                let forward = Vec3::new(pitch.cos() * yaw.cos(), pitch.cos() * yaw.sin(), pitch.sin());
+                let right = forward.cross(Vec3::Z).normalize();
+                let down = forward.cross(right);
+                let r = jitter_r.at(u);
+                let shake = Mat3::from_rotation_z(r.z) * Mat3::from_rotation_x(r.x) * Mat3::from_rotation_y(r.y);
+                let rotation = Mat3::from_cols(right, down, forward) * shake;
+                Affine3A::from_mat3_translation(rotation, eye[i] + jitter_t.at(u))
+            })
+            .collect())
+    }
+
+    /// The closed walking loop through free space.
+    fn walk(&self, grid: &ClearanceGrid) -> crate::Result<Polyline> {
+        let room = &self.room;
+        let centre = (room.floor_min + room.floor_max) * 0.5;
+        let half = (room.floor_max - room.floor_min) * 0.5;
+        // Planned with a margin, so that smoothing has room to cut corners.
+        let want = self.clearance + 2.0 * CELL;
+        let semi = (half * 0.5).min(half - Vec2::splat(want)).max(Vec2::ZERO);
+        let mut waypoints = Vec::new();
+        for i in 0..12 {
+            let a = i as f32 / 12.0 * TAU;
+            let p = centre + semi * Vec2::new(a.cos(), a.sin());
+            if let Some(cell) = grid.nearest_with(p, want).or_else(|| grid.nearest_with(p, self.clearance)) {
+                if waypoints.last() != Some(&cell) {
+                    waypoints.push(cell);
+                }
+            }
+        }
+        let Some(&start) = waypoints.first() else {
+            return Err(crate::DataError::InvalidArgument(format!(
+                "no floor space {} m away from walls and obstacles in {:?}..{:?}",
+                self.clearance, room.floor_min, room.floor_max
+            )));
+        };
+        let mut cells = vec![start];
+        let mut from = start;
+        for &to in waypoints.iter().skip(1).chain(std::iter::once(&start)) {
+            if let Some(route) = grid.route(from, to, self.clearance) {
+                cells.extend(route.into_iter().skip(1));
+                from = to;
+            }
+        }
+        let raw: Vec<Vec2> = cells.iter().map(|&c| grid.centre(c)).collect();
+        Ok(Polyline::closed(smooth_loop(&raw, grid, self.clearance)))
+    }
+
+    /// Gaze targets: (start time, point), each held for a few seconds; the last is the
+    /// first again so that the scan ends looking where it began.
+    fn gaze_targets(&self, rng: &mut ChaCha8Rng, eye: &[Vec3], heading: &[Vec2], duration: f32) -> Vec<(f32, Vec3)> {
+        let room = &self.room;
+        let floor = room.floor_z;
+        let centre = ((room.floor_min + room.floor_max) * 0.5).extend(floor + 0.8);
+        let mut points = room.interest_points.clone();
+        if points.is_empty() {
+            // Wall middles and room corners at table height.
+            let (a, b) = (room.floor_min, room.floor_max);
+            let m = (a + b) * 0.5;
+            for p in [
+                Vec2::new(a.x, m.y),
+                Vec2::new(b.x, m.y),
+                Vec2::new(m.x, a.y),
+                Vec2::new(m.x, b.y),
+                a,
+                b,
+                Vec2::new(a.x, b.y),
+                Vec2::new(b.x, a.y),
+            ] {
+                points.push(p.extend(floor + 1.0));
+            }
+        }
+        let at = |t: f32| ((t * self.frame_rate) as usize).min(eye.len() - 1);
+        let choose = |rng: &mut ChaCha8Rng, t: f32| -> Vec3 {
+            let e = eye[at(t)];
+            let h = heading[at(t)];
+            let roll: f32 = rng.random();
+            if roll < 0.15 {
+                // Down at a table or the floor ahead.
+                let z = if rng.random::<bool>() { floor + 0.75 } else { floor };
+                return (e.truncate() + h * 1.2).extend(z);
+            }
+            if roll < 0.25 {
+                // Up at the top of a wall ahead.
+                return (e.truncate() + h * 2.0).extend(floor + room.ceiling_height - 0.1);
+            }
+            // Prefer points ahead, not too close.
+            let mut best = centre;
+            let mut best_score = f32::NEG_INFINITY;
+            for p in &points {
+                let d = (*p - e).truncate();
+                let dist = d.length();
+                if dist < 0.5 {
+                    continue;
+                }
+                let ahead = d.dot(h) / dist;
+                let score = ahead + 0.8 * rng.random::<f32>() - 0.05 * dist;
+                if score > best_score {
+                    best_score = score;
+                    best = *p;
+                }
+            }
+            best
+        };
+        let first = choose(rng, 0.0);
+        let mut targets = vec![(0.0, first)];
+        let mut t = rng.random_range(3.0..5.0);
+        while t < duration {
+            targets.push((t, choose(rng, t)));
+            t += rng.random_range(3.0..5.0);
+        }
+        // Time to turn back (up to 180 degrees at the turn rate) before the end.
+        let back = (180.0 / self.max_turn_rate_deg + 2.0).min(duration * 0.3);
+        targets.retain(|&(t, _)| t == 0.0 || t < duration - back - 2.0);
+        targets.push((duration - back, first));
+        targets
+    }
+}
+
+/// Gaze point at time `t`: each target is reached from the previous one over 1.5 s.
+fn gaze_target_at(targets: &[(f32, Vec3)], t: f32) -> Vec3 {
+    let mut point = targets.first().map(|p| p.1).unwrap_or(Vec3::ZERO);
+    for &(start, p) in targets.iter().skip(1) {
+        if t <= start {
+            break;
+        }
+        point = point.lerp(p, smoothstep(((t - start) / 1.5).min(1.0)));
+    }
+    point
+}
+
+/// Relative walking speed at normalised time `u`: smooth ramps of length `ramp` at both
+/// ends, 1 in between.
+fn speed_profile(u: f32, ramp: f32) -> f32 {
+    smoothstep((u / ramp).min(1.0)).min(smoothstep(((1.0 - u) / ramp).min(1.0)))
+}
+
+/// Running sum of `rates`, scaled so that it goes from 0 to `total`.
+fn cumulative(rates: &[f32], total: f32) -> Vec<f32> {
+    let mut acc = 0.0f64;
+    let mut out = Vec::with_capacity(rates.len());
+    for (i, &r) in rates.iter().enumerate() {
+        if i > 0 {
+            acc += 0.5 * (r + rates[i - 1]) as f64;
+        }
+        out.push(acc);
+    }
+    let scale = if acc > 0.0 { total as f64 / acc } else { 0.0 };
+    out.into_iter().map(|s| (s * scale) as f32).collect()
+}
+
+fn smoothstep(u: f32) -> f32 {
+    let u = u.clamp(0.0, 1.0);
+    u * u * (3.0 - 2.0 * u)
+}
+
+fn wrap_angle(a: f32) -> f32 {
+    (a + PI).rem_euclid(TAU) - PI
+}
+
+/// Smooth, periodic 3-D noise: per axis, three sinusoids at 0.2-1.6 Hz with whole periods
+/// over `duration`.
+struct PeriodicNoise {
+    waves: Vec<(Vec3, Vec3, Vec3)>, // (amplitude, angular frequency, phase) per wave
+}
+
+impl PeriodicNoise {
+    fn new(rng: &mut ChaCha8Rng, duration: f32, amplitude: f32) -> Self {
+        let waves = [0.25f32, 0.6, 1.3]
+            .iter()
+            .map(|&hz| {
+                let mut v = || {
+                    let cycles = (hz * duration * rng.random_range(0.8..1.25)).round().max(1.0);
+                    (amplitude * rng.random_range(0.3..0.6), TAU * cycles / duration, rng.random_range(0.0..TAU))
+                };
+                let (a, b, c) = (v(), v(), v());
+                (Vec3::new(a.0, b.0, c.0), Vec3::new(a.1, b.1, c.1), Vec3::new(a.2, b.2, c.2))
+            })
+            .collect();
+        Self { waves }
+    }
+
+    fn at(&self, t: f32) -> Vec3 {
+        self.waves.iter().fold(Vec3::ZERO, |acc, (a, w, p)| {
+            let phase = *w * t + *p;
+            acc + *a * Vec3::new(phase.x.sin(), phase.y.sin(), phase.z.sin())
+        })
+    }
+}
+
+/// Distance to walls and obstacle footprints on a floor grid.
+struct ClearanceGrid {
+    origin: Vec2,
+    nx: usize,
+    ny: usize,
+    clearance: Vec<f32>,
+}
+
+impl ClearanceGrid {
+    fn new(room: &RoomLayout) -> Self {
+        let size = room.floor_max - room.floor_min;
+        let nx = ((size.x / CELL).ceil() as usize).max(1);
+        let ny = ((size.y / CELL).ceil() as usize).max(1);
+        let mut clearance = Vec::with_capacity(nx * ny);
+        for j in 0..ny {
+            for i in 0..nx {
+                let p = room.floor_min + Vec2::new((i as f32 + 0.5) * CELL, (j as f32 + 0.5) * CELL);
+                clearance.push(clearance_at(room, p));
+            }
+        }
+        Self { origin: room.floor_min, nx, ny, clearance }
+    }
+
+    fn centre(&self, c: usize) -> Vec2 {
+        self.origin + Vec2::new(((c % self.nx) as f32 + 0.5) * CELL, ((c / self.nx) as f32 + 0.5) * CELL)
+    }
+
+    /// The cell nearest to `p` with at least `min_clearance`.
+    fn nearest_with(&self, p: Vec2, min_clearance: f32) -> Option<usize> {
+        (0..self.clearance.len())
+            .filter(|&c| self.clearance[c] >= min_clearance)
+            .min_by(|&a, &b| self.centre(a).distance_squared(p).total_cmp(&self.centre(b).distance_squared(p)))
+    }
+
+    /// Shortest 8-connected route between two cells through cells with at least
+    /// `min_clearance`, preferring more clearance; `None` when unreachable.
+    fn route(&self, from: usize, to: usize, min_clearance: f32) -> Option<Vec<usize>> {
+        let n = self.clearance.len();
+        let mut cost = vec![f32::INFINITY; n];
+        let mut prev = vec![usize::MAX; n];
+        let mut heap = BinaryHeap::new();
+        cost[from] = 0.0;
+        heap.push(Reverse((0u64, from)));
+        while let Some(Reverse((c_bits, c))) = heap.pop() {
+            let c_cost = f32::from_bits(c_bits as u32);
+            if c == to {
+                break;
+            }
+            if c_cost > cost[c] {
+                continue;
+            }
+            let (ci, cj) = ((c % self.nx) as i64, (c / self.nx) as i64);
+            for (di, dj) in [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)] {
+                let (i, j) = (ci + di, cj + dj);
+                if i < 0 || j < 0 || i >= self.nx as i64 || j >= self.ny as i64 {
+                    continue;
+                }
+                let nb = j as usize * self.nx + i as usize;
+                if self.clearance[nb] < min_clearance {
+                    continue;
+                }
+                let step = if di != 0 && dj != 0 { std::f32::consts::SQRT_2 } else { 1.0 };
+                // Slightly cheaper far from obstacles, so routes keep to the middle.
+                let new_cost = c_cost + step * (1.0 + 0.3 / (1.0 + self.clearance[nb]));
+                if new_cost < cost[nb] {
+                    cost[nb] = new_cost;
+                    prev[nb] = c;
+                    // Non-negative floats order like their bit patterns.
+                    heap.push(Reverse((new_cost.to_bits() as u64, nb)));
+                }
+            }
+        }
+        if !cost[to].is_finite() {
+            return None;
+        }
+        let mut route = vec![to];
+        let mut c = to;
+        while c != from {
+            c = prev[c];
+            route.push(c);
+        }
+        route.reverse();
+        Some(route)
+    }
+
+    /// Clearance at `p`, from the nearest cell.
+    fn at(&self, p: Vec2) -> f32 {
+        let q = (p - self.origin) / CELL;
+        let i = (q.x.max(0.0) as usize).min(self.nx - 1);
+        let j = (q.y.max(0.0) as usize).min(self.ny - 1);
+        self.clearance[j * self.nx + i]
+    }
+}
+
+/// Distance from `p` to the walls and the nearest obstacle footprint (0 inside one).
+fn clearance_at(room: &RoomLayout, p: Vec2) -> f32 {
+    let wall = (p - room.floor_min).min(room.floor_max - p).min_element();
+    room.obstacles.iter().fold(wall, |acc, (lo, hi)| {
+        let d = (*lo - p).max(p - *hi).max(Vec2::ZERO);
+        acc.min(d.length())
+    })
+}
+
+/// Smooths a closed polyline by repeated circular averaging over about half a metre, then
+/// pulls back towards the unsmoothed route wherever the clearance would drop below
+/// `min_clearance` - one cell (the grid's resolution).
+fn smooth_loop(raw: &[Vec2], grid: &ClearanceGrid, min_clearance: f32) -> Vec<Vec2> {
+    let n = raw.len();
+    if n < 3 {
+        return raw.to_vec();
+    }
+    let half_window = 5usize.min((n - 1) / 2);
+    let mut pts = raw.to_vec();
+    for _ in 0..3 {
+        pts = (0..n)
+            .map(|i| {
+                let sum = (0..=2 * half_window).fold(Vec2::ZERO, |acc, k| acc + pts[(i + n + k - half_window) % n]);
+                sum / (2 * half_window + 1) as f32
+            })
+            .collect();
+    }
+    let limit = min_clearance - CELL;
+    for (p, &r) in pts.iter_mut().zip(raw) {
+        let mut t = 1.0;
+        while t > 0.0 && grid.at(r.lerp(*p, t)) < limit {
+            t -= 0.25;
+        }
+        *p = r.lerp(*p, t.max(0.0));
+    }
+    pts
+}
+
+/// A closed polyline with arc-length lookup.
+struct Polyline {
+    points: Vec<Vec2>,
+    /// Distance from the start to each point; the last entry closes the loop.
+    arc: Vec<f32>,
+}
+
+impl Polyline {
+    fn closed(mut points: Vec<Vec2>) -> Self {
+        points.dedup_by(|a, b| a.distance(*b) < 1e-4);
+        if let Some(&first) = points.first() {
+            points.push(first);
+        }
+        let mut arc = vec![0.0];
+        for w in points.windows(2) {
+            arc.push(arc.last().copied().unwrap_or(0.0) + w[0].distance(w[1]));
+        }
+        Self { points, arc }
+    }
+
+    fn length(&self) -> f32 {
+        self.arc.last().copied().unwrap_or(0.0)
+    }
+
+    fn at(&self, s: f32) -> Vec2 {
+        if self.points.len() < 2 {
+            return self.points.first().copied().unwrap_or(Vec2::ZERO);
+        }
+        let s = s.clamp(0.0, self.length());
+        let i = self.arc.partition_point(|&a| a <= s).clamp(1, self.points.len() - 1);
+        let (a, b) = (self.arc[i - 1], self.arc[i]);
+        let t = if b > a { (s - a) / (b - a) } else { 0.0 };
+        self.points[i - 1].lerp(self.points[i], t)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn office() -> RoomLayout {
+        RoomLayout {
+            floor_min: Vec2::new(0.0, 0.0),
+            floor_max: Vec2::new(6.0, 5.0),
+            floor_z: 0.0,
+            ceiling_height: 2.7,
+            obstacles: vec![(Vec2::new(2.4, 2.0), Vec2::new(3.8, 3.0)), (Vec2::new(0.0, 3.8), Vec2::new(2.0, 5.0))],
+            interest_points: vec![
+                Vec3::new(3.1, 2.5, 0.75),
+                Vec3::new(1.0, 4.4, 0.5),
+                Vec3::new(6.0, 1.0, 1.5),
+                Vec3::new(0.0, 1.0, 1.2),
+            ],
+        }
+    }
+
+    fn angle_between(a: &Affine3A, b: &Affine3A) -> f32 {
+        let r = Mat3::from(a.matrix3).transpose() * Mat3::from(b.matrix3);
+        ((r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0) * 0.5).clamp(-1.0, 1.0).acos()
+    }
+
+    fn check_plausible(plan: &ScanPlan, poses: &[Affine3A]) {
+        let dt = 1.0 / plan.frame_rate;
+        for p in poses {
+            assert!(p.is_finite());
+            let m = Mat3::from(p.matrix3);
+            assert!((m.transpose() * m).abs_diff_eq(Mat3::IDENTITY, 1e-4), "not a rotation");
+            assert!((m.determinant() - 1.0).abs() < 1e-4);
+        }
+        for w in poses.windows(2) {
+            let v = (w[1].translation - w[0].translation).length() / dt;
+            let omega = angle_between(&w[0], &w[1]).to_degrees() / dt;
+            assert!(v < 0.6, "speed {v} m/s");
+            assert!(omega < 40.0, "turning at {omega} deg/s");
+        }
+        let (first, last) = (poses[0], poses[poses.len() - 1]);
+        assert!((first.translation - last.translation).length() < 0.01, "loop not closed");
+        assert!(angle_between(&first, &last).to_degrees() < 1.0, "loop not closed in rotation");
+    }
+
+    #[test]
+    fn walks_a_closed_loop_through_free_space_at_handheld_speeds() {
+        let plan = ScanPlan::new(office(), 1);
+        let poses = plan.poses(1800).expect("plan");
+        assert_eq!(poses.len(), 1800);
+        check_plausible(&plan, &poses);
+        let room = &plan.room;
+        let mut travelled = 0.0;
+        for w in poses.windows(2) {
+            travelled += (w[1].translation - w[0].translation).length();
+        }
+        assert!(travelled > 5.0, "walked only {travelled} m");
+        for p in &poses {
+            let xy = p.translation.truncate();
+            assert!((1.3..1.6).contains(&p.translation.z), "eye at {}", p.translation.z);
+            assert!(clearance_at(room, xy) > 0.3, "at {xy} too close to a wall or obstacle");
+        }
+        // Looks down sometimes, and mostly at things rather than the ceiling.
+        let pitches: Vec<f32> = poses.iter().map(|p| p.matrix3.z_axis.z.asin().to_degrees()).collect();
+        assert!(pitches.iter().any(|&p| p < -20.0));
+        assert!(pitches.iter().all(|&p| p < 45.0));
+        assert_eq!(poses, plan.poses(1800).expect("plan"), "not deterministic");
+        assert_ne!(poses, ScanPlan::new(office(), 2).poses(1800).expect("plan"));
+    }
+
+    #[test]
+    fn short_scans_go_out_and_back() {
+        let plan = ScanPlan::new(office(), 3);
+        let poses = plan.poses(90).expect("plan");
+        check_plausible(&plan, &poses);
+    }
+
+    #[test]
+    fn mesh_bounds_fallback_stays_inside_the_bounds() {
+        let mesh = LabeledMesh {
+            positions: vec![Vec3::new(-2.0, -1.0, 0.2), Vec3::new(3.0, 2.5, 3.0)],
+            colors: vec![[0; 3]; 2],
+            ..Default::default()
+        };
+        let plan = ScanPlan::from_mesh_bounds(&mesh, 0).expect("plan");
+        let poses = plan.poses(600).expect("plan");
+        check_plausible(&plan, &poses);
+        for p in &poses {
+            let t = p.translation;
+            assert!(t.x > -1.6 && t.x < 2.6 && t.y > -0.6 && t.y < 2.1 && t.z > 1.4 && t.z < 1.8, "{t}");
+        }
+        assert!(ScanPlan::from_mesh_bounds(&LabeledMesh::default(), 0).is_err());
+    }
+
+    #[test]
+    fn a_tiny_room_gives_a_camera_standing_and_looking_around() {
+        let room = RoomLayout {
+            floor_min: Vec2::ZERO,
+            floor_max: Vec2::new(1.0, 1.0),
+            floor_z: 0.0,
+            ceiling_height: 2.5,
+            obstacles: Vec::new(),
+            interest_points: Vec::new(),
+        };
+        let plan = ScanPlan::new(room, 4);
+        let poses = plan.poses(300).expect("plan");
+        check_plausible(&plan, &poses);
+    }
+
+    #[test]
+    fn a_room_without_free_space_is_an_error() {
+        let mut room = office();
+        room.obstacles = vec![(Vec2::new(0.0, 0.0), Vec2::new(6.0, 5.0))];
+        assert!(ScanPlan::new(room, 0).poses(10).is_err());
+    }
+}
