@@ -24,6 +24,7 @@ pub mod s3dis;
 pub mod scan_path;
 pub mod scannet_mesh;
 pub mod sensor;
+pub mod shared_data;
 pub mod synth;
 pub mod trajectory;
 

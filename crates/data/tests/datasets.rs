@@ -10,15 +10,8 @@ use semrecon_data::depth_image::{write_color_png, write_depth_png, write_label_p
 use semrecon_data::trajectory::{parse_pose_matrix, read_pose_matrix};
 use semrecon_data::{open_dataset, DataError, DatasetSpec, Frame, FrameSource, Intrinsics, Trajectory};
 
-/// `<workspace root>/../shared/data`; also one level further up, so that the tests find the
-/// data from a git worktree kept in a subfolder beside the main checkout.
 fn shared_data() -> Option<PathBuf> {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let found = ["../shared/data", "../../shared/data"].iter().map(|r| root.join(r)).find(|p| p.is_dir());
-    if found.is_none() {
-        println!("skipping: ../shared/data not found");
-    }
-    found
+    semrecon_data::shared_data::shared_data_path("")
 }
 
 fn sample(rel: &str) -> Option<PathBuf> {

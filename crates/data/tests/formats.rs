@@ -17,15 +17,8 @@ fn fixtures() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures")
 }
 
-/// `<workspace root>/../shared/data`; also `<workspace root>/../../shared/data`, where it
-/// lies for helper worktrees (`/work/wt/NAME`).
 fn shared_data() -> Option<PathBuf> {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let found = [root.join("../shared/data"), root.join("../../shared/data")].into_iter().find(|d| d.is_dir());
-    if found.is_none() {
-        println!("skipping: ../shared/data not found");
-    }
-    found
+    semrecon_data::shared_data::shared_data_path("")
 }
 
 // ---------------------------------------------------------------------------------------

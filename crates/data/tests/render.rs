@@ -281,18 +281,8 @@ fn output_is_identical_for_any_thread_count() {
     assert!(one == two && one == three, "outputs differ between thread counts");
 }
 
-/// Workspace's shared data folder (`SEMRECON_SHARED_DATA` overrides it, for worktrees that
-/// do not sit beside it), `None` (with the skip message) when absent.
 fn shared_data() -> Option<PathBuf> {
-    let dir = std::env::var_os("SEMRECON_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        println!("skipping: ../shared/data not found");
-        None
-    }
+    semrecon_data::shared_data::shared_data_path("")
 }
 
 fn read_traj(path: &Path, n: usize) -> Vec<Affine3A> {
