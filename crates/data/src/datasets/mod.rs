@@ -12,6 +12,7 @@ pub mod replica;
 pub mod scannet;
 pub mod seven_scenes;
 pub mod spec;
+pub mod synthetic;
 pub mod tum;
 
 pub use redwood::Redwood;
@@ -19,6 +20,7 @@ pub use replica::Replica;
 pub use scannet::ScanNet;
 pub use seven_scenes::{SevenScenes, SevenScenesWriter};
 pub use spec::{open_dataset, DatasetSpec};
+pub use synthetic::{synthetic_scan, SyntheticScanConfig};
 pub use tum::Tum;
 
 use std::path::{Path, PathBuf};
