@@ -183,7 +183,11 @@ impl ArScene {
         world.gravity = Vector::new(0.0, 0.0, -GRAVITY);
         world.integration_parameters.dt = config.dt;
         // The material hook needs the triangle index of each manifold (see module docs).
-        world.integration_parameters.contact_clustering = false;
+        world.integration_parameters.contact_clustering = std::env::var("SR_CLUSTER").is_ok();
+        let env = |k: &str| std::env::var(k).ok().and_then(|s| s.parse::<f32>().ok());
+        if let Some(v) = env("SR_CORR") { world.integration_parameters.normalized_max_corrective_velocity = v; }
+        if let Some(v) = env("SR_PRED") { world.integration_parameters.normalized_prediction_distance = v; }
+        if let Some(v) = env("SR_ITERS") { world.integration_parameters.num_solver_iterations = v as usize; }
         Ok(Self {
             world,
             config,
@@ -250,7 +254,11 @@ impl ArScene {
         // that edge's normal and, on bumpy scans, bounces higher than it fell. Two-sided:
         // scanned meshes are not always consistently oriented, and a one-sided mesh drops
         // contacts from the back.
-        let flags = TriMeshFlags::FIX_INTERNAL_EDGES_TWO_SIDED;
+        let flags = match std::env::var("SR_FLAGS").as_deref() {
+            Ok("one") => TriMeshFlags::FIX_INTERNAL_EDGES,
+            Ok("none") => TriMeshFlags::empty(),
+            _ => TriMeshFlags::FIX_INTERNAL_EDGES_TWO_SIDED,
+        };
         let collider = match ColliderBuilder::trimesh_with_flags(vertices.clone(), region.triangles.clone(), flags) {
             Ok(builder) => builder,
             // The topology pass can reject odd meshes (e.g. an edge shared by more than two
@@ -318,7 +326,8 @@ impl ArScene {
             .translation(Vector::new(from.x, from.y, from.z))
             .linvel(Vector::new(v.x, v.y, v.z))
             .angular_damping(self.config.angular_damping)
-            .ccd_enabled(true);
+            .ccd_enabled(true)
+            .soft_ccd_prediction(std::env::var("SR_SOFT").ok().and_then(|s| s.parse::<f32>().ok()).unwrap_or(0.0));
         let collider = ColliderBuilder::ball(self.config.ball_radius).density(self.config.ball_density);
         let (body, collider) = self.world.insert(body, collider);
         let mut record = Throw { radius: self.config.ball_radius, ..Default::default() };
