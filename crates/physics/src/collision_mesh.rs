@@ -321,7 +321,7 @@ mod tests {
     #[test]
     fn clustering_reduces_triangles_and_keeps_the_surface() {
         let m = grid(100, 0.005, 0.0, 1); // 0.5 m square at 5 mm, 20 000 triangles
-        let cfg = CollisionMeshConfig { cell: 0.02, region_size: 1.0 };
+        let cfg = CollisionMeshConfig { cell: 0.02, ..Default::default() };
         let c = CollisionMesh::build(&m, &cfg).expect("build");
         let n = c.triangle_count();
         assert!(n < m.triangle_count() / 10 && n > 500, "{n} triangles");

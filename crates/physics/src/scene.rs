@@ -5,12 +5,22 @@
 //! Materials are per triangle: every region is one collider, and a contact-modification
 //! hook looks up the class of the triangle a contact manifold touches (rapier makes one
 //! manifold per triangle of a mesh and reports its index as the manifold's sub-shape) and
-//! sets that manifold's restitution and friction. Compared with one collider per (region,
-//! class), this keeps each region one connected mesh, so `FIX_INTERNAL_EDGES` also smooths
-//! the edges between classes (a ball rolling from the floor onto a rug of "clutter" does
-//! not hit a ghost edge), and it needs no re-split when labels change. Rapier's contact
-//! clustering, which merges the manifolds of coplanar triangles and with them the triangle
-//! index, is turned off; a ball touches only a few triangles, so it costs little.
+//! sets that manifold's friction. Compared with one collider per (region, class), this
+//! keeps each region one connected mesh, so `FIX_INTERNAL_EDGES` also smooths the edges
+//! between classes, and a change of labels needs no re-split. Rapier's contact clustering,
+//! which merges the manifolds of coplanar triangles and with them the triangle index, is
+//! turned off; a ball touches only a few triangles, so it costs little.
+//!
+//! Restitution is applied here, not by rapier. Rapier's restitution pass drives each
+//! manifold's normal velocity to its target one manifold after the other; on a scanned
+//! surface a ball lands on several triangles whose normals differ by noise, the successive
+//! projections add up, and the ball leaves faster than it came (measured: rebounds 5-25 %
+//! above e^2 h on floors with 1-2 mm noise, whatever the flags and step). So rapier solves
+//! mesh contacts as perfectly inelastic (restitution 0; it still prevents penetration and
+//! applies friction), and after the step the scene adds the elastic part once per ball
+//! along one normal, the direction of the total contact impulse: the normal velocity
+//! becomes `e * approach speed`, with `e` of the triangle that took the largest impulse.
+//! Exact on flat surfaces, and a bounce can never gain energy.
 //!
 //! Determinism: rapier is built without its `parallel` feature, every container iterated
 //! here is ordered, and time advances in whole steps, so a throw gives the same bits on
@@ -159,8 +169,14 @@ struct Ball {
     body: RigidBodyHandle,
     collider: ColliderHandle,
     touching: bool,
+    /// Velocity before the current step, m/s.
+    velocity: Vec3,
     record: Throw,
 }
+
+/// Approach speeds below this (m/s) are resting or rolling contact, not a bounce: about
+/// four steps of gravity at 1/240 s; a rebound from it would be under a millimetre.
+pub const BOUNCE_MIN_SPEED: f32 = 0.15;
 
 /// A physics scene: static room regions and dynamic balls.
 pub struct ArScene {
@@ -168,8 +184,8 @@ pub struct ArScene {
     config: SceneConfig,
     materials: MaterialTable,
     regions: BTreeMap<RegionKey, RegionCollider>,
-    /// Triangle labels of each region collider, read by the material hook.
-    labels: HashMap<ColliderHandle, Arc<[u8]>>,
+    /// Triangle labels and normals of each region collider, read by the material hook.
+    surfaces: HashMap<ColliderHandle, Arc<Surface>>,
     balls: Vec<Ball>,
     steps: u64,
     unlabelled: bool,
@@ -183,17 +199,13 @@ impl ArScene {
         world.gravity = Vector::new(0.0, 0.0, -GRAVITY);
         world.integration_parameters.dt = config.dt;
         // The material hook needs the triangle index of each manifold (see module docs).
-        world.integration_parameters.contact_clustering = std::env::var("SR_CLUSTER").is_ok();
-        let env = |k: &str| std::env::var(k).ok().and_then(|s| s.parse::<f32>().ok());
-        if let Some(v) = env("SR_CORR") { world.integration_parameters.normalized_max_corrective_velocity = v; }
-        if let Some(v) = env("SR_PRED") { world.integration_parameters.normalized_prediction_distance = v; }
-        if let Some(v) = env("SR_ITERS") { world.integration_parameters.num_solver_iterations = v as usize; }
+        world.integration_parameters.contact_clustering = false;
         Ok(Self {
             world,
             config,
             materials,
             regions: BTreeMap::new(),
-            labels: HashMap::new(),
+            surfaces: HashMap::new(),
             balls: Vec::new(),
             steps: 0,
             unlabelled: false,
@@ -251,14 +263,11 @@ impl ArScene {
         }
         let vertices: Vec<Vector> = region.vertices.iter().map(|v| Vector::new(v.x, v.y, v.z)).collect();
         // FIX_INTERNAL_EDGES: without it a ball hitting the edge between two triangles gets
-        // that edge's normal and, on bumpy scans, bounces higher than it fell. Two-sided:
+        // that edge's normal; measured here, drops on a flat tessellated floor then rebound
+        // anywhere between 0.95 and 1.06 of e^2 h instead of within 1 %. Two-sided:
         // scanned meshes are not always consistently oriented, and a one-sided mesh drops
         // contacts from the back.
-        let flags = match std::env::var("SR_FLAGS").as_deref() {
-            Ok("one") => TriMeshFlags::FIX_INTERNAL_EDGES,
-            Ok("none") => TriMeshFlags::empty(),
-            _ => TriMeshFlags::FIX_INTERNAL_EDGES_TWO_SIDED,
-        };
+        let flags = TriMeshFlags::FIX_INTERNAL_EDGES_TWO_SIDED;
         let collider = match ColliderBuilder::trimesh_with_flags(vertices.clone(), region.triangles.clone(), flags) {
             Ok(builder) => builder,
             // The topology pass can reject odd meshes (e.g. an edge shared by more than two
@@ -269,7 +278,7 @@ impl ArScene {
             },
         };
         let handle = self.world.insert_collider(collider.active_hooks(ActiveHooks::MODIFY_SOLVER_CONTACTS), None);
-        self.labels.insert(handle, Arc::from(region.labels));
+        self.surfaces.insert(handle, Arc::new(Surface { labels: region.labels }));
         self.regions.insert(region.key, RegionCollider { handle, hash: region.hash });
         // Balls asleep on the old geometry must notice the change.
         self.world.wake_up_all(true);
@@ -279,7 +288,7 @@ impl ArScene {
     fn remove_region(&mut self, key: RegionKey) {
         if let Some(old) = self.regions.remove(&key) {
             self.world.remove_collider(old.handle);
-            self.labels.remove(&old.handle);
+            self.surfaces.remove(&old.handle);
             self.world.wake_up_all(true);
         }
     }
@@ -326,9 +335,9 @@ impl ArScene {
             .translation(Vector::new(from.x, from.y, from.z))
             .linvel(Vector::new(v.x, v.y, v.z))
             .angular_damping(self.config.angular_damping)
-            .ccd_enabled(true)
-            .soft_ccd_prediction(std::env::var("SR_SOFT").ok().and_then(|s| s.parse::<f32>().ok()).unwrap_or(0.0));
-        let collider = ColliderBuilder::ball(self.config.ball_radius).density(self.config.ball_density);
+            .ccd_enabled(true);
+        // Ball-ball hits use rapier's own restitution (0.7: two rubber balls).
+        let collider = ColliderBuilder::ball(self.config.ball_radius).density(self.config.ball_density).restitution(0.7);
         let (body, collider) = self.world.insert(body, collider);
         let mut record = Throw { radius: self.config.ball_radius, ..Default::default() };
         if self.unlabelled {
@@ -336,40 +345,58 @@ impl ArScene {
         }
         record.times.push(self.time());
         record.positions.push(from.to_array());
-        self.balls.push(Ball { body, collider, touching: false, record });
+        self.balls.push(Ball { body, collider, touching: false, velocity: v, record });
         Ok(BallId(self.balls.len() - 1))
     }
 
     /// Advances the scene by one fixed step and records contacts (and samples every
     /// `record_every` steps).
     pub fn step(&mut self) {
-        let hooks = MaterialHooks { labels: &self.labels, materials: &self.materials };
+        for ball in &mut self.balls {
+            if let Some(body) = self.world.bodies.get(ball.body) {
+                let v = body.linvel();
+                ball.velocity = Vec3::new(v.x, v.y, v.z);
+            }
+        }
+        let hooks = MaterialHooks { surfaces: &self.surfaces, materials: &self.materials };
         self.world.step_with_events(&hooks, &());
         self.steps += 1;
         let time = self.time();
+        let dt = self.config.dt;
         let sample = self.steps % self.config.record_every as u64 == 0;
         for ball in &mut self.balls {
-            let Some(body) = self.world.bodies.get(ball.body) else { continue };
-            let centre = body.translation();
-            let touch = touching_contact(&self.world, ball.collider, &self.labels);
-            match touch {
-                Some((point, label)) if !ball.touching => {
-                    let m = self.materials.label(label);
-                    ball.record.contacts.push(Contact {
-                        time,
-                        position: point.to_array(),
-                        class: label_name(label).to_string(),
-                        restitution: m.restitution,
-                        friction: m.friction,
-                    });
+            let hit = contact_impulses(&self.world, ball.collider, &self.surfaces);
+            let Some(body) = self.world.bodies.get_mut(ball.body) else { continue };
+            match hit {
+                Some(hit) => {
+                    // Velocity the ball hit with: before the step plus the step's gravity.
+                    let approach = -(ball.velocity - Vec3::Z * (GRAVITY * dt)).dot(hit.normal);
+                    let m = self.materials.label(hit.label);
+                    let bounce = approach > BOUNCE_MIN_SPEED;
+                    if bounce {
+                        let v = body.linvel();
+                        let v = Vec3::new(v.x, v.y, v.z);
+                        let add = (m.restitution * approach - v.dot(hit.normal)).max(0.0);
+                        let v = v + add * hit.normal;
+                        body.set_linvel(Vector::new(v.x, v.y, v.z), true);
+                    }
+                    if bounce || !ball.touching {
+                        ball.record.contacts.push(Contact {
+                            time,
+                            position: hit.point.to_array(),
+                            class: label_name(hit.label).to_string(),
+                            restitution: m.restitution,
+                            friction: m.friction,
+                        });
+                    }
                     ball.touching = true;
                 }
-                Some(_) => {}
                 None => ball.touching = false,
             }
             if sample {
+                let c = body.translation();
                 ball.record.times.push(time);
-                ball.record.positions.push([centre.x, centre.y, centre.z]);
+                ball.record.positions.push([c.x, c.y, c.z]);
             }
         }
     }
@@ -417,38 +444,56 @@ fn check_vector(what: &str, v: Vec3, max: f32) -> Result<()> {
     Ok(())
 }
 
-/// The deepest contact point of `ball` on a room collider where the solver pushed this
-/// step, with the label of its triangle; `None` when the ball touches nothing.
-fn touching_contact(
-    world: &PhysicsWorld,
-    ball: ColliderHandle,
-    labels: &HashMap<ColliderHandle, Arc<[u8]>>,
-) -> Option<(Vec3, u8)> {
+/// What the room did to a ball during a step.
+struct Hit {
+    /// Direction of the total contact impulse on the ball (unit).
+    normal: Vec3,
+    /// Contact point of the largest impulse, world frame.
+    point: Vec3,
+    /// Label of the triangle that took the largest impulse.
+    label: u8,
+}
+
+/// Sums the impulses the room's colliders applied to `ball` during the last step; `None`
+/// when there were none.
+fn contact_impulses(world: &PhysicsWorld, ball: ColliderHandle, surfaces: &HashMap<ColliderHandle, Arc<Surface>>) -> Option<Hit> {
+    let mut total = Vec3::ZERO;
     let mut best: Option<(f32, Vec3, u8)> = None;
     for pair in world.narrow_phase.contact_pairs_with(ball) {
         let (mesh, mesh_is_first) = if pair.collider1 == ball { (pair.collider2, false) } else { (pair.collider1, true) };
-        let Some(tri_labels) = labels.get(&mesh) else { continue };
+        let Some(surface) = surfaces.get(&mesh) else { continue };
         for manifold in pair.manifolds() {
             let tri = if mesh_is_first { manifold.subshape1 } else { manifold.subshape2 };
-            let label = tri_labels.get(tri as usize).copied().unwrap_or(UNLABELED);
+            let label = surface.labels.get(tri as usize).copied().unwrap_or(UNLABELED);
+            // The manifold normal points from collider 1 to collider 2: make it point at the ball.
+            let n = manifold.data.normal;
+            let n = Vec3::new(n.x, n.y, n.z) * if mesh_is_first { 1.0 } else { -1.0 };
             for p in &manifold.points {
                 if p.data.impulse <= 0.0 {
                     continue;
                 }
+                total += n * p.data.impulse;
                 // Room colliders sit at the identity pose: their local frame is the world's.
                 let local = if mesh_is_first { p.local_p1 } else { p.local_p2 };
-                if best.is_none_or(|(d, _, _)| p.dist < d) {
-                    best = Some((p.dist, Vec3::new(local.x, local.y, local.z), label));
+                if best.is_none_or(|(j, _, _)| p.data.impulse > j) {
+                    best = Some((p.data.impulse, Vec3::new(local.x, local.y, local.z), label));
                 }
             }
         }
     }
-    best.map(|(_, p, l)| (p, l))
+    let (_, point, label) = best?;
+    Some(Hit { normal: total.try_normalize()?, point, label })
 }
 
-/// Sets each manifold's restitution and friction from the class of its triangle.
+/// Per-triangle data of one region collider.
+struct Surface {
+    labels: Vec<u8>,
+}
+
+/// Sets each room manifold's friction from the class of its triangle, and its restitution
+/// to 0: the scene applies restitution itself (see the module documentation).
 struct MaterialHooks<'a> {
-    labels: &'a HashMap<ColliderHandle, Arc<[u8]>>,
+    surfaces: &'a HashMap<ColliderHandle, Arc<Surface>>,
     materials: &'a MaterialTable,
 }
 
@@ -456,15 +501,15 @@ impl PhysicsHooks for MaterialHooks<'_> {
     fn modify_solver_contacts(&self, context: &mut ContactModificationContext) {
         let (c1, c2) = (context.collider1, context.collider2);
         let Some(rigid) = context.rigid_mut() else { return };
-        let (labels, tri) = if let Some(l) = self.labels.get(&c1) {
-            (l, rigid.manifold.subshape1)
-        } else if let Some(l) = self.labels.get(&c2) {
-            (l, rigid.manifold.subshape2)
+        let (surface, tri) = if let Some(s) = self.surfaces.get(&c1) {
+            (s, rigid.manifold.subshape1)
+        } else if let Some(s) = self.surfaces.get(&c2) {
+            (s, rigid.manifold.subshape2)
         } else {
             return;
         };
-        let m = self.materials.label(labels.get(tri as usize).copied().unwrap_or(UNLABELED));
-        *rigid.restitution = m.restitution;
+        let m = self.materials.label(surface.labels.get(tri as usize).copied().unwrap_or(UNLABELED));
+        *rigid.restitution = 0.0;
         *rigid.friction = m.friction;
     }
 }
