@@ -26,7 +26,10 @@ use semrecon_data::LabeledMesh;
 
 use crate::error::{PhysicsError, Result};
 
-/// Integer coordinates of a region: `floor(p / region_size)` of its triangles' centroids.
+/// Integer coordinates of a region: `floor(c / region_size + 1/2)` of its triangles'
+/// centroids `c`. The half-cell offset (here and in the clustering grid) centres a cell on
+/// z = 0: the floor of a world frame lies there, and a grid boundary at the floor would
+/// split its noisy vertices into two layers of clusters and its triangles between regions.
 pub type RegionKey = [i32; 3];
 
 /// How the visual mesh becomes collision geometry.
@@ -112,7 +115,7 @@ impl CollisionMesh {
         let mut by_region: BTreeMap<RegionKey, Vec<usize>> = BTreeMap::new();
         for (t, tri) in triangles.iter().enumerate() {
             let c = tri.iter().fold(Vec3::ZERO, |s, &i| s + positions[i as usize]) / 3.0;
-            let k = (c / config.region_size).floor().as_ivec3();
+            let k = grid_cell(c, config.region_size);
             by_region.entry(k.to_array()).or_default().push(t);
         }
         let regions = by_region
@@ -150,6 +153,11 @@ pub fn triangle_labels(mesh: &LabeledMesh) -> Vec<u8> {
         .collect()
 }
 
+/// Cell of `p` in a grid of side `size` whose cells are centred on multiples of `size`.
+fn grid_cell(p: Vec3, size: f32) -> IVec3 {
+    (p / size + 0.5).floor().as_ivec3()
+}
+
 type Simplified = (Vec<Vec3>, Vec<[u32; 3]>, Vec<u8>);
 
 fn drop_degenerate(mesh: &LabeledMesh, labels: &[u8]) -> Simplified {
@@ -174,7 +182,7 @@ fn cluster(mesh: &LabeledMesh, labels: &[u8], cell: f32) -> Simplified {
         .positions
         .iter()
         .map(|&p| {
-            let k = (p / cell).floor().as_ivec3();
+            let k = grid_cell(p, cell);
             let id = *cluster_of_cell.entry(k).or_insert_with(|| {
                 sums.push(([0.0; 3], 0));
                 (sums.len() - 1) as u32
@@ -348,6 +356,18 @@ mod tests {
     }
 
     #[test]
+    fn noisy_floor_at_zero_clusters_into_one_layer() {
+        let mut m = grid(100, 0.005, 0.0, 1);
+        for (i, p) in m.positions.iter_mut().enumerate() {
+            p.z = if i % 2 == 0 { 0.0015 } else { -0.0015 };
+        }
+        let c = CollisionMesh::build(&m, &CollisionMeshConfig::default()).expect("build");
+        // 0.5 m at 2 cm: 25 x 25 squares (26 cells per side with the half-cell offset).
+        assert!(c.triangle_count() <= 2 * 26 * 26, "{} triangles", c.triangle_count());
+        assert_eq!(c.regions.len(), 1);
+    }
+
+    #[test]
     fn merged_triangles_take_the_area_majority() {
         // Two coincident copies of a big triangle: a large clutter one and a floor one, plus
         // one more floor copy; the floor copies win by area (2 vs 1).
@@ -377,7 +397,7 @@ mod tests {
         let m = grid(60, 0.05, 0.0, 1); // 3 m x 3 m
         let cfg = CollisionMeshConfig::default();
         let a = CollisionMesh::build(&m, &cfg).expect("build");
-        assert_eq!(a.regions.len(), 9);
+        assert_eq!(a.regions.len(), 16);
         // Same surface, triangles and vertices permuted.
         let mut p = m.clone();
         p.triangles.reverse();
