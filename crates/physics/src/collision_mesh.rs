@@ -107,11 +107,8 @@ impl CollisionMesh {
         mesh.validate().map_err(PhysicsError::Mesh)?;
         let unlabelled = mesh.triangle_labels.is_empty() && mesh.vertex_labels.is_empty();
         let labels = triangle_labels(mesh);
-        let (positions, triangles, tri_labels) = if config.cell > 0.0 {
-            cluster(mesh, &labels, config.cell)
-        } else {
-            drop_degenerate(mesh, &labels)
-        };
+        let (positions, triangles, tri_labels) =
+            if config.cell > 0.0 { cluster(mesh, &labels, config.cell) } else { drop_degenerate(mesh, &labels) };
         let mut by_region: BTreeMap<RegionKey, Vec<usize>> = BTreeMap::new();
         for (t, tri) in triangles.iter().enumerate() {
             let c = tri.iter().fold(Vec3::ZERO, |s, &i| s + positions[i as usize]) / 3.0;
@@ -249,7 +246,13 @@ fn cluster(mesh: &LabeledMesh, labels: &[u8], cell: f32) -> Simplified {
 /// Builds a region from the given triangles in a canonical order (vertices sorted by
 /// position bits, triangles by their vertex triple), so that the same geometry always
 /// gives the same content and hash whatever the order of the input mesh.
-fn make_region(key: RegionKey, positions: &[Vec3], triangles: &[[u32; 3]], labels: &[u8], tris: &[usize]) -> CollisionRegion {
+fn make_region(
+    key: RegionKey,
+    positions: &[Vec3],
+    triangles: &[[u32; 3]],
+    labels: &[u8],
+    tris: &[usize],
+) -> CollisionRegion {
     let mut used: Vec<u32> = tris.iter().flat_map(|&t| triangles[t]).collect();
     let bits = |i: u32| positions[i as usize].to_array().map(f32::to_bits);
     used.sort_unstable_by_key(|&i| (bits(i), i));
@@ -336,10 +339,12 @@ mod tests {
         let area: f32 = c
             .regions
             .values()
-            .flat_map(|r| r.triangles.iter().map(|t| {
-                let [a, b, d] = t.map(|i| r.vertices[i as usize]);
-                0.5 * (b - a).cross(d - a).length()
-            }))
+            .flat_map(|r| {
+                r.triangles.iter().map(|t| {
+                    let [a, b, d] = t.map(|i| r.vertices[i as usize]);
+                    0.5 * (b - a).cross(d - a).length()
+                })
+            })
             .sum();
         // Cluster means pull the border in by up to half a cell.
         assert!((area - 0.25).abs() < 0.03, "area {area}");

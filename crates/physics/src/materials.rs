@@ -83,11 +83,13 @@ impl MaterialTable {
                         let key = format!("classes.{class_name}");
                         // Exact lower-case names only: `from_name` also maps S3DIS's
                         // `stairs` to clutter, which would be surprising in a materials file.
-                        let class = SemanticClass::ALL.into_iter().find(|c| c.name() == class_name).ok_or_else(|| {
-                            let names: Vec<_> = SemanticClass::ALL.iter().map(|c| c.name()).collect();
-                            key_err(&key, format!("unknown class (known: {})", names.join(", ")))
-                        })?;
-                        out.classes[class.id() as usize] = parse_material(v, out.classes[class.id() as usize], &key, path)?;
+                        let class =
+                            SemanticClass::ALL.into_iter().find(|c| c.name() == class_name).ok_or_else(|| {
+                                let names: Vec<_> = SemanticClass::ALL.iter().map(|c| c.name()).collect();
+                                key_err(&key, format!("unknown class (known: {})", names.join(", ")))
+                            })?;
+                        out.classes[class.id() as usize] =
+                            parse_material(v, out.classes[class.id() as usize], &key, path)?;
                     }
                 }
                 other => {
@@ -185,7 +187,8 @@ mod tests {
     #[test]
     fn shipped_defaults_parse_and_cover_every_class() {
         let neutral = base_fallback();
-        let parsed = neutral.overridden_by(DEFAULT_MATERIALS_TOML, Path::new("materials.toml")).expect("defaults parse");
+        let parsed =
+            neutral.overridden_by(DEFAULT_MATERIALS_TOML, Path::new("materials.toml")).expect("defaults parse");
         // Every class must be listed in the file: none may keep the neutral fallback.
         let root: toml::Table = DEFAULT_MATERIALS_TOML.parse().expect("toml");
         let classes = root["classes"].as_table().expect("classes table");

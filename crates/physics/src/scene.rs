@@ -223,13 +223,14 @@ impl ArScene {
     /// split into regions, and only regions whose content hash changed are rebuilt.
     pub fn replace_mesh(&mut self, mesh: &LabeledMesh) -> Result<RegionDiff> {
         let collision = CollisionMesh::build(mesh, &self.config.collision)?;
-        Ok(self.replace_collision_mesh(collision))
+        self.replace_collision_mesh(collision)
     }
 
     /// As [`ArScene::replace_mesh`] for an already built collision mesh.
-    pub fn replace_collision_mesh(&mut self, collision: CollisionMesh) -> RegionDiff {
+    pub fn replace_collision_mesh(&mut self, collision: CollisionMesh) -> Result<RegionDiff> {
         let mut diff = RegionDiff::default();
-        let stale: Vec<RegionKey> = self.regions.keys().filter(|k| !collision.regions.contains_key(*k)).copied().collect();
+        let stale: Vec<RegionKey> =
+            self.regions.keys().filter(|k| !collision.regions.contains_key(*k)).copied().collect();
         for key in stale {
             self.remove_region(key);
             diff.removed += 1;
@@ -238,28 +239,37 @@ impl ArScene {
             match self.regions.get(&region.key).map(|r| r.hash == region.hash) {
                 Some(true) => diff.unchanged += 1,
                 Some(false) => {
-                    self.update_region(region);
+                    self.update_region(region)?;
                     diff.replaced += 1;
                 }
                 None => {
-                    self.update_region(region);
+                    self.update_region(region)?;
                     diff.added += 1;
                 }
             }
         }
         self.unlabelled = collision.unlabelled;
-        diff
+        Ok(diff)
     }
 
     /// Sets the geometry of one region (an empty region removes it). Returns false when the
-    /// region already had this content (same hash) and nothing was done.
-    pub fn update_region(&mut self, region: CollisionRegion) -> bool {
+    /// region already had this content (same hash) and nothing was done. A region that rapier
+    /// cannot turn into a triangle mesh is an error (and the region is left empty).
+    pub fn update_region(&mut self, region: CollisionRegion) -> Result<bool> {
         if self.regions.get(&region.key).is_some_and(|r| r.hash == region.hash) {
-            return false;
+            return Ok(false);
         }
         self.remove_region(region.key);
         if region.triangles.is_empty() {
-            return true;
+            return Ok(true);
+        }
+        if region.labels.len() != region.triangles.len()
+            || region.triangles.iter().flatten().any(|&i| i as usize >= region.vertices.len())
+        {
+            return Err(PhysicsError::Mesh(format!(
+                "region {:?}: labels or indices do not match the vertices",
+                region.key
+            )));
         }
         let vertices: Vec<Vector> = region.vertices.iter().map(|v| Vector::new(v.x, v.y, v.z)).collect();
         // FIX_INTERNAL_EDGES: without it a ball hitting the edge between two triangles gets
@@ -272,17 +282,15 @@ impl ArScene {
             Ok(builder) => builder,
             // The topology pass can reject odd meshes (e.g. an edge shared by more than two
             // triangles after clustering); a mesh without the edge fix still collides.
-            Err(_) => match ColliderBuilder::trimesh(vertices, region.triangles.clone()) {
-                Ok(builder) => builder,
-                Err(_) => return true,
-            },
+            Err(_) => ColliderBuilder::trimesh(vertices, region.triangles.clone())
+                .map_err(|e| PhysicsError::Mesh(format!("region {:?}: {e}", region.key)))?,
         };
         let handle = self.world.insert_collider(collider.active_hooks(ActiveHooks::MODIFY_SOLVER_CONTACTS), None);
         self.surfaces.insert(handle, Arc::new(Surface { labels: region.labels }));
         self.regions.insert(region.key, RegionCollider { handle, hash: region.hash });
         // Balls asleep on the old geometry must notice the change.
         self.world.wake_up_all(true);
-        true
+        Ok(true)
     }
 
     fn remove_region(&mut self, key: RegionKey) {
@@ -337,7 +345,8 @@ impl ArScene {
             .angular_damping(self.config.angular_damping)
             .ccd_enabled(true);
         // Ball-ball hits use rapier's own restitution (0.7: two rubber balls).
-        let collider = ColliderBuilder::ball(self.config.ball_radius).density(self.config.ball_density).restitution(0.7);
+        let collider =
+            ColliderBuilder::ball(self.config.ball_radius).density(self.config.ball_density).restitution(0.7);
         let (body, collider) = self.world.insert(body, collider);
         let mut record = Throw { radius: self.config.ball_radius, ..Default::default() };
         if self.unlabelled {
@@ -363,7 +372,7 @@ impl ArScene {
         self.steps += 1;
         let time = self.time();
         let dt = self.config.dt;
-        let sample = self.steps % self.config.record_every as u64 == 0;
+        let sample = self.steps.is_multiple_of(self.config.record_every as u64);
         for ball in &mut self.balls {
             let hit = contact_impulses(&self.world, ball.collider, &self.surfaces);
             let Some(body) = self.world.bodies.get_mut(ball.body) else { continue };
@@ -405,7 +414,9 @@ impl ArScene {
     /// trajectory recorded so far, in throw order.
     pub fn simulate(&mut self, seconds: f32) -> Result<Vec<Throw>> {
         if !(seconds.is_finite() && (0.0..=MAX_SECONDS).contains(&seconds)) {
-            return Err(PhysicsError::InvalidArgument(format!("duration {seconds} must be within 0..={MAX_SECONDS} s")));
+            return Err(PhysicsError::InvalidArgument(format!(
+                "duration {seconds} must be within 0..={MAX_SECONDS} s"
+            )));
         }
         let steps = (seconds as f64 / self.config.dt as f64).round() as u64;
         for _ in 0..steps {
@@ -456,11 +467,16 @@ struct Hit {
 
 /// Sums the impulses the room's colliders applied to `ball` during the last step; `None`
 /// when there were none.
-fn contact_impulses(world: &PhysicsWorld, ball: ColliderHandle, surfaces: &HashMap<ColliderHandle, Arc<Surface>>) -> Option<Hit> {
+fn contact_impulses(
+    world: &PhysicsWorld,
+    ball: ColliderHandle,
+    surfaces: &HashMap<ColliderHandle, Arc<Surface>>,
+) -> Option<Hit> {
     let mut total = Vec3::ZERO;
     let mut best: Option<(f32, Vec3, u8)> = None;
     for pair in world.narrow_phase.contact_pairs_with(ball) {
-        let (mesh, mesh_is_first) = if pair.collider1 == ball { (pair.collider2, false) } else { (pair.collider1, true) };
+        let (mesh, mesh_is_first) =
+            if pair.collider1 == ball { (pair.collider2, false) } else { (pair.collider1, true) };
         let Some(surface) = surfaces.get(&mesh) else { continue };
         for manifold in pair.manifolds() {
             let tri = if mesh_is_first { manifold.subshape1 } else { manifold.subshape2 };

@@ -48,8 +48,5 @@ pub fn throw_into_mesh(
     // Check the throw before paying for the simulation.
     let ball = scene.throw_ball(from, dir, speed)?;
     let throws = scene.simulate(seconds)?;
-    throws
-        .into_iter()
-        .nth(ball.0)
-        .ok_or_else(|| PhysicsError::InvalidArgument("the ball was lost".into()))
+    throws.into_iter().nth(ball.0).ok_or_else(|| PhysicsError::InvalidArgument("the ball was lost".into()))
 }

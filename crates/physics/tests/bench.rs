@@ -22,7 +22,7 @@ fn step_cost_10_balls_on_100k_triangles() {
     let mut scene = ArScene::new(MaterialTable::defaults(), SceneConfig::default()).expect("scene");
     let tris = collision.triangle_count();
     let regions = collision.regions.len();
-    scene.replace_collision_mesh(collision);
+    scene.replace_collision_mesh(collision).expect("colliders");
     let colliders_s = t.elapsed().as_secs_f64();
     println!(
         "visual {} triangles -> collision {tris} triangles in {regions} regions: clustering {:.0} ms, colliders {:.0} ms",

@@ -91,7 +91,11 @@ fn assert_energy_never_increases(scene: &mut ArScene, steps: usize, what: &str) 
             let e = scene.ball_energy(b).expect("ball");
             // Tolerance: f32 rounding and the solver's position correction, 0.5 % of the
             // initial energy per step is far below any real gain (a 1 cm rebound excess).
-            assert!(e <= last[i] + 5e-3 * start[i].abs().max(1e-3), "{what}: ball {i} gained energy at step {step}: {} -> {e}", last[i]);
+            assert!(
+                e <= last[i] + 5e-3 * start[i].abs().max(1e-3),
+                "{what}: ball {i} gained energy at step {step}: {} -> {e}",
+                last[i]
+            );
             last[i] = e;
         }
     }
@@ -112,29 +116,39 @@ fn energy_never_increases() {
 
 #[test]
 fn bumpy_scanned_floor_gives_no_extra_bounce() {
-    // 1 cm tessellation with ±4 mm noise, kept at full resolution (no clustering) so that
-    // the ball sees every bump: the case where internal-edge normals inject energy.
-    let mesh = bumpy_patch(0.6, 0.01, 0.004, SemanticClass::Floor, 7);
-    let cfg = SceneConfig { collision: CollisionMeshConfig { cell: 0.0, ..Default::default() }, ..config() };
-    let mut scene = ArScene::with_mesh(&mesh, MaterialTable::defaults(), cfg).expect("scene");
     let e = MaterialTable::defaults().class(SemanticClass::Floor).restitution;
     let h = 1.0;
-    let r = cfg.ball_radius;
-    for i in 0..6 {
-        let x = -0.25 + 0.1 * i as f32;
-        scene.throw_ball(Vec3::new(x, 0.37 * x, h + r + 0.004), Vec3::NEG_Z, 0.0).expect("throw");
+    // (a) 1 cm tessellation with ±4 mm noise kept at full resolution (no clustering): facets
+    // tilted by up to 40°, the case where per-triangle contact normals inject energy.
+    // (b) what the pipeline gives: a 5 mm scan with ±1.5 mm noise, clustered at 2 cm.
+    let cases = [
+        ("raw", bumpy_patch(0.6, 0.01, 0.004, SemanticClass::Floor, 7), 0.0, 0.004),
+        ("clustered", bumpy_patch(0.6, 0.005, 0.0015, SemanticClass::Floor, 8), 0.02, 0.0015),
+    ];
+    for (name, mesh, cell, amp) in cases {
+        let cfg = SceneConfig { collision: CollisionMeshConfig { cell, ..Default::default() }, ..config() };
+        let mut scene = ArScene::with_mesh(&mesh, MaterialTable::defaults(), cfg).expect("scene");
+        let r = cfg.ball_radius;
+        for i in 0..6 {
+            let x = -0.4 + 0.16 * i as f32;
+            scene.throw_ball(Vec3::new(x, 0.37 * x, h + r + amp), Vec3::NEG_Z, 0.0).expect("throw");
+        }
+        let throws = scene.simulate(1.6).expect("simulate");
+        for (i, t) in throws.iter().enumerate() {
+            let apex = first_rebound_apex(t);
+            // The surface is within ±amp of z = 0: allow that plus 2 %.
+            assert!(
+                apex <= e * e * h * 1.02 + amp,
+                "{name} ball {i}: rebound {apex:.4} m > e^2 h = {:.4} m",
+                e * e * h
+            );
+            assert!(apex > 0.8 * e * e * h, "{name} ball {i}: rebound {apex:.4} m implausibly low");
+            assert_eq!(t.contacts[0].class, "floor");
+        }
+        let mut scene = ArScene::with_mesh(&mesh, MaterialTable::defaults(), cfg).expect("scene");
+        scene.throw_ball(Vec3::new(-0.3, 0.0, 0.5), Vec3::new(1.0, 0.2, -0.3), 3.0).expect("throw");
+        assert_energy_never_increases(&mut scene, 300, name);
     }
-    let throws = scene.simulate(1.6).expect("simulate");
-    for (i, t) in throws.iter().enumerate() {
-        let apex = first_rebound_apex(t);
-        // The surface is within ±4 mm of z = 0: allow that plus 5 %.
-        assert!(apex <= e * e * h * 1.05 + 0.004, "ball {i}: rebound {apex:.4} m > e^2 h = {:.4} m", e * e * h);
-        assert!(apex > 0.5 * e * e * h, "ball {i}: rebound {apex:.4} m implausibly low");
-        assert_eq!(t.contacts[0].class, "floor");
-    }
-    let mut scene = ArScene::with_mesh(&mesh, MaterialTable::defaults(), cfg).expect("scene");
-    scene.throw_ball(Vec3::new(-0.3, 0.0, 0.5), Vec3::new(1.0, 0.2, -0.3), 3.0).expect("throw");
-    assert_energy_never_increases(&mut scene, 300, "bumpy floor");
 }
 
 #[test]

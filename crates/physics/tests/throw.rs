@@ -31,13 +31,19 @@ fn throw_onto_the_table_from_a_ply() {
     // A user materials file changes the table's restitution.
     let toml = dir.path().join("m.toml");
     std::fs::write(&toml, "[classes.table]\nrestitution = 0.3\n").expect("write");
-    let soft = throw_from_ply(&ply, Some(&toml), Vec3::new(-1.0, 0.0, 1.2), Vec3::new(1.0, 0.0, 0.3), 2.5, 1.5).expect("throw");
+    let soft = throw_from_ply(&ply, Some(&toml), Vec3::new(-1.0, 0.0, 1.2), Vec3::new(1.0, 0.0, 0.3), 2.5, 1.5)
+        .expect("throw");
     assert_eq!(soft.contacts[0].restitution, 0.3);
     // Same contact, lower rebound.
     assert_eq!(soft.contacts[0].time, t.contacts[0].time);
     let apex = |t: &semrecon_physics::Throw| {
         let t0 = t.contacts[0].time;
-        t.times.iter().zip(&t.positions).filter(|(&s, _)| s > t0 && s < t0 + 0.3).map(|(_, p)| p[2]).fold(0.0f32, f32::max)
+        t.times
+            .iter()
+            .zip(&t.positions)
+            .filter(|(&s, _)| s > t0 && s < t0 + 0.3)
+            .map(|(_, p)| p[2])
+            .fold(0.0f32, f32::max)
     };
     assert!(apex(&soft) < apex(&t));
 }
@@ -66,7 +72,11 @@ fn bad_input_is_an_error_not_a_panic() {
     assert!(e.to_string().contains("none.ply"), "{e}");
 
     let corrupt = dir.path().join("corrupt.ply");
-    std::fs::write(&corrupt, b"ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\nend_header\n\x01\x02").expect("write");
+    std::fs::write(
+        &corrupt,
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\nend_header\n\x01\x02",
+    )
+    .expect("write");
     let e = throw_from_ply(&corrupt, None, ok.0, ok.1, ok.2, ok.3).expect_err("corrupt");
     assert!(e.to_string().contains("corrupt.ply"), "{e}");
 

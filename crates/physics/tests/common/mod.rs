@@ -51,7 +51,13 @@ pub fn wall(x: f32, half: f32, step: f32) -> LabeledMesh {
 
 /// An axis-aligned closed box (12 triangles, outward faces) labelled `class`.
 pub fn cuboid(lo: Vec3, hi: Vec3, class: SemanticClass) -> LabeledMesh {
-    let c = |i: u32| Vec3::new(if i & 1 == 0 { lo.x } else { hi.x }, if i & 2 == 0 { lo.y } else { hi.y }, if i & 4 == 0 { lo.z } else { hi.z });
+    let c = |i: u32| {
+        Vec3::new(
+            if i & 1 == 0 { lo.x } else { hi.x },
+            if i & 2 == 0 { lo.y } else { hi.y },
+            if i & 4 == 0 { lo.z } else { hi.z },
+        )
+    };
     let positions: Vec<Vec3> = (0..8).map(c).collect();
     // Faces as quads, counter-clockwise seen from outside.
     let quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
@@ -70,7 +76,11 @@ pub fn room_with_table() -> LabeledMesh {
     let mut m = patch(2.0, 0.1, 0.0, SemanticClass::Floor);
     m.append(&cuboid(Vec3::new(-0.6, -0.4, 0.72), Vec3::new(0.6, 0.4, 0.75), SemanticClass::Table));
     for (x, y) in [(-0.55, -0.35), (0.55, -0.35), (-0.55, 0.35), (0.55, 0.35)] {
-        m.append(&cuboid(Vec3::new(x - 0.03, y - 0.03, 0.0), Vec3::new(x + 0.03, y + 0.03, 0.72), SemanticClass::Table));
+        m.append(&cuboid(
+            Vec3::new(x - 0.03, y - 0.03, 0.0),
+            Vec3::new(x + 0.03, y + 0.03, 0.72),
+            SemanticClass::Table,
+        ));
     }
     m
 }
