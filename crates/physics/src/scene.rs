@@ -274,7 +274,8 @@ impl ArScene {
         let vertices: Vec<Vector> = region.vertices.iter().map(|v| Vector::new(v.x, v.y, v.z)).collect();
         // FIX_INTERNAL_EDGES: without it a ball hitting the edge between two triangles gets
         // that edge's normal; measured here, drops on a flat tessellated floor then rebound
-        // anywhere between 0.95 and 1.06 of e^2 h instead of within 1 %. Two-sided:
+        // anywhere between 0.95 and 1.06 of e^2 h instead of within 1 % (and on bumpy
+        // scans balls gain energy, as TECH_NOTES records). Two-sided:
         // scanned meshes are not always consistently oriented, and a one-sided mesh drops
         // contacts from the back.
         let flags = TriMeshFlags::FIX_INTERNAL_EDGES_TWO_SIDED;

@@ -53,3 +53,34 @@ fn step_cost_10_balls_on_100k_triangles() {
         per_step * 4e3
     );
 }
+
+#[test]
+#[ignore = "measurement, not a check"]
+fn rebound_ratio_per_class() {
+    let materials = MaterialTable::defaults();
+    for class in SemanticClass::ALL {
+        let e = materials.class(class).restitution;
+        let mesh = common::patch(0.5, 0.02, 0.0, class);
+        let cfg = SceneConfig { record_every: 1, ..SceneConfig::default() };
+        let mut scene = ArScene::with_mesh(&mesh, materials.clone(), cfg).expect("scene");
+        scene.throw_ball(Vec3::new(0.013, -0.021, 1.0 + cfg.ball_radius), Vec3::NEG_Z, 0.0).expect("throw");
+        let t = scene.simulate(2.0).expect("simulate").remove(0);
+        let first = t.contacts[0].time;
+        let end = t.contacts.get(1).map_or(f32::INFINITY, |c| c.time);
+        let apex = t
+            .times
+            .iter()
+            .zip(&t.positions)
+            .filter(|(&s, _)| s > first && s < end)
+            .map(|(_, p)| p[2] - t.radius)
+            .fold(f32::NEG_INFINITY, f32::max);
+        println!(
+            "{:9} e {:.2}: rebound {:.4} m, e^2 h {:.4} m, ratio {:.4}",
+            class.name(),
+            e,
+            apex,
+            e * e,
+            apex / (e * e)
+        );
+    }
+}
