@@ -1,0 +1,111 @@
+//! `throw_from_ply`, the entry point of `semrecon throw`: files in, trajectory out, and
+//! every kind of bad input an error rather than a panic.
+
+mod common;
+
+use std::path::Path;
+
+use common::room_with_table;
+use glam::Vec3;
+use semrecon_data::{write_ply, PlyEncoding};
+use semrecon_physics::{throw_from_ply, PhysicsError};
+
+fn room_ply(dir: &Path, labels: bool) -> std::path::PathBuf {
+    let mut mesh = room_with_table();
+    if !labels {
+        mesh.triangle_labels.clear();
+    }
+    let path = dir.join(if labels { "room.ply" } else { "plain.ply" });
+    write_ply(&path, &mesh, PlyEncoding::BinaryLittleEndian).expect("write ply");
+    path
+}
+
+#[test]
+fn throw_onto_the_table_from_a_ply() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let ply = room_ply(dir.path(), true);
+    let t = throw_from_ply(&ply, None, Vec3::new(-1.0, 0.0, 1.2), Vec3::new(1.0, 0.0, 0.3), 2.5, 1.5).expect("throw");
+    assert_eq!(t.contacts[0].class, "table", "{:?}", t.contacts);
+    assert!(t.warnings.is_empty());
+    assert_eq!(t.times.len(), t.positions.len());
+    // A user materials file changes the table's restitution.
+    let toml = dir.path().join("m.toml");
+    std::fs::write(&toml, "[classes.table]\nrestitution = 0.3\n").expect("write");
+    let soft = throw_from_ply(&ply, Some(&toml), Vec3::new(-1.0, 0.0, 1.2), Vec3::new(1.0, 0.0, 0.3), 2.5, 1.5)
+        .expect("throw");
+    assert_eq!(soft.contacts[0].restitution, 0.3);
+    // Same contact, lower rebound.
+    assert_eq!(soft.contacts[0].time, t.contacts[0].time);
+    let apex = |t: &semrecon_physics::Throw| {
+        let t0 = t.contacts[0].time;
+        t.times
+            .iter()
+            .zip(&t.positions)
+            .filter(|(&s, _)| s > t0 && s < t0 + 0.3)
+            .map(|(_, p)| p[2])
+            .fold(0.0f32, f32::max)
+    };
+    assert!(apex(&soft) < apex(&t));
+}
+
+#[test]
+fn unlabelled_mesh_uses_the_default_material_and_warns() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let ply = room_ply(dir.path(), false);
+    let t = throw_from_ply(&ply, None, Vec3::new(0.0, 0.0, 1.2), Vec3::NEG_Z, 0.0, 0.6).expect("throw");
+    assert_eq!(t.contacts[0].class, "unlabelled");
+    assert_eq!(t.contacts[0].restitution, semrecon_physics::MaterialTable::defaults().unlabelled().restitution);
+    assert_eq!(t.warnings.len(), 1, "{:?}", t.warnings);
+    let json = serde_json::to_string(&t).expect("json");
+    assert!(json.contains("\"warnings\""));
+}
+
+#[test]
+fn bad_input_is_an_error_not_a_panic() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let ply = room_ply(dir.path(), true);
+    let ok = (Vec3::new(0.0, 0.0, 1.0), Vec3::X, 1.0, 1.0);
+    let throw = |from: Vec3, d: Vec3, v: f32, s: f32| throw_from_ply(&ply, None, from, d, v, s);
+
+    let missing = dir.path().join("none.ply");
+    let e = throw_from_ply(&missing, None, ok.0, ok.1, ok.2, ok.3).expect_err("missing");
+    assert!(e.to_string().contains("none.ply"), "{e}");
+
+    let corrupt = dir.path().join("corrupt.ply");
+    std::fs::write(
+        &corrupt,
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\nend_header\n\x01\x02",
+    )
+    .expect("write");
+    let e = throw_from_ply(&corrupt, None, ok.0, ok.1, ok.2, ok.3).expect_err("corrupt");
+    assert!(e.to_string().contains("corrupt.ply"), "{e}");
+
+    let points = dir.path().join("points.ply");
+    let mut cloud = room_with_table();
+    cloud.triangles.clear();
+    cloud.triangle_labels.clear();
+    write_ply(&points, &cloud, PlyEncoding::Ascii).expect("write");
+    let e = throw_from_ply(&points, None, ok.0, ok.1, ok.2, ok.3).expect_err("no triangles");
+    assert!(matches!(e, PhysicsError::Mesh(_)) && e.to_string().contains("points.ply"), "{e}");
+
+    let bad_toml = dir.path().join("bad.toml");
+    std::fs::write(&bad_toml, "[classes.sofa]\nrestitution = 2\n").expect("write");
+    let e = throw_from_ply(&ply, Some(&bad_toml), ok.0, ok.1, ok.2, ok.3).expect_err("bad toml");
+    assert!(e.to_string().contains("bad.toml") && e.to_string().contains("classes.sofa.restitution"), "{e}");
+
+    let cases: [(Vec3, Vec3, f32, f32, &str); 9] = [
+        (Vec3::new(f32::NAN, 0.0, 1.0), ok.1, ok.2, ok.3, "position"),
+        (Vec3::new(1e30, 0.0, 1.0), ok.1, ok.2, ok.3, "position"),
+        (ok.0, Vec3::ZERO, ok.2, ok.3, "direction"),
+        (ok.0, Vec3::new(0.0, f32::INFINITY, 0.0), ok.2, ok.3, "direction"),
+        (ok.0, Vec3::splat(1e-30), ok.2, ok.3, "direction"),
+        (ok.0, ok.1, f32::NAN, ok.3, "speed"),
+        (ok.0, ok.1, 1e9, ok.3, "speed"),
+        (ok.0, ok.1, ok.2, -1.0, "duration"),
+        (ok.0, ok.1, ok.2, f32::INFINITY, "duration"),
+    ];
+    for (from, d, v, s, what) in cases {
+        let e = throw(from, d, v, s).expect_err(what);
+        assert!(matches!(e, PhysicsError::InvalidArgument(_)) && e.to_string().contains(what), "{what}: {e}");
+    }
+}
