@@ -3,6 +3,7 @@
 use clap::{Parser, Subcommand};
 
 mod commands;
+mod progress;
 
 /// Live semantic 3D perception from RGB-D streams, on the CPU.
 #[derive(Parser)]

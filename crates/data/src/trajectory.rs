@@ -100,6 +100,29 @@ impl Trajectory {
         s
     }
 
+    /// Reads a trajectory in any of the formats above: `.log` files as Redwood logs, other
+    /// files by the field count of their first data line (8: TUM, 16: Replica `traj.txt`).
+    pub fn read_any(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("log")) {
+            return Self::read_log(path);
+        }
+        let text = read_text(path)?;
+        match data_lines(&text).first() {
+            Some((_, fields)) if fields.len() == 8 => Self::parse_tum(&text, path),
+            Some((_, fields)) if fields.len() == 16 => Self::parse_replica(&text, path),
+            Some((line, fields)) => Err(DataError::parse(
+                path,
+                Some(*line),
+                format!(
+                    "{} fields: expected 8 (TUM: timestamp tx ty tz qx qy qz qw) or 16 (a row-major 4x4 per line), or a .log file",
+                    fields.len()
+                ),
+            )),
+            None => Err(DataError::parse(path, None, "no poses in the file")),
+        }
+    }
+
     /// Writes the trajectory in TUM format, atomically.
     pub fn write_tum(&self, path: impl AsRef<Path>) -> Result<()> {
         write_atomic(path.as_ref(), self.to_tum_string().as_bytes())
