@@ -1,0 +1,268 @@
+//! Projective TSDF fusion of one RGB-D frame into a [`TsdfMap`].
+//!
+//! Two steps. Chunk selection back-projects a sub-sampled set of depth pixels, walks each
+//! pixel's ray through the truncation band `depth ± truncation` and collects the chunks it
+//! crosses; only those chunks are visited, so the cost follows the observed surface, not the
+//! camera frustum. Integration then updates every voxel of the selected chunks: the voxel
+//! centre is projected into the depth image (nearest pixel), its signed distance is the depth
+//! minus the voxel's depth along the optical axis, truncated to ±truncation, and folded into
+//! the voxel's running weighted mean with a depth-dependent weight.
+//!
+//! Chunks are updated in parallel with rayon, one task per chunk; every voxel's update
+//! depends only on its own state and the frame, so results are bit-identical for any thread
+//! count. Chunks newly allocated for a frame that end up holding no voxel within the
+//! truncation band are freed again, so the map only keeps chunks near observed surfaces.
+//!
+//! Invalid depth (0, negative, NaN, infinite, outside the configured range) is skipped.
+
+use std::collections::HashSet;
+
+use glam::{Affine3A, Vec3A};
+use rayon::prelude::*;
+use semrecon_data::{Frame, Intrinsics};
+
+use crate::error::{ReconError, Result};
+use crate::map::{key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE, WEIGHT_SCALE};
+
+/// Weight of one depth observation: `1 / z²` (z in metres) capped at 4.
+///
+/// Structured-light and time-of-flight depth noise grows roughly with the square of depth,
+/// so a near observation deserves more trust; the cap keeps a very close observation from
+/// freezing a voxel.
+#[inline]
+pub fn depth_weight(depth: f32) -> f32 {
+    (1.0 / (depth * depth)).min(4.0)
+}
+
+/// What one integration did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct IntegrationStats {
+    /// Chunks visited (the selection).
+    pub visited_chunks: usize,
+    /// Chunks allocated for this frame and kept.
+    pub new_chunks: usize,
+    /// Chunks allocated for this frame and freed again (no voxel in the truncation band).
+    pub freed_chunks: usize,
+    /// Chunks with at least one updated voxel.
+    pub updated_chunks: usize,
+    /// Voxel updates.
+    pub updated_voxels: usize,
+}
+
+/// Everything a per-chunk integration task reads, precomputed once per frame.
+struct FrameView<'a> {
+    depth: &'a [f32],
+    color: &'a [[u8; 3]],
+    k: Intrinsics,
+    /// Rotation columns and translation of `camera_from_world`.
+    rot: [Vec3A; 3],
+    trans: Vec3A,
+    voxel_size: f32,
+    truncation: f32,
+    min_depth: f32,
+    max_depth: f32,
+    weight_cap: u16,
+}
+
+/// Per-chunk outcome of an integration task.
+#[derive(Clone, Copy, Default)]
+struct ChunkOutcome {
+    updated: u32,
+    near: bool,
+}
+
+impl TsdfMap {
+    /// Chunks within the truncation band of `frame`'s valid depth pixels, seen from
+    /// `world_from_camera`; sorted (z, y, x) and without duplicates.
+    pub fn select_chunks(&self, frame: &Frame, world_from_camera: Affine3A) -> Result<Vec<ChunkKey>> {
+        check_frame(frame, &world_from_camera)?;
+        let c = &self.config;
+        let k = frame.intrinsics;
+        let (w, h) = (k.width as usize, k.height as usize);
+        let stride = c.selection_stride;
+        let trunc = c.truncation();
+        // Samples along the band no further apart than two voxels, so that the walk cannot
+        // step over a chunk (8 voxels) except at a corner clipped by less than a voxel.
+        let steps = ((2.0 * trunc) / (2.0 * c.voxel_size)).ceil().max(1.0) as usize;
+        let inv_chunk = 1.0 / c.chunk_size();
+        let half = 0.5 * c.voxel_size;
+        let rows: Vec<usize> = (0..h).step_by(stride).collect();
+        let pose = world_from_camera;
+        let (min_d, max_d) = (c.min_depth, c.max_depth);
+        let depth = &frame.depth;
+        let block_sets: Vec<Vec<ChunkKey>> = rows
+            .par_chunks(8)
+            .map(|rows| {
+                let mut set: HashSet<ChunkKey, ChunkHashBuilder> = HashSet::default();
+                let mut last = vec![ChunkKey::MAX; steps + 1];
+                for &v in rows {
+                    for u in (0..w).step_by(stride) {
+                        let d = depth[v * w + u];
+                        if !(d >= min_d && d <= max_d) {
+                            continue;
+                        }
+                        let ray = Vec3A::from(k.unproject(u as f32, v as f32, 1.0));
+                        let p_near = pose.transform_point3a(ray * (d - trunc));
+                        let p_far = pose.transform_point3a(ray * (d + trunc));
+                        let step = (p_far - p_near) / steps as f32;
+                        for (s, last) in last.iter_mut().enumerate() {
+                            let p = p_near + step * s as f32;
+                            // Voxel centres sit at multiples of the voxel size, so a chunk
+                            // spans [8k - 0.5, 8k + 7.5) voxels.
+                            let key = ((p + half) * inv_chunk).floor().as_ivec3();
+                            if key != *last {
+                                *last = key;
+                                set.insert(key);
+                            }
+                        }
+                    }
+                }
+                set.into_iter().collect()
+            })
+            .collect();
+        let mut keys: Vec<ChunkKey> = block_sets.into_iter().flatten().collect();
+        keys.sort_unstable_by_key(|k| key_order(*k));
+        keys.dedup();
+        Ok(keys)
+    }
+
+    /// Fuses `frame` seen from `world_from_camera`: chunk selection, then integration.
+    pub fn integrate(&mut self, frame: &Frame, world_from_camera: Affine3A) -> Result<IntegrationStats> {
+        let keys = self.select_chunks(frame, world_from_camera)?;
+        self.integrate_chunks(frame, world_from_camera, &keys)
+    }
+
+    /// Fuses `frame` into the given chunks only (allocating those that are missing). `keys`
+    /// may come from [`TsdfMap::select_chunks`] or from [`TsdfMap::chunks_touched_by`] when
+    /// re-integrating; duplicates are ignored.
+    pub fn integrate_chunks(
+        &mut self,
+        frame: &Frame,
+        world_from_camera: Affine3A,
+        keys: &[ChunkKey],
+    ) -> Result<IntegrationStats> {
+        check_frame(frame, &world_from_camera)?;
+        let mut stats = IntegrationStats::default();
+        let mut slots: Vec<(u32, bool)> = keys.iter().map(|&key| self.allocate(key)).collect();
+        slots.sort_unstable();
+        slots.dedup_by_key(|s| s.0);
+        stats.visited_chunks = slots.len();
+        if slots.is_empty() {
+            return Ok(stats);
+        }
+        let c = self.config;
+        let camera_from_world = world_from_camera.inverse();
+        let view = FrameView {
+            depth: &frame.depth,
+            color: &frame.color,
+            k: frame.intrinsics,
+            rot: [camera_from_world.matrix3.x_axis, camera_from_world.matrix3.y_axis, camera_from_world.matrix3.z_axis],
+            trans: camera_from_world.translation,
+            voxel_size: c.voxel_size,
+            truncation: c.truncation(),
+            min_depth: c.min_depth,
+            max_depth: c.max_depth,
+            weight_cap: (c.max_weight * WEIGHT_SCALE).round().clamp(1.0, u16::MAX as f32) as u16,
+        };
+        // Hand out `&mut` to exactly the selected chunks: one pass over the slab with a mask.
+        let mut selected = vec![false; self.chunks.len()];
+        for &(s, _) in &slots {
+            selected[s as usize] = true;
+        }
+        let mut targets: Vec<&mut Chunk> =
+            self.chunks.iter_mut().zip(&selected).filter(|(_, &sel)| sel).map(|(c, _)| c).collect();
+        let outcomes: Vec<ChunkOutcome> = targets.par_iter_mut().map(|chunk| integrate_chunk(chunk, &view)).collect();
+        drop(targets);
+        // `targets` and `outcomes` are in slab order, like the sorted `slots`.
+        let revision = self.next_revision;
+        self.next_revision += 1;
+        let frame_id = frame.index.min(u32::MAX as usize) as u32;
+        let mut to_free = Vec::new();
+        for (&(slot, is_new), out) in slots.iter().zip(&outcomes) {
+            if is_new && !out.near {
+                to_free.push(slot);
+                continue;
+            }
+            stats.new_chunks += is_new as usize;
+            if out.updated > 0 {
+                let chunk = &mut self.chunks[slot as usize];
+                chunk.dirty = true;
+                chunk.revision = revision;
+                chunk.frames.push(frame_id);
+                stats.updated_chunks += 1;
+                stats.updated_voxels += out.updated as usize;
+            }
+        }
+        stats.freed_chunks = to_free.len();
+        self.free(to_free);
+        Ok(stats)
+    }
+}
+
+/// Rejects frames whose buffers do not match their camera and non-finite poses; depth values
+/// themselves are never an error.
+fn check_frame(frame: &Frame, world_from_camera: &Affine3A) -> Result<()> {
+    let n = frame.intrinsics.pixel_count();
+    let bad = |message: String| Err(ReconError::InvalidFrame { index: frame.index, message });
+    if frame.depth.len() != n {
+        return bad(format!("depth has {} pixels, the camera {n}", frame.depth.len()));
+    }
+    if !frame.color.is_empty() && frame.color.len() != n {
+        return bad(format!("colour has {} pixels, the camera {n}", frame.color.len()));
+    }
+    if !world_from_camera.is_finite() {
+        return bad("world_from_camera is not finite".into());
+    }
+    Ok(())
+}
+
+/// Updates every voxel of one chunk from the frame.
+fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
+    let side = CHUNK_SIDE as i32;
+    let origin = (chunk.key * side).as_vec3() * f.voxel_size;
+    let base = f.rot[0] * origin.x + f.rot[1] * origin.y + f.rot[2] * origin.z + f.trans;
+    let dx = f.rot[0] * f.voxel_size;
+    let dy = f.rot[1] * f.voxel_size;
+    let dz = f.rot[2] * f.voxel_size;
+    let (w, h) = (f.k.width as usize, f.k.height as usize);
+    let (wf, hf) = (w as f32 - 0.5, h as f32 - 0.5);
+    let inv_trunc = 1.0 / f.truncation;
+    let has_color = !f.color.is_empty();
+    let mut out = ChunkOutcome::default();
+    let voxels = &mut chunk.voxels;
+    let mut i = 0usize;
+    for z in 0..CHUNK_SIDE {
+        for y in 0..CHUNK_SIDE {
+            let row = base + dz * z as f32 + dy * y as f32;
+            for x in 0..CHUNK_SIDE {
+                let p = row + dx * x as f32;
+                let idx = i + x;
+                if p.z <= 0.0 {
+                    continue;
+                }
+                let inv_z = 1.0 / p.z;
+                let u = f.k.fx * p.x * inv_z + f.k.cx;
+                let v = f.k.fy * p.y * inv_z + f.k.cy;
+                if !(u >= -0.5 && u < wf && v >= -0.5 && v < hf) {
+                    continue;
+                }
+                let pix = (v + 0.5) as usize * w + (u + 0.5) as usize;
+                let d = f.depth[pix];
+                if !(d >= f.min_depth && d <= f.max_depth) {
+                    continue;
+                }
+                let sdf = d - p.z;
+                if sdf < -f.truncation {
+                    continue;
+                }
+                out.near |= sdf < f.truncation;
+                let tsdf = (sdf * inv_trunc).min(1.0);
+                let color = if has_color { f.color[pix] } else { [0, 0, 0] };
+                voxels[idx].fuse(tsdf, depth_weight(d), color, f.weight_cap);
+                out.updated += 1;
+            }
+            i += CHUNK_SIDE;
+        }
+    }
+    out
+}

@@ -1,0 +1,332 @@
+//! Surface extraction: marching cubes per chunk, cached, re-run only where the map changed.
+//!
+//! Cells join 2x2x2 voxel centres. A chunk owns the 8x8x8 cells whose lowest corner is one
+//! of its voxels, so the cells between two chunks are computed once, by the lower chunk,
+//! reading the upper neighbours' boundary voxels. Cells with an unobserved corner (weight 0)
+//! are skipped, and so are cells where a crossed edge jumps by more than one truncation
+//! distance (the seam between observed free space and the back of a surface, not a
+//! surface), so no phantom surfaces appear. Vertex colours are interpolated from the voxel
+//! colours; normals are the interpolated central-difference gradient of the TSDF, pointing
+//! to the positive (free-space, camera) side; triangles wind counter-clockwise seen from it.
+//!
+//! Each chunk is meshed from a padded copy of its voxels and the one-voxel shell around it
+//! (the gradient needs it), so a chunk's mesh depends on its 26 neighbours: when a chunk
+//! changes, it and its allocated neighbours are re-meshed. Chunk meshes are welded into one
+//! mesh by the global key of the cell edge each vertex sits on, so the result is watertight
+//! where the surface is closed.
+
+use std::collections::HashMap;
+
+use glam::{IVec3, Vec3};
+use rayon::prelude::*;
+use semrecon_data::LabeledMesh;
+
+use crate::cube_cases::{case_table, EDGES};
+use crate::map::{key_order, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE};
+
+/// Largest TSDF difference (in truncation units) across a cell edge that still counts as a
+/// surface crossing; a real surface changes the TSDF by about one voxel per voxel, i.e. by
+/// `1 / truncation_voxels` per edge.
+const MAX_EDGE_JUMP: f32 = 1.0;
+
+/// Side of the padded block: the chunk plus one voxel on every side.
+const PAD: usize = CHUNK_SIDE + 3;
+const PAD2: usize = PAD * PAD;
+/// Side of the grid of cell-edge low corners.
+const ES: usize = CHUNK_SIDE + 1;
+
+/// Global key of a cell edge: its lower voxel and its axis (0 x, 1 y, 2 z).
+type EdgeKey = (IVec3, u8);
+
+/// The triangles of one chunk.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ChunkMesh {
+    /// Vertex positions, metres, world frame.
+    pub positions: Vec<Vec3>,
+    /// Vertex colours.
+    pub colors: Vec<[u8; 3]>,
+    /// Unit vertex normals toward free space (zero where the gradient vanishes).
+    pub normals: Vec<Vec3>,
+    /// Triangles, counter-clockwise seen from free space.
+    pub triangles: Vec<[u32; 3]>,
+    /// Vertices on cell edges that neighbouring chunks also use, with the edge's global key
+    /// (ascending vertex order); the assembly welds them.
+    shared: Vec<(u32, EdgeKey)>,
+}
+
+/// A padded copy of one chunk and the one-voxel shell around it.
+struct PaddedBlock {
+    tsdf: [f32; PAD * PAD2],
+    observed: [bool; PAD * PAD2],
+    color: [[u8; 3]; PAD * PAD2],
+}
+
+impl PaddedBlock {
+    /// Gathers the block of `key`; `None` when the chunk is not allocated.
+    fn gather(map: &TsdfMap, key: ChunkKey) -> Option<Box<Self>> {
+        map.chunk(key)?;
+        let mut b = Box::new(PaddedBlock {
+            tsdf: [0.0; PAD * PAD2],
+            observed: [false; PAD * PAD2],
+            color: [[0; 3]; PAD * PAD2],
+        });
+        // Padded coordinate p holds local voxel p - 1 (-1 ..= 9): in chunk offset -1, 0 or 1.
+        let split = |p: usize| -> (i32, usize) {
+            let l = p as i32 - 1;
+            let o = l.div_euclid(CHUNK_SIDE as i32);
+            (o, (l - o * CHUNK_SIDE as i32) as usize)
+        };
+        for pz in 0..PAD {
+            let (oz, iz) = split(pz);
+            for py in 0..PAD {
+                let (oy, iy) = split(py);
+                let mut px = 0;
+                while px < PAD {
+                    let (ox, ix) = split(px);
+                    // Run of padded x that falls in the same neighbour chunk.
+                    let run = match ox {
+                        -1 => 1,
+                        0 => CHUNK_SIDE,
+                        _ => PAD - px,
+                    };
+                    if let Some(c) = map.chunk(key + IVec3::new(ox, oy, oz)) {
+                        let src = ix + CHUNK_SIDE * (iy + CHUNK_SIDE * iz);
+                        let dst = px + PAD * py + PAD2 * pz;
+                        for r in 0..run {
+                            let v = c.voxels[src + r];
+                            b.tsdf[dst + r] = v.tsdf();
+                            b.observed[dst + r] = v.is_observed();
+                            b.color[dst + r] = v.color;
+                        }
+                    }
+                    px += run;
+                }
+            }
+        }
+        Some(b)
+    }
+
+    /// Central-difference TSDF gradient at padded index `i` (one-sided where a neighbour is
+    /// unobserved or outside the block).
+    fn gradient(&self, i: usize, p: [usize; 3]) -> Vec3 {
+        let strides = [1, PAD, PAD2];
+        let mut g = [0.0f32; 3];
+        for a in 0..3 {
+            let s = strides[a];
+            let lo = p[a] > 0 && self.observed[i - s];
+            let hi = p[a] + 1 < PAD && self.observed[i + s];
+            g[a] = match (lo, hi) {
+                (true, true) => 0.5 * (self.tsdf[i + s] - self.tsdf[i - s]),
+                (false, true) => self.tsdf[i + s] - self.tsdf[i],
+                (true, false) => self.tsdf[i] - self.tsdf[i - s],
+                (false, false) => 0.0,
+            };
+        }
+        Vec3::from(g)
+    }
+}
+
+/// Marching cubes over the cells owned by chunk `key` (empty when it is not allocated).
+pub fn mesh_chunk(map: &TsdfMap, key: ChunkKey) -> ChunkMesh {
+    let mut mesh = ChunkMesh::default();
+    let Some(block) = PaddedBlock::gather(map, key) else {
+        return mesh;
+    };
+    let table = case_table();
+    let vs = map.config().voxel_size;
+    let key_voxel = key * CHUNK_SIDE as i32;
+    let corner_offset: [usize; 8] =
+        std::array::from_fn(|c| (c & 1) + PAD * ((c >> 1) & 1) + PAD2 * ((c >> 2) & 1));
+    let mut edge_vertex = vec![u32::MAX; ES * ES * ES * 3];
+    for z in 0..CHUNK_SIDE {
+        for y in 0..CHUNK_SIDE {
+            for x in 0..CHUNK_SIDE {
+                let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
+                let mut case = 0u8;
+                let mut all_observed = true;
+                let mut f = [0.0f32; 8];
+                for c in 0..8 {
+                    let i = base + corner_offset[c];
+                    all_observed &= block.observed[i];
+                    f[c] = block.tsdf[i];
+                    case |= ((f[c] < 0.0) as u8) << c;
+                }
+                if case == 0 || case == 255 || !all_observed {
+                    continue;
+                }
+                let jump = EDGES.iter().any(|&(a, b)| {
+                    let (fa, fb) = (f[a as usize], f[b as usize]);
+                    (fa < 0.0) != (fb < 0.0) && (fa - fb).abs() > MAX_EDGE_JUMP
+                });
+                if jump {
+                    continue;
+                }
+                for tri in table.triangles(case) {
+                    let mut t = [0u32; 3];
+                    for (slot, &e) in t.iter_mut().zip(tri) {
+                        let (a, b) = EDGES[e as usize];
+                        let axis = (e / 4) as usize;
+                        let low = [x + (a & 1) as usize, y + ((a >> 1) & 1) as usize, z + ((a >> 2) & 1) as usize];
+                        let ek = ((low[2] * ES + low[1]) * ES + low[0]) * 3 + axis;
+                        if edge_vertex[ek] == u32::MAX {
+                            edge_vertex[ek] = mesh.positions.len() as u32;
+                            let (ia, ib) = (base + corner_offset[a as usize], base + corner_offset[b as usize]);
+                            let (fa, fb) = (f[a as usize], f[b as usize]);
+                            let s = fa / (fa - fb);
+                            let low_global = key_voxel + IVec3::new(low[0] as i32, low[1] as i32, low[2] as i32);
+                            let mut p = low_global.as_vec3();
+                            p[axis] += s;
+                            mesh.positions.push(p * vs);
+                            let (ca, cb) = (block.color[ia], block.color[ib]);
+                            mesh.colors.push(std::array::from_fn(|k| {
+                                (ca[k] as f32 + s * (cb[k] as f32 - ca[k] as f32) + 0.5) as u8
+                            }));
+                            let pa = [low[0] + 1, low[1] + 1, low[2] + 1];
+                            let mut pb = pa;
+                            pb[axis] += 1;
+                            let g = block.gradient(ia, pa).lerp(block.gradient(ib, pb), s);
+                            mesh.normals.push(g.normalize_or_zero());
+                            let shared = (0..3).any(|q| q != axis && (low[q] == 0 || low[q] == CHUNK_SIDE));
+                            if shared {
+                                mesh.shared.push((edge_vertex[ek], (low_global, axis as u8)));
+                            }
+                        }
+                        *slot = edge_vertex[ek];
+                    }
+                    mesh.triangles.push(t);
+                }
+            }
+        }
+    }
+    mesh
+}
+
+/// What one incremental update did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct MeshingStats {
+    /// Chunks whose map revision changed (or that were freed) since the last update.
+    pub changed_chunks: usize,
+    /// Chunks re-meshed (the changed ones and their allocated neighbours).
+    pub remeshed_chunks: usize,
+    /// Triangles over all cached chunk meshes after the update.
+    pub triangles: usize,
+}
+
+/// Per-chunk mesh cache that re-meshes only what changed in the map.
+#[derive(Debug, Clone, Default)]
+pub struct IncrementalMesher {
+    /// Chunk key -> (map revision the mesh was made at, mesh).
+    cache: HashMap<ChunkKey, (u64, ChunkMesh), ChunkHashBuilder>,
+}
+
+impl IncrementalMesher {
+    /// An empty cache.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Re-meshes the chunks whose revision changed since the last update, and their
+    /// neighbours; drops meshes of freed chunks. Parallel over chunks, deterministic.
+    pub fn update(&mut self, map: &TsdfMap) -> MeshingStats {
+        let mut changed: Vec<ChunkKey> = map
+            .chunks()
+            .filter(|c| self.cache.get(&c.key()).map(|e| e.0) != Some(c.revision()))
+            .map(|c| c.key())
+            .collect();
+        let freed: Vec<ChunkKey> = self.cache.keys().filter(|k| map.chunk(**k).is_none()).copied().collect();
+        for k in &freed {
+            self.cache.remove(k);
+        }
+        changed.extend_from_slice(&freed);
+        let mut todo: Vec<ChunkKey> = Vec::with_capacity(changed.len() * 4);
+        for &k in &changed {
+            for dz in -1..=1 {
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let n = k + IVec3::new(dx, dy, dz);
+                        if map.chunk(n).is_some() {
+                            todo.push(n);
+                        }
+                    }
+                }
+            }
+        }
+        todo.sort_unstable_by_key(|k| key_order(*k));
+        todo.dedup();
+        let meshes: Vec<(ChunkKey, u64, ChunkMesh)> = todo
+            .par_iter()
+            .map(|&k| {
+                let rev = map.chunk(k).map_or(0, |c| c.revision());
+                (k, rev, mesh_chunk(map, k))
+            })
+            .collect();
+        let remeshed = meshes.len();
+        for (k, rev, m) in meshes {
+            self.cache.insert(k, (rev, m));
+        }
+        MeshingStats {
+            changed_chunks: changed.len(),
+            remeshed_chunks: remeshed,
+            triangles: self.cache.values().map(|e| e.1.triangles.len()).sum(),
+        }
+    }
+
+    /// The cached mesh of chunk `key`.
+    pub fn chunk_mesh(&self, key: ChunkKey) -> Option<&ChunkMesh> {
+        self.cache.get(&key).map(|e| &e.1)
+    }
+
+    /// Number of cached chunk meshes.
+    pub fn chunk_count(&self) -> usize {
+        self.cache.len()
+    }
+
+    /// The whole surface as one welded mesh (chunks in (z, y, x) key order; no labels).
+    pub fn mesh(&self) -> LabeledMesh {
+        let mut keys: Vec<ChunkKey> = self.cache.keys().copied().collect();
+        keys.sort_unstable_by_key(|k| key_order(*k));
+        let meshes: Vec<&ChunkMesh> = keys.iter().filter_map(|k| self.chunk_mesh(*k)).collect();
+        assemble(&meshes)
+    }
+}
+
+/// Meshes the whole map from scratch (parallel over chunks).
+pub fn extract_mesh(map: &TsdfMap) -> LabeledMesh {
+    let keys = map.sorted_keys();
+    let meshes: Vec<ChunkMesh> = keys.par_iter().map(|&k| mesh_chunk(map, k)).collect();
+    assemble(&meshes.iter().collect::<Vec<_>>())
+}
+
+/// Concatenates chunk meshes, welding vertices on shared cell edges.
+fn assemble(meshes: &[&ChunkMesh]) -> LabeledMesh {
+    let vertices: usize = meshes.iter().map(|m| m.positions.len()).sum();
+    let triangles: usize = meshes.iter().map(|m| m.triangles.len()).sum();
+    let mut out = LabeledMesh {
+        positions: Vec::with_capacity(vertices),
+        colors: Vec::with_capacity(vertices),
+        normals: Vec::with_capacity(vertices),
+        triangles: Vec::with_capacity(triangles),
+        ..LabeledMesh::default()
+    };
+    let mut welded: HashMap<EdgeKey, u32, ChunkHashBuilder> = HashMap::default();
+    let mut remap = Vec::new();
+    for m in meshes {
+        remap.clear();
+        let mut shared = m.shared.iter().peekable();
+        for i in 0..m.positions.len() {
+            if let Some(&(_, key)) = shared.next_if(|s| s.0 == i as u32) {
+                if let Some(&j) = welded.get(&key) {
+                    remap.push(j);
+                    continue;
+                }
+                welded.insert(key, out.positions.len() as u32);
+            }
+            remap.push(out.positions.len() as u32);
+            out.positions.push(m.positions[i]);
+            out.colors.push(m.colors[i]);
+            out.normals.push(m.normals[i]);
+        }
+        out.triangles.extend(m.triangles.iter().map(|t| t.map(|i| remap[i as usize])));
+    }
+    out
+}
