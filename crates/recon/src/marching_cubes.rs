@@ -330,3 +330,124 @@ fn assemble(meshes: &[&ChunkMesh]) -> LabeledMesh {
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::map::{split_voxel, TsdfConfig, Voxel};
+
+    /// A map holding the exact truncated SDF of a sphere in every voxel of a box around it.
+    fn sphere_map(center: Vec3, radius: f32, observed_box: Option<(IVec3, IVec3)>) -> TsdfMap {
+        let config = TsdfConfig::default();
+        let vs = config.voxel_size;
+        let trunc = config.truncation();
+        let mut map = TsdfMap::new(config).expect("valid");
+        let lo = ((center - Vec3::splat(radius + 2.0 * trunc)) / vs).floor().as_ivec3();
+        let hi = ((center + Vec3::splat(radius + 2.0 * trunc)) / vs).ceil().as_ivec3();
+        for z in lo.z..=hi.z {
+            for y in lo.y..=hi.y {
+                for x in lo.x..=hi.x {
+                    let v = IVec3::new(x, y, z);
+                    if let Some((a, b)) = observed_box {
+                        if v.cmplt(a).any() || v.cmpgt(b).any() {
+                            continue;
+                        }
+                    }
+                    let sdf = (v.as_vec3() * vs - center).length() - radius;
+                    let (key, local) = split_voxel(v);
+                    let (slot, _) = map.allocate(key);
+                    let mut vox = Voxel::default();
+                    vox.fuse((sdf / trunc).clamp(-1.0, 1.0), 1.0, [10, 200, 30], 256);
+                    map.chunks[slot as usize].voxels[local] = vox;
+                }
+            }
+        }
+        map
+    }
+
+    fn edge_uses(mesh: &LabeledMesh) -> HashMap<(u32, u32), (u32, u32)> {
+        // Undirected edge -> (uses a->b, uses b->a).
+        let mut uses: HashMap<(u32, u32), (u32, u32)> = HashMap::new();
+        for t in &mesh.triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                let e = uses.entry((a.min(b), a.max(b))).or_default();
+                if a < b {
+                    e.0 += 1;
+                } else {
+                    e.1 += 1;
+                }
+            }
+        }
+        uses
+    }
+
+    #[test]
+    fn sphere_mesh_is_accurate_closed_and_outward() {
+        let (center, radius) = (Vec3::new(0.0131, -0.0217, 0.0072), 0.1);
+        let map = sphere_map(center, radius, None);
+        assert!(map.chunk_count() > 27, "the sphere spans many chunks, negative keys included");
+        let mesh = extract_mesh(&map);
+        mesh.validate().expect("valid mesh");
+        assert!(mesh.triangle_count() > 5000);
+        let vs = map.config().voxel_size;
+        for (p, n) in mesh.positions.iter().zip(&mesh.normals) {
+            let r = *p - center;
+            assert!((r.length() - radius).abs() < 0.02 * vs, "vertex {p} off the sphere");
+            assert!(n.dot(r.normalize()) > 0.98, "normal {n} at {p}");
+        }
+        assert!(mesh.colors.iter().all(|c| *c == [10, 200, 30]));
+        // Closed and consistently wound: every edge once in each direction.
+        for (e, (ab, ba)) in edge_uses(&mesh) {
+            assert!(ab == 1 && ba == 1, "edge {e:?} used {ab} + {ba} times");
+        }
+        // Counter-clockwise seen from outside.
+        let mut outward = 0.0;
+        for t in &mesh.triangles {
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            outward += (b - a).cross(c - a).dot((a + b + c) / 3.0 - center);
+        }
+        assert!(outward > 0.0);
+        for t in &mesh.triangles {
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            let n = (b - a).cross(c - a);
+            if n.length() > 1e-9 {
+                assert!(n.dot((a + b + c) / 3.0 - center) > 0.0, "inward triangle {t:?}");
+            }
+        }
+        // Euler characteristic of a sphere.
+        let v = mesh.vertex_count() as i64;
+        let f = mesh.triangle_count() as i64;
+        assert_eq!(v - 3 * f / 2 + f, 2);
+    }
+
+    #[test]
+    fn unobserved_voxels_leave_an_open_border_not_a_phantom_surface() {
+        let (center, radius) = (Vec3::new(0.0, 0.0, 0.0), 0.1);
+        // Only the half x < 0.02 m is observed.
+        let lo = IVec3::splat(-100);
+        let hi = IVec3::new(4, 100, 100);
+        let map = sphere_map(center, radius, Some((lo, hi)));
+        let mesh = extract_mesh(&map);
+        assert!(mesh.triangle_count() > 1000);
+        let vs = map.config().voxel_size;
+        for p in &mesh.positions {
+            assert!(((*p - center).length() - radius).abs() < 0.02 * vs);
+            assert!(p.x <= 4.0 * vs + 1e-6, "vertex {p} beyond the observed voxels");
+        }
+        let border = edge_uses(&mesh).values().filter(|(a, b)| a + b == 1).count();
+        assert!(border > 0, "the cut is an open border");
+    }
+
+    #[test]
+    fn free_space_next_to_the_back_of_a_surface_makes_no_triangles() {
+        let mut map = TsdfMap::new(TsdfConfig::default()).expect("valid");
+        let (slot, _) = map.allocate(IVec3::ZERO);
+        for (i, v) in map.chunks[slot as usize].voxels.iter_mut().enumerate() {
+            // Free space (+1) for x < 4, the far side of a surface (-1) beyond.
+            let t = if i % 8 < 4 { 1.0 } else { -1.0 };
+            v.fuse(t, 1.0, [0, 0, 0], 256);
+        }
+        assert!(mesh_chunk(&map, IVec3::ZERO).triangles.is_empty());
+    }
+}
