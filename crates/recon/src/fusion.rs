@@ -22,7 +22,10 @@ use rayon::prelude::*;
 use semrecon_data::{Frame, Intrinsics};
 
 use crate::error::{ReconError, Result};
-use crate::map::{key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE, WEIGHT_SCALE};
+use crate::map::{
+    blend_color, key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE, CHUNK_VOXELS, TSDF_SCALE,
+    WEIGHT_SCALE,
+};
 
 /// Weight of one depth observation: `1 / z²` (z in metres) capped at 4.
 ///
@@ -217,52 +220,85 @@ fn check_frame(frame: &Frame, world_from_camera: &Affine3A) -> Result<()> {
 }
 
 /// Updates every voxel of one chunk from the frame.
+///
+/// In passes over all 512 voxels, each a plain loop over fixed-size arrays with selects
+/// instead of branches, so that the compiler vectorises them: project every voxel centre,
+/// gather the depths, compute every update and keep those of valid observations; colours,
+/// needed only inside the truncation band, follow in a scalar pass. The arithmetic is that of
+/// [`Voxel::fuse`](crate::map::Voxel), bit for bit.
 fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
-    let side = CHUNK_SIDE as i32;
+    const N: usize = CHUNK_SIDE;
+    let side = N as i32;
     let origin = (chunk.key * side).as_vec3() * f.voxel_size;
     let base = f.rot[0] * origin.x + f.rot[1] * origin.y + f.rot[2] * origin.z + f.trans;
     let dx = f.rot[0] * f.voxel_size;
     let dy = f.rot[1] * f.voxel_size;
     let dz = f.rot[2] * f.voxel_size;
-    let (w, h) = (f.k.width as usize, f.k.height as usize);
-    let (wf, hf) = (w as f32 - 0.5, h as f32 - 0.5);
-    let inv_trunc = 1.0 / f.truncation;
-    let has_color = !f.color.is_empty();
-    let mut out = ChunkOutcome::default();
-    let voxels = &mut chunk.voxels;
-    let mut i = 0usize;
-    for z in 0..CHUNK_SIDE {
-        for y in 0..CHUNK_SIDE {
-            let row = base + dz * z as f32 + dy * y as f32;
-            for x in 0..CHUNK_SIDE {
-                let p = row + dx * x as f32;
-                let idx = i + x;
-                if p.z <= 0.0 {
-                    continue;
-                }
-                let inv_z = 1.0 / p.z;
-                let u = f.k.fx * p.x * inv_z + f.k.cx;
-                let v = f.k.fy * p.y * inv_z + f.k.cy;
-                if !(u >= -0.5 && u < wf && v >= -0.5 && v < hf) {
-                    continue;
-                }
-                let pix = (v + 0.5) as usize * w + (u + 0.5) as usize;
-                let d = f.depth[pix];
-                if !(d >= f.min_depth && d <= f.max_depth) {
-                    continue;
-                }
-                let sdf = d - p.z;
-                if sdf < -f.truncation {
-                    continue;
-                }
-                out.near |= sdf < f.truncation;
-                let tsdf = (sdf * inv_trunc).min(1.0);
-                let color = if has_color { f.color[pix] } else { [0, 0, 0] };
-                voxels[idx].fuse(tsdf, depth_weight(d), color, f.weight_cap);
-                out.updated += 1;
+    let w = f.k.width;
+    let (wf, hf) = (f.k.width as f32 - 0.5, f.k.height as f32 - 0.5);
+    let (fx, fy, cx, cy) = (f.k.fx, f.k.fy, f.k.cx, f.k.cy);
+    let (min_d, max_d, trunc) = (f.min_depth, f.max_depth, f.truncation);
+    let inv_trunc = 1.0 / trunc;
+    let cap = f.weight_cap as i32;
+
+    // Pass 1: project. Voxels off the image read pixel 0 and are masked by `ok`.
+    let mut pix = [0u32; CHUNK_VOXELS];
+    let mut vz = [0.0f32; CHUNK_VOXELS];
+    let mut ok = [0u32; CHUNK_VOXELS];
+    for i in 0..CHUNK_VOXELS {
+        let (x, y, z) = ((i % N) as f32, ((i / N) % N) as f32, (i / (N * N)) as f32);
+        let px = base.x + dx.x * x + dy.x * y + dz.x * z;
+        let py = base.y + dx.y * x + dy.y * y + dz.y * z;
+        let pz = base.z + dx.z * x + dy.z * y + dz.z * z;
+        let inv_z = 1.0 / pz;
+        let u = fx * px * inv_z + cx;
+        let v = fy * py * inv_z + cy;
+        // `&` rather than `&&`: no short-circuit branches in a loop meant to vectorise.
+        let inside = (pz > 0.0) & (u >= -0.5) & (u < wf) & (v >= -0.5) & (v < hf);
+        let ui = (u + 0.5) as u32;
+        let vi = (v + 0.5) as u32;
+        pix[i] = if inside { vi * w + ui } else { 0 };
+        ok[i] = inside as u32;
+        vz[i] = pz;
+    }
+    // Pass 2: gather.
+    let mut d = [0.0f32; CHUNK_VOXELS];
+    for i in 0..CHUNK_VOXELS {
+        d[i] = f.depth[pix[i] as usize];
+    }
+    // Pass 3: update distances and weights.
+    let block = &mut *chunk.voxels;
+    let mut near = [0u32; CHUNK_VOXELS];
+    let mut updated = 0u32;
+    for i in 0..CHUNK_VOXELS {
+        let sdf = d[i] - vz[i];
+        let valid = (ok[i] != 0) & (d[i] >= min_d) & (d[i] <= max_d) & (sdf >= -trunc);
+        let obs = (sdf * inv_trunc).min(1.0);
+        let w_obs = if valid { depth_weight(d[i]) } else { 0.0 };
+        let w_old = block.weight[i] as f32 * (1.0 / WEIGHT_SCALE);
+        let w_sum = w_old + w_obs;
+        let inv = 1.0 / w_sum.max(1e-30);
+        let a = w_old * inv;
+        let b = w_obs * inv;
+        let t = block.tsdf[i] as f32 * a + obs * (b * TSDF_SCALE);
+        let t_q = (t + 0.5f32.copysign(t)) as i32;
+        let w_q = ((w_sum * WEIGHT_SCALE + 0.5) as i32).max(1).min(cap);
+        block.tsdf[i] = if valid { t_q as i16 } else { block.tsdf[i] };
+        block.weight[i] = if valid { w_q as u16 } else { block.weight[i] };
+        updated += valid as u32;
+        near[i] = (valid & (sdf < trunc)) as u32;
+    }
+    // Pass 4: colours inside the band.
+    let any_near = near.iter().any(|&n| n != 0);
+    if any_near && !f.color.is_empty() {
+        for i in 0..CHUNK_VOXELS {
+            if near[i] != 0 {
+                blend_color(&mut block.color[i], f.color[pix[i] as usize]);
             }
-            i += CHUNK_SIDE;
         }
     }
-    out
+    if updated > 0 {
+        chunk.signs = block.signs();
+    }
+    ChunkOutcome { updated, near: any_near }
 }

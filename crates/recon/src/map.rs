@@ -8,7 +8,8 @@
 //! is stored at `x + 8 y + 64 z`.
 //!
 //! Each voxel is 8 bytes (see [`Voxel`]): the signed distance quantised to `i16` in units of
-//! the truncation distance, the weight as `u16` fixed point (1/256), and an sRGB colour, so a
+//! the truncation distance, the weight as `u16` fixed point (1/256), an sRGB colour and its
+//! observation count, so a
 //! chunk's voxels are exactly 4 KiB. Quantisation error is below 1e-4 of the truncation
 //! distance (0.002 mm at 5 mm voxels), far under sensor noise.
 
@@ -30,7 +31,7 @@ pub type ChunkKey = IVec3;
 /// Fixed-point scale of [`Voxel`] weights: a stored weight of 256 is a weight of 1.
 pub const WEIGHT_SCALE: f32 = 256.0;
 /// Scale of the quantised truncated signed distance: `i16::MAX` is +1 truncation.
-const TSDF_SCALE: f32 = i16::MAX as f32;
+pub(crate) const TSDF_SCALE: f32 = i16::MAX as f32;
 
 /// Parameters of the map and of fusion.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -102,7 +103,7 @@ impl TsdfConfig {
     }
 }
 
-/// One voxel, 8 bytes.
+/// One voxel's state, 8 bytes (a value: chunks store the fields in separate arrays).
 ///
 /// A weight of 0 means never observed: such voxels carry no distance and are masked by
 /// meshing.
@@ -115,8 +116,9 @@ pub struct Voxel {
     pub(crate) weight: u16,
     /// Weighted mean sRGB colour of the observations.
     pub(crate) color: [u8; 3],
-    /// Spare byte (keeps the voxel at 8 bytes; free for a later per-voxel label).
-    pub(crate) spare: u8,
+    /// Number of colour observations, saturating at 255 (colour has its own count because
+    /// free-space observations update the distance but not the colour).
+    pub(crate) color_count: u8,
 }
 
 impl Voxel {
@@ -147,23 +149,44 @@ impl Voxel {
 
     /// Folds one observation into the running weighted mean.
     ///
-    /// `tsdf` is in -1..=1, `weight` > 0, `weight_cap` is the cap in stored units.
-    #[inline]
-    pub(crate) fn fuse(&mut self, tsdf: f32, weight: f32, color: [u8; 3], weight_cap: u16) {
+    /// `tsdf` is in -1..=1, `weight` > 0, `weight_cap` is the cap in stored units; the colour
+    /// is only updated when `color` is given (observations far in front of the surface see
+    /// free space, not the surface's colour).
+    /// Fusion itself runs a vectorised copy of this arithmetic; this scalar form is its
+    /// specification, used by tests.
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) fn fuse(&mut self, tsdf: f32, weight: f32, color: Option<[u8; 3]>, weight_cap: u16) {
         let w_old = self.weight as f32 * (1.0 / WEIGHT_SCALE);
         let w_sum = w_old + weight;
         let inv = 1.0 / w_sum;
-        let t = (self.tsdf as f32 * (1.0 / TSDF_SCALE) * w_old + tsdf * weight) * inv;
-        self.tsdf = (t * TSDF_SCALE).round() as i16;
         let a = w_old * inv;
         let b = weight * inv;
-        for c in 0..3 {
-            self.color[c] = (self.color[c] as f32 * a + color[c] as f32 * b + 0.5) as u8;
+        let t = self.tsdf as f32 * a + tsdf * (b * TSDF_SCALE);
+        // `as` truncates toward zero: adding half away from zero rounds to nearest without
+        // a libm call (baseline x86-64 has no SSE4.1 `roundss`).
+        self.tsdf = (t + 0.5f32.copysign(t)) as i16;
+        if let Some(color) = color {
+            let mut c = [self.color[0], self.color[1], self.color[2], self.color_count];
+            blend_color(&mut c, color);
+            self.color = [c[0], c[1], c[2]];
+            self.color_count = c[3];
         }
         // At least one unit so that an observed voxel never reads as unobserved.
-        let w_new = ((w_sum * WEIGHT_SCALE).round() as u32).max(1);
+        let w_new = ((w_sum * WEIGHT_SCALE + 0.5) as u32).max(1);
         self.weight = w_new.min(weight_cap as u32) as u16;
     }
+}
+
+/// Folds colour observation `obs` into `c = [r, g, b, count]`: a plain running mean over the
+/// first 255 observations, then an exponential one.
+#[inline(always)]
+pub(crate) fn blend_color(c: &mut [u8; 4], obs: [u8; 3]) {
+    let n = c[3] as f32;
+    let inv_n = 1.0 / (n + 1.0);
+    for k in 0..3 {
+        c[k] = ((c[k] as f32 * n + obs[k] as f32) * inv_n + 0.5) as u8;
+    }
+    c[3] = c[3].saturating_add(1);
 }
 
 /// Contiguous runs of frame indices, compact because a scan touches a chunk in runs.
@@ -200,23 +223,70 @@ impl FrameRuns {
     }
 }
 
+/// The voxels of one chunk, field by field (4096 bytes).
+///
+/// # Shapes
+/// Every array is indexed by local `(x, y, z)` at `x + 8 y + 64 z`; `color[i]` is
+/// `[r, g, b, colour observation count]`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[repr(C, align(64))]
+pub(crate) struct VoxelBlock {
+    pub(crate) tsdf: [i16; CHUNK_VOXELS],
+    pub(crate) weight: [u16; CHUNK_VOXELS],
+    pub(crate) color: [[u8; 4]; CHUNK_VOXELS],
+}
+
+impl VoxelBlock {
+    /// The sign summary stored in [`Chunk`]`::signs`.
+    pub(crate) fn signs(&self) -> u8 {
+        let (mut neg, mut pos) = (false, false);
+        for i in 0..CHUNK_VOXELS {
+            let observed = self.weight[i] != 0;
+            neg |= observed & (self.tsdf[i] < 0);
+            pos |= observed & (self.tsdf[i] >= 0);
+        }
+        neg as u8 | (pos as u8) << 1
+    }
+
+    fn empty() -> Box<Self> {
+        Box::new(Self { tsdf: [0; CHUNK_VOXELS], weight: [0; CHUNK_VOXELS], color: [[0; 4]; CHUNK_VOXELS] })
+    }
+
+    #[inline]
+    pub(crate) fn get(&self, i: usize) -> Voxel {
+        let c = self.color[i];
+        Voxel { tsdf: self.tsdf[i], weight: self.weight[i], color: [c[0], c[1], c[2]], color_count: c[3] }
+    }
+
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) fn set(&mut self, i: usize, v: Voxel) {
+        self.tsdf[i] = v.tsdf;
+        self.weight[i] = v.weight;
+        self.color[i] = [v.color[0], v.color[1], v.color[2], v.color_count];
+    }
+}
+
 /// One allocated chunk.
 #[derive(Debug, Clone)]
 pub struct Chunk {
     pub(crate) key: ChunkKey,
-    pub(crate) voxels: Box<[Voxel; CHUNK_VOXELS]>,
+    pub(crate) voxels: Box<VoxelBlock>,
     pub(crate) dirty: bool,
     pub(crate) revision: u64,
     pub(crate) frames: FrameRuns,
+    /// Bit 0: some observed voxel is negative; bit 1: some observed voxel is non-negative.
+    /// Meshing skips a chunk whose neighbourhood lacks one of the two signs.
+    pub(crate) signs: u8,
 }
 
 impl Chunk {
     fn new(key: ChunkKey) -> Self {
         Self {
             key,
-            voxels: Box::new([Voxel::default(); CHUNK_VOXELS]),
+            voxels: VoxelBlock::empty(),
             dirty: false,
             revision: 0,
+            signs: 0,
             frames: FrameRuns::default(),
         }
     }
@@ -226,12 +296,15 @@ impl Chunk {
         self.key
     }
 
-    /// The voxels.
-    ///
-    /// # Shapes
-    /// 512 voxels, local `(x, y, z)` at `x + 8 y + 64 z`.
-    pub fn voxels(&self) -> &[Voxel; CHUNK_VOXELS] {
-        &self.voxels
+    /// Voxel `i` (local `(x, y, z)` at `i = x + 8 y + 64 z`); panics when `i >= 512`.
+    #[inline]
+    pub fn voxel(&self, i: usize) -> Voxel {
+        self.voxels.get(i)
+    }
+
+    /// The 512 voxels in local index order (`x + 8 y + 64 z`).
+    pub fn voxels(&self) -> impl ExactSizeIterator<Item = Voxel> + '_ {
+        (0..CHUNK_VOXELS).map(|i| self.voxels.get(i))
     }
 
     /// Whether fusion changed the chunk since the last [`TsdfMap::take_dirty`].
@@ -322,7 +395,7 @@ impl TsdfMap {
     /// Bytes one allocated chunk costs: the 4 KiB voxel block, the chunk record and its hash
     /// entry (frame runs, usually a few runs of 8 bytes, come on top).
     pub const fn bytes_per_chunk() -> usize {
-        std::mem::size_of::<[Voxel; CHUNK_VOXELS]>()
+        std::mem::size_of::<VoxelBlock>()
             + std::mem::size_of::<Chunk>()
             + std::mem::size_of::<(ChunkKey, u32)>()
             + 1
@@ -330,7 +403,7 @@ impl TsdfMap {
 
     /// Approximate heap bytes held by the map (voxels, chunk records, hash table, frame runs).
     pub fn memory_bytes(&self) -> usize {
-        let voxels = self.chunks.len() * std::mem::size_of::<[Voxel; CHUNK_VOXELS]>();
+        let voxels = self.chunks.len() * std::mem::size_of::<VoxelBlock>();
         let records = self.chunks.capacity() * std::mem::size_of::<Chunk>();
         let table = self.index.capacity() * (std::mem::size_of::<(ChunkKey, u32)>() + 1);
         let runs: usize = self.chunks.iter().map(|c| c.frames.runs.capacity() * 8).sum();
@@ -355,9 +428,9 @@ impl TsdfMap {
     }
 
     /// The voxel at global voxel coordinates `v`, if its chunk is allocated.
-    pub fn voxel(&self, v: IVec3) -> Option<&Voxel> {
+    pub fn voxel(&self, v: IVec3) -> Option<Voxel> {
         let (key, local) = split_voxel(v);
-        self.chunk(key).map(|c| &c.voxels[local])
+        self.chunk(key).map(|c| c.voxels.get(local))
     }
 
     /// Centre of voxel `v` in the world frame, metres.
@@ -446,7 +519,7 @@ mod tests {
     #[test]
     fn voxel_is_eight_bytes_and_chunk_four_kib() {
         assert_eq!(std::mem::size_of::<Voxel>(), 8);
-        assert_eq!(std::mem::size_of::<[Voxel; CHUNK_VOXELS]>(), 4096);
+        assert_eq!(std::mem::size_of::<VoxelBlock>(), 4096);
         assert!(TsdfMap::bytes_per_chunk() < 4096 + 128);
     }
 
@@ -459,12 +532,12 @@ mod tests {
     #[test]
     fn fuse_is_a_weighted_mean_with_cap() {
         let mut v = Voxel::default();
-        v.fuse(0.5, 1.0, [100, 0, 0], 2000);
-        v.fuse(-0.5, 3.0, [200, 0, 0], 2000);
+        v.fuse(0.5, 1.0, Some([100, 0, 0]), 2000);
+        v.fuse(-0.5, 3.0, Some([200, 0, 0]), 2000);
         assert!((v.tsdf() - (-0.25)).abs() < 1e-4);
         assert_eq!(v.weight(), 4.0);
-        assert_eq!(v.color()[0], 175);
-        v.fuse(1.0, 100.0, [0, 0, 0], 2000);
+        assert_eq!(v.color()[0], 150);
+        v.fuse(1.0, 100.0, None, 2000);
         assert_eq!(v.weight as u32, 2000);
     }
 

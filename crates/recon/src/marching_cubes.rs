@@ -22,7 +22,7 @@ use rayon::prelude::*;
 use semrecon_data::LabeledMesh;
 
 use crate::cube_cases::{case_table, EDGES};
-use crate::map::{key_order, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE};
+use crate::map::{key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE, TSDF_SCALE};
 
 /// Largest TSDF difference (in truncation units) across a cell edge that still counts as a
 /// surface crossing; a real surface changes the TSDF by about one voxel per voxel, i.e. by
@@ -58,23 +58,46 @@ pub struct ChunkMesh {
 struct PaddedBlock {
     tsdf: [f32; PAD * PAD2],
     observed: [bool; PAD * PAD2],
-    color: [[u8; 3]; PAD * PAD2],
+    color: [[u8; 4]; PAD * PAD2],
+}
+
+/// Offsets of the chunk and its 26 neighbours, `(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`.
+fn neighbours(map: &TsdfMap, key: ChunkKey) -> [Option<&Chunk>; 27] {
+    std::array::from_fn(|i| {
+        let o = IVec3::new(i as i32 % 3, (i as i32 / 3) % 3, i as i32 / 9) - IVec3::ONE;
+        map.chunk(key + o)
+    })
 }
 
 impl PaddedBlock {
-    /// Gathers the block of `key`; `None` when the chunk is not allocated.
-    fn gather(map: &TsdfMap, key: ChunkKey) -> Option<Box<Self>> {
-        map.chunk(key)?;
+    /// Whether the cells owned by the chunk (corners in it and its 7 upper neighbours) can
+    /// hold a surface: they need an observed negative and an observed non-negative voxel.
+    fn may_have_surface(nb: &[Option<&Chunk>; 27]) -> bool {
+        let mut signs = 0u8;
+        for dz in 1..3 {
+            for dy in 1..3 {
+                for dx in 1..3 {
+                    if let Some(c) = nb[dx + 3 * dy + 9 * dz] {
+                        signs |= c.signs;
+                    }
+                }
+            }
+        }
+        signs == 3
+    }
+
+    /// Copies the voxels of padded coordinates `-1 ..= 9` (local) from the neighbours.
+    fn gather(nb: &[Option<&Chunk>; 27]) -> Box<Self> {
         let mut b = Box::new(PaddedBlock {
             tsdf: [0.0; PAD * PAD2],
             observed: [false; PAD * PAD2],
-            color: [[0; 3]; PAD * PAD2],
+            color: [[0; 4]; PAD * PAD2],
         });
         // Padded coordinate p holds local voxel p - 1 (-1 ..= 9): in chunk offset -1, 0 or 1.
-        let split = |p: usize| -> (i32, usize) {
+        let split = |p: usize| -> (usize, usize) {
             let l = p as i32 - 1;
             let o = l.div_euclid(CHUNK_SIDE as i32);
-            (o, (l - o * CHUNK_SIDE as i32) as usize)
+            ((o + 1) as usize, (l - o * CHUNK_SIDE as i32) as usize)
         };
         for pz in 0..PAD {
             let (oz, iz) = split(pz);
@@ -85,25 +108,25 @@ impl PaddedBlock {
                     let (ox, ix) = split(px);
                     // Run of padded x that falls in the same neighbour chunk.
                     let run = match ox {
-                        -1 => 1,
-                        0 => CHUNK_SIDE,
+                        0 => 1,
+                        1 => CHUNK_SIDE,
                         _ => PAD - px,
                     };
-                    if let Some(c) = map.chunk(key + IVec3::new(ox, oy, oz)) {
+                    if let Some(c) = nb[ox + 3 * oy + 9 * oz] {
                         let src = ix + CHUNK_SIDE * (iy + CHUNK_SIDE * iz);
                         let dst = px + PAD * py + PAD2 * pz;
+                        let v = &c.voxels;
                         for r in 0..run {
-                            let v = c.voxels[src + r];
-                            b.tsdf[dst + r] = v.tsdf();
-                            b.observed[dst + r] = v.is_observed();
-                            b.color[dst + r] = v.color;
+                            b.tsdf[dst + r] = v.tsdf[src + r] as f32 * (1.0 / TSDF_SCALE);
+                            b.observed[dst + r] = v.weight[src + r] != 0;
+                            b.color[dst + r] = v.color[src + r];
                         }
                     }
                     px += run;
                 }
             }
         }
-        Some(b)
+        b
     }
 
     /// Central-difference TSDF gradient at padded index `i` (one-sided where a neighbour is
@@ -129,9 +152,11 @@ impl PaddedBlock {
 /// Marching cubes over the cells owned by chunk `key` (empty when it is not allocated).
 pub fn mesh_chunk(map: &TsdfMap, key: ChunkKey) -> ChunkMesh {
     let mut mesh = ChunkMesh::default();
-    let Some(block) = PaddedBlock::gather(map, key) else {
+    let nb = neighbours(map, key);
+    if nb[13].is_none() || !PaddedBlock::may_have_surface(&nb) {
         return mesh;
-    };
+    }
+    let block = PaddedBlock::gather(&nb);
     let table = case_table();
     let vs = map.config().voxel_size;
     let key_voxel = key * CHUNK_SIDE as i32;
@@ -178,6 +203,12 @@ pub fn mesh_chunk(map: &TsdfMap, key: ChunkKey) -> ChunkMesh {
                             p[axis] += s;
                             mesh.positions.push(p * vs);
                             let (ca, cb) = (block.color[ia], block.color[ib]);
+                            // Interpolate only between voxels that have a colour.
+                            let (ca, cb) = match (ca[3], cb[3]) {
+                                (0, 0) | (1.., 1..) => (ca, cb),
+                                (0, _) => (cb, cb),
+                                (_, 0) => (ca, ca),
+                            };
                             mesh.colors.push(std::array::from_fn(|k| {
                                 (ca[k] as f32 + s * (cb[k] as f32 - ca[k] as f32) + 0.5) as u8
                             }));
@@ -334,7 +365,7 @@ fn assemble(meshes: &[&ChunkMesh]) -> LabeledMesh {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::map::{split_voxel, TsdfConfig, Voxel};
+    use crate::map::{split_voxel, TsdfConfig, Voxel, CHUNK_VOXELS};
 
     /// A map holding the exact truncated SDF of a sphere in every voxel of a box around it.
     fn sphere_map(center: Vec3, radius: f32, observed_box: Option<(IVec3, IVec3)>) -> TsdfMap {
@@ -357,10 +388,13 @@ mod tests {
                     let (key, local) = split_voxel(v);
                     let (slot, _) = map.allocate(key);
                     let mut vox = Voxel::default();
-                    vox.fuse((sdf / trunc).clamp(-1.0, 1.0), 1.0, [10, 200, 30], 256);
-                    map.chunks[slot as usize].voxels[local] = vox;
+                    vox.fuse((sdf / trunc).clamp(-1.0, 1.0), 1.0, Some([10, 200, 30]), 256);
+                    map.chunks[slot as usize].voxels.set(local, vox);
                 }
             }
+        }
+        for c in &mut map.chunks {
+            c.signs = c.voxels.signs();
         }
         map
     }
@@ -443,11 +477,14 @@ mod tests {
     fn free_space_next_to_the_back_of_a_surface_makes_no_triangles() {
         let mut map = TsdfMap::new(TsdfConfig::default()).expect("valid");
         let (slot, _) = map.allocate(IVec3::ZERO);
-        for (i, v) in map.chunks[slot as usize].voxels.iter_mut().enumerate() {
+        for i in 0..CHUNK_VOXELS {
             // Free space (+1) for x < 4, the far side of a surface (-1) beyond.
             let t = if i % 8 < 4 { 1.0 } else { -1.0 };
-            v.fuse(t, 1.0, [0, 0, 0], 256);
+            let mut v = Voxel::default();
+            v.fuse(t, 1.0, None, 256);
+            map.chunks[slot as usize].voxels.set(i, v);
         }
+        map.chunks[slot as usize].signs = map.chunks[slot as usize].voxels.signs();
         assert!(mesh_chunk(&map, IVec3::ZERO).triangles.is_empty());
     }
 }
