@@ -162,9 +162,7 @@ impl Voxel {
         let a = w_old * inv;
         let b = weight * inv;
         let t = self.tsdf as f32 * a + tsdf * (b * TSDF_SCALE);
-        // `as` truncates toward zero: adding half away from zero rounds to nearest without
-        // a libm call (baseline x86-64 has no SSE4.1 `roundss`).
-        self.tsdf = (t + 0.5f32.copysign(t)) as i16;
+        self.tsdf = t.round_ties_even() as i16;
         if let Some(color) = color {
             let mut c = [self.color[0], self.color[1], self.color[2], self.color_count];
             blend_color(&mut c, color);
@@ -172,22 +170,34 @@ impl Voxel {
             self.color_count = c[3];
         }
         // At least one unit so that an observed voxel never reads as unobserved.
-        let w_new = ((w_sum * WEIGHT_SCALE + 0.5) as u32).max(1);
-        self.weight = w_new.min(weight_cap as u32) as u16;
+        let w_new = (w_sum * WEIGHT_SCALE).round_ties_even().max(1.0);
+        self.weight = w_new.min(weight_cap as f32) as u16;
     }
 }
 
 /// Folds colour observation `obs` into `c = [r, g, b, count]`: a plain running mean over the
 /// first 255 observations, then an exponential one.
+/// Fixed point with reciprocals from a table: no division and no float conversion.
 #[inline(always)]
 pub(crate) fn blend_color(c: &mut [u8; 4], obs: [u8; 3]) {
-    let n = c[3] as f32;
-    let inv_n = 1.0 / (n + 1.0);
+    let n = c[3] as u32;
+    let recip = RECIPROCALS[c[3] as usize];
     for k in 0..3 {
-        c[k] = ((c[k] as f32 * n + obs[k] as f32) * inv_n + 0.5) as u8;
+        c[k] = (((c[k] as u32 * n + obs[k] as u32) * recip + (1 << 15)) >> 16) as u8;
     }
     c[3] = c[3].saturating_add(1);
 }
+
+/// `RECIPROCALS[n] = round(2^16 / (n + 1))`: the running mean's divisor in 16-bit fixed point.
+const RECIPROCALS: [u32; 256] = {
+    let mut t = [0u32; 256];
+    let mut n = 0;
+    while n < 256 {
+        t[n] = ((1u32 << 16) + (n as u32 + 1) / 2) / (n as u32 + 1);
+        n += 1;
+    }
+    t
+};
 
 /// Contiguous runs of frame indices, compact because a scan touches a chunk in runs.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -237,7 +247,8 @@ pub(crate) struct VoxelBlock {
 }
 
 impl VoxelBlock {
-    /// The sign summary stored in [`Chunk`]`::signs`.
+    /// The sign summary stored in [`Chunk`]`::signs` (fusion computes it on the fly).
+    #[cfg_attr(not(test), allow(dead_code))]
     pub(crate) fn signs(&self) -> u8 {
         let (mut neg, mut pos) = (false, false);
         for i in 0..CHUNK_VOXELS {
