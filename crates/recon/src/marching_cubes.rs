@@ -55,11 +55,18 @@ pub struct ChunkMesh {
 }
 
 /// A padded copy of one chunk and the one-voxel shell around it.
+///
+/// Distances stay quantised (`i16`) until a vertex needs them; `flags` holds bit 0 for a
+/// negative distance and bit 1 for an observed voxel, so a cell's case and mask come from
+/// 8 byte loads.
 struct PaddedBlock {
-    tsdf: [f32; PAD * PAD2],
-    observed: [bool; PAD * PAD2],
+    tsdf: [i16; PAD * PAD2],
+    flags: [u8; PAD * PAD2],
     color: [[u8; 4]; PAD * PAD2],
 }
+
+const NEGATIVE: u8 = 1;
+const OBSERVED: u8 = 2;
 
 /// Offsets of the chunk and its 26 neighbours, `(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`.
 fn neighbours(map: &TsdfMap, key: ChunkKey) -> [Option<&Chunk>; 27] {
@@ -86,13 +93,14 @@ impl PaddedBlock {
         signs == 3
     }
 
-    /// Copies the voxels of padded coordinates `-1 ..= 9` (local) from the neighbours.
-    fn gather(nb: &[Option<&Chunk>; 27]) -> Box<Self> {
-        let mut b = Box::new(PaddedBlock {
-            tsdf: [0.0; PAD * PAD2],
-            observed: [false; PAD * PAD2],
-            color: [[0; 4]; PAD * PAD2],
-        });
+    fn new() -> Box<Self> {
+        Box::new(PaddedBlock { tsdf: [0; PAD * PAD2], flags: [0; PAD * PAD2], color: [[0; 4]; PAD * PAD2] })
+    }
+
+    /// Copies the voxels of padded coordinates `-1 ..= 9` (local) from the neighbours
+    /// (unallocated neighbours read as unobserved).
+    fn gather(&mut self, nb: &[Option<&Chunk>; 27]) {
+        let b = self;
         // Padded coordinate p holds local voxel p - 1 (-1 ..= 9): in chunk offset -1, 0 or 1.
         let split = |p: usize| -> (usize, usize) {
             let l = p as i32 - 1;
@@ -112,73 +120,133 @@ impl PaddedBlock {
                         1 => CHUNK_SIDE,
                         _ => PAD - px,
                     };
+                    let dst = px + PAD * py + PAD2 * pz;
                     if let Some(c) = nb[ox + 3 * oy + 9 * oz] {
                         let src = ix + CHUNK_SIDE * (iy + CHUNK_SIDE * iz);
-                        let dst = px + PAD * py + PAD2 * pz;
                         let v = &c.voxels;
+                        // Element loops, not `copy_from_slice`: runs are 1, 2 or 8 long and a
+                        // `memmove` call per run costs more than the copy.
                         for r in 0..run {
-                            b.tsdf[dst + r] = v.tsdf[src + r] as f32 * (1.0 / TSDF_SCALE);
-                            b.observed[dst + r] = v.weight[src + r] != 0;
+                            let t = v.tsdf[src + r];
+                            b.tsdf[dst + r] = t;
                             b.color[dst + r] = v.color[src + r];
+                            b.flags[dst + r] = (t < 0) as u8 | ((v.weight[src + r] != 0) as u8) << 1;
+                        }
+                    } else {
+                        for r in 0..run {
+                            b.flags[dst + r] = 0;
                         }
                     }
                     px += run;
                 }
             }
         }
-        b
     }
 
     /// Central-difference TSDF gradient at padded index `i` (one-sided where a neighbour is
     /// unobserved or outside the block).
     fn gradient(&self, i: usize, p: [usize; 3]) -> Vec3 {
         let strides = [1, PAD, PAD2];
+        let t = |j: usize| self.tsdf[j] as f32;
         let mut g = [0.0f32; 3];
         for a in 0..3 {
             let s = strides[a];
-            let lo = p[a] > 0 && self.observed[i - s];
-            let hi = p[a] + 1 < PAD && self.observed[i + s];
+            let lo = p[a] > 0 && self.flags[i - s] & OBSERVED != 0;
+            let hi = p[a] + 1 < PAD && self.flags[i + s] & OBSERVED != 0;
             g[a] = match (lo, hi) {
-                (true, true) => 0.5 * (self.tsdf[i + s] - self.tsdf[i - s]),
-                (false, true) => self.tsdf[i + s] - self.tsdf[i],
-                (true, false) => self.tsdf[i] - self.tsdf[i - s],
+                (true, true) => 0.5 * (t(i + s) - t(i - s)),
+                (false, true) => t(i + s) - t(i),
+                (true, false) => t(i) - t(i - s),
                 (false, false) => 0.0,
             };
         }
         Vec3::from(g)
     }
+
+    /// Distance at padded index `i` in truncation units.
+    #[inline]
+    fn tsdf(&self, i: usize) -> f32 {
+        self.tsdf[i] as f32 * (1.0 / TSDF_SCALE)
+    }
+}
+
+/// Buffers one worker reuses from chunk to chunk (allocating and clearing 20 KB per chunk
+/// cost as much as the marching itself).
+struct Scratch {
+    block: Box<PaddedBlock>,
+    /// Local cell-edge index -> vertex, `u32::MAX` when none; reset through `used`.
+    edge_vertex: Vec<u32>,
+    used: Vec<u32>,
+    /// Crossed cells of the current chunk: local cell index and case.
+    cells: Vec<(u16, u8)>,
+}
+
+impl Scratch {
+    fn new() -> Self {
+        Self { block: PaddedBlock::new(), edge_vertex: vec![u32::MAX; ES * ES * ES * 3], used: Vec::new(), cells: Vec::new() }
+    }
 }
 
 /// Marching cubes over the cells owned by chunk `key` (empty when it is not allocated).
 pub fn mesh_chunk(map: &TsdfMap, key: ChunkKey) -> ChunkMesh {
+    mesh_chunk_with(map, key, &mut Scratch::new())
+}
+
+fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> ChunkMesh {
     let mut mesh = ChunkMesh::default();
     let nb = neighbours(map, key);
     if nb[13].is_none() || !PaddedBlock::may_have_surface(&nb) {
         return mesh;
     }
-    let block = PaddedBlock::gather(&nb);
+    scratch.block.gather(&nb);
+    let block = &*scratch.block;
+    let edge_vertex = &mut scratch.edge_vertex;
+    let used = &mut scratch.used;
     let table = case_table();
     let vs = map.config().voxel_size;
     let key_voxel = key * CHUNK_SIDE as i32;
     let corner_offset: [usize; 8] =
         std::array::from_fn(|c| (c & 1) + PAD * ((c >> 1) & 1) + PAD2 * ((c >> 2) & 1));
-    let mut edge_vertex = vec![u32::MAX; ES * ES * ES * 3];
+    // Pass 1: the cells the surface crosses, and how many triangles they make, so that the
+    // mesh buffers are allocated once.
+    let cells = &mut scratch.cells;
+    cells.clear();
+    let mut triangle_count = 0;
     for z in 0..CHUNK_SIDE {
         for y in 0..CHUNK_SIDE {
             for x in 0..CHUNK_SIDE {
                 let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
                 let mut case = 0u8;
-                let mut all_observed = true;
-                let mut f = [0.0f32; 8];
+                let mut all_observed = OBSERVED;
                 for c in 0..8 {
-                    let i = base + corner_offset[c];
-                    all_observed &= block.observed[i];
-                    f[c] = block.tsdf[i];
-                    case |= ((f[c] < 0.0) as u8) << c;
+                    let fl = block.flags[base + corner_offset[c]];
+                    all_observed &= fl;
+                    case |= (fl & NEGATIVE) << c;
                 }
-                if case == 0 || case == 255 || !all_observed {
-                    continue;
+                if case != 0 && case != 255 && all_observed != 0 {
+                    cells.push(((x + CHUNK_SIDE * (y + CHUNK_SIDE * z)) as u16, case));
+                    triangle_count += table.triangles(case).len();
                 }
+            }
+        }
+    }
+    if cells.is_empty() {
+        return mesh;
+    }
+    mesh.triangles.reserve_exact(triangle_count);
+    // A closed surface has about half as many vertices as triangles.
+    let vertex_guess = triangle_count / 2 + 16;
+    mesh.positions.reserve(vertex_guess);
+    mesh.colors.reserve(vertex_guess);
+    mesh.normals.reserve(vertex_guess);
+    // Pass 2: the triangles.
+    for &(cell, case) in cells.iter() {
+        let cell = cell as usize;
+        let (x, y, z) = (cell % CHUNK_SIDE, (cell / CHUNK_SIDE) % CHUNK_SIDE, cell / (CHUNK_SIDE * CHUNK_SIDE));
+        {
+            {
+                let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
+                let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + corner_offset[c]));
                 let jump = EDGES.iter().any(|&(a, b)| {
                     let (fa, fb) = (f[a as usize], f[b as usize]);
                     (fa < 0.0) != (fb < 0.0) && (fa - fb).abs() > MAX_EDGE_JUMP
@@ -195,6 +263,7 @@ pub fn mesh_chunk(map: &TsdfMap, key: ChunkKey) -> ChunkMesh {
                         let ek = ((low[2] * ES + low[1]) * ES + low[0]) * 3 + axis;
                         if edge_vertex[ek] == u32::MAX {
                             edge_vertex[ek] = mesh.positions.len() as u32;
+                            used.push(ek as u32);
                             let (ia, ib) = (base + corner_offset[a as usize], base + corner_offset[b as usize]);
                             let (fa, fb) = (f[a as usize], f[b as usize]);
                             let s = fa / (fa - fb);
@@ -229,6 +298,10 @@ pub fn mesh_chunk(map: &TsdfMap, key: ChunkKey) -> ChunkMesh {
             }
         }
     }
+    for &ek in used.iter() {
+        edge_vertex[ek as usize] = u32::MAX;
+    }
+    used.clear();
     mesh
 }
 
@@ -286,9 +359,9 @@ impl IncrementalMesher {
         todo.dedup();
         let meshes: Vec<(ChunkKey, u64, ChunkMesh)> = todo
             .par_iter()
-            .map(|&k| {
+            .map_init(Scratch::new, |s, &k| {
                 let rev = map.chunk(k).map_or(0, |c| c.revision());
-                (k, rev, mesh_chunk(map, k))
+                (k, rev, mesh_chunk_with(map, k, s))
             })
             .collect();
         let remeshed = meshes.len();
@@ -324,7 +397,7 @@ impl IncrementalMesher {
 /// Meshes the whole map from scratch (parallel over chunks).
 pub fn extract_mesh(map: &TsdfMap) -> LabeledMesh {
     let keys = map.sorted_keys();
-    let meshes: Vec<ChunkMesh> = keys.par_iter().map(|&k| mesh_chunk(map, k)).collect();
+    let meshes: Vec<ChunkMesh> = keys.par_iter().map_init(Scratch::new, |s, &k| mesh_chunk_with(map, k, s)).collect();
     assemble(&meshes.iter().collect::<Vec<_>>())
 }
 
