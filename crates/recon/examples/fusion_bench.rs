@@ -31,14 +31,22 @@ struct Args {
 }
 
 fn parse_args() -> Result<Args, String> {
-    let mut a = Args { frames: 100, voxel: 0.005, seven_scenes: None, out: None, keyframe: 10 };
+    let mut a = Args {
+        frames: 100,
+        voxel: 0.005,
+        seven_scenes: None,
+        out: None,
+        keyframe: 10,
+    };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
         let mut value = || it.next().ok_or_else(|| format!("{flag} needs a value"));
         match flag.as_str() {
             "--frames" => a.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?,
             "--voxel" => a.voxel = value()?.parse().map_err(|e| format!("--voxel: {e}"))?,
-            "--keyframe" => a.keyframe = value()?.parse().map_err(|e| format!("--keyframe: {e}"))?,
+            "--keyframe" => {
+                a.keyframe = value()?.parse().map_err(|e| format!("--keyframe: {e}"))?
+            }
             "--7scenes" => a.seven_scenes = Some(PathBuf::from(value()?)),
             "--out" => a.out = Some(PathBuf::from(value()?)),
             other => return Err(format!("unknown argument {other}")),
@@ -55,28 +63,54 @@ fn read_7scenes(dir: &Path, index: usize) -> Result<(Frame, Affine3A), String> {
     let k = Intrinsics::new(640, 480, 585.0, 585.0, 320.0, 240.0).map_err(|e| e.to_string())?;
     let stem = dir.join(format!("frame-{index:06}"));
     let depth_path = stem.with_extension("depth.png");
-    let depth_img = image::open(&depth_path).map_err(|e| format!("{}: {e}", depth_path.display()))?.into_luma16();
+    let depth_img = image::open(&depth_path)
+        .map_err(|e| format!("{}: {e}", depth_path.display()))?
+        .into_luma16();
     if depth_img.dimensions() != (k.width, k.height) {
-        return Err(format!("{}: size {:?}, expected 640x480", depth_path.display(), depth_img.dimensions()));
+        return Err(format!(
+            "{}: size {:?}, expected 640x480",
+            depth_path.display(),
+            depth_img.dimensions()
+        ));
     }
-    let depth: Vec<f32> =
-        depth_img.as_raw().iter().map(|&mm| if mm == 0 || mm == u16::MAX { 0.0 } else { mm as f32 * 1e-3 }).collect();
+    let depth: Vec<f32> = depth_img
+        .as_raw()
+        .iter()
+        .map(|&mm| {
+            if mm == 0 || mm == u16::MAX {
+                0.0
+            } else {
+                mm as f32 * 1e-3
+            }
+        })
+        .collect();
     let color = ["color.png", "color.jpg"]
         .iter()
         .map(|ext| stem.with_extension(ext))
         .find(|p| p.exists())
         .and_then(|p| image::open(&p).ok())
-        .map(|img| img.resize_exact(k.width, k.height, image::imageops::FilterType::Triangle).into_rgb8())
+        .map(|img| {
+            img.resize_exact(k.width, k.height, image::imageops::FilterType::Triangle)
+                .into_rgb8()
+        })
         .map(|img| img.pixels().map(|p| p.0).collect())
         .unwrap_or_else(|| vec![[128, 128, 128]; k.pixel_count()]);
     let pose_path = stem.with_extension("pose.txt");
-    let text = std::fs::read_to_string(&pose_path).map_err(|e| format!("{}: {e}", pose_path.display()))?;
+    let text =
+        std::fs::read_to_string(&pose_path).map_err(|e| format!("{}: {e}", pose_path.display()))?;
     let values: Vec<f32> = text
         .split_whitespace()
-        .map(|t| t.parse::<f32>().map_err(|e| format!("{}: {e}", pose_path.display())))
+        .map(|t| {
+            t.parse::<f32>()
+                .map_err(|e| format!("{}: {e}", pose_path.display()))
+        })
         .collect::<Result<_, _>>()?;
     if values.len() != 16 {
-        return Err(format!("{}: {} numbers, expected 16", pose_path.display(), values.len()));
+        return Err(format!(
+            "{}: {} numbers, expected 16",
+            pose_path.display(),
+            values.len()
+        ));
     }
     // Row-major in the file; glam is column-major.
     let m = Mat4::from_cols_slice(&values).transpose();
@@ -109,7 +143,11 @@ fn write_ply(path: &Path, mesh: &LabeledMesh) -> std::io::Result<()> {
             mesh.triangle_count()
         )?;
         for i in 0..mesh.vertex_count() {
-            for v in mesh.positions[i].to_array().into_iter().chain(mesh.normals[i].to_array()) {
+            for v in mesh.positions[i]
+                .to_array()
+                .into_iter()
+                .chain(mesh.normals[i].to_array())
+            {
                 w.write_all(&v.to_le_bytes())?;
             }
             w.write_all(&mesh.colors[i])?;
@@ -129,11 +167,17 @@ fn write_ply(path: &Path, mesh: &LabeledMesh) -> std::io::Result<()> {
 /// The machine this runs on may be shared, so CPU time is the fair measure of work; on
 /// dedicated cores the wall time of a parallel stage approaches CPU time / threads.
 fn cpu_ns() -> u64 {
-    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else { return 0 };
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
+        return 0;
+    };
     tasks
         .filter_map(|t| t.ok())
         .filter_map(|t| std::fs::read_to_string(t.path().join("schedstat")).ok())
-        .filter_map(|s| s.split_whitespace().next().and_then(|v| v.parse::<u64>().ok()))
+        .filter_map(|s| {
+            s.split_whitespace()
+                .next()
+                .and_then(|v| v.parse::<u64>().ok())
+        })
         .sum()
 }
 
@@ -145,7 +189,10 @@ fn stats(label: &str, ms: &mut [f64]) {
     let mean = ms.iter().sum::<f64>() / ms.len() as f64;
     let median = ms[ms.len() / 2];
     let p95 = ms[(ms.len() * 95 / 100).min(ms.len() - 1)];
-    println!("{label:<28} mean {mean:7.2}  median {median:7.2}  p95 {p95:7.2}  max {:7.2} ms", ms[ms.len() - 1]);
+    println!(
+        "{label:<28} mean {mean:7.2}  median {median:7.2}  p95 {p95:7.2}  max {:7.2} ms",
+        ms[ms.len() - 1]
+    );
 }
 
 fn main() {
@@ -180,13 +227,19 @@ fn main() {
         }
         None => {
             let k = Intrinsics::new(640, 480, 525.0, 525.0, 319.5, 239.5).expect("constant camera");
-            scene::trajectory(args.frames).into_iter().enumerate().map(|(i, p)| (scene::render(k, p, i), p)).collect()
+            scene::trajectory(args.frames)
+                .into_iter()
+                .enumerate()
+                .map(|(i, p)| (scene::render(k, p, i), p))
+                .collect()
         }
     };
     println!(
         "{} frames ({}) loaded in {:.1} s; voxel {} mm, {} threads",
         frames.len(),
-        args.seven_scenes.as_ref().map_or("analytic scene".to_string(), |d| d.display().to_string()),
+        args.seven_scenes
+            .as_ref()
+            .map_or("analytic scene".to_string(), |d| d.display().to_string()),
         t_load.elapsed().as_secs_f64(),
         config.voxel_size * 1000.0,
         rayon::current_num_threads()
@@ -201,7 +254,7 @@ fn main() {
     let mut mesher = IncrementalMesher::new();
     let (mut sel_ms, mut int_ms, mut tot_ms, mut mesh_ms) = (vec![], vec![], vec![], vec![]);
     let (mut sel_cpu, mut int_cpu, mut mesh_cpu) = (vec![], vec![], vec![]);
-    let (mut visited, mut updated) = (0usize, 0usize);
+    let (mut visited, mut updated, mut remeshed) = (0usize, 0usize, 0usize);
     let t_all = Instant::now();
     for (i, (frame, pose)) in frames.iter().enumerate() {
         let c0 = cpu_ns();
@@ -232,7 +285,8 @@ fn main() {
         if (i + 1) % args.keyframe == 0 {
             let c = cpu_ns();
             let t = Instant::now();
-            mesher.update(&map);
+            let st = mesher.update(&map);
+            remeshed += st.remeshed_chunks;
             mesh_ms.push(t.elapsed().as_secs_f64() * 1e3);
             mesh_cpu.push((cpu_ns() - c) as f64 * 1e-6);
         }
@@ -250,11 +304,21 @@ fn main() {
     stats("chunk selection", &mut sel_ms);
     stats("integration", &mut int_ms);
     stats("fusion (selection+integr.)", &mut tot_ms);
-    stats(&format!("incremental mesh / {} fr", args.keyframe), &mut mesh_ms);
+    stats(
+        &format!("incremental mesh / {} fr", args.keyframe),
+        &mut mesh_ms,
+    );
+    println!(
+        "re-meshed {:.0} chunks per keyframe",
+        remeshed as f64 / mesh_ms.len().max(1) as f64
+    );
     println!("CPU time (all threads):");
     stats("chunk selection", &mut sel_cpu);
     stats("integration", &mut int_cpu);
-    stats(&format!("incremental mesh / {} fr", args.keyframe), &mut mesh_cpu);
+    stats(
+        &format!("incremental mesh / {} fr", args.keyframe),
+        &mut mesh_cpu,
+    );
     let c = cpu_ns();
     let t = Instant::now();
     let full = semrecon_recon::extract_mesh(&map);
@@ -268,7 +332,11 @@ fn main() {
         full.triangle_count(),
         full.vertex_count()
     );
-    println!("whole run {:.2} s ({:.1} ms/frame with meshing)", wall, wall * 1e3 / n as f64);
+    println!(
+        "whole run {:.2} s ({:.1} ms/frame with meshing)",
+        wall,
+        wall * 1e3 / n as f64
+    );
     if let Some(out) = &args.out {
         match write_ply(out, &assembled) {
             Ok(()) => println!("mesh written to {}", out.display()),

@@ -66,7 +66,10 @@ impl Default for TsdfConfig {
 impl TsdfConfig {
     /// The default configuration at another voxel size.
     pub fn with_voxel_size(voxel_size: f32) -> Result<Self> {
-        let c = Self { voxel_size, ..Self::default() };
+        let c = Self {
+            voxel_size,
+            ..Self::default()
+        };
         c.validate()?;
         Ok(c)
     }
@@ -75,19 +78,35 @@ impl TsdfConfig {
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(ReconError::InvalidConfig(m));
         if !(0.002..=0.05).contains(&self.voxel_size) {
-            return bad(format!("voxel size {} m is outside 0.002..0.05 m", self.voxel_size));
+            return bad(format!(
+                "voxel size {} m is outside 0.002..0.05 m",
+                self.voxel_size
+            ));
         }
         if !(1.0..=64.0).contains(&self.truncation_voxels) {
-            return bad(format!("truncation {} voxels is outside 1..64", self.truncation_voxels));
+            return bad(format!(
+                "truncation {} voxels is outside 1..64",
+                self.truncation_voxels
+            ));
         }
         if !(1.0 / WEIGHT_SCALE..=255.0).contains(&self.max_weight) {
-            return bad(format!("weight cap {} is outside 1/256..255", self.max_weight));
+            return bad(format!(
+                "weight cap {} is outside 1/256..255",
+                self.max_weight
+            ));
         }
-        if !(self.min_depth >= 0.0 && self.min_depth < self.max_depth && self.max_depth.is_finite()) {
-            return bad(format!("depth range {}..{} m is empty or not finite", self.min_depth, self.max_depth));
+        if !(self.min_depth >= 0.0 && self.min_depth < self.max_depth && self.max_depth.is_finite())
+        {
+            return bad(format!(
+                "depth range {}..{} m is empty or not finite",
+                self.min_depth, self.max_depth
+            ));
         }
         if !(1..=64).contains(&self.selection_stride) {
-            return bad(format!("selection stride {} is outside 1..64", self.selection_stride));
+            return bad(format!(
+                "selection stride {} is outside 1..64",
+                self.selection_stride
+            ));
         }
         Ok(())
     }
@@ -162,17 +181,36 @@ impl Voxel {
         let a = w_old * inv;
         let b = weight * inv;
         let t = self.tsdf as f32 * a + tsdf * (b * TSDF_SCALE);
-        self.tsdf = t.round_ties_even() as i16;
+        self.tsdf = round_half_away(t) as i16;
         if let Some(color) = color {
-            let mut c = [self.color[0], self.color[1], self.color[2], self.color_count];
+            let mut c = [
+                self.color[0],
+                self.color[1],
+                self.color[2],
+                self.color_count,
+            ];
             blend_color(&mut c, color);
             self.color = [c[0], c[1], c[2]];
             self.color_count = c[3];
         }
         // At least one unit so that an observed voxel never reads as unobserved.
-        let w_new = (w_sum * WEIGHT_SCALE).round_ties_even().max(1.0);
+        let w_new = round_half_away(w_sum * WEIGHT_SCALE).max(1.0);
         self.weight = w_new.min(weight_cap as f32) as u16;
     }
+}
+
+/// Rounds half away from zero exactly as `wide`'s SIMD `round` does (`trunc(|x| + 0.5)`
+/// with the sign restored; the largest float below 0.5 rounds to 0), so that the scalar and
+/// the SIMD fusion agree bit for bit. Inputs here are below 2^23 in magnitude.
+#[inline]
+pub(crate) fn round_half_away(x: f32) -> f32 {
+    let a = x.abs();
+    let r = if a == 0.5f32.next_down() {
+        0.0
+    } else {
+        (a + 0.5).trunc()
+    };
+    r.copysign(x)
 }
 
 /// Folds colour observation `obs` into `c = [r, g, b, count]`: a plain running mean over the
@@ -193,7 +231,7 @@ const RECIPROCALS: [u32; 256] = {
     let mut t = [0u32; 256];
     let mut n = 0;
     while n < 256 {
-        t[n] = ((1u32 << 16) + (n as u32 + 1) / 2) / (n as u32 + 1);
+        t[n] = ((1u32 << 16) + (n as u32).div_ceil(2)) / (n as u32 + 1);
         n += 1;
     }
     t
@@ -260,13 +298,22 @@ impl VoxelBlock {
     }
 
     fn empty() -> Box<Self> {
-        Box::new(Self { tsdf: [0; CHUNK_VOXELS], weight: [0; CHUNK_VOXELS], color: [[0; 4]; CHUNK_VOXELS] })
+        Box::new(Self {
+            tsdf: [0; CHUNK_VOXELS],
+            weight: [0; CHUNK_VOXELS],
+            color: [[0; 4]; CHUNK_VOXELS],
+        })
     }
 
     #[inline]
     pub(crate) fn get(&self, i: usize) -> Voxel {
         let c = self.color[i];
-        Voxel { tsdf: self.tsdf[i], weight: self.weight[i], color: [c[0], c[1], c[2]], color_count: c[3] }
+        Voxel {
+            tsdf: self.tsdf[i],
+            weight: self.weight[i],
+            color: [c[0], c[1], c[2]],
+            color_count: c[3],
+        }
     }
 
     #[cfg_attr(not(test), allow(dead_code))]
@@ -390,7 +437,12 @@ impl TsdfMap {
     /// An empty map; fails on an invalid configuration.
     pub fn new(config: TsdfConfig) -> Result<Self> {
         config.validate()?;
-        Ok(Self { config, index: HashMap::default(), chunks: Vec::new(), next_revision: 1 })
+        Ok(Self {
+            config,
+            index: HashMap::default(),
+            chunks: Vec::new(),
+            next_revision: 1,
+        })
     }
 
     /// The configuration.
@@ -417,7 +469,11 @@ impl TsdfMap {
         let voxels = self.chunks.len() * std::mem::size_of::<VoxelBlock>();
         let records = self.chunks.capacity() * std::mem::size_of::<Chunk>();
         let table = self.index.capacity() * (std::mem::size_of::<(ChunkKey, u32)>() + 1);
-        let runs: usize = self.chunks.iter().map(|c| c.frames.runs.capacity() * 8).sum();
+        let runs: usize = self
+            .chunks
+            .iter()
+            .map(|c| c.frames.runs.capacity() * 8)
+            .sum();
         voxels + records + table + runs
     }
 
@@ -476,8 +532,12 @@ impl TsdfMap {
 
     /// Keys of the chunks that frame `frame` changed (sorted).
     pub fn chunks_touched_by(&self, frame: u32) -> Vec<ChunkKey> {
-        let mut keys: Vec<ChunkKey> =
-            self.chunks.iter().filter(|c| c.frames.contains(frame)).map(|c| c.key).collect();
+        let mut keys: Vec<ChunkKey> = self
+            .chunks
+            .iter()
+            .filter(|c| c.frames.contains(frame))
+            .map(|c| c.key)
+            .collect();
         keys.sort_unstable_by_key(|k| key_order(*k));
         keys
     }
@@ -512,7 +572,11 @@ impl TsdfMap {
 #[inline]
 pub fn split_voxel(v: IVec3) -> (ChunkKey, usize) {
     let side = CHUNK_SIDE as i32;
-    let key = IVec3::new(v.x.div_euclid(side), v.y.div_euclid(side), v.z.div_euclid(side));
+    let key = IVec3::new(
+        v.x.div_euclid(side),
+        v.y.div_euclid(side),
+        v.z.div_euclid(side),
+    );
     let l = v - key * side;
     (key, (l.x + side * (l.y + side * l.z)) as usize)
 }
@@ -536,8 +600,14 @@ mod tests {
 
     #[test]
     fn split_voxel_handles_negative_coordinates() {
-        assert_eq!(split_voxel(IVec3::new(-1, 0, 9)), (IVec3::new(-1, 0, 1), 7 + 64));
-        assert_eq!(split_voxel(IVec3::new(-8, -9, 7)), (IVec3::new(-1, -2, 0), 7 * 8 + 7 * 64));
+        assert_eq!(
+            split_voxel(IVec3::new(-1, 0, 9)),
+            (IVec3::new(-1, 0, 1), 7 + 64)
+        );
+        assert_eq!(
+            split_voxel(IVec3::new(-8, -9, 7)),
+            (IVec3::new(-1, -2, 0), 7 * 8 + 7 * 64)
+        );
     }
 
     #[test]
@@ -582,7 +652,10 @@ mod tests {
     fn config_ranges_are_checked() {
         assert!(TsdfConfig::with_voxel_size(0.001).is_err());
         assert!(TsdfConfig::with_voxel_size(0.02).is_ok());
-        let c = TsdfConfig { max_depth: f32::NAN, ..TsdfConfig::default() };
+        let c = TsdfConfig {
+            max_depth: f32::NAN,
+            ..TsdfConfig::default()
+        };
         assert!(c.validate().is_err());
     }
 }
