@@ -20,7 +20,7 @@ use std::collections::HashSet;
 use glam::{Affine3A, Vec3A};
 use rayon::prelude::*;
 use semrecon_data::{Frame, Intrinsics};
-use wide::f32x8;
+use wide::{f32x8, i16x8, i32x8, u16x8};
 
 use crate::error::{ReconError, Result};
 use crate::map::{
@@ -94,32 +94,45 @@ impl TsdfMap {
         // Samples along the band no further apart than two voxels, so that the walk cannot
         // step over a chunk (8 voxels) except at a corner clipped by less than a voxel.
         let steps = ((2.0 * trunc) / (2.0 * c.voxel_size)).ceil().max(1.0) as usize;
+        // Work in chunk units shifted so that chunk k spans [k, k + 1): voxel centres sit
+        // at multiples of the voxel size, so a chunk spans voxels [8k - 0.5, 8k + 7.5).
+        // `OFFSET` keeps coordinates positive so that truncation is floor (one instruction,
+        // where `floor` is a library call without SSE4.1). 2^14 chunks (655 m at 5 mm voxels)
+        // either side of the origin, at 1/64 voxel precision; points beyond are not selected.
+        const OFFSET: f32 = (1 << 14) as f32;
         let inv_chunk = 1.0 / c.chunk_size();
-        let half = 0.5 * c.voxel_size;
+        let rot = world_from_camera.matrix3 * inv_chunk;
+        let origin = (world_from_camera.translation + Vec3A::splat(0.5 * c.voxel_size)) * inv_chunk
+            + Vec3A::splat(OFFSET);
+        let offset = ChunkKey::splat(OFFSET as i32);
+        let z_step = 2.0 * trunc / steps as f32;
         let rows: Vec<usize> = (0..h).step_by(stride).collect();
-        let pose = world_from_camera;
         let (min_d, max_d) = (c.min_depth, c.max_depth);
         let depth = &frame.depth;
         let block_sets: Vec<Vec<ChunkKey>> = rows
-            .par_chunks(8)
+            .par_chunks(16)
             .map(|rows| {
                 let mut set: HashSet<ChunkKey, ChunkHashBuilder> = HashSet::default();
                 let mut last = vec![ChunkKey::MAX; steps + 1];
                 for &v in rows {
+                    // Ray (camera z = 1) in chunk units: x part per pixel, y part per row.
+                    let row_ray = rot.y_axis * ((v as f32 - k.cy) / k.fy) + rot.z_axis;
                     for u in (0..w).step_by(stride) {
                         let d = depth[v * w + u];
                         if !(d >= min_d && d <= max_d) {
                             continue;
                         }
-                        let ray = Vec3A::from(k.unproject(u as f32, v as f32, 1.0));
-                        let p_near = pose.transform_point3a(ray * (d - trunc));
-                        let p_far = pose.transform_point3a(ray * (d + trunc));
-                        let step = (p_far - p_near) / steps as f32;
+                        let ray = rot.x_axis * ((u as f32 - k.cx) / k.fx) + row_ray;
+                        let p_near = origin + ray * (d - trunc);
+                        let step = ray * z_step;
                         for (s, last) in last.iter_mut().enumerate() {
                             let p = p_near + step * s as f32;
-                            // Voxel centres sit at multiples of the voxel size, so a chunk
-                            // spans [8k - 0.5, 8k + 7.5) voxels.
-                            let key = ((p + half) * inv_chunk).floor().as_ivec3();
+                            if p.cmplt(Vec3A::ZERO).any()
+                                || p.cmpge(Vec3A::splat(2.0 * OFFSET)).any()
+                            {
+                                continue;
+                            }
+                            let key = p.as_ivec3() - offset;
                             if key != *last {
                                 *last = key;
                                 set.insert(key);
@@ -318,9 +331,9 @@ fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
         let valid_bits = valid.to_bitmask();
         let tsdf_row = &mut tsdf_rows[r];
         let weight_row = &mut weight_rows[r];
-        let t_old = f32x8::new(tsdf_row.map(|t| t as f32));
-        let w_old_q = f32x8::new(weight_row.map(|w| w as f32));
-        if valid_bits != 0 {
+        let t_old = i32x8::from_i16x8(i16x8::new(*tsdf_row)).round_float();
+        let w_old_q = i32x8::from_u16x8(u16x8::new(*weight_row)).round_float();
+        let (t_now, w_now) = if valid_bits != 0 {
             let obs = (sdf * inv_trunc).fast_min(one);
             let w_obs = valid.select((one / (d * d)).fast_min(splat(4.0)), zero);
             let w_old = w_old_q * splat(1.0 / WEIGHT_SCALE);
@@ -329,16 +342,17 @@ fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
             let a = w_old * inv;
             let b = w_obs * inv;
             let t = t_old * a + obs * (b * splat(TSDF_SCALE));
-            let t_new = valid.select(t.round(), t_old).fast_trunc_int().to_array();
+            let t_new = valid.select(t.round(), t_old);
             let w_q = (w_sum * splat(WEIGHT_SCALE))
                 .round()
                 .fast_max(one)
                 .fast_min(cap);
-            let w_new = valid.select(w_q, w_old_q).fast_trunc_int().to_array();
-            for x in 0..N {
-                tsdf_row[x] = t_new[x] as i16;
-                weight_row[x] = w_new[x] as u16;
-            }
+            let w_new = valid.select(w_q, w_old_q);
+            // Values are integral and in range: the conversions are exact.
+            *tsdf_row = i16x8::from_i32x8_truncate(t_new.fast_trunc_int()).to_array();
+            *weight_row = i16x8::from_i32x8_truncate(w_new.fast_trunc_int())
+                .to_array()
+                .map(|w| w as u16);
             updated += valid_bits.count_ones();
             let near_bits = (valid & sdf.simd_lt(trunc)).to_bitmask();
             if near_bits != 0 {
@@ -352,14 +366,15 @@ fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
                     }
                 }
             }
-        }
-        for x in 0..N {
-            let observed = (weight_row[x] != 0) as u32;
-            neg_any |= observed & (tsdf_row[x] < 0) as u32;
-            pos_any |= observed & (tsdf_row[x] >= 0) as u32;
-        }
+            (t_new, w_new)
+        } else {
+            (t_old, w_old_q)
+        };
+        let observed = w_now.simd_gt(zero);
+        neg_any |= (observed & t_now.simd_lt(zero)).to_bitmask();
+        pos_any |= (observed & t_now.simd_ge(zero)).to_bitmask();
     }
-    chunk.signs = neg_any as u8 | (pos_any as u8) << 1;
+    chunk.signs = (neg_any != 0) as u8 | ((pos_any != 0) as u8) << 1;
     ChunkOutcome {
         updated,
         near: near_any,
