@@ -13,12 +13,14 @@
 
 #[path = "../tests/common/scene.rs"]
 mod scene;
+#[path = "../tests/common/seven_scenes.rs"]
+mod seven_scenes;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use glam::{Affine3A, Mat4};
+use glam::Affine3A;
 use semrecon_data::{Frame, Intrinsics, LabeledMesh};
 use semrecon_recon::{IncrementalMesher, TsdfConfig, TsdfMap};
 
@@ -56,75 +58,6 @@ fn parse_args() -> Result<Args, String> {
         return Err("--keyframe must be at least 1".into());
     }
     Ok(a)
-}
-
-/// One 7-Scenes frame with its reference pose.
-fn read_7scenes(dir: &Path, index: usize) -> Result<(Frame, Affine3A), String> {
-    let k = Intrinsics::new(640, 480, 585.0, 585.0, 320.0, 240.0).map_err(|e| e.to_string())?;
-    let stem = dir.join(format!("frame-{index:06}"));
-    let depth_path = stem.with_extension("depth.png");
-    let depth_img = image::open(&depth_path)
-        .map_err(|e| format!("{}: {e}", depth_path.display()))?
-        .into_luma16();
-    if depth_img.dimensions() != (k.width, k.height) {
-        return Err(format!(
-            "{}: size {:?}, expected 640x480",
-            depth_path.display(),
-            depth_img.dimensions()
-        ));
-    }
-    let depth: Vec<f32> = depth_img
-        .as_raw()
-        .iter()
-        .map(|&mm| {
-            if mm == 0 || mm == u16::MAX {
-                0.0
-            } else {
-                mm as f32 * 1e-3
-            }
-        })
-        .collect();
-    let color = ["color.png", "color.jpg"]
-        .iter()
-        .map(|ext| stem.with_extension(ext))
-        .find(|p| p.exists())
-        .and_then(|p| image::open(&p).ok())
-        .map(|img| {
-            img.resize_exact(k.width, k.height, image::imageops::FilterType::Triangle)
-                .into_rgb8()
-        })
-        .map(|img| img.pixels().map(|p| p.0).collect())
-        .unwrap_or_else(|| vec![[128, 128, 128]; k.pixel_count()]);
-    let pose_path = stem.with_extension("pose.txt");
-    let text =
-        std::fs::read_to_string(&pose_path).map_err(|e| format!("{}: {e}", pose_path.display()))?;
-    let values: Vec<f32> = text
-        .split_whitespace()
-        .map(|t| {
-            t.parse::<f32>()
-                .map_err(|e| format!("{}: {e}", pose_path.display()))
-        })
-        .collect::<Result<_, _>>()?;
-    if values.len() != 16 {
-        return Err(format!(
-            "{}: {} numbers, expected 16",
-            pose_path.display(),
-            values.len()
-        ));
-    }
-    // Row-major in the file; glam is column-major.
-    let m = Mat4::from_cols_slice(&values).transpose();
-    let pose = Affine3A::from_mat4(m);
-    let frame = Frame {
-        index,
-        timestamp: index as f64 / 30.0,
-        depth,
-        color,
-        intrinsics: k,
-        world_from_camera: Some(pose),
-        labels: None,
-    };
-    Ok((frame, pose))
 }
 
 /// Binary little-endian PLY with positions, normals, colours and triangles, written to a
@@ -215,7 +148,7 @@ fn main() {
         Some(dir) => {
             let mut v = Vec::new();
             for i in 0..args.frames {
-                match read_7scenes(dir, i) {
+                match seven_scenes::read_frame(dir, i) {
                     Ok(f) => v.push(f),
                     Err(e) => {
                         eprintln!("fusion_bench: {e}");

@@ -318,3 +318,37 @@ fn incremental_meshing_equals_full_meshing() {
     assert!(!map.chunks_touched_by(10).is_empty());
     assert!(map.chunks_touched_by(99).is_empty());
 }
+
+#[path = "common/seven_scenes.rs"]
+mod seven_scenes;
+
+#[test]
+fn real_kinect_frames_fuse_into_a_plausible_mesh() {
+    let Some(dir) = seven_scenes::redkitchen() else {
+        println!("skipping: ../shared/data not found");
+        return;
+    };
+    let config = TsdfConfig {
+        voxel_size: 0.01,
+        ..TsdfConfig::default()
+    };
+    let mut map = TsdfMap::new(config).expect("valid");
+    let mut mesher = IncrementalMesher::new();
+    for i in 0..5 {
+        let (frame, pose) = seven_scenes::read_frame(&dir, i * 5).expect("7-Scenes frame");
+        let stats = map.integrate(&frame, pose).expect("fusion");
+        assert!(stats.updated_voxels > 100_000, "frame {i}: {stats:?}");
+    }
+    mesher.update(&map);
+    let mesh = mesher.mesh();
+    mesh.validate().expect("valid mesh");
+    assert!(
+        mesh.triangle_count() > 50_000,
+        "{} triangles",
+        mesh.triangle_count()
+    );
+    // The kitchen is a few metres across; the Kinect sees at most about 4 m.
+    let (lo, hi) = mesh.bounds().expect("non-empty");
+    assert!((hi - lo).max_element() < 8.0, "bounds {lo} .. {hi}");
+    assert_eq!(mesh, extract_mesh(&map));
+}
