@@ -187,7 +187,7 @@ fn main() {
     let mut mesher = IncrementalMesher::new();
     let (mut sel_ms, mut int_ms, mut tot_ms, mut mesh_ms) = (vec![], vec![], vec![], vec![]);
     let (mut sel_cpu, mut int_cpu, mut mesh_cpu) = (vec![], vec![], vec![]);
-    let (mut visited, mut updated, mut remeshed) = (0usize, 0usize, 0usize);
+    let (mut visited, mut updated, mut remeshed, mut changed) = (0usize, 0usize, 0usize, 0usize);
     let t_all = Instant::now();
     for (i, (frame, pose)) in frames.iter().enumerate() {
         let c0 = cpu_ns();
@@ -220,6 +220,7 @@ fn main() {
             let t = Instant::now();
             let st = mesher.update(&map);
             remeshed += st.remeshed_chunks;
+            changed += st.changed_chunks;
             mesh_ms.push(t.elapsed().as_secs_f64() * 1e3);
             mesh_cpu.push((cpu_ns() - c) as f64 * 1e-6);
         }
@@ -241,9 +242,11 @@ fn main() {
         &format!("incremental mesh / {} fr", args.keyframe),
         &mut mesh_ms,
     );
+    let keyframes = mesh_ms.len().max(1) as f64;
     println!(
-        "re-meshed {:.0} chunks per keyframe",
-        remeshed as f64 / mesh_ms.len().max(1) as f64
+        "per keyframe: {:.0} chunks changed, {:.0} re-meshed (with neighbours)",
+        changed as f64 / keyframes,
+        remeshed as f64 / keyframes
     );
     println!("CPU time (all threads):");
     stats("chunk selection", &mut sel_cpu);

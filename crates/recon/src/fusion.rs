@@ -24,8 +24,8 @@ use wide::{f32x8, i16x8, i32x8, u16x8};
 
 use crate::error::{ReconError, Result};
 use crate::map::{
-    blend_color, key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE, TSDF_SCALE,
-    WEIGHT_SCALE,
+    blend_color, key_order, Chunk, ChunkHashBuilder, ChunkKey, SignSummary, TsdfMap, CHUNK_SIDE,
+    TSDF_SCALE, WEIGHT_SCALE,
 };
 
 /// Weight of one depth observation: `1 / z²` (z in metres) capped at 4.
@@ -310,7 +310,7 @@ fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
     let (color_rows, _) = block.color.as_chunks_mut::<N>();
     let mut updated = 0u32;
     let mut near_any = false;
-    let (mut neg_any, mut pos_any) = (0u32, 0u32);
+    let mut signs = SignSummary::default();
     for r in 0..N * N {
         let (y, z) = ((r % N) as f32, (r / N) as f32);
         let row = base + dy * y + dz * z;
@@ -371,10 +371,13 @@ fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
             (t_old, w_old_q)
         };
         let observed = w_now.simd_gt(zero);
-        neg_any |= (observed & t_now.simd_lt(zero)).to_bitmask();
-        pos_any |= (observed & t_now.simd_ge(zero)).to_bitmask();
+        signs.add_row(
+            r,
+            (observed & t_now.simd_lt(zero)).to_bitmask(),
+            (observed & t_now.simd_ge(zero)).to_bitmask(),
+        );
     }
-    chunk.signs = (neg_any != 0) as u8 | ((pos_any != 0) as u8) << 1;
+    chunk.signs = signs.bits();
     ChunkOutcome {
         updated,
         near: near_any,

@@ -213,6 +213,43 @@ pub(crate) fn round_half_away(x: f32) -> f32 {
     r.copysign(x)
 }
 
+/// Which signs a chunk's observed voxels have, in the whole chunk and on its three lower
+/// faces (local x = 0, y = 0, z = 0): meshing reads a neighbour only through the lower face
+/// that touches the chunk being meshed, so these bits let it skip chunks whose cells cannot
+/// hold a surface without gathering any voxel.
+///
+/// Bits: 0 negative / 1 non-negative anywhere; 2/3 on the x = 0 face; 4/5 on y = 0; 6/7 on
+/// z = 0.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct SignSummary {
+    neg: u32,
+    pos: u32,
+    bits: u8,
+}
+
+impl SignSummary {
+    /// Adds row `r` (`y = r % 8`, `z = r / 8`) with per-x bit masks of negative and
+    /// non-negative observed voxels.
+    #[inline]
+    pub(crate) fn add_row(&mut self, r: usize, neg: u32, pos: u32) {
+        self.neg |= neg;
+        self.pos |= pos;
+        let pair = |n: bool, p: bool| n as u8 | (p as u8) << 1;
+        self.bits |= pair(neg & 1 != 0, pos & 1 != 0) << 2;
+        if r % CHUNK_SIDE == 0 {
+            self.bits |= pair(neg != 0, pos != 0) << 4;
+        }
+        if r / CHUNK_SIDE == 0 {
+            self.bits |= pair(neg != 0, pos != 0) << 6;
+        }
+    }
+
+    /// The summary byte.
+    pub(crate) fn bits(&self) -> u8 {
+        self.bits | (self.neg != 0) as u8 | ((self.pos != 0) as u8) << 1
+    }
+}
+
 /// Folds colour observation `obs` into `c = [r, g, b, count]`: a plain running mean over the
 /// first 255 observations, then an exponential one.
 /// Fixed point with reciprocals from a table: no division and no float conversion.
@@ -288,13 +325,18 @@ impl VoxelBlock {
     /// The sign summary stored in [`Chunk`]`::signs` (fusion computes it on the fly).
     #[cfg_attr(not(test), allow(dead_code))]
     pub(crate) fn signs(&self) -> u8 {
-        let (mut neg, mut pos) = (false, false);
-        for i in 0..CHUNK_VOXELS {
-            let observed = self.weight[i] != 0;
-            neg |= observed & (self.tsdf[i] < 0);
-            pos |= observed & (self.tsdf[i] >= 0);
+        let mut signs = SignSummary::default();
+        for r in 0..CHUNK_SIDE * CHUNK_SIDE {
+            let (mut neg, mut pos) = (0u32, 0u32);
+            for x in 0..CHUNK_SIDE {
+                let i = r * CHUNK_SIDE + x;
+                let observed = (self.weight[i] != 0) as u32;
+                neg |= (observed & (self.tsdf[i] < 0) as u32) << x;
+                pos |= (observed & (self.tsdf[i] >= 0) as u32) << x;
+            }
+            signs.add_row(r, neg, pos);
         }
-        neg as u8 | (pos as u8) << 1
+        signs.bits()
     }
 
     fn empty() -> Box<Self> {
@@ -332,8 +374,8 @@ pub struct Chunk {
     pub(crate) dirty: bool,
     pub(crate) revision: u64,
     pub(crate) frames: FrameRuns,
-    /// Bit 0: some observed voxel is negative; bit 1: some observed voxel is non-negative.
-    /// Meshing skips a chunk whose neighbourhood lacks one of the two signs.
+    /// Signs of the observed voxels, see [`SignSummary`]; meshing skips a chunk whose cells
+    /// cannot see both signs.
     pub(crate) signs: u8,
 }
 

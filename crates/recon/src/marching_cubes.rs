@@ -79,13 +79,27 @@ fn neighbours(map: &TsdfMap, key: ChunkKey) -> [Option<&Chunk>; 27] {
 impl PaddedBlock {
     /// Whether the cells owned by the chunk (corners in it and its 7 upper neighbours) can
     /// hold a surface: they need an observed negative and an observed non-negative voxel.
+    ///
+    /// An upper neighbour offset along x (alone or with other axes) contributes only voxels of
+    /// its x = 0 face, so its face bits suffice (a superset for edge and corner neighbours).
     fn may_have_surface(nb: &[Option<&Chunk>; 27]) -> bool {
-        let mut signs = 0u8;
+        let Some(own) = nb[13] else { return false };
+        let mut signs = own.signs & 3;
         for dz in 1..3 {
             for dy in 1..3 {
                 for dx in 1..3 {
+                    if (dx, dy, dz) == (1, 1, 1) {
+                        continue;
+                    }
                     if let Some(c) = nb[dx + 3 * dy + 9 * dz] {
-                        signs |= c.signs;
+                        let face = if dx == 2 {
+                            2
+                        } else if dy == 2 {
+                            4
+                        } else {
+                            6
+                        };
+                        signs |= (c.signs >> face) & 3;
                     }
                 }
             }
@@ -205,7 +219,7 @@ pub fn mesh_chunk(map: &TsdfMap, key: ChunkKey) -> ChunkMesh {
 fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> ChunkMesh {
     let mut mesh = ChunkMesh::default();
     let nb = neighbours(map, key);
-    if nb[13].is_none() || !PaddedBlock::may_have_surface(&nb) {
+    if !PaddedBlock::may_have_surface(&nb) {
         return mesh;
     }
     scratch.block.gather(&nb);
