@@ -236,7 +236,7 @@ impl SignSummary {
         self.pos |= pos;
         let pair = |n: bool, p: bool| n as u8 | (p as u8) << 1;
         self.bits |= pair(neg & 1 != 0, pos & 1 != 0) << 2;
-        if r % CHUNK_SIDE == 0 {
+        if r.is_multiple_of(CHUNK_SIDE) {
             self.bits |= pair(neg != 0, pos != 0) << 4;
         }
         if r / CHUNK_SIDE == 0 {
