@@ -8,7 +8,12 @@
 //!
 //! Conventions follow `semrecon_data`: metres, world frame z up, camera x right / y down /
 //! z forward, poses as `world_from_camera`. Everything is deterministic: the same inputs give
-//! the same bits for any rayon thread count.
+//! the same bits for any rayon thread count (on one build: enabling FMA/AVX with
+//! `target-cpu` may change the last bits).
+//!
+//! Memory: a chunk costs [`TsdfMap::bytes_per_chunk`] bytes (4096 for its 512 voxels of 8
+//! bytes, the rest for its record and hash entry), plus 8 bytes per run of consecutive frames
+//! that touched it. Revisiting a surface adds no chunks.
 #![warn(missing_docs)]
 
 mod cube_cases;

@@ -352,3 +352,36 @@ fn real_kinect_frames_fuse_into_a_plausible_mesh() {
     assert!((hi - lo).max_element() < 8.0, "bounds {lo} .. {hi}");
     assert_eq!(mesh, extract_mesh(&map));
 }
+
+#[test]
+fn memory_follows_the_surface_not_the_frame_count() {
+    let k = small_camera();
+    let config = TsdfConfig {
+        voxel_size: 0.02,
+        ..TsdfConfig::default()
+    };
+    let mut map = TsdfMap::new(config).expect("valid");
+    let poses = scene::trajectory(4);
+    let frames: Vec<_> = poses
+        .iter()
+        .enumerate()
+        .map(|(i, &p)| scene::render(k, p, i))
+        .collect();
+    for (f, &p) in frames.iter().zip(&poses) {
+        map.integrate(f, p).expect("fusion");
+    }
+    let (chunks, bytes) = (map.chunk_count(), map.memory_bytes());
+    // Revisit the same views 20 more times (frame indices keep growing).
+    for round in 1..=20 {
+        for (i, (f, &p)) in frames.iter().zip(&poses).enumerate() {
+            let mut f = f.clone();
+            f.index = round * 4 + i;
+            map.integrate(&f, p).expect("fusion");
+        }
+    }
+    assert_eq!(map.chunk_count(), chunks);
+    // Only the frame records grow: one 8-byte run per chunk and separate visit.
+    let growth = map.memory_bytes() - bytes;
+    println!("{chunks} chunks, {bytes} bytes, +{growth} bytes after 80 more frames");
+    assert!(growth * 20 < bytes, "{growth} bytes of growth on {bytes}");
+}
