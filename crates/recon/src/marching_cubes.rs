@@ -198,6 +198,11 @@ struct Scratch {
     used: Vec<u32>,
     /// Crossed cells of the current chunk: local cell index and case.
     cells: Vec<(u16, u8)>,
+    /// Gradient per padded voxel, valid where `grad_stamp` equals `stamp` (a voxel serves
+    /// up to six vertices; stamps avoid clearing the cache per chunk).
+    grad: Vec<Vec3>,
+    grad_stamp: Vec<u32>,
+    stamp: u32,
 }
 
 impl Scratch {
@@ -207,6 +212,9 @@ impl Scratch {
             edge_vertex: vec![u32::MAX; ES * ES * ES * 3],
             used: Vec::new(),
             cells: Vec::new(),
+            grad: vec![Vec3::ZERO; PAD * PAD2],
+            grad_stamp: vec![0; PAD * PAD2],
+            stamp: 0,
         }
     }
 }
@@ -226,6 +234,20 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
     let block = &*scratch.block;
     let edge_vertex = &mut scratch.edge_vertex;
     let used = &mut scratch.used;
+    scratch.stamp = scratch.stamp.wrapping_add(1);
+    if scratch.stamp == 0 {
+        scratch.grad_stamp.fill(0);
+        scratch.stamp = 1;
+    }
+    let stamp = scratch.stamp;
+    let (grad, grad_stamp) = (&mut scratch.grad, &mut scratch.grad_stamp);
+    let mut gradient = |i: usize, p: [usize; 3]| {
+        if grad_stamp[i] != stamp {
+            grad_stamp[i] = stamp;
+            grad[i] = block.gradient(i, p);
+        }
+        grad[i]
+    };
     let table = case_table();
     let vs = map.config().voxel_size;
     let key_voxel = key * CHUNK_SIDE as i32;
@@ -320,7 +342,7 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
                             let pa = [low[0] + 1, low[1] + 1, low[2] + 1];
                             let mut pb = pa;
                             pb[axis] += 1;
-                            let g = block.gradient(ia, pa).lerp(block.gradient(ib, pb), s);
+                            let g = gradient(ia, pa).lerp(gradient(ib, pb), s);
                             mesh.normals.push(g.normalize_or_zero());
                             let shared =
                                 (0..3).any(|q| q != axis && (low[q] == 0 || low[q] == CHUNK_SIDE));
