@@ -1,0 +1,28 @@
+//! Dense geometric reconstruction for semrecon: a voxel-hashed truncated signed-distance
+//! (TSDF) map at millimetre resolution, projective fusion of RGB-D frames into it, and
+//! incremental marching cubes that turns it into a coloured triangle mesh.
+//!
+//! ```text
+//! Frame + world_from_camera --TsdfMap::integrate--> TsdfMap --IncrementalMesher::update--> LabeledMesh
+//! ```
+//!
+//! Conventions follow `semrecon_data`: metres, world frame z up, camera x right / y down /
+//! z forward, poses as `world_from_camera`. Everything is deterministic: the same inputs give
+//! the same bits for any rayon thread count (on one build: enabling FMA/AVX with
+//! `target-cpu` may change the last bits).
+//!
+//! Memory: a chunk costs [`TsdfMap::bytes_per_chunk`] bytes (4096 for its 512 voxels of 8
+//! bytes, the rest for its record and hash entry), plus 8 bytes per run of consecutive frames
+//! that touched it. Revisiting a surface adds no chunks.
+#![warn(missing_docs)]
+
+mod cube_cases;
+pub mod error;
+pub mod fusion;
+pub mod map;
+pub mod marching_cubes;
+
+pub use error::{ReconError, Result};
+pub use fusion::{depth_weight, IntegrationStats};
+pub use map::{Chunk, ChunkKey, TsdfConfig, TsdfMap, Voxel, CHUNK_SIDE, CHUNK_VOXELS};
+pub use marching_cubes::{extract_mesh, mesh_chunk, ChunkMesh, IncrementalMesher, MeshingStats};

@@ -1,0 +1,656 @@
+//! Surface extraction: marching cubes per chunk, cached, re-run only where the map changed.
+//!
+//! Cells join 2x2x2 voxel centres. A chunk owns the 8x8x8 cells whose lowest corner is one
+//! of its voxels, so the cells between two chunks are computed once, by the lower chunk,
+//! reading the upper neighbours' boundary voxels. Cells with an unobserved corner (weight 0)
+//! are skipped, and so are cells where a crossed edge jumps by more than one truncation
+//! distance (the seam between observed free space and the back of a surface, not a
+//! surface), so no phantom surfaces appear. Vertex colours are interpolated from the voxel
+//! colours; normals are the interpolated central-difference gradient of the TSDF, pointing
+//! to the positive (free-space, camera) side; triangles wind counter-clockwise seen from it.
+//!
+//! Each chunk is meshed from a padded copy of its voxels and the one-voxel shell around it
+//! (the gradient needs it), so a chunk's mesh depends on its 26 neighbours: when a chunk
+//! changes, it and its allocated neighbours are re-meshed. Chunk meshes are welded into one
+//! mesh by the global key of the cell edge each vertex sits on, so the result is watertight
+//! where the surface is closed.
+
+use std::collections::HashMap;
+
+use glam::{IVec3, Vec3};
+use rayon::prelude::*;
+use semrecon_data::LabeledMesh;
+
+use crate::cube_cases::{case_table, EDGES};
+use crate::map::{key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE, TSDF_SCALE};
+
+/// Largest TSDF difference (in truncation units) across a cell edge that still counts as a
+/// surface crossing; a real surface changes the TSDF by about one voxel per voxel, i.e. by
+/// `1 / truncation_voxels` per edge.
+const MAX_EDGE_JUMP: f32 = 1.0;
+
+/// Side of the padded block: the chunk plus one voxel on every side.
+const PAD: usize = CHUNK_SIDE + 3;
+const PAD2: usize = PAD * PAD;
+/// Side of the grid of cell-edge low corners.
+const ES: usize = CHUNK_SIDE + 1;
+
+/// Global key of a cell edge: its lower voxel and its axis (0 x, 1 y, 2 z).
+type EdgeKey = (IVec3, u8);
+
+/// The triangles of one chunk.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ChunkMesh {
+    /// Vertex positions, metres, world frame.
+    pub positions: Vec<Vec3>,
+    /// Vertex colours.
+    pub colors: Vec<[u8; 3]>,
+    /// Unit vertex normals toward free space (zero where the gradient vanishes).
+    pub normals: Vec<Vec3>,
+    /// Triangles, counter-clockwise seen from free space.
+    pub triangles: Vec<[u32; 3]>,
+    /// Vertices on cell edges that neighbouring chunks also use, with the edge's global key
+    /// (ascending vertex order); the assembly welds them.
+    shared: Vec<(u32, EdgeKey)>,
+}
+
+/// A padded copy of one chunk and the one-voxel shell around it.
+///
+/// Distances stay quantised (`i16`) until a vertex needs them; `flags` holds bit 0 for a
+/// negative distance and bit 1 for an observed voxel, so a cell's case and mask come from
+/// 8 byte loads.
+struct PaddedBlock {
+    tsdf: [i16; PAD * PAD2],
+    flags: [u8; PAD * PAD2],
+    color: [[u8; 4]; PAD * PAD2],
+}
+
+const NEGATIVE: u8 = 1;
+const OBSERVED: u8 = 2;
+
+/// Offsets of the chunk and its 26 neighbours, `(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`.
+fn neighbours(map: &TsdfMap, key: ChunkKey) -> [Option<&Chunk>; 27] {
+    std::array::from_fn(|i| {
+        let o = IVec3::new(i as i32 % 3, (i as i32 / 3) % 3, i as i32 / 9) - IVec3::ONE;
+        map.chunk(key + o)
+    })
+}
+
+impl PaddedBlock {
+    /// Whether the cells owned by the chunk (corners in it and its 7 upper neighbours) can
+    /// hold a surface: they need an observed negative and an observed non-negative voxel.
+    ///
+    /// An upper neighbour offset along x (alone or with other axes) contributes only voxels of
+    /// its x = 0 face, so its face bits suffice (a superset for edge and corner neighbours).
+    fn may_have_surface(nb: &[Option<&Chunk>; 27]) -> bool {
+        let Some(own) = nb[13] else { return false };
+        let mut signs = own.signs & 3;
+        for dz in 1..3 {
+            for dy in 1..3 {
+                for dx in 1..3 {
+                    if (dx, dy, dz) == (1, 1, 1) {
+                        continue;
+                    }
+                    if let Some(c) = nb[dx + 3 * dy + 9 * dz] {
+                        let face = if dx == 2 {
+                            2
+                        } else if dy == 2 {
+                            4
+                        } else {
+                            6
+                        };
+                        signs |= (c.signs >> face) & 3;
+                    }
+                }
+            }
+        }
+        signs == 3
+    }
+
+    fn new() -> Box<Self> {
+        Box::new(PaddedBlock {
+            tsdf: [0; PAD * PAD2],
+            flags: [0; PAD * PAD2],
+            color: [[0; 4]; PAD * PAD2],
+        })
+    }
+
+    /// Copies the voxels of padded coordinates `-1 ..= 9` (local) from the neighbours
+    /// (unallocated neighbours read as unobserved).
+    fn gather(&mut self, nb: &[Option<&Chunk>; 27]) {
+        let b = self;
+        // Padded coordinate p holds local voxel p - 1 (-1 ..= 9): in chunk offset -1, 0 or 1.
+        let split = |p: usize| -> (usize, usize) {
+            let l = p as i32 - 1;
+            let o = l.div_euclid(CHUNK_SIDE as i32);
+            ((o + 1) as usize, (l - o * CHUNK_SIDE as i32) as usize)
+        };
+        for pz in 0..PAD {
+            let (oz, iz) = split(pz);
+            for py in 0..PAD {
+                let (oy, iy) = split(py);
+                let mut px = 0;
+                while px < PAD {
+                    let (ox, ix) = split(px);
+                    // Run of padded x that falls in the same neighbour chunk.
+                    let run = match ox {
+                        0 => 1,
+                        1 => CHUNK_SIDE,
+                        _ => PAD - px,
+                    };
+                    let dst = px + PAD * py + PAD2 * pz;
+                    if let Some(c) = nb[ox + 3 * oy + 9 * oz] {
+                        let src = ix + CHUNK_SIDE * (iy + CHUNK_SIDE * iz);
+                        let v = &c.voxels;
+                        // Element loops, not `copy_from_slice`: runs are 1, 2 or 8 long and a
+                        // `memmove` call per run costs more than the copy.
+                        for r in 0..run {
+                            let t = v.tsdf[src + r];
+                            b.tsdf[dst + r] = t;
+                            b.color[dst + r] = v.color[src + r];
+                            b.flags[dst + r] =
+                                (t < 0) as u8 | ((v.weight[src + r] != 0) as u8) << 1;
+                        }
+                    } else {
+                        for r in 0..run {
+                            b.flags[dst + r] = 0;
+                        }
+                    }
+                    px += run;
+                }
+            }
+        }
+    }
+
+    /// Central-difference TSDF gradient at padded index `i` (one-sided where a neighbour is
+    /// unobserved or outside the block).
+    fn gradient(&self, i: usize, p: [usize; 3]) -> Vec3 {
+        let strides = [1, PAD, PAD2];
+        let t = |j: usize| self.tsdf[j] as f32;
+        let mut g = [0.0f32; 3];
+        for a in 0..3 {
+            let s = strides[a];
+            let lo = p[a] > 0 && self.flags[i - s] & OBSERVED != 0;
+            let hi = p[a] + 1 < PAD && self.flags[i + s] & OBSERVED != 0;
+            g[a] = match (lo, hi) {
+                (true, true) => 0.5 * (t(i + s) - t(i - s)),
+                (false, true) => t(i + s) - t(i),
+                (true, false) => t(i) - t(i - s),
+                (false, false) => 0.0,
+            };
+        }
+        Vec3::from(g)
+    }
+
+    /// Distance at padded index `i` in truncation units.
+    #[inline]
+    fn tsdf(&self, i: usize) -> f32 {
+        self.tsdf[i] as f32 * (1.0 / TSDF_SCALE)
+    }
+}
+
+/// Buffers one worker reuses from chunk to chunk (allocating and clearing 20 KB per chunk
+/// cost as much as the marching itself).
+struct Scratch {
+    block: Box<PaddedBlock>,
+    /// Local cell-edge index -> vertex, `u32::MAX` when none; reset through `used`.
+    edge_vertex: Vec<u32>,
+    used: Vec<u32>,
+    /// Crossed cells of the current chunk: local cell index and case.
+    cells: Vec<(u16, u8)>,
+    /// Gradient per padded voxel, valid where `grad_stamp` equals `stamp` (a voxel serves
+    /// up to six vertices; stamps avoid clearing the cache per chunk).
+    grad: Vec<Vec3>,
+    grad_stamp: Vec<u32>,
+    stamp: u32,
+}
+
+impl Scratch {
+    fn new() -> Self {
+        Self {
+            block: PaddedBlock::new(),
+            edge_vertex: vec![u32::MAX; ES * ES * ES * 3],
+            used: Vec::new(),
+            cells: Vec::new(),
+            grad: vec![Vec3::ZERO; PAD * PAD2],
+            grad_stamp: vec![0; PAD * PAD2],
+            stamp: 0,
+        }
+    }
+}
+
+/// Marching cubes over the cells owned by chunk `key` (empty when it is not allocated).
+pub fn mesh_chunk(map: &TsdfMap, key: ChunkKey) -> ChunkMesh {
+    mesh_chunk_with(map, key, &mut Scratch::new())
+}
+
+fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> ChunkMesh {
+    let mut mesh = ChunkMesh::default();
+    let nb = neighbours(map, key);
+    if !PaddedBlock::may_have_surface(&nb) {
+        return mesh;
+    }
+    scratch.block.gather(&nb);
+    let block = &*scratch.block;
+    let edge_vertex = &mut scratch.edge_vertex;
+    let used = &mut scratch.used;
+    scratch.stamp = scratch.stamp.wrapping_add(1);
+    if scratch.stamp == 0 {
+        scratch.grad_stamp.fill(0);
+        scratch.stamp = 1;
+    }
+    let stamp = scratch.stamp;
+    let (grad, grad_stamp) = (&mut scratch.grad, &mut scratch.grad_stamp);
+    let mut gradient = |i: usize, p: [usize; 3]| {
+        if grad_stamp[i] != stamp {
+            grad_stamp[i] = stamp;
+            grad[i] = block.gradient(i, p);
+        }
+        grad[i]
+    };
+    let table = case_table();
+    let vs = map.config().voxel_size;
+    let key_voxel = key * CHUNK_SIDE as i32;
+    let corner_offset: [usize; 8] =
+        std::array::from_fn(|c| (c & 1) + PAD * ((c >> 1) & 1) + PAD2 * ((c >> 2) & 1));
+    // Pass 1: the cells the surface crosses, and how many triangles they make, so that the
+    // mesh buffers are allocated once.
+    let cells = &mut scratch.cells;
+    cells.clear();
+    let mut triangle_count = 0;
+    for z in 0..CHUNK_SIDE {
+        for y in 0..CHUNK_SIDE {
+            for x in 0..CHUNK_SIDE {
+                let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
+                let mut case = 0u8;
+                let mut all_observed = OBSERVED;
+                for (c, off) in corner_offset.iter().enumerate() {
+                    let fl = block.flags[base + off];
+                    all_observed &= fl;
+                    case |= (fl & NEGATIVE) << c;
+                }
+                if case != 0 && case != 255 && all_observed != 0 {
+                    cells.push(((x + CHUNK_SIDE * (y + CHUNK_SIDE * z)) as u16, case));
+                    triangle_count += table.triangles(case).len();
+                }
+            }
+        }
+    }
+    if cells.is_empty() {
+        return mesh;
+    }
+    mesh.triangles.reserve_exact(triangle_count);
+    // A closed surface has about half as many vertices as triangles.
+    let vertex_guess = triangle_count / 2 + 16;
+    mesh.positions.reserve(vertex_guess);
+    mesh.colors.reserve(vertex_guess);
+    mesh.normals.reserve(vertex_guess);
+    // Pass 2: the triangles.
+    for &(cell, case) in cells.iter() {
+        let cell = cell as usize;
+        let (x, y, z) = (
+            cell % CHUNK_SIDE,
+            (cell / CHUNK_SIDE) % CHUNK_SIDE,
+            cell / (CHUNK_SIDE * CHUNK_SIDE),
+        );
+        {
+            {
+                let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
+                let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + corner_offset[c]));
+                let jump = EDGES.iter().any(|&(a, b)| {
+                    let (fa, fb) = (f[a as usize], f[b as usize]);
+                    (fa < 0.0) != (fb < 0.0) && (fa - fb).abs() > MAX_EDGE_JUMP
+                });
+                if jump {
+                    continue;
+                }
+                for tri in table.triangles(case) {
+                    let mut t = [0u32; 3];
+                    for (slot, &e) in t.iter_mut().zip(tri) {
+                        let (a, b) = EDGES[e as usize];
+                        let axis = (e / 4) as usize;
+                        let low = [
+                            x + (a & 1) as usize,
+                            y + ((a >> 1) & 1) as usize,
+                            z + ((a >> 2) & 1) as usize,
+                        ];
+                        let ek = ((low[2] * ES + low[1]) * ES + low[0]) * 3 + axis;
+                        if edge_vertex[ek] == u32::MAX {
+                            edge_vertex[ek] = mesh.positions.len() as u32;
+                            used.push(ek as u32);
+                            let (ia, ib) = (
+                                base + corner_offset[a as usize],
+                                base + corner_offset[b as usize],
+                            );
+                            let (fa, fb) = (f[a as usize], f[b as usize]);
+                            let s = fa / (fa - fb);
+                            let low_global =
+                                key_voxel + IVec3::new(low[0] as i32, low[1] as i32, low[2] as i32);
+                            let mut p = low_global.as_vec3();
+                            p[axis] += s;
+                            mesh.positions.push(p * vs);
+                            let (ca, cb) = (block.color[ia], block.color[ib]);
+                            // Interpolate only between voxels that have a colour.
+                            let (ca, cb) = match (ca[3], cb[3]) {
+                                (0, 0) | (1.., 1..) => (ca, cb),
+                                (0, _) => (cb, cb),
+                                (_, 0) => (ca, ca),
+                            };
+                            mesh.colors.push(std::array::from_fn(|k| {
+                                (ca[k] as f32 + s * (cb[k] as f32 - ca[k] as f32) + 0.5) as u8
+                            }));
+                            let pa = [low[0] + 1, low[1] + 1, low[2] + 1];
+                            let mut pb = pa;
+                            pb[axis] += 1;
+                            let g = gradient(ia, pa).lerp(gradient(ib, pb), s);
+                            mesh.normals.push(g.normalize_or_zero());
+                            let shared =
+                                (0..3).any(|q| q != axis && (low[q] == 0 || low[q] == CHUNK_SIDE));
+                            if shared {
+                                mesh.shared
+                                    .push((edge_vertex[ek], (low_global, axis as u8)));
+                            }
+                        }
+                        *slot = edge_vertex[ek];
+                    }
+                    mesh.triangles.push(t);
+                }
+            }
+        }
+    }
+    for &ek in used.iter() {
+        edge_vertex[ek as usize] = u32::MAX;
+    }
+    used.clear();
+    mesh
+}
+
+/// What one incremental update did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct MeshingStats {
+    /// Chunks whose map revision changed (or that were freed) since the last update.
+    pub changed_chunks: usize,
+    /// Chunks re-meshed (the changed ones and their allocated neighbours).
+    pub remeshed_chunks: usize,
+    /// Triangles over all cached chunk meshes after the update.
+    pub triangles: usize,
+}
+
+/// Per-chunk mesh cache that re-meshes only what changed in the map.
+#[derive(Debug, Clone, Default)]
+pub struct IncrementalMesher {
+    /// Chunk key -> (map revision the mesh was made at, mesh).
+    cache: HashMap<ChunkKey, (u64, ChunkMesh), ChunkHashBuilder>,
+}
+
+impl IncrementalMesher {
+    /// An empty cache.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Re-meshes the chunks whose revision changed since the last update, and their
+    /// neighbours; drops meshes of freed chunks. Parallel over chunks, deterministic.
+    pub fn update(&mut self, map: &TsdfMap) -> MeshingStats {
+        let mut changed: Vec<ChunkKey> = map
+            .chunks()
+            .filter(|c| self.cache.get(&c.key()).map(|e| e.0) != Some(c.revision()))
+            .map(|c| c.key())
+            .collect();
+        let freed: Vec<ChunkKey> = self
+            .cache
+            .keys()
+            .filter(|k| map.chunk(**k).is_none())
+            .copied()
+            .collect();
+        for k in &freed {
+            self.cache.remove(k);
+        }
+        changed.extend_from_slice(&freed);
+        let mut todo: Vec<ChunkKey> = Vec::with_capacity(changed.len() * 4);
+        for &k in &changed {
+            for dz in -1..=1 {
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let n = k + IVec3::new(dx, dy, dz);
+                        if map.chunk(n).is_some() {
+                            todo.push(n);
+                        }
+                    }
+                }
+            }
+        }
+        todo.sort_unstable_by_key(|k| key_order(*k));
+        todo.dedup();
+        let meshes: Vec<(ChunkKey, u64, ChunkMesh)> = todo
+            .par_iter()
+            .map_init(Scratch::new, |s, &k| {
+                let rev = map.chunk(k).map_or(0, |c| c.revision());
+                (k, rev, mesh_chunk_with(map, k, s))
+            })
+            .collect();
+        let remeshed = meshes.len();
+        for (k, rev, m) in meshes {
+            self.cache.insert(k, (rev, m));
+        }
+        MeshingStats {
+            changed_chunks: changed.len(),
+            remeshed_chunks: remeshed,
+            triangles: self.cache.values().map(|e| e.1.triangles.len()).sum(),
+        }
+    }
+
+    /// The cached mesh of chunk `key`.
+    pub fn chunk_mesh(&self, key: ChunkKey) -> Option<&ChunkMesh> {
+        self.cache.get(&key).map(|e| &e.1)
+    }
+
+    /// Number of cached chunk meshes.
+    pub fn chunk_count(&self) -> usize {
+        self.cache.len()
+    }
+
+    /// The whole surface as one welded mesh (chunks in (z, y, x) key order; no labels).
+    pub fn mesh(&self) -> LabeledMesh {
+        let mut keys: Vec<ChunkKey> = self.cache.keys().copied().collect();
+        keys.sort_unstable_by_key(|k| key_order(*k));
+        let meshes: Vec<&ChunkMesh> = keys.iter().filter_map(|k| self.chunk_mesh(*k)).collect();
+        assemble(&meshes)
+    }
+}
+
+/// Meshes the whole map from scratch (parallel over chunks).
+pub fn extract_mesh(map: &TsdfMap) -> LabeledMesh {
+    let keys = map.sorted_keys();
+    let meshes: Vec<ChunkMesh> = keys
+        .par_iter()
+        .map_init(Scratch::new, |s, &k| mesh_chunk_with(map, k, s))
+        .collect();
+    assemble(&meshes.iter().collect::<Vec<_>>())
+}
+
+/// Concatenates chunk meshes, welding vertices on shared cell edges.
+fn assemble(meshes: &[&ChunkMesh]) -> LabeledMesh {
+    let vertices: usize = meshes.iter().map(|m| m.positions.len()).sum();
+    let triangles: usize = meshes.iter().map(|m| m.triangles.len()).sum();
+    let mut out = LabeledMesh {
+        positions: Vec::with_capacity(vertices),
+        colors: Vec::with_capacity(vertices),
+        normals: Vec::with_capacity(vertices),
+        triangles: Vec::with_capacity(triangles),
+        ..LabeledMesh::default()
+    };
+    let mut welded: HashMap<EdgeKey, u32, ChunkHashBuilder> = HashMap::default();
+    let mut remap = Vec::new();
+    for m in meshes {
+        remap.clear();
+        let mut shared = m.shared.iter().peekable();
+        for i in 0..m.positions.len() {
+            if let Some(&(_, key)) = shared.next_if(|s| s.0 == i as u32) {
+                if let Some(&j) = welded.get(&key) {
+                    remap.push(j);
+                    continue;
+                }
+                welded.insert(key, out.positions.len() as u32);
+            }
+            remap.push(out.positions.len() as u32);
+            out.positions.push(m.positions[i]);
+            out.colors.push(m.colors[i]);
+            out.normals.push(m.normals[i]);
+        }
+        out.triangles
+            .extend(m.triangles.iter().map(|t| t.map(|i| remap[i as usize])));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::map::{split_voxel, TsdfConfig, Voxel, CHUNK_VOXELS};
+
+    /// A map holding the exact truncated SDF of a sphere in every voxel of a box around it.
+    fn sphere_map(center: Vec3, radius: f32, observed_box: Option<(IVec3, IVec3)>) -> TsdfMap {
+        let config = TsdfConfig::default();
+        let vs = config.voxel_size;
+        let trunc = config.truncation();
+        let mut map = TsdfMap::new(config).expect("valid");
+        let lo = ((center - Vec3::splat(radius + 2.0 * trunc)) / vs)
+            .floor()
+            .as_ivec3();
+        let hi = ((center + Vec3::splat(radius + 2.0 * trunc)) / vs)
+            .ceil()
+            .as_ivec3();
+        for z in lo.z..=hi.z {
+            for y in lo.y..=hi.y {
+                for x in lo.x..=hi.x {
+                    let v = IVec3::new(x, y, z);
+                    if let Some((a, b)) = observed_box {
+                        if v.cmplt(a).any() || v.cmpgt(b).any() {
+                            continue;
+                        }
+                    }
+                    let sdf = (v.as_vec3() * vs - center).length() - radius;
+                    let (key, local) = split_voxel(v);
+                    let (slot, _) = map.allocate(key);
+                    let mut vox = Voxel::default();
+                    vox.fuse(
+                        (sdf / trunc).clamp(-1.0, 1.0),
+                        1.0,
+                        Some([10, 200, 30]),
+                        256,
+                    );
+                    map.chunks[slot as usize].voxels.set(local, vox);
+                }
+            }
+        }
+        for c in &mut map.chunks {
+            c.signs = c.voxels.signs();
+        }
+        map
+    }
+
+    fn edge_uses(mesh: &LabeledMesh) -> HashMap<(u32, u32), (u32, u32)> {
+        // Undirected edge -> (uses a->b, uses b->a).
+        let mut uses: HashMap<(u32, u32), (u32, u32)> = HashMap::new();
+        for t in &mesh.triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                let e = uses.entry((a.min(b), a.max(b))).or_default();
+                if a < b {
+                    e.0 += 1;
+                } else {
+                    e.1 += 1;
+                }
+            }
+        }
+        uses
+    }
+
+    #[test]
+    fn sphere_mesh_is_accurate_closed_and_outward() {
+        let (center, radius) = (Vec3::new(0.0131, -0.0217, 0.0072), 0.1);
+        let map = sphere_map(center, radius, None);
+        assert!(
+            map.chunk_count() > 27,
+            "the sphere spans many chunks, negative keys included"
+        );
+        let mesh = extract_mesh(&map);
+        mesh.validate().expect("valid mesh");
+        assert!(mesh.triangle_count() > 5000);
+        let vs = map.config().voxel_size;
+        for (p, n) in mesh.positions.iter().zip(&mesh.normals) {
+            let r = *p - center;
+            assert!(
+                (r.length() - radius).abs() < 0.02 * vs,
+                "vertex {p} off the sphere"
+            );
+            assert!(n.dot(r.normalize()) > 0.98, "normal {n} at {p}");
+        }
+        assert!(mesh.colors.iter().all(|c| *c == [10, 200, 30]));
+        // Closed and consistently wound: every edge once in each direction.
+        for (e, (ab, ba)) in edge_uses(&mesh) {
+            assert!(ab == 1 && ba == 1, "edge {e:?} used {ab} + {ba} times");
+        }
+        // Counter-clockwise seen from outside.
+        let mut outward = 0.0;
+        for t in &mesh.triangles {
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            outward += (b - a).cross(c - a).dot((a + b + c) / 3.0 - center);
+        }
+        assert!(outward > 0.0);
+        for t in &mesh.triangles {
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            let n = (b - a).cross(c - a);
+            if n.length() > 1e-9 {
+                assert!(
+                    n.dot((a + b + c) / 3.0 - center) > 0.0,
+                    "inward triangle {t:?}"
+                );
+            }
+        }
+        // Euler characteristic of a sphere.
+        let v = mesh.vertex_count() as i64;
+        let f = mesh.triangle_count() as i64;
+        assert_eq!(v - 3 * f / 2 + f, 2);
+    }
+
+    #[test]
+    fn unobserved_voxels_leave_an_open_border_not_a_phantom_surface() {
+        let (center, radius) = (Vec3::new(0.0, 0.0, 0.0), 0.1);
+        // Only the half x < 0.02 m is observed.
+        let lo = IVec3::splat(-100);
+        let hi = IVec3::new(4, 100, 100);
+        let map = sphere_map(center, radius, Some((lo, hi)));
+        let mesh = extract_mesh(&map);
+        assert!(mesh.triangle_count() > 1000);
+        let vs = map.config().voxel_size;
+        for p in &mesh.positions {
+            assert!(((*p - center).length() - radius).abs() < 0.02 * vs);
+            assert!(
+                p.x <= 4.0 * vs + 1e-6,
+                "vertex {p} beyond the observed voxels"
+            );
+        }
+        let border = edge_uses(&mesh)
+            .values()
+            .filter(|(a, b)| a + b == 1)
+            .count();
+        assert!(border > 0, "the cut is an open border");
+    }
+
+    #[test]
+    fn free_space_next_to_the_back_of_a_surface_makes_no_triangles() {
+        let mut map = TsdfMap::new(TsdfConfig::default()).expect("valid");
+        let (slot, _) = map.allocate(IVec3::ZERO);
+        for i in 0..CHUNK_VOXELS {
+            // Free space (+1) for x < 4, the far side of a surface (-1) beyond.
+            let t = if i % 8 < 4 { 1.0 } else { -1.0 };
+            let mut v = Voxel::default();
+            v.fuse(t, 1.0, None, 256);
+            map.chunks[slot as usize].voxels.set(i, v);
+        }
+        map.chunks[slot as usize].signs = map.chunks[slot as usize].voxels.signs();
+        assert!(mesh_chunk(&map, IVec3::ZERO).triangles.is_empty());
+    }
+}
