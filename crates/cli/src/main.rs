@@ -21,6 +21,8 @@ enum Command {
     Info(commands::info::InfoArgs),
     /// Generate a synthetic labelled room and render an RGB-D scan of it (7-Scenes layout).
     Synth(commands::synth::SynthArgs),
+    /// Throw a virtual ball into a labelled mesh; bounces use the class's material.
+    Throw(commands::throw::ThrowArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -29,6 +31,7 @@ fn main() -> std::process::ExitCode {
         Command::Demo(args) => commands::demo::run(args),
         Command::Info(args) => commands::info::run(args),
         Command::Synth(args) => commands::synth::run(args),
+        Command::Throw(args) => commands::throw::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

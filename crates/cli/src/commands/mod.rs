@@ -3,3 +3,4 @@
 pub mod demo;
 pub mod info;
 pub mod synth;
+pub mod throw;
