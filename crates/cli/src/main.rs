@@ -4,6 +4,7 @@ use clap::{Parser, Subcommand};
 
 mod commands;
 mod progress;
+mod timing;
 
 /// Live semantic 3D perception from RGB-D streams, on the CPU.
 #[derive(Parser)]
