@@ -2,6 +2,7 @@
 
 use clap::{Parser, Subcommand};
 
+mod cli_values;
 mod commands;
 mod progress;
 mod timing;
@@ -22,6 +23,8 @@ enum Command {
     Info(commands::info::InfoArgs),
     /// Generate a synthetic labelled room and render an RGB-D scan of it (7-Scenes layout).
     Synth(commands::synth::SynthArgs),
+    /// Render a mesh to a PNG (bird's-eye corner view), in its colours or class colours.
+    Snapshot(commands::snapshot::SnapshotArgs),
     /// Throw a virtual ball into a labelled mesh; bounces use the class's material.
     Throw(commands::throw::ThrowArgs),
 }
@@ -32,6 +35,7 @@ fn main() -> std::process::ExitCode {
         Command::Demo(args) => commands::demo::run(args),
         Command::Info(args) => commands::info::run(args),
         Command::Synth(args) => commands::synth::run(args),
+        Command::Snapshot(args) => commands::snapshot::run(args),
         Command::Throw(args) => commands::throw::run(args),
     };
     match result {

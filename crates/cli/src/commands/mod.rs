@@ -2,5 +2,6 @@
 
 pub mod demo;
 pub mod info;
+pub mod snapshot;
 pub mod synth;
 pub mod throw;

@@ -19,10 +19,10 @@ pub struct ThrowArgs {
     #[arg(long)]
     materials: Option<PathBuf>,
     /// Start position x,y,z in metres.
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    #[arg(long, value_parser = crate::cli_values::parse_vec3, allow_hyphen_values = true)]
     from: Vec3,
     /// Throw direction x,y,z (normalised).
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    #[arg(long, value_parser = crate::cli_values::parse_vec3, allow_hyphen_values = true)]
     dir: Vec3,
     /// Speed in m/s.
     #[arg(long, default_value_t = 3.0)]
@@ -33,18 +33,6 @@ pub struct ThrowArgs {
     /// Write the trajectory (`times`, `positions`, `contacts`) as JSON to this file.
     #[arg(long)]
     json: Option<PathBuf>,
-}
-
-fn parse_vec3(s: &str) -> Result<Vec3, String> {
-    let v: Vec<f32> = s
-        .split(',')
-        .map(|x| x.trim().parse::<f32>())
-        .collect::<Result<_, _>>()
-        .map_err(|e| format!("`{s}`: {e}; expected x,y,z"))?;
-    match v[..] {
-        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok(Vec3::new(x, y, z)),
-        _ => Err(format!("`{s}`: expected three finite numbers x,y,z")),
-    }
 }
 
 /// Runs the command.

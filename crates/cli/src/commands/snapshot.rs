@@ -1,0 +1,124 @@
+//! `semrecon snapshot`: renders a mesh to a PNG from a bird's-eye corner view (or any
+//! viewpoint), shaded, in its own colours or in class colours — the quickest way to look at
+//! what the pipeline made. Uses the same rasteriser as the synthetic data.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context};
+use glam::{Affine3A, Mat3A, Vec3};
+use semrecon_data::depth_image::write_color_png;
+use semrecon_data::class::UNLABELED;
+use semrecon_data::{read_ply, Intrinsics, LabeledMesh, PreparedMesh, Renderer, SemanticClass};
+
+/// Arguments of `semrecon snapshot`.
+#[derive(clap::Args)]
+pub struct SnapshotArgs {
+    /// Mesh to render (PLY).
+    mesh: PathBuf,
+    /// Output PNG.
+    #[arg(long)]
+    out: PathBuf,
+    /// Colour by semantic class (the `label` property) instead of vertex colour.
+    #[arg(long)]
+    classes: bool,
+    /// Drop everything above this height (z, metres) — e.g. the ceiling — to see inside a room.
+    #[arg(long, allow_hyphen_values = true)]
+    cut_above: Option<f32>,
+    /// Camera position x,y,z (default: above a corner of the bounding box, outside it).
+    #[arg(long, value_parser = crate::cli_values::parse_vec3, allow_hyphen_values = true)]
+    eye: Option<Vec3>,
+    /// Point looked at x,y,z (default: the centre of the bounding box's lower half).
+    #[arg(long, value_parser = crate::cli_values::parse_vec3, allow_hyphen_values = true)]
+    at: Option<Vec3>,
+    /// Image width in pixels (height is 3/4 of it).
+    #[arg(long, default_value_t = 1024)]
+    width: u32,
+}
+
+/// `world_from_camera` of a camera at `eye` looking at `at` with world z up (camera x right,
+/// y down, z forward).
+pub fn look_at(eye: Vec3, at: Vec3) -> anyhow::Result<Affine3A> {
+    let forward = (at - eye).normalize_or_zero();
+    let right = forward.cross(Vec3::Z).normalize_or_zero();
+    if forward == Vec3::ZERO || right == Vec3::ZERO {
+        bail!("cannot look from {eye} at {at}: same point, or straight up or down");
+    }
+    let down = forward.cross(right);
+    Ok(Affine3A::from_mat3_translation(Mat3A::from_cols(right.into(), down.into(), forward.into()).into(), eye))
+}
+
+/// Runs the command.
+pub fn run(args: SnapshotArgs) -> anyhow::Result<()> {
+    let mut mesh = read_ply(&args.mesh)?;
+    if args.classes {
+        let labels = mesh.vertex_labels_or_from_triangles();
+        if labels.iter().all(|&l| l == UNLABELED) {
+            bail!("{}: the mesh has no `label` property to colour by", args.mesh.display());
+        }
+        mesh.colors = labels.iter().map(|&l| SemanticClass::from_id(l).map_or([0, 0, 0], |c| c.color())).collect();
+    }
+    let (lo, hi) = mesh.bounds().with_context(|| format!("{}: the mesh is empty", args.mesh.display()))?;
+    let at = args.at.unwrap_or(Vec3::new((lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0, lo.z + (hi.z - lo.z) * 0.25));
+    let size = hi - lo;
+    let eye = args.eye.unwrap_or(Vec3::new(lo.x - 0.35 * size.x, lo.y - 0.55 * size.y, hi.z + 0.9 * size.x.max(size.y)));
+    let world_from_camera = look_at(eye, at)?;
+    keep_visible_side(&mut mesh, eye, args.cut_above);
+    if mesh.triangles.is_empty() {
+        bail!("{}: nothing left to draw (everything cut away or facing away)", args.mesh.display());
+    }
+
+    let (w, h) = (args.width.clamp(16, 8192), args.width.clamp(16, 8192) * 3 / 4);
+    let k = Intrinsics::new(w, h, w as f32 * 0.9, w as f32 * 0.9, (w as f32 - 1.0) / 2.0, (h as f32 - 1.0) / 2.0)?;
+    let mut renderer = Renderer::new(k)?;
+    let out = renderer.render(&PreparedMesh::new(&mesh)?, world_from_camera);
+    let pixels: Vec<[u8; 3]> = (0..out.depth.len())
+        .map(|i| {
+            if out.depth[i] > 0.0 {
+                // Headlight shading keeps shapes readable where colours are flat.
+                let shade = 0.35 + 0.65 * out.incidence[i];
+                out.color[i].map(|c| (c as f32 * shade).round() as u8)
+            } else {
+                [255, 255, 255]
+            }
+        })
+        .collect();
+    write_color_png(&args.out, w, h, &pixels)?;
+    println!("wrote {} ({w}x{h}, {} triangles drawn)", args.out.display(), mesh.triangle_count());
+    Ok(())
+}
+
+/// Drops triangles above `cut_above` and those whose front (vertex normals, else the
+/// counter-clockwise side) faces away from `eye`: the walls nearest the camera then vanish and the room opens up like a
+/// doll's house. Meshes with inconsistent winding lose some faces; that is acceptable for a
+/// preview.
+fn keep_visible_side(mesh: &mut LabeledMesh, eye: Vec3, cut_above: Option<f32>) {
+    let keep: Vec<bool> = mesh
+        .triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            let above = cut_above.is_some_and(|z| a.z.max(b.z).max(c.z) > z);
+            // Smooth vertex normals where the mesh has them: face normals of a noisy scan flip
+            // at random and would punch holes into the picture.
+            let normal = if mesh.normals.is_empty() {
+                (b - a).cross(c - a)
+            } else {
+                t.iter().map(|&i| mesh.normals[i as usize]).sum::<Vec3>()
+            };
+            let facing = normal.dot(eye - a) > 0.0;
+            !above && facing
+        })
+        .collect();
+    let mut i = 0;
+    mesh.triangles.retain(|_| {
+        i += 1;
+        keep[i - 1]
+    });
+    if !mesh.triangle_labels.is_empty() {
+        let mut i = 0;
+        mesh.triangle_labels.retain(|_| {
+            i += 1;
+            keep[i - 1]
+        });
+    }
+}
