@@ -1,0 +1,435 @@
+//! The chunk-based kernel, the paper's Algorithm 2 adapted to CPU caches.
+//!
+//! Surfaces are continuous, so outputs that are close in space share most of their inputs.
+//! The output voxels are sorted along the Z-order curve and cut into aligned cubic chunks of
+//! side `C` (runs of equal Morton prefix); a chunk whose *input region* (the distinct input
+//! rows its outputs read) exceeds the cache budget is split into its eight `C/2` sub-cubes,
+//! and again into `C/4` ([`ChunkConfig::levels`] levels in all), so chunks are large where the
+//! surface is sparse and small where it is dense. A kernel pass then handles one chunk per
+//! rayon task: copy the region's rows once into a contiguous buffer, run one micro-GEMM per
+//! offset from it (rows addressed through the chunk-local pair lists), and write each output
+//! row exactly once. No atomics, no scatter into shared memory, and the result does not depend
+//! on the thread count.
+//!
+//! The [`ChunkPlan`] is plain index arrays (CSR over chunks, then over offsets) built once per
+//! kernel map: a GPU backend can upload it as it is, one thread block per chunk.
+//!
+//! Backward: the input gradient is the forward pass of the transposed map. For submanifold
+//! maps that map is the same map with offsets mirrored, so the forward plan is reused with
+//! mirrored transposed weights; strided maps get a second plan chunked over the input set.
+//! The weight gradient walks the forward plan: per chunk and offset a micro-GEMM `X^T dY`
+//! into per-group partial sums; groups are fixed runs of chunks (independent of the thread
+//! count) and are reduced in index order, so the result is deterministic too.
+
+use rayon::prelude::*;
+
+use crate::error::{Result, SparseError};
+use crate::gemm::{gemm_rows, gemm_tn_rows};
+use crate::kernel_map::{check_weights, transpose_weights, KernelMap, MapKind};
+use crate::key::{pack_key, Coord};
+use crate::morton::morton_unchecked;
+use crate::scatter::DisjointRows;
+use crate::tensor::check_rows;
+
+/// How outputs are cut into chunks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ChunkConfig {
+    /// Side of the top-level cubic chunks in voxels of the output grid (a power of two).
+    pub chunk_side: u32,
+    /// Splitting levels: chunks of side `C`, `C/2`, ..., `C / 2^(levels - 1)`.
+    pub levels: u32,
+    /// Largest input region (rows) a chunk may read before it is split; the cache budget in
+    /// rows (bytes = rows x channels x 4).
+    pub max_region_rows: usize,
+}
+
+impl Default for ChunkConfig {
+    /// The configuration measured fastest on the benchmark room (see `examples/conv_bench.rs`).
+    fn default() -> Self {
+        Self { chunk_side: 16, levels: 3, max_region_rows: 512 }
+    }
+}
+
+/// Chunks of a kernel map's outputs with their input regions and chunk-local pairs.
+///
+/// Layout (all plain arrays, indices are `u32`):
+/// - chunk `c` owns destination rows `dst_rows[dst_start[c]..dst_start[c + 1]]` (Z-order);
+/// - its input region is `src_rows[src_start[c]..src_start[c + 1]]`; for maps with an
+///   identity centre offset the first region rows are the chunk's own destination rows;
+/// - pairs of chunk `c`, offset `k` are `pair_src[q]`, `pair_dst[q]` for `q` in
+///   `pair_start[c * K + k]..pair_start[c * K + k + 1]`, as indices into the chunk's region
+///   and destination lists.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChunkPlan {
+    kernel_volume: usize,
+    centre: Option<usize>,
+    n_src: usize,
+    n_dst: usize,
+    dst_start: Vec<u32>,
+    dst_rows: Vec<u32>,
+    src_start: Vec<u32>,
+    src_rows: Vec<u32>,
+    pair_start: Vec<u32>,
+    pair_src: Vec<u32>,
+    pair_dst: Vec<u32>,
+    iota: Vec<u32>,
+}
+
+const NONE: u32 = u32::MAX;
+
+impl ChunkPlan {
+    /// Chunks the outputs of `map` (whose coordinates are `dst_coords`).
+    ///
+    /// # Errors
+    /// [`SparseError::CoordCount`] when `dst_coords` does not match `map.n_out()`,
+    /// [`SparseError::InvalidArgument`] for a chunk side that is not a power of two in
+    /// `1..=2^20`, zero levels or budget, range errors on coordinates.
+    pub fn new(map: &KernelMap, dst_coords: &[Coord], config: &ChunkConfig) -> Result<Self> {
+        if dst_coords.len() != map.n_out() {
+            return Err(SparseError::CoordCount { what: "dst_coords", got: dst_coords.len(), expected: map.n_out() });
+        }
+        let side = config.chunk_side;
+        if !side.is_power_of_two() || side > 1 << 20 || config.levels == 0 || config.max_region_rows == 0 {
+            return Err(SparseError::InvalidArgument(format!("bad chunk configuration {config:?}")));
+        }
+        let kv = map.kernel_volume();
+        let n_dst = map.n_out();
+        let n_src = map.n_in();
+        let centre = map.centre();
+        // Neighbour table: the source row of every (destination, offset), or NONE.
+        let mut nbr = vec![NONE; n_dst * kv];
+        for k in 0..kv {
+            let (ins, outs) = map.pairs(k);
+            for (&i, &o) in ins.iter().zip(outs) {
+                nbr[o as usize * kv + k] = i;
+            }
+        }
+        let mut keyed = Vec::with_capacity(n_dst);
+        for (row, &c) in dst_coords.iter().enumerate() {
+            pack_key(c, row)?;
+            keyed.push((morton_unchecked(c), row as u32));
+        }
+        keyed.sort_unstable();
+
+        // Adaptive splitting over runs of equal Morton prefix.
+        let mut mark = vec![NONE; n_src];
+        let mut generation = 0u32;
+        let mut region_size = |range: &[(u64, u32)], generation: &mut u32| -> usize {
+            *generation += 1;
+            let mut count = 0;
+            for &(_, d) in range {
+                for &s in &nbr[d as usize * kv..(d as usize + 1) * kv] {
+                    if s != NONE && mark[s as usize] != *generation {
+                        mark[s as usize] = *generation;
+                        count += 1;
+                    }
+                }
+            }
+            count
+        };
+        let top_shift = 3 * side.trailing_zeros();
+        let mut chunks: Vec<(usize, usize)> = Vec::new();
+        let mut stack: Vec<(usize, usize, u32)> = Vec::new();
+        let runs = |lo: usize, hi: usize, shift: u32, out: &mut Vec<(usize, usize, u32)>, level: u32| {
+            let mut s = lo;
+            while s < hi {
+                let p = keyed[s].0 >> shift;
+                let mut e = s + 1;
+                while e < hi && keyed[e].0 >> shift == p {
+                    e += 1;
+                }
+                out.push((s, e, level));
+                s = e;
+            }
+        };
+        let mut top = Vec::new();
+        runs(0, n_dst, top_shift, &mut top, 0);
+        stack.extend(top.into_iter().rev());
+        while let Some((lo, hi, level)) = stack.pop() {
+            let last = level + 1 >= config.levels || top_shift < 3 * (level + 1);
+            if last || region_size(&keyed[lo..hi], &mut generation) <= config.max_region_rows {
+                chunks.push((lo, hi));
+            } else {
+                let mut sub = Vec::new();
+                runs(lo, hi, top_shift - 3 * (level + 1), &mut sub, level + 1);
+                stack.extend(sub.into_iter().rev());
+            }
+        }
+
+        // Regions and chunk-local pairs.
+        let mut local = vec![0u32; n_src];
+        let mut plan = Self {
+            kernel_volume: kv,
+            centre,
+            n_src,
+            n_dst,
+            dst_start: vec![0],
+            dst_rows: Vec::with_capacity(n_dst),
+            src_start: vec![0],
+            src_rows: Vec::new(),
+            pair_start: vec![0],
+            pair_src: Vec::with_capacity(map.num_pairs()),
+            pair_dst: Vec::with_capacity(map.num_pairs()),
+            iota: Vec::new(),
+        };
+        let mut max_rows = 0;
+        for &(lo, hi) in &chunks {
+            generation += 1;
+            let region_begin = plan.src_rows.len();
+            let dsts = &keyed[lo..hi];
+            let mut add = |s: u32, src_rows: &mut Vec<u32>| {
+                if mark[s as usize] != generation {
+                    mark[s as usize] = generation;
+                    local[s as usize] = (src_rows.len() - region_begin) as u32;
+                    src_rows.push(s);
+                }
+            };
+            if let Some(c) = centre {
+                for &(_, d) in dsts {
+                    add(nbr[d as usize * kv + c], &mut plan.src_rows);
+                }
+            }
+            for &(_, d) in dsts {
+                plan.dst_rows.push(d);
+                for &s in &nbr[d as usize * kv..(d as usize + 1) * kv] {
+                    if s != NONE {
+                        add(s, &mut plan.src_rows);
+                    }
+                }
+            }
+            for k in 0..kv {
+                for (j, &(_, d)) in dsts.iter().enumerate() {
+                    let s = nbr[d as usize * kv + k];
+                    if s != NONE {
+                        plan.pair_src.push(local[s as usize]);
+                        plan.pair_dst.push(j as u32);
+                    }
+                }
+                plan.pair_start.push(u32::try_from(plan.pair_src.len()).map_err(|_| SparseError::TooManyRows(plan.pair_src.len()))?);
+            }
+            max_rows = max_rows.max(hi - lo).max(plan.src_rows.len() - region_begin);
+            plan.dst_start.push(plan.dst_rows.len() as u32);
+            plan.src_start.push(u32::try_from(plan.src_rows.len()).map_err(|_| SparseError::TooManyRows(plan.src_rows.len()))?);
+        }
+        plan.iota = (0..max_rows as u32).collect();
+        Ok(plan)
+    }
+
+    /// Number of chunks.
+    pub fn num_chunks(&self) -> usize {
+        self.dst_start.len() - 1
+    }
+
+    /// Offsets of the kernel map.
+    pub fn kernel_volume(&self) -> usize {
+        self.kernel_volume
+    }
+
+    /// Destination rows of chunk `c` (Z-order).
+    pub fn chunk_dst(&self, c: usize) -> &[u32] {
+        &self.dst_rows[self.dst_start[c] as usize..self.dst_start[c + 1] as usize]
+    }
+
+    /// Input region (source rows) of chunk `c`.
+    pub fn chunk_src(&self, c: usize) -> &[u32] {
+        &self.src_rows[self.src_start[c] as usize..self.src_start[c + 1] as usize]
+    }
+
+    /// Chunk-local `(region index, destination index)` pairs of chunk `c`, offset `k`.
+    pub fn chunk_pairs(&self, c: usize, k: usize) -> (&[u32], &[u32]) {
+        let q = c * self.kernel_volume + k;
+        let r = self.pair_start[q] as usize..self.pair_start[q + 1] as usize;
+        (&self.pair_src[r.clone()], &self.pair_dst[r])
+    }
+
+    /// Mean region rows per destination row (1.0 would be a perfect halo-free tiling).
+    pub fn halo_ratio(&self) -> f64 {
+        if self.dst_rows.is_empty() {
+            1.0
+        } else {
+            self.src_rows.len() as f64 / self.dst_rows.len() as f64
+        }
+    }
+
+    /// `dst[d] = sum over offsets of src[s] . w_k` for every chunk. `w`: `[kv, c_src, c_dst]`.
+    fn apply(&self, src: &[f32], c_src: usize, w: &[f32], c_dst: usize, dst: &mut [f32]) {
+        let kv = self.kernel_volume;
+        let rows = DisjointRows::new(dst);
+        (0..self.num_chunks()).into_par_iter().for_each_init(
+            || (Vec::new(), Vec::new()),
+            |(xbuf, ybuf): &mut (Vec<f32>, Vec<f32>), c| {
+                let srcs = self.chunk_src(c);
+                let dsts = self.chunk_dst(c);
+                let m = dsts.len();
+                xbuf.clear();
+                for &s in srcs {
+                    xbuf.extend_from_slice(&src[s as usize * c_src..(s as usize + 1) * c_src]);
+                }
+                ybuf.clear();
+                ybuf.resize(m * c_dst, 0.0);
+                let wk = |k: usize| &w[k * c_src * c_dst..(k + 1) * c_src * c_dst];
+                if let Some(ct) = self.centre {
+                    // The region starts with the chunk's own rows: a dense GEMM, no indirection.
+                    let id = &self.iota[..m];
+                    gemm_rows(xbuf, c_src, id, wk(ct), c_src, c_dst, ybuf, c_dst, id, false);
+                }
+                for k in 0..kv {
+                    if Some(k) == self.centre {
+                        continue;
+                    }
+                    let (ps, pd) = self.chunk_pairs(c, k);
+                    gemm_rows(xbuf, c_src, ps, wk(k), c_src, c_dst, ybuf, c_dst, pd, true);
+                }
+                for (j, &d) in dsts.iter().enumerate() {
+                    // SAFETY: every destination row belongs to exactly one chunk.
+                    let out = unsafe { rows.slice(d as usize * c_dst, c_dst) };
+                    out.copy_from_slice(&ybuf[j * c_dst..(j + 1) * c_dst]);
+                }
+            },
+        );
+    }
+
+    /// `dW_k = sum over pairs of src[s]^T dst[d]`, `[kv, c_src, c_dst]`, deterministic.
+    fn weight_grad(&self, src: &[f32], c_src: usize, dst: &[f32], c_dst: usize) -> Vec<f32> {
+        let kv = self.kernel_volume;
+        let size = kv * c_src * c_dst;
+        let n = self.num_chunks();
+        let groups = n.min(WEIGHT_GROUPS);
+        let partials: Vec<Vec<f32>> = (0..groups)
+            .into_par_iter()
+            .map(|g| {
+                let mut acc = vec![0f32; size];
+                let (mut xbuf, mut ybuf) = (Vec::new(), Vec::new());
+                for c in g * n / groups..(g + 1) * n / groups {
+                    let srcs = self.chunk_src(c);
+                    let dsts = self.chunk_dst(c);
+                    xbuf.clear();
+                    for &s in srcs {
+                        xbuf.extend_from_slice(&src[s as usize * c_src..(s as usize + 1) * c_src]);
+                    }
+                    ybuf.clear();
+                    for &d in dsts {
+                        ybuf.extend_from_slice(&dst[d as usize * c_dst..(d as usize + 1) * c_dst]);
+                    }
+                    for k in 0..kv {
+                        let acck = &mut acc[k * c_src * c_dst..(k + 1) * c_src * c_dst];
+                        if Some(k) == self.centre {
+                            let id = &self.iota[..dsts.len()];
+                            gemm_tn_rows(&xbuf, c_src, id, c_src, &ybuf, c_dst, id, c_dst, acck);
+                        } else {
+                            let (ps, pd) = self.chunk_pairs(c, k);
+                            gemm_tn_rows(&xbuf, c_src, ps, c_src, &ybuf, c_dst, pd, c_dst, acck);
+                        }
+                    }
+                }
+                acc
+            })
+            .collect();
+        let mut dw = vec![0f32; size];
+        for p in &partials {
+            for (d, &v) in dw.iter_mut().zip(p) {
+                *d += v;
+            }
+        }
+        dw
+    }
+}
+
+/// Fixed number of partial weight-gradient sums (independent of the thread count).
+const WEIGHT_GROUPS: usize = 16;
+
+/// A convolution layer geometry ready for the chunked kernels: the kernel map and its chunk
+/// plans. Build it once per level (or per strided transition) and call it for every layer.
+#[derive(Debug, Clone)]
+pub struct ChunkedConv {
+    map: KernelMap,
+    forward: ChunkPlan,
+    backward: Option<ChunkPlan>,
+}
+
+impl ChunkedConv {
+    /// Plans `map` whose input and output voxels are `in_coords` and `out_coords`.
+    ///
+    /// # Errors
+    /// Coordinate counts not matching the map, bad configuration, range errors.
+    pub fn new(map: KernelMap, in_coords: &[Coord], out_coords: &[Coord], config: &ChunkConfig) -> Result<Self> {
+        if in_coords.len() != map.n_in() {
+            return Err(SparseError::CoordCount { what: "in_coords", got: in_coords.len(), expected: map.n_in() });
+        }
+        let forward = ChunkPlan::new(&map, out_coords, config)?;
+        let backward = match map.kind() {
+            MapKind::Submanifold { .. } => None,
+            _ => Some(ChunkPlan::new(&map.transposed(), in_coords, config)?),
+        };
+        Ok(Self { map, forward, backward })
+    }
+
+    /// The kernel map.
+    pub fn map(&self) -> &KernelMap {
+        &self.map
+    }
+
+    /// The plan over the outputs (forward pass and weight gradient).
+    pub fn forward_plan(&self) -> &ChunkPlan {
+        &self.forward
+    }
+
+    /// The plan over the inputs (input gradient); `None` for submanifold maps, which reuse
+    /// the forward plan with mirrored offsets.
+    pub fn backward_plan(&self) -> Option<&ChunkPlan> {
+        self.backward.as_ref()
+    }
+
+    /// Forward pass.
+    ///
+    /// # Shapes
+    /// `x`: `[n_in, c_in]`; `w`: `[K^3, c_in, c_out]`; result `[n_out, c_out]`.
+    ///
+    /// # Errors
+    /// [`SparseError::FeatureShape`] / [`SparseError::WeightShape`] on mismatched buffers.
+    pub fn forward(&self, x: &[f32], c_in: usize, w: &[f32], c_out: usize) -> Result<Vec<f32>> {
+        check_rows("x", x, self.map.n_in(), c_in)?;
+        check_weights(w, self.map.kernel_volume(), c_in, c_out)?;
+        let mut y = vec![0f32; self.map.n_out() * c_out];
+        self.forward.apply(x, c_in, w, c_out, &mut y);
+        Ok(y)
+    }
+
+    /// Input gradient.
+    ///
+    /// # Shapes
+    /// `dy`: `[n_out, c_out]`; `w`: `[K^3, c_in, c_out]`; result `[n_in, c_in]`.
+    ///
+    /// # Errors
+    /// As [`Self::forward`].
+    pub fn backward_input(&self, dy: &[f32], c_out: usize, w: &[f32], c_in: usize) -> Result<Vec<f32>> {
+        check_rows("dy", dy, self.map.n_out(), c_out)?;
+        let kv = self.map.kernel_volume();
+        check_weights(w, kv, c_in, c_out)?;
+        let mut dx = vec![0f32; self.map.n_in() * c_in];
+        match &self.backward {
+            Some(plan) => {
+                let wt = transpose_weights(w, kv, c_in, c_out, |k| k);
+                plan.apply(dy, c_out, &wt, c_in, &mut dx);
+            }
+            None => {
+                let wt = transpose_weights(w, kv, c_in, c_out, |k| kv - 1 - k);
+                self.forward.apply(dy, c_out, &wt, c_in, &mut dx);
+            }
+        }
+        Ok(dx)
+    }
+
+    /// Weight gradient.
+    ///
+    /// # Shapes
+    /// `x`: `[n_in, c_in]`; `dy`: `[n_out, c_out]`; result `[K^3, c_in, c_out]`.
+    ///
+    /// # Errors
+    /// As [`Self::forward`].
+    pub fn backward_weight(&self, x: &[f32], c_in: usize, dy: &[f32], c_out: usize) -> Result<Vec<f32>> {
+        check_rows("x", x, self.map.n_in(), c_in)?;
+        check_rows("dy", dy, self.map.n_out(), c_out)?;
+        Ok(self.forward.weight_grad(x, c_in, dy, c_out))
+    }
+}
