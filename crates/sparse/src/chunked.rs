@@ -46,7 +46,11 @@ pub struct ChunkConfig {
 impl Default for ChunkConfig {
     /// The configuration measured fastest on the benchmark room (see `examples/conv_bench.rs`).
     fn default() -> Self {
-        Self { chunk_side: 16, levels: 3, max_region_rows: 512 }
+        Self {
+            chunk_side: 16,
+            levels: 3,
+            max_region_rows: 512,
+        }
     }
 }
 
@@ -86,11 +90,21 @@ impl ChunkPlan {
     /// `1..=2^20`, zero levels or budget, range errors on coordinates.
     pub fn new(map: &KernelMap, dst_coords: &[Coord], config: &ChunkConfig) -> Result<Self> {
         if dst_coords.len() != map.n_out() {
-            return Err(SparseError::CoordCount { what: "dst_coords", got: dst_coords.len(), expected: map.n_out() });
+            return Err(SparseError::CoordCount {
+                what: "dst_coords",
+                got: dst_coords.len(),
+                expected: map.n_out(),
+            });
         }
         let side = config.chunk_side;
-        if !side.is_power_of_two() || side > 1 << 20 || config.levels == 0 || config.max_region_rows == 0 {
-            return Err(SparseError::InvalidArgument(format!("bad chunk configuration {config:?}")));
+        if !side.is_power_of_two()
+            || side > 1 << 20
+            || config.levels == 0
+            || config.max_region_rows == 0
+        {
+            return Err(SparseError::InvalidArgument(format!(
+                "bad chunk configuration {config:?}"
+            )));
         }
         let kv = map.kernel_volume();
         let n_dst = map.n_out();
@@ -130,18 +144,19 @@ impl ChunkPlan {
         let top_shift = 3 * side.trailing_zeros();
         let mut chunks: Vec<(usize, usize)> = Vec::new();
         let mut stack: Vec<(usize, usize, u32)> = Vec::new();
-        let runs = |lo: usize, hi: usize, shift: u32, out: &mut Vec<(usize, usize, u32)>, level: u32| {
-            let mut s = lo;
-            while s < hi {
-                let p = keyed[s].0 >> shift;
-                let mut e = s + 1;
-                while e < hi && keyed[e].0 >> shift == p {
-                    e += 1;
+        let runs =
+            |lo: usize, hi: usize, shift: u32, out: &mut Vec<(usize, usize, u32)>, level: u32| {
+                let mut s = lo;
+                while s < hi {
+                    let p = keyed[s].0 >> shift;
+                    let mut e = s + 1;
+                    while e < hi && keyed[e].0 >> shift == p {
+                        e += 1;
+                    }
+                    out.push((s, e, level));
+                    s = e;
                 }
-                out.push((s, e, level));
-                s = e;
-            }
-        };
+            };
         let mut top = Vec::new();
         runs(0, n_dst, top_shift, &mut top, 0);
         stack.extend(top.into_iter().rev());
@@ -205,11 +220,19 @@ impl ChunkPlan {
                         plan.pair_dst.push(j as u32);
                     }
                 }
-                plan.pair_start.push(u32::try_from(plan.pair_src.len()).map_err(|_| SparseError::TooManyRows(plan.pair_src.len()))?);
+                plan.pair_start.push(
+                    u32::try_from(plan.pair_src.len())
+                        .map_err(|_| SparseError::TooManyRows(plan.pair_src.len()))?,
+                );
             }
-            max_rows = max_rows.max(hi - lo).max(plan.src_rows.len() - region_begin);
+            max_rows = max_rows
+                .max(hi - lo)
+                .max(plan.src_rows.len() - region_begin);
             plan.dst_start.push(plan.dst_rows.len() as u32);
-            plan.src_start.push(u32::try_from(plan.src_rows.len()).map_err(|_| SparseError::TooManyRows(plan.src_rows.len()))?);
+            plan.src_start.push(
+                u32::try_from(plan.src_rows.len())
+                    .map_err(|_| SparseError::TooManyRows(plan.src_rows.len()))?,
+            );
         }
         plan.iota = (0..max_rows as u32).collect();
         Ok(plan)
@@ -271,7 +294,18 @@ impl ChunkPlan {
                 if let Some(ct) = self.centre {
                     // The region starts with the chunk's own rows: a dense GEMM, no indirection.
                     let id = &self.iota[..m];
-                    gemm_rows(xbuf, c_src, id, wk(ct), c_src, c_dst, ybuf, c_dst, id, false);
+                    gemm_rows(
+                        xbuf,
+                        c_src,
+                        id,
+                        wk(ct),
+                        c_src,
+                        c_dst,
+                        ybuf,
+                        c_dst,
+                        id,
+                        false,
+                    );
                 }
                 for k in 0..kv {
                     if Some(k) == self.centre {
@@ -352,16 +386,29 @@ impl ChunkedConv {
     ///
     /// # Errors
     /// Coordinate counts not matching the map, bad configuration, range errors.
-    pub fn new(map: KernelMap, in_coords: &[Coord], out_coords: &[Coord], config: &ChunkConfig) -> Result<Self> {
+    pub fn new(
+        map: KernelMap,
+        in_coords: &[Coord],
+        out_coords: &[Coord],
+        config: &ChunkConfig,
+    ) -> Result<Self> {
         if in_coords.len() != map.n_in() {
-            return Err(SparseError::CoordCount { what: "in_coords", got: in_coords.len(), expected: map.n_in() });
+            return Err(SparseError::CoordCount {
+                what: "in_coords",
+                got: in_coords.len(),
+                expected: map.n_in(),
+            });
         }
         let forward = ChunkPlan::new(&map, out_coords, config)?;
         let backward = match map.kind() {
             MapKind::Submanifold { .. } => None,
             _ => Some(ChunkPlan::new(&map.transposed(), in_coords, config)?),
         };
-        Ok(Self { map, forward, backward })
+        Ok(Self {
+            map,
+            forward,
+            backward,
+        })
     }
 
     /// The kernel map.
@@ -402,7 +449,13 @@ impl ChunkedConv {
     ///
     /// # Errors
     /// As [`Self::forward`].
-    pub fn backward_input(&self, dy: &[f32], c_out: usize, w: &[f32], c_in: usize) -> Result<Vec<f32>> {
+    pub fn backward_input(
+        &self,
+        dy: &[f32],
+        c_out: usize,
+        w: &[f32],
+        c_in: usize,
+    ) -> Result<Vec<f32>> {
         check_rows("dy", dy, self.map.n_out(), c_out)?;
         let kv = self.map.kernel_volume();
         check_weights(w, kv, c_in, c_out)?;
@@ -427,7 +480,13 @@ impl ChunkedConv {
     ///
     /// # Errors
     /// As [`Self::forward`].
-    pub fn backward_weight(&self, x: &[f32], c_in: usize, dy: &[f32], c_out: usize) -> Result<Vec<f32>> {
+    pub fn backward_weight(
+        &self,
+        x: &[f32],
+        c_in: usize,
+        dy: &[f32],
+        c_out: usize,
+    ) -> Result<Vec<f32>> {
         check_rows("x", x, self.map.n_in(), c_in)?;
         check_rows("dy", dy, self.map.n_out(), c_out)?;
         Ok(self.forward.weight_grad(x, c_in, dy, c_out))

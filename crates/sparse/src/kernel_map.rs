@@ -63,16 +63,36 @@ fn index_of(coords: &[Coord]) -> Result<VoxelHashMap> {
 }
 
 /// Checks a weight buffer against `[kernel_volume, c_in, c_out]`.
-pub(crate) fn check_weights(w: &[f32], kernel_volume: usize, c_in: usize, c_out: usize) -> Result<()> {
-    if kernel_volume.checked_mul(c_in).and_then(|v| v.checked_mul(c_out)) != Some(w.len()) {
-        return Err(SparseError::WeightShape { len: w.len(), kernel_volume, c_in, c_out });
+pub(crate) fn check_weights(
+    w: &[f32],
+    kernel_volume: usize,
+    c_in: usize,
+    c_out: usize,
+) -> Result<()> {
+    if kernel_volume
+        .checked_mul(c_in)
+        .and_then(|v| v.checked_mul(c_out))
+        != Some(w.len())
+    {
+        return Err(SparseError::WeightShape {
+            len: w.len(),
+            kernel_volume,
+            c_in,
+            c_out,
+        });
     }
     Ok(())
 }
 
 /// Weights `[kv, c_in, c_out]` transposed per offset to `[kv, c_out, c_in]`, with offset `k`
 /// taken from `source(k)` (the mirror offset when a submanifold map is reused backwards).
-pub(crate) fn transpose_weights(w: &[f32], kv: usize, c_in: usize, c_out: usize, source: impl Fn(usize) -> usize) -> Vec<f32> {
+pub(crate) fn transpose_weights(
+    w: &[f32],
+    kv: usize,
+    c_in: usize,
+    c_out: usize,
+    source: impl Fn(usize) -> usize,
+) -> Vec<f32> {
     let mut t = vec![0f32; w.len()];
     for k in 0..kv {
         let s = source(k);
@@ -148,12 +168,23 @@ impl KernelMap {
         let mut in_rows = Vec::new();
         let mut out_rows = Vec::new();
         offset_start.push(0);
-        for (ins, outs) in half.iter().chain(std::iter::once(&(identity.clone(), identity))).chain(&mirrored) {
+        for (ins, outs) in half
+            .iter()
+            .chain(std::iter::once(&(identity.clone(), identity)))
+            .chain(&mirrored)
+        {
             in_rows.extend_from_slice(ins);
             out_rows.extend_from_slice(outs);
             offset_start.push(in_rows.len());
         }
-        Ok(Self { kind: MapKind::Submanifold { kernel_size }, n_in: n, n_out: n, offset_start, in_rows, out_rows })
+        Ok(Self {
+            kind: MapKind::Submanifold { kernel_size },
+            n_in: n,
+            n_out: n,
+            offset_start,
+            in_rows,
+            out_rows,
+        })
     }
 
     /// The coarse voxel set `{floor(u / 2)}` of `fine` (in order of first appearance, which is
@@ -203,7 +234,10 @@ impl KernelMap {
 
     fn strided(fine: &[Coord], parent_row: &[u32], n_coarse: usize, kind: MapKind) -> Self {
         let mut counts = [0usize; 8];
-        let which: Vec<usize> = fine.iter().map(|c| ((c[0] & 1) + 2 * (c[1] & 1) + 4 * (c[2] & 1)) as usize).collect();
+        let which: Vec<usize> = fine
+            .iter()
+            .map(|c| ((c[0] & 1) + 2 * (c[1] & 1) + 4 * (c[2] & 1)) as usize)
+            .collect();
         for &k in &which {
             counts[k] += 1;
         }
@@ -225,7 +259,14 @@ impl KernelMap {
                 out_rows.push(p);
             }
         }
-        Self { kind, n_in: fine.len(), n_out: n_coarse, offset_start, in_rows, out_rows }
+        Self {
+            kind,
+            n_in: fine.len(),
+            n_out: n_coarse,
+            offset_start,
+            in_rows,
+            out_rows,
+        }
     }
 
     /// The same pairs with inputs and outputs swapped (the map of the input gradient); a
@@ -252,7 +293,14 @@ impl KernelMap {
             MapKind::Up => MapKind::Down,
             k @ MapKind::Submanifold { .. } => k,
         };
-        Self { kind, n_in: self.n_out, n_out: self.n_in, offset_start, in_rows, out_rows }
+        Self {
+            kind,
+            n_in: self.n_out,
+            n_out: self.n_in,
+            offset_start,
+            in_rows,
+            out_rows,
+        }
     }
 
     /// What the map connects.
@@ -336,7 +384,9 @@ mod tests {
 
     #[test]
     fn mirror_offsets_hold_swapped_pairs() {
-        let coords: Vec<Coord> = (0..40).map(|i| [i % 4, (i / 4) % 3, i / 12 - 1, 0]).collect();
+        let coords: Vec<Coord> = (0..40)
+            .map(|i| [i % 4, (i / 4) % 3, i / 12 - 1, 0])
+            .collect();
         let m = KernelMap::submanifold(&coords, 3).unwrap();
         let c = m.centre().unwrap();
         assert_eq!(m.pairs(c).0, m.pairs(c).1);
@@ -354,9 +404,18 @@ mod tests {
 
     #[test]
     fn down_then_up_returns_to_the_fine_set() {
-        let fine: Vec<Coord> = vec![[-1, 0, 0, 0], [0, 0, 0, 0], [1, 1, 1, 0], [2, 0, 0, 1], [3, 3, -3, 1]];
+        let fine: Vec<Coord> = vec![
+            [-1, 0, 0, 0],
+            [0, 0, 0, 0],
+            [1, 1, 1, 0],
+            [2, 0, 0, 1],
+            [3, 3, -3, 1],
+        ];
         let (coarse, down) = KernelMap::downsample(&fine).unwrap();
-        assert_eq!(coarse, vec![[-1, 0, 0, 0], [0, 0, 0, 0], [1, 0, 0, 1], [1, 1, -2, 1]]);
+        assert_eq!(
+            coarse,
+            vec![[-1, 0, 0, 0], [0, 0, 0, 0], [1, 0, 0, 1], [1, 1, -2, 1]]
+        );
         assert_eq!(down.num_pairs(), 5);
         let up = KernelMap::upsample(&coarse, &fine).unwrap();
         assert_eq!(up, down.transposed());

@@ -42,7 +42,10 @@ pub fn pack_key(c: Coord, row: usize) -> Result<u64> {
     if in_range(c) {
         Ok(pack_unchecked(c))
     } else {
-        Err(SparseError::CoordOutOfRange { row, coord: c.map(i64::from) })
+        Err(SparseError::CoordOutOfRange {
+            row,
+            coord: c.map(i64::from),
+        })
     }
 }
 

@@ -11,9 +11,18 @@ use crate::key::{parent, Coord};
 use crate::tensor::check_rows;
 
 /// `(offset, input row, output row)` triples of a layer, found by brute force.
-fn triples(kind: MapKind, in_coords: &[Coord], out_coords: &[Coord]) -> Result<(usize, Vec<(usize, usize, usize)>)> {
-    let in_index: HashMap<Coord, usize> = in_coords.iter().enumerate().map(|(i, &c)| (c, i)).collect();
-    let out_index: HashMap<Coord, usize> = out_coords.iter().enumerate().map(|(i, &c)| (c, i)).collect();
+fn triples(
+    kind: MapKind,
+    in_coords: &[Coord],
+    out_coords: &[Coord],
+) -> Result<(usize, Vec<(usize, usize, usize)>)> {
+    let in_index: HashMap<Coord, usize> =
+        in_coords.iter().enumerate().map(|(i, &c)| (c, i)).collect();
+    let out_index: HashMap<Coord, usize> = out_coords
+        .iter()
+        .enumerate()
+        .map(|(i, &c)| (c, i))
+        .collect();
     let parity = |c: Coord| ((c[0] & 1) + 2 * (c[1] & 1) + 4 * (c[2] & 1)) as usize;
     let mut t = Vec::new();
     match kind {
@@ -27,7 +36,8 @@ fn triples(kind: MapKind, in_coords: &[Coord], out_coords: &[Coord]) -> Result<(
                 for dz in -r..=r {
                     for dy in -r..=r {
                         for dx in -r..=r {
-                            if let Some(&i) = in_index.get(&[u[0] + dx, u[1] + dy, u[2] + dz, u[3]]) {
+                            if let Some(&i) = in_index.get(&[u[0] + dx, u[1] + dy, u[2] + dz, u[3]])
+                            {
                                 t.push((k, i, o));
                             }
                             k += 1;
@@ -39,14 +49,18 @@ fn triples(kind: MapKind, in_coords: &[Coord], out_coords: &[Coord]) -> Result<(
         }
         MapKind::Down => {
             for (i, &u) in in_coords.iter().enumerate() {
-                let o = *out_index.get(&parent(u)).ok_or(SparseError::MissingParent { row: i, coord: u })?;
+                let o = *out_index
+                    .get(&parent(u))
+                    .ok_or(SparseError::MissingParent { row: i, coord: u })?;
                 t.push((parity(u), i, o));
             }
             Ok((8, t))
         }
         MapKind::Up => {
             for (o, &u) in out_coords.iter().enumerate() {
-                let i = *in_index.get(&parent(u)).ok_or(SparseError::MissingParent { row: o, coord: u })?;
+                let i = *in_index
+                    .get(&parent(u))
+                    .ok_or(SparseError::MissingParent { row: o, coord: u })?;
                 t.push((parity(u), i, o));
             }
             Ok((8, t))
@@ -61,7 +75,15 @@ fn triples(kind: MapKind, in_coords: &[Coord], out_coords: &[Coord]) -> Result<(
 ///
 /// # Errors
 /// Shape mismatches, even kernel sizes, missing parents of strided layers.
-pub fn forward(kind: MapKind, in_coords: &[Coord], out_coords: &[Coord], x: &[f32], c_in: usize, w: &[f32], c_out: usize) -> Result<Vec<f32>> {
+pub fn forward(
+    kind: MapKind,
+    in_coords: &[Coord],
+    out_coords: &[Coord],
+    x: &[f32],
+    c_in: usize,
+    w: &[f32],
+    c_out: usize,
+) -> Result<Vec<f32>> {
     check_rows("x", x, in_coords.len(), c_in)?;
     let (kv, t) = triples(kind, in_coords, out_coords)?;
     check_weights(w, kv, c_in, c_out)?;
@@ -85,7 +107,15 @@ pub fn forward(kind: MapKind, in_coords: &[Coord], out_coords: &[Coord], x: &[f3
 ///
 /// # Errors
 /// As [`forward`].
-pub fn backward_input(kind: MapKind, in_coords: &[Coord], out_coords: &[Coord], dy: &[f32], c_out: usize, w: &[f32], c_in: usize) -> Result<Vec<f32>> {
+pub fn backward_input(
+    kind: MapKind,
+    in_coords: &[Coord],
+    out_coords: &[Coord],
+    dy: &[f32],
+    c_out: usize,
+    w: &[f32],
+    c_in: usize,
+) -> Result<Vec<f32>> {
     check_rows("dy", dy, out_coords.len(), c_out)?;
     let (kv, t) = triples(kind, in_coords, out_coords)?;
     check_weights(w, kv, c_in, c_out)?;
@@ -109,7 +139,15 @@ pub fn backward_input(kind: MapKind, in_coords: &[Coord], out_coords: &[Coord], 
 ///
 /// # Errors
 /// As [`forward`].
-pub fn backward_weight(kind: MapKind, in_coords: &[Coord], out_coords: &[Coord], x: &[f32], c_in: usize, dy: &[f32], c_out: usize) -> Result<Vec<f32>> {
+pub fn backward_weight(
+    kind: MapKind,
+    in_coords: &[Coord],
+    out_coords: &[Coord],
+    x: &[f32],
+    c_in: usize,
+    dy: &[f32],
+    c_out: usize,
+) -> Result<Vec<f32>> {
     check_rows("x", x, in_coords.len(), c_in)?;
     check_rows("dy", dy, out_coords.len(), c_out)?;
     let (kv, t) = triples(kind, in_coords, out_coords)?;
@@ -117,7 +155,8 @@ pub fn backward_weight(kind: MapKind, in_coords: &[Coord], out_coords: &[Coord],
     for &(k, i, o) in &t {
         for ci in 0..c_in {
             for co in 0..c_out {
-                dw[(k * c_in + ci) * c_out + co] += f64::from(x[i * c_in + ci]) * f64::from(dy[o * c_out + co]);
+                dw[(k * c_in + ci) * c_out + co] +=
+                    f64::from(x[i * c_in + ci]) * f64::from(dy[o * c_out + co]);
             }
         }
     }
