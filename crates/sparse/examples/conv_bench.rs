@@ -1,7 +1,7 @@
 //! Sparse convolution benchmark on the procedural room: chunked vs rulebook, every pass.
 //!
 //! `cargo run --release -p semrecon-sparse --example conv_bench -- [--voxel 0.02]
-//!  [--channels 64] [--repeats 5] [--threads N] [--sweep]`
+//!  [--channels 64] [--repeats 5] [--threads N] [--sweep] [--no-rulebook]`
 //!
 //! `--sweep` times the chunked forward and backward passes over a grid of chunk sides and
 //! cache budgets (how the default [`ChunkConfig`] was chosen).
@@ -15,6 +15,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut repeats = 5usize;
     let mut threads = 0usize;
     let mut sweep = false;
+    let mut rulebook = true;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         let mut value = || args.next().ok_or_else(|| format!("{a} needs a value"));
@@ -24,6 +25,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--repeats" => repeats = value()?.parse()?,
             "--threads" => threads = value()?.parse()?,
             "--sweep" => sweep = true,
+            "--no-rulebook" => rulebook = false,
             other => return Err(format!("unknown argument {other}").into()),
         }
     }
@@ -74,6 +76,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         channels,
         &BenchOptions {
             repeats,
+            rulebook,
             ..BenchOptions::default()
         },
     )?;

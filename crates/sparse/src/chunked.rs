@@ -288,36 +288,40 @@ impl ChunkPlan {
                 for &s in srcs {
                     xbuf.extend_from_slice(&src[s as usize * c_src..(s as usize + 1) * c_src]);
                 }
-                ybuf.clear();
-                ybuf.resize(m * c_dst, 0.0);
+                // Z-ordered tensors (as `voxelize` makes them) give chunks whose rows are one
+                // contiguous run: compute straight into the output, no copy-out.
+                let contiguous = dsts.windows(2).all(|p| p[1] == p[0] + 1);
+                let y: &mut [f32] = if contiguous && m > 0 {
+                    // SAFETY: every destination row belongs to exactly one chunk.
+                    unsafe { rows.slice(dsts[0] as usize * c_dst, m * c_dst) }
+                } else {
+                    ybuf.clear();
+                    ybuf.resize(m * c_dst, 0.0);
+                    ybuf
+                };
                 let wk = |k: usize| &w[k * c_src * c_dst..(k + 1) * c_src * c_dst];
-                if let Some(ct) = self.centre {
-                    // The region starts with the chunk's own rows: a dense GEMM, no indirection.
-                    let id = &self.iota[..m];
-                    gemm_rows(
-                        xbuf,
-                        c_src,
-                        id,
-                        wk(ct),
-                        c_src,
-                        c_dst,
-                        ybuf,
-                        c_dst,
-                        id,
-                        false,
-                    );
+                match self.centre {
+                    Some(ct) => {
+                        // The region starts with the chunk's own rows: a dense GEMM, no
+                        // indirection, storing (so `y` needs no clearing).
+                        let id = &self.iota[..m];
+                        gemm_rows(xbuf, c_src, id, wk(ct), c_src, c_dst, y, c_dst, id, false);
+                    }
+                    None => y.fill(0.0),
                 }
                 for k in 0..kv {
                     if Some(k) == self.centre {
                         continue;
                     }
                     let (ps, pd) = self.chunk_pairs(c, k);
-                    gemm_rows(xbuf, c_src, ps, wk(k), c_src, c_dst, ybuf, c_dst, pd, true);
+                    gemm_rows(xbuf, c_src, ps, wk(k), c_src, c_dst, y, c_dst, pd, true);
                 }
-                for (j, &d) in dsts.iter().enumerate() {
-                    // SAFETY: every destination row belongs to exactly one chunk.
-                    let out = unsafe { rows.slice(d as usize * c_dst, c_dst) };
-                    out.copy_from_slice(&ybuf[j * c_dst..(j + 1) * c_dst]);
+                if !contiguous {
+                    for (j, &d) in dsts.iter().enumerate() {
+                        // SAFETY: every destination row belongs to exactly one chunk.
+                        let out = unsafe { rows.slice(d as usize * c_dst, c_dst) };
+                        out.copy_from_slice(&ybuf[j * c_dst..(j + 1) * c_dst]);
+                    }
                 }
             },
         );
@@ -341,18 +345,27 @@ impl ChunkPlan {
                     for &s in srcs {
                         xbuf.extend_from_slice(&src[s as usize * c_src..(s as usize + 1) * c_src]);
                     }
-                    ybuf.clear();
-                    for &d in dsts {
-                        ybuf.extend_from_slice(&dst[d as usize * c_dst..(d as usize + 1) * c_dst]);
-                    }
+                    let y: &[f32] = if dsts.windows(2).all(|p| p[1] == p[0] + 1) && !dsts.is_empty()
+                    {
+                        let d0 = dsts[0] as usize;
+                        &dst[d0 * c_dst..(d0 + dsts.len()) * c_dst]
+                    } else {
+                        ybuf.clear();
+                        for &d in dsts {
+                            ybuf.extend_from_slice(
+                                &dst[d as usize * c_dst..(d as usize + 1) * c_dst],
+                            );
+                        }
+                        &ybuf
+                    };
                     for k in 0..kv {
                         let acck = &mut acc[k * c_src * c_dst..(k + 1) * c_src * c_dst];
                         if Some(k) == self.centre {
                             let id = &self.iota[..dsts.len()];
-                            gemm_tn_rows(&xbuf, c_src, id, c_src, &ybuf, c_dst, id, c_dst, acck);
+                            gemm_tn_rows(&xbuf, c_src, id, c_src, y, c_dst, id, c_dst, acck);
                         } else {
                             let (ps, pd) = self.chunk_pairs(c, k);
-                            gemm_tn_rows(&xbuf, c_src, ps, c_src, &ybuf, c_dst, pd, c_dst, acck);
+                            gemm_tn_rows(&xbuf, c_src, ps, c_src, y, c_dst, pd, c_dst, acck);
                         }
                     }
                 }
