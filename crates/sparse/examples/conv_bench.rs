@@ -7,7 +7,9 @@
 //! cache budgets (how the default [`ChunkConfig`] was chosen).
 
 use semrecon_sparse::bench::{room_voxels, run_conv_bench, BenchOptions};
-use semrecon_sparse::ChunkConfig;
+use std::time::Instant;
+
+use semrecon_sparse::{ChunkConfig, ChunkedConv, KernelMap};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut voxel = 0.02f32;
@@ -37,36 +39,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let coords = room_voxels(voxel)?;
     let scene = "procedural_room";
     if sweep {
-        println!(
-            "{:>5} {:>6} {:>6} {:>7} {:>6} {:>9} {:>9} {:>9}",
-            "side", "levels", "budget", "chunks", "halo", "fwd ms", "dx ms", "dw ms"
-        );
-        for side in [8u32, 16, 32] {
-            for budget in [64usize, 128, 256, 512, 1024, 4096] {
-                let chunk = ChunkConfig {
-                    chunk_side: side,
-                    levels: 3,
-                    max_region_rows: budget,
-                };
-                let r = run_conv_bench(
-                    scene,
-                    &coords,
-                    voxel,
-                    channels,
-                    channels,
-                    &BenchOptions {
-                        repeats,
-                        chunk,
-                        rulebook: false,
-                    },
-                )?;
-                println!(
-                    "{side:>5} {:>6} {budget:>6} {:>7} {:>6.2} {:>9.2} {:>9.2} {:>9.2}",
-                    3, r.chunks, r.halo_ratio, r.rows[0].ms, r.rows[1].ms, r.rows[2].ms
-                );
-            }
-        }
-        return Ok(());
+        return run_sweep(&coords, channels, repeats);
     }
     let r = run_conv_bench(
         scene,
@@ -115,6 +88,82 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         println!(
             "chunked speed-up over rulebook, {pass}: {:.2}x",
             ms("rulebook") / ms("chunked")
+        );
+    }
+    Ok(())
+}
+
+/// Times the chunked passes for a grid of chunk configurations, round-robin so that the load
+/// of other processes hits every configuration alike; prints the fastest round of each.
+fn run_sweep(
+    coords: &[semrecon_sparse::Coord],
+    c: usize,
+    repeats: usize,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let map = KernelMap::submanifold(coords, 3)?;
+    let mut configs = Vec::new();
+    for side in [4u32, 8, 16, 32] {
+        for levels in [1u32, 3] {
+            for budget in [64usize, 128, 256, 512, 1024, 1 << 20] {
+                if levels == 1 && budget != 1 << 20 {
+                    continue;
+                }
+                let cfg = ChunkConfig {
+                    chunk_side: side,
+                    levels,
+                    max_region_rows: budget,
+                };
+                configs.push((cfg, ChunkedConv::new(map.clone(), coords, coords, &cfg)?));
+            }
+        }
+    }
+    let fill = |n: usize, s: u32| -> Vec<f32> {
+        (0..n)
+            .map(|i| ((i as u32 * 2_654_435_761 + s) >> 8) as f32 / 16_777_216.0 - 0.5)
+            .collect()
+    };
+    let (x, dy, w) = (
+        fill(coords.len() * c, 1),
+        fill(coords.len() * c, 2),
+        fill(27 * c * c, 3),
+    );
+    let mut best = vec![[f64::INFINITY; 3]; configs.len()];
+    let mut sink = 0f32;
+    for round in 0..=repeats {
+        for (i, (_, conv)) in configs.iter().enumerate() {
+            let mut time = |j: usize, f: &dyn Fn() -> f32| {
+                let t = Instant::now();
+                sink += f();
+                if round > 0 {
+                    best[i][j] = best[i][j].min(t.elapsed().as_secs_f64() * 1e3);
+                }
+            };
+            time(0, &|| conv.forward(&x, c, &w, c).map_or(0.0, |v| v[0]));
+            time(1, &|| {
+                conv.backward_input(&dy, c, &w, c).map_or(0.0, |v| v[0])
+            });
+            time(2, &|| {
+                conv.backward_weight(&x, c, &dy, c).map_or(0.0, |v| v[0])
+            });
+        }
+    }
+    std::hint::black_box(sink);
+    println!(
+        "{:>5} {:>6} {:>8} {:>7} {:>6} {:>8} {:>8} {:>8}",
+        "side", "levels", "budget", "chunks", "halo", "fwd ms", "dx ms", "dw ms"
+    );
+    for ((cfg, conv), b) in configs.iter().zip(&best) {
+        let plan = conv.forward_plan();
+        println!(
+            "{:>5} {:>6} {:>8} {:>7} {:>6.2} {:>8.2} {:>8.2} {:>8.2}",
+            cfg.chunk_side,
+            cfg.levels,
+            cfg.max_region_rows,
+            plan.num_chunks(),
+            plan.halo_ratio(),
+            b[0],
+            b[1],
+            b[2]
         );
     }
     Ok(())

@@ -79,6 +79,25 @@ pub struct ChunkPlan {
     iota: Vec<u32>,
 }
 
+/// Borrowed index arrays of a [`ChunkPlan`] (see its documentation for the layout).
+#[derive(Debug, Clone, Copy)]
+pub struct ChunkPlanArrays<'a> {
+    /// CSR start of every chunk in `dst_rows`, `[chunks + 1]`.
+    pub dst_start: &'a [u32],
+    /// Destination rows grouped by chunk, `[n_dst]`.
+    pub dst_rows: &'a [u32],
+    /// CSR start of every chunk in `src_rows`, `[chunks + 1]`.
+    pub src_start: &'a [u32],
+    /// Input-region rows grouped by chunk.
+    pub src_rows: &'a [u32],
+    /// CSR start of every (chunk, offset) in `pair_src` / `pair_dst`, `[chunks * K + 1]`.
+    pub pair_start: &'a [u32],
+    /// Chunk-local region index of every pair.
+    pub pair_src: &'a [u32],
+    /// Chunk-local destination index of every pair.
+    pub pair_dst: &'a [u32],
+}
+
 const NONE: u32 = u32::MAX;
 
 impl ChunkPlan {
@@ -236,6 +255,26 @@ impl ChunkPlan {
         }
         plan.iota = (0..max_rows as u32).collect();
         Ok(plan)
+    }
+
+    /// The plan's plain index arrays (layout in the type's documentation), for backends that
+    /// upload them as they are.
+    pub fn arrays(&self) -> ChunkPlanArrays<'_> {
+        ChunkPlanArrays {
+            dst_start: &self.dst_start,
+            dst_rows: &self.dst_rows,
+            src_start: &self.src_start,
+            src_rows: &self.src_rows,
+            pair_start: &self.pair_start,
+            pair_src: &self.pair_src,
+            pair_dst: &self.pair_dst,
+        }
+    }
+
+    /// The identity offset whose pairs are `(j, j)` for every chunk-local row `j` (the first
+    /// region rows are the chunk's own rows), if the map has one.
+    pub fn centre(&self) -> Option<usize> {
+        self.centre
     }
 
     /// Number of chunks.
@@ -421,6 +460,18 @@ impl ChunkedConv {
             map,
             forward,
             backward,
+        })
+    }
+
+    /// The transposed layer of a strided one: the `Up` convolution from this `Down` layer's
+    /// outputs back to its inputs (or the reverse), sharing both chunk plans with no new
+    /// planning. `None` for submanifold layers, whose transpose is themselves.
+    pub fn transposed(&self) -> Option<Self> {
+        let backward = self.backward.clone()?;
+        Some(Self {
+            map: self.map.transposed(),
+            forward: backward,
+            backward: Some(self.forward.clone()),
         })
     }
 

@@ -267,6 +267,7 @@ fn gemm_tn_rows_at(
 }
 
 #[cfg(target_arch = "x86_64")]
+#[allow(clippy::needless_range_loop)] // register tiles read best indexed
 mod avx2 {
     use std::arch::x86_64::*;
 
@@ -497,6 +498,7 @@ mod avx2 {
 }
 
 #[cfg(target_arch = "x86_64")]
+#[allow(clippy::needless_range_loop)] // register tiles read best indexed
 mod avx512 {
     use std::arch::x86_64::*;
 
@@ -721,9 +723,11 @@ mod avx512 {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 
+    #[allow(clippy::too_many_arguments)]
     fn naive(
         a: &[f32],
         lda: usize,

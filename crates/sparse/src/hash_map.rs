@@ -138,6 +138,7 @@ impl VoxelHashMap {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use crate::key::pack_unchecked;

@@ -112,7 +112,7 @@ impl KernelMap {
     /// [`SparseError::KernelSize`] for an even or too large kernel, range errors and duplicate
     /// coordinates as [`SparseError::CoordOutOfRange`] / [`SparseError::InvalidArgument`].
     pub fn submanifold(coords: &[Coord], kernel_size: usize) -> Result<Self> {
-        if kernel_size % 2 == 0 || kernel_size > 9 {
+        if kernel_size.is_multiple_of(2) || kernel_size > 9 {
             return Err(SparseError::KernelSize(kernel_size));
         }
         let index = index_of(coords)?;
@@ -379,6 +379,7 @@ impl KernelMap {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -98,6 +98,7 @@ pub(crate) fn parent(c: Coord) -> Coord {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

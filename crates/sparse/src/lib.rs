@@ -28,7 +28,7 @@ mod scatter;
 pub mod tensor;
 pub mod voxelize;
 
-pub use chunked::{ChunkConfig, ChunkPlan, ChunkedConv};
+pub use chunked::{ChunkConfig, ChunkPlan, ChunkPlanArrays, ChunkedConv};
 pub use error::{Result, SparseError};
 pub use gemm::{simd_level, SimdLevel};
 pub use hash_map::{KeyHasher, VoxelHashMap};

@@ -55,6 +55,7 @@ pub fn morton_order(coords: &[Coord]) -> Result<Vec<u32>> {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

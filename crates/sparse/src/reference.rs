@@ -10,12 +10,15 @@ use crate::kernel_map::{check_weights, MapKind};
 use crate::key::{parent, Coord};
 use crate::tensor::check_rows;
 
-/// `(offset, input row, output row)` triples of a layer, found by brute force.
+/// `(offset, input row, output row)` of one connection.
+type Triple = (usize, usize, usize);
+
+/// The kernel volume and the connections of a layer, found by brute force.
 fn triples(
     kind: MapKind,
     in_coords: &[Coord],
     out_coords: &[Coord],
-) -> Result<(usize, Vec<(usize, usize, usize)>)> {
+) -> Result<(usize, Vec<Triple>)> {
     let in_index: HashMap<Coord, usize> =
         in_coords.iter().enumerate().map(|(i, &c)| (c, i)).collect();
     let out_index: HashMap<Coord, usize> = out_coords
@@ -27,7 +30,7 @@ fn triples(
     let mut t = Vec::new();
     match kind {
         MapKind::Submanifold { kernel_size } => {
-            if kernel_size % 2 == 0 {
+            if kernel_size.is_multiple_of(2) {
                 return Err(SparseError::KernelSize(kernel_size));
             }
             let r = (kernel_size / 2) as i32;

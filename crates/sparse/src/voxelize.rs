@@ -98,6 +98,7 @@ pub fn voxelize(
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 

@@ -1,5 +1,6 @@
 //! Every fast kernel against the naive reference, on random and surface-like voxel sets, for
 //! every layer kind and pass, plus finite differences, thread-count determinism and bad input.
+#![allow(clippy::unwrap_used)]
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -472,4 +473,71 @@ fn bad_shapes_are_errors_not_panics() {
         ),
         Err(SparseError::WeightShape { .. })
     ));
+}
+
+#[test]
+fn transposed_strided_layer_reuses_the_plans() {
+    let set = surface_set(1);
+    let ls = layers(&set, 3);
+    let (down, up) = (&ls[1], &ls[2]);
+    let down_conv =
+        ChunkedConv::new(down.map.clone(), &down.input, &down.output, &SMALL_CHUNKS).unwrap();
+    let up_conv = down_conv.transposed().unwrap();
+    assert_eq!(up_conv.map(), &up.map);
+    let (c_in, c_out) = (24, 16);
+    let x = values(1, up.input.len() * c_in);
+    let w = values(2, 8 * c_in * c_out);
+    let dy = values(3, up.output.len() * c_out);
+    let y_ref =
+        reference::forward(MapKind::Up, &up.input, &up.output, &x, c_in, &w, c_out).unwrap();
+    assert_close(
+        &up_conv.forward(&x, c_in, &w, c_out).unwrap(),
+        &y_ref,
+        "up via transposed",
+    );
+    let dx_ref =
+        reference::backward_input(MapKind::Up, &up.input, &up.output, &dy, c_out, &w, c_in)
+            .unwrap();
+    assert_close(
+        &up_conv.backward_input(&dy, c_out, &w, c_in).unwrap(),
+        &dx_ref,
+        "up dx via transposed",
+    );
+    let dw_ref =
+        reference::backward_weight(MapKind::Up, &up.input, &up.output, &x, c_in, &dy, c_out)
+            .unwrap();
+    assert_close(
+        &up_conv.backward_weight(&x, c_in, &dy, c_out).unwrap(),
+        &dw_ref,
+        "up dw via transposed",
+    );
+    let sub = ChunkedConv::new(ls[0].map.clone(), &set, &set, &SMALL_CHUNKS).unwrap();
+    assert!(sub.transposed().is_none());
+}
+
+#[test]
+fn plan_arrays_cover_every_output_once() {
+    let set = surface_set(0);
+    let map = KernelMap::submanifold(&set, 3).unwrap();
+    let conv = ChunkedConv::new(map.clone(), &set, &set, &SMALL_CHUNKS).unwrap();
+    let plan = conv.forward_plan();
+    let a = plan.arrays();
+    assert_eq!(a.dst_start.len(), plan.num_chunks() + 1);
+    let mut seen = vec![false; set.len()];
+    for &d in a.dst_rows {
+        assert!(!seen[d as usize]);
+        seen[d as usize] = true;
+    }
+    assert!(seen.iter().all(|&s| s));
+    assert_eq!(a.pair_src.len(), map.num_pairs());
+    assert_eq!(*a.pair_start.last().unwrap() as usize, map.num_pairs());
+    // The region of every chunk starts with its own rows (identity centre).
+    let centre = plan.centre().unwrap();
+    for c in 0..plan.num_chunks() {
+        let dst = plan.chunk_dst(c);
+        assert_eq!(&plan.chunk_src(c)[..dst.len()], dst);
+        let (ps, pd) = plan.chunk_pairs(c, centre);
+        assert_eq!(ps, pd);
+        assert_eq!(ps.len(), dst.len());
+    }
 }
