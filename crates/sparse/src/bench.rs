@@ -265,18 +265,31 @@ pub fn run_conv_bench(
     let flop = 2.0 * map.num_pairs() as f64 * (c_in * c_out) as f64;
     // Every measurement runs once per round, round-robin, so that the load of other processes
     // on a shared machine hits all of them alike; the fastest round of each is kept.
+    // Outputs are preallocated (the `_into` entry points), as a training loop would keep them:
+    // fresh multi-megabyte buffers cost page faults that are not the kernels' work.
+    let mut y = vec![0f32; n * c_out];
+    let mut dx = vec![0f32; n * c_in];
+    let y_ptr = std::cell::RefCell::new(&mut y);
+    let dx_ptr = std::cell::RefCell::new(&mut dx);
     type Pass<'a> = Box<dyn FnMut() -> f32 + 'a>;
     let mut passes: Vec<(&str, &str, Pass)> = Vec::new();
     if options.rulebook {
         passes.push((
             "rulebook",
             "forward",
-            Box::new(|| rulebook::forward(&map, &x, c_in, &w, c_out).map_or(0.0, |v| v[0])),
+            Box::new(|| {
+                let mut y = y_ptr.borrow_mut();
+                rulebook::forward_into(&map, &x, c_in, &w, c_out, &mut y).map_or(0.0, |()| y[0])
+            }),
         ));
         passes.push((
             "rulebook",
             "backward_input",
-            Box::new(|| rulebook::backward_input(&map, &dy, c_out, &w, c_in).map_or(0.0, |v| v[0])),
+            Box::new(|| {
+                let mut dx = dx_ptr.borrow_mut();
+                rulebook::backward_input_into(&map, &dy, c_out, &w, c_in, &mut dx)
+                    .map_or(0.0, |()| dx[0])
+            }),
         ));
         passes.push((
             "rulebook",
@@ -289,14 +302,19 @@ pub fn run_conv_bench(
     passes.push((
         "chunked",
         "forward",
-        Box::new(|| conv.forward(&x, c_in, &w, c_out).map_or(0.0, |v| v[0])),
+        Box::new(|| {
+            let mut y = y_ptr.borrow_mut();
+            conv.forward_into(&x, c_in, &w, c_out, &mut y)
+                .map_or(0.0, |()| y[0])
+        }),
     ));
     passes.push((
         "chunked",
         "backward_input",
         Box::new(|| {
-            conv.backward_input(&dy, c_out, &w, c_in)
-                .map_or(0.0, |v| v[0])
+            let mut dx = dx_ptr.borrow_mut();
+            conv.backward_input_into(&dy, c_out, &w, c_in, &mut dx)
+                .map_or(0.0, |()| dx[0])
         }),
     ));
     passes.push((

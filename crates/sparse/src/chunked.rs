@@ -367,7 +367,7 @@ impl ChunkPlan {
     }
 
     /// `dW_k = sum over pairs of src[s]^T dst[d]`, `[kv, c_src, c_dst]`, deterministic.
-    fn weight_grad(&self, src: &[f32], c_src: usize, dst: &[f32], c_dst: usize) -> Vec<f32> {
+    fn weight_grad(&self, src: &[f32], c_src: usize, dst: &[f32], c_dst: usize, dw: &mut [f32]) {
         let kv = self.kernel_volume;
         let size = kv * c_src * c_dst;
         let n = self.num_chunks();
@@ -411,13 +411,12 @@ impl ChunkPlan {
                 acc
             })
             .collect();
-        let mut dw = vec![0f32; size];
+        dw.fill(0.0);
         for p in &partials {
             for (d, &v) in dw.iter_mut().zip(p) {
                 *d += v;
             }
         }
-        dw
     }
 }
 
@@ -499,11 +498,32 @@ impl ChunkedConv {
     /// # Errors
     /// [`SparseError::FeatureShape`] / [`SparseError::WeightShape`] on mismatched buffers.
     pub fn forward(&self, x: &[f32], c_in: usize, w: &[f32], c_out: usize) -> Result<Vec<f32>> {
+        let mut y = vec![0f32; self.map.n_out() * c_out];
+        self.forward_into(x, c_in, w, c_out, &mut y)?;
+        Ok(y)
+    }
+
+    /// [`Self::forward`] into a caller's buffer (overwritten; no clearing needed), so that a
+    /// training loop does not pay for a fresh allocation and its page faults every pass.
+    ///
+    /// # Shapes
+    /// `y`: `[n_out, c_out]`.
+    ///
+    /// # Errors
+    /// As [`Self::forward`], and for a `y` of the wrong size.
+    pub fn forward_into(
+        &self,
+        x: &[f32],
+        c_in: usize,
+        w: &[f32],
+        c_out: usize,
+        y: &mut [f32],
+    ) -> Result<()> {
         check_rows("x", x, self.map.n_in(), c_in)?;
         check_weights(w, self.map.kernel_volume(), c_in, c_out)?;
-        let mut y = vec![0f32; self.map.n_out() * c_out];
-        self.forward.apply(x, c_in, w, c_out, &mut y);
-        Ok(y)
+        check_rows("y", y, self.map.n_out(), c_out)?;
+        self.forward.apply(x, c_in, w, c_out, y);
+        Ok(())
     }
 
     /// Input gradient.
@@ -520,21 +540,41 @@ impl ChunkedConv {
         w: &[f32],
         c_in: usize,
     ) -> Result<Vec<f32>> {
+        let mut dx = vec![0f32; self.map.n_in() * c_in];
+        self.backward_input_into(dy, c_out, w, c_in, &mut dx)?;
+        Ok(dx)
+    }
+
+    /// [`Self::backward_input`] into a caller's buffer (overwritten).
+    ///
+    /// # Shapes
+    /// `dx`: `[n_in, c_in]`.
+    ///
+    /// # Errors
+    /// As [`Self::forward`], and for a `dx` of the wrong size.
+    pub fn backward_input_into(
+        &self,
+        dy: &[f32],
+        c_out: usize,
+        w: &[f32],
+        c_in: usize,
+        dx: &mut [f32],
+    ) -> Result<()> {
         check_rows("dy", dy, self.map.n_out(), c_out)?;
         let kv = self.map.kernel_volume();
         check_weights(w, kv, c_in, c_out)?;
-        let mut dx = vec![0f32; self.map.n_in() * c_in];
+        check_rows("dx", dx, self.map.n_in(), c_in)?;
         match &self.backward {
             Some(plan) => {
                 let wt = transpose_weights(w, kv, c_in, c_out, |k| k);
-                plan.apply(dy, c_out, &wt, c_in, &mut dx);
+                plan.apply(dy, c_out, &wt, c_in, dx);
             }
             None => {
                 let wt = transpose_weights(w, kv, c_in, c_out, |k| kv - 1 - k);
-                self.forward.apply(dy, c_out, &wt, c_in, &mut dx);
+                self.forward.apply(dy, c_out, &wt, c_in, dx);
             }
         }
-        Ok(dx)
+        Ok(())
     }
 
     /// Weight gradient.
@@ -551,8 +591,30 @@ impl ChunkedConv {
         dy: &[f32],
         c_out: usize,
     ) -> Result<Vec<f32>> {
+        let mut dw = vec![0f32; self.map.kernel_volume() * c_in * c_out];
+        self.backward_weight_into(x, c_in, dy, c_out, &mut dw)?;
+        Ok(dw)
+    }
+
+    /// [`Self::backward_weight`] into a caller's buffer (overwritten).
+    ///
+    /// # Shapes
+    /// `dw`: `[K^3, c_in, c_out]`.
+    ///
+    /// # Errors
+    /// As [`Self::forward`], and for a `dw` of the wrong size.
+    pub fn backward_weight_into(
+        &self,
+        x: &[f32],
+        c_in: usize,
+        dy: &[f32],
+        c_out: usize,
+        dw: &mut [f32],
+    ) -> Result<()> {
         check_rows("x", x, self.map.n_in(), c_in)?;
         check_rows("dy", dy, self.map.n_out(), c_out)?;
-        Ok(self.forward.weight_grad(x, c_in, dy, c_out))
+        check_weights(dw, self.map.kernel_volume(), c_in, c_out)?;
+        self.forward.weight_grad(x, c_in, dy, c_out, dw);
+        Ok(())
     }
 }

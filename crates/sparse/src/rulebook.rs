@@ -132,11 +132,32 @@ pub fn forward(
     w: &[f32],
     c_out: usize,
 ) -> Result<Vec<f32>> {
+    let mut y = vec![0f32; map.n_out() * c_out];
+    forward_into(map, x, c_in, w, c_out, &mut y)?;
+    Ok(y)
+}
+
+/// [`forward`] into a caller's buffer (overwritten).
+///
+/// # Shapes
+/// `y`: `[map.n_out(), c_out]`.
+///
+/// # Errors
+/// As [`forward`], and for a `y` of the wrong size.
+pub fn forward_into(
+    map: &KernelMap,
+    x: &[f32],
+    c_in: usize,
+    w: &[f32],
+    c_out: usize,
+    y: &mut [f32],
+) -> Result<()> {
     check_rows("x", x, map.n_in(), c_in)?;
     check_weights(w, map.kernel_volume(), c_in, c_out)?;
-    let mut y = vec![0f32; map.n_out() * c_out];
-    apply(map, false, x, c_in, w, c_out, &mut y);
-    Ok(y)
+    check_rows("y", y, map.n_out(), c_out)?;
+    y.fill(0.0);
+    apply(map, false, x, c_in, w, c_out, y);
+    Ok(())
 }
 
 /// Input gradient.
@@ -153,13 +174,34 @@ pub fn backward_input(
     w: &[f32],
     c_in: usize,
 ) -> Result<Vec<f32>> {
+    let mut dx = vec![0f32; map.n_in() * c_in];
+    backward_input_into(map, dy, c_out, w, c_in, &mut dx)?;
+    Ok(dx)
+}
+
+/// [`backward_input`] into a caller's buffer (overwritten).
+///
+/// # Shapes
+/// `dx`: `[map.n_in(), c_in]`.
+///
+/// # Errors
+/// As [`forward`], and for a `dx` of the wrong size.
+pub fn backward_input_into(
+    map: &KernelMap,
+    dy: &[f32],
+    c_out: usize,
+    w: &[f32],
+    c_in: usize,
+    dx: &mut [f32],
+) -> Result<()> {
     check_rows("dy", dy, map.n_out(), c_out)?;
     let kv = map.kernel_volume();
     check_weights(w, kv, c_in, c_out)?;
+    check_rows("dx", dx, map.n_in(), c_in)?;
     let wt = transpose_weights(w, kv, c_in, c_out, |k| k);
-    let mut dx = vec![0f32; map.n_in() * c_in];
-    apply(map, true, dy, c_out, &wt, c_in, &mut dx);
-    Ok(dx)
+    dx.fill(0.0);
+    apply(map, true, dy, c_out, &wt, c_in, dx);
+    Ok(())
 }
 
 /// Weight gradient; offsets in parallel, each one gather + GEMM.
