@@ -100,6 +100,131 @@ pub struct ChunkPlanArrays<'a> {
 
 const NONE: u32 = u32::MAX;
 
+/// Runs of equal `code >> shift` in `keyed[lo..hi]`, appended as `(start, end, level)`.
+fn runs(
+    keyed: &[(u64, u32)],
+    lo: usize,
+    hi: usize,
+    shift: u32,
+    level: u32,
+    out: &mut Vec<(usize, usize, u32)>,
+) {
+    let mut s = lo;
+    while s < hi {
+        let p = keyed[s].0 >> shift;
+        let mut e = s + 1;
+        while e < hi && keyed[e].0 >> shift == p {
+            e += 1;
+        }
+        out.push((s, e, level));
+        s = e;
+    }
+}
+
+/// One chunk's region and local pairs, before concatenation.
+struct ChunkParts {
+    src: Vec<u32>,
+    pair_src: Vec<u32>,
+    pair_dst: Vec<u32>,
+    counts: Vec<u32>,
+    rows: usize,
+}
+
+/// Per-thread scratch for plan building: a generation mark and a local index per source row
+/// (so that no clearing is needed between chunks).
+struct Marks {
+    mark: Vec<u32>,
+    local: Vec<u32>,
+    generation: u32,
+}
+
+impl Marks {
+    fn new(n_src: usize) -> Self {
+        Self {
+            mark: vec![0; n_src],
+            local: vec![0; n_src],
+            generation: 0,
+        }
+    }
+
+    fn next(&mut self) -> u32 {
+        self.generation = self.generation.wrapping_add(1);
+        if self.generation == 0 {
+            self.mark.fill(0);
+            self.generation = 1;
+        }
+        self.generation
+    }
+
+    /// Distinct source rows read by the destinations in `range`.
+    fn region_size(&mut self, range: &[(u64, u32)], nbr: &[u32], kv: usize) -> usize {
+        let g = self.next();
+        let mut count = 0;
+        for &(_, d) in range {
+            for &s in &nbr[d as usize * kv..(d as usize + 1) * kv] {
+                if s != NONE && self.mark[s as usize] != g {
+                    self.mark[s as usize] = g;
+                    count += 1;
+                }
+            }
+        }
+        count
+    }
+
+    /// The region (identity-centre rows first, then first appearance) and local pairs.
+    fn chunk_parts(
+        &mut self,
+        dsts: &[(u64, u32)],
+        nbr: &[u32],
+        kv: usize,
+        centre: Option<usize>,
+    ) -> ChunkParts {
+        let g = self.next();
+        let mut src = Vec::new();
+        let (mark, local) = (&mut self.mark, &mut self.local);
+        let mut add = |s: u32, src: &mut Vec<u32>| {
+            if mark[s as usize] != g {
+                mark[s as usize] = g;
+                local[s as usize] = src.len() as u32;
+                src.push(s);
+            }
+        };
+        if let Some(c) = centre {
+            for &(_, d) in dsts {
+                add(nbr[d as usize * kv + c], &mut src);
+            }
+        }
+        for &(_, d) in dsts {
+            for &s in &nbr[d as usize * kv..(d as usize + 1) * kv] {
+                if s != NONE {
+                    add(s, &mut src);
+                }
+            }
+        }
+        let mut pair_src = Vec::new();
+        let mut pair_dst = Vec::new();
+        let mut counts = Vec::with_capacity(kv);
+        for k in 0..kv {
+            let before = pair_src.len();
+            for (j, &(_, d)) in dsts.iter().enumerate() {
+                let s = nbr[d as usize * kv + k];
+                if s != NONE {
+                    pair_src.push(local[s as usize]);
+                    pair_dst.push(j as u32);
+                }
+            }
+            counts.push((pair_src.len() - before) as u32);
+        }
+        ChunkParts {
+            src,
+            pair_src,
+            pair_dst,
+            counts,
+            rows: dsts.len(),
+        }
+    }
+}
+
 impl ChunkPlan {
     /// Chunks the outputs of `map` (whose coordinates are `dst_coords`).
     ///
@@ -137,121 +262,93 @@ impl ChunkPlan {
                 nbr[o as usize * kv + k] = i;
             }
         }
-        let mut keyed = Vec::with_capacity(n_dst);
         for (row, &c) in dst_coords.iter().enumerate() {
             pack_key(c, row)?;
-            keyed.push((morton_unchecked(c), row as u32));
         }
-        keyed.sort_unstable();
+        let mut keyed: Vec<(u64, u32)> = dst_coords
+            .par_iter()
+            .enumerate()
+            .map(|(r, &c)| (morton_unchecked(c), r as u32))
+            .collect();
+        keyed.par_sort_unstable();
 
-        // Adaptive splitting over runs of equal Morton prefix.
-        let mut mark = vec![NONE; n_src];
-        let mut generation = 0u32;
-        let mut region_size = |range: &[(u64, u32)], generation: &mut u32| -> usize {
-            *generation += 1;
-            let mut count = 0;
-            for &(_, d) in range {
-                for &s in &nbr[d as usize * kv..(d as usize + 1) * kv] {
-                    if s != NONE && mark[s as usize] != *generation {
-                        mark[s as usize] = *generation;
-                        count += 1;
-                    }
-                }
-            }
-            count
-        };
+        // Adaptive splitting over runs of equal Morton prefix, top-level cubes in parallel.
         let top_shift = 3 * side.trailing_zeros();
-        let mut chunks: Vec<(usize, usize)> = Vec::new();
-        let mut stack: Vec<(usize, usize, u32)> = Vec::new();
-        let runs =
-            |lo: usize, hi: usize, shift: u32, out: &mut Vec<(usize, usize, u32)>, level: u32| {
-                let mut s = lo;
-                while s < hi {
-                    let p = keyed[s].0 >> shift;
-                    let mut e = s + 1;
-                    while e < hi && keyed[e].0 >> shift == p {
-                        e += 1;
-                    }
-                    out.push((s, e, level));
-                    s = e;
-                }
-            };
         let mut top = Vec::new();
-        runs(0, n_dst, top_shift, &mut top, 0);
-        stack.extend(top.into_iter().rev());
-        while let Some((lo, hi, level)) = stack.pop() {
-            let last = level + 1 >= config.levels || top_shift < 3 * (level + 1);
-            if last || region_size(&keyed[lo..hi], &mut generation) <= config.max_region_rows {
-                chunks.push((lo, hi));
-            } else {
-                let mut sub = Vec::new();
-                runs(lo, hi, top_shift - 3 * (level + 1), &mut sub, level + 1);
-                stack.extend(sub.into_iter().rev());
-            }
-        }
+        runs(&keyed, 0, n_dst, top_shift, 0, &mut top);
+        let nested: Vec<Vec<(usize, usize)>> = top
+            .par_iter()
+            .map_init(
+                || Marks::new(n_src),
+                |marks, &(lo, hi, _)| {
+                    let mut out = Vec::new();
+                    let mut stack = vec![(lo, hi, 0u32)];
+                    while let Some((lo, hi, level)) = stack.pop() {
+                        let last = level + 1 >= config.levels || top_shift < 3 * (level + 1);
+                        if last
+                            || marks.region_size(&keyed[lo..hi], &nbr, kv) <= config.max_region_rows
+                        {
+                            out.push((lo, hi));
+                        } else {
+                            let mut sub = Vec::new();
+                            runs(
+                                &keyed,
+                                lo,
+                                hi,
+                                top_shift - 3 * (level + 1),
+                                level + 1,
+                                &mut sub,
+                            );
+                            stack.extend(sub.into_iter().rev());
+                        }
+                    }
+                    out
+                },
+            )
+            .collect();
+        let chunks: Vec<(usize, usize)> = nested.concat();
 
-        // Regions and chunk-local pairs.
-        let mut local = vec![0u32; n_src];
+        // Regions and chunk-local pairs, chunks in parallel, then concatenated in order.
+        let parts: Vec<ChunkParts> = chunks
+            .par_iter()
+            .map_init(
+                || Marks::new(n_src),
+                |marks, &(lo, hi)| marks.chunk_parts(&keyed[lo..hi], &nbr, kv, centre),
+            )
+            .collect();
+        let total_src: usize = parts.iter().map(|p| p.src.len()).sum();
         let mut plan = Self {
             kernel_volume: kv,
             centre,
             n_src,
             n_dst,
-            dst_start: vec![0],
-            dst_rows: Vec::with_capacity(n_dst),
-            src_start: vec![0],
-            src_rows: Vec::new(),
-            pair_start: vec![0],
+            dst_start: Vec::with_capacity(chunks.len() + 1),
+            dst_rows: keyed.iter().map(|&(_, d)| d).collect(),
+            src_start: Vec::with_capacity(chunks.len() + 1),
+            src_rows: Vec::with_capacity(total_src),
+            pair_start: Vec::with_capacity(chunks.len() * kv + 1),
             pair_src: Vec::with_capacity(map.num_pairs()),
             pair_dst: Vec::with_capacity(map.num_pairs()),
             iota: Vec::new(),
         };
+        let too_many = |n: usize| u32::try_from(n).map_err(|_| SparseError::TooManyRows(n));
+        plan.dst_start.push(0);
+        plan.src_start.push(0);
+        plan.pair_start.push(0);
         let mut max_rows = 0;
-        for &(lo, hi) in &chunks {
-            generation += 1;
-            let region_begin = plan.src_rows.len();
-            let dsts = &keyed[lo..hi];
-            let mut add = |s: u32, src_rows: &mut Vec<u32>| {
-                if mark[s as usize] != generation {
-                    mark[s as usize] = generation;
-                    local[s as usize] = (src_rows.len() - region_begin) as u32;
-                    src_rows.push(s);
-                }
-            };
-            if let Some(c) = centre {
-                for &(_, d) in dsts {
-                    add(nbr[d as usize * kv + c], &mut plan.src_rows);
-                }
+        for (&(_, hi), part) in chunks.iter().zip(&parts) {
+            // Chunks are consecutive runs of the sorted list, so `dst_rows` is already grouped.
+            plan.dst_start.push(hi as u32);
+            plan.src_rows.extend_from_slice(&part.src);
+            plan.src_start.push(too_many(plan.src_rows.len())?);
+            let mut q = 0;
+            for &count in &part.counts {
+                q += count as usize;
+                plan.pair_start.push(too_many(plan.pair_src.len() + q)?);
             }
-            for &(_, d) in dsts {
-                plan.dst_rows.push(d);
-                for &s in &nbr[d as usize * kv..(d as usize + 1) * kv] {
-                    if s != NONE {
-                        add(s, &mut plan.src_rows);
-                    }
-                }
-            }
-            for k in 0..kv {
-                for (j, &(_, d)) in dsts.iter().enumerate() {
-                    let s = nbr[d as usize * kv + k];
-                    if s != NONE {
-                        plan.pair_src.push(local[s as usize]);
-                        plan.pair_dst.push(j as u32);
-                    }
-                }
-                plan.pair_start.push(
-                    u32::try_from(plan.pair_src.len())
-                        .map_err(|_| SparseError::TooManyRows(plan.pair_src.len()))?,
-                );
-            }
-            max_rows = max_rows
-                .max(hi - lo)
-                .max(plan.src_rows.len() - region_begin);
-            plan.dst_start.push(plan.dst_rows.len() as u32);
-            plan.src_start.push(
-                u32::try_from(plan.src_rows.len())
-                    .map_err(|_| SparseError::TooManyRows(plan.src_rows.len()))?,
-            );
+            plan.pair_src.extend_from_slice(&part.pair_src);
+            plan.pair_dst.extend_from_slice(&part.pair_dst);
+            max_rows = max_rows.max(part.src.len()).max(part.rows);
         }
         plan.iota = (0..max_rows as u32).collect();
         Ok(plan)

@@ -12,6 +12,30 @@
 //! - [`chunked`]: the adaptive chunk-based kernel (Algorithm 2 for CPU caches), the fast path.
 //!
 //! All kernels are deterministic: the same bits for any number of rayon threads.
+//!
+//! ```
+//! use semrecon_sparse::{voxelize, ChunkConfig, ChunkedConv, KernelMap};
+//!
+//! // Points with RGB features, voxelised at 5 cm (voxels come out in Z-order).
+//! let points = [[0.0, 0.0, 0.0], [0.06, 0.0, 0.0], [0.06, 0.05, 0.0]];
+//! let rgb = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+//! let v = voxelize(&points, &rgb, 3, 0.05, 0)?;
+//! let coords = v.tensor.coords();
+//!
+//! // One map and plan per level, shared by every 3x3x3 layer of that level.
+//! let map = KernelMap::submanifold(coords, 3)?;
+//! let conv = ChunkedConv::new(map, coords, coords, &ChunkConfig::default())?;
+//! let w = vec![0.1f32; 27 * 3 * 8]; // [K^3, c_in, c_out]
+//! let y = conv.forward(v.tensor.features(), 3, &w, 8)?;
+//! assert_eq!(y.len(), coords.len() * 8);
+//!
+//! // Strided down to the coarser level and the transposed layer back up.
+//! let (coarse, down_map) = KernelMap::downsample(coords)?;
+//! let down = ChunkedConv::new(down_map, coords, &coarse, &ChunkConfig::default())?;
+//! let up = down.transposed().expect("strided layers have a transpose");
+//! assert_eq!(up.map().n_out(), coords.len());
+//! # Ok::<(), semrecon_sparse::SparseError>(())
+//! ```
 #![warn(missing_docs)]
 
 pub mod bench;
