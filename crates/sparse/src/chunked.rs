@@ -21,6 +21,8 @@
 //! into per-group partial sums; groups are fixed runs of chunks (independent of the thread
 //! count) and are reduced in index order, so the result is deterministic too.
 
+use std::sync::Mutex;
+
 use rayon::prelude::*;
 
 use crate::error::{Result, SparseError};
@@ -464,15 +466,31 @@ impl ChunkPlan {
     }
 
     /// `dW_k = sum over pairs of src[s]^T dst[d]`, `[kv, c_src, c_dst]`, deterministic.
-    fn weight_grad(&self, src: &[f32], c_src: usize, dst: &[f32], c_dst: usize, dw: &mut [f32]) {
+    /// `partials` is scratch (reused between calls to spare the page faults of a fresh
+    /// multi-megabyte buffer).
+    fn weight_grad(
+        &self,
+        src: &[f32],
+        c_src: usize,
+        dst: &[f32],
+        c_dst: usize,
+        dw: &mut [f32],
+        partials: &mut Vec<f32>,
+    ) {
         let kv = self.kernel_volume;
         let size = kv * c_src * c_dst;
         let n = self.num_chunks();
         let groups = n.min(WEIGHT_GROUPS);
-        let partials: Vec<Vec<f32>> = (0..groups)
-            .into_par_iter()
-            .map(|g| {
-                let mut acc = vec![0f32; size];
+        dw.fill(0.0);
+        if size == 0 || groups == 0 {
+            return;
+        }
+        partials.resize(groups * size, 0.0);
+        partials
+            .par_chunks_mut(size)
+            .enumerate()
+            .for_each(|(g, acc)| {
+                acc.fill(0.0);
                 let (mut xbuf, mut ybuf) = (Vec::new(), Vec::new());
                 for c in g * n / groups..(g + 1) * n / groups {
                     let srcs = self.chunk_src(c);
@@ -505,11 +523,8 @@ impl ChunkPlan {
                         }
                     }
                 }
-                acc
-            })
-            .collect();
-        dw.fill(0.0);
-        for p in &partials {
+            });
+        for p in partials.chunks(size) {
             for (d, &v) in dw.iter_mut().zip(p) {
                 *d += v;
             }
@@ -522,11 +537,23 @@ const WEIGHT_GROUPS: usize = 16;
 
 /// A convolution layer geometry ready for the chunked kernels: the kernel map and its chunk
 /// plans. Build it once per level (or per strided transition) and call it for every layer.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct ChunkedConv {
     map: KernelMap,
     forward: ChunkPlan,
     backward: Option<ChunkPlan>,
+    /// Scratch of the weight gradient's partial sums, kept between calls.
+    workspace: Mutex<Vec<f32>>,
+}
+
+impl Clone for ChunkedConv {
+    fn clone(&self) -> Self {
+        Self::from_parts(
+            self.map.clone(),
+            self.forward.clone(),
+            self.backward.clone(),
+        )
+    }
 }
 
 impl ChunkedConv {
@@ -552,11 +579,16 @@ impl ChunkedConv {
             MapKind::Submanifold { .. } => None,
             _ => Some(ChunkPlan::new(&map.transposed(), in_coords, config)?),
         };
-        Ok(Self {
+        Ok(Self::from_parts(map, forward, backward))
+    }
+
+    fn from_parts(map: KernelMap, forward: ChunkPlan, backward: Option<ChunkPlan>) -> Self {
+        Self {
             map,
             forward,
             backward,
-        })
+            workspace: Mutex::new(Vec::new()),
+        }
     }
 
     /// The transposed layer of a strided one: the `Up` convolution from this `Down` layer's
@@ -564,11 +596,11 @@ impl ChunkedConv {
     /// planning. `None` for submanifold layers, whose transpose is themselves.
     pub fn transposed(&self) -> Option<Self> {
         let backward = self.backward.clone()?;
-        Some(Self {
-            map: self.map.transposed(),
-            forward: backward,
-            backward: Some(self.forward.clone()),
-        })
+        Some(Self::from_parts(
+            self.map.transposed(),
+            backward,
+            Some(self.forward.clone()),
+        ))
     }
 
     /// The kernel map.
@@ -711,7 +743,15 @@ impl ChunkedConv {
         check_rows("x", x, self.map.n_in(), c_in)?;
         check_rows("dy", dy, self.map.n_out(), c_out)?;
         check_weights(dw, self.map.kernel_volume(), c_in, c_out)?;
-        self.forward.weight_grad(x, c_in, dy, c_out, dw);
+        // A concurrent call on the same layer gets a scratch buffer of its own.
+        match self.workspace.try_lock() {
+            Ok(mut scratch) => self
+                .forward
+                .weight_grad(x, c_in, dy, c_out, dw, &mut scratch),
+            Err(_) => self
+                .forward
+                .weight_grad(x, c_in, dy, c_out, dw, &mut Vec::new()),
+        }
         Ok(())
     }
 }
