@@ -1,7 +1,7 @@
 //! Sparse convolution benchmark on the procedural room: chunked vs rulebook, every pass.
 //!
 //! `cargo run --release -p semrecon-sparse --example conv_bench -- [--voxel 0.02]
-//!  [--channels 64] [--repeats 5] [--threads N] [--sweep] [--no-rulebook]`
+//!  [--channels 64] [--repeats 5] [--threads N] [--sweep] [--no-rulebook] [--json FILE]`
 //!
 //! `--sweep` times the chunked forward and backward passes over a grid of chunk sides and
 //! cache budgets (how the default [`ChunkConfig`] was chosen).
@@ -18,6 +18,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut threads = 0usize;
     let mut sweep = false;
     let mut rulebook = true;
+    let mut json: Option<std::path::PathBuf> = None;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         let mut value = || args.next().ok_or_else(|| format!("{a} needs a value"));
@@ -28,6 +29,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--threads" => threads = value()?.parse()?,
             "--sweep" => sweep = true,
             "--no-rulebook" => rulebook = false,
+            "--json" => json = Some(value()?.into()),
             other => return Err(format!("unknown argument {other}").into()),
         }
     }
@@ -89,6 +91,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "chunked speed-up over rulebook, {pass}: {:.2}x",
             ms("rulebook") / ms("chunked")
         );
+    }
+    if let Some(path) = json {
+        // Write beside the target and rename, so that no half-written file is ever seen.
+        let tmp = path.with_extension("json.tmp");
+        std::fs::write(&tmp, serde_json::to_string_pretty(&r)?)
+            .map_err(|e| format!("{}: {e}", tmp.display()))?;
+        std::fs::rename(&tmp, &path).map_err(|e| format!("{}: {e}", path.display()))?;
+        println!("wrote {}", path.display());
     }
     Ok(())
 }

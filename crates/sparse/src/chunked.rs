@@ -228,7 +228,9 @@ impl Marks {
 }
 
 impl ChunkPlan {
-    /// Chunks the outputs of `map` (whose coordinates are `dst_coords`).
+    /// Chunks the outputs of `map` (whose coordinates are `dst_coords`). The coordinates only
+    /// shape the chunks: wrong ones cost speed, never correctness, since every output row still
+    /// lands in exactly one chunk with all of its pairs.
     ///
     /// # Errors
     /// [`SparseError::CoordCount`] when `dst_coords` does not match `map.n_out()`,
