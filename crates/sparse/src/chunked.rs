@@ -488,13 +488,26 @@ impl ChunkPlan {
             return;
         }
         partials.resize(groups * size, 0.0);
+        // Group boundaries balance the pair counts (the work), from the plan alone, so that
+        // they do not depend on the thread count.
+        let total = *self.pair_start.last().unwrap_or(&0) as usize;
+        let mut bounds = vec![0usize; groups + 1];
+        let mut c = 0;
+        for (g, b) in bounds.iter_mut().enumerate().skip(1) {
+            let target = total * g / groups;
+            while c < n && (self.pair_start[c * kv] as usize) < target {
+                c += 1;
+            }
+            *b = c;
+        }
+        bounds[groups] = n;
         partials
             .par_chunks_mut(size)
             .enumerate()
             .for_each(|(g, acc)| {
                 acc.fill(0.0);
                 let (mut xbuf, mut ybuf) = (Vec::new(), Vec::new());
-                for c in g * n / groups..(g + 1) * n / groups {
+                for c in bounds[g]..bounds[g + 1] {
                     let srcs = self.chunk_src(c);
                     let dsts = self.chunk_dst(c);
                     xbuf.clear();
