@@ -48,8 +48,8 @@ pub struct ChunkConfig {
 impl Default for ChunkConfig {
     /// Side 8, three levels (8, 4, 2), 256 region rows (64 KiB at 64 channels). Measured on
     /// the benchmark room (35k voxels at 2 cm, 64 channels, `conv_bench --sweep`): forward and
-    /// input gradient are flat (within 5 %) from side 4 to 32 because the whole layer stays
-    /// in L2; the weight gradient wants L1-sized regions and is 10-50 % slower with chunks of
+    /// input gradient are flat (within 5 %) from side 4 to 32 because every chunk's working
+    /// set stays in L2 at these sizes; the weight gradient wants L1-sized regions and is 10-50 % slower with chunks of
     /// side 16-32 and no splitting, or side 4 (halo 2.2x). Side 8 also leaves ~500 chunks for
     /// load balance.
     fn default() -> Self {
