@@ -1,7 +1,9 @@
 //! Sparse convolution benchmark on the procedural room: chunked vs rulebook, every pass.
 //!
 //! `cargo run --release -p semrecon-sparse --example conv_bench -- [--voxel 0.02]
-//!  [--channels 64] [--repeats 5] [--threads N] [--sweep] [--no-rulebook] [--json FILE]`
+//!  [--channels 64] [--repeats 5] [--threads N] [--sweep] [--build-only] [--no-rulebook] [--json FILE]`
+//!
+//! `--build-only` times building the kernel map and the chunk plan (once per level).
 //!
 //! `--sweep` times the chunked forward and backward passes over a grid of chunk sides and
 //! cache budgets (how the default [`ChunkConfig`] was chosen).
@@ -17,6 +19,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut repeats = 5usize;
     let mut threads = 0usize;
     let mut sweep = false;
+    let mut build_only = false;
     let mut rulebook = true;
     let mut json: Option<std::path::PathBuf> = None;
     let mut args = std::env::args().skip(1);
@@ -28,6 +31,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--repeats" => repeats = value()?.parse()?,
             "--threads" => threads = value()?.parse()?,
             "--sweep" => sweep = true,
+            "--build-only" => build_only = true,
             "--no-rulebook" => rulebook = false,
             "--json" => json = Some(value()?.into()),
             other => return Err(format!("unknown argument {other}").into()),
@@ -42,6 +46,23 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let scene = "procedural_room";
     if sweep {
         return run_sweep(&coords, channels, repeats);
+    }
+    if build_only {
+        let (mut map_ms, mut plan_ms) = (f64::INFINITY, f64::INFINITY);
+        for _ in 0..repeats.max(1) {
+            let t = Instant::now();
+            let map = KernelMap::submanifold(&coords, 3)?;
+            map_ms = map_ms.min(t.elapsed().as_secs_f64() * 1e3);
+            let t = Instant::now();
+            let conv = ChunkedConv::new(map, &coords, &coords, &ChunkConfig::default())?;
+            plan_ms = plan_ms.min(t.elapsed().as_secs_f64() * 1e3);
+            std::hint::black_box(conv);
+        }
+        println!(
+            "{} voxels: kernel map {map_ms:.2} ms, chunk plan {plan_ms:.2} ms",
+            coords.len()
+        );
+        return Ok(());
     }
     let r = run_conv_bench(
         scene,

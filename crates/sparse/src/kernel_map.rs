@@ -19,9 +19,10 @@
 
 use rayon::prelude::*;
 
+use crate::block_index::VoxelIndex;
 use crate::error::{Result, SparseError};
 use crate::hash_map::VoxelHashMap;
-use crate::key::{pack_checked, pack_key, parent, Coord};
+use crate::key::{pack_key, parent, Coord};
 use crate::tensor::check_row_count;
 
 /// What a kernel map connects.
@@ -115,7 +116,8 @@ impl KernelMap {
         if kernel_size.is_multiple_of(2) || kernel_size > 9 {
             return Err(SparseError::KernelSize(kernel_size));
         }
-        let index = index_of(coords)?;
+        check_row_count(coords.len())?;
+        let index = VoxelIndex::build(coords)?;
         let n = coords.len();
         let kv = kernel_size.pow(3);
         let centre = kv / 2;
@@ -134,7 +136,7 @@ impl KernelMap {
                 let mut outs = Vec::new();
                 for (j, c) in coords.iter().enumerate() {
                     let q = [c[0] + o[0], c[1] + o[1], c[2] + o[2], c[3]];
-                    if let Some(i) = pack_checked(q).and_then(|key| index.get(key)) {
+                    if let Some(i) = index.get(q) {
                         ins.push(i);
                         outs.push(j as u32);
                     }

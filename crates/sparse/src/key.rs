@@ -58,12 +58,6 @@ pub(crate) fn pack_unchecked(c: Coord) -> u64 {
         | ((c[3] as u64 & 1) << 63)
 }
 
-/// Packs `c` when it is in range, `None` otherwise (neighbour look-ups near the border).
-#[inline]
-pub(crate) fn pack_checked(c: Coord) -> Option<u64> {
-    in_range(c).then(|| pack_unchecked(c))
-}
-
 /// The coordinate of a packed key.
 #[inline]
 pub fn unpack_key(key: u64) -> Coord {

@@ -39,6 +39,7 @@
 #![warn(missing_docs)]
 
 pub mod bench;
+mod block_index;
 pub mod chunked;
 pub mod error;
 mod gemm;
