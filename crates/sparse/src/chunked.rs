@@ -18,8 +18,13 @@
 //! maps that map is the same map with offsets mirrored, so the forward plan is reused with
 //! mirrored transposed weights; strided maps get a second plan chunked over the input set.
 //! The weight gradient walks the forward plan: per chunk and offset a micro-GEMM `X^T dY`
-//! into per-group partial sums; groups are fixed runs of chunks (independent of the thread
-//! count) and are reduced in index order, so the result is deterministic too.
+//! into per-group partial sums; groups are runs of chunks balanced by pair count (a function
+//! of the plan alone, not of the thread count) and are reduced in index order, so the result
+//! is deterministic too.
+//!
+//! Row order: any. When the output rows of a chunk are one contiguous run (tensors in Z-order,
+//! as [`crate::voxelize()`] and [`crate::SparseTensor::sorted_morton`] make them) the chunk
+//! is computed in place in the output; otherwise through a chunk buffer and one copy.
 
 use std::sync::Mutex;
 
