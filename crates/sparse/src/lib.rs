@@ -7,7 +7,7 @@
 //! backward pass and by every kernel. Three kernels compute forward, input-gradient and
 //! weight-gradient passes with weights laid out `[K^3, c_in, c_out]`:
 //!
-//! - [`reference`]: plain loops, the oracle of the tests;
+//! - [`reference`](mod@reference): plain loops, the oracle of the tests;
 //! - [`rulebook`]: the gather-GEMM-scatter baseline (the paper's Algorithm 1);
 //! - [`chunked`]: the adaptive chunk-based kernel (Algorithm 2 for CPU caches), the fast path.
 //!
