@@ -549,11 +549,15 @@ impl ChunkPlan {
                     }
                 }
             });
-        for p in partials.chunks(size) {
-            for (d, &v) in dw.iter_mut().zip(p) {
-                *d += v;
+        // Every element sums the groups in index order, whichever thread does the slice.
+        let partials: &[f32] = partials;
+        dw.par_chunks_mut(4096).enumerate().for_each(|(i, d)| {
+            for p in partials.chunks(size) {
+                for (d, &v) in d.iter_mut().zip(&p[i * 4096..]) {
+                    *d += v;
+                }
             }
-        }
+        });
     }
 }
 
