@@ -17,6 +17,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Benchmarks (table + JSON): rendering, sparse convolution.
+    Bench(commands::bench::BenchArgs),
     /// Run the whole pipeline on a built-in synthetic scene and write the outputs.
     Demo(commands::demo::DemoArgs),
     /// Describe a dataset: frame count, resolution, intrinsics, depth range, ground truth.
@@ -32,6 +34,7 @@ enum Command {
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Bench(args) => commands::bench::run(args),
         Command::Demo(args) => commands::demo::run(args),
         Command::Info(args) => commands::info::run(args),
         Command::Synth(args) => commands::synth::run(args),

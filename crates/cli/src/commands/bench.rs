@@ -1,0 +1,224 @@
+//! `semrecon bench`: benchmarks that print a table and write JSON rows, measured side by side
+//! in one run (the machines are shared and noisy: compare ratios, not absolute numbers).
+//!
+//! - `render`: the RGB-D rasteriser (and the sensor model) on generated rooms and, when
+//!   `../shared/data` is there, the Replica office0 mesh.
+//! - `conv`: the sparse convolution kernels (chunked vs rulebook) on voxelised synthetic rooms,
+//!   with the machine's dense GEMM rate measured in the same run.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::Context;
+use glam::Vec3;
+use semrecon_data::atomic_file::write_atomic;
+use semrecon_data::datasets::synthetic::room_scan_poses;
+use semrecon_data::shared_data::shared_data_path;
+use semrecon_data::synth::{generate_room, RoomConfig, RoomStyle};
+use semrecon_data::{read_ply, Intrinsics, LabeledMesh, PreparedMesh, Renderer, ScanPlan, SensorModel};
+use semrecon_sparse::bench::{run_conv_bench, BenchOptions, BenchRow};
+use serde::Serialize;
+
+/// Arguments of `semrecon bench`.
+#[derive(clap::Args)]
+pub struct BenchArgs {
+    #[command(subcommand)]
+    which: Which,
+}
+
+#[derive(clap::Subcommand)]
+enum Which {
+    /// Rendering speed: frames per second at 640x480.
+    Render(RenderArgs),
+    /// Sparse convolution speed: chunked vs rulebook, forward and both gradients.
+    Conv(ConvArgs),
+}
+
+/// Arguments of `semrecon bench render`.
+#[derive(clap::Args)]
+struct RenderArgs {
+    /// Frames rendered per scene.
+    #[arg(long, default_value_t = 300)]
+    frames: usize,
+    /// Write the rows as JSON to this file.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+/// Arguments of `semrecon bench conv`.
+#[derive(clap::Args)]
+struct ConvArgs {
+    /// Voxel sizes in metres (comma-separated).
+    #[arg(long, value_delimiter = ',', default_values_t = [0.05, 0.02])]
+    voxel: Vec<f32>,
+    /// Channel counts, C_in = C_out (comma-separated).
+    #[arg(long, value_delimiter = ',', default_values_t = [32, 64, 128])]
+    channels: Vec<usize>,
+    /// Seed of the synthetic room that is voxelised.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Timed repeats per measurement (the fastest is kept).
+    #[arg(long, default_value_t = 5)]
+    repeats: usize,
+    /// Write the rows as JSON to this file.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+/// Runs the command.
+pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    match args.which {
+        Which::Render(a) => render(a),
+        Which::Conv(a) => conv(a),
+    }
+}
+
+#[derive(Serialize)]
+struct RenderRow {
+    scene: String,
+    triangles: usize,
+    width: u32,
+    height: u32,
+    frames: usize,
+    threads: usize,
+    render_ms: f64,
+    fps: f64,
+    sensor_ms: f64,
+}
+
+fn render(args: RenderArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(args.frames > 0, "--frames must be at least 1");
+    let k = Intrinsics::new(640, 480, 525.0, 525.0, 319.5, 239.5)?;
+    let mut scenes: Vec<(String, LabeledMesh, Vec<glam::Affine3A>)> = Vec::new();
+    for style in RoomStyle::ALL {
+        let room = generate_room(&RoomConfig { seed: 0, style: Some(style) });
+        let poses = room_scan_poses(&room, 0, args.frames, 30.0)?;
+        scenes.push((format!("synthetic {style}"), room.mesh, poses));
+    }
+    if let Some(path) = shared_data_path("replica-office0/office0_mesh.ply") {
+        let mesh = read_ply(&path)?;
+        let poses = ScanPlan::from_mesh_bounds(&mesh, 0)?.poses(args.frames)?;
+        scenes.push(("replica office0".into(), mesh, poses));
+    }
+    let sensor = SensorModel::kinect();
+    let mut rows = Vec::new();
+    for (scene, mesh, poses) in &scenes {
+        let prepared = PreparedMesh::new(mesh)?;
+        let mut renderer = Renderer::new(k)?;
+        renderer.render(&prepared, poses[0]); // warm-up: buffers allocated
+        let (mut render_s, mut sensor_s) = (0.0, 0.0);
+        for (i, pose) in poses.iter().enumerate() {
+            let t = Instant::now();
+            let out = renderer.render(&prepared, *pose);
+            render_s += t.elapsed().as_secs_f64();
+            let mut noisy = out.clone();
+            let t = Instant::now();
+            sensor.apply(&mut noisy, i);
+            sensor_s += t.elapsed().as_secs_f64();
+        }
+        let n = poses.len() as f64;
+        rows.push(RenderRow {
+            scene: scene.clone(),
+            triangles: prepared.triangle_count(),
+            width: k.width,
+            height: k.height,
+            frames: poses.len(),
+            threads: rayon::current_num_threads(),
+            render_ms: render_s * 1e3 / n,
+            fps: n / render_s,
+            sensor_ms: sensor_s * 1e3 / n,
+        });
+    }
+    println!("{:<22} {:>9} {:>11} {:>9} {:>8} {:>10}", "scene", "triangles", "size", "render ms", "fps", "sensor ms");
+    for r in &rows {
+        println!(
+            "{:<22} {:>9} {:>11} {:>9.2} {:>8.0} {:>10.2}",
+            r.scene,
+            r.triangles,
+            format!("{}x{}", r.width, r.height),
+            r.render_ms,
+            r.fps,
+            r.sensor_ms
+        );
+    }
+    write_json(args.json.as_ref(), &rows)
+}
+
+#[derive(Serialize)]
+struct ConvRow {
+    #[serde(flatten)]
+    row: BenchRow,
+    sgemm_gflops: f64,
+    threads: usize,
+    simd: String,
+}
+
+fn conv(args: ConvArgs) -> anyhow::Result<()> {
+    let room = generate_room(&RoomConfig { seed: args.seed, style: None });
+    let options = BenchOptions { repeats: args.repeats.max(1), ..BenchOptions::default() };
+    let mut rows = Vec::new();
+    println!(
+        "{:<26} {:>7} {:>6} {:>4} {:>9} {:>16} {:>9} {:>8} {:>7}",
+        "scene", "voxels", "neigh", "C", "kernel", "pass", "ms", "GFLOP/s", "% sgemm"
+    );
+    for &voxel in &args.voxel {
+        anyhow::ensure!(voxel.is_finite() && voxel >= 0.005, "--voxel {voxel}: must be at least 0.005 m");
+        let coords = voxelize_surface(&room.mesh, voxel);
+        let scene = format!("synthetic {} seed {}", room.style, args.seed);
+        for &c in &args.channels {
+            anyhow::ensure!((1..=1024).contains(&c), "--channels {c}: must be 1..=1024");
+            let report = run_conv_bench(&scene, &coords, voxel, c, c, &options)
+                .with_context(|| format!("benchmarking {scene} at {voxel} m, {c} channels"))?;
+            for row in report.rows {
+                println!(
+                    "{:<26} {:>7} {:>6.2} {:>4} {:>9} {:>16} {:>9.2} {:>8.1} {:>6.0}%",
+                    format!("{} @ {} cm", row.scene, voxel * 100.0),
+                    row.n,
+                    row.mean_neighbours,
+                    row.c_in,
+                    row.kernel,
+                    row.pass,
+                    row.ms,
+                    row.gflops,
+                    100.0 * row.gflops / report.sgemm_gflops
+                );
+                rows.push(ConvRow {
+                    row,
+                    sgemm_gflops: report.sgemm_gflops,
+                    threads: report.threads,
+                    simd: report.simd.clone(),
+                });
+            }
+        }
+    }
+    write_json(args.json.as_ref(), &rows)
+}
+
+/// Surface voxels of a mesh: points sampled on every triangle at a spacing well below the
+/// voxel size, then snapped to the voxel grid (duplicates merged by the engine).
+fn voxelize_surface(mesh: &LabeledMesh, voxel: f32) -> Vec<semrecon_sparse::Coord> {
+    let step = voxel / 3.0;
+    let mut coords = Vec::new();
+    for t in &mesh.triangles {
+        let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+        let n = (((b - a).length().max((c - a).length()) / step).ceil() as usize).max(1);
+        for i in 0..=n {
+            for j in 0..=(n - i) {
+                let p: Vec3 = a + (b - a) * (i as f32 / n as f32) + (c - a) * (j as f32 / n as f32);
+                let q = (p / voxel).floor();
+                coords.push([q.x as i32, q.y as i32, q.z as i32, 0]);
+            }
+        }
+    }
+    coords.sort_unstable();
+    coords.dedup();
+    coords
+}
+
+fn write_json<T: Serialize>(path: Option<&PathBuf>, rows: &T) -> anyhow::Result<()> {
+    if let Some(path) = path {
+        write_atomic(path, serde_json::to_string_pretty(rows)?.as_bytes())?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
