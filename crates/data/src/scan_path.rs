@@ -58,6 +58,11 @@ pub struct ScanPlan {
     pub jitter: f32,
 }
 
+/// Steepest gaze below the horizon, radians (50 degrees).
+const MAX_PITCH_DOWN: f32 = 50.0 * std::f32::consts::PI / 180.0;
+/// Steepest gaze above the horizon, radians (20 degrees).
+const MAX_PITCH_UP: f32 = 20.0 * std::f32::consts::PI / 180.0;
+
 /// Floor grid resolution of the planner, metres.
 const CELL: f32 = 0.05;
 
@@ -191,7 +196,9 @@ impl ScanPlan {
         for i in 0..n {
             let t = i as f32 * dt;
             let dir = (gaze_target_at(&targets, t) - eye[i]).try_normalize().unwrap_or(heading[i].extend(0.0));
-            let want = Vec2::new(dir.y.atan2(dir.x), dir.z.clamp(-1.0, 1.0).asin().clamp(-1.0, 0.7));
+            // Level or down far more than up, as people scan (see `gaze_targets`), also while
+            // walking up to a high target.
+            let want = Vec2::new(dir.y.atan2(dir.x), dir.z.clamp(-1.0, 1.0).asin().clamp(-MAX_PITCH_DOWN, MAX_PITCH_UP));
             let next = match yaw_pitch.last() {
                 None => want,
                 Some(&prev) => {
@@ -324,6 +331,16 @@ impl ScanPlan {
                 }
             }
             best
+        };
+        // People scanning a room look level or down far more than up: keep every gaze point
+        // between 50 degrees below and 20 degrees above the horizon (beams and wall tops
+        // seen from close would otherwise tilt the camera steeply at the ceiling).
+        let choose = |rng: &mut ChaCha8Rng, t: f32| -> Vec3 {
+            let p = choose(rng, t);
+            let e = eye[at(t)];
+            let reach = (p - e).truncate().length();
+            let z = p.z.clamp(e.z - reach * MAX_PITCH_DOWN.tan(), e.z + reach * MAX_PITCH_UP.tan());
+            p.truncate().extend(z)
         };
         let first = choose(rng, 0.0);
         let mut targets = vec![(0.0, first)];

@@ -60,7 +60,12 @@ pub fn run(args: SnapshotArgs) -> anyhow::Result<()> {
     let (lo, hi) = mesh.bounds().with_context(|| format!("{}: the mesh is empty", args.mesh.display()))?;
     let at = args.at.unwrap_or(Vec3::new((lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0, lo.z + (hi.z - lo.z) * 0.25));
     let size = hi - lo;
-    let eye = args.eye.unwrap_or(Vec3::new(lo.x - 0.35 * size.x, lo.y - 0.55 * size.y, hi.z + 0.9 * size.x.max(size.y)));
+    let eye = args.eye.unwrap_or_else(|| {
+        // From above a corner, the long side across the picture, far enough back that the
+        // bounding sphere fits the vertical field of view (half-angle ~22.6 degrees).
+        let from = if size.x >= size.y { Vec3::new(-0.3, -1.0, 1.1) } else { Vec3::new(-1.0, -0.3, 1.1) };
+        at + from.normalize() * (0.5 * size.length() / 0.384 * 0.9)
+    });
     let world_from_camera = look_at(eye, at)?;
     keep_visible_side(&mut mesh, eye, args.cut_above);
     if mesh.triangles.is_empty() {
