@@ -1,0 +1,149 @@
+//! End-to-end tests of the `semrecon` binary: every subcommand answers `--help`, the
+//! commands work on small generated data, and bad input gives an error (exit code 1 with a
+//! message naming the problem), never a panic.
+
+use std::process::{Command, Output};
+
+fn semrecon(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_semrecon")).args(args).output().expect("run semrecon")
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A failure the user can read: exit code 1 or 2 (clap), a message, no panic.
+fn assert_clean_failure(o: &Output, needle: &str) {
+    let err = stderr(o);
+    assert!(!o.status.success(), "expected failure, got success: {}", stdout(o));
+    assert!(!err.contains("panicked"), "panic: {err}");
+    assert!(err.contains(needle), "error does not mention `{needle}`: {err}");
+}
+
+#[test]
+fn every_subcommand_has_help() {
+    let top = semrecon(&["--help"]);
+    assert!(top.status.success());
+    for cmd in ["demo", "info", "synth", "snapshot", "throw", "bench"] {
+        assert!(stdout(&top).contains(cmd), "`{cmd}` missing from --help");
+        let o = semrecon(&[cmd, "--help"]);
+        assert!(o.status.success(), "{cmd} --help failed: {}", stderr(&o));
+        assert!(stdout(&o).contains("Usage"), "{cmd} --help");
+    }
+    for sub in ["render", "conv"] {
+        assert!(semrecon(&["bench", sub, "--help"]).status.success());
+    }
+}
+
+#[test]
+fn info_reports_json_keys_for_a_synthetic_dataset() {
+    let o = semrecon(&["info", "--dataset", "synth:2", "--json", "--depth-samples", "2"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("json");
+    for key in ["frames", "width", "height", "fx", "fy", "cx", "cy", "has_gt"] {
+        assert!(v.get(key).is_some(), "missing key {key}: {v}");
+    }
+    assert_eq!(v["width"], 640);
+    assert_eq!(v["has_gt"], true);
+}
+
+#[test]
+fn synth_writes_a_dataset_that_reads_back_and_a_mesh_that_renders() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("scan");
+    let out_s = out.to_str().expect("utf-8 path");
+    let o = semrecon(&["synth", "--out", out_s, "--seed", "3", "--frames", "3", "--size", "64x48"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in ["frame-000002.depth.png", "frame-000002.color.png", "frame-000002.label.png", "frame-000002.pose.txt"] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    assert!(out.join("groundtruth.txt").is_file() && out.join("scene.ply").is_file());
+
+    let o = semrecon(&["info", "--dataset", &format!("7scenes:{out_s}"), "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("json");
+    assert_eq!((v["frames"].as_u64(), v["width"].as_u64(), v["height"].as_u64()), (Some(3), Some(64), Some(48)));
+    assert_eq!(v["has_gt"], true);
+
+    let png = dir.path().join("room.png");
+    let o = semrecon(&[
+        "snapshot",
+        out.join("scene.ply").to_str().expect("utf-8"),
+        "--out",
+        png.to_str().expect("utf-8"),
+        "--classes",
+        "--cut-above",
+        "2.3",
+        "--width",
+        "160",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(std::fs::metadata(&png).expect("png written").len() > 1000);
+
+    // The same mesh rendered along the written trajectory, without noise.
+    let again = dir.path().join("again");
+    let o = semrecon(&[
+        "synth",
+        "--out",
+        again.to_str().expect("utf-8"),
+        "--mesh",
+        out.join("scene.ply").to_str().expect("utf-8"),
+        "--traj",
+        out.join("groundtruth.txt").to_str().expect("utf-8"),
+        "--size",
+        "64x48",
+        "--no-noise",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(again.join("frame-000002.depth.png").is_file());
+
+    let o = semrecon(&[
+        "throw",
+        "--mesh",
+        out.join("scene.ply").to_str().expect("utf-8"),
+        "--from",
+        "1,1,1.5",
+        "--dir",
+        "0.3,0.2,-1",
+        "--speed",
+        "2",
+        "--seconds",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("floor"), "{}", stdout(&o));
+}
+
+#[test]
+fn the_real_seven_scenes_sample_reports_its_camera() {
+    let Some(dir) = semrecon_data::shared_data::shared_data_path("7scenes-redkitchen") else { return };
+    let o = semrecon(&["info", "--dataset", &format!("7scenes:{}", dir.display()), "--json", "--depth-samples", "2"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("json");
+    assert_eq!((v["frames"].as_u64(), v["width"].as_u64(), v["height"].as_u64()), (Some(500), Some(640), Some(480)));
+    assert_eq!(v["fx"].as_f64(), Some(585.0));
+    assert_eq!(v["has_gt"], true);
+}
+
+#[test]
+fn bad_input_gives_errors_not_panics() {
+    assert_clean_failure(&semrecon(&["info", "--dataset", "7scenes:/definitely/not/here"]), "/definitely/not/here");
+    assert_clean_failure(&semrecon(&["info", "--dataset", "kinect:/x"]), "unknown dataset kind");
+    assert_clean_failure(&semrecon(&["info", "--dataset", "synth:abc"]), "synth");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let empty = dir.path().to_str().expect("utf-8");
+    assert_clean_failure(&semrecon(&["info", "--dataset", &format!("7scenes:{empty}")]), empty);
+    assert_clean_failure(&semrecon(&["synth", "--out", empty, "--size", "0x480"]), "width and height");
+    assert_clean_failure(&semrecon(&["synth", "--out", empty, "--intrinsics", "1,2,3"]), "fx,fy,cx,cy");
+    let bad_ply = dir.path().join("bad.ply");
+    std::fs::write(&bad_ply, b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n").expect("write");
+    let bad = bad_ply.to_str().expect("utf-8");
+    assert_clean_failure(&semrecon(&["snapshot", bad, "--out", "/tmp/x.png"]), "bad.ply");
+    assert_clean_failure(&semrecon(&["throw", "--mesh", bad, "--from", "0,0,1", "--dir", "0,0,-1"]), "bad.ply");
+    assert_clean_failure(&semrecon(&["throw", "--mesh", bad, "--from", "0,0,nan", "--dir", "0,0,-1"]), "x,y,z");
+    assert_clean_failure(&semrecon(&["synth", "--out", empty, "--traj", "/no/such/traj.txt"]), "/no/such/traj.txt");
+}
