@@ -176,6 +176,6 @@ mod tests {
         let mut m = triangle(0);
         m.triangles.push([0, 1, 7]);
         m.triangle_labels.push(0);
-        assert!(m.validate().unwrap_err().contains("out of range"));
+        assert!(m.validate().is_err_and(|e| e.contains("out of range")));
     }
 }

@@ -96,8 +96,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let mesh = mesher.mesh();
 
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    write_ply(&args.out.join("mesh.ply"), &mesh, PlyEncoding::BinaryLittleEndian)?;
-    write_ply(&args.out.join("ground_truth.ply"), &room.mesh, PlyEncoding::BinaryLittleEndian)?;
+    write_ply(args.out.join("mesh.ply"), &mesh, PlyEncoding::BinaryLittleEndian)?;
+    write_ply(args.out.join("ground_truth.ply"), &room.mesh, PlyEncoding::BinaryLittleEndian)?;
     trajectory.write_tum(args.out.join("trajectory.txt"))?;
 
     let input_s = scan.len() as f64 / scan.frame_rate();

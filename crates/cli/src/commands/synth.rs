@@ -128,7 +128,7 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         traj.push(i as f64 / frame_rate, *pose);
     }
     traj.write_tum(args.out.join("groundtruth.txt"))?;
-    write_ply(&args.out.join("scene.ply"), &mesh, PlyEncoding::BinaryLittleEndian)?;
+    write_ply(args.out.join("scene.ply"), &mesh, PlyEncoding::BinaryLittleEndian)?;
 
     println!(
         "wrote {} frames ({width}x{height}) of {name} to {}: frame-NNNNNN.{{depth,color,label}}.png, .pose.txt, \

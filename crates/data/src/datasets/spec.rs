@@ -124,6 +124,6 @@ mod tests {
     fn synth_opens_a_rendered_scan() {
         let source = open_dataset(&DatasetSpec::Synth(1)).expect("synth source");
         assert_eq!(source.name(), "synth:1");
-        assert!(source.has_ground_truth() && source.len() > 0);
+        assert!(source.has_ground_truth() && !source.is_empty());
     }
 }
