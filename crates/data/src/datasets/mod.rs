@@ -28,7 +28,15 @@ use std::path::{Path, PathBuf};
 use crate::camera::Intrinsics;
 use crate::depth_image::{check_size, load_color, load_depth, register_color};
 use crate::error::{DataError, Result};
-use crate::frame::Frame;
+use crate::frame::{Frame, FrameSource};
+
+/// Entry `index` of a reader's frame list, or the error every reader gives for an index past
+/// its end.
+pub(crate) fn frame_entry<'a, T>(frames: &'a [T], index: usize, source: &dyn FrameSource) -> Result<&'a T> {
+    frames.get(index).ok_or_else(|| {
+        DataError::InvalidArgument(format!("frame {index} of {} frames in {}", frames.len(), source.name()))
+    })
+}
 
 /// Fails with a dataset error unless `dir` is an existing folder.
 pub(crate) fn require_dir(dir: &Path, what: &str) -> Result<()> {

@@ -188,13 +188,7 @@ impl FrameSource for Replica {
     }
 
     fn frame(&self, index: usize) -> Result<Frame> {
-        let entry = self.frames.get(index).ok_or_else(|| {
-            DataError::InvalidArgument(format!(
-                "frame {index} of {} frames in {}",
-                self.frames.len(),
-                self.name()
-            ))
-        })?;
+        let entry = super::frame_entry(&self.frames, index, self)?;
         let depth = load_depth_checked(&entry.depth, self.units_per_metre, &[], &self.intrinsics)?;
         let color = load_color_registered(&entry.color, &self.intrinsics, None)?;
         let frame = Frame {

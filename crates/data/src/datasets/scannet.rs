@@ -116,13 +116,7 @@ impl FrameSource for ScanNet {
     }
 
     fn frame(&self, index: usize) -> Result<Frame> {
-        let entry = self.frames.get(index).ok_or_else(|| {
-            DataError::InvalidArgument(format!(
-                "frame {index} of {} frames in {}",
-                self.frames.len(),
-                self.name()
-            ))
-        })?;
+        let entry = super::frame_entry(&self.frames, index, self)?;
         let depth = load_depth_checked(&entry.depth, DEPTH_UNITS_PER_METRE, &[], &self.intrinsics)?;
         let color = load_color_registered(&entry.color, &self.intrinsics, self.color_k)?;
         let world_from_camera = match &entry.pose {

@@ -127,13 +127,7 @@ impl FrameSource for SevenScenes {
     }
 
     fn frame(&self, index: usize) -> Result<Frame> {
-        let entry = self.frames.get(index).ok_or_else(|| {
-            DataError::InvalidArgument(format!(
-                "frame {index} of {} frames in {}",
-                self.frames.len(),
-                self.name()
-            ))
-        })?;
+        let entry = super::frame_entry(&self.frames, index, self)?;
         let depth_path = &entry.depth;
         let depth = load_depth_checked(depth_path, DEPTH_UNITS_PER_METRE, &INVALID_DEPTH, &self.intrinsics)?;
         let color = load_color_registered(&entry.color, &self.intrinsics, None)?;
