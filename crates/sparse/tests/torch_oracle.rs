@@ -96,7 +96,10 @@ fn assert_close(got: &[f32], want: &[f32], what: &str) {
         .zip(want)
         .map(|(g, w)| (g - w).abs() / scale)
         .fold(0f32, f32::max);
-    assert!(worst <= 1e-4, "{what}: worst relative error {worst:e} (scale {scale})");
+    assert!(
+        worst <= 1e-4,
+        "{what}: worst relative error {worst:e} (scale {scale})"
+    );
 }
 
 /// Rows of `rows` (`[coords.len(), c]`, in the fixture's order of `coords`) reordered to
@@ -133,7 +136,12 @@ fn every_kernel_matches_pytorch_dense_convolution() {
                 KernelMap::upsample(&case.in_coords, &case.out_coords).unwrap(),
             ),
         };
-        assert_eq!(out_coords.len(), case.out_coords.len(), "{}: output set", case.name);
+        assert_eq!(
+            out_coords.len(),
+            case.out_coords.len(),
+            "{}: output set",
+            case.name
+        );
         let y = reorder(a("y"), c_out, &case.out_coords, &out_coords);
         let dy = reorder(a("dy"), c_out, &case.out_coords, &out_coords);
         let (x, w, dx, dw) = (a("x"), a("w"), a("dx"), a("dw"));
@@ -199,8 +207,8 @@ fn every_kernel_matches_pytorch_dense_convolution() {
         // The up layer as the transpose of the down layer's plan, as the network builds it.
         if case.kind == MapKind::Up {
             let (coarse, down) = KernelMap::downsample(&case.out_coords).unwrap();
-            let down = ChunkedConv::new(down, &case.out_coords, &coarse, &ChunkConfig::default())
-                .unwrap();
+            let down =
+                ChunkedConv::new(down, &case.out_coords, &coarse, &ChunkConfig::default()).unwrap();
             let up = down.transposed().unwrap();
             let xu = reorder(x, c_in, &case.in_coords, &coarse);
             let dxu = reorder(dx, c_in, &case.in_coords, &coarse);
