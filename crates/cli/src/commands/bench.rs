@@ -4,9 +4,10 @@
 //! - `render`: the RGB-D rasteriser (and the sensor model) on generated rooms and, when
 //!   `../shared/data` is there, the Replica office0 mesh.
 //! - `conv`: the sparse convolution kernels (chunked vs rulebook) on voxelised synthetic rooms,
-//!   with the machine's dense GEMM rate measured in the same run.
+//!   with the machine's dense GEMM rate measured in the same run; `--export DIR` writes the
+//!   voxel sets and kernel maps for the peer benchmark `bench/peers_conv.py`.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
@@ -17,6 +18,7 @@ use semrecon_data::shared_data::shared_data_path;
 use semrecon_data::synth::{generate_room, RoomConfig, RoomStyle};
 use semrecon_data::{read_ply, Intrinsics, LabeledMesh, PreparedMesh, Renderer, ScanPlan, SensorModel};
 use semrecon_sparse::bench::{run_conv_bench, BenchOptions, BenchRow};
+use semrecon_sparse::KernelMap;
 use serde::Serialize;
 
 /// Arguments of `semrecon bench`.
@@ -63,6 +65,10 @@ struct ConvArgs {
     /// Write the rows as JSON to this file.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Also write every benchmarked voxel set and its submanifold kernel map to this folder,
+    /// for the peer benchmark `bench/peers_conv.py` (see [`export_voxels`]).
+    #[arg(long)]
+    export: Option<PathBuf>,
 }
 
 /// Runs the command.
@@ -165,6 +171,9 @@ fn conv(args: ConvArgs) -> anyhow::Result<()> {
         anyhow::ensure!(voxel.is_finite() && voxel >= 0.005, "--voxel {voxel}: must be at least 0.005 m");
         let coords = voxelize_surface(&room.mesh, voxel);
         let scene = format!("synthetic {} seed {}", room.style, args.seed);
+        if let Some(dir) = &args.export {
+            export_voxels(dir, &scene, voxel, &coords)?;
+        }
         for &c in &args.channels {
             anyhow::ensure!((1..=1024).contains(&c), "--channels {c}: must be 1..=1024");
             let report = run_conv_bench(&scene, &coords, voxel, c, c, &options)
@@ -213,6 +222,37 @@ fn voxelize_surface(mesh: &LabeledMesh, voxel: f32) -> Vec<semrecon_sparse::Coor
     coords.sort_unstable();
     coords.dedup();
     coords
+}
+
+/// Writes `conv_{voxel in mm}mm.json` and beside it the raw little-endian arrays it names:
+/// `coords` (`[n, 4]` i32: x, y, z, batch, in the benchmark's row order) and the K = 3
+/// submanifold map as `in_rows` / `out_rows` (u32, grouped by offset; offset `k`'s pairs are
+/// `offset_start[k]..offset_start[k + 1]`, offset numbering as in `semrecon_sparse::kernel_map`).
+/// The peer benchmark times its own kernels on exactly these pairs.
+fn export_voxels(dir: &Path, scene: &str, voxel: f32, coords: &[semrecon_sparse::Coord]) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let map = KernelMap::submanifold(coords, 3)?;
+    let stem = format!("conv_{}mm", (voxel * 1000.0).round() as u32);
+    let raw = |name: &str, words: &mut dyn Iterator<Item = [u8; 4]>| -> anyhow::Result<String> {
+        let file = format!("{stem}_{name}.bin");
+        let bytes: Vec<u8> = words.flatten().collect();
+        write_atomic(&dir.join(&file), &bytes)?;
+        Ok(file)
+    };
+    let header = serde_json::json!({
+        "scene": scene,
+        "voxel_size": voxel,
+        "n": coords.len(),
+        "kernel_size": 3,
+        "offset_start": map.offset_start(),
+        "coords": raw("coords", &mut coords.iter().flatten().map(|v| v.to_le_bytes()))?,
+        "in_rows": raw("in_rows", &mut map.in_rows().iter().map(|v| v.to_le_bytes()))?,
+        "out_rows": raw("out_rows", &mut map.out_rows().iter().map(|v| v.to_le_bytes()))?,
+    });
+    let path = dir.join(format!("{stem}.json"));
+    write_atomic(&path, serde_json::to_string_pretty(&header)?.as_bytes())?;
+    println!("exported {} voxels, {} pairs to {}", coords.len(), map.num_pairs(), path.display());
+    Ok(())
 }
 
 fn write_json<T: Serialize>(path: Option<&PathBuf>, rows: &T) -> anyhow::Result<()> {
