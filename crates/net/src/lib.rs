@@ -6,7 +6,8 @@
 //! - [`model`]: the architecture as named tensors, parameter and FLOP counts;
 //! - [`weights`]: named tensors, safetensors files with `f16` storage, seeded initialisation;
 //! - [`inference`]: the fused CPU forward on the sparse engine ([`Segmenter`]);
-//! - [`reference`](mod@reference): a plain, unfused forward, the oracle of the tests.
+//! - [`reference`](mod@reference): a plain, unfused forward, the oracle of the tests;
+//! - [`surface`]: coloured, labelled point samples of a mesh surface (network input).
 //!
 //! ```
 //! use semrecon_net::{NetConfig, Segmenter, Weights};
@@ -26,6 +27,7 @@ pub mod error;
 pub mod inference;
 pub mod model;
 pub mod reference;
+pub mod surface;
 pub mod weights;
 
 pub use config::NetConfig;

@@ -1,0 +1,86 @@
+//! Inference time of the fused CBSCN forward on a voxelised synthetic room, random weights.
+//!
+//! `cargo run --release -p semrecon-net --example infer_bench -- [--threads 2] [--seed 1]
+//! [--configs s20,live] [--repeats 3]`
+//!
+//! The room (`semrecon_data::synth::generate_room`) is sampled into coloured points (about
+//! nine per 5 cm voxel face), voxelised at each configuration's voxel size, and segmented
+//! with seeded random weights. Reported: voxels per level, the fastest of the repeats (total,
+//! geometry = kernel maps + chunk plans + interpolation tables, layers), FLOPs and GFLOP/s,
+//! parameters.
+
+use std::time::Instant;
+
+use semrecon_data::synth::{generate_room, RoomConfig};
+use semrecon_net::surface::sample_surface;
+use semrecon_net::{color_features, forward_flops, parameter_count, NetConfig, Segmenter, Weights};
+use semrecon_sparse::voxelize;
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let mut threads = 2usize;
+    let mut seed = 1u64;
+    let mut repeats = 3usize;
+    let mut configs = "s20,live".to_string();
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        let mut value = || args.next().ok_or(format!("{a} needs a value"));
+        match a.as_str() {
+            "--threads" => threads = value()?.parse()?,
+            "--seed" => seed = value()?.parse()?,
+            "--repeats" => repeats = value()?.parse::<usize>()?.max(1),
+            "--configs" => configs = value()?,
+            other => return Err(format!("unknown argument {other}").into()),
+        }
+    }
+    rayon::ThreadPoolBuilder::new().num_threads(threads).build_global()?;
+    let room = generate_room(&RoomConfig { seed, style: None });
+    let cloud = sample_surface(&room.mesh, 3600.0, seed);
+    println!(
+        "room seed {seed} ({}), {} triangles, {} surface points, {threads} threads",
+        room.style,
+        room.mesh.triangles.len(),
+        cloud.len()
+    );
+    for name in ["s20", "s50", "live"] {
+        if let Some(c) = NetConfig::named(name) {
+            println!("parameters {name}: {}", parameter_count(&c));
+        }
+    }
+    let points: Vec<[f32; 3]> = cloud.positions.iter().map(|p| p.to_array()).collect();
+    let feats = color_features(&cloud.colors);
+    for name in configs.split(',') {
+        let config = NetConfig::from_name_or_file(name.trim())?;
+        let t = Instant::now();
+        let v = voxelize(&points, &feats, 3, config.voxel_size, 0)?;
+        let voxelize_ms = t.elapsed().as_secs_f64() * 1e3;
+        let mut net = Segmenter::new(Weights::random(&config, 7), config.clone())?;
+        let (coords, f) = (v.tensor.coords(), v.tensor.features());
+        net.segment(coords, f)?; // warm-up: workspace growth, page faults
+        let mut best = f64::INFINITY;
+        let mut best_timing = net.last_timing();
+        for _ in 0..repeats {
+            let t = Instant::now();
+            let logits = net.segment(coords, f)?;
+            let ms = t.elapsed().as_secs_f64() * 1e3;
+            std::hint::black_box(logits);
+            if ms < best {
+                best = ms;
+                best_timing = net.last_timing();
+            }
+        }
+        let voxels: Vec<usize> = net.level_stats().iter().map(|s| s.voxels).collect();
+        let flops = forward_flops(&config, net.level_stats()) as f64;
+        let fwd_ms = best_timing.forward.as_secs_f64() * 1e3;
+        println!(
+            "{}: {} voxels (levels {:?}), mean neighbours {:.1}; total {best:.1} ms = geometry {:.1} ms + layers {fwd_ms:.1} ms (voxelise {voxelize_ms:.1} ms); {:.2} GFLOP, {:.1} GFLOP/s in the layers",
+            config.summary(),
+            coords.len(),
+            voxels,
+            net.level_stats()[0].neighbour_pairs as f64 / coords.len().max(1) as f64,
+            best_timing.geometry.as_secs_f64() * 1e3,
+            flops / 1e9,
+            flops / 1e9 / (fwd_ms / 1e3),
+        );
+    }
+    Ok(())
+}
