@@ -110,14 +110,15 @@ impl NetConfig {
             source_name: path.display().to_string(),
             message,
         };
-        let config: Self = if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+        let config: Self = if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+        {
             serde_json::from_str(&text).map_err(|e| cfg_err(e.to_string()))?
         } else {
             toml::from_str(&text).map_err(|e| cfg_err(e.to_string()))?
         };
-        config
-            .validate()
-            .map_err(|e| cfg_err(e.to_string()))?;
+        config.validate().map_err(|e| cfg_err(e.to_string()))?;
         Ok(config)
     }
 
@@ -147,7 +148,10 @@ impl NetConfig {
             return bad("in_channels and classes must be positive".to_string());
         }
         if !(self.voxel_size.is_finite() && self.voxel_size > 0.0) {
-            return bad(format!("voxel_size = {} (must be positive)", self.voxel_size));
+            return bad(format!(
+                "voxel_size = {} (must be positive)",
+                self.voxel_size
+            ));
         }
         if !(self.bn_eps.is_finite() && self.bn_eps > 0.0) {
             return bad(format!("bn_eps = {} (must be positive)", self.bn_eps));

@@ -52,7 +52,9 @@ pub enum NetError {
         tensor: String,
     },
     /// A tensor with the wrong shape.
-    #[error("weights {file}: tensor `{tensor}` has shape {got:?}, the configuration needs {expected:?}")]
+    #[error(
+        "weights {file}: tensor `{tensor}` has shape {got:?}, the configuration needs {expected:?}"
+    )]
     TensorShape {
         /// The file (or `<memory>`).
         file: String,

@@ -69,8 +69,9 @@ impl Affine {
             .zip(src.par_chunks(c * ROWS_PER_TASK))
             .for_each(|(d, s)| {
                 for (dr, sr) in d.chunks_exact_mut(c).zip(s.chunks_exact(c)) {
-                    for k in 0..c {
-                        dr[k] = (sr[k] * self.scale[k] + self.shift[k]).max(0.0);
+                    for (((v, x), s), b) in dr.iter_mut().zip(sr).zip(&self.scale).zip(&self.shift)
+                    {
+                        *v = (x * s + b).max(0.0);
                     }
                 }
             });
@@ -80,8 +81,8 @@ impl Affine {
         let c = self.scale.len();
         x.par_chunks_mut(c * ROWS_PER_TASK).for_each(|d| {
             for dr in d.chunks_exact_mut(c) {
-                for k in 0..c {
-                    dr[k] = (dr[k] * self.scale[k] + self.shift[k]).max(0.0);
+                for ((v, s), b) in dr.iter_mut().zip(&self.scale).zip(&self.shift) {
+                    *v = (*v * s + b).max(0.0);
                 }
             }
         });
@@ -239,7 +240,12 @@ impl Geometry {
                 Vec::new()
             };
             let subm = ChunkedConv::new(map, &current, &current, chunk)?;
-            let point = ChunkedConv::new(KernelMap::submanifold(&current, 1)?, &current, &current, chunk)?;
+            let point = ChunkedConv::new(
+                KernelMap::submanifold(&current, 1)?,
+                &current,
+                &current,
+                chunk,
+            )?;
             let (next, parent, down) = if i + 1 < l {
                 let (coarse, dmap) = KernelMap::downsample(&current)?;
                 let mut parent = vec![0u32; current.len()];
@@ -273,7 +279,12 @@ impl Geometry {
             for j in t + 1..=l - 2 {
                 let par = &levels[j - 1].parent;
                 anc.iter_mut().for_each(|a| *a = par[*a as usize]);
-                per.push(interp_table(&levels[t].coords, &anc, &levels[j].nbr, (j - t) as u32));
+                per.push(interp_table(
+                    &levels[t].coords,
+                    &anc,
+                    &levels[j].nbr,
+                    (j - t) as u32,
+                ));
             }
             interp.push(per);
         }
@@ -543,7 +554,13 @@ impl Segmenter {
                 self.config.name, self.config.in_channels
             )));
         }
-        let v = voxelize(points, &color_features(colors), 3, self.config.voxel_size, 0)?;
+        let v = voxelize(
+            points,
+            &color_features(colors),
+            3,
+            self.config.voxel_size,
+            0,
+        )?;
         let (coords, feats) = v.tensor.into_parts();
         let logits = self.forward_sorted(coords, &feats)?;
         let k = self.config.classes;
@@ -587,7 +604,10 @@ impl Segmenter {
 
     fn run_layers(&mut self, geo: &Geometry, feats: &[f32], logits: &mut [f32]) -> Result<()> {
         let Self {
-            config, params: p, ws, ..
+            config,
+            params: p,
+            ws,
+            ..
         } = self;
         let l = config.levels;
         let c = |i: usize| config.channels(i);
@@ -637,7 +657,8 @@ impl Segmenter {
                 .point
                 .forward_into(&ws.enc[t][..n(t) * c(t)], c(t), &up.skip, c(t), b)?;
             add_assign(d, b);
-            up.block.run(&geo.levels[t].subm, d, c(t), &mut ws.a, &mut ws.b)?;
+            up.block
+                .run(&geo.levels[t].subm, d, c(t), &mut ws.a, &mut ws.b)?;
             for (q, w) in p.fuse.get(t).into_iter().flatten().enumerate() {
                 let j = t + 1 + q;
                 let dj = &higher[j - t - 1][..n(j) * c(j)];
@@ -688,7 +709,10 @@ mod tests {
             let mut d = vec![0f32; fine.len()];
             interp_add(&ip, &values, 1, 1, &mut d);
             for (got, want) in d.iter().zip(&expected) {
-                assert!((got - want).abs() < 1e-6, "shift {shift}: {d:?} vs {expected:?}");
+                assert!(
+                    (got - want).abs() < 1e-6,
+                    "shift {shift}: {d:?} vs {expected:?}"
+                );
             }
         }
     }

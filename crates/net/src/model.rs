@@ -132,11 +132,23 @@ pub fn tensor_specs(config: &NetConfig) -> Vec<TensorSpec> {
             role: TensorRole::Weight { fan_in: ci },
         });
     };
-    conv(&mut s, "input.conv.weight".into(), 27, config.in_channels, c(0));
+    conv(
+        &mut s,
+        "input.conv.weight".into(),
+        27,
+        config.in_channels,
+        c(0),
+    );
     for i in 0..l {
         for b in 1..=2 {
             bn(&mut s, format!("extract.{i}.bn{b}"), c(i));
-            conv(&mut s, format!("extract.{i}.conv{b}.weight"), 27, c(i), c(i));
+            conv(
+                &mut s,
+                format!("extract.{i}.conv{b}.weight"),
+                27,
+                c(i),
+                c(i),
+            );
         }
     }
     for i in 0..l.saturating_sub(1) {

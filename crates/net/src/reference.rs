@@ -40,9 +40,25 @@ pub fn forward(
     let bn = |x: &[f32], prefix: String| batch_norm_relu(weights, &prefix, config.bn_eps, x);
     let block = |x: &[f32], prefix: String, lc: &[Coord], ch: usize| -> Result<Vec<f32>> {
         let h = bn(x, format!("{prefix}.bn1"))?;
-        let h = conv::forward(subm, lc, lc, &h, ch, w(format!("{prefix}.conv1.weight"))?, ch)?;
+        let h = conv::forward(
+            subm,
+            lc,
+            lc,
+            &h,
+            ch,
+            w(format!("{prefix}.conv1.weight"))?,
+            ch,
+        )?;
         let h = bn(&h, format!("{prefix}.bn2"))?;
-        let h = conv::forward(subm, lc, lc, &h, ch, w(format!("{prefix}.conv2.weight"))?, ch)?;
+        let h = conv::forward(
+            subm,
+            lc,
+            lc,
+            &h,
+            ch,
+            w(format!("{prefix}.conv2.weight"))?,
+            ch,
+        )?;
         Ok(x.iter().zip(&h).map(|(a, b)| a + b).collect())
     };
 
@@ -88,11 +104,23 @@ pub fn forward(
         let mut d = block(&sum, format!("up.{t}"), &levels[t], c(t))?;
         if l >= 2 {
             for j in t + 1..=l.saturating_sub(2) {
-                let att = linear(&dec[j], c(j), w(format!("fuse.{t}.{j}.attention.weight"))?, 1);
-                let mut val = linear(&dec[j], c(j), w(format!("fuse.{t}.{j}.value.weight"))?, c(t));
+                let att = linear(
+                    &dec[j],
+                    c(j),
+                    w(format!("fuse.{t}.{j}.attention.weight"))?,
+                    1,
+                );
+                let mut val = linear(
+                    &dec[j],
+                    c(j),
+                    w(format!("fuse.{t}.{j}.value.weight"))?,
+                    c(t),
+                );
                 for (r, &a) in att.iter().enumerate() {
                     let s = 1.0 / (1.0 + (-a).exp());
-                    val[r * c(t)..(r + 1) * c(t)].iter_mut().for_each(|v| *v *= s);
+                    val[r * c(t)..(r + 1) * c(t)]
+                        .iter_mut()
+                        .for_each(|v| *v *= s);
                 }
                 let f = upsample_trilinear(&levels[j], &val, c(t), &levels[t], (j - t) as u32)?;
                 d.iter_mut().zip(&f).for_each(|(a, b)| *a += b);
@@ -115,7 +143,12 @@ fn parents(fine: &[Coord], shift: u32) -> Vec<Coord> {
     let mut seen = HashMap::new();
     let mut out = Vec::new();
     for u in fine {
-        let p = [u[0].div_euclid(f), u[1].div_euclid(f), u[2].div_euclid(f), u[3]];
+        let p = [
+            u[0].div_euclid(f),
+            u[1].div_euclid(f),
+            u[2].div_euclid(f),
+            u[3],
+        ];
         seen.entry(p).or_insert_with(|| {
             out.push(p);
         });

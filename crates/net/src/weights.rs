@@ -326,10 +326,14 @@ fn stored_config(path: &Path, bytes: &[u8]) -> Result<Option<NetConfig>> {
         message,
     };
     let (_, meta) = SafeTensors::read_metadata(bytes).map_err(|e| file_err(e.to_string()))?;
-    let Some(json) = meta.metadata().as_ref().and_then(|m| m.get(CONFIG_METADATA_KEY)) else {
+    let Some(json) = meta
+        .metadata()
+        .as_ref()
+        .and_then(|m| m.get(CONFIG_METADATA_KEY))
+    else {
         return Ok(None);
     };
-    let cfg: NetConfig = serde_json::from_str(json)
-        .map_err(|e| file_err(format!("stored configuration: {e}")))?;
+    let cfg: NetConfig =
+        serde_json::from_str(json).map_err(|e| file_err(format!("stored configuration: {e}")))?;
     Ok(Some(cfg))
 }
