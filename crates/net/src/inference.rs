@@ -1,12 +1,8 @@
 //! The fused CPU forward of CBSCN on the sparse engine, for the live path (no training
 //! framework involved).
 //!
-//! Per input, the geometry is built once: for every level its voxel set, one 3x3x3
-//! submanifold [`ChunkedConv`] shared by all of that level's convolutions, one pointwise
-//! (1x1x1) [`ChunkedConv`] for its linear layers, the strided map to the next level and its
-//! transpose, and the trilinear interpolation tables of the cross-scale fusion, whose
-//! neighbour look-ups come from the coarse level's submanifold map (the 8 coarse voxels
-//! around a fine voxel lie in the 3x3x3 neighbourhood of its ancestor). Batch norm uses the
+//! Per input, the [`NetGeometry`] is built once (kernel maps and chunk plans per level, shared
+//! by every layer of the level, and the fusion's interpolation tables). Batch norm uses the
 //! running statistics folded into one scale and shift per channel, applied together with the
 //! ReLU in a single pass. Activation buffers live in a workspace that only grows, so repeated
 //! calls on rooms of similar size allocate nothing per layer.
@@ -19,10 +15,11 @@ use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 use semrecon_sparse::morton::morton_order;
-use semrecon_sparse::{voxelize, ChunkConfig, ChunkedConv, Coord, KernelMap};
+use semrecon_sparse::{voxelize, ChunkConfig, ChunkedConv, Coord};
 
 use crate::config::NetConfig;
 use crate::error::{NetError, Result};
+use crate::geometry::{Interp, NetGeometry};
 use crate::model::{bn_names, LevelStats};
 use crate::weights::Weights;
 
@@ -200,180 +197,6 @@ impl Params {
             head_b: w.get("head.linear.bias")?.to_vec(),
         })
     }
-}
-
-/// One level of the geometry of an input.
-struct Level {
-    coords: Vec<Coord>,
-    subm: ChunkedConv,
-    point: ChunkedConv,
-    /// `[n, 27]`: row of the neighbour at each 3x3x3 offset or `u32::MAX` (fusion sources only).
-    nbr: Vec<u32>,
-    /// Row at level `i + 1` of every row (empty at the coarsest level).
-    parent: Vec<u32>,
-    /// Strided convolution to level `i + 1` and its transpose back.
-    down: Option<(ChunkedConv, ChunkedConv)>,
-}
-
-/// Trilinear interpolation from level `j` to level `t`: 8 `(row, weight)` per fine row.
-struct Interp {
-    rows: Vec<u32>,
-    weights: Vec<f32>,
-}
-
-struct Geometry {
-    levels: Vec<Level>,
-    /// `interp[t][j - t - 1]`.
-    interp: Vec<Vec<Interp>>,
-}
-
-impl Geometry {
-    fn build(coords: Vec<Coord>, cfg: &NetConfig, chunk: &ChunkConfig) -> Result<Self> {
-        let l = cfg.levels;
-        let mut levels: Vec<Level> = Vec::with_capacity(l);
-        let mut current = coords;
-        for i in 0..l {
-            let map = KernelMap::submanifold(&current, 3)?;
-            let nbr = if i >= 1 && i + 2 <= l {
-                neighbour_table(&map)
-            } else {
-                Vec::new()
-            };
-            let subm = ChunkedConv::new(map, &current, &current, chunk)?;
-            let point = ChunkedConv::new(
-                KernelMap::submanifold(&current, 1)?,
-                &current,
-                &current,
-                chunk,
-            )?;
-            let (next, parent, down) = if i + 1 < l {
-                let (coarse, dmap) = KernelMap::downsample(&current)?;
-                let mut parent = vec![0u32; current.len()];
-                for k in 0..dmap.kernel_volume() {
-                    let (ins, outs) = dmap.pairs(k);
-                    for (&f, &c) in ins.iter().zip(outs) {
-                        parent[f as usize] = c;
-                    }
-                }
-                let down = ChunkedConv::new(dmap, &current, &coarse, chunk)?;
-                let up = down.transposed().ok_or_else(|| {
-                    NetError::InvalidInput("strided layer without transpose".into())
-                })?;
-                (coarse, parent, Some((down, up)))
-            } else {
-                (Vec::new(), Vec::new(), None)
-            };
-            levels.push(Level {
-                coords: std::mem::replace(&mut current, next),
-                subm,
-                point,
-                nbr,
-                parent,
-                down,
-            });
-        }
-        let mut interp = Vec::new();
-        for t in 0..l.saturating_sub(2) {
-            let mut per = Vec::new();
-            let mut anc: Vec<u32> = (0..levels[t].coords.len() as u32).collect();
-            for j in t + 1..=l - 2 {
-                let par = &levels[j - 1].parent;
-                anc.iter_mut().for_each(|a| *a = par[*a as usize]);
-                per.push(interp_table(
-                    &levels[t].coords,
-                    &anc,
-                    &levels[j].nbr,
-                    (j - t) as u32,
-                ));
-            }
-            interp.push(per);
-        }
-        Ok(Self { levels, interp })
-    }
-
-    fn stats(&self) -> Vec<LevelStats> {
-        self.levels
-            .iter()
-            .map(|l| LevelStats {
-                voxels: l.coords.len(),
-                neighbour_pairs: l.subm.map().num_pairs(),
-            })
-            .collect()
-    }
-}
-
-/// `[n, 27]` neighbour rows of a submanifold map (`u32::MAX` where absent): the input of
-/// output `u` at offset `k` is `u + offset(k)`.
-fn neighbour_table(map: &KernelMap) -> Vec<u32> {
-    let kv = map.kernel_volume();
-    let mut nbr = vec![u32::MAX; map.n_out() * kv];
-    for k in 0..kv {
-        let (ins, outs) = map.pairs(k);
-        for (&i, &o) in ins.iter().zip(outs) {
-            nbr[o as usize * kv + k] = i;
-        }
-    }
-    nbr
-}
-
-/// Trilinear weights from the coarse level `shift` levels up to every fine voxel.
-///
-/// In coarse voxel units the fine voxel's centre sits at `(u + 0.5) / 2^shift`; the coarse
-/// centres at `v + 0.5`. Per axis the two bracketing coarse voxels are the ancestor
-/// `v = floor(u / 2^shift)` and its neighbour on the side of the centre, so all 8 corners lie
-/// in the ancestor's 3x3x3 neighbourhood (`nbr`, the coarse level's submanifold table). The
-/// weights of absent corners are dropped and the rest renormalised; the ancestor itself always
-/// exists and has a positive weight, so the sum is never zero.
-///
-/// # Shapes
-/// `fine`: `[n]`; `ancestor`: `[n]` coarse rows; `nbr`: `[n_coarse, 27]`; result `[n, 8]`.
-fn interp_table(fine: &[Coord], ancestor: &[u32], nbr: &[u32], shift: u32) -> Interp {
-    let n = fine.len();
-    let mut rows = vec![0u32; n * 8];
-    let mut weights = vec![0f32; n * 8];
-    let scale = 1.0 / f64::from(1u32 << shift);
-    rows.par_chunks_mut(8)
-        .zip(weights.par_chunks_mut(8))
-        .enumerate()
-        .for_each(|(u, (r8, w8))| {
-            let c = fine[u];
-            let a = ancestor[u];
-            // Per axis: (offset from the ancestor, weight) of the two bracketing voxels.
-            let axis = |x: i32| {
-                let rem = x - ((x >> shift) << shift);
-                let pos = (f64::from(rem) + 0.5) * scale - 0.5;
-                if pos < 0.0 {
-                    [(-1, -pos), (0, 1.0 + pos)]
-                } else {
-                    [(0, 1.0 - pos), (1, pos)]
-                }
-            };
-            let (ax, ay, az) = (axis(c[0]), axis(c[1]), axis(c[2]));
-            let mut total = 0.0;
-            let mut q = 0;
-            for &(dz, wz) in &az {
-                for &(dy, wy) in &ay {
-                    for &(dx, wx) in &ax {
-                        let k = ((dz + 1) * 9 + (dy + 1) * 3 + dx + 1) as usize;
-                        let row = if k == 13 { a } else { nbr[a as usize * 27 + k] };
-                        if row != u32::MAX {
-                            let w = wx * wy * wz;
-                            r8[q] = row;
-                            w8[q] = w as f32;
-                            total += w;
-                        } else {
-                            r8[q] = a;
-                            w8[q] = 0.0;
-                        }
-                        q += 1;
-                    }
-                }
-            }
-            for w in w8.iter_mut() {
-                *w = (f64::from(*w) / total) as f32;
-            }
-        });
-    Interp { rows, weights }
 }
 
 /// `d[u] += sum_q w[u, q] g[row[u, q], ..c]` with `g` rows of `stride` values.
@@ -582,6 +405,49 @@ impl Segmenter {
             .collect())
     }
 
+    /// Class scores of the voxels of a prebuilt geometry (for callers that keep the geometry
+    /// of a map between calls, or share it with training).
+    ///
+    /// # Shapes
+    /// `features`: `[n, in_channels]` in the order of `geometry.coords(0)`; result
+    /// `[n, classes]` in the same order.
+    ///
+    /// # Errors
+    /// [`NetError::InvalidInput`] when the geometry has another number of levels or the
+    /// features do not match.
+    pub fn segment_geometry(
+        &mut self,
+        geometry: &NetGeometry,
+        features: &[f32],
+    ) -> Result<Vec<f32>> {
+        if geometry.levels() != self.config.levels {
+            return Err(NetError::InvalidInput(format!(
+                "geometry of {} levels for a network of {}",
+                geometry.levels(),
+                self.config.levels
+            )));
+        }
+        let n = geometry.coords(0).len();
+        if features.len() != n * self.config.in_channels {
+            return Err(NetError::InvalidInput(format!(
+                "{} feature values for {n} voxels of {} channels",
+                features.len(),
+                self.config.in_channels
+            )));
+        }
+        let t = Instant::now();
+        let mut logits = vec![0f32; n * self.config.classes];
+        if n > 0 {
+            self.run_layers(geometry, features, &mut logits)?;
+        }
+        self.timing = Timing {
+            geometry: Duration::ZERO,
+            forward: t.elapsed(),
+        };
+        self.stats = geometry.stats();
+        Ok(logits)
+    }
+
     /// The forward pass on Z-ordered voxels.
     fn forward_sorted(&mut self, coords: Vec<Coord>, feats: &[f32]) -> Result<Vec<f32>> {
         let k = self.config.classes;
@@ -590,7 +456,7 @@ impl Segmenter {
             return Ok(Vec::new());
         }
         let t0 = Instant::now();
-        let geo = Geometry::build(coords, &self.config, &self.chunk)?;
+        let geo = NetGeometry::build(coords, &self.config, &self.chunk)?;
         let t1 = Instant::now();
         let mut logits = vec![0f32; geo.levels[0].coords.len() * k];
         self.run_layers(&geo, feats, &mut logits)?;
@@ -602,7 +468,7 @@ impl Segmenter {
         Ok(logits)
     }
 
-    fn run_layers(&mut self, geo: &Geometry, feats: &[f32], logits: &mut [f32]) -> Result<()> {
+    fn run_layers(&mut self, geo: &NetGeometry, feats: &[f32], logits: &mut [f32]) -> Result<()> {
         let Self {
             config,
             params: p,
@@ -690,6 +556,8 @@ impl Segmenter {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+    use crate::geometry::{interp_table, neighbour_table};
+    use semrecon_sparse::KernelMap;
 
     /// Two coarse voxels (values 1 and 3 along x) interpolated to the fine voxels below
     /// them: by hand, factor 2 gives 1, 1.5, 2.5, 3 and factor 4 gives 1, 1, 1.25, 1.75,

@@ -5,6 +5,7 @@
 //! - [`config`]: named configurations (`s20`, `s50`, `live`) and configuration files;
 //! - [`model`]: the architecture as named tensors, parameter and FLOP counts;
 //! - [`weights`]: named tensors, safetensors files with `f16` storage, seeded initialisation;
+//! - [`geometry`]: kernel maps, chunk plans and interpolation tables of one input;
 //! - [`inference`]: the fused CPU forward on the sparse engine ([`Segmenter`]);
 //! - [`reference`](mod@reference): a plain, unfused forward, the oracle of the tests;
 //! - [`surface`]: coloured, labelled point samples of a mesh surface (network input).
@@ -24,6 +25,7 @@
 
 pub mod config;
 pub mod error;
+pub mod geometry;
 pub mod inference;
 pub mod model;
 pub mod reference;
@@ -32,6 +34,7 @@ pub mod weights;
 
 pub use config::NetConfig;
 pub use error::{NetError, Result};
-pub use inference::{color_features, Segmenter};
+pub use geometry::NetGeometry;
+pub use inference::{color_features, Segmenter, Timing};
 pub use model::{forward_flops, parameter_count, LevelStats};
 pub use weights::{Tensor, Weights};

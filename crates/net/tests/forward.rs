@@ -183,3 +183,38 @@ fn points_are_labelled_through_their_voxels() {
     // Near-ties may flip by rounding; all but a handful must agree.
     assert!(agree + 3 >= labels.len(), "{agree} of {}", labels.len());
 }
+
+#[test]
+fn prebuilt_geometry_gives_the_same_scores() {
+    let config = NetConfig::new("t", 4, 4, 0.05);
+    let (coords, feats) = room(11, 3);
+    let geo =
+        semrecon_net::NetGeometry::build(coords.clone(), &config, &Default::default()).unwrap();
+    assert_eq!(geo.levels(), 4);
+    assert_eq!(geo.coords(0), coords.as_slice());
+    assert!(geo.down(3).is_none() && geo.up(2).is_some());
+    for (t, j) in [(0, 1), (0, 2), (1, 2)] {
+        let (rows, w) = geo.interpolation(t, j).unwrap();
+        assert_eq!(rows.len(), geo.coords(t).len() * 8);
+        for r in w.chunks(8) {
+            assert!((r.iter().sum::<f32>() - 1.0).abs() < 1e-5);
+        }
+        assert!(rows.iter().all(|&r| (r as usize) < geo.coords(j).len()));
+    }
+    assert!(geo.interpolation(0, 3).is_none());
+    let mut net = Segmenter::new(weights(&config, 2), config.clone()).unwrap();
+    let a = net.segment(&coords, &feats).unwrap();
+    let b = net.segment_geometry(&geo, &feats).unwrap();
+    let err = a
+        .iter()
+        .zip(&b)
+        .fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+    assert!(err <= 1e-4 * max_abs(&a).max(1.0), "{err}");
+    let other = semrecon_net::NetGeometry::build(
+        coords,
+        &NetConfig::new("t", 3, 4, 0.05),
+        &Default::default(),
+    )
+    .unwrap();
+    assert!(net.segment_geometry(&other, &feats).is_err());
+}
