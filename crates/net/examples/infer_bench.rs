@@ -4,10 +4,11 @@
 //! [--configs s20,live] [--repeats 3]`
 //!
 //! The room (`semrecon_data::synth::generate_room`) is sampled into coloured points (about
-//! nine per 5 cm voxel face), voxelised at each configuration's voxel size, and segmented
+//! nine per voxel face), voxelised at each configuration's voxel size, and segmented
 //! with seeded random weights. Reported: voxels per level, the fastest of the repeats (total,
 //! geometry = kernel maps + chunk plans + interpolation tables, layers), FLOPs and GFLOP/s,
-//! parameters.
+//! parameters, and the mean CPU time per call (user + system over all threads: on a shared,
+//! loaded machine the wall time overstates the cost, the CPU time does not).
 
 use std::time::Instant;
 
@@ -36,22 +37,23 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .num_threads(threads)
         .build_global()?;
     let room = generate_room(&RoomConfig { seed, style: None });
-    let cloud = sample_surface(&room.mesh, 3600.0, seed);
     println!(
-        "room seed {seed} ({}), {} triangles, {} surface points, {threads} threads",
+        "room seed {seed} ({}), {} triangles, {threads} threads",
         room.style,
         room.mesh.triangles.len(),
-        cloud.len()
     );
     for name in ["s20", "s50", "live"] {
         if let Some(c) = NetConfig::named(name) {
             println!("parameters {name}: {}", parameter_count(&c));
         }
     }
-    let points: Vec<[f32; 3]> = cloud.positions.iter().map(|p| p.to_array()).collect();
-    let feats = color_features(&cloud.colors);
     for name in configs.split(',') {
         let config = NetConfig::from_name_or_file(name.trim())?;
+        // About three points per voxel edge, nine per voxel face.
+        let density = (3.0 / config.voxel_size).powi(2);
+        let cloud = sample_surface(&room.mesh, density, seed);
+        let points: Vec<[f32; 3]> = cloud.positions.iter().map(|p| p.to_array()).collect();
+        let feats = color_features(&cloud.colors);
         let t = Instant::now();
         let v = voxelize(&points, &feats, 3, config.voxel_size, 0)?;
         let voxelize_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -60,6 +62,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         net.segment(coords, f)?; // warm-up: workspace growth, page faults
         let mut best = f64::INFINITY;
         let mut best_timing = net.last_timing();
+        let cpu0 = cpu_ms();
         for _ in 0..repeats {
             let t = Instant::now();
             let logits = net.segment(coords, f)?;
@@ -70,12 +73,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 best_timing = net.last_timing();
             }
         }
+        let cpu = cpu0
+            .zip(cpu_ms())
+            .map_or("n/a".to_string(), |(a, b)| format!("{:.0} ms", (b - a) / repeats as f64));
         let voxels: Vec<usize> = net.level_stats().iter().map(|s| s.voxels).collect();
         let flops = forward_flops(&config, net.level_stats()) as f64;
         let fwd_ms = best_timing.forward.as_secs_f64() * 1e3;
         println!(
-            "{}: {} voxels (levels {:?}), mean neighbours {:.1}; total {best:.1} ms = geometry {:.1} ms + layers {fwd_ms:.1} ms (voxelise {voxelize_ms:.1} ms); {:.2} GFLOP, {:.1} GFLOP/s in the layers",
+            "{} ({} points): {} voxels (levels {:?}), mean neighbours {:.1}; total {best:.1} ms = geometry {:.1} ms + layers {fwd_ms:.1} ms (voxelise {voxelize_ms:.1} ms); {:.2} GFLOP, {:.1} GFLOP/s in the layers; CPU time per call {cpu}",
             config.summary(),
+            points.len(),
             coords.len(),
             voxels,
             net.level_stats()[0].neighbour_pairs as f64 / coords.len().max(1) as f64,
@@ -85,4 +92,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     Ok(())
+}
+
+/// CPU time (user + system, all threads) of this process so far, from `/proc/self/stat`
+/// (Linux; 100 ticks per second assumed): robust to other processes competing for the cores.
+fn cpu_ms() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+    let utime: f64 = fields.get(11)?.parse().ok()?;
+    let stime: f64 = fields.get(12)?.parse().ok()?;
+    Some((utime + stime) * 10.0)
 }
