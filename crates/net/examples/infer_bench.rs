@@ -73,9 +73,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 best_timing = net.last_timing();
             }
         }
-        let cpu = cpu0
-            .zip(cpu_ms())
-            .map_or("n/a".to_string(), |(a, b)| format!("{:.0} ms", (b - a) / repeats as f64));
+        let cpu = cpu0.zip(cpu_ms()).map_or("n/a".to_string(), |(a, b)| {
+            format!("{:.0} ms", (b - a) / repeats as f64)
+        });
         let voxels: Vec<usize> = net.level_stats().iter().map(|s| s.voxels).collect();
         let flops = forward_flops(&config, net.level_stats()) as f64;
         let fwd_ms = best_timing.forward.as_secs_f64() * 1e3;

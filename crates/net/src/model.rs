@@ -243,7 +243,10 @@ mod tests {
         assert_eq!(parameter_count(&NetConfig::s20()), 5_430_541);
         assert_eq!(parameter_count(&NetConfig::s50()), 14_895_437);
         assert_eq!(parameter_count(&NetConfig::live()), 1_359_757);
-        assert_eq!(parameter_count(&NetConfig::new("l6", 6, 32, 0.05)), 9_374_669);
+        assert_eq!(
+            parameter_count(&NetConfig::new("l6", 6, 32, 0.05)),
+            9_374_669
+        );
     }
 
     #[test]

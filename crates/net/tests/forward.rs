@@ -43,6 +43,9 @@ fn room(seed: u64, channels: usize) -> (Vec<Coord>, Vec<f32>) {
             0,
         ]);
     }
+    // A second scene in batch 1 that overlaps the first in space: batches must not mix.
+    let first: Vec<Coord> = set.iter().take(40).copied().collect();
+    set.extend(first.into_iter().map(|c| [c[0], c[1], c[2], 1]));
     let mut coords: Vec<Coord> = set.into_iter().collect();
     // Shuffle: the fused path must not depend on the caller's order.
     for i in (1..coords.len()).rev() {
