@@ -1,7 +1,7 @@
 //! Inference time of the fused CBSCN forward on a voxelised synthetic room, random weights.
 //!
 //! `cargo run --release -p semrecon-net --example infer_bench -- [--threads 2] [--seed 1]
-//! [--configs s20,live] [--repeats 3]`
+//! [--configs s20,live] [--repeats 3] [--rulebook]`
 //!
 //! The room (`semrecon_data::synth::generate_room`) is sampled into coloured points (about
 //! nine per voxel face), voxelised at each configuration's voxel size, and segmented
@@ -14,7 +14,9 @@ use std::time::Instant;
 
 use semrecon_data::synth::{generate_room, RoomConfig};
 use semrecon_net::surface::sample_surface;
-use semrecon_net::{color_features, forward_flops, parameter_count, NetConfig, Segmenter, Weights};
+use semrecon_net::{
+    color_features, forward_flops, parameter_count, ConvKernel, NetConfig, Segmenter, Weights,
+};
 use semrecon_sparse::voxelize;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -22,6 +24,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut seed = 1u64;
     let mut repeats = 3usize;
     let mut configs = "s20,live".to_string();
+    let mut rulebook = false;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         let mut value = || args.next().ok_or(format!("{a} needs a value"));
@@ -30,6 +33,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--seed" => seed = value()?.parse()?,
             "--repeats" => repeats = value()?.parse::<usize>()?.max(1),
             "--configs" => configs = value()?,
+            "--rulebook" => rulebook = true,
             other => return Err(format!("unknown argument {other}").into()),
         }
     }
@@ -90,6 +94,24 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             flops / 1e9,
             flops / 1e9 / (fwd_ms / 1e3),
         );
+        if rulebook {
+            // The same network, weights and kernel maps with the gather-GEMM-scatter kernel.
+            net.set_kernel(ConvKernel::Rulebook);
+            let mut best_layers = f64::INFINITY;
+            let cpu0 = cpu_ms();
+            for _ in 0..repeats {
+                std::hint::black_box(net.segment(coords, f)?);
+                best_layers = best_layers.min(net.last_timing().forward.as_secs_f64() * 1e3);
+            }
+            let cpu = cpu0.zip(cpu_ms()).map_or("n/a".to_string(), |(a, b)| {
+                format!("{:.0} ms", (b - a) / repeats as f64)
+            });
+            println!(
+                "{} with the rulebook kernel: layers {best_layers:.1} ms ({:.1}x the chunked layers); CPU time per call {cpu}",
+                config.name,
+                best_layers / fwd_ms
+            );
+        }
     }
     Ok(())
 }

@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 use semrecon_sparse::morton::morton_order;
-use semrecon_sparse::{voxelize, ChunkConfig, ChunkedConv, Coord};
+use semrecon_sparse::{rulebook, voxelize, ChunkConfig, ChunkedConv, Coord};
 
 use crate::config::NetConfig;
 use crate::error::{NetError, Result};
@@ -36,6 +36,33 @@ pub fn color_features(colors: &[[u8; 3]]) -> Vec<f32> {
         .iter()
         .flat_map(|c| c.map(|v| f32::from(v) / 127.5 - 1.0))
         .collect()
+}
+
+/// Which engine kernel runs the convolutions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ConvKernel {
+    /// The adaptive chunk-based kernel (the fast path).
+    #[default]
+    Chunked,
+    /// The gather-GEMM-scatter baseline on the same kernel maps (for comparisons).
+    Rulebook,
+}
+
+/// One convolution of the network with the chosen kernel; `y` is overwritten.
+fn run_conv(
+    kernel: ConvKernel,
+    layer: &ChunkedConv,
+    x: &[f32],
+    c_in: usize,
+    w: &[f32],
+    c_out: usize,
+    y: &mut [f32],
+) -> Result<()> {
+    match kernel {
+        ConvKernel::Chunked => layer.forward_into(x, c_in, w, c_out, y)?,
+        ConvKernel::Rulebook => rulebook::forward_into(layer.map(), x, c_in, w, c_out, y)?,
+    }
+    Ok(())
 }
 
 /// Batch norm with running statistics, folded: `y = max(0, x * scale + shift)`.
@@ -108,6 +135,7 @@ impl ResBlock {
     /// Applies the block to `x` (`[n, c]`) in place; `a`, `b` are scratch.
     fn run(
         &self,
+        kernel: ConvKernel,
         conv: &ChunkedConv,
         x: &mut [f32],
         c: usize,
@@ -116,9 +144,9 @@ impl ResBlock {
     ) -> Result<()> {
         let (a, b) = (sized(a, x.len()), sized(b, x.len()));
         self.bn1.apply(x, a);
-        conv.forward_into(a, c, &self.conv1, c, b)?;
+        run_conv(kernel, conv, a, c, &self.conv1, c, b)?;
         self.bn2.apply_in_place(b);
-        conv.forward_into(b, c, &self.conv2, c, a)?;
+        run_conv(kernel, conv, b, c, &self.conv2, c, a)?;
         add_assign(x, a);
         Ok(())
     }
@@ -270,6 +298,7 @@ pub struct Segmenter {
     config: NetConfig,
     params: Params,
     chunk: ChunkConfig,
+    kernel: ConvKernel,
     ws: Workspace,
     stats: Vec<LevelStats>,
     timing: Timing,
@@ -296,10 +325,16 @@ impl Segmenter {
             config,
             params,
             chunk: ChunkConfig::default(),
+            kernel: ConvKernel::Chunked,
             ws: Workspace::default(),
             stats: Vec::new(),
             timing: Timing::default(),
         })
+    }
+
+    /// Runs the convolutions with `kernel` from now on (the chunked one by default).
+    pub fn set_kernel(&mut self, kernel: ConvKernel) {
+        self.kernel = kernel;
     }
 
     /// The configuration.
@@ -473,8 +508,10 @@ impl Segmenter {
             config,
             params: p,
             ws,
+            kernel,
             ..
         } = self;
+        let kernel = *kernel;
         let l = config.levels;
         let c = |i: usize| config.channels(i);
         let n = |i: usize| geo.levels[i].coords.len();
@@ -484,10 +521,16 @@ impl Segmenter {
         // Encoder.
         {
             let e0 = sized(&mut ws.enc[0], n(0) * c(0));
-            geo.levels[0]
-                .subm
-                .forward_into(feats, config.in_channels, &p.input, c(0), e0)?;
-            p.extract[0].run(&geo.levels[0].subm, e0, c(0), &mut ws.a, &mut ws.b)?;
+            run_conv(
+                kernel,
+                &geo.levels[0].subm,
+                feats,
+                config.in_channels,
+                &p.input,
+                c(0),
+                e0,
+            )?;
+            p.extract[0].run(kernel, &geo.levels[0].subm, e0, c(0), &mut ws.a, &mut ws.b)?;
         }
         for i in 1..l {
             let (prev, rest) = ws.enc.split_at_mut(i);
@@ -496,9 +539,9 @@ impl Segmenter {
             bn.apply(&prev[i - 1][..n(i - 1) * c(i - 1)], a);
             let e = sized(&mut rest[0], n(i) * c(i));
             if let Some((down, _)) = &geo.levels[i - 1].down {
-                down.forward_into(a, c(i - 1), w, c(i), e)?;
+                run_conv(kernel, down, a, c(i - 1), w, c(i), e)?;
             }
-            p.extract[i].run(&geo.levels[i].subm, e, c(i), &mut ws.a, &mut ws.b)?;
+            p.extract[i].run(kernel, &geo.levels[i].subm, e, c(i), &mut ws.a, &mut ws.b)?;
         }
 
         // Decoder, coarse to fine, with the cross-scale fusion.
@@ -516,20 +559,34 @@ impl Segmenter {
             let (lower, higher) = ws.dec.split_at_mut(t + 1);
             let d = sized(&mut lower[t], n(t) * c(t));
             if let Some((_, tconv)) = &geo.levels[t].down {
-                tconv.forward_into(&ws.a[..n(t + 1) * c(t + 1)], c(t + 1), &up.conv, c(t), d)?;
+                run_conv(
+                    kernel,
+                    tconv,
+                    &ws.a[..n(t + 1) * c(t + 1)],
+                    c(t + 1),
+                    &up.conv,
+                    c(t),
+                    d,
+                )?;
             }
             let b = sized(&mut ws.b, n(t) * c(t));
-            geo.levels[t]
-                .point
-                .forward_into(&ws.enc[t][..n(t) * c(t)], c(t), &up.skip, c(t), b)?;
+            run_conv(
+                kernel,
+                &geo.levels[t].point,
+                &ws.enc[t][..n(t) * c(t)],
+                c(t),
+                &up.skip,
+                c(t),
+                b,
+            )?;
             add_assign(d, b);
             up.block
-                .run(&geo.levels[t].subm, d, c(t), &mut ws.a, &mut ws.b)?;
+                .run(kernel, &geo.levels[t].subm, d, c(t), &mut ws.a, &mut ws.b)?;
             for (q, w) in p.fuse.get(t).into_iter().flatten().enumerate() {
                 let j = t + 1 + q;
                 let dj = &higher[j - t - 1][..n(j) * c(j)];
                 let g = sized(&mut ws.g, n(j) * (c(t) + 1));
-                geo.levels[j].point.forward_into(dj, c(j), w, c(t) + 1, g)?;
+                run_conv(kernel, &geo.levels[j].point, dj, c(j), w, c(t) + 1, g)?;
                 gate(g, c(t));
                 interp_add(&geo.interp[t][q], g, c(t) + 1, c(t), d);
             }
@@ -539,9 +596,15 @@ impl Segmenter {
         let d0: &[f32] = if l == 1 { &ws.enc[0] } else { &ws.dec[0] };
         let a = sized(&mut ws.a, n(0) * c(0));
         p.head_bn.apply(&d0[..n(0) * c(0)], a);
-        geo.levels[0]
-            .point
-            .forward_into(a, c(0), &p.head_w, config.classes, logits)?;
+        run_conv(
+            kernel,
+            &geo.levels[0].point,
+            a,
+            c(0),
+            &p.head_w,
+            config.classes,
+            logits,
+        )?;
         let k = config.classes;
         logits.par_chunks_mut(k * ROWS_PER_TASK).for_each(|blk| {
             for row in blk.chunks_exact_mut(k) {

@@ -35,6 +35,6 @@ pub mod weights;
 pub use config::NetConfig;
 pub use error::{NetError, Result};
 pub use geometry::NetGeometry;
-pub use inference::{color_features, Segmenter, Timing};
+pub use inference::{color_features, ConvKernel, Segmenter, Timing};
 pub use model::{forward_flops, parameter_count, LevelStats};
 pub use weights::{Tensor, Weights};

@@ -91,6 +91,13 @@ fn fused_forward_matches_the_reference() {
             "L={levels} M={width}: err {err:e} scale {scale} stats {:?}",
             net.level_stats()
         );
+        net.set_kernel(semrecon_net::ConvKernel::Rulebook);
+        let rb = net.segment(&coords, &feats).unwrap();
+        let err = rb
+            .iter()
+            .zip(&want)
+            .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(err <= 1e-4 * scale, "rulebook: max error {err}");
         assert_eq!(net.level_stats().len(), levels);
         assert_eq!(net.level_stats()[0].voxels, coords.len());
     }
