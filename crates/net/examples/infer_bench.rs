@@ -5,17 +5,18 @@
 //!
 //! The room (`semrecon_data::synth::generate_room`) is sampled into coloured points (about
 //! nine per voxel face), voxelised at each configuration's voxel size, and segmented
-//! with seeded random weights. Reported: voxels per level, the fastest of the repeats (total,
-//! geometry = kernel maps + chunk plans + interpolation tables, layers), FLOPs and GFLOP/s,
-//! parameters, and the mean CPU time per call (user + system over all threads: on a shared,
-//! loaded machine the wall time overstates the cost, the CPU time does not).
+//! with seeded random weights. Reported: voxels per level, FLOPs, parameters, and per phase
+//! (total; geometry = kernel maps + chunk plans + interpolation tables; layers) the fastest
+//! wall time of the repeats and the mean CPU time per call (user + system over all threads:
+//! on a shared, loaded machine the wall time overstates the cost, the CPU time does not).
 
 use std::time::Instant;
 
 use semrecon_data::synth::{generate_room, RoomConfig};
 use semrecon_net::surface::sample_surface;
 use semrecon_net::{
-    color_features, forward_flops, parameter_count, ConvKernel, NetConfig, Segmenter, Weights,
+    color_features, forward_flops, parameter_count, ConvKernel, NetConfig, NetGeometry, Segmenter,
+    Weights,
 };
 use semrecon_sparse::voxelize;
 
@@ -64,52 +65,37 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut net = Segmenter::new(Weights::random(&config, 7), config.clone())?;
         let (coords, f) = (v.tensor.coords(), v.tensor.features());
         net.segment(coords, f)?; // warm-up: workspace growth, page faults
-        let mut best = f64::INFINITY;
-        let mut best_timing = net.last_timing();
-        let cpu0 = cpu_ms();
-        for _ in 0..repeats {
-            let t = Instant::now();
-            let logits = net.segment(coords, f)?;
-            let ms = t.elapsed().as_secs_f64() * 1e3;
-            std::hint::black_box(logits);
-            if ms < best {
-                best = ms;
-                best_timing = net.last_timing();
-            }
-        }
-        let cpu = cpu0.zip(cpu_ms()).map_or("n/a".to_string(), |(a, b)| {
-            format!("{:.0} ms", (b - a) / repeats as f64)
-        });
-        let voxels: Vec<usize> = net.level_stats().iter().map(|s| s.voxels).collect();
-        let flops = forward_flops(&config, net.level_stats()) as f64;
-        let fwd_ms = best_timing.forward.as_secs_f64() * 1e3;
+                                 // The whole call (geometry + layers), then each phase alone.
+        let (total, total_cpu) = measure(repeats, || net.segment(coords, f).map(|_| ()))?;
+        let stats = net.level_stats().to_vec();
+        let (geo_ms, geo_cpu) = measure(repeats, || {
+            NetGeometry::build(coords.to_vec(), &config, &Default::default()).map(|_| ())
+        })?;
+        let geo = NetGeometry::build(coords.to_vec(), &config, &Default::default())?;
+        let (layers, layers_cpu) = measure(repeats, || net.segment_geometry(&geo, f).map(|_| ()))?;
+        let flops = forward_flops(&config, &stats) as f64;
         println!(
-            "{} ({} points): {} voxels (levels {:?}), mean neighbours {:.1}; total {best:.1} ms = geometry {:.1} ms + layers {fwd_ms:.1} ms (voxelise {voxelize_ms:.1} ms); {:.2} GFLOP, {:.1} GFLOP/s in the layers; CPU time per call {cpu}",
+            "{} ({} points, voxelised in {voxelize_ms:.0} ms): {} voxels, levels {:?}, mean neighbours {:.1}, {:.2} GFLOP",
             config.summary(),
             points.len(),
             coords.len(),
-            voxels,
-            net.level_stats()[0].neighbour_pairs as f64 / coords.len().max(1) as f64,
-            best_timing.geometry.as_secs_f64() * 1e3,
+            stats.iter().map(|s| s.voxels).collect::<Vec<_>>(),
+            stats[0].neighbour_pairs as f64 / coords.len().max(1) as f64,
             flops / 1e9,
-            flops / 1e9 / (fwd_ms / 1e3),
+        );
+        println!(
+            "  chunked : total {total:.1} ms (CPU {total_cpu:.0} ms) = geometry {geo_ms:.1} ms (CPU {geo_cpu:.0}) + layers {layers:.1} ms (CPU {layers_cpu:.0}); {:.1} GFLOP/s per CPU-second in the layers",
+            flops / 1e9 / (layers_cpu / 1e3),
         );
         if rulebook {
             // The same network, weights and kernel maps with the gather-GEMM-scatter kernel.
             net.set_kernel(ConvKernel::Rulebook);
-            let mut best_layers = f64::INFINITY;
-            let cpu0 = cpu_ms();
-            for _ in 0..repeats {
-                std::hint::black_box(net.segment(coords, f)?);
-                best_layers = best_layers.min(net.last_timing().forward.as_secs_f64() * 1e3);
-            }
-            let cpu = cpu0.zip(cpu_ms()).map_or("n/a".to_string(), |(a, b)| {
-                format!("{:.0} ms", (b - a) / repeats as f64)
-            });
+            net.segment_geometry(&geo, f)?;
+            let (rb, rb_cpu) = measure(repeats, || net.segment_geometry(&geo, f).map(|_| ()))?;
             println!(
-                "{} with the rulebook kernel: layers {best_layers:.1} ms ({:.1}x the chunked layers); CPU time per call {cpu}",
-                config.name,
-                best_layers / fwd_ms
+                "  rulebook: layers {rb:.1} ms (CPU {rb_cpu:.0} ms): chunked layers are {:.2}x faster (wall), {:.2}x (CPU)",
+                rb / layers,
+                rb_cpu / layers_cpu,
             );
         }
     }
@@ -124,4 +110,22 @@ fn cpu_ms() -> Option<f64> {
     let utime: f64 = fields.get(11)?.parse().ok()?;
     let stime: f64 = fields.get(12)?.parse().ok()?;
     Some((utime + stime) * 10.0)
+}
+
+/// Fastest wall time and mean CPU time (ms) of `repeats` runs of `f`.
+fn measure(
+    repeats: usize,
+    mut f: impl FnMut() -> semrecon_net::Result<()>,
+) -> semrecon_net::Result<(f64, f64)> {
+    let mut best = f64::INFINITY;
+    let cpu0 = cpu_ms();
+    for _ in 0..repeats {
+        let t = Instant::now();
+        f()?;
+        best = best.min(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let cpu = cpu0
+        .zip(cpu_ms())
+        .map_or(f64::NAN, |(a, b)| (b - a) / repeats as f64);
+    Ok((best, cpu))
 }
