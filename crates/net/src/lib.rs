@@ -1,0 +1,40 @@
+//! CBSCN, the semantic segmentation network of semrecon (MISSION.md section 3): a sparse
+//! voxel U-Net with residual blocks and cross-scale fusion with spatial attention, labelling
+//! every voxel of a room with one of 13 classes.
+//!
+//! - [`config`]: named configurations (`s20`, `s50`, `live`) and configuration files;
+//! - [`model`]: the architecture as named tensors, parameter and FLOP counts;
+//! - [`weights`]: named tensors, safetensors files with `f16` storage, seeded initialisation;
+//! - [`geometry`]: kernel maps, chunk plans and interpolation tables of one input;
+//! - [`inference`]: the fused CPU forward on the sparse engine ([`Segmenter`]);
+//! - [`reference`](mod@reference): a plain, unfused forward, the oracle of the tests;
+//! - [`surface`]: coloured, labelled point samples of a mesh surface (network input).
+//!
+//! ```
+//! use semrecon_net::{NetConfig, Segmenter, Weights};
+//!
+//! let config = NetConfig::new("tiny", 3, 4, 0.05);
+//! let mut net = Segmenter::new(Weights::random(&config, 1), config)?;
+//! let points = [[0.0, 0.0, 0.0], [0.06, 0.0, 0.0], [0.06, 0.05, 0.0]];
+//! let colors = [[200, 10, 10], [10, 200, 10], [10, 10, 200]];
+//! let labels = net.segment_points(&points, &colors)?;
+//! assert_eq!(labels.len(), 3);
+//! # Ok::<(), semrecon_net::NetError>(())
+//! ```
+#![warn(missing_docs)]
+
+pub mod config;
+pub mod error;
+pub mod geometry;
+pub mod inference;
+pub mod model;
+pub mod reference;
+pub mod surface;
+pub mod weights;
+
+pub use config::NetConfig;
+pub use error::{NetError, Result};
+pub use geometry::NetGeometry;
+pub use inference::{color_features, ConvKernel, Segmenter, Timing};
+pub use model::{forward_flops, parameter_count, LevelStats};
+pub use weights::{Tensor, Weights};
