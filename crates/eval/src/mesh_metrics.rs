@@ -219,61 +219,109 @@ fn closest_point_on_segment(p: Vec3, a: Vec3, b: Vec3) -> Vec3 {
     a + ab * ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
 }
 
+/// Samples in a coarse tree, at most this many: queries far from the surface are answered
+/// from it, because a k-d tree search from far away visits a large part of a dense tree.
+const COARSE_SAMPLES: usize = 100_000;
+
 /// A surface prepared for nearest-distance queries: dense samples in a k-d tree, each
 /// remembering its triangle for the exact point-to-triangle distance.
+///
+/// Queries further than [`SurfaceIndex::far_m`] from the surface are answered from a coarser
+/// sampling of the same triangles (the triangles of the nearest coarse samples, measured
+/// exactly): still exact when the nearest triangle owns one of those samples, otherwise over
+/// by less than the coarse spacing, which is small next to the distance itself. Distances
+/// below the far limit (and so every precision and recall) always use the dense samples.
 pub struct SurfaceIndex<'a> {
     mesh: &'a LabeledMesh,
-    /// Triangle of each tree item; empty when the tree holds the mesh's vertices.
-    triangle_of: Vec<u32>,
-    tree: ImmutableKdTree<f32, 3>,
+    fine: SampleTree,
+    coarse: Option<SampleTree>,
+    far_m: f32,
     candidates: NonZeroUsize,
 }
 
-impl<'a> SurfaceIndex<'a> {
-    /// Indexes `mesh`: its triangles sampled at `config`'s spacing, or its vertices when it
-    /// has no triangle area. Fails for a mesh without vertices.
-    pub fn new(mesh: &'a LabeledMesh, config: &MeshEvalConfig, which: &'static str) -> Result<Self> {
-        let samples = sample_surface(mesh, config.sample_spacing_m, config.max_samples, config.seed)?;
-        let (points, triangle_of) = if samples.points.is_empty() {
-            (mesh.positions.clone(), Vec::new())
-        } else {
-            (samples.points, samples.triangles)
-        };
+/// Points in a k-d tree with the triangle of each (none: the tree holds the vertices).
+struct SampleTree {
+    tree: ImmutableKdTree<f32, 3>,
+    triangle_of: Vec<u32>,
+}
+
+impl SampleTree {
+    fn new(points: &[Vec3], triangle_of: Vec<u32>, which: &'static str) -> Result<Self> {
         let points: Vec<[f32; 3]> = points.iter().filter(|p| p.is_finite()).map(|p| p.to_array()).collect();
         if points.is_empty() {
             return Err(EvalError::EmptyMesh(which));
         }
         let tree = ImmutableKdTree::<f32, 3>::new_from_slice(&points)
             .map_err(|e| EvalError::InvalidArgument(format!("cannot index the {which} surface: {e}")))?;
-        let candidates = NonZeroUsize::new(config.candidates.max(1)).unwrap_or(NonZeroUsize::MIN);
-        Ok(Self { mesh, triangle_of, tree, candidates })
+        Ok(Self { tree, triangle_of })
     }
 
-    /// Distance from `p` to the indexed surface, metres.
-    pub fn distance(&self, p: Vec3) -> f32 {
+    fn distance(&self, mesh: &LabeledMesh, p: Vec3, candidates: NonZeroUsize) -> f32 {
         let q = p.to_array();
         if self.triangle_of.is_empty() {
             let nearest = self.tree.query(&q).nearest_one::<SquaredEuclidean<f32>>().execute();
             return nearest.distance.sqrt();
         }
-        let found = self.tree.query(&q).nearest_n::<SquaredEuclidean<f32>>(self.candidates).execute();
+        let found = self.tree.query(&q).nearest_n::<SquaredEuclidean<f32>>(candidates).execute();
         let mut best = f32::INFINITY;
-        let mut seen: [u32; 16] = [u32::MAX; 16];
-        for (k, item) in found.iter().enumerate() {
-            // The sample itself lies on the surface: an upper bound even if the exact test
-            // below were to go wrong.
+        let mut seen: Vec<u32> = Vec::with_capacity(found.len());
+        for item in &found {
+            // The sample itself lies on the surface: an upper bound whatever the triangles say.
             best = best.min(item.distance.sqrt());
             let t = self.triangle_of[item.item as usize];
             if seen.contains(&t) {
                 continue;
             }
-            if k < seen.len() {
-                seen[k] = t;
-            }
-            let [a, b, c] = self.mesh.triangles[t as usize].map(|i| self.mesh.positions[i as usize]);
+            seen.push(t);
+            let [a, b, c] = mesh.triangles[t as usize].map(|i| mesh.positions[i as usize]);
             best = best.min(closest_point_on_triangle(p, a, b, c).distance(p));
         }
         best
+    }
+}
+
+impl<'a> SurfaceIndex<'a> {
+    /// Indexes `mesh`: its triangles sampled at `config`'s spacing, or its vertices when it
+    /// has no triangle area. Fails for a mesh without vertices; `which` names the mesh in
+    /// that error.
+    pub fn new(mesh: &'a LabeledMesh, config: &MeshEvalConfig, which: &'static str) -> Result<Self> {
+        mesh.validate().map_err(|m| EvalError::InvalidArgument(format!("the {which} mesh is inconsistent: {m}")))?;
+        let samples = sample_surface(mesh, config.sample_spacing_m, config.max_samples, config.seed)?;
+        let candidates = NonZeroUsize::new(config.candidates.max(1)).unwrap_or(NonZeroUsize::MIN);
+        let largest_threshold = config.thresholds_m.iter().fold(0.0f32, |m, t| m.max(*t));
+        if samples.points.is_empty() {
+            let fine = SampleTree::new(&mesh.positions, Vec::new(), which)?;
+            return Ok(Self { mesh, fine, coarse: None, far_m: f32::INFINITY, candidates });
+        }
+        let fine_count = samples.points.len();
+        let fine = SampleTree::new(&samples.points, samples.triangles, which)?;
+        let (coarse, far_m) = if fine_count > COARSE_SAMPLES {
+            let coarse = sample_surface(mesh, config.sample_spacing_m, COARSE_SAMPLES, config.seed ^ 0x5eed)?;
+            // Mean spacing of the coarse samples: the total area is fine_count spacings².
+            let spacing = config.sample_spacing_m * (fine_count as f32 / coarse.points.len().max(1) as f32).sqrt();
+            let far = (4.0 * largest_threshold).max(20.0 * spacing).max(0.1);
+            (Some(SampleTree::new(&coarse.points, coarse.triangles, which)?), far)
+        } else {
+            (None, f32::INFINITY)
+        };
+        Ok(Self { mesh, fine, coarse, far_m, candidates })
+    }
+
+    /// Distance beyond which queries are answered from the coarse samples, metres
+    /// (infinite when the surface is small enough to need none).
+    pub fn far_m(&self) -> f32 {
+        self.far_m
+    }
+
+    /// Distance from `p` to the indexed surface, metres.
+    pub fn distance(&self, p: Vec3) -> f32 {
+        if let Some(coarse) = &self.coarse {
+            let d = coarse.distance(self.mesh, p, self.candidates);
+            if d > self.far_m {
+                return d;
+            }
+        }
+        self.fine.distance(self.mesh, p, self.candidates)
     }
 
     /// [`SurfaceIndex::distance`] of every point, in parallel, in input order.
@@ -286,9 +334,6 @@ impl<'a> SurfaceIndex<'a> {
 pub fn evaluate_mesh(gt: &LabeledMesh, est: &LabeledMesh, config: &MeshEvalConfig) -> Result<MeshErrors> {
     if let Some(t) = config.thresholds_m.iter().find(|t| !(**t > 0.0 && t.is_finite())) {
         return Err(EvalError::InvalidArgument(format!("thresholds must be positive distances, got {t}")));
-    }
-    for (mesh, which) in [(gt, "ground-truth"), (est, "estimated")] {
-        mesh.validate().map_err(|m| EvalError::InvalidArgument(format!("the {which} mesh is inconsistent: {m}")))?;
     }
     let gt_index = SurfaceIndex::new(gt, config, "ground-truth")?;
     let est_index = SurfaceIndex::new(est, config, "estimated")?;
@@ -444,6 +489,18 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(9);
         for _ in 0..300 {
             let p = Vec3::new(rng.random_range(0.0..0.4), rng.random_range(0.0..0.4), rng.random_range(-0.03..0.03));
+            let (fast, slow) = (index.distance(p), brute_force_distance(&gt, p));
+            assert!((fast - slow).abs() < 1e-4, "{p}: {fast} vs {slow}");
+        }
+    }
+
+    #[test]
+    fn far_queries_use_the_coarse_samples_and_stay_close() {
+        // 1 m² at 2 mm: 250k fine samples, so a coarse tree is built.
+        let gt = square(1.0, 20, 0.0);
+        let index = SurfaceIndex::new(&gt, &MeshEvalConfig::default(), "test").expect("indexes");
+        assert!(index.far_m().is_finite());
+        for p in [Vec3::new(0.3, 0.7, 2.0), Vec3::new(-1.0, 2.0, 0.5), Vec3::new(0.5, 0.5, 0.01)] {
             let (fast, slow) = (index.distance(p), brute_force_distance(&gt, p));
             assert!((fast - slow).abs() < 1e-4, "{p}: {fast} vs {slow}");
         }
