@@ -36,8 +36,12 @@ pub struct Reconstruction {
 impl Reconstruction {
     /// An empty map at `voxel` metres, re-meshed every `keyframe_every` fused frames.
     pub fn new(voxel: f32, keyframe_every: usize) -> anyhow::Result<Self> {
-        anyhow::ensure!(keyframe_every > 0, "the keyframe interval must be at least 1 frame");
-        let config = TsdfConfig::with_voxel_size(voxel).with_context(|| format!("voxel size {voxel} m"))?;
+        anyhow::ensure!(
+            keyframe_every > 0,
+            "the keyframe interval must be at least 1 frame"
+        );
+        let config =
+            TsdfConfig::with_voxel_size(voxel).with_context(|| format!("voxel size {voxel} m"))?;
         Ok(Self {
             map: TsdfMap::new(config)?,
             mesher: IncrementalMesher::new(),
@@ -59,13 +63,17 @@ impl Reconstruction {
     /// Fuses `frame` at `world_from_camera`, records the pose, and re-meshes when this frame
     /// completes a keyframe interval. On a fusion error the map is unchanged and nothing is
     /// recorded.
-    pub fn add_frame(&mut self, frame: &Frame, world_from_camera: Affine3A) -> semrecon_recon::Result<()> {
+    pub fn add_frame(
+        &mut self,
+        frame: &Frame,
+        world_from_camera: Affine3A,
+    ) -> semrecon_recon::Result<()> {
         let t = Instant::now();
         self.map.integrate(frame, world_from_camera)?;
         self.record_pipeline("fusion", t.elapsed());
         self.trajectory.push(frame.timestamp, world_from_camera);
         self.fused += 1;
-        if self.fused % self.keyframe_every == 0 {
+        if self.fused.is_multiple_of(self.keyframe_every) {
             self.remesh();
         }
         Ok(())

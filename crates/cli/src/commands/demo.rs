@@ -78,7 +78,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let wall = start.elapsed().as_secs_f64();
 
     recon.write_outputs(&args.out, &mesh)?;
-    write_ply(&args.out.join("ground_truth.ply"), &room.mesh, PlyEncoding::BinaryLittleEndian)?;
+    write_ply(args.out.join("ground_truth.ply"), &room.mesh, PlyEncoding::BinaryLittleEndian)?;
     let (map, times, pipeline_s) = (&recon.map, &recon.times, recon.pipeline_s);
 
     let input_s = scan.len() as f64 / scan.frame_rate();
