@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 mod cli_values;
 mod commands;
 mod progress;
+mod reconstruction;
 mod timing;
 
 /// Live semantic 3D perception from RGB-D streams, on the CPU.
@@ -21,8 +22,12 @@ enum Command {
     Bench(commands::bench::BenchArgs),
     /// Run the whole pipeline on a built-in synthetic scene and write the outputs.
     Demo(commands::demo::DemoArgs),
+    /// Evaluate against ground truth: trajectory (ATE, RPE) or mesh (accuracy, completeness, F-score).
+    Eval(commands::eval::EvalArgs),
     /// Describe a dataset: frame count, resolution, intrinsics, depth range, ground truth.
     Info(commands::info::InfoArgs),
+    /// Reconstruct a dataset: poses, TSDF fusion, meshing; writes mesh, trajectory and report.
+    Run(commands::run::RunArgs),
     /// Generate a synthetic labelled room and render an RGB-D scan of it (7-Scenes layout).
     Synth(commands::synth::SynthArgs),
     /// Render a mesh to a PNG (bird's-eye corner view), in its colours or class colours.
@@ -36,7 +41,9 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Bench(args) => commands::bench::run(args),
         Command::Demo(args) => commands::demo::run(args),
+        Command::Eval(args) => commands::eval::run(args),
         Command::Info(args) => commands::info::run(args),
+        Command::Run(args) => commands::run::run(args),
         Command::Synth(args) => commands::synth::run(args),
         Command::Snapshot(args) => commands::snapshot::run(args),
         Command::Throw(args) => commands::throw::run(args),

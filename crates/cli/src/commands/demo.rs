@@ -11,12 +11,11 @@ use std::time::Instant;
 use anyhow::Context;
 use semrecon_data::atomic_file::write_atomic;
 use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
-use semrecon_data::{write_ply, FrameSource, PlyEncoding, Trajectory};
-use semrecon_recon::{IncrementalMesher, TsdfConfig, TsdfMap};
+use semrecon_data::{write_ply, FrameSource, PlyEncoding};
 use serde::Serialize;
 
 use crate::progress::progress_bar;
-use crate::timing::StageTimes;
+use crate::reconstruction::Reconstruction;
 
 /// Arguments of `semrecon demo`.
 #[derive(clap::Args)]
@@ -63,42 +62,24 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let scene = format!("synthetic {} room, seed {}", room.style, args.seed);
     println!("{scene}: {} triangles, {} frames {}x{}", room.mesh.triangle_count(), scan.len(), config.intrinsics.width, config.intrinsics.height);
 
-    let mut map = TsdfMap::new(TsdfConfig::with_voxel_size(args.voxel)?)?;
-    let mut mesher = IncrementalMesher::new();
-    let mut times = StageTimes::default();
-    let mut trajectory = Trajectory::default();
+    let mut recon = Reconstruction::new(args.voxel, args.keyframe_every)?;
     let bar = progress_bar(scan.len() as u64, "fusing");
     let start = Instant::now();
-    let mut pipeline_s = 0.0;
     for i in 0..scan.len() {
         let t = Instant::now();
         let frame = scan.frame(i)?;
-        times.record("sensor simulation", t.elapsed());
+        recon.times.record("sensor simulation", t.elapsed());
         let pose = frame.world_from_camera.context("synthetic frames carry their pose")?;
-        trajectory.push(frame.timestamp, pose);
-
-        let t = Instant::now();
-        map.integrate(&frame, pose)?;
-        let fusion = t.elapsed();
-        times.record("fusion", fusion);
-        pipeline_s += fusion.as_secs_f64();
-        if (i + 1) % args.keyframe_every == 0 || i + 1 == scan.len() {
-            let t = Instant::now();
-            mesher.update(&map);
-            let meshing = t.elapsed();
-            times.record("meshing", meshing);
-            pipeline_s += meshing.as_secs_f64();
-        }
+        recon.add_frame(&frame, pose)?;
         bar.inc(1);
     }
     bar.finish_and_clear();
+    let mesh = recon.finish();
     let wall = start.elapsed().as_secs_f64();
-    let mesh = mesher.mesh();
 
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    write_ply(args.out.join("mesh.ply"), &mesh, PlyEncoding::BinaryLittleEndian)?;
+    recon.write_outputs(&args.out, &mesh)?;
     write_ply(args.out.join("ground_truth.ply"), &room.mesh, PlyEncoding::BinaryLittleEndian)?;
-    trajectory.write_tum(args.out.join("trajectory.txt"))?;
+    let (map, times, pipeline_s) = (&recon.map, &recon.times, recon.pipeline_s);
 
     let input_s = scan.len() as f64 / scan.frame_rate();
     let report = Report {

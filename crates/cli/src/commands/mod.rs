@@ -2,7 +2,9 @@
 
 pub mod bench;
 pub mod demo;
+pub mod eval;
 pub mod info;
+pub mod run;
 pub mod snapshot;
 pub mod synth;
 pub mod throw;
