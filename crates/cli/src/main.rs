@@ -29,6 +29,10 @@ enum Command {
     Snapshot(commands::snapshot::SnapshotArgs),
     /// Throw a virtual ball into a labelled mesh; bounces use the class's material.
     Throw(commands::throw::ThrowArgs),
+    /// Show a labelled mesh in a local web page (127.0.0.1); click to throw balls.
+    View(commands::view::ViewArgs),
+    /// Write the viewer as a static page (works from file://) with precomputed throws.
+    ExportViewer(commands::view::ExportViewerArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -40,6 +44,8 @@ fn main() -> std::process::ExitCode {
         Command::Synth(args) => commands::synth::run(args),
         Command::Snapshot(args) => commands::snapshot::run(args),
         Command::Throw(args) => commands::throw::run(args),
+        Command::View(args) => commands::view::run(args),
+        Command::ExportViewer(args) => commands::view::run_export(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

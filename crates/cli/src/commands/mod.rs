@@ -6,3 +6,4 @@ pub mod info;
 pub mod snapshot;
 pub mod synth;
 pub mod throw;
+pub mod view;
