@@ -178,13 +178,17 @@ function buildMesh(mesh, info) {
     indexNoCeiling = new THREE.BufferAttribute(new Uint32Array(kept), 1);
   }
 
-  const material = new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.DoubleSide });
+  // Front faces only by default: reconstructed and generated rooms face their inside, so
+  // from outside the near walls disappear and the room is seen like a doll's house.
+  const material = new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.FrontSide });
   meshObject = new THREE.Mesh(geometry, material);
   scene.add(meshObject);
   geometry.computeBoundingSphere();
   geometry.computeBoundingBox();
   frameCamera(geometry.boundingBox);
-  ballGeometry = new THREE.SphereGeometry(info.ball_radius || 0.04, 24, 16);
+  // Drawn at least 1 % of the room's size: a 4 cm ball is a speck in a whole-room view.
+  const diag = geometry.boundingBox.getSize(new THREE.Vector3()).length();
+  ballGeometry = new THREE.SphereGeometry(Math.max(info.ball_radius || 0.04, 0.01 * diag), 24, 16);
 }
 
 function frameCamera(box) {
@@ -395,7 +399,7 @@ function launch(t, label) {
     setStatus('the throw has no trajectory');
     return;
   }
-  const mesh = new THREE.Mesh(ballGeometry, new THREE.MeshLambertMaterial({ color: 0xffe14d, emissive: 0x554400 }));
+  const mesh = new THREE.Mesh(ballGeometry, new THREE.MeshLambertMaterial({ color: 0xffe14d, emissive: 0x886600 }));
   const path = new THREE.Line(
     new THREE.BufferGeometry().setFromPoints(t.positions.map((p) => new THREE.Vector3(p[0], p[1], p[2]))),
     pathMaterial,
@@ -484,6 +488,11 @@ $('show-trajectory').addEventListener('change', (e) => {
   if (trajectoryLine) trajectoryLine.visible = e.target.checked;
 });
 $('show-ceiling').addEventListener('change', (e) => setCeiling(e.target.checked));
+$('cull').addEventListener('change', (e) => {
+  if (!meshObject) return;
+  meshObject.material.side = e.target.checked ? THREE.FrontSide : THREE.DoubleSide;
+  meshObject.material.needsUpdate = true;
+});
 $('speed').addEventListener('input', (e) => {
   $('speed-value').textContent = e.target.value;
 });
