@@ -68,6 +68,8 @@ pub fn find_mesh(dir: &Path) -> Result<PathBuf> {
 impl ViewerFolder {
     /// Reads `dir` (an output folder of `run`/`demo`, a `synth` dataset, any folder with a
     /// PLY mesh, or a PLY file) with the materials of `materials` (defaults when `None`).
+    /// The trajectory is the first of [`TRAJECTORY_NAMES`] in the folder (the PLY file's
+    /// folder when a file is given).
     pub fn load(dir: &Path, materials: Option<&Path>) -> Result<Self> {
         let mesh_path = find_mesh(dir)?;
         let mesh = read_ply(&mesh_path)?;
@@ -85,7 +87,7 @@ impl ViewerFolder {
     }
 
     /// As [`ViewerFolder::load`] for a mesh already in memory; the trajectory is looked for
-    /// in `dir` (when it is a folder).
+    /// in `dir`, or in its parent folder when `dir` is a file.
     pub fn from_mesh(mesh_path: PathBuf, mesh: LabeledMesh, materials: MaterialTable, dir: &Path) -> Result<Self> {
         let config = SceneConfig::default();
         let collision = CollisionMesh::build(&mesh, &config.collision)?;
@@ -106,8 +108,10 @@ impl ViewerFolder {
             ));
         }
         let mut trajectory = None;
-        if dir.is_dir() {
-            if let Some(p) = TRAJECTORY_NAMES.iter().map(|n| dir.join(n)).find(|p| p.is_file()) {
+        // For a PLY file given directly, its folder holds the trajectory.
+        let traj_dir = if dir.is_dir() { Some(dir) } else { dir.parent() };
+        if let Some(traj_dir) = traj_dir {
+            if let Some(p) = TRAJECTORY_NAMES.iter().map(|n| traj_dir.join(n)).find(|p| p.is_file()) {
                 match Trajectory::read_any(&p) {
                     Ok(t) if !t.is_empty() => trajectory = Some((p, t)),
                     Ok(_) => notes.push(format!("{} has no poses", file_name(&p))),

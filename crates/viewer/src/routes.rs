@@ -204,12 +204,16 @@ fn camera_forward(world_from_camera: &glam::Affine3A) -> Vec3 {
 }
 
 /// `count` throws for the static export, replayed on click: from evenly spaced poses of the
-/// trajectory along the camera's view (tossed slightly upwards), or without a trajectory
-/// from the middle of the room in evenly spaced horizontal directions.
+/// trajectory along the camera's view (tossed slightly upwards), or, without a trajectory
+/// (or one shorter than 1 m), from the middle of the room in evenly spaced directions.
 pub fn precomputed_throws(folder: &ViewerFolder, count: usize) -> Vec<(ThrowRequest, Throw)> {
     let speed = 4.0;
+    // A camera that barely moved would give the same throw `count` times.
+    let path_length = |t: &semrecon_data::Trajectory| -> f32 {
+        t.poses.windows(2).map(|w| Vec3::from(w[1].translation).distance(Vec3::from(w[0].translation))).sum()
+    };
     let requests: Vec<ThrowRequest> = match &folder.trajectory {
-        Some((_, t)) if !t.is_empty() => (0..count)
+        Some((_, t)) if !t.is_empty() && path_length(t) >= 1.0 => (0..count)
             .map(|k| {
                 let i = if count > 1 { k * (t.len() - 1) / (count - 1) } else { 0 };
                 let forward = camera_forward(&t.poses[i]);
