@@ -107,7 +107,10 @@ pub fn print_summary(folder: &ViewerFolder) {
 fn answer(folder: &ViewerFolder, mut request: tiny_http::Request) {
     let method = request.method().as_str().to_string();
     let url = request.url().to_string();
-    let response = if request.body_length().is_some_and(|n| n > MAX_BODY_BYTES) {
+    let host = request.headers().iter().find(|h| h.field.equiv("Host")).map(|h| h.value.as_str().to_string());
+    let response = if !host.as_deref().is_none_or(is_local_host) {
+        Response::error(403, "the viewer only answers pages on 127.0.0.1 or localhost")
+    } else if request.body_length().is_some_and(|n| n > MAX_BODY_BYTES) {
         Response::error(413, format!("request body over {MAX_BODY_BYTES} bytes"))
     } else {
         // Bodies without a length (chunked) are read up to the limit plus one byte, enough
@@ -127,4 +130,28 @@ fn answer(folder: &ViewerFolder, mut request: tiny_http::Request) {
     }
     // A client that hung up is not the server's problem.
     let _ = request.respond(r);
+}
+
+/// Whether a `Host` header names this machine. Binding to 127.0.0.1 keeps other machines
+/// out, but a web site could still reach the server through DNS rebinding (its own name
+/// resolving to 127.0.0.1); such requests carry the site's name as `Host` and are refused.
+fn is_local_host(host: &str) -> bool {
+    let name = match host.rsplit_once(':') {
+        Some((name, port)) if port.chars().all(|c| c.is_ascii_digit()) => name,
+        _ => host,
+    };
+    matches!(name.to_ascii_lowercase().as_str(), "127.0.0.1" | "localhost" | "[::1]")
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn local_hosts() {
+        for h in ["127.0.0.1:8080", "localhost", "LOCALHOST:1", "[::1]:80", "127.0.0.1"] {
+            assert!(super::is_local_host(h), "{h}");
+        }
+        for h in ["evil.example", "evil.example:8080", "127.0.0.1.evil.example", "10.0.0.1:80", ""] {
+            assert!(!super::is_local_host(h), "{h}");
+        }
+    }
 }

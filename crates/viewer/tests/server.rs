@@ -174,8 +174,11 @@ fn routes_answer_and_bad_requests_get_4xx_while_the_server_stays_up() {
     assert!(json(&body)["error"].is_string());
     let (status, _) = get(addr, "/assets/../Cargo.toml");
     assert_eq!(status, 404);
-    let (status, _) = raw(addr, b"POST /api/info HTTP/1.1\r\nHost: x\r\nContent-Length: 0\r\nConnection: close\r\n\r\n");
+    let (status, _) = raw(addr, b"POST /api/info HTTP/1.1\r\nHost: localhost\r\nContent-Length: 0\r\nConnection: close\r\n\r\n");
     assert_eq!(status, 405);
+    // DNS rebinding: a page of another site reaching 127.0.0.1 under its own name.
+    let (status, _) = raw(addr, b"GET /api/info HTTP/1.1\r\nHost: evil.example:80\r\nConnection: close\r\n\r\n");
+    assert_eq!(status, 403);
     // Not HTTP at all: the connection is dropped or answered 400, the server lives on.
     if let Ok(mut s) = TcpStream::connect(addr) {
         let _ = s.write_all(b"\x16\x03\x01 garbage\r\n\r\n");
@@ -228,9 +231,9 @@ fn folder_picks_the_reconstruction_first_and_reports_missing_meshes() {
     write_ply(p.join("mesh.ply"), &room(false), PlyEncoding::Ascii).expect("write");
     assert!(semrecon_viewer::folder::find_mesh(p).expect("found").ends_with("mesh.ply"));
     let empty = tempfile::tempdir().expect("tempdir");
-    let err = ViewerFolder::load(empty.path(), None).err().expect("no mesh");
+    let err = ViewerFolder::load(empty.path(), None).expect_err("no mesh");
     assert!(err.to_string().contains("mesh.ply"), "{err}");
-    let err = ViewerFolder::load(&p.join("missing"), None).err().expect("no folder");
+    let err = ViewerFolder::load(&p.join("missing"), None).expect_err("no folder");
     assert!(err.to_string().contains("missing"), "{err}");
 }
 
