@@ -17,6 +17,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// AR view: virtual balls thrown into a scanned room, drawn over its RGB frames (PNG + GIF).
+    Ar(commands::ar::ArArgs),
     /// Benchmarks (table + JSON): rendering, sparse convolution.
     Bench(commands::bench::BenchArgs),
     /// Run the whole pipeline on a built-in synthetic scene and write the outputs.
@@ -38,6 +40,7 @@ enum Command {
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Ar(args) => commands::ar::run(args),
         Command::Bench(args) => commands::bench::run(args),
         Command::Demo(args) => commands::demo::run(args),
         Command::Info(args) => commands::info::run(args),

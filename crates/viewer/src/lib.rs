@@ -8,14 +8,17 @@
 //! - [`server`]: the 127.0.0.1-only HTTP server of `semrecon view`.
 //! - [`export`]: the static page of `semrecon export-viewer` (works from file://).
 //! - [`scene_binary`]: the mesh's binary wire layout; [`decimate`]: simplification of huge meshes.
+//! - [`ar`]: the AR view of `semrecon ar`, balls drawn over a scan's RGB frames (PNG + GIF).
 #![warn(missing_docs)]
 
+pub mod ar;
 mod assets;
 mod base64;
 pub mod decimate;
 pub mod error;
 pub mod export;
 pub mod folder;
+mod gif;
 pub mod routes;
 pub mod scene_binary;
 pub mod server;

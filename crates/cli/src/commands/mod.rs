@@ -1,5 +1,6 @@
 //! One module per subcommand: argument parsing (clap derive) and the code that runs it.
 
+pub mod ar;
 pub mod bench;
 pub mod demo;
 pub mod info;
