@@ -204,7 +204,7 @@ mod tests {
         let gif = encode(2, 1, &[vec![[255, 0, 0], [0, 0, 255]], vec![[0, 0, 0], [255, 255, 255]]], 10);
         assert_eq!(&gif[..6], b"GIF89a");
         assert_eq!(gif[gif.len() - 1], 0x3B);
-        assert_eq!(gif.iter().filter(|&&b| b == 0x2C).count() >= 2, true);
+        assert!(gif.iter().filter(|&&b| b == 0x2C).count() >= 2);
         assert_eq!(palette_index([255, 255, 255]), 251);
         assert_eq!(palette_index([0, 0, 0]), 0);
         for (x, y) in [(0, 0), (1, 2), (3, 3)] {
