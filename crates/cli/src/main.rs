@@ -18,6 +18,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// AR view: virtual balls thrown into a scanned room, drawn over its RGB frames (PNG + GIF).
+    Ar(commands::ar::ArArgs),
     /// Benchmarks (table + JSON): rendering, sparse convolution.
     Bench(commands::bench::BenchArgs),
     /// Run the whole pipeline on a built-in synthetic scene and write the outputs.
@@ -34,11 +36,16 @@ enum Command {
     Snapshot(commands::snapshot::SnapshotArgs),
     /// Throw a virtual ball into a labelled mesh; bounces use the class's material.
     Throw(commands::throw::ThrowArgs),
+    /// Show a labelled mesh in a local web page (127.0.0.1); click to throw balls.
+    View(commands::view::ViewArgs),
+    /// Write the viewer as a static page (works from file://) with precomputed throws.
+    ExportViewer(commands::view::ExportViewerArgs),
 }
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Ar(args) => commands::ar::run(args),
         Command::Bench(args) => commands::bench::run(args),
         Command::Demo(args) => commands::demo::run(args),
         Command::Eval(args) => commands::eval::run(args),
@@ -47,6 +54,8 @@ fn main() -> std::process::ExitCode {
         Command::Synth(args) => commands::synth::run(args),
         Command::Snapshot(args) => commands::snapshot::run(args),
         Command::Throw(args) => commands::throw::run(args),
+        Command::View(args) => commands::view::run(args),
+        Command::ExportViewer(args) => commands::view::run_export(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -1,5 +1,6 @@
 //! One module per subcommand: argument parsing (clap derive) and the code that runs it.
 
+pub mod ar;
 pub mod bench;
 pub mod demo;
 pub mod eval;
@@ -8,3 +9,4 @@ pub mod run;
 pub mod snapshot;
 pub mod synth;
 pub mod throw;
+pub mod view;
