@@ -19,10 +19,17 @@
 mod cube_cases;
 pub mod error;
 pub mod fusion;
+mod linalg;
 pub mod map;
 pub mod marching_cubes;
+pub mod raycast;
+pub mod tracking;
 
 pub use error::{ReconError, Result};
 pub use fusion::{depth_weight, IntegrationStats};
 pub use map::{Chunk, ChunkKey, TsdfConfig, TsdfMap, Voxel, CHUNK_SIDE, CHUNK_VOXELS};
 pub use marching_cubes::{extract_mesh, mesh_chunk, ChunkMesh, IncrementalMesher, MeshingStats};
+pub use raycast::{raycast, ModelView};
+pub use tracking::{
+    ate_rmse, Keyframe, LostReason, Tracker, TrackerConfig, TrackingResult, TrackingStatus,
+};
