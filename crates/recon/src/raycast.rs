@@ -193,6 +193,7 @@ impl<'a> VoxelReader<'a> {
 
 /// One ray's march in voxel units: returns the hit point (voxel units) and the distance
 /// along the unit ray in metres.
+#[inline]
 fn march(
     reader: &mut VoxelReader,
     origin: Vec3,
@@ -242,7 +243,8 @@ fn march(
                 t += (0.8 * sdf * truncation).max(half_voxel);
             }
             None => {
-                prev = None;
+                // Unobserved corners near the surface (dropouts): keep the last positive
+                // sample, the crossing is interpolated across the gap.
                 t += half_voxel;
             }
         }
@@ -314,10 +316,11 @@ pub fn raycast(
                 ) else {
                     continue;
                 };
+                let f0 = reader.trilinear(hit);
                 let (Some(gx), Some(gy), Some(gz)) = (
-                    diff(&mut reader, hit, Vec3::X),
-                    diff(&mut reader, hit, Vec3::Y),
-                    diff(&mut reader, hit, Vec3::Z),
+                    diff(&mut reader, hit, Vec3::X, f0),
+                    diff(&mut reader, hit, Vec3::Y, f0),
+                    diff(&mut reader, hit, Vec3::Z, f0),
                 ) else {
                     continue;
                 };
@@ -342,12 +345,17 @@ pub fn raycast(
     }
 }
 
-/// Central difference of the interpolated distance along `axis` at `p` (voxel units).
+/// Difference of the interpolated distance along `axis` at `p` (voxel units), per voxel:
+/// central where both neighbours are observed, one-sided against `f0` (the value at `p`)
+/// where only one is (dropouts leave unobserved voxels near surfaces).
 #[inline]
-fn diff(reader: &mut VoxelReader, p: Vec3, axis: Vec3) -> Option<f32> {
-    let a = reader.trilinear(p + axis)?;
-    let b = reader.trilinear(p - axis)?;
-    Some(a - b)
+fn diff(reader: &mut VoxelReader, p: Vec3, axis: Vec3, f0: Option<f32>) -> Option<f32> {
+    match (reader.trilinear(p + axis), reader.trilinear(p - axis), f0) {
+        (Some(a), Some(b), _) => Some(0.5 * (a - b)),
+        (Some(a), None, Some(f)) => Some(a - f),
+        (None, Some(b), Some(f)) => Some(f - b),
+        _ => None,
+    }
 }
 
 /// `floor` per component as integers (`f32::floor` is a library call on baseline x86-64).

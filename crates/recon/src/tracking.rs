@@ -62,8 +62,11 @@ pub struct TrackerConfig {
     pub photometric_weight: f32,
     /// Huber threshold of the intensity residual (intensity in 0..1).
     pub huber_photometric: f32,
-    /// Lost when fewer than this fraction of the valid pixels find a model partner.
+    /// Lost when fewer than this fraction of the frame pixels that land on the model agree
+    /// with it (distance and normal tests).
     pub min_inlier_ratio: f32,
+    /// Lost when fewer than this fraction of the valid pixels land on the model.
+    pub min_overlap: f32,
     /// Lost when the RMS point-to-plane residual of the inliers exceeds this many metres.
     pub max_residual: f32,
     /// Lost when the estimate is further than this many metres from the prediction.
@@ -87,11 +90,12 @@ impl Default for TrackerConfig {
             min_depth: 0.1,
             max_depth: 5.0,
             max_distance: 0.05,
-            max_normal_angle: 30f32.to_radians(),
+            max_normal_angle: 45f32.to_radians(),
             huber_geometric: 0.005,
             photometric_weight: 0.0,
             huber_photometric: 0.1,
-            min_inlier_ratio: 0.3,
+            min_inlier_ratio: 0.5,
+            min_overlap: 0.2,
             max_residual: 0.015,
             max_translation_jump: 0.15,
             max_rotation_jump: 20f32.to_radians(),
@@ -147,6 +151,7 @@ impl TrackerConfig {
         }
         for (name, v) in [
             ("min_inlier_ratio", self.min_inlier_ratio),
+            ("min_overlap", self.min_overlap),
             ("min_valid_ratio", self.min_valid_ratio),
         ] {
             if !(0.0..=1.0).contains(&v) {
@@ -210,7 +215,8 @@ pub struct TrackingResult {
     pub status: TrackingStatus,
     /// The frame's pose when tracked or initialised; the last good pose when lost.
     pub world_from_camera: Affine3A,
-    /// Fraction of the valid pixels (finest level used) with a model partner.
+    /// Fraction of the frame pixels landing on the model that agree with it (finest level
+    /// used).
     pub inlier_ratio: f32,
     /// RMS point-to-plane residual of the inliers, metres.
     pub residual_rms: f32,
@@ -256,9 +262,9 @@ struct Normals {
     g: [f64; 6],
     sq_residual: f64,
     inliers: u64,
-    rej_d: u64,
-    rej_n: u64,
-    rej_m: u64,
+    far: u64,
+    turned: u64,
+    missed: u64,
 }
 
 impl Normals {
@@ -267,9 +273,9 @@ impl Normals {
         g: [0.0; 6],
         sq_residual: 0.0,
         inliers: 0,
-        rej_d: 0,
-        rej_n: 0,
-        rej_m: 0,
+        far: 0,
+        turned: 0,
+        missed: 0,
     };
 
     #[inline]
@@ -292,9 +298,9 @@ impl Normals {
         }
         self.sq_residual += o.sq_residual;
         self.inliers += o.inliers;
-        self.rej_d += o.rej_d;
-        self.rej_n += o.rej_n;
-        self.rej_m += o.rej_m;
+        self.far += o.far;
+        self.turned += o.turned;
+        self.missed += o.missed;
     }
 
     fn symmetric(&self) -> [[f64; 6]; 6] {
@@ -430,6 +436,9 @@ impl Tracker {
         };
         let model = model.0;
         let model_valid = model.view.valid_count();
+        if std::env::var_os("TRACK_DEBUG").is_some() {
+            eprintln!("model valid {model_valid} of {}", model.view.vertices.len());
+        }
         if (model_valid as f32) < c.min_valid_ratio * model.view.vertices.len() as f32 {
             result.status = TrackingStatus::Lost(LostReason::NoModel);
             return finish(result);
@@ -452,7 +461,7 @@ impl Tracker {
                 stats = normal_equations(data, &model, &estimate, max_distance, &c);
                 stats_level = level;
                 if std::env::var_os("TRACK_DEBUG").is_some() {
-                    eprintln!("  level {level}: rej d {} n {} m {} inliers {} of {} rms {:.4} t {:?}", stats.rej_d, stats.rej_n, stats.rej_m, stats.inliers, data.valid, (stats.sq_residual / stats.inliers.max(1) as f64).sqrt(), estimate.translation);
+                    eprintln!("  level {level}: rej d {} n {} m {} inliers {} of {} rms {:.4} t {:?}", stats.far, stats.turned, stats.missed, stats.inliers, data.valid, (stats.sq_residual / stats.inliers.max(1) as f64).sqrt(), estimate.translation);
                 }
                 let h = stats.symmetric();
                 let neg_g = stats.g.map(|v| -v);
@@ -483,7 +492,9 @@ impl Tracker {
         if final_stats.inliers > 0 {
             stats = final_stats;
         }
-        result.inlier_ratio = stats.inliers as f32 / data.valid.max(1) as f32;
+        let overlap = stats.inliers + stats.far + stats.turned;
+        result.inlier_ratio = stats.inliers as f32 / overlap.max(1) as f32;
+        let overlap_ratio = overlap as f32 / data.valid.max(1) as f32;
         result.residual_rms = (stats.sq_residual / stats.inliers.max(1) as f64).sqrt() as f32;
         result.condition = condition(&stats.symmetric());
         let jump = prediction.inverse() * estimate;
@@ -493,7 +504,7 @@ impl Tracker {
         result.world_from_camera = last * estimate;
         result.status = if singular || !(result.condition >= c.min_condition) {
             TrackingStatus::Lost(LostReason::Degenerate)
-        } else if result.inlier_ratio < c.min_inlier_ratio {
+        } else if result.inlier_ratio < c.min_inlier_ratio || overlap_ratio < c.min_overlap {
             TrackingStatus::Lost(LostReason::FewInliers)
         } else if !(result.residual_rms <= c.max_residual) {
             TrackingStatus::Lost(LostReason::LargeResidual)
@@ -546,7 +557,7 @@ impl Tracker {
                     pose,
                     self.config.min_depth,
                     self.config.max_depth,
-                    self.last_depth.as_deref(),
+                    if std::env::var_os("NOHINT").is_some() { None } else { self.last_depth.as_deref() },
                 ),
                 true,
             ),
@@ -673,6 +684,37 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
             });
         levels.push(make_level(k, depth, intensity));
     }
+    // Normals of a level come from the next coarser level: neighbouring pixels of a noisy,
+    // disparity-quantised depth image differ by about as much in depth as in position, so
+    // their normals scatter by tens of degrees; the coarser level averages 2x2 blocks and
+    // spans twice the baseline. Pixels whose depth disagrees with the coarse one (edges)
+    // get none.
+    for l in 0..LEVELS - 1 {
+        let (fine, coarse) = levels.split_at_mut(l + 1);
+        let (fine, coarse) = (&mut fine[l], &coarse[0]);
+        let (w, cw, ch) = (
+            fine.k.width as usize,
+            coarse.k.width as usize,
+            coarse.k.height as usize,
+        );
+        let fine_depth = &fine.depth;
+        fine.normals
+            .par_chunks_mut(w)
+            .enumerate()
+            .for_each(|(y, row)| {
+                for (x, n) in row.iter_mut().enumerate() {
+                    let d = fine_depth[y * w + x];
+                    let (cx, cy) = ((x / 2).min(cw - 1), (y / 2).min(ch - 1));
+                    let ci = cy * cw + cx;
+                    let dc = coarse.depth[ci];
+                    *n = if d > 0.0 && (d - dc).abs() <= 0.05 * d {
+                        coarse.normals[ci]
+                    } else {
+                        Vec3::ZERO
+                    };
+                }
+            });
+    }
     levels
 }
 
@@ -771,17 +813,17 @@ fn normal_equations(
                     let mi = mv as usize * mw + mu as usize;
                     let mvtx = model.view.vertices[mi];
                     if mvtx.z <= 0.0 {
-                        acc.rej_m += 1;
+                        acc.missed += 1;
                         continue;
                     }
                     let mn = model.view.normals[mi];
                     let diff = q - mvtx;
                     if diff.length_squared() > max_d2 {
-                        acc.rej_d += 1;
+                        acc.far += 1;
                         continue;
                     }
                     if (rot * n_cur).dot(mn) < min_cos {
-                        acc.rej_n += 1;
+                        acc.turned += 1;
                         continue;
                     }
                     let r = mn.dot(diff) as f64;
