@@ -57,18 +57,19 @@ impl ModelView {
 /// allocated chunks, built once per ray-cast: a march tests a chunk every few centimetres,
 /// and an array read is several times cheaper than a hash probe. Maps whose box would need
 /// more than [`MAX_GRID_CELLS`] cells fall back to the hash map.
-struct ChunkGrid {
+struct ChunkGrid<'a> {
     min: IVec3,
     dims: IVec3,
-    /// Slab position + 1 per chunk cell, 0 where none; empty when falling back.
-    slots: Vec<u32>,
+    /// The chunk per cell (one pointer to follow, not slab record then voxel box); empty
+    /// when falling back.
+    slots: Vec<Option<&'a Chunk>>,
 }
 
-/// Largest dense chunk grid (16 MB of `u32`; a 20 m x 20 m x 5 m site at 5 mm voxels).
-const MAX_GRID_CELLS: usize = 4 << 20;
+/// Largest dense chunk grid (16 MB of pointers; a 15 m x 15 m x 4 m site at 5 mm voxels).
+const MAX_GRID_CELLS: usize = 2 << 20;
 
-impl ChunkGrid {
-    fn new(map: &TsdfMap) -> Self {
+impl<'a> ChunkGrid<'a> {
+    fn new(map: &'a TsdfMap) -> Self {
         let mut min = IVec3::MAX;
         let mut max = IVec3::MIN;
         for c in &map.chunks {
@@ -84,10 +85,10 @@ impl ChunkGrid {
                 slots: Vec::new(),
             };
         }
-        let mut slots = vec![0u32; cells];
-        for (i, c) in map.chunks.iter().enumerate() {
+        let mut slots = vec![None; cells];
+        for c in &map.chunks {
             let l = c.key - min;
-            slots[(l.x + dims.x * (l.y + dims.y * l.z)) as usize] = i as u32 + 1;
+            slots[(l.x + dims.x * (l.y + dims.y * l.z)) as usize] = Some(c);
         }
         Self { min, dims, slots }
     }
@@ -97,13 +98,13 @@ impl ChunkGrid {
 /// ray mostly stay in one chunk.
 struct VoxelReader<'a> {
     map: &'a TsdfMap,
-    grid: &'a ChunkGrid,
+    grid: &'a ChunkGrid<'a>,
     key: ChunkKey,
     chunk: Option<&'a Chunk>,
 }
 
 impl<'a> VoxelReader<'a> {
-    fn new(map: &'a TsdfMap, grid: &'a ChunkGrid) -> Self {
+    fn new(map: &'a TsdfMap, grid: &'a ChunkGrid<'a>) -> Self {
         Self {
             map,
             grid,
@@ -124,10 +125,7 @@ impl<'a> VoxelReader<'a> {
                 if l.cmplt(IVec3::ZERO).any() || l.cmpge(d).any() {
                     None
                 } else {
-                    match self.grid.slots[(l.x + d.x * (l.y + d.y * l.z)) as usize] {
-                        0 => None,
-                        s => Some(&self.map.chunks[s as usize - 1]),
-                    }
+                    self.grid.slots[(l.x + d.x * (l.y + d.y * l.z)) as usize]
                 }
             };
         }
@@ -142,10 +140,10 @@ impl<'a> VoxelReader<'a> {
         (c.voxels.weight[i] != 0).then(|| c.voxels.tsdf[i])
     }
 
-    /// Trilinear distance at `p` in voxel units (truncation units out), when all eight
-    /// surrounding voxels are observed.
+    /// The eight voxels around `p` (voxel units), `c[x + 2 y + 4 z]` in truncation units,
+    /// with `p`'s position inside their cell; `None` unless all eight are observed.
     #[inline]
-    fn trilinear(&mut self, p: Vec3) -> Option<f32> {
+    fn corners(&mut self, p: Vec3) -> Option<([f32; 8], Vec3)> {
         let b = floor_i(p);
         let f = p - b.as_vec3();
         let mut c = [0.0f32; 8];
@@ -168,13 +166,21 @@ impl<'a> VoxelReader<'a> {
                 *c = self.tsdf(b + o)? as f32;
             }
         }
+        Some((c.map(|v| v * (1.0 / TSDF_SCALE)), f))
+    }
+
+    /// Trilinear distance at `p` in voxel units (truncation units out), when all eight
+    /// surrounding voxels are observed.
+    #[inline]
+    fn trilinear(&mut self, p: Vec3) -> Option<f32> {
+        let (c, f) = self.corners(p)?;
         let x0 = c[0] + (c[1] - c[0]) * f.x;
         let x1 = c[2] + (c[3] - c[2]) * f.x;
         let x2 = c[4] + (c[5] - c[4]) * f.x;
         let x3 = c[6] + (c[7] - c[6]) * f.x;
         let y0 = x0 + (x1 - x0) * f.y;
         let y1 = x2 + (x3 - x2) * f.y;
-        Some((y0 + (y1 - y0) * f.z) * (1.0 / TSDF_SCALE))
+        Some(y0 + (y1 - y0) * f.z)
     }
 
     /// Colour of the voxel nearest to `p` (voxel units).
@@ -283,57 +289,62 @@ pub fn raycast(
     let camera_from_world_rot = rot.transpose();
     let valid_pose = world_from_camera.is_finite() && min_depth < max_depth;
     let grid = ChunkGrid::new(map);
+    // Bands of TILE rows in parallel, each walked tile by tile (TILE x TILE pixels): rays
+    // of a tile meet the same few chunks, so their voxels stay in cache (row order evicts
+    // them before the next row comes back).
+    const TILE: usize = 8;
     vertices
-        .par_chunks_mut(w)
-        .zip(normals.par_chunks_mut(w))
-        .zip(colors.par_chunks_mut(w))
+        .par_chunks_mut(TILE * w)
+        .zip(normals.par_chunks_mut(TILE * w))
+        .zip(colors.par_chunks_mut(TILE * w))
         .enumerate()
-        .for_each(|(v, ((vert_row, norm_row), color_row))| {
+        .for_each(|(band, ((vert_band, norm_band), color_band))| {
             if !valid_pose {
                 return;
             }
+            let rows = vert_band.len() / w;
             let mut reader = VoxelReader::new(map, &grid);
-            for u in 0..w {
-                let ray_cam = intrinsics.unproject(u as f32, v as f32, 1.0);
-                // Depth per metre along the unit ray.
-                let z_per_t = 1.0 / ray_cam.length();
-                let dir = rot * (ray_cam * z_per_t);
-                let mut d0 = min_depth;
-                if let Some(s) = start_depth {
-                    let s = s[v * w + u];
-                    if s.is_finite() && s > 0.0 {
-                        d0 = d0.max(s - 3.0 * truncation);
+            for u0 in (0..w).step_by(TILE) {
+                for r in 0..rows {
+                    let v = band * TILE + r;
+                    for u in u0..(u0 + TILE).min(w) {
+                        let i = r * w + u;
+                        let ray_cam = intrinsics.unproject(u as f32, v as f32, 1.0);
+                        // Depth per metre along the unit ray.
+                        let z_per_t = 1.0 / ray_cam.length();
+                        let dir = rot * (ray_cam * z_per_t);
+                        let mut d0 = min_depth;
+                        if let Some(s) = start_depth {
+                            let s = s[v * w + u];
+                            if s.is_finite() && s > 0.0 {
+                                d0 = d0.max(s - 3.0 * truncation);
+                            }
+                        }
+                        let Some((hit, t)) = march(
+                            &mut reader,
+                            origin,
+                            dir,
+                            d0 / z_per_t,
+                            max_depth / z_per_t,
+                            voxel_size,
+                            truncation,
+                        ) else {
+                            continue;
+                        };
+                        let Some(g) = gradient(&mut reader, hit) else {
+                            continue;
+                        };
+                        let len = g.length();
+                        if !(len > 1e-6) {
+                            continue;
+                        }
+                        let n_cam = camera_from_world_rot * (g / len);
+                        let p_cam = ray_cam * (t * z_per_t);
+                        vert_band[i] = p_cam;
+                        norm_band[i] = if n_cam.dot(p_cam) > 0.0 { -n_cam } else { n_cam };
+                        color_band[i] = reader.color(hit);
                     }
                 }
-                let Some((hit, t)) = march(
-                    &mut reader,
-                    origin,
-                    dir,
-                    d0 / z_per_t,
-                    max_depth / z_per_t,
-                    voxel_size,
-                    truncation,
-                ) else {
-                    continue;
-                };
-                let f0 = reader.trilinear(hit);
-                let (Some(gx), Some(gy), Some(gz)) = (
-                    diff(&mut reader, hit, Vec3::X, f0),
-                    diff(&mut reader, hit, Vec3::Y, f0),
-                    diff(&mut reader, hit, Vec3::Z, f0),
-                ) else {
-                    continue;
-                };
-                let g = Vec3::new(gx, gy, gz);
-                let len = g.length();
-                if !(len > 1e-6) {
-                    continue;
-                }
-                let n_cam = camera_from_world_rot * (g / len);
-                let p_cam = ray_cam * (t * z_per_t);
-                vert_row[u] = p_cam;
-                norm_row[u] = if n_cam.dot(p_cam) > 0.0 { -n_cam } else { n_cam };
-                color_row[u] = reader.color(hit);
             }
         });
     ModelView {
@@ -343,6 +354,34 @@ pub fn raycast(
         normals,
         colors,
     }
+}
+
+/// Gradient of the interpolated distance at `p` (voxel units; any scale): differences of
+/// interpolated values a voxel either side (smooth across cells), else the analytic
+/// gradient of the trilinear cell around `p`.
+#[inline]
+fn gradient(reader: &mut VoxelReader, p: Vec3) -> Option<Vec3> {
+    let f0 = reader.trilinear(p);
+    let central = (|| {
+        Some(Vec3::new(
+            diff(reader, p, Vec3::X, f0)?,
+            diff(reader, p, Vec3::Y, f0)?,
+            diff(reader, p, Vec3::Z, f0)?,
+        ))
+    })();
+    if central.is_some() {
+        return central;
+    }
+    let (c, f) = reader.corners(p)?;
+    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+    let bilerp = |v00: f32, v10: f32, v01: f32, v11: f32, s: f32, t: f32| {
+        lerp(lerp(v00, v10, s), lerp(v01, v11, s), t)
+    };
+    Some(Vec3::new(
+        bilerp(c[1] - c[0], c[3] - c[2], c[5] - c[4], c[7] - c[6], f.y, f.z),
+        bilerp(c[2] - c[0], c[3] - c[1], c[6] - c[4], c[7] - c[5], f.x, f.z),
+        bilerp(c[4] - c[0], c[5] - c[1], c[6] - c[2], c[7] - c[3], f.x, f.y),
+    ))
 }
 
 /// Difference of the interpolated distance along `axis` at `p` (voxel units), per voxel:

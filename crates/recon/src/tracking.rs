@@ -262,9 +262,10 @@ struct Normals {
     g: [f64; 6],
     sq_residual: f64,
     inliers: u64,
+    /// Pairs rejected by the distance test.
     far: u64,
+    /// Pairs rejected by the normal test.
     turned: u64,
-    missed: u64,
 }
 
 impl Normals {
@@ -275,7 +276,6 @@ impl Normals {
         inliers: 0,
         far: 0,
         turned: 0,
-        missed: 0,
     };
 
     #[inline]
@@ -300,7 +300,6 @@ impl Normals {
         self.inliers += o.inliers;
         self.far += o.far;
         self.turned += o.turned;
-        self.missed += o.missed;
     }
 
     fn symmetric(&self) -> [[f64; 6]; 6] {
@@ -436,9 +435,6 @@ impl Tracker {
         };
         let model = model.0;
         let model_valid = model.view.valid_count();
-        if std::env::var_os("TRACK_DEBUG").is_some() {
-            eprintln!("model valid {model_valid} of {}", model.view.vertices.len());
-        }
         if (model_valid as f32) < c.min_valid_ratio * model.view.vertices.len() as f32 {
             result.status = TrackingStatus::Lost(LostReason::NoModel);
             return finish(result);
@@ -460,9 +456,6 @@ impl Tracker {
             for _ in 0..iters {
                 stats = normal_equations(data, &model, &estimate, max_distance, &c);
                 stats_level = level;
-                if std::env::var_os("TRACK_DEBUG").is_some() {
-                    eprintln!("  level {level}: rej d {} n {} m {} inliers {} of {} rms {:.4} t {:?}", stats.far, stats.turned, stats.missed, stats.inliers, data.valid, (stats.sq_residual / stats.inliers.max(1) as f64).sqrt(), estimate.translation);
-                }
                 let h = stats.symmetric();
                 let neg_g = stats.g.map(|v| -v);
                 let Some(xi) = cholesky_solve(&h, &neg_g) else {
@@ -557,7 +550,7 @@ impl Tracker {
                     pose,
                     self.config.min_depth,
                     self.config.max_depth,
-                    if std::env::var_os("NOHINT").is_some() { None } else { self.last_depth.as_deref() },
+                    self.last_depth.as_deref(),
                 ),
                 true,
             ),
@@ -813,7 +806,6 @@ fn normal_equations(
                     let mi = mv as usize * mw + mu as usize;
                     let mvtx = model.view.vertices[mi];
                     if mvtx.z <= 0.0 {
-                        acc.missed += 1;
                         continue;
                     }
                     let mn = model.view.normals[mi];
