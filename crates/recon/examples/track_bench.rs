@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! cargo run --release -p semrecon-recon --example track_bench -- SPEC [--frames N]
-//!     [--voxel M] [--photometric W] [--size WxH]
+//!     [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--photometric W] [--size WxH]
 //! ```
 //!
 //! `SPEC` is a dataset spec (`7scenes:/work/shared/data/7scenes-redkitchen`, `synth:3`).
@@ -26,6 +26,8 @@ struct Args {
     voxel: f32,
     photometric: f32,
     size: Option<(u32, u32)>,
+    truncation: Option<f32>,
+    downscale: Option<u32>,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -36,6 +38,8 @@ fn parse_args() -> Result<Args, String> {
         voxel: 0.005,
         photometric: 0.0,
         size: None,
+        truncation: None,
+        downscale: None,
     };
     while let Some(arg) = it.next() {
         let mut value = || it.next().ok_or_else(|| format!("{arg} needs a value"));
@@ -46,6 +50,12 @@ fn parse_args() -> Result<Args, String> {
                 a.photometric = value()?
                     .parse()
                     .map_err(|e| format!("--photometric: {e}"))?
+            }
+            "--trunc" => {
+                a.truncation = Some(value()?.parse().map_err(|e| format!("--trunc: {e}"))?)
+            }
+            "--downscale" => {
+                a.downscale = Some(value()?.parse().map_err(|e| format!("--downscale: {e}"))?)
             }
             "--size" => {
                 let v = value()?;
@@ -62,7 +72,7 @@ fn parse_args() -> Result<Args, String> {
         }
     }
     if a.spec.is_empty() {
-        return Err("usage: track_bench SPEC [--frames N] [--voxel M] [--photometric W] [--size WxH]".into());
+        return Err("usage: track_bench SPEC [--frames N] [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--photometric W] [--size WxH]".into());
     }
     Ok(a)
 }
@@ -113,12 +123,18 @@ fn run(a: Args) -> Result<(), String> {
     let spec: DatasetSpec = a.spec.parse().map_err(|e| format!("{}: {e}", a.spec))?;
     let source = open_dataset(&spec).map_err(|e| e.to_string())?;
     let n = source.len().min(a.frames);
-    let map_config = TsdfConfig::with_voxel_size(a.voxel).map_err(|e| e.to_string())?;
+    let mut map_config = TsdfConfig::with_voxel_size(a.voxel).map_err(|e| e.to_string())?;
+    if let Some(t) = a.truncation {
+        map_config.truncation_voxels = t;
+    }
     let mut map = TsdfMap::new(map_config).map_err(|e| e.to_string())?;
-    let config = TrackerConfig {
+    let mut config = TrackerConfig {
         photometric_weight: a.photometric,
         ..TrackerConfig::default()
     };
+    if let Some(d) = a.downscale {
+        config.model_downscale = d;
+    }
     let mut tracker: Option<Tracker> = None;
     let (mut track_ms, mut cast_ms, mut fuse_ms) = (vec![], vec![], vec![]);
     let (mut est, mut gt) = (Vec::new(), Vec::new());
@@ -144,9 +160,6 @@ fn run(a: Args) -> Result<(), String> {
             ),
         };
         let r = tracker.track(&frame, &map).map_err(|e| e.to_string())?;
-        if std::env::var_os("TRACK_DEBUG").is_some() {
-            eprintln!("{i}: {:?} inl {:.3} res {:.4} cond {:.2e} ray {:.1} ms", r.status, r.inlier_ratio, r.residual_rms, r.condition, r.raycast_ms);
-        }
         if r.status == TrackingStatus::Tracked {
             track_ms.push(r.total_ms);
             if r.raycast_ms > 0.0 {
@@ -171,10 +184,12 @@ fn run(a: Args) -> Result<(), String> {
     }
     let wall = t_all.elapsed().as_secs_f64() - load_s;
     println!(
-        "{}: {n} frames, {} threads, voxel {} mm, photometric weight {}",
+        "{}: {n} frames, {} threads, voxel {} mm, truncation {} voxels, model 1/{}, photometric weight {}",
         source.name(),
         rayon::current_num_threads(),
         a.voxel * 1e3,
+        map_config.truncation_voxels,
+        config.model_downscale,
         a.photometric
     );
     println!("lost frames: {} {:?}", lost.len(), &lost[..lost.len().min(10)]);

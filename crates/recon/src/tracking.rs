@@ -55,7 +55,8 @@ pub struct TrackerConfig {
     pub max_distance: f32,
     /// Association rejects pairs whose normals differ by more than this angle, radians.
     pub max_normal_angle: f32,
-    /// Huber threshold of the point-to-plane residual, metres.
+    /// Huber threshold of the point-to-plane residual, metres at 1 m depth (residuals are
+    /// normalised by depth squared, the growth of depth noise).
     pub huber_geometric: f32,
     /// Weight of the photometric term relative to the geometric one (intensity in 0..1
     /// against metres; 0 turns it off). Only meaningful when colour is registered to depth.
@@ -819,8 +820,18 @@ fn normal_equations(
                         continue;
                     }
                     let r = mn.dot(diff) as f64;
-                    let wgt = huber(r, c.huber_geometric as f64);
-                    let qxn = q.cross(mn);
+                    // Depth noise grows about with the square of depth: residuals are
+                    // measured in units of the noise at 1 m (Huber on the normalised
+                    // residual, information weight 1/scale²). Far points then no longer
+                    // dominate, which matters because fusion biases the model surface by
+                    // a fraction of the noise where it nears the truncation distance.
+                    let scale = (mvtx.z.max(0.5) as f64).powi(2);
+                    let wgt = huber(r / scale, c.huber_geometric as f64) / (scale * scale);
+                    // The lever arm from the model point, not the measured one: the measured
+                    // point's depth noise is in the residual too, and a Jacobian correlated
+                    // with the residual biases the solution (by a few millimetres per frame
+                    // at Kinect noise levels).
+                    let qxn = mvtx.cross(mn);
                     let j = [qxn.x, qxn.y, qxn.z, mn.x, mn.y, mn.z].map(|v| v as f64);
                     acc.add(j, r, wgt);
                     acc.sq_residual += r * r;

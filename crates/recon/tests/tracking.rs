@@ -73,7 +73,15 @@ fn raycast_reproduces_the_fused_depth() {
 /// Tracks and fuses `frames` from the first ground-truth pose; returns the estimated poses
 /// (None for lost frames) and the map.
 fn track_and_fuse(frames: &[Frame], config: TrackerConfig) -> (Vec<Option<Affine3A>>, TsdfMap) {
-    let mut map = TsdfMap::new(TsdfConfig::default()).expect("config");
+    track_and_fuse_with(frames, config, TsdfConfig::default())
+}
+
+fn track_and_fuse_with(
+    frames: &[Frame],
+    config: TrackerConfig,
+    map_config: TsdfConfig,
+) -> (Vec<Option<Affine3A>>, TsdfMap) {
+    let mut map = TsdfMap::new(map_config).expect("config");
     let mut tracker = Tracker::with_initial_pose(config, gt(&frames[0])).expect("tracker");
     let mut poses = Vec::new();
     for f in frames {
@@ -103,22 +111,29 @@ fn ate(frames: &[Frame], poses: &[Option<Affine3A>]) -> f32 {
 
 #[test]
 fn ideal_sensor_tracks_below_a_centimetre() {
-    let frames = scan(3, 40, true);
+    let frames = scan(3, 30, true);
     let (poses, _map) = track_and_fuse(&frames, TrackerConfig::default());
     let lost = poses.iter().filter(|p| p.is_none()).count();
     let e = ate(&frames, &poses);
-    eprintln!("ATE {:.2} mm, {lost} lost", e * 1e3);
+    eprintln!("ideal: ATE {:.2} mm, {lost} lost", e * 1e3);
     assert_eq!(lost, 0);
     assert!(e < 0.01, "ATE {e} m");
 }
 
 #[test]
 fn kinect_sensor_tracks_below_two_centimetres() {
-    let frames = scan(3, 40, false);
-    let (poses, _map) = track_and_fuse(&frames, TrackerConfig::default());
+    let frames = scan(3, 30, false);
+    // Kinect noise reaches 1-3 cm at 3-4 m; with the default 2 cm truncation, fusion
+    // discards the far side of the noise and clamps the near side, which moves the fused
+    // surface by millimetres and the trajectory with it. A 5 cm truncation removes that.
+    let map_config = TsdfConfig {
+        truncation_voxels: 10.0,
+        ..TsdfConfig::default()
+    };
+    let (poses, _map) = track_and_fuse_with(&frames, TrackerConfig::default(), map_config);
     let lost = poses.iter().filter(|p| p.is_none()).count();
     let e = ate(&frames, &poses);
-    eprintln!("ATE {:.2} mm, {lost} lost", e * 1e3);
+    eprintln!("kinect: ATE {:.2} mm, {lost} lost", e * 1e3);
     assert_eq!(lost, 0);
     assert!(e < 0.02, "ATE {e} m");
 }
