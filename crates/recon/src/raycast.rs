@@ -262,8 +262,10 @@ fn march(
 /// and `max_depth` metres (along the optical axis).
 ///
 /// `start_depth`, when given, holds per pixel a depth (same shape as the view, 0 = none)
-/// known to be free space up to about that depth: the march then starts three truncation
-/// distances before it instead of at `min_depth`. The previous frame's depth at the same
+/// measured from this pose, so free space up to about that depth: the march then runs
+/// only within three truncation distances of it. Pixels without one start at the nearest
+/// depth in their 5x5 neighbourhood and march to `max_depth`; pixels with none there are
+/// not cast (the measurement saw nothing there). The previous frame's depth at the same
 /// pose is such a bound, and it saves most of the march through empty space.
 ///
 /// # Shapes
@@ -313,11 +315,16 @@ pub fn raycast(
                         // Depth per metre along the unit ray.
                         let z_per_t = 1.0 / ray_cam.length();
                         let dir = rot * (ray_cam * z_per_t);
-                        let mut d0 = min_depth;
+                        let (mut d0, mut d1) = (min_depth, max_depth);
                         if let Some(s) = start_depth {
-                            let s = s[v * w + u];
-                            if s.is_finite() && s > 0.0 {
-                                d0 = d0.max(s - 3.0 * truncation);
+                            match hint(s, w, h, u, v) {
+                                Some((s, exact)) => {
+                                    d0 = d0.max(s - 3.0 * truncation);
+                                    if exact {
+                                        d1 = d1.min(s + 3.0 * truncation);
+                                    }
+                                }
+                                None => continue,
                             }
                         }
                         let Some((hit, t)) = march(
@@ -325,7 +332,7 @@ pub fn raycast(
                             origin,
                             dir,
                             d0 / z_per_t,
-                            max_depth / z_per_t,
+                            d1 / z_per_t,
                             voxel_size,
                             truncation,
                         ) else {
@@ -395,6 +402,27 @@ fn diff(reader: &mut VoxelReader, p: Vec3, axis: Vec3, f0: Option<f32>) -> Optio
         (None, Some(b), Some(f)) => Some(f - b),
         _ => None,
     }
+}
+
+/// The march window for pixel `(u, v)` from the start-depth image: its own depth (`true`)
+/// or the nearest valid depth of its 5x5 neighbourhood (`false`); `None` when all are
+/// missing.
+#[inline]
+fn hint(s: &[f32], w: usize, h: usize, u: usize, v: usize) -> Option<(f32, bool)> {
+    let own = s[v * w + u];
+    if own.is_finite() && own > 0.0 {
+        return Some((own, true));
+    }
+    let mut best = f32::INFINITY;
+    for y in v.saturating_sub(2)..(v + 3).min(h) {
+        for x in u.saturating_sub(2)..(u + 3).min(w) {
+            let d = s[y * w + x];
+            if d.is_finite() && d > 0.0 && d < best {
+                best = d;
+            }
+        }
+    }
+    best.is_finite().then_some((best, false))
 }
 
 /// `floor` per component as integers (`f32::floor` is a library call on baseline x86-64).

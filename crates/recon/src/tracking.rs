@@ -474,18 +474,9 @@ impl Tracker {
                 break;
             }
         }
-        // Quality of the final estimate at the finest level used.
+        // Quality from the last iteration's sums (at the pose before its small final
+        // step): a separate pass at the finest level would cost as much as an iteration.
         let data = &pyramid[stats_level];
-        let final_stats = normal_equations(
-            data,
-            &model,
-            &estimate,
-            c.max_distance * (1u32 << stats_level) as f32,
-            &c,
-        );
-        if final_stats.inliers > 0 {
-            stats = final_stats;
-        }
         let overlap = stats.inliers + stats.far + stats.turned;
         result.inlier_ratio = stats.inliers as f32 / overlap.max(1) as f32;
         let overlap_ratio = overlap as f32 / data.valid.max(1) as f32;
