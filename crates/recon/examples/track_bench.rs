@@ -16,9 +16,7 @@ use std::time::Instant;
 
 use glam::Vec3;
 use semrecon_data::{open_dataset, DatasetSpec, Frame};
-use semrecon_recon::{
-    ate_rmse, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap,
-};
+use semrecon_recon::{ate_rmse, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
 
 struct Args {
     spec: String,
@@ -192,7 +190,11 @@ fn run(a: Args) -> Result<(), String> {
         config.model_downscale,
         a.photometric
     );
-    println!("lost frames: {} {:?}", lost.len(), &lost[..lost.len().min(10)]);
+    println!(
+        "lost frames: {} {:?}",
+        lost.len(),
+        &lost[..lost.len().min(10)]
+    );
     match ate_rmse(&est, &gt) {
         Some(e) => println!(
             "ATE RMSE (Horn, no scale): {:.2} mm; first-pose aligned: {:.2} mm ({} poses)",

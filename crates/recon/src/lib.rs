@@ -4,6 +4,8 @@
 //!
 //! ```text
 //! Frame + world_from_camera --TsdfMap::integrate--> TsdfMap --IncrementalMesher::update--> LabeledMesh
+//! Frame + TsdfMap --Tracker::track--> world_from_camera (or lost: do not fuse)
+//! TsdfMap + pose --raycast--> ModelView (vertex, normal, colour maps)
 //! ```
 //!
 //! Conventions follow `semrecon_data`: metres, world frame z up, camera x right / y down /

@@ -4,6 +4,10 @@
 //! Written out here because the sizes are fixed and tiny, and so that results do not depend
 //! on a library's blocking or threading.
 
+// Comparisons are written negated on purpose, so that NaN fails them; index loops mirror
+// the matrix formulas they implement.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
 /// Solves `a x = b` for symmetric positive definite `a` by Cholesky; `None` when `a` is not
 /// (numerically) positive definite.
 pub(crate) fn cholesky_solve<const N: usize>(a: &[[f64; N]; N], b: &[f64; N]) -> Option<[f64; N]> {

@@ -15,6 +15,10 @@
 //! Rows are cast in parallel with rayon; every pixel depends only on the map and its ray,
 //! so the view is bit-identical for any thread count.
 
+// Comparisons are written negated on purpose, so that NaN fails them; index loops mirror
+// the matrix formulas they implement.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
 use glam::{Affine3A, IVec3, Vec3};
 use rayon::prelude::*;
 use semrecon_data::Intrinsics;
@@ -348,7 +352,11 @@ pub fn raycast(
                         let n_cam = camera_from_world_rot * (g / len);
                         let p_cam = ray_cam * (t * z_per_t);
                         vert_band[i] = p_cam;
-                        norm_band[i] = if n_cam.dot(p_cam) > 0.0 { -n_cam } else { n_cam };
+                        norm_band[i] = if n_cam.dot(p_cam) > 0.0 {
+                            -n_cam
+                        } else {
+                            n_cam
+                        };
                         color_band[i] = reader.color(hit);
                     }
                 }

@@ -20,6 +20,10 @@
 //! does not fuse it, so a bad frame never damages the map. Tracking resumes from the last
 //! good pose with the next frame.
 
+// Comparisons are written negated on purpose, so that NaN fails them; index loops mirror
+// the matrix formulas they implement.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
 use std::time::Instant;
 
 use glam::{Affine3A, Mat3, Quat, Vec2, Vec3};
@@ -493,8 +497,9 @@ impl Tracker {
             TrackingStatus::Lost(LostReason::FewInliers)
         } else if !(result.residual_rms <= c.max_residual) {
             TrackingStatus::Lost(LostReason::LargeResidual)
-        } else if !(jump_t <= c.max_translation_jump && jump_r <= c.max_rotation_jump)
-            || !result.world_from_camera.is_finite()
+        } else if !(jump_t <= c.max_translation_jump
+            && jump_r <= c.max_rotation_jump
+            && result.world_from_camera.is_finite())
         {
             TrackingStatus::Lost(LostReason::PoseJump)
         } else {
@@ -572,7 +577,10 @@ fn luma(c: [u8; 3]) -> f32 {
 
 /// The model's intensity image and its central-difference gradient.
 fn model_intensity(view: &ModelView) -> (Vec<f32>, Vec<Vec2>) {
-    let (w, h) = (view.intrinsics.width as usize, view.intrinsics.height as usize);
+    let (w, h) = (
+        view.intrinsics.width as usize,
+        view.intrinsics.height as usize,
+    );
     let intensity: Vec<f32> = view
         .colors
         .iter()
@@ -580,20 +588,17 @@ fn model_intensity(view: &ModelView) -> (Vec<f32>, Vec<Vec2>) {
         .map(|(c, v)| if v.z > 0.0 { luma(*c) } else { f32::NAN })
         .collect();
     let mut gradient = vec![Vec2::NAN; w * h];
-    gradient
-        .par_chunks_mut(w)
-        .enumerate()
-        .for_each(|(y, row)| {
-            if y == 0 || y + 1 >= h {
-                return;
-            }
-            for x in 1..w.saturating_sub(1) {
-                let i = y * w + x;
-                let gx = 0.5 * (intensity[i + 1] - intensity[i - 1]);
-                let gy = 0.5 * (intensity[i + w] - intensity[i - w]);
-                row[x] = Vec2::new(gx, gy);
-            }
-        });
+    gradient.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        if y == 0 || y + 1 >= h {
+            return;
+        }
+        for x in 1..w.saturating_sub(1) {
+            let i = y * w + x;
+            let gx = 0.5 * (intensity[i + 1] - intensity[i - 1]);
+            let gy = 0.5 * (intensity[i + w] - intensity[i - w]);
+            row[x] = Vec2::new(gx, gy);
+        }
+    });
     (intensity, gradient)
 }
 
@@ -728,7 +733,12 @@ fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>) -> Level {
             if p.z <= 0.0 {
                 continue;
             }
-            let (l, r, u, d) = (vertices[i - 1], vertices[i + 1], vertices[i - w], vertices[i + w]);
+            let (l, r, u, d) = (
+                vertices[i - 1],
+                vertices[i + 1],
+                vertices[i - w],
+                vertices[i + w],
+            );
             let jump = 0.05 * p.z;
             if [l, r, u, d]
                 .iter()
@@ -828,12 +838,7 @@ fn normal_equations(
                     acc.sq_residual += r * r;
                     acc.inliers += 1;
                     if photometric {
-                        if let Some((rp, jp)) = photometric_term(
-                            model,
-                            uv,
-                            q,
-                            data.intensity[i],
-                        ) {
+                        if let Some((rp, jp)) = photometric_term(model, uv, q, data.intensity[i]) {
                             let wp = lambda * huber(rp, c.huber_photometric as f64);
                             acc.add(jp, rp, wp);
                         }
@@ -863,7 +868,12 @@ fn photometric_term(model: &Model, uv: Vec2, q: Vec3, intensity: f32) -> Option<
     let (fx, fy) = (uv.x - x0, uv.y - y0);
     let i = y0 as usize * w + x0 as usize;
     let idx = [i, i + 1, i + w, i + w + 1];
-    let wts = [(1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy];
+    let wts = [
+        (1.0 - fx) * (1.0 - fy),
+        fx * (1.0 - fy),
+        (1.0 - fx) * fy,
+        fx * fy,
+    ];
     let (mut val, mut grad) = (0.0f32, Vec2::ZERO);
     for (&j, &wt) in idx.iter().zip(&wts) {
         val += wt * model.intensity[j];
@@ -946,7 +956,9 @@ pub fn ate_rmse(estimated: &[Vec3], reference: &[Vec3]) -> Option<f64> {
     let n = estimated.len() as f64;
     let mean = |v: &[Vec3]| {
         v.iter()
-            .fold([0.0f64; 3], |a, p| [a[0] + p.x as f64, a[1] + p.y as f64, a[2] + p.z as f64])
+            .fold([0.0f64; 3], |a, p| {
+                [a[0] + p.x as f64, a[1] + p.y as f64, a[2] + p.z as f64]
+            })
             .map(|s| s / n)
     };
     let (ce, cr) = (mean(estimated), mean(reference));
@@ -972,9 +984,21 @@ pub fn ate_rmse(estimated: &[Vec3], reference: &[Vec3]) -> Option<f64> {
     let [w, x, y, z] = vecs[3];
     // Rotation matrix of the unit quaternion (w, x, y, z), f64.
     let r = [
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
     ];
     let mut sum = 0.0;
     for (e, rf) in estimated.iter().zip(reference) {

@@ -4,9 +4,7 @@
 use glam::{Affine3A, Vec3};
 use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
 use semrecon_data::{Frame, FrameSource, SensorModel};
-use semrecon_recon::{
-    raycast, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap,
-};
+use semrecon_recon::{raycast, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
 
 /// `frames` frames of synthetic scan `seed` at 320x240.
 fn scan(seed: u64, frames: usize, ideal: bool) -> Vec<Frame> {
@@ -23,7 +21,8 @@ fn scan(seed: u64, frames: usize, ideal: bool) -> Vec<Frame> {
 }
 
 fn gt(f: &Frame) -> Affine3A {
-    f.world_from_camera.expect("synthetic frames have ground truth")
+    f.world_from_camera
+        .expect("synthetic frames have ground truth")
 }
 
 #[test]
@@ -51,8 +50,14 @@ fn raycast_reproduces_the_fused_depth() {
         }
     }
     assert!(both as f32 > 0.95 * n as f32, "{both} of {n} pixels hit");
-    assert!(close as f32 > 0.99 * both as f32, "{close} of {both} within 5 mm");
-    assert!(same as f32 > 0.99 * both as f32, "{same} of {both} equal with the hint");
+    assert!(
+        close as f32 > 0.99 * both as f32,
+        "{close} of {both} within 5 mm"
+    );
+    assert!(
+        same as f32 > 0.99 * both as f32,
+        "{same} of {both} equal with the hint"
+    );
     // Normals face the camera and are unit length.
     for (v, nrm) in view.vertices.iter().zip(&view.normals) {
         if v.z > 0.0 {
@@ -138,14 +143,21 @@ fn kinect_sensor_tracks_below_two_centimetres() {
     assert!(e < 0.02, "ATE {e} m");
 }
 
+/// Per chunk: its key and every voxel's (distance, weight, colour).
+type MapState = Vec<(glam::IVec3, Vec<(f32, f32, [u8; 3])>)>;
 
 /// A map's full state, for "unchanged" checks.
-fn map_state(map: &TsdfMap) -> Vec<(glam::IVec3, Vec<(f32, f32, [u8; 3])>)> {
+fn map_state(map: &TsdfMap) -> MapState {
     map.sorted_keys()
         .into_iter()
         .map(|k| {
             let c = map.chunk(k).expect("listed chunk");
-            (k, c.voxels().map(|v| (v.tsdf(), v.weight(), v.color())).collect())
+            (
+                k,
+                c.voxels()
+                    .map(|v| (v.tsdf(), v.weight(), v.color()))
+                    .collect(),
+            )
         })
         .collect()
 }
@@ -185,8 +197,8 @@ fn jumps_and_empty_frames_are_lost_and_leave_the_map_intact() {
     for f in &frames[12..] {
         let r = tracker.track(f, &map).expect("valid frame");
         assert_eq!(r.status, TrackingStatus::Tracked, "frame {}", f.index);
-        let err = (Vec3::from(r.world_from_camera.translation) - Vec3::from(gt(f).translation))
-            .length();
+        let err =
+            (Vec3::from(r.world_from_camera.translation) - Vec3::from(gt(f).translation)).length();
         assert!(err < 0.01, "frame {}: {err} m off", f.index);
         map.integrate(f, r.world_from_camera).expect("fusion");
     }
