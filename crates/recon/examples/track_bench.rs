@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! cargo run --release -p semrecon-recon --example track_bench -- SPEC [--frames N]
-//!     [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--photometric W] [--size WxH]
+//!     [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--iters F,M,C] [--photometric W] [--size WxH]
 //! ```
 //!
 //! `SPEC` is a dataset spec (`7scenes:/work/shared/data/7scenes-redkitchen`, `synth:3`).
@@ -26,6 +26,7 @@ struct Args {
     size: Option<(u32, u32)>,
     truncation: Option<f32>,
     downscale: Option<u32>,
+    iterations: Option<[usize; 3]>,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -38,6 +39,7 @@ fn parse_args() -> Result<Args, String> {
         size: None,
         truncation: None,
         downscale: None,
+        iterations: None,
     };
     while let Some(arg) = it.next() {
         let mut value = || it.next().ok_or_else(|| format!("{arg} needs a value"));
@@ -51,6 +53,17 @@ fn parse_args() -> Result<Args, String> {
             }
             "--trunc" => {
                 a.truncation = Some(value()?.parse().map_err(|e| format!("--trunc: {e}"))?)
+            }
+            "--iters" => {
+                let v = value()?;
+                let parts: Vec<usize> = v
+                    .split(',')
+                    .map(|p| p.parse().map_err(|e| format!("--iters {v}: {e}")))
+                    .collect::<Result<_, _>>()?;
+                a.iterations =
+                    Some(parts.try_into().map_err(|_| {
+                        format!("--iters {v}: expected three counts, fine to coarse")
+                    })?);
             }
             "--downscale" => {
                 a.downscale = Some(value()?.parse().map_err(|e| format!("--downscale: {e}"))?)
@@ -70,7 +83,7 @@ fn parse_args() -> Result<Args, String> {
         }
     }
     if a.spec.is_empty() {
-        return Err("usage: track_bench SPEC [--frames N] [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--photometric W] [--size WxH]".into());
+        return Err("usage: track_bench SPEC [--frames N] [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--iters F,M,C] [--photometric W] [--size WxH]".into());
     }
     Ok(a)
 }
@@ -133,6 +146,9 @@ fn run(a: Args) -> Result<(), String> {
     if let Some(d) = a.downscale {
         config.model_downscale = d;
     }
+    if let Some(i) = a.iterations {
+        config.iterations = i;
+    }
     let mut tracker: Option<Tracker> = None;
     let (mut track_ms, mut cast_ms, mut fuse_ms) = (vec![], vec![], vec![]);
     let (mut est, mut gt) = (Vec::new(), Vec::new());
@@ -182,12 +198,13 @@ fn run(a: Args) -> Result<(), String> {
     }
     let wall = t_all.elapsed().as_secs_f64() - load_s;
     println!(
-        "{}: {n} frames, {} threads, voxel {} mm, truncation {} voxels, model 1/{}, photometric weight {}",
+        "{}: {n} frames, {} threads, voxel {} mm, truncation {} voxels, model 1/{}, iterations {:?}, photometric weight {}",
         source.name(),
         rayon::current_num_threads(),
         a.voxel * 1e3,
         map_config.truncation_voxels,
         config.model_downscale,
+        config.iterations,
         a.photometric
     );
     println!(

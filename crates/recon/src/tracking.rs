@@ -248,6 +248,7 @@ struct Level {
     depth: Vec<f32>,
     vertices: Vec<Vec3>,
     normals: Vec<Vec3>,
+    /// Empty when the photometric term is off or the frame has no colour.
     intensity: Vec<f32>,
     valid: usize,
 }
@@ -256,7 +257,8 @@ struct Level {
 struct Model {
     view: ModelView,
     intensity: Vec<f32>,
-    /// Intensity gradient per pixel, NaN where a neighbour has no surface.
+    /// Intensity gradient per pixel, NaN where a neighbour has no surface (both empty when
+    /// the photometric term is off).
     gradient: Vec<Vec2>,
 }
 
@@ -557,7 +559,11 @@ impl Tracker {
             stamp,
             view: view.clone(),
         });
-        let (intensity, gradient) = model_intensity(&view);
+        let (intensity, gradient) = if self.config.photometric_weight > 0.0 {
+            model_intensity(&view)
+        } else {
+            (Vec::new(), Vec::new())
+        };
         (
             Model {
                 view,
@@ -616,22 +622,27 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
             }
         })
         .collect();
-    let intensity0: Vec<f32> = if frame.color.is_empty() {
-        vec![0.0; depth0.len()]
+    // Intensity only feeds the photometric term: empty at every level when it is off.
+    let intensity0: Vec<f32> = if frame.color.is_empty() || c.photometric_weight <= 0.0 {
+        Vec::new()
     } else {
         frame.color.iter().map(|&c| luma(c)).collect()
     };
-    let mut levels = vec![make_level(k0, depth0, intensity0)];
+    // Level 0 takes its normals from level 1 below: no need to compute its own.
+    let mut levels = vec![make_level(k0, depth0, intensity0, false)];
     for _ in 1..LEVELS {
         let prev = levels.last().expect("level 0 exists");
         let (pw, ph) = (prev.k.width as usize, prev.k.height as usize);
         let (w, h) = ((pw / 2).max(1), (ph / 2).max(1));
         let k = prev.k.scaled(w as u32, h as u32);
         let mut depth = vec![0.0f32; w * h];
-        let mut intensity = vec![0.0f32; w * h];
+        let mut intensity = vec![0.0f32; if prev.intensity.is_empty() { 0 } else { w * h }];
+        let has_intensity = !intensity.is_empty();
+        let mut intensity_rows: Vec<&mut [f32]> = intensity.chunks_mut(w).collect();
+        intensity_rows.resize_with(h, Default::default);
         depth
             .par_chunks_mut(w)
-            .zip(intensity.par_chunks_mut(w))
+            .zip(intensity_rows.par_iter_mut())
             .enumerate()
             .for_each(|(y, (drow, irow))| {
                 for x in 0..w {
@@ -646,8 +657,10 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
                                 continue;
                             }
                             let i = sy * pw + sx;
-                            inten += prev.intensity[i];
-                            m += 1;
+                            if has_intensity {
+                                inten += prev.intensity[i];
+                                m += 1;
+                            }
                             let d = prev.depth[i];
                             if d > 0.0 {
                                 vals[n] = d;
@@ -655,7 +668,9 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
                             }
                         }
                     }
-                    irow[x] = if m > 0 { inten / m as f32 } else { 0.0 };
+                    if m > 0 {
+                        irow[x] = inten / m as f32;
+                    }
                     if n == 0 {
                         continue;
                     }
@@ -672,7 +687,7 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
                     drow[x] = sum / cnt as f32;
                 }
             });
-        levels.push(make_level(k, depth, intensity));
+        levels.push(make_level(k, depth, intensity, true));
     }
     // Normals of a level come from the next coarser level: neighbouring pixels of a noisy,
     // disparity-quantised depth image differ by about as much in depth as in position, so
@@ -709,7 +724,7 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
 }
 
 /// Vertices and normals of one level.
-fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>) -> Level {
+fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>, with_normals: bool) -> Level {
     let (w, h) = (k.width as usize, k.height as usize);
     let vertices: Vec<Vec3> = depth
         .iter()
@@ -724,7 +739,7 @@ fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>) -> Level {
         .collect();
     let mut normals = vec![Vec3::ZERO; w * h];
     normals.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        if y == 0 || y + 1 >= h {
+        if !with_normals || y == 0 || y + 1 >= h {
             return;
         }
         for x in 1..w.saturating_sub(1) {
@@ -782,7 +797,8 @@ fn normal_equations(
     let trans = Vec3::from(estimate.translation);
     let min_cos = c.max_normal_angle.cos();
     let max_d2 = max_distance * max_distance;
-    let photometric = c.photometric_weight > 0.0;
+    let photometric =
+        c.photometric_weight > 0.0 && !data.intensity.is_empty() && !model.intensity.is_empty();
     let lambda = c.photometric_weight as f64;
     let rows: Vec<usize> = (0..h).collect();
     let blocks: Vec<Normals> = rows
