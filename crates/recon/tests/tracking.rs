@@ -20,6 +20,15 @@ fn scan(seed: u64, frames: usize, ideal: bool) -> Vec<Frame> {
         .collect()
 }
 
+/// The tracker configuration for the 320x240 test frames (a 160x120 model, as the default
+/// gives a 640x480 sensor).
+fn config() -> TrackerConfig {
+    TrackerConfig {
+        model_downscale: 2,
+        ..TrackerConfig::default()
+    }
+}
+
 fn gt(f: &Frame) -> Affine3A {
     f.world_from_camera
         .expect("synthetic frames have ground truth")
@@ -117,7 +126,7 @@ fn ate(frames: &[Frame], poses: &[Option<Affine3A>]) -> f32 {
 #[test]
 fn ideal_sensor_tracks_below_a_centimetre() {
     let frames = scan(3, 30, true);
-    let (poses, _map) = track_and_fuse(&frames, TrackerConfig::default());
+    let (poses, _map) = track_and_fuse(&frames, config());
     let lost = poses.iter().filter(|p| p.is_none()).count();
     let e = ate(&frames, &poses);
     eprintln!("ideal: ATE {:.2} mm, {lost} lost", e * 1e3);
@@ -135,7 +144,7 @@ fn kinect_sensor_tracks_below_two_centimetres() {
         truncation_voxels: 10.0,
         ..TsdfConfig::default()
     };
-    let (poses, _map) = track_and_fuse_with(&frames, TrackerConfig::default(), map_config);
+    let (poses, _map) = track_and_fuse_with(&frames, config(), map_config);
     let lost = poses.iter().filter(|p| p.is_none()).count();
     let e = ate(&frames, &poses);
     eprintln!("kinect: ATE {:.2} mm, {lost} lost", e * 1e3);
@@ -168,7 +177,7 @@ fn jumps_and_empty_frames_are_lost_and_leave_the_map_intact() {
     let elsewhere = scan(11, 1, true).remove(0);
     let mut map = TsdfMap::new(TsdfConfig::default()).expect("config");
     let mut tracker =
-        Tracker::with_initial_pose(TrackerConfig::default(), gt(&frames[0])).expect("tracker");
+        Tracker::with_initial_pose(config(), gt(&frames[0])).expect("tracker");
     for f in &frames[..12] {
         let r = tracker.track(f, &map).expect("valid frame");
         assert!(r.should_fuse(), "frame {}: {:?}", f.index, r.status);
@@ -217,7 +226,7 @@ fn nan_and_infinite_depth_pixels_are_ignored() {
             }
         }
     }
-    let (poses, _map) = track_and_fuse(&frames, TrackerConfig::default());
+    let (poses, _map) = track_and_fuse(&frames, config());
     assert!(poses.iter().all(|p| p.is_some()), "a frame was lost");
     assert!(ate(&frames, &poses) < 0.005);
 }
@@ -233,7 +242,7 @@ fn poses_are_identical_for_one_and_two_threads() {
         pool.install(|| {
             let config = TrackerConfig {
                 photometric_weight: 1e-3,
-                ..TrackerConfig::default()
+                ..config()
             };
             track_and_fuse(&frames, config).0
         })
@@ -250,7 +259,7 @@ fn keyframes_every_n_tracked_frames() {
     let mut map = TsdfMap::new(TsdfConfig::default()).expect("config");
     let config = TrackerConfig {
         keyframe_interval: 5,
-        ..TrackerConfig::default()
+        ..config()
     };
     let mut tracker = Tracker::with_initial_pose(config, gt(&frames[0])).expect("tracker");
     let mut flagged = Vec::new();
