@@ -819,11 +819,13 @@ fn normal_equations(
                         continue;
                     }
                     let uv = mk.project(q);
-                    let (mu, mv) = ((uv.x + 0.5).floor(), (uv.y + 0.5).floor());
-                    if !(mu >= 0.0 && mv >= 0.0 && mu < mw as f32 && mv < mh as f32) {
+                    // Nearest model pixel; truncation is floor on the non-negative range
+                    // kept (`floor` is a library call on baseline x86-64).
+                    let (fu, fv) = (uv.x + 0.5, uv.y + 0.5);
+                    if !(fu >= 0.0 && fv >= 0.0 && fu < mw as f32 && fv < mh as f32) {
                         continue;
                     }
-                    let mi = mv as usize * mw + mu as usize;
+                    let mi = fv as usize * mw + fu as usize;
                     let mvtx = model.view.vertices[mi];
                     if mvtx.z <= 0.0 {
                         continue;
@@ -879,8 +881,11 @@ fn normal_equations(
 fn photometric_term(model: &Model, uv: Vec2, q: Vec3, intensity: f32) -> Option<(f64, [f64; 6])> {
     let k = model.view.intrinsics;
     let w = k.width as usize;
-    let (x0, y0) = (uv.x.floor(), uv.y.floor());
-    if !(x0 >= 0.0 && y0 >= 0.0 && x0 + 1.0 < k.width as f32 && y0 + 1.0 < k.height as f32) {
+    if !(uv.x >= 0.0 && uv.y >= 0.0) {
+        return None;
+    }
+    let (x0, y0) = ((uv.x as u32) as f32, (uv.y as u32) as f32);
+    if !(x0 + 1.0 < k.width as f32 && y0 + 1.0 < k.height as f32) {
         return None;
     }
     let (fx, fy) = (uv.x - x0, uv.y - y0);
