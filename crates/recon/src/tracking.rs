@@ -74,7 +74,8 @@ pub struct TrackerConfig {
     pub min_inlier_ratio: f32,
     /// Lost when fewer than this fraction of the valid pixels land on the model.
     pub min_overlap: f32,
-    /// Lost when the RMS point-to-plane residual of the inliers exceeds this many metres.
+    /// Lost when the RMS point-to-plane residual of the inliers, normalised to 1 m depth
+    /// (divided by depth squared, as depth noise grows), exceeds this many metres.
     pub max_residual: f32,
     /// Lost when the estimate is further than this many metres from the prediction.
     pub max_translation_jump: f32,
@@ -103,7 +104,7 @@ impl Default for TrackerConfig {
             huber_photometric: 0.1,
             min_inlier_ratio: 0.5,
             min_overlap: 0.2,
-            max_residual: 0.015,
+            max_residual: 0.01,
             max_translation_jump: 0.15,
             max_rotation_jump: 20f32.to_radians(),
             min_condition: 1e-3,
@@ -270,6 +271,8 @@ struct Normals {
     h: [[f64; 6]; 6],
     g: [f64; 6],
     sq_residual: f64,
+    /// Squared residuals normalised by depth squared (noise at 1 m).
+    sq_normalised: f64,
     inliers: u64,
     /// Pairs rejected by the distance test.
     far: u64,
@@ -282,6 +285,7 @@ impl Normals {
         h: [[0.0; 6]; 6],
         g: [0.0; 6],
         sq_residual: 0.0,
+        sq_normalised: 0.0,
         inliers: 0,
         far: 0,
         turned: 0,
@@ -306,6 +310,7 @@ impl Normals {
             self.g[a] += o.g[a];
         }
         self.sq_residual += o.sq_residual;
+        self.sq_normalised += o.sq_normalised;
         self.inliers += o.inliers;
         self.far += o.far;
         self.turned += o.turned;
@@ -499,7 +504,9 @@ impl Tracker {
             TrackingStatus::Lost(LostReason::Degenerate)
         } else if result.inlier_ratio < c.min_inlier_ratio || overlap_ratio < c.min_overlap {
             TrackingStatus::Lost(LostReason::FewInliers)
-        } else if !(result.residual_rms <= c.max_residual) {
+        } else if !((stats.sq_normalised / stats.inliers.max(1) as f64).sqrt()
+            <= c.max_residual as f64)
+        {
             TrackingStatus::Lost(LostReason::LargeResidual)
         } else if !(jump_t <= c.max_translation_jump
             && jump_r <= c.max_rotation_jump
@@ -856,6 +863,7 @@ fn normal_equations(
                     let j = [qxn.x, qxn.y, qxn.z, mn.x, mn.y, mn.z].map(|v| v as f64);
                     acc.add(j, r, wgt);
                     acc.sq_residual += r * r;
+                    acc.sq_normalised += (r / scale) * (r / scale);
                     acc.inliers += 1;
                     if photometric {
                         if let Some((rp, jp)) = photometric_term(model, uv, q, data.intensity[i]) {
