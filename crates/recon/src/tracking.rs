@@ -186,7 +186,7 @@ pub enum LostReason {
     NoDepth,
     /// The ray-cast model is (nearly) empty at the last pose.
     NoModel,
-    /// Too few pixels found a model partner.
+    /// Too few pixels landed on the model, or too few of those agreed with it.
     FewInliers,
     /// The aligned residual is too large.
     LargeResidual,
