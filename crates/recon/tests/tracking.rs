@@ -125,7 +125,7 @@ fn ate(frames: &[Frame], poses: &[Option<Affine3A>]) -> f32 {
 
 #[test]
 fn ideal_sensor_tracks_below_a_centimetre() {
-    let frames = scan(3, 30, true);
+    let frames = scan(3, 24, true);
     let (poses, _map) = track_and_fuse(&frames, config());
     let lost = poses.iter().filter(|p| p.is_none()).count();
     let e = ate(&frames, &poses);
@@ -136,7 +136,7 @@ fn ideal_sensor_tracks_below_a_centimetre() {
 
 #[test]
 fn kinect_sensor_tracks_below_two_centimetres() {
-    let frames = scan(3, 30, false);
+    let frames = scan(3, 24, false);
     // Kinect noise reaches 1-3 cm at 3-4 m; with the default 2 cm truncation, fusion
     // discards the far side of the noise and clamps the near side, which moves the fused
     // surface by millimetres and the trajectory with it. A 5 cm truncation removes that.
