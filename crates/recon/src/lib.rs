@@ -4,6 +4,8 @@
 //!
 //! ```text
 //! Frame + world_from_camera --TsdfMap::integrate--> TsdfMap --IncrementalMesher::update--> LabeledMesh
+//! Frame + TsdfMap --Tracker::track--> world_from_camera (or lost: do not fuse)
+//! TsdfMap + pose --raycast--> ModelView (vertex, normal, colour maps)
 //! ```
 //!
 //! Conventions follow `semrecon_data`: metres, world frame z up, camera x right / y down /
@@ -19,10 +21,17 @@
 mod cube_cases;
 pub mod error;
 pub mod fusion;
+mod linalg;
 pub mod map;
 pub mod marching_cubes;
+pub mod raycast;
+pub mod tracking;
 
 pub use error::{ReconError, Result};
 pub use fusion::{depth_weight, IntegrationStats};
 pub use map::{Chunk, ChunkKey, TsdfConfig, TsdfMap, Voxel, CHUNK_SIDE, CHUNK_VOXELS};
 pub use marching_cubes::{extract_mesh, mesh_chunk, ChunkMesh, IncrementalMesher, MeshingStats};
+pub use raycast::{raycast, ModelView};
+pub use tracking::{
+    ate_rmse, Keyframe, LostReason, Tracker, TrackerConfig, TrackingResult, TrackingStatus,
+};

@@ -1,0 +1,245 @@
+//! Tracking + fusion benchmark: frame-to-model tracking of a dataset, every tracked frame
+//! fused, with the trajectory error against the dataset's ground truth and per-stage times.
+//!
+//! ```text
+//! cargo run --release -p semrecon-recon --example track_bench -- SPEC [--frames N]
+//!     [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--iters F,M,C] [--photometric W] [--size WxH]
+//! ```
+//!
+//! `SPEC` is a dataset spec (`7scenes:/work/shared/data/7scenes-redkitchen`, `synth:3`).
+//! The first frame starts at its ground-truth pose when there is one. ATE is the RMS
+//! position error after Horn alignment (rotation + translation, no scale) over the tracked
+//! frames; the error with only the first pose aligned is printed too. `--size` resamples
+//! frames (nearest pixel) before tracking. Thread count: `RAYON_NUM_THREADS`.
+
+use std::time::Instant;
+
+use glam::Vec3;
+use semrecon_data::{open_dataset, DatasetSpec, Frame};
+use semrecon_recon::{ate_rmse, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
+
+struct Args {
+    spec: String,
+    frames: usize,
+    voxel: f32,
+    photometric: f32,
+    size: Option<(u32, u32)>,
+    truncation: Option<f32>,
+    downscale: Option<u32>,
+    iterations: Option<[usize; 3]>,
+}
+
+fn parse_args() -> Result<Args, String> {
+    let mut it = std::env::args().skip(1);
+    let mut a = Args {
+        spec: String::new(),
+        frames: usize::MAX,
+        voxel: 0.005,
+        photometric: 0.0,
+        size: None,
+        truncation: None,
+        downscale: None,
+        iterations: None,
+    };
+    while let Some(arg) = it.next() {
+        let mut value = || it.next().ok_or_else(|| format!("{arg} needs a value"));
+        match arg.as_str() {
+            "--frames" => a.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?,
+            "--voxel" => a.voxel = value()?.parse().map_err(|e| format!("--voxel: {e}"))?,
+            "--photometric" => {
+                a.photometric = value()?
+                    .parse()
+                    .map_err(|e| format!("--photometric: {e}"))?
+            }
+            "--trunc" => {
+                a.truncation = Some(value()?.parse().map_err(|e| format!("--trunc: {e}"))?)
+            }
+            "--iters" => {
+                let v = value()?;
+                let parts: Vec<usize> = v
+                    .split(',')
+                    .map(|p| p.parse().map_err(|e| format!("--iters {v}: {e}")))
+                    .collect::<Result<_, _>>()?;
+                a.iterations =
+                    Some(parts.try_into().map_err(|_| {
+                        format!("--iters {v}: expected three counts, fine to coarse")
+                    })?);
+            }
+            "--downscale" => {
+                a.downscale = Some(value()?.parse().map_err(|e| format!("--downscale: {e}"))?)
+            }
+            "--size" => {
+                let v = value()?;
+                let (w, h) = v
+                    .split_once('x')
+                    .ok_or_else(|| format!("--size {v}: expected WxH"))?;
+                a.size = Some((
+                    w.parse().map_err(|e| format!("--size: {e}"))?,
+                    h.parse().map_err(|e| format!("--size: {e}"))?,
+                ));
+            }
+            s if !s.starts_with("--") && a.spec.is_empty() => a.spec = s.to_string(),
+            other => return Err(format!("unknown argument {other}")),
+        }
+    }
+    if a.spec.is_empty() {
+        return Err("usage: track_bench SPEC [--frames N] [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--iters F,M,C] [--photometric W] [--size WxH]".into());
+    }
+    Ok(a)
+}
+
+/// Nearest-pixel resampling of a frame to `w x h`.
+fn resample(f: Frame, w: u32, h: u32) -> Frame {
+    let k0 = f.intrinsics;
+    if (k0.width, k0.height) == (w, h) {
+        return f;
+    }
+    let k = k0.scaled(w, h);
+    let mut depth = Vec::with_capacity((w * h) as usize);
+    let mut color = Vec::with_capacity((w * h) as usize);
+    for v in 0..h {
+        for u in 0..w {
+            let su = (((u as f32 + 0.5) * k0.width as f32 / w as f32) as u32).min(k0.width - 1);
+            let sv = (((v as f32 + 0.5) * k0.height as f32 / h as f32) as u32).min(k0.height - 1);
+            let i = (sv * k0.width + su) as usize;
+            depth.push(f.depth[i]);
+            color.push(f.color.get(i).copied().unwrap_or([0; 3]));
+        }
+    }
+    Frame {
+        depth,
+        color,
+        intrinsics: k,
+        labels: None,
+        ..f
+    }
+}
+
+fn percentiles(label: &str, ms: &mut [f64]) {
+    if ms.is_empty() {
+        println!("{label:<22} (none)");
+        return;
+    }
+    ms.sort_by(f64::total_cmp);
+    let median = ms[ms.len() / 2];
+    let p95 = ms[(ms.len() * 95 / 100).min(ms.len() - 1)];
+    println!(
+        "{label:<22} median {median:7.2}  p95 {p95:7.2}  max {:7.2} ms  ({} samples)",
+        ms[ms.len() - 1],
+        ms.len()
+    );
+}
+
+fn run(a: Args) -> Result<(), String> {
+    let spec: DatasetSpec = a.spec.parse().map_err(|e| format!("{}: {e}", a.spec))?;
+    let source = open_dataset(&spec).map_err(|e| e.to_string())?;
+    let n = source.len().min(a.frames);
+    let mut map_config = TsdfConfig::with_voxel_size(a.voxel).map_err(|e| e.to_string())?;
+    if let Some(t) = a.truncation {
+        map_config.truncation_voxels = t;
+    }
+    let mut map = TsdfMap::new(map_config).map_err(|e| e.to_string())?;
+    let mut config = TrackerConfig {
+        photometric_weight: a.photometric,
+        ..TrackerConfig::default()
+    };
+    if let Some(d) = a.downscale {
+        config.model_downscale = d;
+    }
+    if let Some(i) = a.iterations {
+        config.iterations = i;
+    }
+    let mut tracker: Option<Tracker> = None;
+    let (mut track_ms, mut cast_ms, mut fuse_ms) = (vec![], vec![], vec![]);
+    let (mut est, mut gt) = (Vec::new(), Vec::new());
+    let mut first_err = Vec::new();
+    let mut lost = Vec::new();
+    let mut load_s = 0.0;
+    let t_all = Instant::now();
+    for i in 0..n {
+        let t_load = Instant::now();
+        let mut frame = source.frame(i).map_err(|e| e.to_string())?;
+        if let Some((w, h)) = a.size {
+            frame = resample(frame, w, h);
+        }
+        load_s += t_load.elapsed().as_secs_f64();
+        let tracker = match &mut tracker {
+            Some(t) => t,
+            None => tracker.insert(
+                Tracker::with_initial_pose(
+                    config.clone(),
+                    frame.world_from_camera.unwrap_or(glam::Affine3A::IDENTITY),
+                )
+                .map_err(|e| e.to_string())?,
+            ),
+        };
+        let r = tracker.track(&frame, &map).map_err(|e| e.to_string())?;
+        if r.status == TrackingStatus::Tracked {
+            track_ms.push(r.total_ms);
+            if r.raycast_ms > 0.0 {
+                cast_ms.push(r.raycast_ms);
+            }
+        }
+        if !r.should_fuse() {
+            lost.push((i, r.status));
+            continue;
+        }
+        let t = Instant::now();
+        map.integrate(&frame, r.world_from_camera)
+            .map_err(|e| e.to_string())?;
+        fuse_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        if let Some(g) = frame.world_from_camera {
+            let p = Vec3::from(r.world_from_camera.translation);
+            let q = Vec3::from(g.translation);
+            est.push(p);
+            gt.push(q);
+            first_err.push((p - q).length_squared() as f64);
+        }
+    }
+    let wall = t_all.elapsed().as_secs_f64() - load_s;
+    println!(
+        "{}: {n} frames, {} threads, voxel {} mm, truncation {} voxels, model 1/{}, iterations {:?}, photometric weight {}",
+        source.name(),
+        rayon::current_num_threads(),
+        a.voxel * 1e3,
+        map_config.truncation_voxels,
+        config.model_downscale,
+        config.iterations,
+        a.photometric
+    );
+    println!(
+        "lost frames: {} {:?}",
+        lost.len(),
+        &lost[..lost.len().min(10)]
+    );
+    match ate_rmse(&est, &gt) {
+        Some(e) => println!(
+            "ATE RMSE (Horn, no scale): {:.2} mm; first-pose aligned: {:.2} mm ({} poses)",
+            e * 1e3,
+            (first_err.iter().sum::<f64>() / first_err.len() as f64).sqrt() * 1e3,
+            est.len()
+        ),
+        None => println!("ATE: no ground truth"),
+    }
+    percentiles("tracking (per frame)", &mut track_ms);
+    percentiles("  of which ray-cast", &mut cast_ms);
+    percentiles("fusion (per frame)", &mut fuse_ms);
+    println!(
+        "chunks {}, {:.1} MB; {:.2} s without loading ({:.1} ms/frame)",
+        map.chunk_count(),
+        map.memory_bytes() as f64 / 1e6,
+        wall,
+        wall * 1e3 / n.max(1) as f64
+    );
+    Ok(())
+}
+
+fn main() {
+    match parse_args().and_then(run) {
+        Ok(()) => {}
+        Err(e) => {
+            eprintln!("track_bench: {e}");
+            std::process::exit(1);
+        }
+    }
+}

@@ -1,0 +1,459 @@
+//! Ray-casting the TSDF map into a predicted view: per pixel, the first zero crossing of the
+//! signed distance along the viewing ray, with the surface normal and colour there.
+//!
+//! Tracking aligns each new frame against this prediction (frame-to-model ICP): the fused
+//! model is far less noisy than the previous frame, so drift stays small. The same view
+//! renders the model for display.
+//!
+//! The march skips unallocated chunks whole (no surface can be there), steps by the stored
+//! distance in observed free space (at most a truncation, at least half a voxel) and, on a
+//! positive-to-negative change of the trilinearly interpolated distance, places the surface
+//! by linear interpolation between the two samples. A negative distance reached without a
+//! positive one before it is the back of a surface: the ray stops there without a hit.
+//! Normals are the normalised central-difference gradient of the interpolated distance.
+//!
+//! Rows are cast in parallel with rayon; every pixel depends only on the map and its ray,
+//! so the view is bit-identical for any thread count.
+
+// Comparisons are written negated on purpose, so that NaN fails them; index loops mirror
+// the matrix formulas they implement.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
+use glam::{Affine3A, IVec3, Vec3};
+use rayon::prelude::*;
+use semrecon_data::Intrinsics;
+
+use crate::map::{split_voxel, Chunk, ChunkKey, TsdfMap, CHUNK_SIDE, TSDF_SCALE};
+
+/// A predicted view of the map from one camera pose.
+///
+/// # Shapes
+/// `vertices`, `normals` and `colors` are row-major, `intrinsics.width * intrinsics.height`
+/// long. A pixel without a surface has a zero vertex and a zero normal (its `z` is 0, like
+/// a missing depth).
+#[derive(Debug, Clone)]
+pub struct ModelView {
+    /// Camera of the view.
+    pub intrinsics: Intrinsics,
+    /// Pose the view was cast from.
+    pub world_from_camera: Affine3A,
+    /// Surface points in the camera frame, metres.
+    pub vertices: Vec<Vec3>,
+    /// Unit surface normals in the camera frame, facing the camera.
+    pub normals: Vec<Vec3>,
+    /// Colour of the voxel nearest to each surface point.
+    pub colors: Vec<[u8; 3]>,
+}
+
+impl ModelView {
+    /// Depth image of the view (metres along the optical axis, 0 where no surface).
+    pub fn depth(&self) -> Vec<f32> {
+        self.vertices.iter().map(|v| v.z).collect()
+    }
+
+    /// Number of pixels with a surface.
+    pub fn valid_count(&self) -> usize {
+        self.vertices.iter().filter(|v| v.z > 0.0).count()
+    }
+}
+
+/// Chunk lookup through a dense array of slab positions over the bounding box of the
+/// allocated chunks, built once per ray-cast: a march tests a chunk every few centimetres,
+/// and an array read is several times cheaper than a hash probe. Maps whose box would need
+/// more than [`MAX_GRID_CELLS`] cells fall back to the hash map.
+struct ChunkGrid<'a> {
+    min: IVec3,
+    dims: IVec3,
+    /// The chunk per cell (one pointer to follow, not slab record then voxel box); empty
+    /// when falling back.
+    slots: Vec<Option<&'a Chunk>>,
+}
+
+/// Largest dense chunk grid (16 MB of pointers; a 15 m x 15 m x 4 m site at 5 mm voxels).
+const MAX_GRID_CELLS: usize = 2 << 20;
+
+impl<'a> ChunkGrid<'a> {
+    fn new(map: &'a TsdfMap) -> Self {
+        let mut min = IVec3::MAX;
+        let mut max = IVec3::MIN;
+        for c in &map.chunks {
+            min = min.min(c.key);
+            max = max.max(c.key);
+        }
+        let dims = (max - min + 1).max(IVec3::ZERO);
+        let cells = dims.x as usize * dims.y as usize * dims.z as usize;
+        if map.chunks.is_empty() || cells > MAX_GRID_CELLS {
+            return Self {
+                min,
+                dims: IVec3::ZERO,
+                slots: Vec::new(),
+            };
+        }
+        let mut slots = vec![None; cells];
+        for c in &map.chunks {
+            let l = c.key - min;
+            slots[(l.x + dims.x * (l.y + dims.y * l.z)) as usize] = Some(c);
+        }
+        Self { min, dims, slots }
+    }
+}
+
+/// Reads voxels through the chunk grid and a one-chunk cache: consecutive reads along a
+/// ray mostly stay in one chunk.
+struct VoxelReader<'a> {
+    map: &'a TsdfMap,
+    grid: &'a ChunkGrid<'a>,
+    key: ChunkKey,
+    chunk: Option<&'a Chunk>,
+}
+
+impl<'a> VoxelReader<'a> {
+    fn new(map: &'a TsdfMap, grid: &'a ChunkGrid<'a>) -> Self {
+        Self {
+            map,
+            grid,
+            key: ChunkKey::MAX,
+            chunk: None,
+        }
+    }
+
+    #[inline]
+    fn chunk(&mut self, key: ChunkKey) -> Option<&'a Chunk> {
+        if key != self.key {
+            self.key = key;
+            self.chunk = if self.grid.slots.is_empty() {
+                self.map.chunk(key)
+            } else {
+                let l = key - self.grid.min;
+                let d = self.grid.dims;
+                if l.cmplt(IVec3::ZERO).any() || l.cmpge(d).any() {
+                    None
+                } else {
+                    self.grid.slots[(l.x + d.x * (l.y + d.y * l.z)) as usize]
+                }
+            };
+        }
+        self.chunk
+    }
+
+    /// Quantised distance of voxel `v` when observed.
+    #[inline]
+    fn tsdf(&mut self, v: IVec3) -> Option<i16> {
+        let (key, i) = split_voxel(v);
+        let c = self.chunk(key)?;
+        (c.voxels.weight[i] != 0).then(|| c.voxels.tsdf[i])
+    }
+
+    /// The eight voxels around `p` (voxel units), `c[x + 2 y + 4 z]` in truncation units,
+    /// with `p`'s position inside their cell; `None` unless all eight are observed.
+    #[inline]
+    fn corners(&mut self, p: Vec3) -> Option<([f32; 8], Vec3)> {
+        let b = floor_i(p);
+        let f = p - b.as_vec3();
+        let mut c = [0.0f32; 8];
+        let (key, i) = split_voxel(b);
+        let local = b - key * CHUNK_SIDE as i32;
+        if local.cmplt(IVec3::splat(CHUNK_SIDE as i32 - 1)).all() {
+            // All eight corners in one chunk.
+            let ch = self.chunk(key)?;
+            const S: usize = CHUNK_SIDE;
+            for (j, c) in c.iter_mut().enumerate() {
+                let k = i + (j & 1) + ((j >> 1) & 1) * S + (j >> 2) * S * S;
+                if ch.voxels.weight[k] == 0 {
+                    return None;
+                }
+                *c = ch.voxels.tsdf[k] as f32;
+            }
+        } else {
+            for (j, c) in c.iter_mut().enumerate() {
+                let o = IVec3::new((j & 1) as i32, ((j >> 1) & 1) as i32, (j >> 2) as i32);
+                *c = self.tsdf(b + o)? as f32;
+            }
+        }
+        Some((c.map(|v| v * (1.0 / TSDF_SCALE)), f))
+    }
+
+    /// Trilinear distance at `p` in voxel units (truncation units out), when all eight
+    /// surrounding voxels are observed.
+    #[inline]
+    fn trilinear(&mut self, p: Vec3) -> Option<f32> {
+        let (c, f) = self.corners(p)?;
+        let x0 = c[0] + (c[1] - c[0]) * f.x;
+        let x1 = c[2] + (c[3] - c[2]) * f.x;
+        let x2 = c[4] + (c[5] - c[4]) * f.x;
+        let x3 = c[6] + (c[7] - c[6]) * f.x;
+        let y0 = x0 + (x1 - x0) * f.y;
+        let y1 = x2 + (x3 - x2) * f.y;
+        Some(y0 + (y1 - y0) * f.z)
+    }
+
+    /// Colour of the voxel nearest to `p` (voxel units).
+    #[inline]
+    fn color(&mut self, p: Vec3) -> [u8; 3] {
+        let (key, i) = split_voxel(round_i(p));
+        match self.chunk(key) {
+            Some(c) => {
+                let c = c.voxels.color[i];
+                [c[0], c[1], c[2]]
+            }
+            None => [0; 3],
+        }
+    }
+}
+
+/// One ray's march in voxel units: returns the hit point (voxel units) and the distance
+/// along the unit ray in metres.
+#[inline]
+fn march(
+    reader: &mut VoxelReader,
+    origin: Vec3,
+    dir: Vec3,
+    t_min: f32,
+    t_max: f32,
+    voxel_size: f32,
+    truncation: f32,
+) -> Option<(Vec3, f32)> {
+    let inv_voxel = 1.0 / voxel_size;
+    let chunk_side = CHUNK_SIDE as f32;
+    let half_voxel = 0.5 * voxel_size;
+    let mut t = t_min;
+    // Last sample with an interpolated distance: (t, distance in truncation units).
+    let mut prev: Option<(f32, f32)> = None;
+    while t < t_max {
+        let p = (origin + dir * t) * inv_voxel;
+        let (key, _) = split_voxel(round_i(p));
+        if reader.chunk(key).is_none() {
+            // Jump to just past the chunk's exit: chunk k spans voxel cells
+            // [8k - 0.5, 8k + 7.5) on each axis.
+            let lo = key.as_vec3() * chunk_side - 0.5;
+            let hi = lo + chunk_side;
+            let mut exit = f32::INFINITY;
+            for a in 0..3 {
+                let d = dir[a];
+                if d > 1e-9 {
+                    exit = exit.min((hi[a] - p[a]) / d);
+                } else if d < -1e-9 {
+                    exit = exit.min((lo[a] - p[a]) / d);
+                }
+            }
+            t += (exit * voxel_size).max(0.0) + 0.01 * voxel_size;
+            prev = None;
+            continue;
+        }
+        match reader.trilinear(p) {
+            Some(sdf) => {
+                if sdf < 0.0 {
+                    let (tp, sp) = prev?;
+                    // Linear interpolation of the zero crossing between the two samples.
+                    let th = tp + (t - tp) * sp / (sp - sdf);
+                    let hit = (origin + dir * th) * inv_voxel;
+                    return Some((hit, th));
+                }
+                prev = Some((t, sdf));
+                t += (0.8 * sdf * truncation).max(half_voxel);
+            }
+            None => {
+                // Unobserved corners near the surface (dropouts): keep the last positive
+                // sample, the crossing is interpolated across the gap.
+                t += half_voxel;
+            }
+        }
+    }
+    None
+}
+
+/// Ray-casts `map` from `world_from_camera` with camera `intrinsics` between `min_depth`
+/// and `max_depth` metres (along the optical axis).
+///
+/// `start_depth`, when given, holds per pixel a depth (same shape as the view, 0 = none)
+/// measured from this pose, so free space up to about that depth: the march then runs
+/// only within three truncation distances of it. Pixels without one start at the nearest
+/// depth in their 5x5 neighbourhood and march to `max_depth`; pixels with none there are
+/// not cast (the measurement saw nothing there). The previous frame's depth at the same
+/// pose is such a bound, and it saves most of the march through empty space.
+///
+/// # Shapes
+/// `start_depth`: `width * height`, row-major, like the returned view.
+pub fn raycast(
+    map: &TsdfMap,
+    intrinsics: Intrinsics,
+    world_from_camera: Affine3A,
+    min_depth: f32,
+    max_depth: f32,
+    start_depth: Option<&[f32]>,
+) -> ModelView {
+    let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
+    let n = w * h;
+    let c = map.config();
+    let (voxel_size, truncation) = (c.voxel_size, c.truncation());
+    let start_depth = start_depth.filter(|s| s.len() == n);
+    let mut vertices = vec![Vec3::ZERO; n];
+    let mut normals = vec![Vec3::ZERO; n];
+    let mut colors = vec![[0u8; 3]; n];
+    let rot = glam::Mat3::from(world_from_camera.matrix3);
+    let origin = Vec3::from(world_from_camera.translation);
+    let camera_from_world_rot = rot.transpose();
+    let valid_pose = world_from_camera.is_finite() && min_depth < max_depth;
+    let grid = ChunkGrid::new(map);
+    // Bands of TILE rows in parallel, each walked tile by tile (TILE x TILE pixels): rays
+    // of a tile meet the same few chunks, so their voxels stay in cache (row order evicts
+    // them before the next row comes back).
+    const TILE: usize = 8;
+    vertices
+        .par_chunks_mut(TILE * w)
+        .zip(normals.par_chunks_mut(TILE * w))
+        .zip(colors.par_chunks_mut(TILE * w))
+        .enumerate()
+        .for_each(|(band, ((vert_band, norm_band), color_band))| {
+            if !valid_pose {
+                return;
+            }
+            let rows = vert_band.len() / w;
+            let mut reader = VoxelReader::new(map, &grid);
+            for u0 in (0..w).step_by(TILE) {
+                for r in 0..rows {
+                    let v = band * TILE + r;
+                    for u in u0..(u0 + TILE).min(w) {
+                        let i = r * w + u;
+                        let ray_cam = intrinsics.unproject(u as f32, v as f32, 1.0);
+                        // Depth per metre along the unit ray.
+                        let z_per_t = 1.0 / ray_cam.length();
+                        let dir = rot * (ray_cam * z_per_t);
+                        let (mut d0, mut d1) = (min_depth, max_depth);
+                        if let Some(s) = start_depth {
+                            match hint(s, w, h, u, v) {
+                                Some((s, exact)) => {
+                                    d0 = d0.max(s - 3.0 * truncation);
+                                    if exact {
+                                        d1 = d1.min(s + 3.0 * truncation);
+                                    }
+                                }
+                                None => continue,
+                            }
+                        }
+                        let Some((hit, t)) = march(
+                            &mut reader,
+                            origin,
+                            dir,
+                            d0 / z_per_t,
+                            d1 / z_per_t,
+                            voxel_size,
+                            truncation,
+                        ) else {
+                            continue;
+                        };
+                        let Some(g) = gradient(&mut reader, hit) else {
+                            continue;
+                        };
+                        let len = g.length();
+                        if !(len > 1e-6) {
+                            continue;
+                        }
+                        let n_cam = camera_from_world_rot * (g / len);
+                        let p_cam = ray_cam * (t * z_per_t);
+                        vert_band[i] = p_cam;
+                        norm_band[i] = if n_cam.dot(p_cam) > 0.0 {
+                            -n_cam
+                        } else {
+                            n_cam
+                        };
+                        color_band[i] = reader.color(hit);
+                    }
+                }
+            }
+        });
+    ModelView {
+        intrinsics,
+        world_from_camera,
+        vertices,
+        normals,
+        colors,
+    }
+}
+
+/// Gradient of the interpolated distance at `p` (voxel units; any scale): differences of
+/// interpolated values a voxel either side (smooth across cells), else the analytic
+/// gradient of the trilinear cell around `p`.
+#[inline]
+fn gradient(reader: &mut VoxelReader, p: Vec3) -> Option<Vec3> {
+    let f0 = reader.trilinear(p);
+    let central = (|| {
+        Some(Vec3::new(
+            diff(reader, p, Vec3::X, f0)?,
+            diff(reader, p, Vec3::Y, f0)?,
+            diff(reader, p, Vec3::Z, f0)?,
+        ))
+    })();
+    if central.is_some() {
+        return central;
+    }
+    let (c, f) = reader.corners(p)?;
+    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+    let bilerp = |v00: f32, v10: f32, v01: f32, v11: f32, s: f32, t: f32| {
+        lerp(lerp(v00, v10, s), lerp(v01, v11, s), t)
+    };
+    Some(Vec3::new(
+        bilerp(c[1] - c[0], c[3] - c[2], c[5] - c[4], c[7] - c[6], f.y, f.z),
+        bilerp(c[2] - c[0], c[3] - c[1], c[6] - c[4], c[7] - c[5], f.x, f.z),
+        bilerp(c[4] - c[0], c[5] - c[1], c[6] - c[2], c[7] - c[3], f.x, f.y),
+    ))
+}
+
+/// Difference of the interpolated distance along `axis` at `p` (voxel units), per voxel:
+/// central where both neighbours are observed, one-sided against `f0` (the value at `p`)
+/// where only one is (dropouts leave unobserved voxels near surfaces).
+#[inline]
+fn diff(reader: &mut VoxelReader, p: Vec3, axis: Vec3, f0: Option<f32>) -> Option<f32> {
+    match (reader.trilinear(p + axis), reader.trilinear(p - axis), f0) {
+        (Some(a), Some(b), _) => Some(0.5 * (a - b)),
+        (Some(a), None, Some(f)) => Some(a - f),
+        (None, Some(b), Some(f)) => Some(f - b),
+        _ => None,
+    }
+}
+
+/// The march window for pixel `(u, v)` from the start-depth image: its own depth (`true`)
+/// or the nearest valid depth of its 5x5 neighbourhood (`false`); `None` when all are
+/// missing.
+#[inline]
+fn hint(s: &[f32], w: usize, h: usize, u: usize, v: usize) -> Option<(f32, bool)> {
+    let own = s[v * w + u];
+    if own.is_finite() && own > 0.0 {
+        return Some((own, true));
+    }
+    let mut best = f32::INFINITY;
+    for y in v.saturating_sub(2)..(v + 3).min(h) {
+        for x in u.saturating_sub(2)..(u + 3).min(w) {
+            let d = s[y * w + x];
+            if d.is_finite() && d > 0.0 && d < best {
+                best = d;
+            }
+        }
+    }
+    best.is_finite().then_some((best, false))
+}
+
+/// `floor` per component as integers (`f32::floor` is a library call on baseline x86-64).
+#[inline]
+fn floor_i(p: Vec3) -> IVec3 {
+    let t = p.as_ivec3();
+    t - p.cmplt(t.as_vec3()).into_ivec3_mask()
+}
+
+/// Nearest integer per component (halves away from the floor).
+#[inline]
+fn round_i(p: Vec3) -> IVec3 {
+    floor_i(p + 0.5)
+}
+
+/// Boolean mask to 0/1 integers.
+trait MaskToInt {
+    fn into_ivec3_mask(self) -> IVec3;
+}
+
+impl MaskToInt for glam::BVec3 {
+    #[inline]
+    fn into_ivec3_mask(self) -> IVec3 {
+        IVec3::new(self.x as i32, self.y as i32, self.z as i32)
+    }
+}

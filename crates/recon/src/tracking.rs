@@ -1,0 +1,1101 @@
+//! Frame-to-model camera tracking: the pose of each new frame found by aligning its depth
+//! (and, optionally, its intensity) against the map ray-cast at the previous pose.
+//!
+//! Per frame: a three-level depth pyramid (full, half, quarter resolution; each level
+//! averages the valid depths of a 2x2 block that agree with their median, so that depth
+//! edges are not blurred into phantom surfaces), vertices and normals per level, then
+//! coarse-to-fine Gauss-Newton on SE(3) starting from a constant-velocity prediction. Each
+//! iteration associates every frame vertex projectively with the ray-cast model (the model
+//! pixel it lands on, rejected beyond a distance or a normal angle), and minimises the
+//! point-to-plane distances plus, where colour is registered to depth and the weight is
+//! non-zero, intensity differences, both under Huber weights.
+//!
+//! Normal equations are summed per fixed block of rows and the blocks then added in order,
+//! so poses are bit-identical for any rayon thread count. The model is ray-cast once per
+//! frame at a reduced resolution (default half) and serves every pyramid level; the last
+//! tracked frame's depth bounds where the march starts, which removes most of its cost.
+//!
+//! A quality check (inlier ratio, residual, jump from the prediction, conditioning of the
+//! system) declares the frame lost instead of returning a doubtful pose; the caller then
+//! does not fuse it, so a bad frame never damages the map. Tracking resumes from the last
+//! good pose with the next frame.
+
+// Comparisons are written negated on purpose, so that NaN fails them; index loops mirror
+// the matrix formulas they implement.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
+use std::time::Instant;
+
+use glam::{Affine3A, Mat3, Quat, Vec2, Vec3};
+use rayon::prelude::*;
+use semrecon_data::{Frame, Intrinsics};
+
+use crate::error::{ReconError, Result};
+use crate::linalg::{cholesky_solve, symmetric_eigen};
+use crate::map::TsdfMap;
+use crate::raycast::{raycast, ModelView};
+
+/// Pyramid levels (0 = input resolution).
+pub const LEVELS: usize = 3;
+
+/// Rows per block of the normal-equation reduction (fixed, so the summation order does not
+/// depend on the thread count).
+const ROWS_PER_BLOCK: usize = 8;
+
+/// Parameters of [`Tracker`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackerConfig {
+    /// Gauss-Newton iterations per pyramid level, finest (input resolution) first; a level
+    /// with 0 iterations is skipped.
+    pub iterations: [usize; LEVELS],
+    /// The model is ray-cast at the input resolution divided by this (1, 2 or 4; the
+    /// default 4 casts 160x120 rays for a 640x480 sensor: on 7-Scenes a 320x240 model
+    /// costs four times as much for the same trajectory error).
+    pub model_downscale: u32,
+    /// Depths outside `min_depth..=max_depth` metres (and non-finite ones) are ignored.
+    pub min_depth: f32,
+    /// See `min_depth`.
+    pub max_depth: f32,
+    /// Association rejects pairs further apart than this many metres at the finest level
+    /// (doubled per coarser level).
+    pub max_distance: f32,
+    /// Association rejects pairs whose normals differ by more than this angle, radians.
+    pub max_normal_angle: f32,
+    /// Huber threshold of the point-to-plane residual, metres at 1 m depth (residuals are
+    /// normalised by depth squared, the growth of depth noise).
+    pub huber_geometric: f32,
+    /// Weight of the photometric term relative to the geometric one (intensity in 0..1
+    /// against metres; 0 turns it off). Only meaningful when colour is registered to depth.
+    pub photometric_weight: f32,
+    /// Huber threshold of the intensity residual (intensity in 0..1).
+    pub huber_photometric: f32,
+    /// Lost when fewer than this fraction of the frame pixels that land on the model agree
+    /// with it (distance and normal tests).
+    pub min_inlier_ratio: f32,
+    /// Lost when fewer than this fraction of the valid pixels land on the model.
+    pub min_overlap: f32,
+    /// Lost when the RMS point-to-plane residual of the inliers, normalised to 1 m depth
+    /// (divided by depth squared, as depth noise grows), exceeds this many metres.
+    pub max_residual: f32,
+    /// Lost when the estimate is further than this many metres from the prediction.
+    pub max_translation_jump: f32,
+    /// Lost when the estimate turns more than this many radians away from the prediction.
+    pub max_rotation_jump: f32,
+    /// Lost when the smallest eigenvalue of the scale-normalised normal matrix is below this
+    /// fraction of the largest (a plane or a corridor leaves motions unconstrained).
+    pub min_condition: f64,
+    /// Fewer valid depth pixels than this fraction of the image: lost (nothing to align).
+    pub min_valid_ratio: f32,
+    /// A keyframe every this many tracked frames (the first frame is one).
+    pub keyframe_interval: usize,
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        Self {
+            iterations: [2, 4, 8],
+            model_downscale: 4,
+            min_depth: 0.1,
+            max_depth: 5.0,
+            max_distance: 0.05,
+            max_normal_angle: 45f32.to_radians(),
+            huber_geometric: 0.005,
+            photometric_weight: 0.0,
+            huber_photometric: 0.1,
+            min_inlier_ratio: 0.5,
+            min_overlap: 0.2,
+            max_residual: 0.01,
+            max_translation_jump: 0.15,
+            max_rotation_jump: 20f32.to_radians(),
+            min_condition: 1e-3,
+            min_valid_ratio: 0.05,
+            keyframe_interval: 10,
+        }
+    }
+}
+
+impl TrackerConfig {
+    /// Checks every field against its documented range.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(ReconError::InvalidConfig(m));
+        if ![1, 2, 4].contains(&self.model_downscale) {
+            return bad(format!(
+                "model downscale {} is not 1, 2 or 4",
+                self.model_downscale
+            ));
+        }
+        if self.iterations.iter().all(|&i| i == 0) || self.iterations.iter().any(|&i| i > 100) {
+            return bad(format!(
+                "iterations {:?}: need at least one, at most 100 per level",
+                self.iterations
+            ));
+        }
+        if !(self.min_depth >= 0.0 && self.min_depth < self.max_depth && self.max_depth.is_finite())
+        {
+            return bad(format!(
+                "depth range {}..{} m is empty or not finite",
+                self.min_depth, self.max_depth
+            ));
+        }
+        let positive = [
+            ("max_distance", self.max_distance),
+            ("max_normal_angle", self.max_normal_angle),
+            ("huber_geometric", self.huber_geometric),
+            ("huber_photometric", self.huber_photometric),
+            ("max_residual", self.max_residual),
+            ("max_translation_jump", self.max_translation_jump),
+            ("max_rotation_jump", self.max_rotation_jump),
+        ];
+        for (name, v) in positive {
+            if !(v > 0.0 && v.is_finite()) {
+                return bad(format!("{name} = {v} must be positive and finite"));
+            }
+        }
+        if !(self.photometric_weight >= 0.0 && self.photometric_weight.is_finite()) {
+            return bad(format!(
+                "photometric weight {} must be >= 0",
+                self.photometric_weight
+            ));
+        }
+        for (name, v) in [
+            ("min_inlier_ratio", self.min_inlier_ratio),
+            ("min_overlap", self.min_overlap),
+            ("min_valid_ratio", self.min_valid_ratio),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return bad(format!("{name} = {v} is outside 0..1"));
+            }
+        }
+        if !(0.0..1.0).contains(&self.min_condition) {
+            return bad(format!(
+                "min_condition {} is outside 0..1",
+                self.min_condition
+            ));
+        }
+        if self.keyframe_interval == 0 {
+            return bad("keyframe interval must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// Why a frame was not tracked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LostReason {
+    /// Too few valid depth pixels.
+    NoDepth,
+    /// The ray-cast model is (nearly) empty at the last pose.
+    NoModel,
+    /// Too few pixels landed on the model, or too few of those agreed with it.
+    FewInliers,
+    /// The aligned residual is too large.
+    LargeResidual,
+    /// The estimate jumped too far from the motion prediction.
+    PoseJump,
+    /// The alignment leaves some motion unconstrained (or the system was singular).
+    Degenerate,
+}
+
+/// What tracking made of a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrackingStatus {
+    /// The first frame: its pose is the initial pose, nothing was aligned.
+    Initialized,
+    /// Aligned and passed the quality check.
+    Tracked,
+    /// Not tracked: do not fuse this frame.
+    Lost(LostReason),
+}
+
+/// A keyframe: a frame index and its pose when it was tracked.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Keyframe {
+    /// The frame's index in its source.
+    pub frame_index: usize,
+    /// Its pose.
+    pub world_from_camera: Affine3A,
+}
+
+/// The outcome of [`Tracker::track`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrackingResult {
+    /// Tracked, initialised or lost.
+    pub status: TrackingStatus,
+    /// The frame's pose when tracked or initialised; the last good pose when lost.
+    pub world_from_camera: Affine3A,
+    /// Fraction of the frame pixels landing on the model that agree with it (finest level
+    /// used).
+    pub inlier_ratio: f32,
+    /// RMS point-to-plane residual of the inliers, metres.
+    pub residual_rms: f32,
+    /// Smallest over largest eigenvalue of the scale-normalised normal matrix.
+    pub condition: f64,
+    /// Whether this frame became a keyframe.
+    pub keyframe: bool,
+    /// Wall time of the model ray-cast, milliseconds (0 when the cached view was reused).
+    pub raycast_ms: f64,
+    /// Wall time of the whole call, milliseconds.
+    pub total_ms: f64,
+}
+
+impl TrackingResult {
+    /// Whether the caller should fuse the frame at `world_from_camera`.
+    pub fn should_fuse(&self) -> bool {
+        !matches!(self.status, TrackingStatus::Lost(_))
+    }
+}
+
+/// One pyramid level of the current frame.
+struct Level {
+    k: Intrinsics,
+    depth: Vec<f32>,
+    vertices: Vec<Vec3>,
+    normals: Vec<Vec3>,
+    /// Empty when the photometric term is off or the frame has no colour.
+    intensity: Vec<f32>,
+    valid: usize,
+}
+
+/// The model view with its intensity image and gradients, ready for association.
+struct Model {
+    view: ModelView,
+    intensity: Vec<f32>,
+    /// Intensity gradient per pixel, NaN where a neighbour has no surface (both empty when
+    /// the photometric term is off).
+    gradient: Vec<Vec2>,
+}
+
+/// Sums of one block of pixels: normal equations and statistics.
+#[derive(Clone, Copy)]
+struct Normals {
+    h: [[f64; 6]; 6],
+    g: [f64; 6],
+    sq_residual: f64,
+    /// Squared residuals normalised by depth squared (noise at 1 m).
+    sq_normalised: f64,
+    inliers: u64,
+    /// Pairs rejected by the distance test.
+    far: u64,
+    /// Pairs rejected by the normal test.
+    turned: u64,
+}
+
+impl Normals {
+    const ZERO: Self = Self {
+        h: [[0.0; 6]; 6],
+        g: [0.0; 6],
+        sq_residual: 0.0,
+        sq_normalised: 0.0,
+        inliers: 0,
+        far: 0,
+        turned: 0,
+    };
+
+    #[inline]
+    fn add(&mut self, j: [f64; 6], r: f64, w: f64) {
+        for a in 0..6 {
+            let wa = w * j[a];
+            for b in a..6 {
+                self.h[a][b] += wa * j[b];
+            }
+            self.g[a] += wa * r;
+        }
+    }
+
+    fn merge(&mut self, o: &Self) {
+        for a in 0..6 {
+            for b in a..6 {
+                self.h[a][b] += o.h[a][b];
+            }
+            self.g[a] += o.g[a];
+        }
+        self.sq_residual += o.sq_residual;
+        self.sq_normalised += o.sq_normalised;
+        self.inliers += o.inliers;
+        self.far += o.far;
+        self.turned += o.turned;
+    }
+
+    fn symmetric(&self) -> [[f64; 6]; 6] {
+        let mut h = self.h;
+        for a in 0..6 {
+            for b in 0..a {
+                h[a][b] = h[b][a];
+            }
+        }
+        h
+    }
+}
+
+/// Frame-to-model tracker: feed frames in order with [`Tracker::track`], fuse those whose
+/// result says so.
+#[derive(Debug, Clone)]
+pub struct Tracker {
+    config: TrackerConfig,
+    initial_pose: Affine3A,
+    /// Last good pose and the one before it (constant-velocity prediction).
+    last: Option<Affine3A>,
+    velocity: Affine3A,
+    /// Depth of the last tracked frame at the model resolution (march start bound).
+    last_depth: Option<Vec<f32>>,
+    tracked: usize,
+    keyframes: Vec<Keyframe>,
+    cache: Option<CachedModel>,
+}
+
+/// The last model view, reused while neither the pose nor the map changed (after a lost
+/// frame).
+#[derive(Debug, Clone)]
+struct CachedModel {
+    pose: Affine3A,
+    stamp: (u64, usize),
+    view: ModelView,
+}
+
+impl Tracker {
+    /// A tracker whose first frame gets the identity pose.
+    pub fn new(config: TrackerConfig) -> Result<Self> {
+        Self::with_initial_pose(config, Affine3A::IDENTITY)
+    }
+
+    /// A tracker whose first frame gets `world_from_camera`.
+    pub fn with_initial_pose(config: TrackerConfig, world_from_camera: Affine3A) -> Result<Self> {
+        config.validate()?;
+        if !world_from_camera.is_finite() {
+            return Err(ReconError::InvalidConfig(
+                "initial pose is not finite".into(),
+            ));
+        }
+        Ok(Self {
+            config,
+            initial_pose: world_from_camera,
+            last: None,
+            velocity: Affine3A::IDENTITY,
+            last_depth: None,
+            tracked: 0,
+            keyframes: Vec::new(),
+            cache: None,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &TrackerConfig {
+        &self.config
+    }
+
+    /// The last good pose (`None` before the first frame).
+    pub fn pose(&self) -> Option<Affine3A> {
+        self.last
+    }
+
+    /// Keyframes so far, in order.
+    pub fn keyframes(&self) -> &[Keyframe] {
+        &self.keyframes
+    }
+
+    /// Tracks `frame` against `map` (which should hold every frame fused so far).
+    ///
+    /// Errors only on a frame whose buffers do not match its camera; bad depth values,
+    /// empty frames and failed alignments give [`TrackingStatus::Lost`].
+    pub fn track(&mut self, frame: &Frame, map: &TsdfMap) -> Result<TrackingResult> {
+        let t0 = Instant::now();
+        let n = frame.intrinsics.pixel_count();
+        if frame.depth.len() != n || (!frame.color.is_empty() && frame.color.len() != n) {
+            return Err(ReconError::InvalidFrame {
+                index: frame.index,
+                message: format!(
+                    "depth has {} and colour {} pixels, the camera {n}",
+                    frame.depth.len(),
+                    frame.color.len()
+                ),
+            });
+        }
+        let c = self.config.clone();
+        let pyramid = build_pyramid(frame, &c);
+        let last_pose = self.last.unwrap_or(self.initial_pose);
+        let mut result = TrackingResult {
+            status: TrackingStatus::Lost(LostReason::NoDepth),
+            world_from_camera: last_pose,
+            inlier_ratio: 0.0,
+            residual_rms: 0.0,
+            condition: 0.0,
+            keyframe: false,
+            raycast_ms: 0.0,
+            total_ms: 0.0,
+        };
+        let finish = |mut r: TrackingResult| {
+            r.total_ms = t0.elapsed().as_secs_f64() * 1e3;
+            Ok(r)
+        };
+        if (pyramid[0].valid as f32) < c.min_valid_ratio * n as f32 || pyramid[0].valid == 0 {
+            return finish(result);
+        }
+        let model_level = c.model_downscale.trailing_zeros() as usize;
+        let Some(last) = self.last else {
+            result.status = TrackingStatus::Initialized;
+            result.inlier_ratio = 1.0;
+            result.condition = 1.0;
+            self.accept(frame, &mut result, &pyramid[model_level]);
+            return finish(result);
+        };
+
+        // Model at the last pose.
+        let t_cast = Instant::now();
+        let model = self.model(map, last, pyramid[model_level].k);
+        result.raycast_ms = if model.1 {
+            t_cast.elapsed().as_secs_f64() * 1e3
+        } else {
+            0.0
+        };
+        let model = model.0;
+        let model_valid = model.view.valid_count();
+        if (model_valid as f32) < c.min_valid_ratio * model.view.vertices.len() as f32 {
+            result.status = TrackingStatus::Lost(LostReason::NoModel);
+            return finish(result);
+        }
+
+        // last_from_current, predicted with constant velocity.
+        let prediction = self.velocity;
+        let mut estimate = prediction;
+        let mut stats = Normals::ZERO;
+        let mut stats_level = 0;
+        let mut singular = false;
+        for level in (0..LEVELS).rev() {
+            let iters = c.iterations[level];
+            if iters == 0 {
+                continue;
+            }
+            let data = &pyramid[level];
+            let max_distance = c.max_distance * (1u32 << level) as f32;
+            for _ in 0..iters {
+                stats = normal_equations(data, &model, &estimate, max_distance, &c);
+                stats_level = level;
+                let h = stats.symmetric();
+                let neg_g = stats.g.map(|v| -v);
+                let Some(xi) = cholesky_solve(&h, &neg_g) else {
+                    singular = true;
+                    break;
+                };
+                estimate = se3_exp(xi) * estimate;
+                estimate = orthonormalised(estimate);
+                let step = xi.iter().map(|v| v * v).sum::<f64>().sqrt();
+                if step < 1e-6 {
+                    break;
+                }
+            }
+            if singular {
+                break;
+            }
+        }
+        // Quality from the last iteration's sums (at the pose before its small final
+        // step): a separate pass at the finest level would cost as much as an iteration.
+        let data = &pyramid[stats_level];
+        let overlap = stats.inliers + stats.far + stats.turned;
+        result.inlier_ratio = stats.inliers as f32 / overlap.max(1) as f32;
+        let overlap_ratio = overlap as f32 / data.valid.max(1) as f32;
+        result.residual_rms = (stats.sq_residual / stats.inliers.max(1) as f64).sqrt() as f32;
+        result.condition = condition(&stats.symmetric());
+        let jump = prediction.inverse() * estimate;
+        let jump_t = Vec3::from(jump.translation).length();
+        let jump_r = Quat::from_mat3a(&jump.matrix3).to_axis_angle().1;
+        let jump_r = jump_r.min(std::f32::consts::TAU - jump_r);
+        result.world_from_camera = last * estimate;
+        result.status = if singular || !(result.condition >= c.min_condition) {
+            TrackingStatus::Lost(LostReason::Degenerate)
+        } else if result.inlier_ratio < c.min_inlier_ratio || overlap_ratio < c.min_overlap {
+            TrackingStatus::Lost(LostReason::FewInliers)
+        } else if !((stats.sq_normalised / stats.inliers.max(1) as f64).sqrt()
+            <= c.max_residual as f64)
+        {
+            TrackingStatus::Lost(LostReason::LargeResidual)
+        } else if !(jump_t <= c.max_translation_jump
+            && jump_r <= c.max_rotation_jump
+            && result.world_from_camera.is_finite())
+        {
+            TrackingStatus::Lost(LostReason::PoseJump)
+        } else {
+            TrackingStatus::Tracked
+        };
+        if result.should_fuse() {
+            self.velocity = estimate;
+            self.accept(frame, &mut result, &pyramid[model_level]);
+        } else {
+            result.world_from_camera = last;
+            // A lost frame breaks the motion model: predict no motion next time.
+            self.velocity = Affine3A::IDENTITY;
+        }
+        finish(result)
+    }
+
+    /// Records an accepted frame: pose, keyframe, march-start depth.
+    fn accept(&mut self, frame: &Frame, result: &mut TrackingResult, model_level: &Level) {
+        self.last = Some(result.world_from_camera);
+        if self.tracked.is_multiple_of(self.config.keyframe_interval) {
+            result.keyframe = true;
+            self.keyframes.push(Keyframe {
+                frame_index: frame.index,
+                world_from_camera: result.world_from_camera,
+            });
+        }
+        self.tracked += 1;
+        self.last_depth = Some(model_level.depth.clone());
+    }
+
+    /// The model view at `pose` (from the cache when pose and map are unchanged) and whether
+    /// it was cast now.
+    fn model(&mut self, map: &TsdfMap, pose: Affine3A, k: Intrinsics) -> (Model, bool) {
+        let stamp = (map.next_revision, map.chunk_count());
+        let cached = self
+            .cache
+            .take()
+            .filter(|m| m.pose == pose && m.stamp == stamp && m.view.intrinsics == k);
+        let (view, cast) = match cached {
+            Some(m) => (m.view, false),
+            None => (
+                raycast(
+                    map,
+                    k,
+                    pose,
+                    self.config.min_depth,
+                    self.config.max_depth,
+                    self.last_depth.as_deref(),
+                ),
+                true,
+            ),
+        };
+        self.cache = Some(CachedModel {
+            pose,
+            stamp,
+            view: view.clone(),
+        });
+        let (intensity, gradient) = if self.config.photometric_weight > 0.0 {
+            model_intensity(&view)
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        (
+            Model {
+                view,
+                intensity,
+                gradient,
+            },
+            cast,
+        )
+    }
+}
+
+/// Intensity in 0..1 from sRGB (Rec. 601 luma).
+#[inline]
+fn luma(c: [u8; 3]) -> f32 {
+    (0.299 * c[0] as f32 + 0.587 * c[1] as f32 + 0.114 * c[2] as f32) * (1.0 / 255.0)
+}
+
+/// The model's intensity image and its central-difference gradient.
+fn model_intensity(view: &ModelView) -> (Vec<f32>, Vec<Vec2>) {
+    let (w, h) = (
+        view.intrinsics.width as usize,
+        view.intrinsics.height as usize,
+    );
+    let intensity: Vec<f32> = view
+        .colors
+        .iter()
+        .zip(&view.vertices)
+        .map(|(c, v)| if v.z > 0.0 { luma(*c) } else { f32::NAN })
+        .collect();
+    let mut gradient = vec![Vec2::NAN; w * h];
+    gradient.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        if y == 0 || y + 1 >= h {
+            return;
+        }
+        for x in 1..w.saturating_sub(1) {
+            let i = y * w + x;
+            let gx = 0.5 * (intensity[i + 1] - intensity[i - 1]);
+            let gy = 0.5 * (intensity[i + w] - intensity[i - w]);
+            row[x] = Vec2::new(gx, gy);
+        }
+    });
+    (intensity, gradient)
+}
+
+/// The depth pyramid with vertices, normals and intensity per level.
+fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
+    let k0 = frame.intrinsics;
+    let depth0: Vec<f32> = frame
+        .depth
+        .iter()
+        .map(|&d| {
+            if d.is_finite() && d >= c.min_depth && d <= c.max_depth {
+                d
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    // Intensity only feeds the photometric term: empty at every level when it is off.
+    let intensity0: Vec<f32> = if frame.color.is_empty() || c.photometric_weight <= 0.0 {
+        Vec::new()
+    } else {
+        frame.color.iter().map(|&c| luma(c)).collect()
+    };
+    // Level 0 takes its normals from level 1 below: no need to compute its own.
+    let mut levels = vec![make_level(k0, depth0, intensity0, false)];
+    for _ in 1..LEVELS {
+        let prev = levels.last().expect("level 0 exists");
+        let (pw, ph) = (prev.k.width as usize, prev.k.height as usize);
+        let (w, h) = ((pw / 2).max(1), (ph / 2).max(1));
+        let k = prev.k.scaled(w as u32, h as u32);
+        let mut depth = vec![0.0f32; w * h];
+        let mut intensity = vec![0.0f32; if prev.intensity.is_empty() { 0 } else { w * h }];
+        let has_intensity = !intensity.is_empty();
+        let mut intensity_rows: Vec<&mut [f32]> = intensity.chunks_mut(w).collect();
+        intensity_rows.resize_with(h, Default::default);
+        depth
+            .par_chunks_mut(w)
+            .zip(intensity_rows.par_iter_mut())
+            .enumerate()
+            .for_each(|(y, (drow, irow))| {
+                for x in 0..w {
+                    let mut vals = [0.0f32; 4];
+                    let mut n = 0;
+                    let mut inten = 0.0;
+                    let mut m = 0;
+                    for dy in 0..2 {
+                        for dx in 0..2 {
+                            let (sx, sy) = (2 * x + dx, 2 * y + dy);
+                            if sx >= pw || sy >= ph {
+                                continue;
+                            }
+                            let i = sy * pw + sx;
+                            if has_intensity {
+                                inten += prev.intensity[i];
+                                m += 1;
+                            }
+                            let d = prev.depth[i];
+                            if d > 0.0 {
+                                vals[n] = d;
+                                n += 1;
+                            }
+                        }
+                    }
+                    if m > 0 {
+                        irow[x] = inten / m as f32;
+                    }
+                    if n == 0 {
+                        continue;
+                    }
+                    let vals = &mut vals[..n];
+                    vals.sort_by(f32::total_cmp);
+                    let median = vals[(n - 1) / 2];
+                    let (mut sum, mut cnt) = (0.0, 0);
+                    for &d in vals.iter() {
+                        if (d - median).abs() <= 0.03 * median {
+                            sum += d;
+                            cnt += 1;
+                        }
+                    }
+                    drow[x] = sum / cnt as f32;
+                }
+            });
+        levels.push(make_level(k, depth, intensity, true));
+    }
+    // Normals of a level come from the next coarser level: neighbouring pixels of a noisy,
+    // disparity-quantised depth image differ by about as much in depth as in position, so
+    // their normals scatter by tens of degrees; the coarser level averages 2x2 blocks and
+    // spans twice the baseline. Pixels whose depth disagrees with the coarse one (edges)
+    // get none.
+    for l in 0..LEVELS - 1 {
+        let (fine, coarse) = levels.split_at_mut(l + 1);
+        let (fine, coarse) = (&mut fine[l], &coarse[0]);
+        let (w, cw, ch) = (
+            fine.k.width as usize,
+            coarse.k.width as usize,
+            coarse.k.height as usize,
+        );
+        let fine_depth = &fine.depth;
+        fine.normals
+            .par_chunks_mut(w)
+            .enumerate()
+            .for_each(|(y, row)| {
+                for (x, n) in row.iter_mut().enumerate() {
+                    let d = fine_depth[y * w + x];
+                    let (cx, cy) = ((x / 2).min(cw - 1), (y / 2).min(ch - 1));
+                    let ci = cy * cw + cx;
+                    let dc = coarse.depth[ci];
+                    *n = if d > 0.0 && (d - dc).abs() <= 0.05 * d {
+                        coarse.normals[ci]
+                    } else {
+                        Vec3::ZERO
+                    };
+                }
+            });
+    }
+    levels
+}
+
+/// Vertices and normals of one level.
+fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>, with_normals: bool) -> Level {
+    let (w, h) = (k.width as usize, k.height as usize);
+    let vertices: Vec<Vec3> = depth
+        .iter()
+        .enumerate()
+        .map(|(i, &d)| {
+            if d > 0.0 {
+                k.unproject((i % w) as f32, (i / w) as f32, d)
+            } else {
+                Vec3::ZERO
+            }
+        })
+        .collect();
+    let mut normals = vec![Vec3::ZERO; w * h];
+    normals.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        if !with_normals || y == 0 || y + 1 >= h {
+            return;
+        }
+        for x in 1..w.saturating_sub(1) {
+            let i = y * w + x;
+            let p = vertices[i];
+            if p.z <= 0.0 {
+                continue;
+            }
+            let (l, r, u, d) = (
+                vertices[i - 1],
+                vertices[i + 1],
+                vertices[i - w],
+                vertices[i + w],
+            );
+            let jump = 0.05 * p.z;
+            if [l, r, u, d]
+                .iter()
+                .any(|q| q.z <= 0.0 || (q.z - p.z).abs() > jump)
+            {
+                continue;
+            }
+            let n = (d - u).cross(r - l);
+            let len = n.length();
+            if !(len > 0.0) {
+                continue;
+            }
+            let n = n / len;
+            row[x] = if n.dot(p) > 0.0 { -n } else { n };
+        }
+    });
+    let valid = depth.iter().filter(|&&d| d > 0.0).count();
+    Level {
+        k,
+        depth,
+        vertices,
+        normals,
+        intensity,
+        valid,
+    }
+}
+
+/// Normal equations of one Gauss-Newton step at `estimate` (`last_from_current`).
+fn normal_equations(
+    data: &Level,
+    model: &Model,
+    estimate: &Affine3A,
+    max_distance: f32,
+    c: &TrackerConfig,
+) -> Normals {
+    let w = data.k.width as usize;
+    let h = data.k.height as usize;
+    let mk = model.view.intrinsics;
+    let (mw, mh) = (mk.width as usize, mk.height as usize);
+    let rot = Mat3::from(estimate.matrix3);
+    let trans = Vec3::from(estimate.translation);
+    let min_cos = c.max_normal_angle.cos();
+    let max_d2 = max_distance * max_distance;
+    let photometric =
+        c.photometric_weight > 0.0 && !data.intensity.is_empty() && !model.intensity.is_empty();
+    let lambda = c.photometric_weight as f64;
+    let rows: Vec<usize> = (0..h).collect();
+    let blocks: Vec<Normals> = rows
+        .par_chunks(ROWS_PER_BLOCK)
+        .map(|rows| {
+            let mut acc = Normals::ZERO;
+            for &y in rows {
+                for x in 0..w {
+                    let i = y * w + x;
+                    let n_cur = data.normals[i];
+                    if n_cur == Vec3::ZERO {
+                        continue;
+                    }
+                    let q = rot * data.vertices[i] + trans;
+                    if q.z <= 0.0 {
+                        continue;
+                    }
+                    let uv = mk.project(q);
+                    // Nearest model pixel; truncation is floor on the non-negative range
+                    // kept (`floor` is a library call on baseline x86-64).
+                    let (fu, fv) = (uv.x + 0.5, uv.y + 0.5);
+                    if !(fu >= 0.0 && fv >= 0.0 && fu < mw as f32 && fv < mh as f32) {
+                        continue;
+                    }
+                    let mi = fv as usize * mw + fu as usize;
+                    let mvtx = model.view.vertices[mi];
+                    if mvtx.z <= 0.0 {
+                        continue;
+                    }
+                    let mn = model.view.normals[mi];
+                    let diff = q - mvtx;
+                    if diff.length_squared() > max_d2 {
+                        acc.far += 1;
+                        continue;
+                    }
+                    if (rot * n_cur).dot(mn) < min_cos {
+                        acc.turned += 1;
+                        continue;
+                    }
+                    let r = mn.dot(diff) as f64;
+                    // Depth noise grows about with the square of depth: residuals are
+                    // measured in units of the noise at 1 m (Huber on the normalised
+                    // residual, information weight 1/scale²). Far points then no longer
+                    // dominate, which matters because fusion biases the model surface by
+                    // a fraction of the noise where it nears the truncation distance.
+                    let scale = (mvtx.z.max(0.5) as f64).powi(2);
+                    let wgt = huber(r / scale, c.huber_geometric as f64) / (scale * scale);
+                    // The lever arm from the model point, not the measured one: the measured
+                    // point's depth noise is in the residual too, and a Jacobian correlated
+                    // with the residual biases the solution (by a few millimetres per frame
+                    // at Kinect noise levels).
+                    let qxn = mvtx.cross(mn);
+                    let j = [qxn.x, qxn.y, qxn.z, mn.x, mn.y, mn.z].map(|v| v as f64);
+                    acc.add(j, r, wgt);
+                    acc.sq_residual += r * r;
+                    acc.sq_normalised += (r / scale) * (r / scale);
+                    acc.inliers += 1;
+                    if photometric {
+                        if let Some((rp, jp)) = photometric_term(model, uv, q, data.intensity[i]) {
+                            let wp = lambda * huber(rp, c.huber_photometric as f64);
+                            acc.add(jp, rp, wp);
+                        }
+                    }
+                }
+            }
+            acc
+        })
+        .collect();
+    let mut total = Normals::ZERO;
+    for b in &blocks {
+        total.merge(b);
+    }
+    total
+}
+
+/// Intensity residual `I_model(π(q)) - I_frame` and its Jacobian with respect to a left
+/// twist `(ω, υ)` of `q`; `None` where the model has no gradient.
+#[inline]
+fn photometric_term(model: &Model, uv: Vec2, q: Vec3, intensity: f32) -> Option<(f64, [f64; 6])> {
+    let k = model.view.intrinsics;
+    let w = k.width as usize;
+    if !(uv.x >= 0.0 && uv.y >= 0.0) {
+        return None;
+    }
+    let (x0, y0) = ((uv.x as u32) as f32, (uv.y as u32) as f32);
+    if !(x0 + 1.0 < k.width as f32 && y0 + 1.0 < k.height as f32) {
+        return None;
+    }
+    let (fx, fy) = (uv.x - x0, uv.y - y0);
+    let i = y0 as usize * w + x0 as usize;
+    let idx = [i, i + 1, i + w, i + w + 1];
+    let wts = [
+        (1.0 - fx) * (1.0 - fy),
+        fx * (1.0 - fy),
+        (1.0 - fx) * fy,
+        fx * fy,
+    ];
+    let (mut val, mut grad) = (0.0f32, Vec2::ZERO);
+    for (&j, &wt) in idx.iter().zip(&wts) {
+        val += wt * model.intensity[j];
+        grad += wt * model.gradient[j];
+    }
+    if !(val.is_finite() && grad.is_finite()) {
+        return None;
+    }
+    let inv_z = 1.0 / q.z;
+    // dπ/dq transposed times the image gradient.
+    let g = Vec3::new(
+        grad.x * k.fx * inv_z,
+        grad.y * k.fy * inv_z,
+        -(grad.x * k.fx * q.x + grad.y * k.fy * q.y) * inv_z * inv_z,
+    );
+    let qxg = q.cross(g);
+    Some((
+        (val - intensity) as f64,
+        [qxg.x, qxg.y, qxg.z, g.x, g.y, g.z].map(|v| v as f64),
+    ))
+}
+
+/// Huber weight of residual `r` with threshold `delta`.
+#[inline]
+fn huber(r: f64, delta: f64) -> f64 {
+    let a = r.abs();
+    if a <= delta {
+        1.0
+    } else {
+        delta / a
+    }
+}
+
+/// `exp` of a left twist `(ω, υ)`: rotation by `ω`, then translation by `υ` (the first-order
+/// model the Jacobians use).
+fn se3_exp(xi: [f64; 6]) -> Affine3A {
+    let omega = Vec3::new(xi[0] as f32, xi[1] as f32, xi[2] as f32);
+    let v = Vec3::new(xi[3] as f32, xi[4] as f32, xi[5] as f32);
+    Affine3A::from_rotation_translation(Quat::from_scaled_axis(omega), v)
+}
+
+/// The same transform with its rotation re-orthonormalised (accumulated f32 products drift).
+fn orthonormalised(t: Affine3A) -> Affine3A {
+    let q = Quat::from_mat3a(&t.matrix3).normalize();
+    Affine3A::from_rotation_translation(q, t.translation.into())
+}
+
+/// Smallest over largest eigenvalue of `h` after scaling it to a unit diagonal, so that
+/// rotation (m²) and translation (1) entries compare.
+fn condition(h: &[[f64; 6]; 6]) -> f64 {
+    let d: [f64; 6] = std::array::from_fn(|i| {
+        if h[i][i] > 0.0 {
+            1.0 / h[i][i].sqrt()
+        } else {
+            0.0
+        }
+    });
+    if d.contains(&0.0) {
+        return 0.0;
+    }
+    let s: [[f64; 6]; 6] = std::array::from_fn(|i| std::array::from_fn(|j| h[i][j] * d[i] * d[j]));
+    let (vals, _) = symmetric_eigen(&s);
+    if vals[5] > 0.0 {
+        (vals[0] / vals[5]).max(0.0)
+    } else {
+        0.0
+    }
+}
+
+/// Trajectory error after rigid alignment.
+///
+/// `estimated` and `reference` are matching camera positions (same length, in order).
+/// Aligns `estimated` onto `reference` with the rotation and translation (no scale) that
+/// minimise the squared distances (Horn's closed form, quaternion method) and returns the
+/// RMS distance, metres; `None` for fewer than 3 positions or a length mismatch.
+pub fn ate_rmse(estimated: &[Vec3], reference: &[Vec3]) -> Option<f64> {
+    if estimated.len() != reference.len() || estimated.len() < 3 {
+        return None;
+    }
+    let n = estimated.len() as f64;
+    let mean = |v: &[Vec3]| {
+        v.iter()
+            .fold([0.0f64; 3], |a, p| {
+                [a[0] + p.x as f64, a[1] + p.y as f64, a[2] + p.z as f64]
+            })
+            .map(|s| s / n)
+    };
+    let (ce, cr) = (mean(estimated), mean(reference));
+    // Cross-covariance S = sum (e - ce)(r - cr)^T.
+    let mut s = [[0.0f64; 3]; 3];
+    for (e, r) in estimated.iter().zip(reference) {
+        let a = [e.x as f64 - ce[0], e.y as f64 - ce[1], e.z as f64 - ce[2]];
+        let b = [r.x as f64 - cr[0], r.y as f64 - cr[1], r.z as f64 - cr[2]];
+        for i in 0..3 {
+            for j in 0..3 {
+                s[i][j] += a[i] * b[j];
+            }
+        }
+    }
+    let [[sxx, sxy, sxz], [syx, syy, syz], [szx, szy, szz]] = s;
+    let nm = [
+        [sxx + syy + szz, syz - szy, szx - sxz, sxy - syx],
+        [syz - szy, sxx - syy - szz, sxy + syx, szx + sxz],
+        [szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy],
+        [sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz],
+    ];
+    let (_, vecs) = symmetric_eigen(&nm);
+    let [w, x, y, z] = vecs[3];
+    // Rotation matrix of the unit quaternion (w, x, y, z), f64.
+    let r = [
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
+    ];
+    let mut sum = 0.0;
+    for (e, rf) in estimated.iter().zip(reference) {
+        let a = [e.x as f64 - ce[0], e.y as f64 - ce[1], e.z as f64 - ce[2]];
+        for i in 0..3 {
+            let ai = r[i][0] * a[0] + r[i][1] * a[1] + r[i][2] * a[2] + cr[i];
+            let d = ai - rf[i] as f64;
+            sum += d * d;
+        }
+    }
+    Some((sum / n).sqrt())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn horn_alignment_removes_a_rigid_motion() {
+        let pts: Vec<Vec3> = (0..20)
+            .map(|i| {
+                let t = i as f32 * 0.3;
+                Vec3::new(t.sin(), t.cos() * 0.5, 0.1 * t)
+            })
+            .collect();
+        let m = Affine3A::from_rotation_translation(
+            Quat::from_euler(glam::EulerRot::XYZ, 0.3, -0.7, 1.2),
+            Vec3::new(1.0, -2.0, 0.5),
+        );
+        let moved: Vec<Vec3> = pts.iter().map(|p| m.transform_point3(*p)).collect();
+        let e = ate_rmse(&moved, &pts).expect("enough points");
+        assert!(e < 1e-5, "{e}");
+        let mut noisy = moved.clone();
+        noisy[3].x += 0.1;
+        let e = ate_rmse(&noisy, &pts).expect("enough points");
+        assert!(e > 0.01 && e < 0.1 / (20f64).sqrt() + 1e-3, "{e}");
+    }
+
+    #[test]
+    fn pyramid_averages_only_agreeing_depths() {
+        let k = Intrinsics::new(8, 8, 10.0, 10.0, 3.5, 3.5).expect("camera");
+        let mut depth = vec![1.0f32; 64];
+        depth[0] = 3.0; // an outlier in the first 2x2 block
+        depth[9] = f32::NAN;
+        let frame = Frame {
+            index: 0,
+            timestamp: 0.0,
+            depth,
+            color: vec![[10, 20, 30]; 64],
+            intrinsics: k,
+            world_from_camera: None,
+            labels: None,
+        };
+        let p = build_pyramid(&frame, &TrackerConfig::default());
+        assert_eq!(p[1].k.width, 4);
+        assert_eq!(p[1].depth[0], 1.0);
+        assert_eq!(p[0].depth[9], 0.0);
+        assert_eq!(p[2].depth.len(), 4);
+    }
+
+    #[test]
+    fn exp_of_a_small_twist_matches_its_linearisation() {
+        let xi = [1e-4, -2e-4, 3e-4, 1e-3, 0.0, -1e-3];
+        let t = se3_exp(xi);
+        let q = Vec3::new(0.3, -0.2, 1.5);
+        let lin = q + Vec3::new(1e-4, -2e-4, 3e-4).cross(q) + Vec3::new(1e-3, 0.0, -1e-3);
+        assert!((t.transform_point3(q) - lin).length() < 1e-6);
+    }
+}
