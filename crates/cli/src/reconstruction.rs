@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use glam::Affine3A;
 use semrecon_data::{write_ply, Frame, LabeledMesh, PlyEncoding, Trajectory};
-use semrecon_recon::{IncrementalMesher, TsdfConfig, TsdfMap};
+use semrecon_recon::{IncrementalMesher, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
 
 use crate::timing::StageTimes;
 
@@ -34,14 +34,17 @@ pub struct Reconstruction {
 }
 
 impl Reconstruction {
-    /// An empty map at `voxel` metres, re-meshed every `keyframe_every` fused frames.
-    pub fn new(voxel: f32, keyframe_every: usize) -> anyhow::Result<Self> {
+    /// An empty map at `voxel` metres with a truncation of `truncation_voxels`, re-meshed
+    /// every `keyframe_every` fused frames.
+    pub fn new(voxel: f32, truncation_voxels: f32, keyframe_every: usize) -> anyhow::Result<Self> {
         anyhow::ensure!(
             keyframe_every > 0,
             "the keyframe interval must be at least 1 frame"
         );
-        let config =
+        let mut config =
             TsdfConfig::with_voxel_size(voxel).with_context(|| format!("voxel size {voxel} m"))?;
+        config.truncation_voxels = truncation_voxels;
+        config.validate().with_context(|| format!("truncation of {truncation_voxels} voxels"))?;
         Ok(Self {
             map: TsdfMap::new(config)?,
             mesher: IncrementalMesher::new(),
@@ -106,5 +109,60 @@ impl Reconstruction {
         write_ply(dir.join("mesh.ply"), mesh, PlyEncoding::BinaryLittleEndian)?;
         self.trajectory.write_tum(dir.join("trajectory.txt"))?;
         Ok(())
+    }
+}
+
+/// Where the pose of each frame comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum PoseMode {
+    /// Frame-to-model ICP tracking (the live system).
+    Track,
+    /// The dataset's ground-truth poses (to judge fusion and meshing alone).
+    GroundTruth,
+}
+
+/// The per-frame pose estimator of `run` and `demo`.
+pub enum PoseSource {
+    /// Tracking against the map.
+    Track(Box<Tracker>),
+    /// Ground-truth poses from the frames.
+    GroundTruth,
+}
+
+impl PoseSource {
+    /// A source for `mode`; the tracker starts at `initial_pose` (the first frame's
+    /// ground truth when there is one, so that trajectories compare without alignment;
+    /// the identity otherwise).
+    pub fn new(mode: PoseMode, initial_pose: Option<Affine3A>, keyframe_every: usize) -> anyhow::Result<Self> {
+        Ok(match mode {
+            PoseMode::GroundTruth => Self::GroundTruth,
+            PoseMode::Track => {
+                let config = TrackerConfig { keyframe_interval: keyframe_every, ..TrackerConfig::default() };
+                Self::Track(Box::new(Tracker::with_initial_pose(config, initial_pose.unwrap_or(Affine3A::IDENTITY))?))
+            }
+        })
+    }
+
+    /// What the report says the poses come from.
+    pub fn describe(&self) -> &'static str {
+        match self {
+            Self::Track(_) => "tracking (frame-to-model ICP)",
+            Self::GroundTruth => "ground truth",
+        }
+    }
+
+    /// The pose to fuse `frame` at, or why there is none (tracking lost, no ground truth).
+    pub fn estimate(&mut self, frame: &Frame, map: &TsdfMap) -> Result<Affine3A, String> {
+        match self {
+            Self::GroundTruth => frame.world_from_camera.ok_or_else(|| "no ground-truth pose".to_string()),
+            Self::Track(tracker) => {
+                let result = tracker.track(frame, map).map_err(|e| e.to_string())?;
+                match result.status {
+                    TrackingStatus::Lost(reason) => Err(format!("tracking lost ({reason:?})")),
+                    _ if result.should_fuse() => Ok(result.world_from_camera),
+                    other => Err(format!("not fused ({other:?})")),
+                }
+            }
+        }
     }
 }

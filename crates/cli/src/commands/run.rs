@@ -13,16 +13,14 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use glam::Affine3A;
 use semrecon_data::atomic_file::write_atomic;
 use semrecon_data::datasets::{open_dataset, DatasetSpec};
-use semrecon_data::{Frame, Trajectory};
+use semrecon_data::Trajectory;
 use semrecon_eval::{evaluate_trajectory, TrajectoryEvalConfig};
-use semrecon_recon::TsdfMap;
 use serde::Serialize;
 
 use crate::progress::progress_bar;
-use crate::reconstruction::Reconstruction;
+use crate::reconstruction::{PoseMode, PoseSource, Reconstruction};
 
 /// Warnings printed one by one before they are only counted.
 const MAX_WARNINGS: usize = 10;
@@ -42,6 +40,12 @@ pub struct RunArgs {
     /// Re-mesh every this many fused frames (a keyframe).
     #[arg(long, default_value_t = 10)]
     keyframe_every: usize,
+    /// TSDF truncation in voxels (about 10 suits noisy depth sensors at 5 mm voxels).
+    #[arg(long, default_value_t = 10.0)]
+    truncation: f32,
+    /// Where poses come from: tracking, or the dataset's ground truth.
+    #[arg(long, value_enum, default_value_t = PoseMode::Track)]
+    poses: PoseMode,
     /// Output folder.
     #[arg(long)]
     out: PathBuf,
@@ -124,19 +128,6 @@ struct Report {
     ate_rmse_m: Option<f64>,
 }
 
-/// TRACKING HOOK: the pose of `frame`, or `None` when tracking is lost (the frame is then
-/// skipped and counted in `lost_frames`, the map left intact).
-///
-/// Camera tracking (frame-to-model ICP + photometric, crates/recon/src/tracking.rs) is being
-/// written; until it is wired in here, this returns the dataset's ground-truth pose, so
-/// frames without one count as lost. The tracker will take the map (to ray-cast the model at
-/// `last_pose`) and the last pose (constant-velocity prediction).
-fn estimate_pose(frame: &Frame, _map: &TsdfMap, _last_pose: Option<Affine3A>) -> Option<Affine3A> {
-    frame.world_from_camera
-}
-
-/// What the poses in the report come from (changes with [`estimate_pose`]).
-const POSES: &str = "ground truth (tracking not wired in yet)";
 
 /// Runs the command.
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
@@ -150,7 +141,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             end: None,
         })
         .resolve(source.len())?;
-    let mut recon = Reconstruction::new(args.voxel, args.keyframe_every)?;
+    let mut recon = Reconstruction::new(args.voxel, args.truncation, args.keyframe_every)?;
+    let mut poses: Option<PoseSource> = None;
     let k = source.intrinsics();
     println!(
         "{}: frames {}..{} of {}, {}x{}, voxel {} m",
@@ -167,7 +159,6 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let mut lost = 0usize;
     let mut failed_loads = 0usize;
     let mut warnings = 0usize;
-    let mut last_pose = None;
     let bar = progress_bar(range.len() as u64, "run");
     let mut warn = |message: String| {
         warnings += 1;
@@ -193,21 +184,25 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             gt.push(frame.timestamp, pose);
         }
 
-        let t = Instant::now();
-        let pose = estimate_pose(&frame, &recon.map, last_pose);
-        recon.record_pipeline("tracking", t.elapsed());
-        let Some(pose) = pose else {
-            warn(format!("frame {i} skipped: no pose (tracking lost)"));
-            lost += 1;
-            bar.inc(1);
-            continue;
+        let source_of_poses = match &mut poses {
+            Some(p) => p,
+            None => poses.insert(PoseSource::new(args.poses, frame.world_from_camera, args.keyframe_every)?),
         };
-        match recon.add_frame(&frame, pose) {
-            Ok(()) => last_pose = Some(pose),
-            Err(e) => {
-                warn(format!("frame {i} not fused: {e}"));
+        let t = Instant::now();
+        let pose = source_of_poses.estimate(&frame, &recon.map);
+        recon.record_pipeline("tracking", t.elapsed());
+        let pose = match pose {
+            Ok(pose) => pose,
+            Err(why) => {
+                warn(format!("frame {i} skipped: {why}"));
                 lost += 1;
+                bar.inc(1);
+                continue;
             }
+        };
+        if let Err(e) = recon.add_frame(&frame, pose) {
+            warn(format!("frame {i} not fused: {e}"));
+            lost += 1;
         }
         bar.inc(1);
     }
@@ -243,7 +238,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         failed_loads,
         voxel_size_m: args.voxel,
         keyframe_every: args.keyframe_every,
-        poses: POSES,
+        poses: poses.as_ref().map_or("none", PoseSource::describe),
         realtime_factor: input_s / recon.pipeline_s.max(1e-9),
         input_s,
         pipeline_s: recon.pipeline_s,
