@@ -37,12 +37,8 @@ impl Reconstruction {
     /// An empty map at `voxel` metres with a truncation of `truncation_voxels`, re-meshed
     /// every `keyframe_every` fused frames.
     pub fn new(voxel: f32, truncation_voxels: f32, keyframe_every: usize) -> anyhow::Result<Self> {
-        anyhow::ensure!(
-            keyframe_every > 0,
-            "the keyframe interval must be at least 1 frame"
-        );
-        let mut config =
-            TsdfConfig::with_voxel_size(voxel).with_context(|| format!("voxel size {voxel} m"))?;
+        anyhow::ensure!(keyframe_every > 0, "the keyframe interval must be at least 1 frame");
+        let mut config = TsdfConfig::with_voxel_size(voxel).with_context(|| format!("voxel size {voxel} m"))?;
         config.truncation_voxels = truncation_voxels;
         config.validate().with_context(|| format!("truncation of {truncation_voxels} voxels"))?;
         Ok(Self {
@@ -66,11 +62,7 @@ impl Reconstruction {
     /// Fuses `frame` at `world_from_camera`, records the pose, and re-meshes when this frame
     /// completes a keyframe interval. On a fusion error the map is unchanged and nothing is
     /// recorded.
-    pub fn add_frame(
-        &mut self,
-        frame: &Frame,
-        world_from_camera: Affine3A,
-    ) -> semrecon_recon::Result<()> {
+    pub fn add_frame(&mut self, frame: &Frame, world_from_camera: Affine3A) -> semrecon_recon::Result<()> {
         let t = Instant::now();
         self.map.integrate(frame, world_from_camera)?;
         self.record_pipeline("fusion", t.elapsed());

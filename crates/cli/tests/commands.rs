@@ -140,7 +140,8 @@ fn bad_input_gives_errors_not_panics() {
     assert_clean_failure(&semrecon(&["synth", "--out", empty, "--size", "0x480"]), "width and height");
     assert_clean_failure(&semrecon(&["synth", "--out", empty, "--intrinsics", "1,2,3"]), "fx,fy,cx,cy");
     let bad_ply = dir.path().join("bad.ply");
-    std::fs::write(&bad_ply, b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n").expect("write");
+    std::fs::write(&bad_ply, b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n")
+        .expect("write");
     let bad = bad_ply.to_str().expect("utf-8");
     assert_clean_failure(&semrecon(&["snapshot", bad, "--out", "/tmp/x.png"]), "bad.ply");
     assert_clean_failure(&semrecon(&["throw", "--mesh", bad, "--from", "0,0,1", "--dir", "0,0,-1"]), "bad.ply");

@@ -9,18 +9,11 @@ use glam::{Affine3A, Quat, Vec3};
 use semrecon_data::{write_ply, LabeledMesh, PlyEncoding, Trajectory};
 
 fn semrecon(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_semrecon"))
-        .args(args)
-        .output()
-        .expect("the binary runs")
+    Command::new(env!("CARGO_BIN_EXE_semrecon")).args(args).output().expect("the binary runs")
 }
 
 fn stdout_json(out: &Output) -> serde_json::Value {
-    assert!(
-        out.status.success(),
-        "failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert!(out.status.success(), "failed: {}", String::from_utf8_lossy(&out.stderr));
     serde_json::from_slice(&out.stdout).expect("JSON on stdout")
 }
 
@@ -52,21 +45,12 @@ fn run_reconstructs_a_few_synthetic_frames() {
         "--out",
         s(&out_dir),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let table = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        table.contains("fusion") && table.contains("meshing"),
-        "{table}"
-    );
+    assert!(table.contains("fusion") && table.contains("meshing"), "{table}");
 
-    let report: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(out_dir.join("report.json")).expect("report"),
-    )
-    .expect("JSON");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).expect("report")).expect("JSON");
     assert_eq!(report["frames"], 5);
     assert_eq!(report["lost_frames"], 0);
     assert!(report["realtime_factor"].as_f64().expect("number") > 0.0);
@@ -74,10 +58,7 @@ fn run_reconstructs_a_few_synthetic_frames() {
     assert!(report["memory_mb"].as_f64().expect("number") > 0.0);
     for stage in ["tracking", "fusion", "meshing"] {
         for key in ["median_ms", "p95_ms", "max_ms"] {
-            assert!(
-                report["stages"][stage][key].is_number(),
-                "{stage}.{key} in {report}"
-            );
+            assert!(report["stages"][stage][key].is_number(), "{stage}.{key} in {report}");
         }
     }
     // Keyframes at 2 and 4 fused frames, then the final update.
@@ -90,11 +71,7 @@ fn run_reconstructs_a_few_synthetic_frames() {
     let trajectory = Trajectory::read_tum(out_dir.join("trajectory.txt")).expect("TUM trajectory");
     assert_eq!(trajectory.len(), 5);
     let mesh = semrecon_data::read_ply(out_dir.join("mesh.ply")).expect("mesh");
-    assert!(
-        mesh.triangle_count() > 100,
-        "{} triangles",
-        mesh.triangle_count()
-    );
+    assert!(mesh.triangle_count() > 100, "{} triangles", mesh.triangle_count());
     let header = std::fs::read(out_dir.join("mesh.ply")).expect("bytes");
     assert!(header.windows(20).any(|w| w == b"binary_little_endian"));
 }
@@ -104,44 +81,13 @@ fn run_rejects_bad_input_cleanly() {
     let dir = tempfile::tempdir().expect("temp dir");
     let out_dir = dir.path().join("out");
     let missing = dir.path().join("nothing-here");
-    let out = semrecon(&[
-        "run",
-        "--dataset",
-        &format!("7scenes:{}", s(&missing)),
-        "--out",
-        s(&out_dir),
-    ]);
+    let out = semrecon(&["run", "--dataset", &format!("7scenes:{}", s(&missing)), "--out", s(&out_dir)]);
     assert_clean_failure(&out, "nothing-here");
-    let out = semrecon(&[
-        "run",
-        "--dataset",
-        "synth:1",
-        "--frames",
-        "400..500",
-        "--out",
-        s(&out_dir),
-    ]);
+    let out = semrecon(&["run", "--dataset", "synth:1", "--frames", "400..500", "--out", s(&out_dir)]);
     assert_clean_failure(&out, "selects no frame");
-    let out = semrecon(&[
-        "run",
-        "--dataset",
-        "synth:1",
-        "--frames",
-        "5..5",
-        "--out",
-        s(&out_dir),
-    ]);
+    let out = semrecon(&["run", "--dataset", "synth:1", "--frames", "5..5", "--out", s(&out_dir)]);
     assert!(!out.status.success());
-    let out = semrecon(&[
-        "run",
-        "--dataset",
-        "synth:1",
-        "--frames",
-        "0..2",
-        "--voxel=-1",
-        "--out",
-        s(&out_dir),
-    ]);
+    let out = semrecon(&["run", "--dataset", "synth:1", "--frames", "0..2", "--voxel=-1", "--out", s(&out_dir)]);
     assert_clean_failure(&out, "voxel");
     assert!(!out_dir.join("report.json").exists());
 }
@@ -151,20 +97,8 @@ fn run_skips_frames_that_fail_to_load() {
     // A tiny 7-Scenes layout dataset with one frame's depth image corrupted.
     let dir = tempfile::tempdir().expect("temp dir");
     let scan = dir.path().join("scan");
-    let out = semrecon(&[
-        "synth",
-        "--out",
-        s(&scan),
-        "--frames",
-        "6",
-        "--size",
-        "64x48",
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = semrecon(&["synth", "--out", s(&scan), "--frames", "6", "--size", "64x48"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     std::fs::write(scan.join("frame-000002.depth.png"), b"not a png").expect("corrupt a frame");
     let out_dir = dir.path().join("out");
     let out = semrecon(&[
@@ -179,26 +113,12 @@ fn run_skips_frames_that_fail_to_load() {
         "--out",
         s(&out_dir),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(String::from_utf8_lossy(&out.stderr).contains("frame 2 skipped"));
-    let report: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(out_dir.join("report.json")).expect("report"),
-    )
-    .expect("JSON");
-    assert_eq!(
-        (report["frames"].as_u64(), report["lost_frames"].as_u64()),
-        (Some(6), Some(1))
-    );
-    assert_eq!(
-        Trajectory::read_tum(out_dir.join("trajectory.txt"))
-            .expect("TUM")
-            .len(),
-        5
-    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).expect("report")).expect("JSON");
+    assert_eq!((report["frames"].as_u64(), report["lost_frames"].as_u64()), (Some(6), Some(1)));
+    assert_eq!(Trajectory::read_tum(out_dir.join("trajectory.txt")).expect("TUM").len(), 5);
 }
 
 #[test]
@@ -208,45 +128,25 @@ fn eval_traj_reports_known_errors() {
     let mut est = Trajectory::default();
     // Square corners pushed up and down in a checkerboard: 1 cm that no alignment removes,
     // the estimate also moved rigidly. 30 Hz over 2 s, so RPE has 1 s pairs.
-    let world =
-        Affine3A::from_rotation_translation(Quat::from_rotation_z(0.5), Vec3::new(2.0, 0.0, -1.0));
+    let world = Affine3A::from_rotation_translation(Quat::from_rotation_z(0.5), Vec3::new(2.0, 0.0, -1.0));
     for i in 0..60 {
         let corner = [(1.0f32, 1.0f32), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)][i % 4];
         let p = Vec3::new(corner.0, corner.1, 0.0) * (1.0 + (i / 4) as f32);
         let t = i as f64 / 30.0;
         gt.push(t, Affine3A::from_translation(p));
-        est.push(
-            t,
-            world * Affine3A::from_translation(p + Vec3::Z * 0.01 * corner.0 * corner.1),
-        );
+        est.push(t, world * Affine3A::from_translation(p + Vec3::Z * 0.01 * corner.0 * corner.1));
     }
     let (gt_path, est_path) = (dir.path().join("gt.txt"), dir.path().join("est.txt"));
     gt.write_tum(&gt_path).expect("write");
     est.write_tum(&est_path).expect("write");
     let json_path = dir.path().join("traj.json");
-    let out = semrecon(&[
-        "eval",
-        "traj",
-        "--gt",
-        s(&gt_path),
-        "--est",
-        s(&est_path),
-        "--json",
-        "--out",
-        s(&json_path),
-    ]);
+    let out = semrecon(&["eval", "traj", "--gt", s(&gt_path), "--est", s(&est_path), "--json", "--out", s(&json_path)]);
     let r = stdout_json(&out);
     assert_eq!(r["pairs"], 60);
     for key in ["ate_rmse_m", "ate_mean_m", "ate_median_m"] {
-        assert!(
-            (r[key].as_f64().expect("number") - 0.01).abs() < 1e-5,
-            "{key}: {r}"
-        );
+        assert!((r[key].as_f64().expect("number") - 0.01).abs() < 1e-5, "{key}: {r}");
     }
-    assert!(
-        r["rpe_trans_m_per_s"].is_number() && r["rpe_rot_deg_per_s"].is_number(),
-        "{r}"
-    );
+    assert!(r["rpe_trans_m_per_s"].is_number() && r["rpe_rot_deg_per_s"].is_number(), "{r}");
     assert_eq!(r["rpe_pairs"], 30);
     let written: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json_path).expect("file")).expect("JSON");
@@ -257,18 +157,12 @@ fn eval_traj_reports_known_errors() {
 
     let garbage = dir.path().join("garbage.txt");
     std::fs::write(&garbage, "0 1 2\n").expect("write");
-    assert_clean_failure(
-        &semrecon(&["eval", "traj", "--gt", s(&gt_path), "--est", s(&garbage)]),
-        "garbage.txt:1",
-    );
+    assert_clean_failure(&semrecon(&["eval", "traj", "--gt", s(&gt_path), "--est", s(&garbage)]), "garbage.txt:1");
     let shifted = dir.path().join("shifted.txt");
     let mut late = est.clone();
     late.timestamps.iter_mut().for_each(|t| *t += 100.0);
     late.write_tum(&shifted).expect("write");
-    assert_clean_failure(
-        &semrecon(&["eval", "traj", "--gt", s(&gt_path), "--est", s(&shifted)]),
-        "only 0 of 60",
-    );
+    assert_clean_failure(&semrecon(&["eval", "traj", "--gt", s(&gt_path), "--est", s(&shifted)]), "only 0 of 60");
 }
 
 /// An `n` x `n`-cell square of side 0.5 m at height `z`.
@@ -276,11 +170,7 @@ fn plane(n: u32, z: f32) -> LabeledMesh {
     let mut m = LabeledMesh::default();
     for j in 0..=n {
         for i in 0..=n {
-            m.positions.push(Vec3::new(
-                0.5 * i as f32 / n as f32,
-                0.5 * j as f32 / n as f32,
-                z,
-            ));
+            m.positions.push(Vec3::new(0.5 * i as f32 / n as f32, 0.5 * j as f32 / n as f32, z));
             m.colors.push([128; 3]);
         }
     }
@@ -300,35 +190,13 @@ fn eval_mesh_reports_known_errors() {
     let (gt_path, est_path) = (dir.path().join("gt.ply"), dir.path().join("est.ply"));
     write_ply(&gt_path, &plane(5, 0.0), PlyEncoding::BinaryLittleEndian).expect("write");
     write_ply(&est_path, &plane(7, 0.015), PlyEncoding::Ascii).expect("write");
-    let out = semrecon(&[
-        "eval",
-        "mesh",
-        "--gt",
-        s(&gt_path),
-        "--est",
-        s(&est_path),
-        "--json",
-        "--spacing",
-        "0.005",
-    ]);
+    let out = semrecon(&["eval", "mesh", "--gt", s(&gt_path), "--est", s(&est_path), "--json", "--spacing", "0.005"]);
     let r = stdout_json(&out);
-    for key in [
-        "accuracy_mean_m",
-        "accuracy_median_m",
-        "completeness_mean_m",
-        "completeness_median_m",
-    ] {
-        assert!(
-            (r[key].as_f64().expect("number") - 0.015).abs() < 1e-5,
-            "{key}: {r}"
-        );
+    for key in ["accuracy_mean_m", "accuracy_median_m", "completeness_mean_m", "completeness_median_m"] {
+        assert!((r[key].as_f64().expect("number") - 0.015).abs() < 1e-5, "{key}: {r}");
     }
     assert_eq!(
-        (
-            r["fscore_1cm"].as_f64(),
-            r["fscore_2cm"].as_f64(),
-            r["fscore_5cm"].as_f64()
-        ),
+        (r["fscore_1cm"].as_f64(), r["fscore_2cm"].as_f64(), r["fscore_5cm"].as_f64()),
         (Some(0.0), Some(1.0), Some(1.0))
     );
     assert_eq!(r["precision_2cm"], 1.0);
@@ -338,14 +206,8 @@ fn eval_mesh_reports_known_errors() {
     assert!(String::from_utf8_lossy(&table.stdout).contains("completeness"));
 
     let missing = dir.path().join("missing.ply");
-    assert_clean_failure(
-        &semrecon(&["eval", "mesh", "--gt", s(&gt_path), "--est", s(&missing)]),
-        "missing.ply",
-    );
+    assert_clean_failure(&semrecon(&["eval", "mesh", "--gt", s(&gt_path), "--est", s(&missing)]), "missing.ply");
     let empty = dir.path().join("empty.ply");
     write_ply(&empty, &LabeledMesh::default(), PlyEncoding::Ascii).expect("write");
-    assert_clean_failure(
-        &semrecon(&["eval", "mesh", "--gt", s(&gt_path), "--est", s(&empty)]),
-        "no vertices",
-    );
+    assert_clean_failure(&semrecon(&["eval", "mesh", "--gt", s(&gt_path), "--est", s(&empty)]), "no vertices");
 }

@@ -35,11 +35,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let row = y * width;
             pixels[row + x] = frame.color[i];
             pixels[row + w + gap + x] = depth_color(frame.depth[i]);
-            pixels[row + 2 * (w + gap) + x] = frame
-                .labels
-                .as_ref()
-                .and_then(|l| SemanticClass::from_id(l[i]))
-                .map_or([0, 0, 0], |c| c.color());
+            pixels[row + 2 * (w + gap) + x] =
+                frame.labels.as_ref().and_then(|l| SemanticClass::from_id(l[i])).map_or([0, 0, 0], |c| c.color());
         }
     }
     write_color_png(std::path::Path::new(out), width as u32, h as u32, &pixels)?;

@@ -65,10 +65,7 @@ impl Intrinsics {
     /// meaningless for `p_camera.z <= 0`).
     #[inline]
     pub fn project(&self, p_camera: Vec3) -> Vec2 {
-        Vec2::new(
-            self.fx * p_camera.x / p_camera.z + self.cx,
-            self.fy * p_camera.y / p_camera.z + self.cy,
-        )
+        Vec2::new(self.fx * p_camera.x / p_camera.z + self.cx, self.fy * p_camera.y / p_camera.z + self.cy)
     }
 
     /// Back-projects pixel `(u, v)` at depth `z` (metres along the optical axis) into the

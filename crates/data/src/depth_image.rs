@@ -12,9 +12,9 @@ use std::path::Path;
 use image::{DynamicImage, ImageFormat};
 use rayon::prelude::*;
 
+use crate::atomic_file::write_atomic;
 use crate::camera::Intrinsics;
 use crate::error::{DataError, Result};
-use crate::atomic_file::write_atomic;
 
 /// A depth image in metres (0 = no measurement).
 ///
@@ -95,10 +95,8 @@ pub fn load_depth(path: impl AsRef<Path>, units_per_metre: f32, invalid: &[u16])
             }
         }
     }
-    let depth = values
-        .iter()
-        .map(|&v| if v == 0 || invalid.contains(&v) { 0.0 } else { v as f32 / units_per_metre })
-        .collect();
+    let depth =
+        values.iter().map(|&v| if v == 0 || invalid.contains(&v) { 0.0 } else { v as f32 / units_per_metre }).collect();
     Ok(DepthImage { width, height, depth })
 }
 
@@ -157,11 +155,7 @@ pub fn check_size(path: impl AsRef<Path>, width: u32, height: u32, expected: &In
 ///
 /// # Shapes
 /// Returns `depth.width * depth.height` pixels, row-major.
-pub fn register_color(
-    color: &ColorImage,
-    depth: &Intrinsics,
-    color_intrinsics: Option<&Intrinsics>,
-) -> Vec<[u8; 3]> {
+pub fn register_color(color: &ColorImage, depth: &Intrinsics, color_intrinsics: Option<&Intrinsics>) -> Vec<[u8; 3]> {
     if color_intrinsics.is_none() && color.width == depth.width && color.height == depth.height {
         return color.pixels.clone();
     }
@@ -276,16 +270,14 @@ fn write_png(path: &Path, image: DynamicImage) -> Result<()> {
 
 /// Decodes an image by its content (not its extension), naming the file on failure.
 fn decode(path: &Path, bytes: &[u8]) -> Result<(DynamicImage, Option<ImageFormat>)> {
-    let reader = image::ImageReader::new(Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|e| DataError::io(path, e))?;
+    let reader =
+        image::ImageReader::new(Cursor::new(bytes)).with_guessed_format().map_err(|e| DataError::io(path, e))?;
     let format = reader.format();
     if format.is_none() {
         return Err(DataError::image(path, "not an image in a supported format (PNG, JPEG, PNM)"));
     }
-    let image = reader
-        .decode()
-        .map_err(|e| DataError::image(path, format!("cannot decode {}: {e}", format_name(format))))?;
+    let image =
+        reader.decode().map_err(|e| DataError::image(path, format!("cannot decode {}: {e}", format_name(format))))?;
     Ok((image, format))
 }
 

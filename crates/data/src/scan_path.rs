@@ -198,7 +198,8 @@ impl ScanPlan {
             let dir = (gaze_target_at(&targets, t) - eye[i]).try_normalize().unwrap_or(heading[i].extend(0.0));
             // Level or down far more than up, as people scan (see `gaze_targets`), also while
             // walking up to a high target.
-            let want = Vec2::new(dir.y.atan2(dir.x), dir.z.clamp(-1.0, 1.0).asin().clamp(-MAX_PITCH_DOWN, MAX_PITCH_UP));
+            let want =
+                Vec2::new(dir.y.atan2(dir.x), dir.z.clamp(-1.0, 1.0).asin().clamp(-MAX_PITCH_DOWN, MAX_PITCH_UP));
             let next = match yaw_pitch.last() {
                 None => want,
                 Some(&prev) => {

@@ -81,8 +81,7 @@ impl Trajectory {
             }
             let q = (q / largest).normalize();
             let t = DVec3::new(values[1], values[2], values[3]);
-            let pose = affine_from_f64(DMat3::from_quat(q), t)
-                .map_err(|m| DataError::parse(path, Some(line_no), m))?;
+            let pose = affine_from_f64(DMat3::from_quat(q), t).map_err(|m| DataError::parse(path, Some(line_no), m))?;
             out.push(values[0], pose);
         }
         Ok(out)
@@ -167,8 +166,7 @@ impl Trajectory {
                 }
                 row.copy_from_slice(&values);
             }
-            let pose =
-                rigid_from_rows(&rows).map_err(|m| DataError::parse(path, Some(header_line + 1), m))?;
+            let pose = rigid_from_rows(&rows).map_err(|m| DataError::parse(path, Some(header_line + 1), m))?;
             out.push(ids[0], pose);
         }
         Ok(out)
@@ -372,9 +370,7 @@ fn data_lines(text: &str) -> Vec<(usize, Vec<&str>)> {
 fn parse_numbers(fields: &[&str], path: &Path, line: usize) -> Result<Vec<f64>> {
     fields
         .iter()
-        .map(|f| {
-            f.parse::<f64>().map_err(|_| DataError::parse(path, Some(line), format!("`{f}` is not a number")))
-        })
+        .map(|f| f.parse::<f64>().map_err(|_| DataError::parse(path, Some(line), format!("`{f}` is not a number"))))
         .collect()
 }
 
@@ -533,10 +529,7 @@ mod tests {
     #[test]
     fn log_round_trip_and_errors() {
         let mut t = Trajectory::default();
-        t.push(
-            0.0,
-            Affine3A::from_rotation_translation(Quat::from_rotation_y(0.3), glam::Vec3::new(1.0, 2.0, 3.0)),
-        );
+        t.push(0.0, Affine3A::from_rotation_translation(Quat::from_rotation_y(0.3), glam::Vec3::new(1.0, 2.0, 3.0)));
         t.push(1.0, Affine3A::IDENTITY);
         let back = Trajectory::parse_log(&t.to_log_string(), p()).expect("round trip");
         assert_eq!(back.timestamps, t.timestamps);
@@ -545,8 +538,7 @@ mod tests {
         }
         let e = Trajectory::parse_log("0 0 1\n1 0 0 0\n0 1 0 0\n", p()).expect_err("truncated");
         assert!(e.to_string().contains("truncated"), "{e}");
-        let e =
-            Trajectory::parse_log("0 0 1\n2 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", p()).expect_err("scaled");
+        let e = Trajectory::parse_log("0 0 1\n2 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", p()).expect_err("scaled");
         assert!(e.to_string().contains("determinant"), "{e}");
     }
 
@@ -571,9 +563,8 @@ mod tests {
 
     #[test]
     fn slightly_off_rotations_are_orthonormalised() {
-        let m = parse_pose_matrix("1.001 0.002 0 0\n-0.002 0.999 0 0\n0 0 1.0005 0\n", p())
-            .expect("valid")
-            .expect("pose");
+        let m =
+            parse_pose_matrix("1.001 0.002 0 0\n-0.002 0.999 0 0\n0 0 1.0005 0\n", p()).expect("valid").expect("pose");
         let r = m.matrix3;
         let gram = r * r.transpose() - Mat3A::IDENTITY;
         assert!(gram.to_cols_array().iter().all(|v| v.abs() < 1e-6), "{gram:?}");

@@ -160,8 +160,7 @@ fn replica_office0_from_sequence_or_parent() {
 #[test]
 fn sixteen_bit_pgm_depth() {
     let Some(dir) = sample("formats") else { return };
-    let d = semrecon_data::depth_image::load_depth(dir.join("kinect-slambook/depth/1.pgm"), 1000.0, &[])
-        .expect("pgm");
+    let d = semrecon_data::depth_image::load_depth(dir.join("kinect-slambook/depth/1.pgm"), 1000.0, &[]).expect("pgm");
     assert_eq!((d.width, d.height), (640, 480));
     let valid: Vec<f32> = d.depth.iter().copied().filter(|v| *v > 0.0).collect();
     let max = valid.iter().copied().fold(0.0f32, f32::max);
@@ -193,15 +192,7 @@ fn synthetic_frame(index: usize, k: Intrinsics) -> Frame {
         Quat::from_rotation_y(0.1 * index as f32),
         Vec3::new(index as f32, 0.5, 1.5),
     );
-    Frame {
-        index,
-        timestamp: index as f64 / 30.0,
-        depth,
-        color,
-        intrinsics: k,
-        world_from_camera: Some(pose),
-        labels,
-    }
+    Frame { index, timestamp: index as f64 / 30.0, depth, color, intrinsics: k, world_from_camera: Some(pose), labels }
 }
 
 #[test]
@@ -346,10 +337,7 @@ fn scannet_fixture_registers_colour_and_handles_lost_poses() {
         let uc = 60.0 * (u as f32 - 19.5) / 36.0 + 40.0;
         let vc = 60.0 * (v as f32 - 14.5) / 36.0 + 30.0;
         let px = f0.color[v * 40 + u];
-        assert!(
-            (px[0] as f32 - uc).abs() <= 0.51 && (px[1] as f32 - vc).abs() <= 0.51,
-            "{u},{v}: {px:?} vs {uc},{vc}"
-        );
+        assert!((px[0] as f32 - uc).abs() <= 0.51 && (px[1] as f32 - vc).abs() <= 0.51, "{u},{v}: {px:?} vs {uc},{vc}");
         assert_eq!(px[2], 200);
     }
 }

@@ -18,9 +18,7 @@ pub mod trajectory_metrics;
 
 pub use error::{EvalError, Result};
 pub use mesh_metrics::{
-    closest_point_on_triangle, evaluate_mesh, sample_surface, MeshErrors, MeshEvalConfig,
-    SurfaceIndex, SurfaceSamples, ThresholdScores,
+    closest_point_on_triangle, evaluate_mesh, sample_surface, MeshErrors, MeshEvalConfig, SurfaceIndex, SurfaceSamples,
+    ThresholdScores,
 };
-pub use trajectory_metrics::{
-    align_rigid, evaluate_trajectory, TrajectoryErrors, TrajectoryEvalConfig,
-};
+pub use trajectory_metrics::{align_rigid, evaluate_trajectory, TrajectoryErrors, TrajectoryEvalConfig};

@@ -106,22 +106,13 @@ pub struct SurfaceSamples {
 /// Deterministic for any thread count: the per-triangle counts come from systematic
 /// sampling of the cumulative area (one seeded offset) and each triangle draws its points
 /// from its own ChaCha stream.
-pub fn sample_surface(
-    mesh: &LabeledMesh,
-    spacing: f32,
-    max_samples: usize,
-    seed: u64,
-) -> Result<SurfaceSamples> {
-    if !(spacing > 0.0 && spacing.is_finite())
-        || max_samples == 0
-        || max_samples > u32::MAX as usize
-    {
+pub fn sample_surface(mesh: &LabeledMesh, spacing: f32, max_samples: usize, seed: u64) -> Result<SurfaceSamples> {
+    if !(spacing > 0.0 && spacing.is_finite()) || max_samples == 0 || max_samples > u32::MAX as usize {
         return Err(EvalError::InvalidArgument(format!(
             "sample spacing must be positive and the sample cap between 1 and 2^32-1 (got {spacing} m, {max_samples})"
         )));
     }
-    let corners =
-        |t: &[u32; 3]| t.map(|i| mesh.positions.get(i as usize).copied().unwrap_or(Vec3::NAN));
+    let corners = |t: &[u32; 3]| t.map(|i| mesh.positions.get(i as usize).copied().unwrap_or(Vec3::NAN));
     let areas: Vec<f64> = mesh
         .triangles
         .iter()
@@ -139,9 +130,7 @@ pub fn sample_surface(
     if total <= 0.0 {
         return Ok(SurfaceSamples::default());
     }
-    let wanted = (total / f64::from(spacing).powi(2))
-        .round()
-        .clamp(1.0, max_samples as f64);
+    let wanted = (total / f64::from(spacing).powi(2)).round().clamp(1.0, max_samples as f64);
     let per_area = wanted / total;
     let offset: f64 = ChaCha8Rng::seed_from_u64(seed).random();
     let mut counts = Vec::with_capacity(areas.len());
@@ -174,8 +163,7 @@ pub fn sample_surface(
         .collect();
     let mut out = SurfaceSamples::default();
     for (i, points) in per_triangle.into_iter().enumerate() {
-        out.triangles
-            .extend(std::iter::repeat_n(i as u32, points.len()));
+        out.triangles.extend(std::iter::repeat_n(i as u32, points.len()));
         out.points.extend(points);
     }
     Ok(out)
@@ -269,35 +257,22 @@ struct SampleTree {
 
 impl SampleTree {
     fn new(points: &[Vec3], triangle_of: Vec<u32>, which: &'static str) -> Result<Self> {
-        let points: Vec<[f32; 3]> = points
-            .iter()
-            .filter(|p| p.is_finite())
-            .map(|p| p.to_array())
-            .collect();
+        let points: Vec<[f32; 3]> = points.iter().filter(|p| p.is_finite()).map(|p| p.to_array()).collect();
         if points.is_empty() {
             return Err(EvalError::EmptyMesh(which));
         }
-        let tree = ImmutableKdTree::<f32, 3>::new_from_slice(&points).map_err(|e| {
-            EvalError::InvalidArgument(format!("cannot index the {which} surface: {e}"))
-        })?;
+        let tree = ImmutableKdTree::<f32, 3>::new_from_slice(&points)
+            .map_err(|e| EvalError::InvalidArgument(format!("cannot index the {which} surface: {e}")))?;
         Ok(Self { tree, triangle_of })
     }
 
     fn distance(&self, mesh: &LabeledMesh, p: Vec3, candidates: NonZeroUsize) -> f32 {
         let q = p.to_array();
         if self.triangle_of.is_empty() {
-            let nearest = self
-                .tree
-                .query(&q)
-                .nearest_one::<SquaredEuclidean<f32>>()
-                .execute();
+            let nearest = self.tree.query(&q).nearest_one::<SquaredEuclidean<f32>>().execute();
             return nearest.distance.sqrt();
         }
-        let found = self
-            .tree
-            .query(&q)
-            .nearest_n::<SquaredEuclidean<f32>>(candidates)
-            .execute();
+        let found = self.tree.query(&q).nearest_n::<SquaredEuclidean<f32>>(candidates).execute();
         let mut best = f32::INFINITY;
         let mut seen: Vec<u32> = Vec::with_capacity(found.len());
         for item in &found {
@@ -319,59 +294,27 @@ impl<'a> SurfaceIndex<'a> {
     /// Indexes `mesh`: its triangles sampled at `config`'s spacing, or its vertices when it
     /// has no triangle area. Fails for a mesh without vertices; `which` names the mesh in
     /// that error.
-    pub fn new(
-        mesh: &'a LabeledMesh,
-        config: &MeshEvalConfig,
-        which: &'static str,
-    ) -> Result<Self> {
-        mesh.validate().map_err(|m| {
-            EvalError::InvalidArgument(format!("the {which} mesh is inconsistent: {m}"))
-        })?;
-        let samples = sample_surface(
-            mesh,
-            config.sample_spacing_m,
-            config.max_samples,
-            config.seed,
-        )?;
+    pub fn new(mesh: &'a LabeledMesh, config: &MeshEvalConfig, which: &'static str) -> Result<Self> {
+        mesh.validate().map_err(|m| EvalError::InvalidArgument(format!("the {which} mesh is inconsistent: {m}")))?;
+        let samples = sample_surface(mesh, config.sample_spacing_m, config.max_samples, config.seed)?;
         let candidates = NonZeroUsize::new(config.candidates.max(1)).unwrap_or(NonZeroUsize::MIN);
         let largest_threshold = config.thresholds_m.iter().fold(0.0f32, |m, t| m.max(*t));
         if samples.points.is_empty() {
             let fine = SampleTree::new(&mesh.positions, Vec::new(), which)?;
-            return Ok(Self {
-                mesh,
-                fine,
-                coarse: None,
-                far_m: f32::INFINITY,
-                candidates,
-            });
+            return Ok(Self { mesh, fine, coarse: None, far_m: f32::INFINITY, candidates });
         }
         let fine_count = samples.points.len();
         let fine = SampleTree::new(&samples.points, samples.triangles, which)?;
         let (coarse, far_m) = if fine_count > COARSE_SAMPLES {
-            let coarse = sample_surface(
-                mesh,
-                config.sample_spacing_m,
-                COARSE_SAMPLES,
-                config.seed ^ 0x5eed,
-            )?;
+            let coarse = sample_surface(mesh, config.sample_spacing_m, COARSE_SAMPLES, config.seed ^ 0x5eed)?;
             // Mean spacing of the coarse samples: the total area is fine_count spacings².
-            let spacing = config.sample_spacing_m
-                * (fine_count as f32 / coarse.points.len().max(1) as f32).sqrt();
+            let spacing = config.sample_spacing_m * (fine_count as f32 / coarse.points.len().max(1) as f32).sqrt();
             let far = (4.0 * largest_threshold).max(20.0 * spacing).max(0.1);
-            (
-                Some(SampleTree::new(&coarse.points, coarse.triangles, which)?),
-                far,
-            )
+            (Some(SampleTree::new(&coarse.points, coarse.triangles, which)?), far)
         } else {
             (None, f32::INFINITY)
         };
-        Ok(Self {
-            mesh,
-            fine,
-            coarse,
-            far_m,
-            candidates,
-        })
+        Ok(Self { mesh, fine, coarse, far_m, candidates })
     }
 
     /// Distance beyond which queries are answered from the coarse samples, metres
@@ -398,31 +341,16 @@ impl<'a> SurfaceIndex<'a> {
 }
 
 /// Accuracy, completeness and F-scores of `est` against `gt` (see the module documentation).
-pub fn evaluate_mesh(
-    gt: &LabeledMesh,
-    est: &LabeledMesh,
-    config: &MeshEvalConfig,
-) -> Result<MeshErrors> {
-    if let Some(t) = config
-        .thresholds_m
-        .iter()
-        .find(|t| !(**t > 0.0 && t.is_finite()))
-    {
-        return Err(EvalError::InvalidArgument(format!(
-            "thresholds must be positive distances, got {t}"
-        )));
+pub fn evaluate_mesh(gt: &LabeledMesh, est: &LabeledMesh, config: &MeshEvalConfig) -> Result<MeshErrors> {
+    if let Some(t) = config.thresholds_m.iter().find(|t| !(**t > 0.0 && t.is_finite())) {
+        return Err(EvalError::InvalidArgument(format!("thresholds must be positive distances, got {t}")));
     }
     let gt_index = SurfaceIndex::new(gt, config, "ground-truth")?;
     let est_index = SurfaceIndex::new(est, config, "estimated")?;
 
     let accuracy = gt_index.distances(&est.positions);
-    let mut gt_points = sample_surface(
-        gt,
-        config.sample_spacing_m,
-        config.max_samples,
-        config.seed ^ 0x9e37_79b9,
-    )?
-    .points;
+    let mut gt_points =
+        sample_surface(gt, config.sample_spacing_m, config.max_samples, config.seed ^ 0x9e37_79b9)?.points;
     if gt_points.is_empty() {
         gt_points = gt.positions.clone();
     }
@@ -431,8 +359,7 @@ pub fn evaluate_mesh(
     let as_f64 = |v: &[f32]| v.iter().map(|&d| f64::from(d)).collect::<Vec<f64>>();
     let (_, accuracy_mean_m, accuracy_median_m, _) = summary(&as_f64(&accuracy));
     let (_, completeness_mean_m, completeness_median_m, _) = summary(&as_f64(&completeness));
-    let fraction_below =
-        |v: &[f32], t: f32| v.iter().filter(|&&d| d < t).count() as f64 / v.len() as f64;
+    let fraction_below = |v: &[f32], t: f32| v.iter().filter(|&&d| d < t).count() as f64 / v.len() as f64;
     let scores = config
         .thresholds_m
         .iter()
@@ -440,17 +367,8 @@ pub fn evaluate_mesh(
             let precision = fraction_below(&accuracy, t);
             let recall = fraction_below(&completeness, t);
             let sum = precision + recall;
-            let fscore = if sum > 0.0 {
-                2.0 * precision * recall / sum
-            } else {
-                0.0
-            };
-            ThresholdScores {
-                threshold_m: t,
-                precision,
-                recall,
-                fscore,
-            }
+            let fscore = if sum > 0.0 { 2.0 * precision * recall / sum } else { 0.0 };
+            ThresholdScores { threshold_m: t, precision, recall, fscore }
         })
         .collect();
     Ok(MeshErrors {
@@ -474,11 +392,7 @@ mod tests {
         let mut m = LabeledMesh::default();
         for j in 0..=n {
             for i in 0..=n {
-                m.positions.push(Vec3::new(
-                    side * i as f32 / n as f32,
-                    side * j as f32 / n as f32,
-                    z,
-                ));
+                m.positions.push(Vec3::new(side * i as f32 / n as f32, side * j as f32 / n as f32, z));
                 m.colors.push([200; 3]);
             }
         }
@@ -504,18 +418,10 @@ mod tests {
 
     #[test]
     fn closest_point_matches_dense_sampling_reference() {
-        let (a, b, c) = (
-            Vec3::new(0.0, 0.0, 0.0),
-            Vec3::new(1.0, 0.2, 0.1),
-            Vec3::new(0.3, 0.9, -0.2),
-        );
+        let (a, b, c) = (Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 0.2, 0.1), Vec3::new(0.3, 0.9, -0.2));
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         for _ in 0..200 {
-            let p = Vec3::new(
-                rng.random_range(-1.0..2.0),
-                rng.random_range(-1.0..2.0),
-                rng.random_range(-1.0..1.0),
-            );
+            let p = Vec3::new(rng.random_range(-1.0..2.0), rng.random_range(-1.0..2.0), rng.random_range(-1.0..1.0));
             let q = closest_point_on_triangle(p, a, b, c);
             // The plain reference: the nearest of a dense barycentric grid.
             let n = 300;
@@ -552,23 +458,14 @@ mod tests {
         }
         let (lo, hi) = (counts.iter().min().copied(), counts.iter().max().copied());
         assert!(hi.unwrap_or(0) - lo.unwrap_or(0) <= 1, "{counts:?}");
-        assert!(s
-            .points
-            .iter()
-            .all(|p| p.x >= -1e-6 && p.x <= 1.0 + 1e-6 && p.z == 0.0));
+        assert!(s.points.iter().all(|p| p.x >= -1e-6 && p.x <= 1.0 + 1e-6 && p.z == 0.0));
         let again = rayon::ThreadPoolBuilder::new()
             .num_threads(1)
             .build()
             .expect("pool")
             .install(|| sample_surface(&m, 0.01, 1_000_000, 3));
         assert_eq!(again.expect("samples"), s);
-        assert_eq!(
-            sample_surface(&m, 0.001, 5000, 3)
-                .expect("samples")
-                .points
-                .len(),
-            5000
-        );
+        assert_eq!(sample_surface(&m, 0.001, 5000, 3).expect("samples").points.len(), 5000);
         assert!(sample_surface(&m, 0.0, 10, 3).is_err());
     }
 
@@ -576,19 +473,9 @@ mod tests {
     fn shifted_plane_has_known_accuracy_and_scores() {
         let gt = square(1.0, 8, 0.0);
         let est = square(1.0, 10, 0.015);
-        let e = evaluate_mesh(
-            &gt,
-            &est,
-            &MeshEvalConfig {
-                sample_spacing_m: 0.01,
-                ..Default::default()
-            },
-        )
-        .expect("evaluates");
-        assert!(
-            (e.accuracy_mean_m - 0.015).abs() < 1e-6 && (e.accuracy_median_m - 0.015).abs() < 1e-6,
-            "{e:?}"
-        );
+        let e = evaluate_mesh(&gt, &est, &MeshEvalConfig { sample_spacing_m: 0.01, ..Default::default() })
+            .expect("evaluates");
+        assert!((e.accuracy_mean_m - 0.015).abs() < 1e-6 && (e.accuracy_median_m - 0.015).abs() < 1e-6, "{e:?}");
         assert!((e.completeness_median_m - 0.015).abs() < 1e-6, "{e:?}");
         let f: Vec<f64> = e.scores.iter().map(|s| s.fscore).collect();
         assert_eq!(f, vec![0.0, 1.0, 1.0]);
@@ -600,21 +487,11 @@ mod tests {
         // The left half of the square, exactly on the surface.
         let mut est = square(0.5, 5, 0.0);
         est.positions.iter_mut().for_each(|p| p.y *= 2.0);
-        let e = evaluate_mesh(
-            &gt,
-            &est,
-            &MeshEvalConfig {
-                sample_spacing_m: 0.005,
-                ..Default::default()
-            },
-        )
-        .expect("evaluates");
+        let e = evaluate_mesh(&gt, &est, &MeshEvalConfig { sample_spacing_m: 0.005, ..Default::default() })
+            .expect("evaluates");
         assert!(e.accuracy_mean_m < 1e-6, "{e:?}");
         let s = &e.scores[0];
-        assert!(
-            s.precision == 1.0 && (s.recall - 0.51).abs() < 0.02,
-            "{s:?}"
-        );
+        assert!(s.precision == 1.0 && (s.recall - 0.51).abs() < 0.02, "{s:?}");
         assert!((s.fscore - 2.0 * s.recall / (1.0 + s.recall)).abs() < 1e-12);
     }
 
@@ -628,11 +505,7 @@ mod tests {
         let index = SurfaceIndex::new(&gt, &MeshEvalConfig::default(), "test").expect("indexes");
         let mut rng = ChaCha8Rng::seed_from_u64(9);
         for _ in 0..300 {
-            let p = Vec3::new(
-                rng.random_range(0.0..0.4),
-                rng.random_range(0.0..0.4),
-                rng.random_range(-0.03..0.03),
-            );
+            let p = Vec3::new(rng.random_range(0.0..0.4), rng.random_range(0.0..0.4), rng.random_range(-0.03..0.03));
             let (fast, slow) = (index.distance(p), brute_force_distance(&gt, p));
             assert!((fast - slow).abs() < 1e-4, "{p}: {fast} vs {slow}");
         }
@@ -644,11 +517,7 @@ mod tests {
         let gt = square(1.0, 20, 0.0);
         let index = SurfaceIndex::new(&gt, &MeshEvalConfig::default(), "test").expect("indexes");
         assert!(index.far_m().is_finite());
-        for p in [
-            Vec3::new(0.3, 0.7, 2.0),
-            Vec3::new(-1.0, 2.0, 0.5),
-            Vec3::new(0.5, 0.5, 0.01),
-        ] {
+        for p in [Vec3::new(0.3, 0.7, 2.0), Vec3::new(-1.0, 2.0, 0.5), Vec3::new(0.5, 0.5, 0.01)] {
             let (fast, slow) = (index.distance(p), brute_force_distance(&gt, p));
             assert!((fast - slow).abs() < 1e-4, "{p}: {fast} vs {slow}");
         }
@@ -662,21 +531,10 @@ mod tests {
             colors: vec![[0; 3]; 2],
             ..Default::default()
         };
-        let e = evaluate_mesh(
-            &gt,
-            &cloud,
-            &MeshEvalConfig {
-                sample_spacing_m: 0.02,
-                ..Default::default()
-            },
-        )
-        .expect("evaluates");
+        let e = evaluate_mesh(&gt, &cloud, &MeshEvalConfig { sample_spacing_m: 0.02, ..Default::default() })
+            .expect("evaluates");
         assert!((e.accuracy_mean_m - 0.002).abs() < 1e-6, "{e:?}");
-        let err = evaluate_mesh(&gt, &LabeledMesh::default(), &MeshEvalConfig::default())
-            .expect_err("empty");
-        assert!(
-            err.to_string().contains("estimated mesh has no vertices"),
-            "{err}"
-        );
+        let err = evaluate_mesh(&gt, &LabeledMesh::default(), &MeshEvalConfig::default()).expect_err("empty");
+        assert!(err.to_string().contains("estimated mesh has no vertices"), "{err}");
     }
 }

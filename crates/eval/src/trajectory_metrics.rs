@@ -34,10 +34,7 @@ pub struct TrajectoryEvalConfig {
 
 impl Default for TrajectoryEvalConfig {
     fn default() -> Self {
-        Self {
-            max_time_difference_s: 0.02,
-            rpe_delta_s: 1.0,
-        }
+        Self { max_time_difference_s: 0.02, rpe_delta_s: 1.0 }
     }
 }
 
@@ -97,9 +94,7 @@ pub fn align_rigid(gt: &[DVec3], est: &[DVec3]) -> Result<DAffine3> {
     cov /= n;
     let svd = cov.svd(true, true);
     let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
-        return Err(EvalError::InvalidArgument(
-            "the SVD of the alignment did not converge".into(),
-        ));
+        return Err(EvalError::InvalidArgument("the SVD of the alignment did not converge".into()));
     };
     let mut s = Matrix3::<f64>::identity();
     if u.determinant() * v_t.determinant() < 0.0 {
@@ -137,24 +132,12 @@ pub fn evaluate_trajectory(
             config.rpe_delta_s
         )));
     }
-    let matches = associate(
-        &est.timestamps,
-        &gt.timestamps,
-        config.max_time_difference_s,
-    );
+    let matches = associate(&est.timestamps, &gt.timestamps, config.max_time_difference_s);
     // (time, gt pose, est pose), sorted by time so that RPE can look `delta` ahead.
     let mut pairs: Vec<(f64, DAffine3, DAffine3)> = matches
         .iter()
         .enumerate()
-        .filter_map(|(e, g)| {
-            g.map(|g| {
-                (
-                    gt.timestamps[g],
-                    to_f64(&gt.poses[g]),
-                    to_f64(&est.poses[e]),
-                )
-            })
-        })
+        .filter_map(|(e, g)| g.map(|g| (gt.timestamps[g], to_f64(&gt.poses[g]), to_f64(&est.poses[e]))))
         .collect();
     pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
     const NEEDED: usize = 3;
@@ -178,8 +161,7 @@ pub fn evaluate_trajectory(
     let (ate_rmse_m, ate_mean_m, ate_median_m, ate_max_m) = summary(&ate);
 
     let (trans, rot) = relative_errors(&pairs, config.rpe_delta_s);
-    let per_second =
-        |errors: &[f64]| (!errors.is_empty()).then(|| rms(errors) / config.rpe_delta_s);
+    let per_second = |errors: &[f64]| (!errors.is_empty()).then(|| rms(errors) / config.rpe_delta_s);
     let m = gt_from_est.matrix3;
     let t = gt_from_est.translation;
     Ok(TrajectoryErrors {
@@ -221,11 +203,7 @@ fn relative_errors(pairs: &[(f64, DAffine3, DAffine3)], delta: f64) -> (Vec<f64>
             .into_iter()
             .flatten()
             .filter(|&j| j > i && j < pairs.len())
-            .min_by(|&a, &b| {
-                (pairs[a].0 - target)
-                    .abs()
-                    .total_cmp(&(pairs[b].0 - target).abs())
-            });
+            .min_by(|&a, &b| (pairs[a].0 - target).abs().total_cmp(&(pairs[b].0 - target).abs()));
         let Some(j) = nearest.filter(|&j| (pairs[j].0 - target).abs() <= tolerance) else {
             continue;
         };
@@ -243,22 +221,14 @@ fn relative_errors(pairs: &[(f64, DAffine3, DAffine3)], delta: f64) -> (Vec<f64>
 /// and cosine parts rather than acos of the trace).
 fn rotation_angle(r: DMat3) -> f64 {
     let cos = (r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0) / 2.0;
-    let axis = DVec3::new(
-        r.y_axis.z - r.z_axis.y,
-        r.z_axis.x - r.x_axis.z,
-        r.x_axis.y - r.y_axis.x,
-    );
+    let axis = DVec3::new(r.y_axis.z - r.z_axis.y, r.z_axis.x - r.x_axis.z, r.x_axis.y - r.y_axis.x);
     (axis.length() / 2.0).atan2(cos)
 }
 
 fn to_f64(pose: &Affine3A) -> DAffine3 {
     let m = pose.matrix3;
     DAffine3::from_mat3_translation(
-        DMat3::from_cols(
-            m.x_axis.as_dvec3(),
-            m.y_axis.as_dvec3(),
-            m.z_axis.as_dvec3(),
-        ),
+        DMat3::from_cols(m.x_axis.as_dvec3(), m.y_axis.as_dvec3(), m.z_axis.as_dvec3()),
         pose.translation.as_dvec3(),
     )
 }
@@ -273,11 +243,7 @@ pub(crate) fn summary(values: &[f64]) -> (f64, f64, f64, f64) {
     let mut sorted = values.to_vec();
     sorted.sort_by(f64::total_cmp);
     let n = sorted.len();
-    let median = if n % 2 == 1 {
-        sorted[n / 2]
-    } else {
-        0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
-    };
+    let median = if n % 2 == 1 { sorted[n / 2] } else { 0.5 * (sorted[n / 2 - 1] + sorted[n / 2]) };
     let mean = sorted.iter().sum::<f64>() / n as f64;
     (rms(&sorted), mean, median, sorted[n - 1])
 }
@@ -294,25 +260,14 @@ mod tests {
         for i in 0..n {
             let s = i as f32 / 30.0;
             let p = Vec3::new(s.sin() * 1.5, (0.7 * s).cos(), 1.2 + 0.2 * (1.3 * s).sin());
-            let q = Quat::from_euler(
-                glam::EulerRot::ZYX,
-                0.5 * s,
-                0.2 * (0.9 * s).sin(),
-                0.1 * s.cos(),
-            );
-            t.push(
-                f64::from(i as u32) / 30.0,
-                Affine3A::from_rotation_translation(q, p),
-            );
+            let q = Quat::from_euler(glam::EulerRot::ZYX, 0.5 * s, 0.2 * (0.9 * s).sin(), 0.1 * s.cos());
+            t.push(f64::from(i as u32) / 30.0, Affine3A::from_rotation_translation(q, p));
         }
         t
     }
 
     fn transformed(t: &Trajectory, world: Affine3A) -> Trajectory {
-        Trajectory {
-            timestamps: t.timestamps.clone(),
-            poses: t.poses.iter().map(|p| world * *p).collect(),
-        }
+        Trajectory { timestamps: t.timestamps.clone(), poses: t.poses.iter().map(|p| world * *p).collect() }
     }
 
     #[test]
@@ -322,20 +277,12 @@ mod tests {
             Quat::from_rotation_z(2.0) * Quat::from_rotation_x(0.4),
             Vec3::new(3.0, -1.0, 0.5),
         );
-        let e = evaluate_trajectory(
-            &gt,
-            &transformed(&gt, world),
-            &TrajectoryEvalConfig::default(),
-        )
-        .expect("evaluates");
+        let e =
+            evaluate_trajectory(&gt, &transformed(&gt, world), &TrajectoryEvalConfig::default()).expect("evaluates");
         assert_eq!(e.pairs, 120);
         assert!(e.ate_rmse_m < 1e-5 && e.ate_max_m < 2e-5, "{e:?}");
         assert_eq!(e.rpe_pairs, 120 - 30);
-        assert!(
-            e.rpe_trans_m_per_s.expect("pairs") < 1e-5
-                && e.rpe_rot_deg_per_s.expect("pairs") < 1e-3,
-            "{e:?}"
-        );
+        assert!(e.rpe_trans_m_per_s.expect("pairs") < 1e-5 && e.rpe_rot_deg_per_s.expect("pairs") < 1e-3, "{e:?}");
         // The alignment found is the inverse of the transform applied.
         let inv = world.inverse();
         assert!((e.gt_from_est[0][3] - f64::from(inv.translation.x)).abs() < 1e-5);
@@ -348,19 +295,12 @@ mod tests {
         let d = 0.01f32;
         let mut gt = Trajectory::default();
         let mut est = Trajectory::default();
-        for (i, (x, y)) in [(1.0f32, 1.0f32), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)]
-            .into_iter()
-            .enumerate()
-        {
+        for (i, (x, y)) in [(1.0f32, 1.0f32), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)].into_iter().enumerate() {
             let p = Vec3::new(x, y, 0.0);
             gt.push(i as f64, Affine3A::from_translation(p));
-            est.push(
-                i as f64,
-                Affine3A::from_translation(p + Vec3::Z * d * x * y),
-            );
+            est.push(i as f64, Affine3A::from_translation(p + Vec3::Z * d * x * y));
         }
-        let e =
-            evaluate_trajectory(&gt, &est, &TrajectoryEvalConfig::default()).expect("evaluates");
+        let e = evaluate_trajectory(&gt, &est, &TrajectoryEvalConfig::default()).expect("evaluates");
         for v in [e.ate_rmse_m, e.ate_mean_m, e.ate_median_m, e.ate_max_m] {
             assert!((v - f64::from(d)).abs() < 1e-6, "{e:?}");
         }
@@ -383,13 +323,9 @@ mod tests {
             gt.push(f64::from(s), Affine3A::from_translation(Vec3::X * s));
             est.push(f64::from(s), Affine3A::from_translation(Vec3::X * 1.1 * s));
         }
-        let e =
-            evaluate_trajectory(&gt, &est, &TrajectoryEvalConfig::default()).expect("evaluates");
+        let e = evaluate_trajectory(&gt, &est, &TrajectoryEvalConfig::default()).expect("evaluates");
         assert_eq!(e.rpe_pairs, 21);
-        assert!(
-            (e.rpe_trans_m_per_s.expect("pairs") - 0.1).abs() < 1e-5,
-            "{e:?}"
-        );
+        assert!((e.rpe_trans_m_per_s.expect("pairs") - 0.1).abs() < 1e-5, "{e:?}");
         assert!(e.rpe_rot_deg_per_s.expect("pairs") < 1e-4);
 
         // Standing still, the estimate spinning at 2 degrees per second about z.
@@ -398,17 +334,10 @@ mod tests {
         for i in 0..31 {
             let s = i as f32 / 10.0;
             gt.push(f64::from(s), Affine3A::IDENTITY);
-            est.push(
-                f64::from(s),
-                Affine3A::from_quat(Quat::from_rotation_z((2.0 * s).to_radians())),
-            );
+            est.push(f64::from(s), Affine3A::from_quat(Quat::from_rotation_z((2.0 * s).to_radians())));
         }
-        let e =
-            evaluate_trajectory(&gt, &est, &TrajectoryEvalConfig::default()).expect("evaluates");
-        assert!(
-            (e.rpe_rot_deg_per_s.expect("pairs") - 2.0).abs() < 1e-3,
-            "{e:?}"
-        );
+        let e = evaluate_trajectory(&gt, &est, &TrajectoryEvalConfig::default()).expect("evaluates");
+        assert!((e.rpe_rot_deg_per_s.expect("pairs") - 2.0).abs() < 1e-3, "{e:?}");
         assert!(e.rpe_trans_m_per_s.expect("pairs") < 1e-6);
     }
 
@@ -419,20 +348,12 @@ mod tests {
         for t in &mut est.timestamps {
             *t += 5.0;
         }
-        let err = evaluate_trajectory(&gt, &est, &TrajectoryEvalConfig::default())
-            .expect_err("no overlap");
+        let err = evaluate_trajectory(&gt, &est, &TrajectoryEvalConfig::default()).expect_err("no overlap");
         assert!(err.to_string().contains("only 0 of 10"), "{err}");
-        let err = evaluate_trajectory(
-            &gt,
-            &Trajectory::default(),
-            &TrajectoryEvalConfig::default(),
-        )
-        .expect_err("empty");
+        let err =
+            evaluate_trajectory(&gt, &Trajectory::default(), &TrajectoryEvalConfig::default()).expect_err("empty");
         assert!(matches!(err, EvalError::TooFewMatches { .. }));
-        let bad = TrajectoryEvalConfig {
-            rpe_delta_s: 0.0,
-            ..Default::default()
-        };
+        let bad = TrajectoryEvalConfig { rpe_delta_s: 0.0, ..Default::default() };
         assert!(evaluate_trajectory(&gt, &gt, &bad).is_err());
         // Shorter than the RPE interval: ATE only.
         let e = evaluate_trajectory(&gt, &gt, &TrajectoryEvalConfig::default()).expect("evaluates");

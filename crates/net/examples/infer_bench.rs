@@ -15,8 +15,7 @@ use std::time::Instant;
 use semrecon_data::synth::{generate_room, RoomConfig};
 use semrecon_net::surface::sample_surface;
 use semrecon_net::{
-    color_features, forward_flops, parameter_count, ConvKernel, NetConfig, NetGeometry, Segmenter,
-    Weights,
+    color_features, forward_flops, parameter_count, ConvKernel, NetConfig, NetGeometry, Segmenter, Weights,
 };
 use semrecon_sparse::voxelize;
 
@@ -38,15 +37,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             other => return Err(format!("unknown argument {other}").into()),
         }
     }
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build_global()?;
+    rayon::ThreadPoolBuilder::new().num_threads(threads).build_global()?;
     let room = generate_room(&RoomConfig { seed, style: None });
-    println!(
-        "room seed {seed} ({}), {} triangles, {threads} threads",
-        room.style,
-        room.mesh.triangles.len(),
-    );
+    println!("room seed {seed} ({}), {} triangles, {threads} threads", room.style, room.mesh.triangles.len(),);
     for name in ["s20", "s50", "live"] {
         if let Some(c) = NetConfig::named(name) {
             println!("parameters {name}: {}", parameter_count(&c));
@@ -68,9 +61,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                                  // The whole call (geometry + layers), then each phase alone.
         let (total, total_cpu) = measure(repeats, || net.segment(coords, f).map(|_| ()))?;
         let stats = net.level_stats().to_vec();
-        let (geo_ms, geo_cpu) = measure(repeats, || {
-            NetGeometry::build(coords.to_vec(), &config, &Default::default()).map(|_| ())
-        })?;
+        let (geo_ms, geo_cpu) =
+            measure(repeats, || NetGeometry::build(coords.to_vec(), &config, &Default::default()).map(|_| ()))?;
         let geo = NetGeometry::build(coords.to_vec(), &config, &Default::default())?;
         let (layers, layers_cpu) = measure(repeats, || net.segment_geometry(&geo, f).map(|_| ()))?;
         let flops = forward_flops(&config, &stats) as f64;
@@ -113,10 +105,7 @@ fn cpu_ms() -> Option<f64> {
 }
 
 /// Fastest wall time and mean CPU time (ms) of `repeats` runs of `f`.
-fn measure(
-    repeats: usize,
-    mut f: impl FnMut() -> semrecon_net::Result<()>,
-) -> semrecon_net::Result<(f64, f64)> {
+fn measure(repeats: usize, mut f: impl FnMut() -> semrecon_net::Result<()>) -> semrecon_net::Result<(f64, f64)> {
     let mut best = f64::INFINITY;
     let cpu0 = cpu_ms();
     for _ in 0..repeats {
@@ -124,8 +113,6 @@ fn measure(
         f()?;
         best = best.min(t.elapsed().as_secs_f64() * 1e3);
     }
-    let cpu = cpu0
-        .zip(cpu_ms())
-        .map_or(f64::NAN, |(a, b)| (b - a) / repeats as f64);
+    let cpu = cpu0.zip(cpu_ms()).map_or(f64::NAN, |(a, b)| (b - a) / repeats as f64);
     Ok((best, cpu))
 }

@@ -90,10 +90,7 @@ impl NetConfig {
         if !path.exists() {
             return Err(NetError::Config {
                 source_name: spec.to_string(),
-                message: format!(
-                    "neither a named configuration ({}) nor an existing file",
-                    NAMED_CONFIGS.join(", ")
-                ),
+                message: format!("neither a named configuration ({}) nor an existing file", NAMED_CONFIGS.join(", ")),
             });
         }
         Self::load(path)
@@ -106,14 +103,8 @@ impl NetConfig {
     /// missing fields and invalid values.
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(|e| NetError::io(path, e))?;
-        let cfg_err = |message: String| NetError::Config {
-            source_name: path.display().to_string(),
-            message,
-        };
-        let config: Self = if path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("json"))
-        {
+        let cfg_err = |message: String| NetError::Config { source_name: path.display().to_string(), message };
+        let config: Self = if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
             serde_json::from_str(&text).map_err(|e| cfg_err(e.to_string()))?
         } else {
             toml::from_str(&text).map_err(|e| cfg_err(e.to_string()))?
@@ -132,12 +123,7 @@ impl NetConfig {
     /// # Errors
     /// [`NetError::Config`] naming the bad field.
     pub fn validate(&self) -> Result<()> {
-        let bad = |message: String| {
-            Err(NetError::Config {
-                source_name: self.name.clone(),
-                message,
-            })
-        };
+        let bad = |message: String| Err(NetError::Config { source_name: self.name.clone(), message });
         if !(1..=12).contains(&self.levels) {
             return bad(format!("levels = {} (must be 1..=12)", self.levels));
         }
@@ -148,10 +134,7 @@ impl NetConfig {
             return bad("in_channels and classes must be positive".to_string());
         }
         if !(self.voxel_size.is_finite() && self.voxel_size > 0.0) {
-            return bad(format!(
-                "voxel_size = {} (must be positive)",
-                self.voxel_size
-            ));
+            return bad(format!("voxel_size = {} (must be positive)", self.voxel_size));
         }
         if !(self.bn_eps.is_finite() && self.bn_eps > 0.0) {
             return bad(format!("bn_eps = {} (must be positive)", self.bn_eps));
@@ -207,7 +190,11 @@ mod tests {
         .unwrap();
         let t = NetConfig::from_name_or_file(tomlp.to_str().unwrap()).unwrap();
         assert_eq!((t.levels, t.width, t.bn_eps), (3, 8, 1e-4));
-        std::fs::write(&tomlp, "name = \"x\"\nlevels = 0\nwidth = 8\nin_channels = 3\nclasses = 13\nvoxel_size = 0.1\n").unwrap();
+        std::fs::write(
+            &tomlp,
+            "name = \"x\"\nlevels = 0\nwidth = 8\nin_channels = 3\nclasses = 13\nvoxel_size = 0.1\n",
+        )
+        .unwrap();
         let e = NetConfig::load(&tomlp).unwrap_err().to_string();
         assert!(e.contains("levels") && e.contains("c.toml"), "{e}");
         assert!(NetConfig::from_name_or_file("nope").is_err());

@@ -52,9 +52,7 @@ pub enum NetError {
         tensor: String,
     },
     /// A tensor with the wrong shape.
-    #[error(
-        "weights {file}: tensor `{tensor}` has shape {got:?}, the configuration needs {expected:?}"
-    )]
+    #[error("weights {file}: tensor `{tensor}` has shape {got:?}, the configuration needs {expected:?}")]
     TensorShape {
         /// The file (or `<memory>`).
         file: String,
@@ -96,9 +94,6 @@ pub enum NetError {
 impl NetError {
     /// An I/O error on `path`.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        Self::Io {
-            path: path.into(),
-            source,
-        }
+        Self::Io { path: path.into(), source }
     }
 }

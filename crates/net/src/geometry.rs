@@ -52,18 +52,9 @@ impl NetGeometry {
         let mut current = coords;
         for i in 0..l {
             let map = KernelMap::submanifold(&current, 3)?;
-            let nbr = if i >= 1 && i + 2 <= l {
-                neighbour_table(&map)
-            } else {
-                Vec::new()
-            };
+            let nbr = if i >= 1 && i + 2 <= l { neighbour_table(&map) } else { Vec::new() };
             let subm = ChunkedConv::new(map, &current, &current, chunk)?;
-            let point = ChunkedConv::new(
-                KernelMap::submanifold(&current, 1)?,
-                &current,
-                &current,
-                chunk,
-            )?;
+            let point = ChunkedConv::new(KernelMap::submanifold(&current, 1)?, &current, &current, chunk)?;
             let (next, parent, down) = if i + 1 < l {
                 let (coarse, dmap) = KernelMap::downsample(&current)?;
                 let mut parent = vec![0u32; current.len()];
@@ -74,21 +65,14 @@ impl NetGeometry {
                     }
                 }
                 let down = ChunkedConv::new(dmap, &current, &coarse, chunk)?;
-                let up = down.transposed().ok_or_else(|| {
-                    NetError::InvalidInput("strided layer without transpose".into())
-                })?;
+                let up = down
+                    .transposed()
+                    .ok_or_else(|| NetError::InvalidInput("strided layer without transpose".into()))?;
                 (coarse, parent, Some((down, up)))
             } else {
                 (Vec::new(), Vec::new(), None)
             };
-            levels.push(Level {
-                coords: std::mem::replace(&mut current, next),
-                subm,
-                point,
-                nbr,
-                parent,
-                down,
-            });
+            levels.push(Level { coords: std::mem::replace(&mut current, next), subm, point, nbr, parent, down });
         }
         let mut interp = Vec::new();
         for t in 0..l.saturating_sub(2) {
@@ -97,12 +81,7 @@ impl NetGeometry {
             for j in t + 1..=l - 2 {
                 let par = &levels[j - 1].parent;
                 anc.iter_mut().for_each(|a| *a = par[*a as usize]);
-                per.push(interp_table(
-                    &levels[t].coords,
-                    &anc,
-                    &levels[j].nbr,
-                    (j - t) as u32,
-                ));
+                per.push(interp_table(&levels[t].coords, &anc, &levels[j].nbr, (j - t) as u32));
             }
             interp.push(per);
         }
@@ -155,10 +134,7 @@ impl NetGeometry {
     pub fn stats(&self) -> Vec<LevelStats> {
         self.levels
             .iter()
-            .map(|l| LevelStats {
-                voxels: l.coords.len(),
-                neighbour_pairs: l.subm.map().num_pairs(),
-            })
+            .map(|l| LevelStats { voxels: l.coords.len(), neighbour_pairs: l.subm.map().num_pairs() })
             .collect()
     }
 }
@@ -193,46 +169,43 @@ pub(crate) fn interp_table(fine: &[Coord], ancestor: &[u32], nbr: &[u32], shift:
     let mut rows = vec![0u32; n * 8];
     let mut weights = vec![0f32; n * 8];
     let scale = 1.0 / f64::from(1u32 << shift);
-    rows.par_chunks_mut(8)
-        .zip(weights.par_chunks_mut(8))
-        .enumerate()
-        .for_each(|(u, (r8, w8))| {
-            let c = fine[u];
-            let a = ancestor[u];
-            // Per axis: (offset from the ancestor, weight) of the two bracketing voxels.
-            let axis = |x: i32| {
-                let rem = x - ((x >> shift) << shift);
-                let pos = (f64::from(rem) + 0.5) * scale - 0.5;
-                if pos < 0.0 {
-                    [(-1, -pos), (0, 1.0 + pos)]
-                } else {
-                    [(0, 1.0 - pos), (1, pos)]
-                }
-            };
-            let (ax, ay, az) = (axis(c[0]), axis(c[1]), axis(c[2]));
-            let mut total = 0.0;
-            let mut q = 0;
-            for &(dz, wz) in &az {
-                for &(dy, wy) in &ay {
-                    for &(dx, wx) in &ax {
-                        let k = ((dz + 1) * 9 + (dy + 1) * 3 + dx + 1) as usize;
-                        let row = if k == 13 { a } else { nbr[a as usize * 27 + k] };
-                        if row != u32::MAX {
-                            let w = wx * wy * wz;
-                            r8[q] = row;
-                            w8[q] = w as f32;
-                            total += w;
-                        } else {
-                            r8[q] = a;
-                            w8[q] = 0.0;
-                        }
-                        q += 1;
+    rows.par_chunks_mut(8).zip(weights.par_chunks_mut(8)).enumerate().for_each(|(u, (r8, w8))| {
+        let c = fine[u];
+        let a = ancestor[u];
+        // Per axis: (offset from the ancestor, weight) of the two bracketing voxels.
+        let axis = |x: i32| {
+            let rem = x - ((x >> shift) << shift);
+            let pos = (f64::from(rem) + 0.5) * scale - 0.5;
+            if pos < 0.0 {
+                [(-1, -pos), (0, 1.0 + pos)]
+            } else {
+                [(0, 1.0 - pos), (1, pos)]
+            }
+        };
+        let (ax, ay, az) = (axis(c[0]), axis(c[1]), axis(c[2]));
+        let mut total = 0.0;
+        let mut q = 0;
+        for &(dz, wz) in &az {
+            for &(dy, wy) in &ay {
+                for &(dx, wx) in &ax {
+                    let k = ((dz + 1) * 9 + (dy + 1) * 3 + dx + 1) as usize;
+                    let row = if k == 13 { a } else { nbr[a as usize * 27 + k] };
+                    if row != u32::MAX {
+                        let w = wx * wy * wz;
+                        r8[q] = row;
+                        w8[q] = w as f32;
+                        total += w;
+                    } else {
+                        r8[q] = a;
+                        w8[q] = 0.0;
                     }
+                    q += 1;
                 }
             }
-            for w in w8.iter_mut() {
-                *w = (f64::from(*w) / total) as f32;
-            }
-        });
+        }
+        for w in w8.iter_mut() {
+            *w = (f64::from(*w) / total) as f32;
+        }
+    });
     Interp { rows, weights }
 }

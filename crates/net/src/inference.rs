@@ -32,10 +32,7 @@ const ROWS_PER_TASK: usize = 256;
 /// # Shapes
 /// Result `[n, 3]` row-major.
 pub fn color_features(colors: &[[u8; 3]]) -> Vec<f32> {
-    colors
-        .iter()
-        .flat_map(|c| c.map(|v| f32::from(v) / 127.5 - 1.0))
-        .collect()
+    colors.iter().flat_map(|c| c.map(|v| f32::from(v) / 127.5 - 1.0)).collect()
 }
 
 /// Which engine kernel runs the convolutions.
@@ -77,28 +74,20 @@ impl Affine {
         let [g, b, m, v] = bn_names(prefix);
         let (g, b, m, v) = (w.get(&g)?, w.get(&b)?, w.get(&m)?, w.get(&v)?);
         let scale: Vec<f32> = g.iter().zip(v).map(|(g, v)| g / (v + eps).sqrt()).collect();
-        let shift = b
-            .iter()
-            .zip(m)
-            .zip(&scale)
-            .map(|((b, m), s)| b - m * s)
-            .collect();
+        let shift = b.iter().zip(m).zip(&scale).map(|((b, m), s)| b - m * s).collect();
         Ok(Self { scale, shift })
     }
 
     /// `dst = max(0, src * scale + shift)`, rows in parallel.
     fn apply(&self, src: &[f32], dst: &mut [f32]) {
         let c = self.scale.len();
-        dst.par_chunks_mut(c * ROWS_PER_TASK)
-            .zip(src.par_chunks(c * ROWS_PER_TASK))
-            .for_each(|(d, s)| {
-                for (dr, sr) in d.chunks_exact_mut(c).zip(s.chunks_exact(c)) {
-                    for (((v, x), s), b) in dr.iter_mut().zip(sr).zip(&self.scale).zip(&self.shift)
-                    {
-                        *v = (x * s + b).max(0.0);
-                    }
+        dst.par_chunks_mut(c * ROWS_PER_TASK).zip(src.par_chunks(c * ROWS_PER_TASK)).for_each(|(d, s)| {
+            for (dr, sr) in d.chunks_exact_mut(c).zip(s.chunks_exact(c)) {
+                for (((v, x), s), b) in dr.iter_mut().zip(sr).zip(&self.scale).zip(&self.shift) {
+                    *v = (x * s + b).max(0.0);
                 }
-            });
+            }
+        });
     }
 
     fn apply_in_place(&self, x: &mut [f32]) {
@@ -198,9 +187,7 @@ impl Params {
         }
         Ok(Self {
             input: w.get("input.conv.weight")?.to_vec(),
-            extract: (0..l)
-                .map(|i| ResBlock::load(w, &format!("extract.{i}"), eps))
-                .collect::<Result<_>>()?,
+            extract: (0..l).map(|i| ResBlock::load(w, &format!("extract.{i}"), eps)).collect::<Result<_>>()?,
             down: (0..l.saturating_sub(1))
                 .map(|i| {
                     Ok((
@@ -229,23 +216,21 @@ impl Params {
 
 /// `d[u] += sum_q w[u, q] g[row[u, q], ..c]` with `g` rows of `stride` values.
 fn interp_add(ip: &Interp, g: &[f32], stride: usize, c: usize, d: &mut [f32]) {
-    d.par_chunks_mut(c * ROWS_PER_TASK)
-        .enumerate()
-        .for_each(|(blk, dd)| {
-            for (r, drow) in dd.chunks_exact_mut(c).enumerate() {
-                let u = blk * ROWS_PER_TASK + r;
-                for q in 0..8 {
-                    let w = ip.weights[u * 8 + q];
-                    if w == 0.0 {
-                        continue;
-                    }
-                    let s = ip.rows[u * 8 + q] as usize * stride;
-                    for (dv, &gv) in drow.iter_mut().zip(&g[s..s + c]) {
-                        *dv += w * gv;
-                    }
+    d.par_chunks_mut(c * ROWS_PER_TASK).enumerate().for_each(|(blk, dd)| {
+        for (r, drow) in dd.chunks_exact_mut(c).enumerate() {
+            let u = blk * ROWS_PER_TASK + r;
+            for q in 0..8 {
+                let w = ip.weights[u * 8 + q];
+                if w == 0.0 {
+                    continue;
+                }
+                let s = ip.rows[u * 8 + q] as usize * stride;
+                for (dv, &gv) in drow.iter_mut().zip(&g[s..s + c]) {
+                    *dv += w * gv;
                 }
             }
-        });
+        }
+    });
 }
 
 /// `g[r, ..c] *= sigmoid(g[r, c])` for rows of `c + 1` values.
@@ -261,9 +246,7 @@ fn gate(g: &mut [f32], c: usize) {
 }
 
 fn add_assign(x: &mut [f32], y: &[f32]) {
-    x.par_chunks_mut(4096)
-        .zip(y.par_chunks(4096))
-        .for_each(|(a, b)| a.iter_mut().zip(b).for_each(|(a, b)| *a += b));
+    x.par_chunks_mut(4096).zip(y.par_chunks(4096)).for_each(|(a, b)| a.iter_mut().zip(b).for_each(|(a, b)| *a += b));
 }
 
 /// The first `len` values of a buffer that only grows.
@@ -306,9 +289,7 @@ pub struct Segmenter {
 
 impl std::fmt::Debug for Segmenter {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Segmenter")
-            .field("config", &self.config)
-            .finish_non_exhaustive()
+        f.debug_struct("Segmenter").field("config", &self.config).finish_non_exhaustive()
     }
 }
 
@@ -400,11 +381,7 @@ impl Segmenter {
     /// (`in_channels != 3`); voxelisation errors (non-finite points) as [`NetError::Sparse`].
     pub fn segment_points(&mut self, points: &[[f32; 3]], colors: &[[u8; 3]]) -> Result<Vec<u8>> {
         if points.len() != colors.len() {
-            return Err(NetError::InvalidInput(format!(
-                "{} points but {} colours",
-                points.len(),
-                colors.len()
-            )));
+            return Err(NetError::InvalidInput(format!("{} points but {} colours", points.len(), colors.len())));
         }
         if self.config.in_channels != 3 {
             return Err(NetError::InvalidInput(format!(
@@ -412,13 +389,7 @@ impl Segmenter {
                 self.config.name, self.config.in_channels
             )));
         }
-        let v = voxelize(
-            points,
-            &color_features(colors),
-            3,
-            self.config.voxel_size,
-            0,
-        )?;
+        let v = voxelize(points, &color_features(colors), 3, self.config.voxel_size, 0)?;
         let (coords, feats) = v.tensor.into_parts();
         let logits = self.forward_sorted(coords, &feats)?;
         let k = self.config.classes;
@@ -434,10 +405,7 @@ impl Segmenter {
                 best as u8
             })
             .collect();
-        Ok(v.point_to_voxel
-            .iter()
-            .map(|&r| voxel_class[r as usize])
-            .collect())
+        Ok(v.point_to_voxel.iter().map(|&r| voxel_class[r as usize]).collect())
     }
 
     /// Class scores of the voxels of a prebuilt geometry (for callers that keep the geometry
@@ -450,11 +418,7 @@ impl Segmenter {
     /// # Errors
     /// [`NetError::InvalidInput`] when the geometry has another number of levels or the
     /// features do not match.
-    pub fn segment_geometry(
-        &mut self,
-        geometry: &NetGeometry,
-        features: &[f32],
-    ) -> Result<Vec<f32>> {
+    pub fn segment_geometry(&mut self, geometry: &NetGeometry, features: &[f32]) -> Result<Vec<f32>> {
         if geometry.levels() != self.config.levels {
             return Err(NetError::InvalidInput(format!(
                 "geometry of {} levels for a network of {}",
@@ -475,10 +439,7 @@ impl Segmenter {
         if n > 0 {
             self.run_layers(geometry, features, &mut logits)?;
         }
-        self.timing = Timing {
-            geometry: Duration::ZERO,
-            forward: t.elapsed(),
-        };
+        self.timing = Timing { geometry: Duration::ZERO, forward: t.elapsed() };
         self.stats = geometry.stats();
         Ok(logits)
     }
@@ -495,22 +456,13 @@ impl Segmenter {
         let t1 = Instant::now();
         let mut logits = vec![0f32; geo.levels[0].coords.len() * k];
         self.run_layers(&geo, feats, &mut logits)?;
-        self.timing = Timing {
-            geometry: t1 - t0,
-            forward: t1.elapsed(),
-        };
+        self.timing = Timing { geometry: t1 - t0, forward: t1.elapsed() };
         self.stats = geo.stats();
         Ok(logits)
     }
 
     fn run_layers(&mut self, geo: &NetGeometry, feats: &[f32], logits: &mut [f32]) -> Result<()> {
-        let Self {
-            config,
-            params: p,
-            ws,
-            kernel,
-            ..
-        } = self;
+        let Self { config, params: p, ws, kernel, .. } = self;
         let kernel = *kernel;
         let l = config.levels;
         let c = |i: usize| config.channels(i);
@@ -521,15 +473,7 @@ impl Segmenter {
         // Encoder.
         {
             let e0 = sized(&mut ws.enc[0], n(0) * c(0));
-            run_conv(
-                kernel,
-                &geo.levels[0].subm,
-                feats,
-                config.in_channels,
-                &p.input,
-                c(0),
-                e0,
-            )?;
+            run_conv(kernel, &geo.levels[0].subm, feats, config.in_channels, &p.input, c(0), e0)?;
             p.extract[0].run(kernel, &geo.levels[0].subm, e0, c(0), &mut ws.a, &mut ws.b)?;
         }
         for i in 1..l {
@@ -548,40 +492,19 @@ impl Segmenter {
         for t in (0..l.saturating_sub(1)).rev() {
             let up = &p.up[t];
             {
-                let src: &[f32] = if t + 1 == l - 1 {
-                    &ws.enc[l - 1]
-                } else {
-                    &ws.dec[t + 1]
-                };
+                let src: &[f32] = if t + 1 == l - 1 { &ws.enc[l - 1] } else { &ws.dec[t + 1] };
                 let a = sized(&mut ws.a, n(t + 1) * c(t + 1));
                 up.bn.apply(&src[..n(t + 1) * c(t + 1)], a);
             }
             let (lower, higher) = ws.dec.split_at_mut(t + 1);
             let d = sized(&mut lower[t], n(t) * c(t));
             if let Some((_, tconv)) = &geo.levels[t].down {
-                run_conv(
-                    kernel,
-                    tconv,
-                    &ws.a[..n(t + 1) * c(t + 1)],
-                    c(t + 1),
-                    &up.conv,
-                    c(t),
-                    d,
-                )?;
+                run_conv(kernel, tconv, &ws.a[..n(t + 1) * c(t + 1)], c(t + 1), &up.conv, c(t), d)?;
             }
             let b = sized(&mut ws.b, n(t) * c(t));
-            run_conv(
-                kernel,
-                &geo.levels[t].point,
-                &ws.enc[t][..n(t) * c(t)],
-                c(t),
-                &up.skip,
-                c(t),
-                b,
-            )?;
+            run_conv(kernel, &geo.levels[t].point, &ws.enc[t][..n(t) * c(t)], c(t), &up.skip, c(t), b)?;
             add_assign(d, b);
-            up.block
-                .run(kernel, &geo.levels[t].subm, d, c(t), &mut ws.a, &mut ws.b)?;
+            up.block.run(kernel, &geo.levels[t].subm, d, c(t), &mut ws.a, &mut ws.b)?;
             for (q, w) in p.fuse.get(t).into_iter().flatten().enumerate() {
                 let j = t + 1 + q;
                 let dj = &higher[j - t - 1][..n(j) * c(j)];
@@ -596,15 +519,7 @@ impl Segmenter {
         let d0: &[f32] = if l == 1 { &ws.enc[0] } else { &ws.dec[0] };
         let a = sized(&mut ws.a, n(0) * c(0));
         p.head_bn.apply(&d0[..n(0) * c(0)], a);
-        run_conv(
-            kernel,
-            &geo.levels[0].point,
-            a,
-            c(0),
-            &p.head_w,
-            config.classes,
-            logits,
-        )?;
+        run_conv(kernel, &geo.levels[0].point, a, c(0), &p.head_w, config.classes, logits)?;
         let k = config.classes;
         logits.par_chunks_mut(k * ROWS_PER_TASK).for_each(|blk| {
             for row in blk.chunks_exact_mut(k) {
@@ -630,20 +545,16 @@ mod tests {
         let coarse: Vec<Coord> = vec![[0, 0, 0, 0], [1, 0, 0, 0]];
         let values = [1.0f32, 3.0];
         let nbr = neighbour_table(&KernelMap::submanifold(&coarse, 3).unwrap());
-        for (shift, expected) in [
-            (1u32, vec![1.0, 1.5, 2.5, 3.0]),
-            (2, vec![1.0, 1.0, 1.25, 1.75, 2.25, 2.75, 3.0, 3.0]),
-        ] {
+        for (shift, expected) in
+            [(1u32, vec![1.0, 1.5, 2.5, 3.0]), (2, vec![1.0, 1.0, 1.25, 1.75, 2.25, 2.75, 3.0, 3.0])]
+        {
             let fine: Vec<Coord> = (0..expected.len() as i32).map(|x| [x, 1, 0, 0]).collect();
             let anc: Vec<u32> = fine.iter().map(|c| (c[0] >> shift) as u32).collect();
             let ip = interp_table(&fine, &anc, &nbr, shift);
             let mut d = vec![0f32; fine.len()];
             interp_add(&ip, &values, 1, 1, &mut d);
             for (got, want) in d.iter().zip(&expected) {
-                assert!(
-                    (got - want).abs() < 1e-6,
-                    "shift {shift}: {d:?} vs {expected:?}"
-                );
+                assert!((got - want).abs() < 1e-6, "shift {shift}: {d:?} vs {expected:?}");
             }
         }
     }

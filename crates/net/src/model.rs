@@ -114,51 +114,22 @@ pub fn tensor_specs(config: &NetConfig) -> Vec<TensorSpec> {
     let c = |i: usize| config.channels(i);
     let l = config.levels;
     let bn = |s: &mut Vec<TensorSpec>, prefix: String, ch: usize| {
-        let roles = [
-            TensorRole::BnWeight,
-            TensorRole::BnBias,
-            TensorRole::RunningMean,
-            TensorRole::RunningVar,
-        ];
+        let roles = [TensorRole::BnWeight, TensorRole::BnBias, TensorRole::RunningMean, TensorRole::RunningVar];
         for (name, role) in bn_names(&prefix).into_iter().zip(roles) {
-            s.push(TensorSpec {
-                name,
-                shape: vec![ch],
-                role,
-            });
+            s.push(TensorSpec { name, shape: vec![ch], role });
         }
     };
     let conv = |s: &mut Vec<TensorSpec>, name: String, kv: usize, ci: usize, co: usize| {
-        s.push(TensorSpec {
-            name,
-            shape: vec![kv, ci, co],
-            role: TensorRole::Weight { fan_in: kv * ci },
-        });
+        s.push(TensorSpec { name, shape: vec![kv, ci, co], role: TensorRole::Weight { fan_in: kv * ci } });
     };
     let linear = |s: &mut Vec<TensorSpec>, name: String, ci: usize, co: usize| {
-        s.push(TensorSpec {
-            name,
-            shape: vec![ci, co],
-            role: TensorRole::Weight { fan_in: ci },
-        });
+        s.push(TensorSpec { name, shape: vec![ci, co], role: TensorRole::Weight { fan_in: ci } });
     };
-    conv(
-        &mut s,
-        "input.conv.weight".into(),
-        27,
-        config.in_channels,
-        c(0),
-    );
+    conv(&mut s, "input.conv.weight".into(), 27, config.in_channels, c(0));
     for i in 0..l {
         for b in 1..=2 {
             bn(&mut s, format!("extract.{i}.bn{b}"), c(i));
-            conv(
-                &mut s,
-                format!("extract.{i}.conv{b}.weight"),
-                27,
-                c(i),
-                c(i),
-            );
+            conv(&mut s, format!("extract.{i}.conv{b}.weight"), 27, c(i), c(i));
         }
     }
     for i in 0..l.saturating_sub(1) {
@@ -182,21 +153,13 @@ pub fn tensor_specs(config: &NetConfig) -> Vec<TensorSpec> {
     }
     bn(&mut s, "head.bn".into(), c(0));
     linear(&mut s, "head.linear.weight".into(), c(0), config.classes);
-    s.push(TensorSpec {
-        name: "head.linear.bias".into(),
-        shape: vec![config.classes],
-        role: TensorRole::Bias,
-    });
+    s.push(TensorSpec { name: "head.linear.bias".into(), shape: vec![config.classes], role: TensorRole::Bias });
     s
 }
 
 /// Trainable parameters (running statistics excluded, as PyTorch's `parameters()` counts).
 pub fn parameter_count(config: &NetConfig) -> usize {
-    tensor_specs(config)
-        .iter()
-        .filter(|t| t.role.is_parameter())
-        .map(TensorSpec::numel)
-        .sum()
+    tensor_specs(config).iter().filter(|t| t.role.is_parameter()).map(TensorSpec::numel).sum()
 }
 
 /// Geometry of one level of a forward pass: the cost drivers.
@@ -243,10 +206,7 @@ mod tests {
         assert_eq!(parameter_count(&NetConfig::s20()), 5_430_541);
         assert_eq!(parameter_count(&NetConfig::s50()), 14_895_437);
         assert_eq!(parameter_count(&NetConfig::live()), 1_359_757);
-        assert_eq!(
-            parameter_count(&NetConfig::new("l6", 6, 32, 0.05)),
-            9_374_669
-        );
+        assert_eq!(parameter_count(&NetConfig::new("l6", 6, 32, 0.05)), 9_374_669);
     }
 
     #[test]

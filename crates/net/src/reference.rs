@@ -22,12 +22,7 @@ use crate::weights::Weights;
 ///
 /// # Errors
 /// Missing tensors, mismatched shapes.
-pub fn forward(
-    config: &NetConfig,
-    weights: &Weights,
-    coords: &[Coord],
-    features: &[f32],
-) -> Result<Vec<f32>> {
+pub fn forward(config: &NetConfig, weights: &Weights, coords: &[Coord], features: &[f32]) -> Result<Vec<f32>> {
     weights.check(config)?;
     let l = config.levels;
     let c = |i: usize| config.channels(i);
@@ -40,37 +35,13 @@ pub fn forward(
     let bn = |x: &[f32], prefix: String| batch_norm_relu(weights, &prefix, config.bn_eps, x);
     let block = |x: &[f32], prefix: String, lc: &[Coord], ch: usize| -> Result<Vec<f32>> {
         let h = bn(x, format!("{prefix}.bn1"))?;
-        let h = conv::forward(
-            subm,
-            lc,
-            lc,
-            &h,
-            ch,
-            w(format!("{prefix}.conv1.weight"))?,
-            ch,
-        )?;
+        let h = conv::forward(subm, lc, lc, &h, ch, w(format!("{prefix}.conv1.weight"))?, ch)?;
         let h = bn(&h, format!("{prefix}.bn2"))?;
-        let h = conv::forward(
-            subm,
-            lc,
-            lc,
-            &h,
-            ch,
-            w(format!("{prefix}.conv2.weight"))?,
-            ch,
-        )?;
+        let h = conv::forward(subm, lc, lc, &h, ch, w(format!("{prefix}.conv2.weight"))?, ch)?;
         Ok(x.iter().zip(&h).map(|(a, b)| a + b).collect())
     };
 
-    let x0 = conv::forward(
-        subm,
-        coords,
-        coords,
-        features,
-        config.in_channels,
-        w("input.conv.weight".into())?,
-        c(0),
-    )?;
+    let x0 = conv::forward(subm, coords, coords, features, config.in_channels, w("input.conv.weight".into())?, c(0))?;
     let mut enc = vec![block(&x0, "extract.0".into(), coords, c(0))?];
     for i in 1..l {
         let h = bn(&enc[i - 1], format!("down.{}.bn", i - 1))?;
@@ -104,23 +75,11 @@ pub fn forward(
         let mut d = block(&sum, format!("up.{t}"), &levels[t], c(t))?;
         if l >= 2 {
             for j in t + 1..=l.saturating_sub(2) {
-                let att = linear(
-                    &dec[j],
-                    c(j),
-                    w(format!("fuse.{t}.{j}.attention.weight"))?,
-                    1,
-                );
-                let mut val = linear(
-                    &dec[j],
-                    c(j),
-                    w(format!("fuse.{t}.{j}.value.weight"))?,
-                    c(t),
-                );
+                let att = linear(&dec[j], c(j), w(format!("fuse.{t}.{j}.attention.weight"))?, 1);
+                let mut val = linear(&dec[j], c(j), w(format!("fuse.{t}.{j}.value.weight"))?, c(t));
                 for (r, &a) in att.iter().enumerate() {
                     let s = 1.0 / (1.0 + (-a).exp());
-                    val[r * c(t)..(r + 1) * c(t)]
-                        .iter_mut()
-                        .for_each(|v| *v *= s);
+                    val[r * c(t)..(r + 1) * c(t)].iter_mut().for_each(|v| *v *= s);
                 }
                 let f = upsample_trilinear(&levels[j], &val, c(t), &levels[t], (j - t) as u32)?;
                 d.iter_mut().zip(&f).for_each(|(a, b)| *a += b);
@@ -143,12 +102,7 @@ fn parents(fine: &[Coord], shift: u32) -> Vec<Coord> {
     let mut seen = HashMap::new();
     let mut out = Vec::new();
     for u in fine {
-        let p = [
-            u[0].div_euclid(f),
-            u[1].div_euclid(f),
-            u[2].div_euclid(f),
-            u[3],
-        ];
+        let p = [u[0].div_euclid(f), u[1].div_euclid(f), u[2].div_euclid(f), u[3]];
         seen.entry(p).or_insert_with(|| {
             out.push(p);
         });
@@ -176,11 +130,7 @@ fn linear(x: &[f32], c_in: usize, w: &[f32], c_out: usize) -> Vec<f32> {
     let mut y = Vec::with_capacity(x.len() / c_in.max(1) * c_out);
     for row in x.chunks_exact(c_in) {
         for o in 0..c_out {
-            let s: f64 = row
-                .iter()
-                .enumerate()
-                .map(|(i, &v)| f64::from(v) * f64::from(w[i * c_out + o]))
-                .sum();
+            let s: f64 = row.iter().enumerate().map(|(i, &v)| f64::from(v) * f64::from(w[i * c_out + o])).sum();
             y.push(s as f32);
         }
     }
@@ -238,9 +188,7 @@ pub fn upsample_trilinear(
             }
         }
         if total <= 0.0 {
-            return Err(NetError::InvalidInput(format!(
-                "fine voxel {fc:?} has no coarse voxel around it"
-            )));
+            return Err(NetError::InvalidInput(format!("fine voxel {fc:?} has no coarse voxel around it")));
         }
         for (k, a) in acc.iter().enumerate() {
             out[u * channels + k] = (a / total) as f32;

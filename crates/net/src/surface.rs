@@ -30,9 +30,7 @@ pub fn sample_surface(mesh: &LabeledMesh, points_per_m2: f32, seed: u64) -> Labe
             count += 1;
         }
         let col = tri.map(|i| {
-            mesh.colors.get(i as usize).map_or(Vec3::splat(128.0), |c| {
-                Vec3::new(c[0].into(), c[1].into(), c[2].into())
-            })
+            mesh.colors.get(i as usize).map_or(Vec3::splat(128.0), |c| Vec3::new(c[0].into(), c[1].into(), c[2].into()))
         });
         for _ in 0..count {
             let (mut u, mut v): (f32, f32) = (rng.random(), rng.random());
@@ -42,8 +40,7 @@ pub fn sample_surface(mesh: &LabeledMesh, points_per_m2: f32, seed: u64) -> Labe
             let w = 1.0 - u - v;
             out.positions.push(a * w + b * u + c * v);
             let rgb = col[0] * w + col[1] * u + col[2] * v;
-            out.colors
-                .push(rgb.to_array().map(|x| x.round().clamp(0.0, 255.0) as u8));
+            out.colors.push(rgb.to_array().map(|x| x.round().clamp(0.0, 255.0) as u8));
             let label = mesh.triangle_labels.get(t).copied().unwrap_or_else(|| {
                 let corner = if w >= u && w >= v {
                     0
@@ -52,10 +49,7 @@ pub fn sample_surface(mesh: &LabeledMesh, points_per_m2: f32, seed: u64) -> Labe
                 } else {
                     2
                 };
-                mesh.vertex_labels
-                    .get(tri[corner] as usize)
-                    .copied()
-                    .unwrap_or(UNLABELED)
+                mesh.vertex_labels.get(tri[corner] as usize).copied().unwrap_or(UNLABELED)
             });
             out.labels.push(label);
         }

@@ -41,10 +41,7 @@ pub struct Weights {
 impl Weights {
     /// Weights from named tensors (checked against a configuration by [`Self::check`]).
     pub fn from_tensors(tensors: BTreeMap<String, Tensor>) -> Self {
-        Self {
-            tensors,
-            source: "<memory>".to_string(),
-        }
+        Self { tensors, source: "<memory>".to_string() }
     }
 
     /// Seeded He (Kaiming normal, `std = sqrt(2 / fan_in)`) initialisation of every weight;
@@ -66,13 +63,7 @@ impl Weights {
                 TensorRole::BnWeight | TensorRole::RunningVar => vec![1.0; n],
                 TensorRole::Bias | TensorRole::BnBias | TensorRole::RunningMean => vec![0.0; n],
             };
-            tensors.insert(
-                spec.name,
-                Tensor {
-                    shape: spec.shape,
-                    data,
-                },
-            );
+            tensors.insert(spec.name, Tensor { shape: spec.shape, data });
         }
         Self::from_tensors(tensors)
     }
@@ -82,11 +73,9 @@ impl Weights {
     /// exercise the folding of batch norm and the biases.
     pub fn perturb_normalisation(&mut self, seed: u64) {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let (Ok(scale), Ok(shift), Ok(var)) = (
-            Uniform::new(0.5f32, 1.5),
-            Uniform::new(-0.2f32, 0.2),
-            Uniform::new(0.5f32, 2.0),
-        ) else {
+        let (Ok(scale), Ok(shift), Ok(var)) =
+            (Uniform::new(0.5f32, 1.5), Uniform::new(-0.2f32, 0.2), Uniform::new(0.5f32, 2.0))
+        else {
             return;
         };
         for (name, t) in &mut self.tensors {
@@ -128,10 +117,7 @@ impl Weights {
         self.tensors
             .get(name)
             .map(|t| t.data.as_slice())
-            .ok_or_else(|| NetError::MissingTensor {
-                file: self.source.clone(),
-                tensor: name.to_string(),
-            })
+            .ok_or_else(|| NetError::MissingTensor { file: self.source.clone(), tensor: name.to_string() })
     }
 
     /// Checks that the tensors are exactly those of `config` with the right shapes.
@@ -144,10 +130,7 @@ impl Weights {
             let t = self
                 .tensors
                 .get(&spec.name)
-                .ok_or_else(|| NetError::MissingTensor {
-                    file: self.source.clone(),
-                    tensor: spec.name.clone(),
-                })?;
+                .ok_or_else(|| NetError::MissingTensor { file: self.source.clone(), tensor: spec.name.clone() })?;
             if t.shape != spec.shape || t.data.len() != spec.numel() {
                 return Err(NetError::TensorShape {
                     file: self.source.clone(),
@@ -158,13 +141,9 @@ impl Weights {
             }
         }
         if self.tensors.len() != specs.len() {
-            let known: std::collections::HashSet<&str> =
-                specs.iter().map(|s| s.name.as_str()).collect();
+            let known: std::collections::HashSet<&str> = specs.iter().map(|s| s.name.as_str()).collect();
             if let Some(extra) = self.tensors.keys().find(|k| !known.contains(k.as_str())) {
-                return Err(NetError::UnexpectedTensor {
-                    file: self.source.clone(),
-                    tensor: extra.clone(),
-                });
+                return Err(NetError::UnexpectedTensor { file: self.source.clone(), tensor: extra.clone() });
             }
         }
         Ok(())
@@ -200,10 +179,7 @@ impl Weights {
                 (name.clone(), b, t.shape.clone())
             })
             .collect();
-        let file_err = |message: String| NetError::WeightFile {
-            file: path.display().to_string(),
-            message,
-        };
+        let file_err = |message: String| NetError::WeightFile { file: path.display().to_string(), message };
         let views = bytes
             .iter()
             .map(|(name, b, shape)| {
@@ -213,16 +189,9 @@ impl Weights {
             })
             .collect::<Result<Vec<_>>>()?;
         let metadata = HashMap::from([(CONFIG_METADATA_KEY.to_string(), config.to_json())]);
-        let data = safetensors::tensor::serialize(views, Some(metadata))
-            .map_err(|e| file_err(e.to_string()))?;
-        let dir = path
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "weights".into());
+        let data = safetensors::tensor::serialize(views, Some(metadata)).map_err(|e| file_err(e.to_string()))?;
+        let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "weights".into());
         let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
         std::fs::write(&tmp, &data).map_err(|e| NetError::io(&tmp, e))?;
         std::fs::rename(&tmp, path).map_err(|e| {
@@ -253,23 +222,16 @@ impl Weights {
         let file = path.display().to_string();
         if let Some(saved) = stored_config(path, &bytes)? {
             if !saved.same_shape(config) {
-                return Err(NetError::ConfigMismatch {
-                    file,
-                    saved: saved.summary(),
-                    wanted: config.summary(),
-                });
+                return Err(NetError::ConfigMismatch { file, saved: saved.summary(), wanted: config.summary() });
             }
         }
-        let st = SafeTensors::deserialize(&bytes).map_err(|e| NetError::WeightFile {
-            file: file.clone(),
-            message: e.to_string(),
-        })?;
+        let st = SafeTensors::deserialize(&bytes)
+            .map_err(|e| NetError::WeightFile { file: file.clone(), message: e.to_string() })?;
         let mut tensors = BTreeMap::new();
         for spec in tensor_specs(config) {
-            let view = st.tensor(&spec.name).map_err(|_| NetError::MissingTensor {
-                file: file.clone(),
-                tensor: spec.name.clone(),
-            })?;
+            let view = st
+                .tensor(&spec.name)
+                .map_err(|_| NetError::MissingTensor { file: file.clone(), tensor: spec.name.clone() })?;
             if view.shape() != spec.shape.as_slice() {
                 return Err(NetError::TensorShape {
                     file,
@@ -280,60 +242,28 @@ impl Weights {
             }
             let raw = view.data();
             let data: Vec<f32> = match view.dtype() {
-                Dtype::F16 => raw
-                    .chunks_exact(2)
-                    .map(|b| f16::from_le_bytes([b[0], b[1]]).to_f32())
-                    .collect(),
-                Dtype::F32 => raw
-                    .chunks_exact(4)
-                    .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-                    .collect(),
-                other => {
-                    return Err(NetError::TensorDtype {
-                        file,
-                        tensor: spec.name,
-                        dtype: format!("{other:?}"),
-                    })
-                }
+                Dtype::F16 => raw.chunks_exact(2).map(|b| f16::from_le_bytes([b[0], b[1]]).to_f32()).collect(),
+                Dtype::F32 => raw.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect(),
+                other => return Err(NetError::TensorDtype { file, tensor: spec.name, dtype: format!("{other:?}") }),
             };
-            tensors.insert(
-                spec.name,
-                Tensor {
-                    shape: spec.shape,
-                    data,
-                },
-            );
+            tensors.insert(spec.name, Tensor { shape: spec.shape, data });
         }
         if st.len() != tensors.len() {
             if let Some(extra) = st.names().into_iter().find(|n| !tensors.contains_key(*n)) {
-                return Err(NetError::UnexpectedTensor {
-                    file,
-                    tensor: extra.to_string(),
-                });
+                return Err(NetError::UnexpectedTensor { file, tensor: extra.to_string() });
             }
         }
-        Ok(Self {
-            tensors,
-            source: file,
-        })
+        Ok(Self { tensors, source: file })
     }
 }
 
 /// The configuration in the metadata of the safetensors `bytes` read from `path`.
 fn stored_config(path: &Path, bytes: &[u8]) -> Result<Option<NetConfig>> {
-    let file_err = |message: String| NetError::WeightFile {
-        file: path.display().to_string(),
-        message,
-    };
+    let file_err = |message: String| NetError::WeightFile { file: path.display().to_string(), message };
     let (_, meta) = SafeTensors::read_metadata(bytes).map_err(|e| file_err(e.to_string()))?;
-    let Some(json) = meta
-        .metadata()
-        .as_ref()
-        .and_then(|m| m.get(CONFIG_METADATA_KEY))
-    else {
+    let Some(json) = meta.metadata().as_ref().and_then(|m| m.get(CONFIG_METADATA_KEY)) else {
         return Ok(None);
     };
-    let cfg: NetConfig =
-        serde_json::from_str(json).map_err(|e| file_err(format!("stored configuration: {e}")))?;
+    let cfg: NetConfig = serde_json::from_str(json).map_err(|e| file_err(format!("stored configuration: {e}")))?;
     Ok(Some(cfg))
 }

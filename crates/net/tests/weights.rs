@@ -27,15 +27,8 @@ fn round_trip_stores_f16_values() {
     // f16 halves the file: 2 bytes per value plus a header.
     let values: usize = w.tensors().values().map(|t| t.data.len()).sum();
     let size = std::fs::metadata(&path).unwrap().len() as usize;
-    assert!(
-        size < values * 2 + 20_000,
-        "{size} bytes for {values} values"
-    );
-    assert!(!dir.path().read_dir().unwrap().any(|e| e
-        .unwrap()
-        .file_name()
-        .to_string_lossy()
-        .contains("tmp")));
+    assert!(size < values * 2 + 20_000, "{size} bytes for {values} values");
+    assert!(!dir.path().read_dir().unwrap().any(|e| e.unwrap().file_name().to_string_lossy().contains("tmp")));
 }
 
 #[test]
@@ -53,27 +46,19 @@ fn truncated_and_mismatched_files_are_named_errors() {
     assert!(matches!(e, NetError::WeightFile { .. }), "{e}");
     assert!(e.to_string().contains("cut.safetensors"), "{e}");
     std::fs::write(&cut, &bytes[..5]).unwrap();
-    assert!(Weights::load(&cut, &cfg)
-        .unwrap_err()
-        .to_string()
-        .contains("cut.safetensors"));
+    assert!(Weights::load(&cut, &cfg).unwrap_err().to_string().contains("cut.safetensors"));
 
     let other = NetConfig::new("big", 4, 4, 0.05);
     let e = Weights::load(&path, &other).unwrap_err();
     assert!(matches!(e, NetError::ConfigMismatch { .. }), "{e}");
-    assert!(
-        e.to_string().contains("L=3") && e.to_string().contains("L=4"),
-        "{e}"
-    );
+    assert!(e.to_string().contains("L=3") && e.to_string().contains("L=4"), "{e}");
     assert!(Weights::load(&dir.path().join("none"), &cfg).is_err());
 
     // Hand-made files without the stored configuration.
     let write = |name: &str, tensors: Vec<(String, Dtype, Vec<usize>, Vec<u8>)>| {
         let p = dir.path().join(name);
-        let views: Vec<(String, TensorView)> = tensors
-            .iter()
-            .map(|(n, d, s, b)| (n.clone(), TensorView::new(*d, s.clone(), b).unwrap()))
-            .collect();
+        let views: Vec<(String, TensorView)> =
+            tensors.iter().map(|(n, d, s, b)| (n.clone(), TensorView::new(*d, s.clone(), b).unwrap())).collect();
         let data = safetensors::tensor::serialize(views, None::<HashMap<String, String>>).unwrap();
         std::fs::write(&p, data).unwrap();
         p
@@ -99,29 +84,15 @@ fn truncated_and_mismatched_files_are_named_errors() {
     };
     let p = write("f32.safetensors", as_f32("", "", ""));
     assert_eq!(Weights::load(&p, &cfg).unwrap().tensors(), w.tensors());
-    let p = write(
-        "missing.safetensors",
-        as_f32("extract.1.conv2.weight", "", ""),
-    );
+    let p = write("missing.safetensors", as_f32("extract.1.conv2.weight", "", ""));
     let e = Weights::load(&p, &cfg).unwrap_err().to_string();
-    assert!(
-        e.contains("missing.safetensors")
-            && e.contains("extract.1.conv2.weight")
-            && e.contains("missing"),
-        "{e}"
-    );
+    assert!(e.contains("missing.safetensors") && e.contains("extract.1.conv2.weight") && e.contains("missing"), "{e}");
     let p = write("shape.safetensors", as_f32("", "up.0.skip.weight", ""));
     let e = Weights::load(&p, &cfg).unwrap_err().to_string();
-    assert!(
-        e.contains("shape.safetensors") && e.contains("up.0.skip.weight") && e.contains("[4, 4]"),
-        "{e}"
-    );
+    assert!(e.contains("shape.safetensors") && e.contains("up.0.skip.weight") && e.contains("[4, 4]"), "{e}");
     let p = write("dtype.safetensors", as_f32("", "", "head.linear.bias"));
     let e = Weights::load(&p, &cfg).unwrap_err().to_string();
-    assert!(
-        e.contains("dtype.safetensors") && e.contains("head.linear.bias") && e.contains("I32"),
-        "{e}"
-    );
+    assert!(e.contains("dtype.safetensors") && e.contains("head.linear.bias") && e.contains("I32"), "{e}");
     let mut extra = as_f32("", "", "");
     extra.push(("stray".into(), Dtype::F32, vec![1], vec![0; 4]));
     let p = write("extra.safetensors", extra);

@@ -33,22 +33,14 @@ struct Args {
 }
 
 fn parse_args() -> Result<Args, String> {
-    let mut a = Args {
-        frames: 100,
-        voxel: 0.005,
-        seven_scenes: None,
-        out: None,
-        keyframe: 10,
-    };
+    let mut a = Args { frames: 100, voxel: 0.005, seven_scenes: None, out: None, keyframe: 10 };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
         let mut value = || it.next().ok_or_else(|| format!("{flag} needs a value"));
         match flag.as_str() {
             "--frames" => a.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?,
             "--voxel" => a.voxel = value()?.parse().map_err(|e| format!("--voxel: {e}"))?,
-            "--keyframe" => {
-                a.keyframe = value()?.parse().map_err(|e| format!("--keyframe: {e}"))?
-            }
+            "--keyframe" => a.keyframe = value()?.parse().map_err(|e| format!("--keyframe: {e}"))?,
             "--7scenes" => a.seven_scenes = Some(PathBuf::from(value()?)),
             "--out" => a.out = Some(PathBuf::from(value()?)),
             other => return Err(format!("unknown argument {other}")),
@@ -76,11 +68,7 @@ fn write_ply(path: &Path, mesh: &LabeledMesh) -> std::io::Result<()> {
             mesh.triangle_count()
         )?;
         for i in 0..mesh.vertex_count() {
-            for v in mesh.positions[i]
-                .to_array()
-                .into_iter()
-                .chain(mesh.normals[i].to_array())
-            {
+            for v in mesh.positions[i].to_array().into_iter().chain(mesh.normals[i].to_array()) {
                 w.write_all(&v.to_le_bytes())?;
             }
             w.write_all(&mesh.colors[i])?;
@@ -106,11 +94,7 @@ fn cpu_ns() -> u64 {
     tasks
         .filter_map(|t| t.ok())
         .filter_map(|t| std::fs::read_to_string(t.path().join("schedstat")).ok())
-        .filter_map(|s| {
-            s.split_whitespace()
-                .next()
-                .and_then(|v| v.parse::<u64>().ok())
-        })
+        .filter_map(|s| s.split_whitespace().next().and_then(|v| v.parse::<u64>().ok()))
         .sum()
 }
 
@@ -122,10 +106,7 @@ fn stats(label: &str, ms: &mut [f64]) {
     let mean = ms.iter().sum::<f64>() / ms.len() as f64;
     let median = ms[ms.len() / 2];
     let p95 = ms[(ms.len() * 95 / 100).min(ms.len() - 1)];
-    println!(
-        "{label:<28} mean {mean:7.2}  median {median:7.2}  p95 {p95:7.2}  max {:7.2} ms",
-        ms[ms.len() - 1]
-    );
+    println!("{label:<28} mean {mean:7.2}  median {median:7.2}  p95 {p95:7.2}  max {:7.2} ms", ms[ms.len() - 1]);
 }
 
 fn main() {
@@ -160,19 +141,13 @@ fn main() {
         }
         None => {
             let k = Intrinsics::new(640, 480, 525.0, 525.0, 319.5, 239.5).expect("constant camera");
-            scene::trajectory(args.frames)
-                .into_iter()
-                .enumerate()
-                .map(|(i, p)| (scene::render(k, p, i), p))
-                .collect()
+            scene::trajectory(args.frames).into_iter().enumerate().map(|(i, p)| (scene::render(k, p, i), p)).collect()
         }
     };
     println!(
         "{} frames ({}) loaded in {:.1} s; voxel {} mm, {} threads",
         frames.len(),
-        args.seven_scenes
-            .as_ref()
-            .map_or("analytic scene".to_string(), |d| d.display().to_string()),
+        args.seven_scenes.as_ref().map_or("analytic scene".to_string(), |d| d.display().to_string()),
         t_load.elapsed().as_secs_f64(),
         config.voxel_size * 1000.0,
         rayon::current_num_threads()
@@ -238,10 +213,7 @@ fn main() {
     stats("chunk selection", &mut sel_ms);
     stats("integration", &mut int_ms);
     stats("fusion (selection+integr.)", &mut tot_ms);
-    stats(
-        &format!("incremental mesh / {} fr", args.keyframe),
-        &mut mesh_ms,
-    );
+    stats(&format!("incremental mesh / {} fr", args.keyframe), &mut mesh_ms);
     let keyframes = mesh_ms.len().max(1) as f64;
     println!(
         "per keyframe: {:.0} chunks changed, {:.0} re-meshed (with neighbours)",
@@ -251,10 +223,7 @@ fn main() {
     println!("CPU time (all threads):");
     stats("chunk selection", &mut sel_cpu);
     stats("integration", &mut int_cpu);
-    stats(
-        &format!("incremental mesh / {} fr", args.keyframe),
-        &mut mesh_cpu,
-    );
+    stats(&format!("incremental mesh / {} fr", args.keyframe), &mut mesh_cpu);
     let c = cpu_ns();
     let t = Instant::now();
     let full = semrecon_recon::extract_mesh(&map);
@@ -268,11 +237,7 @@ fn main() {
         full.triangle_count(),
         full.vertex_count()
     );
-    println!(
-        "whole run {:.2} s ({:.1} ms/frame with meshing)",
-        wall,
-        wall * 1e3 / n as f64
-    );
+    println!("whole run {:.2} s ({:.1} ms/frame with meshing)", wall, wall * 1e3 / n as f64);
     if let Some(out) = &args.out {
         match write_ply(out, &assembled) {
             Ok(()) => println!("mesh written to {}", out.display()),

@@ -46,14 +46,8 @@ fn parse_args() -> Result<Args, String> {
         match arg.as_str() {
             "--frames" => a.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?,
             "--voxel" => a.voxel = value()?.parse().map_err(|e| format!("--voxel: {e}"))?,
-            "--photometric" => {
-                a.photometric = value()?
-                    .parse()
-                    .map_err(|e| format!("--photometric: {e}"))?
-            }
-            "--trunc" => {
-                a.truncation = Some(value()?.parse().map_err(|e| format!("--trunc: {e}"))?)
-            }
+            "--photometric" => a.photometric = value()?.parse().map_err(|e| format!("--photometric: {e}"))?,
+            "--trunc" => a.truncation = Some(value()?.parse().map_err(|e| format!("--trunc: {e}"))?),
             "--iters" => {
                 let v = value()?;
                 let parts: Vec<usize> = v
@@ -61,18 +55,12 @@ fn parse_args() -> Result<Args, String> {
                     .map(|p| p.parse().map_err(|e| format!("--iters {v}: {e}")))
                     .collect::<Result<_, _>>()?;
                 a.iterations =
-                    Some(parts.try_into().map_err(|_| {
-                        format!("--iters {v}: expected three counts, fine to coarse")
-                    })?);
+                    Some(parts.try_into().map_err(|_| format!("--iters {v}: expected three counts, fine to coarse"))?);
             }
-            "--downscale" => {
-                a.downscale = Some(value()?.parse().map_err(|e| format!("--downscale: {e}"))?)
-            }
+            "--downscale" => a.downscale = Some(value()?.parse().map_err(|e| format!("--downscale: {e}"))?),
             "--size" => {
                 let v = value()?;
-                let (w, h) = v
-                    .split_once('x')
-                    .ok_or_else(|| format!("--size {v}: expected WxH"))?;
+                let (w, h) = v.split_once('x').ok_or_else(|| format!("--size {v}: expected WxH"))?;
                 a.size = Some((
                     w.parse().map_err(|e| format!("--size: {e}"))?,
                     h.parse().map_err(|e| format!("--size: {e}"))?,
@@ -106,13 +94,7 @@ fn resample(f: Frame, w: u32, h: u32) -> Frame {
             color.push(f.color.get(i).copied().unwrap_or([0; 3]));
         }
     }
-    Frame {
-        depth,
-        color,
-        intrinsics: k,
-        labels: None,
-        ..f
-    }
+    Frame { depth, color, intrinsics: k, labels: None, ..f }
 }
 
 fn percentiles(label: &str, ms: &mut [f64]) {
@@ -123,11 +105,7 @@ fn percentiles(label: &str, ms: &mut [f64]) {
     ms.sort_by(f64::total_cmp);
     let median = ms[ms.len() / 2];
     let p95 = ms[(ms.len() * 95 / 100).min(ms.len() - 1)];
-    println!(
-        "{label:<22} median {median:7.2}  p95 {p95:7.2}  max {:7.2} ms  ({} samples)",
-        ms[ms.len() - 1],
-        ms.len()
-    );
+    println!("{label:<22} median {median:7.2}  p95 {p95:7.2}  max {:7.2} ms  ({} samples)", ms[ms.len() - 1], ms.len());
 }
 
 fn run(a: Args) -> Result<(), String> {
@@ -139,10 +117,7 @@ fn run(a: Args) -> Result<(), String> {
         map_config.truncation_voxels = t;
     }
     let mut map = TsdfMap::new(map_config).map_err(|e| e.to_string())?;
-    let mut config = TrackerConfig {
-        photometric_weight: a.photometric,
-        ..TrackerConfig::default()
-    };
+    let mut config = TrackerConfig { photometric_weight: a.photometric, ..TrackerConfig::default() };
     if let Some(d) = a.downscale {
         config.model_downscale = d;
     }
@@ -166,11 +141,8 @@ fn run(a: Args) -> Result<(), String> {
         let tracker = match &mut tracker {
             Some(t) => t,
             None => tracker.insert(
-                Tracker::with_initial_pose(
-                    config.clone(),
-                    frame.world_from_camera.unwrap_or(glam::Affine3A::IDENTITY),
-                )
-                .map_err(|e| e.to_string())?,
+                Tracker::with_initial_pose(config.clone(), frame.world_from_camera.unwrap_or(glam::Affine3A::IDENTITY))
+                    .map_err(|e| e.to_string())?,
             ),
         };
         let r = tracker.track(&frame, &map).map_err(|e| e.to_string())?;
@@ -185,8 +157,7 @@ fn run(a: Args) -> Result<(), String> {
             continue;
         }
         let t = Instant::now();
-        map.integrate(&frame, r.world_from_camera)
-            .map_err(|e| e.to_string())?;
+        map.integrate(&frame, r.world_from_camera).map_err(|e| e.to_string())?;
         fuse_ms.push(t.elapsed().as_secs_f64() * 1e3);
         if let Some(g) = frame.world_from_camera {
             let p = Vec3::from(r.world_from_camera.translation);
@@ -207,11 +178,7 @@ fn run(a: Args) -> Result<(), String> {
         config.iterations,
         a.photometric
     );
-    println!(
-        "lost frames: {} {:?}",
-        lost.len(),
-        &lost[..lost.len().min(10)]
-    );
+    println!("lost frames: {} {:?}", lost.len(), &lost[..lost.len().min(10)]);
     match ate_rmse(&est, &gt) {
         Some(e) => println!(
             "ATE RMSE (Horn, no scale): {:.2} mm; first-pose aligned: {:.2} mm ({} poses)",

@@ -62,10 +62,7 @@ pub(crate) fn case_table() -> &'static CaseTable {
 
 fn edge_between(a: u8, b: u8) -> usize {
     let (a, b) = if a < b { (a, b) } else { (b, a) };
-    EDGES
-        .iter()
-        .position(|&e| e == (a, b))
-        .unwrap_or(usize::MAX)
+    EDGES.iter().position(|&e| e == (a, b)).unwrap_or(usize::MAX)
 }
 
 /// The six faces, corners counter-clockwise seen from outside the cell.
@@ -144,22 +141,11 @@ fn build_table() -> CaseTable {
         let (a, b) = EDGES[e as usize];
         let p = |c: u8| [(c & 1) as f32, ((c >> 1) & 1) as f32, ((c >> 2) & 1) as f32];
         let (pa, pb) = (p(a), p(b));
-        [
-            (pa[0] + pb[0]) / 2.0,
-            (pa[1] + pb[1]) / 2.0,
-            (pa[2] + pb[2]) / 2.0,
-        ]
+        [(pa[0] + pb[0]) / 2.0, (pa[1] + pb[1]) / 2.0, (pa[2] + pb[2]) / 2.0]
     };
     let [a, b, c] = per_case[1][0].map(mid);
-    let (u, v) = (
-        [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
-        [c[0] - a[0], c[1] - a[1], c[2] - a[2]],
-    );
-    let n = [
-        u[1] * v[2] - u[2] * v[1],
-        u[2] * v[0] - u[0] * v[2],
-        u[0] * v[1] - u[1] * v[0],
-    ];
+    let (u, v) = ([b[0] - a[0], b[1] - a[1], b[2] - a[2]], [c[0] - a[0], c[1] - a[1], c[2] - a[2]]);
+    let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
     if n[0] + n[1] + n[2] < 0.0 {
         for tris in &mut per_case {
             for t in tris.iter_mut() {
@@ -200,12 +186,7 @@ mod tests {
                     ((case >> a) & 1) != ((case >> b) & 1)
                 })
                 .collect();
-            let mut used: Vec<usize> = t
-                .triangles(case)
-                .iter()
-                .flatten()
-                .map(|&e| e as usize)
-                .collect();
+            let mut used: Vec<usize> = t.triangles(case).iter().flatten().map(|&e| e as usize).collect();
             used.sort_unstable();
             used.dedup();
             assert_eq!(used, crossed, "case {case}");
@@ -220,10 +201,7 @@ mod tests {
             }
             for (&(a, b), &n) in &directed {
                 let back = directed.get(&(b, a)).copied().unwrap_or(0);
-                assert!(
-                    n == 1 && back <= 1,
-                    "case {case}: edge {a}->{b} used {n} times"
-                );
+                assert!(n == 1 && back <= 1, "case {case}: edge {a}->{b} used {n} times");
             }
         }
         assert!(max <= 12, "at most {max} triangles per cell");

@@ -24,8 +24,8 @@ use wide::{f32x8, i16x8, i32x8, u16x8};
 
 use crate::error::{ReconError, Result};
 use crate::map::{
-    blend_color, key_order, Chunk, ChunkHashBuilder, ChunkKey, SignSummary, TsdfMap, CHUNK_SIDE,
-    TSDF_SCALE, WEIGHT_SCALE,
+    blend_color, key_order, Chunk, ChunkHashBuilder, ChunkKey, SignSummary, TsdfMap, CHUNK_SIDE, TSDF_SCALE,
+    WEIGHT_SCALE,
 };
 
 /// Weight of one depth observation: `1 / z²` (z in metres) capped at 4.
@@ -80,11 +80,7 @@ struct ChunkOutcome {
 impl TsdfMap {
     /// Chunks within the truncation band of `frame`'s valid depth pixels, seen from
     /// `world_from_camera`; sorted (z, y, x) and without duplicates.
-    pub fn select_chunks(
-        &self,
-        frame: &Frame,
-        world_from_camera: Affine3A,
-    ) -> Result<Vec<ChunkKey>> {
+    pub fn select_chunks(&self, frame: &Frame, world_from_camera: Affine3A) -> Result<Vec<ChunkKey>> {
         check_frame(frame, &world_from_camera)?;
         let c = &self.config;
         let k = frame.intrinsics;
@@ -102,8 +98,8 @@ impl TsdfMap {
         const OFFSET: f32 = (1 << 14) as f32;
         let inv_chunk = 1.0 / c.chunk_size();
         let rot = world_from_camera.matrix3 * inv_chunk;
-        let origin = (world_from_camera.translation + Vec3A::splat(0.5 * c.voxel_size)) * inv_chunk
-            + Vec3A::splat(OFFSET);
+        let origin =
+            (world_from_camera.translation + Vec3A::splat(0.5 * c.voxel_size)) * inv_chunk + Vec3A::splat(OFFSET);
         let offset = ChunkKey::splat(OFFSET as i32);
         let z_step = 2.0 * trunc / steps as f32;
         let rows: Vec<usize> = (0..h).step_by(stride).collect();
@@ -127,9 +123,7 @@ impl TsdfMap {
                         let step = ray * z_step;
                         for (s, last) in last.iter_mut().enumerate() {
                             let p = p_near + step * s as f32;
-                            if p.cmplt(Vec3A::ZERO).any()
-                                || p.cmpge(Vec3A::splat(2.0 * OFFSET)).any()
-                            {
+                            if p.cmplt(Vec3A::ZERO).any() || p.cmpge(Vec3A::splat(2.0 * OFFSET)).any() {
                                 continue;
                             }
                             let key = p.as_ivec3() - offset;
@@ -150,11 +144,7 @@ impl TsdfMap {
     }
 
     /// Fuses `frame` seen from `world_from_camera`: chunk selection, then integration.
-    pub fn integrate(
-        &mut self,
-        frame: &Frame,
-        world_from_camera: Affine3A,
-    ) -> Result<IntegrationStats> {
+    pub fn integrate(&mut self, frame: &Frame, world_from_camera: Affine3A) -> Result<IntegrationStats> {
         let keys = self.select_chunks(frame, world_from_camera)?;
         self.integrate_chunks(frame, world_from_camera, &keys)
     }
@@ -183,36 +173,22 @@ impl TsdfMap {
             depth: &frame.depth,
             color: &frame.color,
             k: frame.intrinsics,
-            rot: [
-                camera_from_world.matrix3.x_axis,
-                camera_from_world.matrix3.y_axis,
-                camera_from_world.matrix3.z_axis,
-            ],
+            rot: [camera_from_world.matrix3.x_axis, camera_from_world.matrix3.y_axis, camera_from_world.matrix3.z_axis],
             trans: camera_from_world.translation,
             voxel_size: c.voxel_size,
             truncation: c.truncation(),
             min_depth: c.min_depth,
             max_depth: c.max_depth,
-            weight_cap: (c.max_weight * WEIGHT_SCALE)
-                .round()
-                .clamp(1.0, u16::MAX as f32) as u16,
+            weight_cap: (c.max_weight * WEIGHT_SCALE).round().clamp(1.0, u16::MAX as f32) as u16,
         };
         // Hand out `&mut` to exactly the selected chunks: one pass over the slab with a mask.
         let mut selected = vec![false; self.chunks.len()];
         for &(s, _) in &slots {
             selected[s as usize] = true;
         }
-        let mut targets: Vec<&mut Chunk> = self
-            .chunks
-            .iter_mut()
-            .zip(&selected)
-            .filter(|(_, &sel)| sel)
-            .map(|(c, _)| c)
-            .collect();
-        let outcomes: Vec<ChunkOutcome> = targets
-            .par_iter_mut()
-            .map(|chunk| integrate_chunk(chunk, &view))
-            .collect();
+        let mut targets: Vec<&mut Chunk> =
+            self.chunks.iter_mut().zip(&selected).filter(|(_, &sel)| sel).map(|(c, _)| c).collect();
+        let outcomes: Vec<ChunkOutcome> = targets.par_iter_mut().map(|chunk| integrate_chunk(chunk, &view)).collect();
         drop(targets);
         // `targets` and `outcomes` are in slab order, like the sorted `slots`.
         let revision = self.next_revision;
@@ -245,23 +221,12 @@ impl TsdfMap {
 /// themselves are never an error.
 fn check_frame(frame: &Frame, world_from_camera: &Affine3A) -> Result<()> {
     let n = frame.intrinsics.pixel_count();
-    let bad = |message: String| {
-        Err(ReconError::InvalidFrame {
-            index: frame.index,
-            message,
-        })
-    };
+    let bad = |message: String| Err(ReconError::InvalidFrame { index: frame.index, message });
     if frame.depth.len() != n {
-        return bad(format!(
-            "depth has {} pixels, the camera {n}",
-            frame.depth.len()
-        ));
+        return bad(format!("depth has {} pixels, the camera {n}", frame.depth.len()));
     }
     if !frame.color.is_empty() && frame.color.len() != n {
-        return bad(format!(
-            "colour has {} pixels, the camera {n}",
-            frame.color.len()
-        ));
+        return bad(format!("colour has {} pixels, the camera {n}", frame.color.len()));
     }
     if !world_from_camera.is_finite() {
         return bad("world_from_camera is not finite".into());
@@ -287,16 +252,9 @@ fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
     let dz = f.rot[2] * f.voxel_size;
     let splat = f32x8::splat;
     let steps = f32x8::new([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]);
-    let (step_x, step_y, step_z) = (
-        steps * splat(dx.x),
-        steps * splat(dx.y),
-        steps * splat(dx.z),
-    );
+    let (step_x, step_y, step_z) = (steps * splat(dx.x), steps * splat(dx.y), steps * splat(dx.z));
     let (fx, fy, cx, cy) = (splat(f.k.fx), splat(f.k.fy), splat(f.k.cx), splat(f.k.cy));
-    let (wf, hf) = (
-        splat(f.k.width as f32 - 0.5),
-        splat(f.k.height as f32 - 0.5),
-    );
+    let (wf, hf) = (splat(f.k.width as f32 - 0.5), splat(f.k.height as f32 - 0.5));
     let width = splat(f.k.width as f32);
     let (min_d, max_d) = (splat(f.min_depth), splat(f.max_depth));
     let (trunc, neg_trunc) = (splat(f.truncation), splat(-f.truncation));
@@ -318,12 +276,10 @@ fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
         let inv_z = one / pz;
         let u = fx * (splat(row.x) + step_x) * inv_z + cx;
         let v = fy * (splat(row.y) + step_y) * inv_z + cy;
-        let inside =
-            pz.simd_gt(zero) & u.simd_ge(-half) & u.simd_lt(wf) & v.simd_ge(-half) & v.simd_lt(hf);
+        let inside = pz.simd_gt(zero) & u.simd_ge(-half) & u.simd_lt(wf) & v.simd_ge(-half) & v.simd_lt(hf);
         // Pixel index in f32 (exact below 2^24 pixels); off-image voxels read pixel 0 and
         // stay masked by `inside`.
-        let pix_f = (v + half).fast_trunc_int().round_float() * width
-            + (u + half).fast_trunc_int().round_float();
+        let pix_f = (v + half).fast_trunc_int().round_float() * width + (u + half).fast_trunc_int().round_float();
         let pix = inside.select(pix_f, zero).fast_trunc_int().to_array();
         let d = f32x8::new(pix.map(|p| f.depth[p as usize]));
         let sdf = d - pz;
@@ -343,16 +299,11 @@ fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
             let b = w_obs * inv;
             let t = t_old * a + obs * (b * splat(TSDF_SCALE));
             let t_new = valid.select(t.round(), t_old);
-            let w_q = (w_sum * splat(WEIGHT_SCALE))
-                .round()
-                .fast_max(one)
-                .fast_min(cap);
+            let w_q = (w_sum * splat(WEIGHT_SCALE)).round().fast_max(one).fast_min(cap);
             let w_new = valid.select(w_q, w_old_q);
             // Values are integral and in range: the conversions are exact.
             *tsdf_row = i16x8::from_i32x8_truncate(t_new.fast_trunc_int()).to_array();
-            *weight_row = i16x8::from_i32x8_truncate(w_new.fast_trunc_int())
-                .to_array()
-                .map(|w| w as u16);
+            *weight_row = i16x8::from_i32x8_truncate(w_new.fast_trunc_int()).to_array().map(|w| w as u16);
             updated += valid_bits.count_ones();
             let near_bits = (valid & sdf.simd_lt(trunc)).to_bitmask();
             if near_bits != 0 {
@@ -371,17 +322,10 @@ fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
             (t_old, w_old_q)
         };
         let observed = w_now.simd_gt(zero);
-        signs.add_row(
-            r,
-            (observed & t_now.simd_lt(zero)).to_bitmask(),
-            (observed & t_now.simd_ge(zero)).to_bitmask(),
-        );
+        signs.add_row(r, (observed & t_now.simd_lt(zero)).to_bitmask(), (observed & t_now.simd_ge(zero)).to_bitmask());
     }
     chunk.signs = signs.bits();
-    ChunkOutcome {
-        updated,
-        near: near_any,
-    }
+    ChunkOutcome { updated, near: near_any }
 }
 
 #[cfg(test)]
@@ -407,29 +351,15 @@ mod tests {
                 _ => d,
             });
         }
-        let color = (0..n)
-            .map(|_| [rng.random(), rng.random(), rng.random()])
-            .collect();
-        Frame {
-            index,
-            timestamp: 0.0,
-            depth,
-            color,
-            intrinsics: k,
-            world_from_camera: None,
-            labels: None,
-        }
+        let color = (0..n).map(|_| [rng.random(), rng.random(), rng.random()]).collect();
+        Frame { index, timestamp: 0.0, depth, color, intrinsics: k, world_from_camera: None, labels: None }
     }
 
     /// The specification: per voxel, the same projection arithmetic and `Voxel::fuse`.
     fn scalar_integrate(voxels: &mut [Voxel], key: IVec3, f: &FrameView) {
         let origin = (key * 8).as_vec3() * f.voxel_size;
         let base = f.rot[0] * origin.x + f.rot[1] * origin.y + f.rot[2] * origin.z + f.trans;
-        let (dx, dy, dz) = (
-            f.rot[0] * f.voxel_size,
-            f.rot[1] * f.voxel_size,
-            f.rot[2] * f.voxel_size,
-        );
+        let (dx, dy, dz) = (f.rot[0] * f.voxel_size, f.rot[1] * f.voxel_size, f.rot[2] * f.voxel_size);
         for (i, vox) in voxels.iter_mut().enumerate() {
             let (x, y, z) = ((i % 8) as f32, ((i / 8) % 8) as f32, (i / 64) as f32);
             let row = base + dy * y + dz * z;
@@ -437,38 +367,26 @@ mod tests {
             let inv_z = 1.0 / pz;
             let u = f.k.fx * (row.x + x * dx.x) * inv_z + f.k.cx;
             let v = f.k.fy * (row.y + x * dx.y) * inv_z + f.k.cy;
-            let inside = pz > 0.0
-                && u >= -0.5
-                && u < f.k.width as f32 - 0.5
-                && v >= -0.5
-                && v < f.k.height as f32 - 0.5;
+            let inside =
+                pz > 0.0 && u >= -0.5 && u < f.k.width as f32 - 0.5 && v >= -0.5 && v < f.k.height as f32 - 0.5;
             if !inside {
                 continue;
             }
-            let pix =
-                ((v + 0.5) as i32 as f32 * f.k.width as f32 + (u + 0.5) as i32 as f32) as usize;
+            let pix = ((v + 0.5) as i32 as f32 * f.k.width as f32 + (u + 0.5) as i32 as f32) as usize;
             let d = f.depth[pix];
             let sdf = d - pz;
             if !(d >= f.min_depth && d <= f.max_depth && sdf >= -f.truncation) {
                 continue;
             }
             let color = (sdf < f.truncation).then_some(f.color[pix]);
-            vox.fuse(
-                (sdf * (1.0 / f.truncation)).min(1.0),
-                depth_weight(d),
-                color,
-                f.weight_cap,
-            );
+            vox.fuse((sdf * (1.0 / f.truncation)).min(1.0), depth_weight(d), color, f.weight_cap);
         }
     }
 
     #[test]
     fn simd_rows_equal_the_scalar_specification_bit_for_bit() {
         let mut rng = ChaCha8Rng::seed_from_u64(7);
-        let config = TsdfConfig {
-            max_weight: 3.0,
-            ..TsdfConfig::default()
-        };
+        let config = TsdfConfig { max_weight: 3.0, ..TsdfConfig::default() };
         let mut map = TsdfMap::new(config).expect("valid");
         let mut spec: Vec<(IVec3, Vec<Voxel>)> = Vec::new();
         for index in 0..6 {

@@ -117,12 +117,7 @@ mod tests {
 
     #[test]
     fn jacobi_eigen_reconstructs_the_matrix() {
-        let a = [
-            [4.0, 1.0, 0.5, 0.0],
-            [1.0, 3.0, 0.2, 0.1],
-            [0.5, 0.2, 2.0, -0.3],
-            [0.0, 0.1, -0.3, 1.0],
-        ];
+        let a = [[4.0, 1.0, 0.5, 0.0], [1.0, 3.0, 0.2, 0.1], [0.5, 0.2, 2.0, -0.3], [0.0, 0.1, -0.3, 1.0]];
         let (vals, vecs) = symmetric_eigen(&a);
         assert!(vals.windows(2).all(|w| w[0] <= w[1]));
         for (lambda, v) in vals.iter().zip(&vecs) {

@@ -66,10 +66,7 @@ impl Default for TsdfConfig {
 impl TsdfConfig {
     /// The default configuration at another voxel size.
     pub fn with_voxel_size(voxel_size: f32) -> Result<Self> {
-        let c = Self {
-            voxel_size,
-            ..Self::default()
-        };
+        let c = Self { voxel_size, ..Self::default() };
         c.validate()?;
         Ok(c)
     }
@@ -78,35 +75,19 @@ impl TsdfConfig {
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(ReconError::InvalidConfig(m));
         if !(0.002..=0.05).contains(&self.voxel_size) {
-            return bad(format!(
-                "voxel size {} m is outside 0.002..0.05 m",
-                self.voxel_size
-            ));
+            return bad(format!("voxel size {} m is outside 0.002..0.05 m", self.voxel_size));
         }
         if !(1.0..=64.0).contains(&self.truncation_voxels) {
-            return bad(format!(
-                "truncation {} voxels is outside 1..64",
-                self.truncation_voxels
-            ));
+            return bad(format!("truncation {} voxels is outside 1..64", self.truncation_voxels));
         }
         if !(1.0 / WEIGHT_SCALE..=255.0).contains(&self.max_weight) {
-            return bad(format!(
-                "weight cap {} is outside 1/256..255",
-                self.max_weight
-            ));
+            return bad(format!("weight cap {} is outside 1/256..255", self.max_weight));
         }
-        if !(self.min_depth >= 0.0 && self.min_depth < self.max_depth && self.max_depth.is_finite())
-        {
-            return bad(format!(
-                "depth range {}..{} m is empty or not finite",
-                self.min_depth, self.max_depth
-            ));
+        if !(self.min_depth >= 0.0 && self.min_depth < self.max_depth && self.max_depth.is_finite()) {
+            return bad(format!("depth range {}..{} m is empty or not finite", self.min_depth, self.max_depth));
         }
         if !(1..=64).contains(&self.selection_stride) {
-            return bad(format!(
-                "selection stride {} is outside 1..64",
-                self.selection_stride
-            ));
+            return bad(format!("selection stride {} is outside 1..64", self.selection_stride));
         }
         Ok(())
     }
@@ -183,12 +164,7 @@ impl Voxel {
         let t = self.tsdf as f32 * a + tsdf * (b * TSDF_SCALE);
         self.tsdf = round_half_away(t) as i16;
         if let Some(color) = color {
-            let mut c = [
-                self.color[0],
-                self.color[1],
-                self.color[2],
-                self.color_count,
-            ];
+            let mut c = [self.color[0], self.color[1], self.color[2], self.color_count];
             blend_color(&mut c, color);
             self.color = [c[0], c[1], c[2]];
             self.color_count = c[3];
@@ -205,11 +181,7 @@ impl Voxel {
 #[inline]
 pub(crate) fn round_half_away(x: f32) -> f32 {
     let a = x.abs();
-    let r = if a == 0.5f32.next_down() {
-        0.0
-    } else {
-        (a + 0.5).trunc()
-    };
+    let r = if a == 0.5f32.next_down() { 0.0 } else { (a + 0.5).trunc() };
     r.copysign(x)
 }
 
@@ -340,22 +312,13 @@ impl VoxelBlock {
     }
 
     fn empty() -> Box<Self> {
-        Box::new(Self {
-            tsdf: [0; CHUNK_VOXELS],
-            weight: [0; CHUNK_VOXELS],
-            color: [[0; 4]; CHUNK_VOXELS],
-        })
+        Box::new(Self { tsdf: [0; CHUNK_VOXELS], weight: [0; CHUNK_VOXELS], color: [[0; 4]; CHUNK_VOXELS] })
     }
 
     #[inline]
     pub(crate) fn get(&self, i: usize) -> Voxel {
         let c = self.color[i];
-        Voxel {
-            tsdf: self.tsdf[i],
-            weight: self.weight[i],
-            color: [c[0], c[1], c[2]],
-            color_count: c[3],
-        }
+        Voxel { tsdf: self.tsdf[i], weight: self.weight[i], color: [c[0], c[1], c[2]], color_count: c[3] }
     }
 
     #[cfg_attr(not(test), allow(dead_code))]
@@ -381,14 +344,7 @@ pub struct Chunk {
 
 impl Chunk {
     fn new(key: ChunkKey) -> Self {
-        Self {
-            key,
-            voxels: VoxelBlock::empty(),
-            dirty: false,
-            revision: 0,
-            signs: 0,
-            frames: FrameRuns::default(),
-        }
+        Self { key, voxels: VoxelBlock::empty(), dirty: false, revision: 0, signs: 0, frames: FrameRuns::default() }
     }
 
     /// The chunk's coordinates.
@@ -479,12 +435,7 @@ impl TsdfMap {
     /// An empty map; fails on an invalid configuration.
     pub fn new(config: TsdfConfig) -> Result<Self> {
         config.validate()?;
-        Ok(Self {
-            config,
-            index: HashMap::default(),
-            chunks: Vec::new(),
-            next_revision: 1,
-        })
+        Ok(Self { config, index: HashMap::default(), chunks: Vec::new(), next_revision: 1 })
     }
 
     /// The configuration.
@@ -500,10 +451,7 @@ impl TsdfMap {
     /// Bytes one allocated chunk costs: the 4 KiB voxel block, the chunk record and its hash
     /// entry (frame runs, usually a few runs of 8 bytes, come on top).
     pub const fn bytes_per_chunk() -> usize {
-        std::mem::size_of::<VoxelBlock>()
-            + std::mem::size_of::<Chunk>()
-            + std::mem::size_of::<(ChunkKey, u32)>()
-            + 1
+        std::mem::size_of::<VoxelBlock>() + std::mem::size_of::<Chunk>() + std::mem::size_of::<(ChunkKey, u32)>() + 1
     }
 
     /// Approximate heap bytes held by the map (voxels, chunk records, hash table, frame runs).
@@ -511,11 +459,7 @@ impl TsdfMap {
         let voxels = self.chunks.len() * std::mem::size_of::<VoxelBlock>();
         let records = self.chunks.capacity() * std::mem::size_of::<Chunk>();
         let table = self.index.capacity() * (std::mem::size_of::<(ChunkKey, u32)>() + 1);
-        let runs: usize = self
-            .chunks
-            .iter()
-            .map(|c| c.frames.runs.capacity() * 8)
-            .sum();
+        let runs: usize = self.chunks.iter().map(|c| c.frames.runs.capacity() * 8).sum();
         voxels + records + table + runs
     }
 
@@ -574,12 +518,7 @@ impl TsdfMap {
 
     /// Keys of the chunks that frame `frame` changed (sorted).
     pub fn chunks_touched_by(&self, frame: u32) -> Vec<ChunkKey> {
-        let mut keys: Vec<ChunkKey> = self
-            .chunks
-            .iter()
-            .filter(|c| c.frames.contains(frame))
-            .map(|c| c.key)
-            .collect();
+        let mut keys: Vec<ChunkKey> = self.chunks.iter().filter(|c| c.frames.contains(frame)).map(|c| c.key).collect();
         keys.sort_unstable_by_key(|k| key_order(*k));
         keys
     }
@@ -614,11 +553,7 @@ impl TsdfMap {
 #[inline]
 pub fn split_voxel(v: IVec3) -> (ChunkKey, usize) {
     let side = CHUNK_SIDE as i32;
-    let key = IVec3::new(
-        v.x.div_euclid(side),
-        v.y.div_euclid(side),
-        v.z.div_euclid(side),
-    );
+    let key = IVec3::new(v.x.div_euclid(side), v.y.div_euclid(side), v.z.div_euclid(side));
     let l = v - key * side;
     (key, (l.x + side * (l.y + side * l.z)) as usize)
 }
@@ -642,14 +577,8 @@ mod tests {
 
     #[test]
     fn split_voxel_handles_negative_coordinates() {
-        assert_eq!(
-            split_voxel(IVec3::new(-1, 0, 9)),
-            (IVec3::new(-1, 0, 1), 7 + 64)
-        );
-        assert_eq!(
-            split_voxel(IVec3::new(-8, -9, 7)),
-            (IVec3::new(-1, -2, 0), 7 * 8 + 7 * 64)
-        );
+        assert_eq!(split_voxel(IVec3::new(-1, 0, 9)), (IVec3::new(-1, 0, 1), 7 + 64));
+        assert_eq!(split_voxel(IVec3::new(-8, -9, 7)), (IVec3::new(-1, -2, 0), 7 * 8 + 7 * 64));
     }
 
     #[test]
@@ -694,10 +623,7 @@ mod tests {
     fn config_ranges_are_checked() {
         assert!(TsdfConfig::with_voxel_size(0.001).is_err());
         assert!(TsdfConfig::with_voxel_size(0.02).is_ok());
-        let c = TsdfConfig {
-            max_depth: f32::NAN,
-            ..TsdfConfig::default()
-        };
+        let c = TsdfConfig { max_depth: f32::NAN, ..TsdfConfig::default() };
         assert!(c.validate().is_err());
     }
 }

@@ -108,11 +108,7 @@ impl PaddedBlock {
     }
 
     fn new() -> Box<Self> {
-        Box::new(PaddedBlock {
-            tsdf: [0; PAD * PAD2],
-            flags: [0; PAD * PAD2],
-            color: [[0; 4]; PAD * PAD2],
-        })
+        Box::new(PaddedBlock { tsdf: [0; PAD * PAD2], flags: [0; PAD * PAD2], color: [[0; 4]; PAD * PAD2] })
     }
 
     /// Copies the voxels of padded coordinates `-1 ..= 9` (local) from the neighbours
@@ -148,8 +144,7 @@ impl PaddedBlock {
                             let t = v.tsdf[src + r];
                             b.tsdf[dst + r] = t;
                             b.color[dst + r] = v.color[src + r];
-                            b.flags[dst + r] =
-                                (t < 0) as u8 | ((v.weight[src + r] != 0) as u8) << 1;
+                            b.flags[dst + r] = (t < 0) as u8 | ((v.weight[src + r] != 0) as u8) << 1;
                         }
                     } else {
                         for r in 0..run {
@@ -251,8 +246,7 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
     let table = case_table();
     let vs = map.config().voxel_size;
     let key_voxel = key * CHUNK_SIDE as i32;
-    let corner_offset: [usize; 8] =
-        std::array::from_fn(|c| (c & 1) + PAD * ((c >> 1) & 1) + PAD2 * ((c >> 2) & 1));
+    let corner_offset: [usize; 8] = std::array::from_fn(|c| (c & 1) + PAD * ((c >> 1) & 1) + PAD2 * ((c >> 2) & 1));
     // Pass 1: the cells the surface crosses, and how many triangles they make, so that the
     // mesh buffers are allocated once.
     let cells = &mut scratch.cells;
@@ -288,11 +282,7 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
     // Pass 2: the triangles.
     for &(cell, case) in cells.iter() {
         let cell = cell as usize;
-        let (x, y, z) = (
-            cell % CHUNK_SIDE,
-            (cell / CHUNK_SIDE) % CHUNK_SIDE,
-            cell / (CHUNK_SIDE * CHUNK_SIDE),
-        );
+        let (x, y, z) = (cell % CHUNK_SIDE, (cell / CHUNK_SIDE) % CHUNK_SIDE, cell / (CHUNK_SIDE * CHUNK_SIDE));
         {
             {
                 let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
@@ -309,23 +299,15 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
                     for (slot, &e) in t.iter_mut().zip(tri) {
                         let (a, b) = EDGES[e as usize];
                         let axis = (e / 4) as usize;
-                        let low = [
-                            x + (a & 1) as usize,
-                            y + ((a >> 1) & 1) as usize,
-                            z + ((a >> 2) & 1) as usize,
-                        ];
+                        let low = [x + (a & 1) as usize, y + ((a >> 1) & 1) as usize, z + ((a >> 2) & 1) as usize];
                         let ek = ((low[2] * ES + low[1]) * ES + low[0]) * 3 + axis;
                         if edge_vertex[ek] == u32::MAX {
                             edge_vertex[ek] = mesh.positions.len() as u32;
                             used.push(ek as u32);
-                            let (ia, ib) = (
-                                base + corner_offset[a as usize],
-                                base + corner_offset[b as usize],
-                            );
+                            let (ia, ib) = (base + corner_offset[a as usize], base + corner_offset[b as usize]);
                             let (fa, fb) = (f[a as usize], f[b as usize]);
                             let s = fa / (fa - fb);
-                            let low_global =
-                                key_voxel + IVec3::new(low[0] as i32, low[1] as i32, low[2] as i32);
+                            let low_global = key_voxel + IVec3::new(low[0] as i32, low[1] as i32, low[2] as i32);
                             let mut p = low_global.as_vec3();
                             p[axis] += s;
                             mesh.positions.push(p * vs);
@@ -344,11 +326,9 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
                             pb[axis] += 1;
                             let g = gradient(ia, pa).lerp(gradient(ib, pb), s);
                             mesh.normals.push(g.normalize_or_zero());
-                            let shared =
-                                (0..3).any(|q| q != axis && (low[q] == 0 || low[q] == CHUNK_SIDE));
+                            let shared = (0..3).any(|q| q != axis && (low[q] == 0 || low[q] == CHUNK_SIDE));
                             if shared {
-                                mesh.shared
-                                    .push((edge_vertex[ek], (low_global, axis as u8)));
+                                mesh.shared.push((edge_vertex[ek], (low_global, axis as u8)));
                             }
                         }
                         *slot = edge_vertex[ek];
@@ -397,12 +377,7 @@ impl IncrementalMesher {
             .filter(|c| self.cache.get(&c.key()).map(|e| e.0) != Some(c.revision()))
             .map(|c| c.key())
             .collect();
-        let freed: Vec<ChunkKey> = self
-            .cache
-            .keys()
-            .filter(|k| map.chunk(**k).is_none())
-            .copied()
-            .collect();
+        let freed: Vec<ChunkKey> = self.cache.keys().filter(|k| map.chunk(**k).is_none()).copied().collect();
         for k in &freed {
             self.cache.remove(k);
         }
@@ -462,10 +437,7 @@ impl IncrementalMesher {
 /// Meshes the whole map from scratch (parallel over chunks).
 pub fn extract_mesh(map: &TsdfMap) -> LabeledMesh {
     let keys = map.sorted_keys();
-    let meshes: Vec<ChunkMesh> = keys
-        .par_iter()
-        .map_init(Scratch::new, |s, &k| mesh_chunk_with(map, k, s))
-        .collect();
+    let meshes: Vec<ChunkMesh> = keys.par_iter().map_init(Scratch::new, |s, &k| mesh_chunk_with(map, k, s)).collect();
     assemble(&meshes.iter().collect::<Vec<_>>())
 }
 
@@ -498,8 +470,7 @@ fn assemble(meshes: &[&ChunkMesh]) -> LabeledMesh {
             out.colors.push(m.colors[i]);
             out.normals.push(m.normals[i]);
         }
-        out.triangles
-            .extend(m.triangles.iter().map(|t| t.map(|i| remap[i as usize])));
+        out.triangles.extend(m.triangles.iter().map(|t| t.map(|i| remap[i as usize])));
     }
     out
 }
@@ -515,12 +486,8 @@ mod tests {
         let vs = config.voxel_size;
         let trunc = config.truncation();
         let mut map = TsdfMap::new(config).expect("valid");
-        let lo = ((center - Vec3::splat(radius + 2.0 * trunc)) / vs)
-            .floor()
-            .as_ivec3();
-        let hi = ((center + Vec3::splat(radius + 2.0 * trunc)) / vs)
-            .ceil()
-            .as_ivec3();
+        let lo = ((center - Vec3::splat(radius + 2.0 * trunc)) / vs).floor().as_ivec3();
+        let hi = ((center + Vec3::splat(radius + 2.0 * trunc)) / vs).ceil().as_ivec3();
         for z in lo.z..=hi.z {
             for y in lo.y..=hi.y {
                 for x in lo.x..=hi.x {
@@ -534,12 +501,7 @@ mod tests {
                     let (key, local) = split_voxel(v);
                     let (slot, _) = map.allocate(key);
                     let mut vox = Voxel::default();
-                    vox.fuse(
-                        (sdf / trunc).clamp(-1.0, 1.0),
-                        1.0,
-                        Some([10, 200, 30]),
-                        256,
-                    );
+                    vox.fuse((sdf / trunc).clamp(-1.0, 1.0), 1.0, Some([10, 200, 30]), 256);
                     map.chunks[slot as usize].voxels.set(local, vox);
                 }
             }
@@ -571,20 +533,14 @@ mod tests {
     fn sphere_mesh_is_accurate_closed_and_outward() {
         let (center, radius) = (Vec3::new(0.0131, -0.0217, 0.0072), 0.1);
         let map = sphere_map(center, radius, None);
-        assert!(
-            map.chunk_count() > 27,
-            "the sphere spans many chunks, negative keys included"
-        );
+        assert!(map.chunk_count() > 27, "the sphere spans many chunks, negative keys included");
         let mesh = extract_mesh(&map);
         mesh.validate().expect("valid mesh");
         assert!(mesh.triangle_count() > 5000);
         let vs = map.config().voxel_size;
         for (p, n) in mesh.positions.iter().zip(&mesh.normals) {
             let r = *p - center;
-            assert!(
-                (r.length() - radius).abs() < 0.02 * vs,
-                "vertex {p} off the sphere"
-            );
+            assert!((r.length() - radius).abs() < 0.02 * vs, "vertex {p} off the sphere");
             assert!(n.dot(r.normalize()) > 0.98, "normal {n} at {p}");
         }
         assert!(mesh.colors.iter().all(|c| *c == [10, 200, 30]));
@@ -603,10 +559,7 @@ mod tests {
             let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
             let n = (b - a).cross(c - a);
             if n.length() > 1e-9 {
-                assert!(
-                    n.dot((a + b + c) / 3.0 - center) > 0.0,
-                    "inward triangle {t:?}"
-                );
+                assert!(n.dot((a + b + c) / 3.0 - center) > 0.0, "inward triangle {t:?}");
             }
         }
         // Euler characteristic of a sphere.
@@ -627,15 +580,9 @@ mod tests {
         let vs = map.config().voxel_size;
         for p in &mesh.positions {
             assert!(((*p - center).length() - radius).abs() < 0.02 * vs);
-            assert!(
-                p.x <= 4.0 * vs + 1e-6,
-                "vertex {p} beyond the observed voxels"
-            );
+            assert!(p.x <= 4.0 * vs + 1e-6, "vertex {p} beyond the observed voxels");
         }
-        let border = edge_uses(&mesh)
-            .values()
-            .filter(|(a, b)| a + b == 1)
-            .count();
+        let border = edge_uses(&mesh).values().filter(|(a, b)| a + b == 1).count();
         assert!(border > 0, "the cut is an open border");
     }
 

@@ -83,11 +83,7 @@ impl<'a> ChunkGrid<'a> {
         let dims = (max - min + 1).max(IVec3::ZERO);
         let cells = dims.x as usize * dims.y as usize * dims.z as usize;
         if map.chunks.is_empty() || cells > MAX_GRID_CELLS {
-            return Self {
-                min,
-                dims: IVec3::ZERO,
-                slots: Vec::new(),
-            };
+            return Self { min, dims: IVec3::ZERO, slots: Vec::new() };
         }
         let mut slots = vec![None; cells];
         for c in &map.chunks {
@@ -109,12 +105,7 @@ struct VoxelReader<'a> {
 
 impl<'a> VoxelReader<'a> {
     fn new(map: &'a TsdfMap, grid: &'a ChunkGrid<'a>) -> Self {
-        Self {
-            map,
-            grid,
-            key: ChunkKey::MAX,
-            chunk: None,
-        }
+        Self { map, grid, key: ChunkKey::MAX, chunk: None }
     }
 
     #[inline]
@@ -331,15 +322,9 @@ pub fn raycast(
                                 None => continue,
                             }
                         }
-                        let Some((hit, t)) = march(
-                            &mut reader,
-                            origin,
-                            dir,
-                            d0 / z_per_t,
-                            d1 / z_per_t,
-                            voxel_size,
-                            truncation,
-                        ) else {
+                        let Some((hit, t)) =
+                            march(&mut reader, origin, dir, d0 / z_per_t, d1 / z_per_t, voxel_size, truncation)
+                        else {
                             continue;
                         };
                         let Some(g) = gradient(&mut reader, hit) else {
@@ -352,23 +337,13 @@ pub fn raycast(
                         let n_cam = camera_from_world_rot * (g / len);
                         let p_cam = ray_cam * (t * z_per_t);
                         vert_band[i] = p_cam;
-                        norm_band[i] = if n_cam.dot(p_cam) > 0.0 {
-                            -n_cam
-                        } else {
-                            n_cam
-                        };
+                        norm_band[i] = if n_cam.dot(p_cam) > 0.0 { -n_cam } else { n_cam };
                         color_band[i] = reader.color(hit);
                     }
                 }
             }
         });
-    ModelView {
-        intrinsics,
-        world_from_camera,
-        vertices,
-        normals,
-        colors,
-    }
+    ModelView { intrinsics, world_from_camera, vertices, normals, colors }
 }
 
 /// Gradient of the interpolated distance at `p` (voxel units; any scale): differences of
@@ -378,20 +353,14 @@ pub fn raycast(
 fn gradient(reader: &mut VoxelReader, p: Vec3) -> Option<Vec3> {
     let f0 = reader.trilinear(p);
     let central = (|| {
-        Some(Vec3::new(
-            diff(reader, p, Vec3::X, f0)?,
-            diff(reader, p, Vec3::Y, f0)?,
-            diff(reader, p, Vec3::Z, f0)?,
-        ))
+        Some(Vec3::new(diff(reader, p, Vec3::X, f0)?, diff(reader, p, Vec3::Y, f0)?, diff(reader, p, Vec3::Z, f0)?))
     })();
     if central.is_some() {
         return central;
     }
     let (c, f) = reader.corners(p)?;
     let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
-    let bilerp = |v00: f32, v10: f32, v01: f32, v11: f32, s: f32, t: f32| {
-        lerp(lerp(v00, v10, s), lerp(v01, v11, s), t)
-    };
+    let bilerp = |v00: f32, v10: f32, v01: f32, v11: f32, s: f32, t: f32| lerp(lerp(v00, v10, s), lerp(v01, v11, s), t);
     Some(Vec3::new(
         bilerp(c[1] - c[0], c[3] - c[2], c[5] - c[4], c[7] - c[6], f.y, f.z),
         bilerp(c[2] - c[0], c[3] - c[1], c[6] - c[4], c[7] - c[5], f.x, f.z),

@@ -119,23 +119,13 @@ impl TrackerConfig {
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(ReconError::InvalidConfig(m));
         if ![1, 2, 4].contains(&self.model_downscale) {
-            return bad(format!(
-                "model downscale {} is not 1, 2 or 4",
-                self.model_downscale
-            ));
+            return bad(format!("model downscale {} is not 1, 2 or 4", self.model_downscale));
         }
         if self.iterations.iter().all(|&i| i == 0) || self.iterations.iter().any(|&i| i > 100) {
-            return bad(format!(
-                "iterations {:?}: need at least one, at most 100 per level",
-                self.iterations
-            ));
+            return bad(format!("iterations {:?}: need at least one, at most 100 per level", self.iterations));
         }
-        if !(self.min_depth >= 0.0 && self.min_depth < self.max_depth && self.max_depth.is_finite())
-        {
-            return bad(format!(
-                "depth range {}..{} m is empty or not finite",
-                self.min_depth, self.max_depth
-            ));
+        if !(self.min_depth >= 0.0 && self.min_depth < self.max_depth && self.max_depth.is_finite()) {
+            return bad(format!("depth range {}..{} m is empty or not finite", self.min_depth, self.max_depth));
         }
         let positive = [
             ("max_distance", self.max_distance),
@@ -152,10 +142,7 @@ impl TrackerConfig {
             }
         }
         if !(self.photometric_weight >= 0.0 && self.photometric_weight.is_finite()) {
-            return bad(format!(
-                "photometric weight {} must be >= 0",
-                self.photometric_weight
-            ));
+            return bad(format!("photometric weight {} must be >= 0", self.photometric_weight));
         }
         for (name, v) in [
             ("min_inlier_ratio", self.min_inlier_ratio),
@@ -167,10 +154,7 @@ impl TrackerConfig {
             }
         }
         if !(0.0..1.0).contains(&self.min_condition) {
-            return bad(format!(
-                "min_condition {} is outside 0..1",
-                self.min_condition
-            ));
+            return bad(format!("min_condition {} is outside 0..1", self.min_condition));
         }
         if self.keyframe_interval == 0 {
             return bad("keyframe interval must be at least 1".into());
@@ -281,15 +265,8 @@ struct Normals {
 }
 
 impl Normals {
-    const ZERO: Self = Self {
-        h: [[0.0; 6]; 6],
-        g: [0.0; 6],
-        sq_residual: 0.0,
-        sq_normalised: 0.0,
-        inliers: 0,
-        far: 0,
-        turned: 0,
-    };
+    const ZERO: Self =
+        Self { h: [[0.0; 6]; 6], g: [0.0; 6], sq_residual: 0.0, sq_normalised: 0.0, inliers: 0, far: 0, turned: 0 };
 
     #[inline]
     fn add(&mut self, j: [f64; 6], r: f64, w: f64) {
@@ -362,9 +339,7 @@ impl Tracker {
     pub fn with_initial_pose(config: TrackerConfig, world_from_camera: Affine3A) -> Result<Self> {
         config.validate()?;
         if !world_from_camera.is_finite() {
-            return Err(ReconError::InvalidConfig(
-                "initial pose is not finite".into(),
-            ));
+            return Err(ReconError::InvalidConfig("initial pose is not finite".into()));
         }
         Ok(Self {
             config,
@@ -442,11 +417,7 @@ impl Tracker {
         // Model at the last pose.
         let t_cast = Instant::now();
         let model = self.model(map, last, pyramid[model_level].k);
-        result.raycast_ms = if model.1 {
-            t_cast.elapsed().as_secs_f64() * 1e3
-        } else {
-            0.0
-        };
+        result.raycast_ms = if model.1 { t_cast.elapsed().as_secs_f64() * 1e3 } else { 0.0 };
         let model = model.0;
         let model_valid = model.view.valid_count();
         if (model_valid as f32) < c.min_valid_ratio * model.view.vertices.len() as f32 {
@@ -504,9 +475,7 @@ impl Tracker {
             TrackingStatus::Lost(LostReason::Degenerate)
         } else if result.inlier_ratio < c.min_inlier_ratio || overlap_ratio < c.min_overlap {
             TrackingStatus::Lost(LostReason::FewInliers)
-        } else if !((stats.sq_normalised / stats.inliers.max(1) as f64).sqrt()
-            <= c.max_residual as f64)
-        {
+        } else if !((stats.sq_normalised / stats.inliers.max(1) as f64).sqrt() <= c.max_residual as f64) {
             TrackingStatus::Lost(LostReason::LargeResidual)
         } else if !(jump_t <= c.max_translation_jump
             && jump_r <= c.max_rotation_jump
@@ -532,10 +501,7 @@ impl Tracker {
         self.last = Some(result.world_from_camera);
         if self.tracked.is_multiple_of(self.config.keyframe_interval) {
             result.keyframe = true;
-            self.keyframes.push(Keyframe {
-                frame_index: frame.index,
-                world_from_camera: result.world_from_camera,
-            });
+            self.keyframes.push(Keyframe { frame_index: frame.index, world_from_camera: result.world_from_camera });
         }
         self.tracked += 1;
         self.last_depth = Some(model_level.depth.clone());
@@ -545,42 +511,17 @@ impl Tracker {
     /// it was cast now.
     fn model(&mut self, map: &TsdfMap, pose: Affine3A, k: Intrinsics) -> (Model, bool) {
         let stamp = (map.next_revision, map.chunk_count());
-        let cached = self
-            .cache
-            .take()
-            .filter(|m| m.pose == pose && m.stamp == stamp && m.view.intrinsics == k);
+        let cached = self.cache.take().filter(|m| m.pose == pose && m.stamp == stamp && m.view.intrinsics == k);
         let (view, cast) = match cached {
             Some(m) => (m.view, false),
-            None => (
-                raycast(
-                    map,
-                    k,
-                    pose,
-                    self.config.min_depth,
-                    self.config.max_depth,
-                    self.last_depth.as_deref(),
-                ),
-                true,
-            ),
+            None => {
+                (raycast(map, k, pose, self.config.min_depth, self.config.max_depth, self.last_depth.as_deref()), true)
+            }
         };
-        self.cache = Some(CachedModel {
-            pose,
-            stamp,
-            view: view.clone(),
-        });
-        let (intensity, gradient) = if self.config.photometric_weight > 0.0 {
-            model_intensity(&view)
-        } else {
-            (Vec::new(), Vec::new())
-        };
-        (
-            Model {
-                view,
-                intensity,
-                gradient,
-            },
-            cast,
-        )
+        self.cache = Some(CachedModel { pose, stamp, view: view.clone() });
+        let (intensity, gradient) =
+            if self.config.photometric_weight > 0.0 { model_intensity(&view) } else { (Vec::new(), Vec::new()) };
+        (Model { view, intensity, gradient }, cast)
     }
 }
 
@@ -592,16 +533,9 @@ fn luma(c: [u8; 3]) -> f32 {
 
 /// The model's intensity image and its central-difference gradient.
 fn model_intensity(view: &ModelView) -> (Vec<f32>, Vec<Vec2>) {
-    let (w, h) = (
-        view.intrinsics.width as usize,
-        view.intrinsics.height as usize,
-    );
-    let intensity: Vec<f32> = view
-        .colors
-        .iter()
-        .zip(&view.vertices)
-        .map(|(c, v)| if v.z > 0.0 { luma(*c) } else { f32::NAN })
-        .collect();
+    let (w, h) = (view.intrinsics.width as usize, view.intrinsics.height as usize);
+    let intensity: Vec<f32> =
+        view.colors.iter().zip(&view.vertices).map(|(c, v)| if v.z > 0.0 { luma(*c) } else { f32::NAN }).collect();
     let mut gradient = vec![Vec2::NAN; w * h];
     gradient.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         if y == 0 || y + 1 >= h {
@@ -623,13 +557,7 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
     let depth0: Vec<f32> = frame
         .depth
         .iter()
-        .map(|&d| {
-            if d.is_finite() && d >= c.min_depth && d <= c.max_depth {
-                d
-            } else {
-                0.0
-            }
-        })
+        .map(|&d| if d.is_finite() && d >= c.min_depth && d <= c.max_depth { d } else { 0.0 })
         .collect();
     // Intensity only feeds the photometric term: empty at every level when it is off.
     let intensity0: Vec<f32> = if frame.color.is_empty() || c.photometric_weight <= 0.0 {
@@ -649,53 +577,49 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
         let has_intensity = !intensity.is_empty();
         let mut intensity_rows: Vec<&mut [f32]> = intensity.chunks_mut(w).collect();
         intensity_rows.resize_with(h, Default::default);
-        depth
-            .par_chunks_mut(w)
-            .zip(intensity_rows.par_iter_mut())
-            .enumerate()
-            .for_each(|(y, (drow, irow))| {
-                for x in 0..w {
-                    let mut vals = [0.0f32; 4];
-                    let mut n = 0;
-                    let mut inten = 0.0;
-                    let mut m = 0;
-                    for dy in 0..2 {
-                        for dx in 0..2 {
-                            let (sx, sy) = (2 * x + dx, 2 * y + dy);
-                            if sx >= pw || sy >= ph {
-                                continue;
-                            }
-                            let i = sy * pw + sx;
-                            if has_intensity {
-                                inten += prev.intensity[i];
-                                m += 1;
-                            }
-                            let d = prev.depth[i];
-                            if d > 0.0 {
-                                vals[n] = d;
-                                n += 1;
-                            }
+        depth.par_chunks_mut(w).zip(intensity_rows.par_iter_mut()).enumerate().for_each(|(y, (drow, irow))| {
+            for x in 0..w {
+                let mut vals = [0.0f32; 4];
+                let mut n = 0;
+                let mut inten = 0.0;
+                let mut m = 0;
+                for dy in 0..2 {
+                    for dx in 0..2 {
+                        let (sx, sy) = (2 * x + dx, 2 * y + dy);
+                        if sx >= pw || sy >= ph {
+                            continue;
+                        }
+                        let i = sy * pw + sx;
+                        if has_intensity {
+                            inten += prev.intensity[i];
+                            m += 1;
+                        }
+                        let d = prev.depth[i];
+                        if d > 0.0 {
+                            vals[n] = d;
+                            n += 1;
                         }
                     }
-                    if m > 0 {
-                        irow[x] = inten / m as f32;
-                    }
-                    if n == 0 {
-                        continue;
-                    }
-                    let vals = &mut vals[..n];
-                    vals.sort_by(f32::total_cmp);
-                    let median = vals[(n - 1) / 2];
-                    let (mut sum, mut cnt) = (0.0, 0);
-                    for &d in vals.iter() {
-                        if (d - median).abs() <= 0.03 * median {
-                            sum += d;
-                            cnt += 1;
-                        }
-                    }
-                    drow[x] = sum / cnt as f32;
                 }
-            });
+                if m > 0 {
+                    irow[x] = inten / m as f32;
+                }
+                if n == 0 {
+                    continue;
+                }
+                let vals = &mut vals[..n];
+                vals.sort_by(f32::total_cmp);
+                let median = vals[(n - 1) / 2];
+                let (mut sum, mut cnt) = (0.0, 0);
+                for &d in vals.iter() {
+                    if (d - median).abs() <= 0.03 * median {
+                        sum += d;
+                        cnt += 1;
+                    }
+                }
+                drow[x] = sum / cnt as f32;
+            }
+        });
         levels.push(make_level(k, depth, intensity, true));
     }
     // Normals of a level come from the next coarser level: neighbouring pixels of a noisy,
@@ -706,28 +630,17 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
     for l in 0..LEVELS - 1 {
         let (fine, coarse) = levels.split_at_mut(l + 1);
         let (fine, coarse) = (&mut fine[l], &coarse[0]);
-        let (w, cw, ch) = (
-            fine.k.width as usize,
-            coarse.k.width as usize,
-            coarse.k.height as usize,
-        );
+        let (w, cw, ch) = (fine.k.width as usize, coarse.k.width as usize, coarse.k.height as usize);
         let fine_depth = &fine.depth;
-        fine.normals
-            .par_chunks_mut(w)
-            .enumerate()
-            .for_each(|(y, row)| {
-                for (x, n) in row.iter_mut().enumerate() {
-                    let d = fine_depth[y * w + x];
-                    let (cx, cy) = ((x / 2).min(cw - 1), (y / 2).min(ch - 1));
-                    let ci = cy * cw + cx;
-                    let dc = coarse.depth[ci];
-                    *n = if d > 0.0 && (d - dc).abs() <= 0.05 * d {
-                        coarse.normals[ci]
-                    } else {
-                        Vec3::ZERO
-                    };
-                }
-            });
+        fine.normals.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+            for (x, n) in row.iter_mut().enumerate() {
+                let d = fine_depth[y * w + x];
+                let (cx, cy) = ((x / 2).min(cw - 1), (y / 2).min(ch - 1));
+                let ci = cy * cw + cx;
+                let dc = coarse.depth[ci];
+                *n = if d > 0.0 && (d - dc).abs() <= 0.05 * d { coarse.normals[ci] } else { Vec3::ZERO };
+            }
+        });
     }
     levels
 }
@@ -738,13 +651,7 @@ fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>, with_normals:
     let vertices: Vec<Vec3> = depth
         .iter()
         .enumerate()
-        .map(|(i, &d)| {
-            if d > 0.0 {
-                k.unproject((i % w) as f32, (i / w) as f32, d)
-            } else {
-                Vec3::ZERO
-            }
-        })
+        .map(|(i, &d)| if d > 0.0 { k.unproject((i % w) as f32, (i / w) as f32, d) } else { Vec3::ZERO })
         .collect();
     let mut normals = vec![Vec3::ZERO; w * h];
     normals.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
@@ -757,17 +664,9 @@ fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>, with_normals:
             if p.z <= 0.0 {
                 continue;
             }
-            let (l, r, u, d) = (
-                vertices[i - 1],
-                vertices[i + 1],
-                vertices[i - w],
-                vertices[i + w],
-            );
+            let (l, r, u, d) = (vertices[i - 1], vertices[i + 1], vertices[i - w], vertices[i + w]);
             let jump = 0.05 * p.z;
-            if [l, r, u, d]
-                .iter()
-                .any(|q| q.z <= 0.0 || (q.z - p.z).abs() > jump)
-            {
+            if [l, r, u, d].iter().any(|q| q.z <= 0.0 || (q.z - p.z).abs() > jump) {
                 continue;
             }
             let n = (d - u).cross(r - l);
@@ -780,24 +679,11 @@ fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>, with_normals:
         }
     });
     let valid = depth.iter().filter(|&&d| d > 0.0).count();
-    Level {
-        k,
-        depth,
-        vertices,
-        normals,
-        intensity,
-        valid,
-    }
+    Level { k, depth, vertices, normals, intensity, valid }
 }
 
 /// Normal equations of one Gauss-Newton step at `estimate` (`last_from_current`).
-fn normal_equations(
-    data: &Level,
-    model: &Model,
-    estimate: &Affine3A,
-    max_distance: f32,
-    c: &TrackerConfig,
-) -> Normals {
+fn normal_equations(data: &Level, model: &Model, estimate: &Affine3A, max_distance: f32, c: &TrackerConfig) -> Normals {
     let w = data.k.width as usize;
     let h = data.k.height as usize;
     let mk = model.view.intrinsics;
@@ -806,8 +692,7 @@ fn normal_equations(
     let trans = Vec3::from(estimate.translation);
     let min_cos = c.max_normal_angle.cos();
     let max_d2 = max_distance * max_distance;
-    let photometric =
-        c.photometric_weight > 0.0 && !data.intensity.is_empty() && !model.intensity.is_empty();
+    let photometric = c.photometric_weight > 0.0 && !data.intensity.is_empty() && !model.intensity.is_empty();
     let lambda = c.photometric_weight as f64;
     let rows: Vec<usize> = (0..h).collect();
     let blocks: Vec<Normals> = rows
@@ -899,12 +784,7 @@ fn photometric_term(model: &Model, uv: Vec2, q: Vec3, intensity: f32) -> Option<
     let (fx, fy) = (uv.x - x0, uv.y - y0);
     let i = y0 as usize * w + x0 as usize;
     let idx = [i, i + 1, i + w, i + w + 1];
-    let wts = [
-        (1.0 - fx) * (1.0 - fy),
-        fx * (1.0 - fy),
-        (1.0 - fx) * fy,
-        fx * fy,
-    ];
+    let wts = [(1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy];
     let (mut val, mut grad) = (0.0f32, Vec2::ZERO);
     for (&j, &wt) in idx.iter().zip(&wts) {
         val += wt * model.intensity[j];
@@ -921,10 +801,7 @@ fn photometric_term(model: &Model, uv: Vec2, q: Vec3, intensity: f32) -> Option<
         -(grad.x * k.fx * q.x + grad.y * k.fy * q.y) * inv_z * inv_z,
     );
     let qxg = q.cross(g);
-    Some((
-        (val - intensity) as f64,
-        [qxg.x, qxg.y, qxg.z, g.x, g.y, g.z].map(|v| v as f64),
-    ))
+    Some(((val - intensity) as f64, [qxg.x, qxg.y, qxg.z, g.x, g.y, g.z].map(|v| v as f64)))
 }
 
 /// Huber weight of residual `r` with threshold `delta`.
@@ -955,13 +832,7 @@ fn orthonormalised(t: Affine3A) -> Affine3A {
 /// Smallest over largest eigenvalue of `h` after scaling it to a unit diagonal, so that
 /// rotation (m²) and translation (1) entries compare.
 fn condition(h: &[[f64; 6]; 6]) -> f64 {
-    let d: [f64; 6] = std::array::from_fn(|i| {
-        if h[i][i] > 0.0 {
-            1.0 / h[i][i].sqrt()
-        } else {
-            0.0
-        }
-    });
+    let d: [f64; 6] = std::array::from_fn(|i| if h[i][i] > 0.0 { 1.0 / h[i][i].sqrt() } else { 0.0 });
     if d.contains(&0.0) {
         return 0.0;
     }
@@ -986,11 +857,7 @@ pub fn ate_rmse(estimated: &[Vec3], reference: &[Vec3]) -> Option<f64> {
     }
     let n = estimated.len() as f64;
     let mean = |v: &[Vec3]| {
-        v.iter()
-            .fold([0.0f64; 3], |a, p| {
-                [a[0] + p.x as f64, a[1] + p.y as f64, a[2] + p.z as f64]
-            })
-            .map(|s| s / n)
+        v.iter().fold([0.0f64; 3], |a, p| [a[0] + p.x as f64, a[1] + p.y as f64, a[2] + p.z as f64]).map(|s| s / n)
     };
     let (ce, cr) = (mean(estimated), mean(reference));
     // Cross-covariance S = sum (e - ce)(r - cr)^T.
@@ -1015,21 +882,9 @@ pub fn ate_rmse(estimated: &[Vec3], reference: &[Vec3]) -> Option<f64> {
     let [w, x, y, z] = vecs[3];
     // Rotation matrix of the unit quaternion (w, x, y, z), f64.
     let r = [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
+        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
     ];
     let mut sum = 0.0;
     for (e, rf) in estimated.iter().zip(reference) {

@@ -24,12 +24,7 @@ impl DenseTsdf {
     fn new(min: IVec3, max: IVec3) -> Self {
         let dims = max - min + IVec3::ONE;
         let n = (dims.x * dims.y * dims.z) as usize;
-        Self {
-            min,
-            dims,
-            tsdf: vec![0.0; n],
-            weight: vec![0.0; n],
-        }
+        Self { min, dims, tsdf: vec![0.0; n], weight: vec![0.0; n] }
     }
 
     fn index(&self, v: IVec3) -> Option<usize> {
@@ -107,11 +102,8 @@ fn fuse_both(config: TsdfConfig, frames: usize) -> (TsdfMap, DenseTsdf, usize, u
     for (i, pose) in scene::trajectory(frames).into_iter().enumerate() {
         let frame = scene::render(k, pose, i);
         map.integrate(&frame, pose).expect("fusion");
-        let kept: std::collections::HashSet<IVec3> =
-            map.chunks_touched_by(i as u32).into_iter().collect();
-        let band = dense.integrate(&config, &frame, pose, |v| {
-            kept.contains(&v.div_euclid(IVec3::splat(8)))
-        });
+        let kept: std::collections::HashSet<IVec3> = map.chunks_touched_by(i as u32).into_iter().collect();
+        let band = dense.integrate(&config, &frame, pose, |v| kept.contains(&v.div_euclid(IVec3::splat(8))));
         band_total += band.len();
         missing += band.iter().filter(|v| map.voxel(**v).is_none()).count();
     }
@@ -121,11 +113,7 @@ fn fuse_both(config: TsdfConfig, frames: usize) -> (TsdfMap, DenseTsdf, usize, u
 #[test]
 fn hashed_fusion_matches_a_dense_reference() {
     for stride in [1, 2] {
-        let config = TsdfConfig {
-            voxel_size: 0.02,
-            selection_stride: stride,
-            ..TsdfConfig::default()
-        };
+        let config = TsdfConfig { voxel_size: 0.02, selection_stride: stride, ..TsdfConfig::default() };
         let (map, dense, band, missing) = fuse_both(config, 3);
         assert!(map.chunk_count() > 50, "{} chunks", map.chunk_count());
         // Every allocated voxel agrees with the reference.
@@ -134,13 +122,8 @@ fn hashed_fusion_matches_a_dense_reference() {
             for (i, vox) in chunk.voxels().enumerate() {
                 let local = IVec3::new((i % 8) as i32, ((i / 8) % 8) as i32, (i / 64) as i32);
                 let v = chunk.key() * 8 + local;
-                let j = dense
-                    .index(v)
-                    .expect("allocated voxel inside the reference box");
-                assert!(
-                    (vox.weight() - dense.weight[j]).abs() <= 3.0 / 256.0,
-                    "weight at {v}"
-                );
+                let j = dense.index(v).expect("allocated voxel inside the reference box");
+                assert!((vox.weight() - dense.weight[j]).abs() <= 3.0 / 256.0, "weight at {v}");
                 if dense.weight[j] > 0.0 {
                     let e = (vox.tsdf() - dense.tsdf[j]).abs();
                     max_err = max_err.max(e);
@@ -154,18 +137,9 @@ fn hashed_fusion_matches_a_dense_reference() {
         // The map steps voxel centres incrementally, the reference transforms each one, so a
         // centre that projects within float rounding of a pixel border may read the
         // neighbouring pixel: a handful of voxels may differ by a fraction of the slope.
-        assert!(
-            off * 1000 <= compared && max_err < 0.01,
-            "{off} voxels off, max {max_err}"
-        );
-        println!(
-            "stride {stride}: {} chunks, {band} band voxels, {missing} not allocated",
-            map.chunk_count()
-        );
-        assert!(
-            missing * 1000 <= band,
-            "stride {stride}: {missing} of {band} band voxels not allocated"
-        );
+        assert!(off * 1000 <= compared && max_err < 0.01, "{off} voxels off, max {max_err}");
+        println!("stride {stride}: {} chunks, {band} band voxels, {missing} not allocated", map.chunk_count());
+        assert!(missing * 1000 <= band, "stride {stride}: {missing} of {band} band voxels not allocated");
         if stride == 1 {
             assert_eq!(missing, 0);
         }
@@ -175,26 +149,17 @@ fn hashed_fusion_matches_a_dense_reference() {
 #[test]
 fn same_bits_for_one_and_two_threads() {
     let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("pool");
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
         pool.install(|| {
-            let config = TsdfConfig {
-                voxel_size: 0.01,
-                ..TsdfConfig::default()
-            };
+            let config = TsdfConfig { voxel_size: 0.01, ..TsdfConfig::default() };
             let k = small_camera();
             let mut map = TsdfMap::new(config).expect("valid");
             for (i, pose) in scene::trajectory(4).into_iter().enumerate() {
-                map.integrate(&scene::render(k, pose, i), pose)
-                    .expect("fusion");
+                map.integrate(&scene::render(k, pose, i), pose).expect("fusion");
             }
             let keys = map.sorted_keys();
-            let voxels: Vec<Vec<_>> = keys
-                .iter()
-                .map(|&k| map.chunk(k).expect("allocated").voxels().collect())
-                .collect();
+            let voxels: Vec<Vec<_>> =
+                keys.iter().map(|&k| map.chunk(k).expect("allocated").voxels().collect()).collect();
             (keys, voxels, extract_mesh(&map))
         })
     };
@@ -209,14 +174,10 @@ fn same_bits_for_one_and_two_threads() {
 #[test]
 fn empty_and_invalid_frames_change_nothing() {
     let k = small_camera();
-    let config = TsdfConfig {
-        voxel_size: 0.02,
-        ..TsdfConfig::default()
-    };
+    let config = TsdfConfig { voxel_size: 0.02, ..TsdfConfig::default() };
     let mut map = TsdfMap::new(config).expect("valid");
     let pose = scene::trajectory(1)[0];
-    map.integrate(&scene::render(k, pose, 0), pose)
-        .expect("fusion");
+    map.integrate(&scene::render(k, pose, 0), pose).expect("fusion");
     let before = map.clone();
     let mut mesher = IncrementalMesher::new();
     mesher.update(&map);
@@ -224,9 +185,7 @@ fn empty_and_invalid_frames_change_nothing() {
     for bad in [0.0, f32::NAN, f32::INFINITY, -1.0, 100.0] {
         let mut f = scene::render(k, pose, 1);
         f.depth.iter_mut().for_each(|d| *d = bad);
-        let stats = map
-            .integrate(&f, pose)
-            .expect("bad depth is skipped, not an error");
+        let stats = map.integrate(&f, pose).expect("bad depth is skipped, not an error");
         assert_eq!(stats.updated_voxels, 0);
         assert_eq!(stats.visited_chunks, 0);
     }
@@ -248,21 +207,14 @@ fn empty_and_invalid_frames_change_nothing() {
     bad_pose.translation.x = f32::NAN;
     assert!(map.integrate(&f, bad_pose).is_err());
     // An empty camera image is fine.
-    let empty = Frame {
-        depth: vec![],
-        color: vec![],
-        ..scene::render(k, pose, 4)
-    };
+    let empty = Frame { depth: vec![], color: vec![], ..scene::render(k, pose, 4) };
     assert!(map.integrate(&empty, pose).is_err());
 }
 
 #[test]
 fn nan_pixels_are_skipped() {
     let k = small_camera();
-    let config = TsdfConfig {
-        voxel_size: 0.02,
-        ..TsdfConfig::default()
-    };
+    let config = TsdfConfig { voxel_size: 0.02, ..TsdfConfig::default() };
     let pose = scene::trajectory(1)[0];
     let clean = scene::render(k, pose, 0);
     let mut noisy = clean.clone();
@@ -277,27 +229,19 @@ fn nan_pixels_are_skipped() {
     b.integrate(&holed, pose).expect("fusion");
     assert_eq!(a.sorted_keys(), b.sorted_keys());
     for key in a.sorted_keys() {
-        assert!(a
-            .chunk(key)
-            .expect("a")
-            .voxels()
-            .eq(b.chunk(key).expect("b").voxels()));
+        assert!(a.chunk(key).expect("a").voxels().eq(b.chunk(key).expect("b").voxels()));
     }
 }
 
 #[test]
 fn incremental_meshing_equals_full_meshing() {
     let k = small_camera();
-    let config = TsdfConfig {
-        voxel_size: 0.01,
-        ..TsdfConfig::default()
-    };
+    let config = TsdfConfig { voxel_size: 0.01, ..TsdfConfig::default() };
     let mut map = TsdfMap::new(config).expect("valid");
     let mut mesher = IncrementalMesher::new();
     let poses = scene::trajectory(6);
     for (i, &pose) in poses.iter().enumerate() {
-        map.integrate(&scene::render(k, pose, i), pose)
-            .expect("fusion");
+        map.integrate(&scene::render(k, pose, i), pose).expect("fusion");
         if i % 2 == 1 {
             let stats = mesher.update(&map);
             assert!(stats.remeshed_chunks > 0);
@@ -308,8 +252,7 @@ fn incremental_meshing_equals_full_meshing() {
     assert_eq!(mesher.update(&map).remeshed_chunks, 0);
     // A frame that sees only part of the scene re-meshes only part of it.
     let close = scene::camera_pose(Vec3::new(0.1, 0.8, 0.6), 0.0);
-    map.integrate(&scene::render(k, close, 10), close)
-        .expect("fusion");
+    map.integrate(&scene::render(k, close, 10), close).expect("fusion");
     let stats = mesher.update(&map);
     assert!(stats.remeshed_chunks < map.chunk_count(), "{stats:?}");
     let mesh = mesher.mesh();
@@ -328,10 +271,7 @@ fn real_kinect_frames_fuse_into_a_plausible_mesh() {
         println!("skipping: ../shared/data not found");
         return;
     };
-    let config = TsdfConfig {
-        voxel_size: 0.01,
-        ..TsdfConfig::default()
-    };
+    let config = TsdfConfig { voxel_size: 0.01, ..TsdfConfig::default() };
     let mut map = TsdfMap::new(config).expect("valid");
     let mut mesher = IncrementalMesher::new();
     for i in 0..5 {
@@ -342,11 +282,7 @@ fn real_kinect_frames_fuse_into_a_plausible_mesh() {
     mesher.update(&map);
     let mesh = mesher.mesh();
     mesh.validate().expect("valid mesh");
-    assert!(
-        mesh.triangle_count() > 50_000,
-        "{} triangles",
-        mesh.triangle_count()
-    );
+    assert!(mesh.triangle_count() > 50_000, "{} triangles", mesh.triangle_count());
     // The kitchen is a few metres across; the Kinect sees at most about 4 m.
     let (lo, hi) = mesh.bounds().expect("non-empty");
     assert!((hi - lo).max_element() < 8.0, "bounds {lo} .. {hi}");
@@ -356,17 +292,10 @@ fn real_kinect_frames_fuse_into_a_plausible_mesh() {
 #[test]
 fn memory_follows_the_surface_not_the_frame_count() {
     let k = small_camera();
-    let config = TsdfConfig {
-        voxel_size: 0.02,
-        ..TsdfConfig::default()
-    };
+    let config = TsdfConfig { voxel_size: 0.02, ..TsdfConfig::default() };
     let mut map = TsdfMap::new(config).expect("valid");
     let poses = scene::trajectory(4);
-    let frames: Vec<_> = poses
-        .iter()
-        .enumerate()
-        .map(|(i, &p)| scene::render(k, p, i))
-        .collect();
+    let frames: Vec<_> = poses.iter().enumerate().map(|(i, &p)| scene::render(k, p, i)).collect();
     for (f, &p) in frames.iter().zip(&poses) {
         map.integrate(f, p).expect("fusion");
     }

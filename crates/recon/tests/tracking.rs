@@ -15,23 +15,17 @@ fn scan(seed: u64, frames: usize, ideal: bool) -> Vec<Frame> {
         config.sensor = SensorModel::ideal();
     }
     let (_room, scan) = synthetic_scan(&config).expect("synthetic scan");
-    (0..scan.len())
-        .map(|i| scan.frame(i).expect("rendered frame"))
-        .collect()
+    (0..scan.len()).map(|i| scan.frame(i).expect("rendered frame")).collect()
 }
 
 /// The tracker configuration for the 320x240 test frames (a 160x120 model, as the default
 /// gives a 640x480 sensor).
 fn config() -> TrackerConfig {
-    TrackerConfig {
-        model_downscale: 2,
-        ..TrackerConfig::default()
-    }
+    TrackerConfig { model_downscale: 2, ..TrackerConfig::default() }
 }
 
 fn gt(f: &Frame) -> Affine3A {
-    f.world_from_camera
-        .expect("synthetic frames have ground truth")
+    f.world_from_camera.expect("synthetic frames have ground truth")
 }
 
 #[test]
@@ -59,14 +53,8 @@ fn raycast_reproduces_the_fused_depth() {
         }
     }
     assert!(both as f32 > 0.95 * n as f32, "{both} of {n} pixels hit");
-    assert!(
-        close as f32 > 0.99 * both as f32,
-        "{close} of {both} within 5 mm"
-    );
-    assert!(
-        same as f32 > 0.99 * both as f32,
-        "{same} of {both} equal with the hint"
-    );
+    assert!(close as f32 > 0.99 * both as f32, "{close} of {both} within 5 mm");
+    assert!(same as f32 > 0.99 * both as f32, "{same} of {both} equal with the hint");
     // Normals face the camera and are unit length.
     for (v, nrm) in view.vertices.iter().zip(&view.normals) {
         if v.z > 0.0 {
@@ -116,9 +104,7 @@ fn ate(frames: &[Frame], poses: &[Option<Affine3A>]) -> f32 {
     let errs: Vec<f32> = frames
         .iter()
         .zip(poses)
-        .filter_map(|(f, p)| {
-            p.map(|p| (Vec3::from(p.translation) - Vec3::from(gt(f).translation)).length_squared())
-        })
+        .filter_map(|(f, p)| p.map(|p| (Vec3::from(p.translation) - Vec3::from(gt(f).translation)).length_squared()))
         .collect();
     (errs.iter().sum::<f32>() / errs.len() as f32).sqrt()
 }
@@ -140,10 +126,7 @@ fn kinect_sensor_tracks_below_two_centimetres() {
     // Kinect noise reaches 1-3 cm at 3-4 m; with the default 2 cm truncation, fusion
     // discards the far side of the noise and clamps the near side, which moves the fused
     // surface by millimetres and the trajectory with it. A 5 cm truncation removes that.
-    let map_config = TsdfConfig {
-        truncation_voxels: 10.0,
-        ..TsdfConfig::default()
-    };
+    let map_config = TsdfConfig { truncation_voxels: 10.0, ..TsdfConfig::default() };
     let (poses, _map) = track_and_fuse_with(&frames, config(), map_config);
     let lost = poses.iter().filter(|p| p.is_none()).count();
     let e = ate(&frames, &poses);
@@ -161,12 +144,7 @@ fn map_state(map: &TsdfMap) -> MapState {
         .into_iter()
         .map(|k| {
             let c = map.chunk(k).expect("listed chunk");
-            (
-                k,
-                c.voxels()
-                    .map(|v| (v.tsdf(), v.weight(), v.color()))
-                    .collect(),
-            )
+            (k, c.voxels().map(|v| (v.tsdf(), v.weight(), v.color())).collect())
         })
         .collect()
 }
@@ -176,8 +154,7 @@ fn jumps_and_empty_frames_are_lost_and_leave_the_map_intact() {
     let frames = scan(3, 16, true);
     let elsewhere = scan(11, 1, true).remove(0);
     let mut map = TsdfMap::new(TsdfConfig::default()).expect("config");
-    let mut tracker =
-        Tracker::with_initial_pose(config(), gt(&frames[0])).expect("tracker");
+    let mut tracker = Tracker::with_initial_pose(config(), gt(&frames[0])).expect("tracker");
     for f in &frames[..12] {
         let r = tracker.track(f, &map).expect("valid frame");
         assert!(r.should_fuse(), "frame {}: {:?}", f.index, r.status);
@@ -193,10 +170,7 @@ fn jumps_and_empty_frames_are_lost_and_leave_the_map_intact() {
     far.index = 12;
     for bad in [&empty, &nan, &far] {
         let r = tracker.track(bad, &map).expect("valid buffers");
-        assert!(
-            matches!(r.status, TrackingStatus::Lost(_)),
-            "bad frame tracked: {r:?}"
-        );
+        assert!(matches!(r.status, TrackingStatus::Lost(_)), "bad frame tracked: {r:?}");
         assert!(!r.should_fuse());
         assert_eq!(r.world_from_camera, last);
         assert_eq!(tracker.pose(), Some(last));
@@ -206,8 +180,7 @@ fn jumps_and_empty_frames_are_lost_and_leave_the_map_intact() {
     for f in &frames[12..] {
         let r = tracker.track(f, &map).expect("valid frame");
         assert_eq!(r.status, TrackingStatus::Tracked, "frame {}", f.index);
-        let err =
-            (Vec3::from(r.world_from_camera.translation) - Vec3::from(gt(f).translation)).length();
+        let err = (Vec3::from(r.world_from_camera.translation) - Vec3::from(gt(f).translation)).length();
         assert!(err < 0.01, "frame {}: {err} m off", f.index);
         map.integrate(f, r.world_from_camera).expect("fusion");
     }
@@ -235,15 +208,9 @@ fn nan_and_infinite_depth_pixels_are_ignored() {
 fn poses_are_identical_for_one_and_two_threads() {
     let frames = scan(5, 8, false);
     let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("thread pool");
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");
         pool.install(|| {
-            let config = TrackerConfig {
-                photometric_weight: 1e-3,
-                ..config()
-            };
+            let config = TrackerConfig { photometric_weight: 1e-3, ..config() };
             track_and_fuse(&frames, config).0
         })
     };
@@ -257,10 +224,7 @@ fn poses_are_identical_for_one_and_two_threads() {
 fn keyframes_every_n_tracked_frames() {
     let frames = scan(3, 12, true);
     let mut map = TsdfMap::new(TsdfConfig::default()).expect("config");
-    let config = TrackerConfig {
-        keyframe_interval: 5,
-        ..config()
-    };
+    let config = TrackerConfig { keyframe_interval: 5, ..config() };
     let mut tracker = Tracker::with_initial_pose(config, gt(&frames[0])).expect("tracker");
     let mut flagged = Vec::new();
     for f in &frames {

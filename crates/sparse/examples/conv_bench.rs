@@ -38,9 +38,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     if threads > 0 {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build_global()?;
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build_global()?;
     }
     let coords = room_voxels(voxel)?;
     let scene = "procedural_room";
@@ -58,10 +56,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             plan_ms = plan_ms.min(t.elapsed().as_secs_f64() * 1e3);
             std::hint::black_box(conv);
         }
-        println!(
-            "{} voxels: kernel map {map_ms:.2} ms, chunk plan {plan_ms:.2} ms",
-            coords.len()
-        );
+        println!("{} voxels: kernel map {map_ms:.2} ms, chunk plan {plan_ms:.2} ms", coords.len());
         return Ok(());
     }
     let r = run_conv_bench(
@@ -70,11 +65,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         voxel,
         channels,
         channels,
-        &BenchOptions {
-            repeats,
-            rulebook,
-            ..BenchOptions::default()
-        },
+        &BenchOptions { repeats, rulebook, ..BenchOptions::default() },
     )?;
     println!(
         "scene {scene}: {} voxels at {voxel} m, {:.2} neighbours/voxel, C_in = C_out = {channels}, {} threads, {}",
@@ -87,10 +78,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "kernel map {:.1} ms, chunk plan {:.1} ms ({} chunks, halo {:.2}); dense sgemm roofline {:.1} GFLOP/s",
         r.map_ms, r.plan_ms, r.chunks, r.halo_ratio, r.sgemm_gflops
     );
-    println!(
-        "{:<9} {:<16} {:>9} {:>8} {:>8}",
-        "kernel", "pass", "ms", "GFLOP/s", "%sgemm"
-    );
+    println!("{:<9} {:<16} {:>9} {:>8} {:>8}", "kernel", "pass", "ms", "GFLOP/s", "%sgemm");
     for row in &r.rows {
         println!(
             "{:<9} {:<16} {:>9.2} {:>8.1} {:>7.0}%",
@@ -102,22 +90,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     for pass in ["forward", "backward_input", "backward_weight"] {
-        let ms = |k: &str| {
-            r.rows
-                .iter()
-                .find(|x| x.kernel == k && x.pass == pass)
-                .map_or(f64::NAN, |x| x.ms)
-        };
-        println!(
-            "chunked speed-up over rulebook, {pass}: {:.2}x",
-            ms("rulebook") / ms("chunked")
-        );
+        let ms = |k: &str| r.rows.iter().find(|x| x.kernel == k && x.pass == pass).map_or(f64::NAN, |x| x.ms);
+        println!("chunked speed-up over rulebook, {pass}: {:.2}x", ms("rulebook") / ms("chunked"));
     }
     if let Some(path) = json {
         // Write beside the target and rename, so that no half-written file is ever seen.
         let tmp = path.with_extension("json.tmp");
-        std::fs::write(&tmp, serde_json::to_string_pretty(&r)?)
-            .map_err(|e| format!("{}: {e}", tmp.display()))?;
+        std::fs::write(&tmp, serde_json::to_string_pretty(&r)?).map_err(|e| format!("{}: {e}", tmp.display()))?;
         std::fs::rename(&tmp, &path).map_err(|e| format!("{}: {e}", path.display()))?;
         println!("wrote {}", path.display());
     }
@@ -126,11 +105,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
 /// Times the chunked passes for a grid of chunk configurations, round-robin so that the load
 /// of other processes hits every configuration alike; prints the fastest round of each.
-fn run_sweep(
-    coords: &[semrecon_sparse::Coord],
-    c: usize,
-    repeats: usize,
-) -> Result<(), Box<dyn std::error::Error>> {
+fn run_sweep(coords: &[semrecon_sparse::Coord], c: usize, repeats: usize) -> Result<(), Box<dyn std::error::Error>> {
     let map = KernelMap::submanifold(coords, 3)?;
     let mut configs = Vec::new();
     for side in [4u32, 8, 16, 32] {
@@ -139,25 +114,15 @@ fn run_sweep(
                 if levels == 1 && budget != 1 << 20 {
                     continue;
                 }
-                let cfg = ChunkConfig {
-                    chunk_side: side,
-                    levels,
-                    max_region_rows: budget,
-                };
+                let cfg = ChunkConfig { chunk_side: side, levels, max_region_rows: budget };
                 configs.push((cfg, ChunkedConv::new(map.clone(), coords, coords, &cfg)?));
             }
         }
     }
     let fill = |n: usize, s: u32| -> Vec<f32> {
-        (0..n)
-            .map(|i| ((i as u32 * 2_654_435_761 + s) >> 8) as f32 / 16_777_216.0 - 0.5)
-            .collect()
+        (0..n).map(|i| ((i as u32 * 2_654_435_761 + s) >> 8) as f32 / 16_777_216.0 - 0.5).collect()
     };
-    let (x, dy, w) = (
-        fill(coords.len() * c, 1),
-        fill(coords.len() * c, 2),
-        fill(27 * c * c, 3),
-    );
+    let (x, dy, w) = (fill(coords.len() * c, 1), fill(coords.len() * c, 2), fill(27 * c * c, 3));
     let mut best = vec![[f64::INFINITY; 3]; configs.len()];
     let mut sink = 0f32;
     for round in 0..=repeats {
@@ -170,12 +135,8 @@ fn run_sweep(
                 }
             };
             time(0, &|| conv.forward(&x, c, &w, c).map_or(0.0, |v| v[0]));
-            time(1, &|| {
-                conv.backward_input(&dy, c, &w, c).map_or(0.0, |v| v[0])
-            });
-            time(2, &|| {
-                conv.backward_weight(&x, c, &dy, c).map_or(0.0, |v| v[0])
-            });
+            time(1, &|| conv.backward_input(&dy, c, &w, c).map_or(0.0, |v| v[0]));
+            time(2, &|| conv.backward_weight(&x, c, &dy, c).map_or(0.0, |v| v[0]));
         }
     }
     std::hint::black_box(sink);

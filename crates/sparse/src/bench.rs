@@ -77,11 +77,7 @@ pub struct BenchOptions {
 
 impl Default for BenchOptions {
     fn default() -> Self {
-        Self {
-            repeats: 5,
-            chunk: ChunkConfig::default(),
-            rulebook: true,
-        }
+        Self { repeats: 5, chunk: ChunkConfig::default(), rulebook: true }
     }
 }
 
@@ -93,10 +89,7 @@ pub fn room_points(spacing: f32) -> Vec<[f32; 3]> {
     let steps = |len: f32| (len / spacing).ceil() as usize;
     // An axis-aligned rectangle: origin, two edge vectors.
     let mut rect = |o: [f32; 3], u: [f32; 3], v: [f32; 3]| {
-        let (lu, lv) = (
-            u.iter().map(|a| a * a).sum::<f32>().sqrt(),
-            v.iter().map(|a| a * a).sum::<f32>().sqrt(),
-        );
+        let (lu, lv) = (u.iter().map(|a| a * a).sum::<f32>().sqrt(), v.iter().map(|a| a * a).sum::<f32>().sqrt());
         let (nu, nv) = (steps(lu), steps(lv));
         for i in 0..=nu {
             for j in 0..=nv {
@@ -131,11 +124,7 @@ pub fn room_points(spacing: f32) -> Vec<[f32; 3]> {
         let m = (2.0 * n as f32 * th.sin()).ceil().max(1.0) as usize;
         for j in 0..m {
             let ph = 2.0 * std::f32::consts::PI * j as f32 / m as f32;
-            pts.push([
-                c[0] + r * th.sin() * ph.cos(),
-                c[1] + r * th.sin() * ph.sin(),
-                c[2] + r * th.cos(),
-            ]);
+            pts.push([c[0] + r * th.sin() * ph.cos(), c[1] + r * th.sin() * ph.sin(), c[2] + r * th.cos()]);
         }
     }
     pts
@@ -147,10 +136,7 @@ pub fn room_points(spacing: f32) -> Vec<[f32; 3]> {
 /// A voxel size that is not positive and finite.
 pub fn room_voxels(voxel_size: f32) -> Result<Vec<Coord>> {
     let pts = room_points(voxel_size / 2.5);
-    Ok(voxelize(&pts, &[], 0, voxel_size, 0)?
-        .tensor
-        .coords()
-        .to_vec())
+    Ok(voxelize(&pts, &[], 0, voxel_size, 0)?.tensor.coords().to_vec())
 }
 
 /// Fastest of `repeats` runs after a warm-up: on a shared machine the minimum is the run least
@@ -168,11 +154,7 @@ fn min_ms(repeats: usize, mut f: impl FnMut()) -> f64 {
 
 fn fill(n: usize, seed: u32) -> Vec<f32> {
     (0..n)
-        .map(|i| {
-            ((i as u32).wrapping_mul(2_654_435_761).wrapping_add(seed) >> 8) as f32
-                / (1 << 24) as f32
-                - 0.5
-        })
+        .map(|i| ((i as u32).wrapping_mul(2_654_435_761).wrapping_add(seed) >> 8) as f32 / (1 << 24) as f32 - 0.5)
         .collect()
 }
 
@@ -218,16 +200,13 @@ impl DenseGemm {
         if n == 0 {
             return;
         }
-        self.c
-            .par_chunks_mut(DENSE_BLOCK * n)
-            .enumerate()
-            .for_each(|(i, cb)| {
-                let rows = cb.len() / n;
-                let ab = &a[i * DENSE_BLOCK * k..(i * DENSE_BLOCK + rows) * k];
-                for _ in 0..reps {
-                    gemm_rows(ab, k, &id[..rows], b, k, n, cb, n, &id[..rows], true);
-                }
-            });
+        self.c.par_chunks_mut(DENSE_BLOCK * n).enumerate().for_each(|(i, cb)| {
+            let rows = cb.len() / n;
+            let ab = &a[i * DENSE_BLOCK * k..(i * DENSE_BLOCK + rows) * k];
+            for _ in 0..reps {
+                gemm_rows(ab, k, &id[..rows], b, k, n, cb, n, &id[..rows], true);
+            }
+        });
     }
 }
 
@@ -287,16 +266,13 @@ pub fn run_conv_bench(
             "backward_input",
             Box::new(|| {
                 let mut dx = dx_ptr.borrow_mut();
-                rulebook::backward_input_into(&map, &dy, c_out, &w, c_in, &mut dx)
-                    .map_or(0.0, |()| dx[0])
+                rulebook::backward_input_into(&map, &dy, c_out, &w, c_in, &mut dx).map_or(0.0, |()| dx[0])
             }),
         ));
         passes.push((
             "rulebook",
             "backward_weight",
-            Box::new(|| {
-                rulebook::backward_weight(&map, &x, c_in, &dy, c_out).map_or(0.0, |v| v[0])
-            }),
+            Box::new(|| rulebook::backward_weight(&map, &x, c_in, &dy, c_out).map_or(0.0, |v| v[0])),
         ));
     }
     passes.push((
@@ -304,8 +280,7 @@ pub fn run_conv_bench(
         "forward",
         Box::new(|| {
             let mut y = y_ptr.borrow_mut();
-            conv.forward_into(&x, c_in, &w, c_out, &mut y)
-                .map_or(0.0, |()| y[0])
+            conv.forward_into(&x, c_in, &w, c_out, &mut y).map_or(0.0, |()| y[0])
         }),
     ));
     passes.push((
@@ -313,17 +288,13 @@ pub fn run_conv_bench(
         "backward_input",
         Box::new(|| {
             let mut dx = dx_ptr.borrow_mut();
-            conv.backward_input_into(&dy, c_out, &w, c_in, &mut dx)
-                .map_or(0.0, |()| dx[0])
+            conv.backward_input_into(&dy, c_out, &w, c_in, &mut dx).map_or(0.0, |()| dx[0])
         }),
     ));
     passes.push((
         "chunked",
         "backward_weight",
-        Box::new(|| {
-            conv.backward_weight(&x, c_in, &dy, c_out)
-                .map_or(0.0, |v| v[0])
-        }),
+        Box::new(|| conv.backward_weight(&x, c_in, &dy, c_out).map_or(0.0, |v| v[0])),
     ));
     let mut dense = DenseGemm::new(c_in, c_out, flop);
     let mut best = vec![f64::INFINITY; passes.len() + 1];

@@ -98,12 +98,8 @@ mod tests {
     #[test]
     fn blocks_and_flat_agree() {
         // A dense slab (blocks) and a scattered set (flat), with negative coordinates.
-        let slab: Vec<Coord> = (0..512)
-            .map(|i| [i % 16 - 8, (i / 16) % 16 - 8, i / 256 - 1, 1])
-            .collect();
-        let scattered: Vec<Coord> = (0..100)
-            .map(|i| [i * 37 - 1000, i * 11, -i * 5, 0])
-            .collect();
+        let slab: Vec<Coord> = (0..512).map(|i| [i % 16 - 8, (i / 16) % 16 - 8, i / 256 - 1, 1]).collect();
+        let scattered: Vec<Coord> = (0..100).map(|i| [i * 37 - 1000, i * 11, -i * 5, 0]).collect();
         for (set, blocky) in [(&slab, true), (&scattered, false)] {
             let idx = VoxelIndex::build(set).unwrap();
             assert_eq!(matches!(idx, VoxelIndex::Blocks(_)), blocky);

@@ -58,11 +58,7 @@ impl Default for ChunkConfig {
     /// side 16-32 and no splitting, or side 4 (halo 2.2x). Side 8 also leaves ~500 chunks for
     /// load balance.
     fn default() -> Self {
-        Self {
-            chunk_side: 8,
-            levels: 3,
-            max_region_rows: 256,
-        }
+        Self { chunk_side: 8, levels: 3, max_region_rows: 256 }
     }
 }
 
@@ -113,14 +109,7 @@ pub struct ChunkPlanArrays<'a> {
 const NONE: u32 = u32::MAX;
 
 /// Runs of equal `code >> shift` in `keyed[lo..hi]`, appended as `(start, end, level)`.
-fn runs(
-    keyed: &[(u64, u32)],
-    lo: usize,
-    hi: usize,
-    shift: u32,
-    level: u32,
-    out: &mut Vec<(usize, usize, u32)>,
-) {
+fn runs(keyed: &[(u64, u32)], lo: usize, hi: usize, shift: u32, level: u32, out: &mut Vec<(usize, usize, u32)>) {
     let mut s = lo;
     while s < hi {
         let p = keyed[s].0 >> shift;
@@ -152,11 +141,7 @@ struct Marks {
 
 impl Marks {
     fn new(n_src: usize) -> Self {
-        Self {
-            mark: vec![0; n_src],
-            local: vec![0; n_src],
-            generation: 0,
-        }
+        Self { mark: vec![0; n_src], local: vec![0; n_src], generation: 0 }
     }
 
     fn next(&mut self) -> u32 {
@@ -184,13 +169,7 @@ impl Marks {
     }
 
     /// The region (identity-centre rows first, then first appearance) and local pairs.
-    fn chunk_parts(
-        &mut self,
-        dsts: &[(u64, u32)],
-        nbr: &[u32],
-        kv: usize,
-        centre: Option<usize>,
-    ) -> ChunkParts {
+    fn chunk_parts(&mut self, dsts: &[(u64, u32)], nbr: &[u32], kv: usize, centre: Option<usize>) -> ChunkParts {
         let g = self.next();
         let mut src = Vec::new();
         let (mark, local) = (&mut self.mark, &mut self.local);
@@ -227,13 +206,7 @@ impl Marks {
             }
             counts.push((pair_src.len() - before) as u32);
         }
-        ChunkParts {
-            src,
-            pair_src,
-            pair_dst,
-            counts,
-            rows: dsts.len(),
-        }
+        ChunkParts { src, pair_src, pair_dst, counts, rows: dsts.len() }
     }
 }
 
@@ -248,21 +221,11 @@ impl ChunkPlan {
     /// `1..=2^20`, zero levels or budget, range errors on coordinates.
     pub fn new(map: &KernelMap, dst_coords: &[Coord], config: &ChunkConfig) -> Result<Self> {
         if dst_coords.len() != map.n_out() {
-            return Err(SparseError::CoordCount {
-                what: "dst_coords",
-                got: dst_coords.len(),
-                expected: map.n_out(),
-            });
+            return Err(SparseError::CoordCount { what: "dst_coords", got: dst_coords.len(), expected: map.n_out() });
         }
         let side = config.chunk_side;
-        if !side.is_power_of_two()
-            || side > 1 << 20
-            || config.levels == 0
-            || config.max_region_rows == 0
-        {
-            return Err(SparseError::InvalidArgument(format!(
-                "bad chunk configuration {config:?}"
-            )));
+        if !side.is_power_of_two() || side > 1 << 20 || config.levels == 0 || config.max_region_rows == 0 {
+            return Err(SparseError::InvalidArgument(format!("bad chunk configuration {config:?}")));
         }
         let kv = map.kernel_volume();
         let n_dst = map.n_out();
@@ -279,11 +242,8 @@ impl ChunkPlan {
         for (row, &c) in dst_coords.iter().enumerate() {
             pack_key(c, row)?;
         }
-        let mut keyed: Vec<(u64, u32)> = dst_coords
-            .par_iter()
-            .enumerate()
-            .map(|(r, &c)| (morton_unchecked(c), r as u32))
-            .collect();
+        let mut keyed: Vec<(u64, u32)> =
+            dst_coords.par_iter().enumerate().map(|(r, &c)| (morton_unchecked(c), r as u32)).collect();
         keyed.par_sort_unstable();
 
         // Adaptive splitting over runs of equal Morton prefix, top-level cubes in parallel.
@@ -299,20 +259,11 @@ impl ChunkPlan {
                     let mut stack = vec![(lo, hi, 0u32)];
                     while let Some((lo, hi, level)) = stack.pop() {
                         let last = level + 1 >= config.levels || top_shift < 3 * (level + 1);
-                        if last
-                            || marks.region_size(&keyed[lo..hi], &nbr, kv) <= config.max_region_rows
-                        {
+                        if last || marks.region_size(&keyed[lo..hi], &nbr, kv) <= config.max_region_rows {
                             out.push((lo, hi));
                         } else {
                             let mut sub = Vec::new();
-                            runs(
-                                &keyed,
-                                lo,
-                                hi,
-                                top_shift - 3 * (level + 1),
-                                level + 1,
-                                &mut sub,
-                            );
+                            runs(&keyed, lo, hi, top_shift - 3 * (level + 1), level + 1, &mut sub);
                             stack.extend(sub.into_iter().rev());
                         }
                     }
@@ -325,10 +276,7 @@ impl ChunkPlan {
         // Regions and chunk-local pairs, chunks in parallel, then concatenated in order.
         let parts: Vec<ChunkParts> = chunks
             .par_iter()
-            .map_init(
-                || Marks::new(n_src),
-                |marks, &(lo, hi)| marks.chunk_parts(&keyed[lo..hi], &nbr, kv, centre),
-            )
+            .map_init(|| Marks::new(n_src), |marks, &(lo, hi)| marks.chunk_parts(&keyed[lo..hi], &nbr, kv, centre))
             .collect();
         let total_src: usize = parts.iter().map(|p| p.src.len()).sum();
         let mut plan = Self {
@@ -511,44 +459,38 @@ impl ChunkPlan {
             *b = c;
         }
         bounds[groups] = n;
-        partials
-            .par_chunks_mut(size)
-            .enumerate()
-            .for_each(|(g, acc)| {
-                acc.fill(0.0);
-                let (mut xbuf, mut ybuf) = (Vec::new(), Vec::new());
-                for c in bounds[g]..bounds[g + 1] {
-                    let srcs = self.chunk_src(c);
-                    let dsts = self.chunk_dst(c);
-                    xbuf.clear();
-                    for &s in srcs {
-                        xbuf.extend_from_slice(&src[s as usize * c_src..(s as usize + 1) * c_src]);
+        partials.par_chunks_mut(size).enumerate().for_each(|(g, acc)| {
+            acc.fill(0.0);
+            let (mut xbuf, mut ybuf) = (Vec::new(), Vec::new());
+            for c in bounds[g]..bounds[g + 1] {
+                let srcs = self.chunk_src(c);
+                let dsts = self.chunk_dst(c);
+                xbuf.clear();
+                for &s in srcs {
+                    xbuf.extend_from_slice(&src[s as usize * c_src..(s as usize + 1) * c_src]);
+                }
+                let y: &[f32] = if dsts.windows(2).all(|p| p[1] == p[0] + 1) && !dsts.is_empty() {
+                    let d0 = dsts[0] as usize;
+                    &dst[d0 * c_dst..(d0 + dsts.len()) * c_dst]
+                } else {
+                    ybuf.clear();
+                    for &d in dsts {
+                        ybuf.extend_from_slice(&dst[d as usize * c_dst..(d as usize + 1) * c_dst]);
                     }
-                    let y: &[f32] = if dsts.windows(2).all(|p| p[1] == p[0] + 1) && !dsts.is_empty()
-                    {
-                        let d0 = dsts[0] as usize;
-                        &dst[d0 * c_dst..(d0 + dsts.len()) * c_dst]
+                    &ybuf
+                };
+                for k in 0..kv {
+                    let acck = &mut acc[k * c_src * c_dst..(k + 1) * c_src * c_dst];
+                    if Some(k) == self.centre {
+                        let id = &self.iota[..dsts.len()];
+                        gemm_tn_rows(&xbuf, c_src, id, c_src, y, c_dst, id, c_dst, acck);
                     } else {
-                        ybuf.clear();
-                        for &d in dsts {
-                            ybuf.extend_from_slice(
-                                &dst[d as usize * c_dst..(d as usize + 1) * c_dst],
-                            );
-                        }
-                        &ybuf
-                    };
-                    for k in 0..kv {
-                        let acck = &mut acc[k * c_src * c_dst..(k + 1) * c_src * c_dst];
-                        if Some(k) == self.centre {
-                            let id = &self.iota[..dsts.len()];
-                            gemm_tn_rows(&xbuf, c_src, id, c_src, y, c_dst, id, c_dst, acck);
-                        } else {
-                            let (ps, pd) = self.chunk_pairs(c, k);
-                            gemm_tn_rows(&xbuf, c_src, ps, c_src, y, c_dst, pd, c_dst, acck);
-                        }
+                        let (ps, pd) = self.chunk_pairs(c, k);
+                        gemm_tn_rows(&xbuf, c_src, ps, c_src, y, c_dst, pd, c_dst, acck);
                     }
                 }
-            });
+            }
+        });
         // Every element sums the groups in index order, whichever thread does the slice.
         let partials: &[f32] = partials;
         dw.par_chunks_mut(4096).enumerate().for_each(|(i, d)| {
@@ -577,11 +519,7 @@ pub struct ChunkedConv {
 
 impl Clone for ChunkedConv {
     fn clone(&self) -> Self {
-        Self::from_parts(
-            self.map.clone(),
-            self.forward.clone(),
-            self.backward.clone(),
-        )
+        Self::from_parts(self.map.clone(), self.forward.clone(), self.backward.clone())
     }
 }
 
@@ -590,18 +528,9 @@ impl ChunkedConv {
     ///
     /// # Errors
     /// Coordinate counts not matching the map, bad configuration, range errors.
-    pub fn new(
-        map: KernelMap,
-        in_coords: &[Coord],
-        out_coords: &[Coord],
-        config: &ChunkConfig,
-    ) -> Result<Self> {
+    pub fn new(map: KernelMap, in_coords: &[Coord], out_coords: &[Coord], config: &ChunkConfig) -> Result<Self> {
         if in_coords.len() != map.n_in() {
-            return Err(SparseError::CoordCount {
-                what: "in_coords",
-                got: in_coords.len(),
-                expected: map.n_in(),
-            });
+            return Err(SparseError::CoordCount { what: "in_coords", got: in_coords.len(), expected: map.n_in() });
         }
         let forward = ChunkPlan::new(&map, out_coords, config)?;
         let backward = match map.kind() {
@@ -612,12 +541,7 @@ impl ChunkedConv {
     }
 
     fn from_parts(map: KernelMap, forward: ChunkPlan, backward: Option<ChunkPlan>) -> Self {
-        Self {
-            map,
-            forward,
-            backward,
-            workspace: Mutex::new(Vec::new()),
-        }
+        Self { map, forward, backward, workspace: Mutex::new(Vec::new()) }
     }
 
     /// The transposed layer of a strided one: the `Up` convolution from this `Down` layer's
@@ -625,11 +549,7 @@ impl ChunkedConv {
     /// planning. `None` for submanifold layers, whose transpose is themselves.
     pub fn transposed(&self) -> Option<Self> {
         let backward = self.backward.clone()?;
-        Some(Self::from_parts(
-            self.map.transposed(),
-            backward,
-            Some(self.forward.clone()),
-        ))
+        Some(Self::from_parts(self.map.transposed(), backward, Some(self.forward.clone())))
     }
 
     /// The kernel map.
@@ -669,14 +589,7 @@ impl ChunkedConv {
     ///
     /// # Errors
     /// As [`Self::forward`], and for a `y` of the wrong size.
-    pub fn forward_into(
-        &self,
-        x: &[f32],
-        c_in: usize,
-        w: &[f32],
-        c_out: usize,
-        y: &mut [f32],
-    ) -> Result<()> {
+    pub fn forward_into(&self, x: &[f32], c_in: usize, w: &[f32], c_out: usize, y: &mut [f32]) -> Result<()> {
         check_rows("x", x, self.map.n_in(), c_in)?;
         check_weights(w, self.map.kernel_volume(), c_in, c_out)?;
         check_rows("y", y, self.map.n_out(), c_out)?;
@@ -691,13 +604,7 @@ impl ChunkedConv {
     ///
     /// # Errors
     /// As [`Self::forward`].
-    pub fn backward_input(
-        &self,
-        dy: &[f32],
-        c_out: usize,
-        w: &[f32],
-        c_in: usize,
-    ) -> Result<Vec<f32>> {
+    pub fn backward_input(&self, dy: &[f32], c_out: usize, w: &[f32], c_in: usize) -> Result<Vec<f32>> {
         let mut dx = vec![0f32; self.map.n_in() * c_in];
         self.backward_input_into(dy, c_out, w, c_in, &mut dx)?;
         Ok(dx)
@@ -710,14 +617,7 @@ impl ChunkedConv {
     ///
     /// # Errors
     /// As [`Self::forward`], and for a `dx` of the wrong size.
-    pub fn backward_input_into(
-        &self,
-        dy: &[f32],
-        c_out: usize,
-        w: &[f32],
-        c_in: usize,
-        dx: &mut [f32],
-    ) -> Result<()> {
+    pub fn backward_input_into(&self, dy: &[f32], c_out: usize, w: &[f32], c_in: usize, dx: &mut [f32]) -> Result<()> {
         check_rows("dy", dy, self.map.n_out(), c_out)?;
         let kv = self.map.kernel_volume();
         check_weights(w, kv, c_in, c_out)?;
@@ -742,13 +642,7 @@ impl ChunkedConv {
     ///
     /// # Errors
     /// As [`Self::forward`].
-    pub fn backward_weight(
-        &self,
-        x: &[f32],
-        c_in: usize,
-        dy: &[f32],
-        c_out: usize,
-    ) -> Result<Vec<f32>> {
+    pub fn backward_weight(&self, x: &[f32], c_in: usize, dy: &[f32], c_out: usize) -> Result<Vec<f32>> {
         let mut dw = vec![0f32; self.map.kernel_volume() * c_in * c_out];
         self.backward_weight_into(x, c_in, dy, c_out, &mut dw)?;
         Ok(dw)
@@ -761,25 +655,14 @@ impl ChunkedConv {
     ///
     /// # Errors
     /// As [`Self::forward`], and for a `dw` of the wrong size.
-    pub fn backward_weight_into(
-        &self,
-        x: &[f32],
-        c_in: usize,
-        dy: &[f32],
-        c_out: usize,
-        dw: &mut [f32],
-    ) -> Result<()> {
+    pub fn backward_weight_into(&self, x: &[f32], c_in: usize, dy: &[f32], c_out: usize, dw: &mut [f32]) -> Result<()> {
         check_rows("x", x, self.map.n_in(), c_in)?;
         check_rows("dy", dy, self.map.n_out(), c_out)?;
         check_weights(dw, self.map.kernel_volume(), c_in, c_out)?;
         // A concurrent call on the same layer gets a scratch buffer of its own.
         match self.workspace.try_lock() {
-            Ok(mut scratch) => self
-                .forward
-                .weight_grad(x, c_in, dy, c_out, dw, &mut scratch),
-            Err(_) => self
-                .forward
-                .weight_grad(x, c_in, dy, c_out, dw, &mut Vec::new()),
+            Ok(mut scratch) => self.forward.weight_grad(x, c_in, dy, c_out, dw, &mut scratch),
+            Err(_) => self.forward.weight_grad(x, c_in, dy, c_out, dw, &mut Vec::new()),
         }
         Ok(())
     }

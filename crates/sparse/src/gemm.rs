@@ -39,10 +39,7 @@ pub fn simd_level() -> SimdLevel {
             if forced != "portable" && forced != "avx2" && is_x86_feature_detected!("avx512f") {
                 return SimdLevel::Avx512;
             }
-            if forced != "portable"
-                && is_x86_feature_detected!("avx2")
-                && is_x86_feature_detected!("fma")
-            {
+            if forced != "portable" && is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
                 return SimdLevel::Avx2Fma;
             }
         }
@@ -79,19 +76,7 @@ pub(crate) fn gemm_rows(
     c_rows: &[u32],
     accumulate: bool,
 ) {
-    gemm_rows_at(
-        simd_level(),
-        a,
-        lda,
-        a_rows,
-        b,
-        k,
-        n,
-        c,
-        ldc,
-        c_rows,
-        accumulate,
-    );
+    gemm_rows_at(simd_level(), a, lda, a_rows, b, k, n, c, ldc, c_rows, accumulate);
 }
 
 /// [`gemm_rows`] with an explicit implementation (which must be supported by the CPU).
@@ -122,34 +107,12 @@ fn gemm_rows_at(
         // SAFETY: the features were detected at run time; the asserts above keep every row
         // access inside the buffers.
         SimdLevel::Avx2Fma => unsafe {
-            avx2::gemm_rows(
-                a.as_ptr(),
-                lda,
-                a_rows,
-                b.as_ptr(),
-                k,
-                n,
-                c.as_mut_ptr(),
-                ldc,
-                c_rows,
-                accumulate,
-            )
+            avx2::gemm_rows(a.as_ptr(), lda, a_rows, b.as_ptr(), k, n, c.as_mut_ptr(), ldc, c_rows, accumulate)
         },
         #[cfg(target_arch = "x86_64")]
         // SAFETY: as above.
         SimdLevel::Avx512 => unsafe {
-            avx512::gemm_rows(
-                a.as_ptr(),
-                lda,
-                a_rows,
-                b.as_ptr(),
-                k,
-                n,
-                c.as_mut_ptr(),
-                ldc,
-                c_rows,
-                accumulate,
-            )
+            avx512::gemm_rows(a.as_ptr(), lda, a_rows, b.as_ptr(), k, n, c.as_mut_ptr(), ldc, c_rows, accumulate)
         },
         _ => {
             for (&ar, &cr) in a_rows.iter().zip(c_rows) {
@@ -225,32 +188,12 @@ fn gemm_tn_rows_at(
         #[cfg(target_arch = "x86_64")]
         // SAFETY: features detected at run time; bounds asserted above.
         SimdLevel::Avx2Fma => unsafe {
-            avx2::gemm_tn_rows(
-                a.as_ptr(),
-                lda,
-                a_rows,
-                m,
-                b.as_ptr(),
-                ldb,
-                b_rows,
-                n,
-                c.as_mut_ptr(),
-            )
+            avx2::gemm_tn_rows(a.as_ptr(), lda, a_rows, m, b.as_ptr(), ldb, b_rows, n, c.as_mut_ptr())
         },
         #[cfg(target_arch = "x86_64")]
         // SAFETY: as above.
         SimdLevel::Avx512 => unsafe {
-            avx512::gemm_tn_rows(
-                a.as_ptr(),
-                lda,
-                a_rows,
-                m,
-                b.as_ptr(),
-                ldb,
-                b_rows,
-                n,
-                c.as_mut_ptr(),
-            )
+            avx512::gemm_tn_rows(a.as_ptr(), lda, a_rows, m, b.as_ptr(), ldb, b_rows, n, c.as_mut_ptr())
         },
         _ => {
             for (&ar, &br) in a_rows.iter().zip(b_rows) {
@@ -486,8 +429,7 @@ mod avx2 {
                 for i in 0..R {
                     let mut s = *c.add(i * n + j);
                     for (&ar, &br) in a_rows.iter().zip(b_rows) {
-                        s = (*a.add(ar as usize * lda + i))
-                            .mul_add(*b.add(br as usize * ldb + j), s);
+                        s = (*a.add(ar as usize * lda + i)).mul_add(*b.add(br as usize * ldb + j), s);
                     }
                     *c.add(i * n + j) = s;
                 }
@@ -728,17 +670,7 @@ mod tests {
     use super::*;
 
     #[allow(clippy::too_many_arguments)]
-    fn naive(
-        a: &[f32],
-        lda: usize,
-        ar: &[u32],
-        b: &[f32],
-        k: usize,
-        n: usize,
-        c: &mut [f32],
-        ldc: usize,
-        cr: &[u32],
-    ) {
+    fn naive(a: &[f32], lda: usize, ar: &[u32], b: &[f32], k: usize, n: usize, c: &mut [f32], ldc: usize, cr: &[u32]) {
         for (&x, &y) in ar.iter().zip(cr) {
             for j in 0..n {
                 let mut s = f64::from(c[y as usize * ldc + j]);
@@ -769,25 +701,12 @@ mod tests {
     #[test]
     fn gemm_rows_matches_naive_for_odd_shapes() {
         for level in levels() {
-            for &(m, k, n) in &[
-                (1, 1, 1),
-                (7, 3, 5),
-                (13, 17, 33),
-                (6, 64, 64),
-                (11, 32, 96),
-                (5, 16, 24),
-                (9, 8, 48),
-                (17, 5, 40),
-            ] {
-                let a: Vec<f32> = (0..(m + 3) * (k + 2))
-                    .map(|i| ((i * 7 % 13) as f32 - 6.0) / 7.0)
-                    .collect();
-                let b: Vec<f32> = (0..k * n)
-                    .map(|i| ((i * 5 % 11) as f32 - 5.0) / 5.0)
-                    .collect();
-                let ar: Vec<u32> = (0..m as u32)
-                    .map(|r| (r * 5 + 1) % (m as u32 + 3))
-                    .collect();
+            for &(m, k, n) in
+                &[(1, 1, 1), (7, 3, 5), (13, 17, 33), (6, 64, 64), (11, 32, 96), (5, 16, 24), (9, 8, 48), (17, 5, 40)]
+            {
+                let a: Vec<f32> = (0..(m + 3) * (k + 2)).map(|i| ((i * 7 % 13) as f32 - 6.0) / 7.0).collect();
+                let b: Vec<f32> = (0..k * n).map(|i| ((i * 5 % 11) as f32 - 5.0) / 5.0).collect();
+                let ar: Vec<u32> = (0..m as u32).map(|r| (r * 5 + 1) % (m as u32 + 3)).collect();
                 let cr: Vec<u32> = (0..m as u32).rev().collect();
                 let mut c = vec![0.5f32; m * (n + 1)];
                 let mut want = c.clone();
@@ -812,24 +731,10 @@ mod tests {
     #[test]
     fn gemm_tn_rows_matches_naive() {
         for level in levels() {
-            for &(p, m, n) in &[
-                (0, 3, 3),
-                (1, 1, 1),
-                (9, 7, 5),
-                (40, 13, 33),
-                (17, 64, 64),
-                (5, 3, 96),
-                (12, 9, 48),
-            ] {
-                let a: Vec<f32> = (0..(p + 2) * m)
-                    .map(|i| ((i * 7 % 13) as f32 - 6.0) / 7.0)
-                    .collect();
-                let b: Vec<f32> = (0..(p + 1) * n)
-                    .map(|i| ((i * 5 % 11) as f32 - 5.0) / 5.0)
-                    .collect();
-                let ar: Vec<u32> = (0..p as u32)
-                    .map(|r| (r * 3 + 1) % (p as u32 + 2))
-                    .collect();
+            for &(p, m, n) in &[(0, 3, 3), (1, 1, 1), (9, 7, 5), (40, 13, 33), (17, 64, 64), (5, 3, 96), (12, 9, 48)] {
+                let a: Vec<f32> = (0..(p + 2) * m).map(|i| ((i * 7 % 13) as f32 - 6.0) / 7.0).collect();
+                let b: Vec<f32> = (0..(p + 1) * n).map(|i| ((i * 5 % 11) as f32 - 5.0) / 5.0).collect();
+                let ar: Vec<u32> = (0..p as u32).map(|r| (r * 3 + 1) % (p as u32 + 2)).collect();
                 let br: Vec<u32> = (0..p as u32).rev().collect();
                 let mut c = vec![0.25f32; m * n];
                 gemm_tn_rows_at(level, &a, m, &ar, m, &b, n, &br, n, &mut c);
@@ -837,8 +742,7 @@ mod tests {
                     for j in 0..n {
                         let mut s = 0.25f64;
                         for (&x, &y) in ar.iter().zip(&br) {
-                            s +=
-                                f64::from(a[x as usize * m + i]) * f64::from(b[y as usize * n + j]);
+                            s += f64::from(a[x as usize * m + i]) * f64::from(b[y as usize * n + j]);
                         }
                         assert!((c[i * n + j] as f64 - s).abs() < 1e-4, "{level:?}");
                     }

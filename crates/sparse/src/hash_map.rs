@@ -41,13 +41,7 @@ impl VoxelHashMap {
     /// An empty map sized for `capacity` entries with the given hash function.
     pub fn with_hasher(capacity: usize, hasher: KeyHasher) -> Self {
         let slots = (capacity.max(4) * 2).next_power_of_two();
-        Self {
-            keys: vec![0; slots],
-            vals: vec![EMPTY; slots],
-            mask: slots - 1,
-            len: 0,
-            hasher,
-        }
+        Self { keys: vec![0; slots], vals: vec![EMPTY; slots], mask: slots - 1, len: 0, hasher }
     }
 
     /// Number of entries.

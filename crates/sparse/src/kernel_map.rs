@@ -64,23 +64,9 @@ fn index_of(coords: &[Coord]) -> Result<VoxelHashMap> {
 }
 
 /// Checks a weight buffer against `[kernel_volume, c_in, c_out]`.
-pub(crate) fn check_weights(
-    w: &[f32],
-    kernel_volume: usize,
-    c_in: usize,
-    c_out: usize,
-) -> Result<()> {
-    if kernel_volume
-        .checked_mul(c_in)
-        .and_then(|v| v.checked_mul(c_out))
-        != Some(w.len())
-    {
-        return Err(SparseError::WeightShape {
-            len: w.len(),
-            kernel_volume,
-            c_in,
-            c_out,
-        });
+pub(crate) fn check_weights(w: &[f32], kernel_volume: usize, c_in: usize, c_out: usize) -> Result<()> {
+    if kernel_volume.checked_mul(c_in).and_then(|v| v.checked_mul(c_out)) != Some(w.len()) {
+        return Err(SparseError::WeightShape { len: w.len(), kernel_volume, c_in, c_out });
     }
     Ok(())
 }
@@ -170,23 +156,12 @@ impl KernelMap {
         let mut in_rows = Vec::new();
         let mut out_rows = Vec::new();
         offset_start.push(0);
-        for (ins, outs) in half
-            .iter()
-            .chain(std::iter::once(&(identity.clone(), identity)))
-            .chain(&mirrored)
-        {
+        for (ins, outs) in half.iter().chain(std::iter::once(&(identity.clone(), identity))).chain(&mirrored) {
             in_rows.extend_from_slice(ins);
             out_rows.extend_from_slice(outs);
             offset_start.push(in_rows.len());
         }
-        Ok(Self {
-            kind: MapKind::Submanifold { kernel_size },
-            n_in: n,
-            n_out: n,
-            offset_start,
-            in_rows,
-            out_rows,
-        })
+        Ok(Self { kind: MapKind::Submanifold { kernel_size }, n_in: n, n_out: n, offset_start, in_rows, out_rows })
     }
 
     /// The coarse voxel set `{floor(u / 2)}` of `fine` (in order of first appearance, which is
@@ -236,10 +211,7 @@ impl KernelMap {
 
     fn strided(fine: &[Coord], parent_row: &[u32], n_coarse: usize, kind: MapKind) -> Self {
         let mut counts = [0usize; 8];
-        let which: Vec<usize> = fine
-            .iter()
-            .map(|c| ((c[0] & 1) + 2 * (c[1] & 1) + 4 * (c[2] & 1)) as usize)
-            .collect();
+        let which: Vec<usize> = fine.iter().map(|c| ((c[0] & 1) + 2 * (c[1] & 1) + 4 * (c[2] & 1)) as usize).collect();
         for &k in &which {
             counts[k] += 1;
         }
@@ -261,14 +233,7 @@ impl KernelMap {
                 out_rows.push(p);
             }
         }
-        Self {
-            kind,
-            n_in: fine.len(),
-            n_out: n_coarse,
-            offset_start,
-            in_rows,
-            out_rows,
-        }
+        Self { kind, n_in: fine.len(), n_out: n_coarse, offset_start, in_rows, out_rows }
     }
 
     /// The same pairs with inputs and outputs swapped (the map of the input gradient); a
@@ -295,14 +260,7 @@ impl KernelMap {
             MapKind::Up => MapKind::Down,
             k @ MapKind::Submanifold { .. } => k,
         };
-        Self {
-            kind,
-            n_in: self.n_out,
-            n_out: self.n_in,
-            offset_start,
-            in_rows,
-            out_rows,
-        }
+        Self { kind, n_in: self.n_out, n_out: self.n_in, offset_start, in_rows, out_rows }
     }
 
     /// What the map connects.
@@ -387,9 +345,7 @@ mod tests {
 
     #[test]
     fn mirror_offsets_hold_swapped_pairs() {
-        let coords: Vec<Coord> = (0..40)
-            .map(|i| [i % 4, (i / 4) % 3, i / 12 - 1, 0])
-            .collect();
+        let coords: Vec<Coord> = (0..40).map(|i| [i % 4, (i / 4) % 3, i / 12 - 1, 0]).collect();
         let m = KernelMap::submanifold(&coords, 3).unwrap();
         let c = m.centre().unwrap();
         assert_eq!(m.pairs(c).0, m.pairs(c).1);
@@ -407,18 +363,9 @@ mod tests {
 
     #[test]
     fn down_then_up_returns_to_the_fine_set() {
-        let fine: Vec<Coord> = vec![
-            [-1, 0, 0, 0],
-            [0, 0, 0, 0],
-            [1, 1, 1, 0],
-            [2, 0, 0, 1],
-            [3, 3, -3, 1],
-        ];
+        let fine: Vec<Coord> = vec![[-1, 0, 0, 0], [0, 0, 0, 0], [1, 1, 1, 0], [2, 0, 0, 1], [3, 3, -3, 1]];
         let (coarse, down) = KernelMap::downsample(&fine).unwrap();
-        assert_eq!(
-            coarse,
-            vec![[-1, 0, 0, 0], [0, 0, 0, 0], [1, 0, 0, 1], [1, 1, -2, 1]]
-        );
+        assert_eq!(coarse, vec![[-1, 0, 0, 0], [0, 0, 0, 0], [1, 0, 0, 1], [1, 1, -2, 1]]);
         assert_eq!(down.num_pairs(), 5);
         let up = KernelMap::upsample(&coarse, &fine).unwrap();
         assert_eq!(up, down.transposed());

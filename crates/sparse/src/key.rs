@@ -42,10 +42,7 @@ pub fn pack_key(c: Coord, row: usize) -> Result<u64> {
     if in_range(c) {
         Ok(pack_unchecked(c))
     } else {
-        Err(SparseError::CoordOutOfRange {
-            row,
-            coord: c.map(i64::from),
-        })
+        Err(SparseError::CoordOutOfRange { row, coord: c.map(i64::from) })
     }
 }
 
@@ -98,12 +95,7 @@ mod tests {
 
     #[test]
     fn pack_round_trip_at_the_range_ends() {
-        for c in [
-            [0, 0, 0, 0],
-            [COORD_MIN, COORD_MAX, -1, 1],
-            [COORD_MAX, COORD_MIN, COORD_MAX, 0],
-            [-5, 7, -11, 1],
-        ] {
+        for c in [[0, 0, 0, 0], [COORD_MIN, COORD_MAX, -1, 1], [COORD_MAX, COORD_MIN, COORD_MAX, 0], [-5, 7, -11, 1]] {
             let k = pack_key(c, 0).unwrap();
             assert_eq!(unpack_key(k), c);
         }

@@ -72,10 +72,7 @@ mod tests {
         let order = morton_order(&coords).unwrap();
         // Every run of 8 consecutive voxels is one aligned 2x2x2 cube.
         for run in order.chunks(8) {
-            let p: Vec<_> = run
-                .iter()
-                .map(|&r| crate::key::parent(coords[r as usize]))
-                .collect();
+            let p: Vec<_> = run.iter().map(|&r| crate::key::parent(coords[r as usize])).collect();
             assert!(p.iter().all(|&q| q == p[0]), "{p:?}");
         }
     }

@@ -14,18 +14,9 @@ use crate::tensor::check_rows;
 type Triple = (usize, usize, usize);
 
 /// The kernel volume and the connections of a layer, found by brute force.
-fn triples(
-    kind: MapKind,
-    in_coords: &[Coord],
-    out_coords: &[Coord],
-) -> Result<(usize, Vec<Triple>)> {
-    let in_index: HashMap<Coord, usize> =
-        in_coords.iter().enumerate().map(|(i, &c)| (c, i)).collect();
-    let out_index: HashMap<Coord, usize> = out_coords
-        .iter()
-        .enumerate()
-        .map(|(i, &c)| (c, i))
-        .collect();
+fn triples(kind: MapKind, in_coords: &[Coord], out_coords: &[Coord]) -> Result<(usize, Vec<Triple>)> {
+    let in_index: HashMap<Coord, usize> = in_coords.iter().enumerate().map(|(i, &c)| (c, i)).collect();
+    let out_index: HashMap<Coord, usize> = out_coords.iter().enumerate().map(|(i, &c)| (c, i)).collect();
     let parity = |c: Coord| ((c[0] & 1) + 2 * (c[1] & 1) + 4 * (c[2] & 1)) as usize;
     let mut t = Vec::new();
     match kind {
@@ -39,8 +30,7 @@ fn triples(
                 for dz in -r..=r {
                     for dy in -r..=r {
                         for dx in -r..=r {
-                            if let Some(&i) = in_index.get(&[u[0] + dx, u[1] + dy, u[2] + dz, u[3]])
-                            {
+                            if let Some(&i) = in_index.get(&[u[0] + dx, u[1] + dy, u[2] + dz, u[3]]) {
                                 t.push((k, i, o));
                             }
                             k += 1;
@@ -52,18 +42,14 @@ fn triples(
         }
         MapKind::Down => {
             for (i, &u) in in_coords.iter().enumerate() {
-                let o = *out_index
-                    .get(&parent(u))
-                    .ok_or(SparseError::MissingParent { row: i, coord: u })?;
+                let o = *out_index.get(&parent(u)).ok_or(SparseError::MissingParent { row: i, coord: u })?;
                 t.push((parity(u), i, o));
             }
             Ok((8, t))
         }
         MapKind::Up => {
             for (o, &u) in out_coords.iter().enumerate() {
-                let i = *in_index
-                    .get(&parent(u))
-                    .ok_or(SparseError::MissingParent { row: o, coord: u })?;
+                let i = *in_index.get(&parent(u)).ok_or(SparseError::MissingParent { row: o, coord: u })?;
                 t.push((parity(u), i, o));
             }
             Ok((8, t))
@@ -158,8 +144,7 @@ pub fn backward_weight(
     for &(k, i, o) in &t {
         for ci in 0..c_in {
             for co in 0..c_out {
-                dw[(k * c_in + ci) * c_out + co] +=
-                    f64::from(x[i * c_in + ci]) * f64::from(dy[o * c_out + co]);
+                dw[(k * c_in + ci) * c_out + co] += f64::from(x[i * c_in + ci]) * f64::from(dy[o * c_out + co]);
             }
         }
     }

@@ -25,15 +25,7 @@ fn iota(n: usize) -> Vec<u32> {
 
 /// `dst[dst_rows] += src[src_rows] . w_k` for every offset, Algorithm 1 style.
 #[allow(clippy::too_many_arguments)]
-fn apply(
-    map: &KernelMap,
-    swap: bool,
-    src: &[f32],
-    c_src: usize,
-    w: &[f32],
-    c_dst: usize,
-    dst: &mut [f32],
-) {
+fn apply(map: &KernelMap, swap: bool, src: &[f32], c_src: usize, w: &[f32], c_dst: usize, dst: &mut [f32]) {
     let kv = map.kernel_volume();
     let ident = iota(BLOCK);
     let most = (0..kv).map(|k| map.pairs(k).0.len()).max().unwrap_or(0);
@@ -46,63 +38,32 @@ fn apply(
         if map.centre() == Some(k) {
             // Identity pairs: one dense GEMM straight from the source rows.
             let rows = DisjointRows::new(dst);
-            (0..from.len().div_ceil(BLOCK))
-                .into_par_iter()
-                .for_each(|b| {
-                    let r0 = b * BLOCK;
-                    let m = BLOCK.min(from.len() - r0);
-                    // SAFETY: blocks cover disjoint row ranges.
-                    let out = unsafe { rows.slice(r0 * c_dst, m * c_dst) };
-                    let a = &src[r0 * c_src..(r0 + m) * c_src];
-                    gemm_rows(
-                        a,
-                        c_src,
-                        &ident[..m],
-                        wk,
-                        c_src,
-                        c_dst,
-                        out,
-                        c_dst,
-                        &ident[..m],
-                        true,
-                    );
-                });
+            (0..from.len().div_ceil(BLOCK)).into_par_iter().for_each(|b| {
+                let r0 = b * BLOCK;
+                let m = BLOCK.min(from.len() - r0);
+                // SAFETY: blocks cover disjoint row ranges.
+                let out = unsafe { rows.slice(r0 * c_dst, m * c_dst) };
+                let a = &src[r0 * c_src..(r0 + m) * c_src];
+                gemm_rows(a, c_src, &ident[..m], wk, c_src, c_dst, out, c_dst, &ident[..m], true);
+            });
             continue;
         }
         let p = from.len();
         let gathered = &mut gathered_buf[..p * c_src];
         let products = &mut products_buf[..p * c_dst];
-        gathered
-            .par_chunks_mut(BLOCK * c_src.max(1))
-            .enumerate()
-            .for_each(|(b, g)| {
-                for (j, &r) in from[b * BLOCK..].iter().take(BLOCK).enumerate() {
-                    if c_src > 0 {
-                        g[j * c_src..(j + 1) * c_src]
-                            .copy_from_slice(&src[r as usize * c_src..(r as usize + 1) * c_src]);
-                    }
+        gathered.par_chunks_mut(BLOCK * c_src.max(1)).enumerate().for_each(|(b, g)| {
+            for (j, &r) in from[b * BLOCK..].iter().take(BLOCK).enumerate() {
+                if c_src > 0 {
+                    g[j * c_src..(j + 1) * c_src].copy_from_slice(&src[r as usize * c_src..(r as usize + 1) * c_src]);
                 }
-            });
+            }
+        });
         let gathered_ro: &[f32] = gathered;
-        products
-            .par_chunks_mut(BLOCK * c_dst.max(1))
-            .enumerate()
-            .for_each(|(b, z)| {
-                let m = BLOCK.min(p - b * BLOCK);
-                let a = &gathered_ro[b * BLOCK * c_src..(b * BLOCK + m) * c_src];
-                gemm_rows(
-                    a,
-                    c_src,
-                    &ident[..m],
-                    wk,
-                    c_src,
-                    c_dst,
-                    z,
-                    c_dst,
-                    &ident[..m],
-                    false,
-                );
-            });
+        products.par_chunks_mut(BLOCK * c_dst.max(1)).enumerate().for_each(|(b, z)| {
+            let m = BLOCK.min(p - b * BLOCK);
+            let a = &gathered_ro[b * BLOCK * c_src..(b * BLOCK + m) * c_src];
+            gemm_rows(a, c_src, &ident[..m], wk, c_src, c_dst, z, c_dst, &ident[..m], false);
+        });
         let products: &[f32] = products;
         let rows = DisjointRows::new(dst);
         (0..p.div_ceil(BLOCK)).into_par_iter().for_each(|b| {
@@ -125,13 +86,7 @@ fn apply(
 ///
 /// # Errors
 /// [`crate::SparseError::FeatureShape`] / [`crate::SparseError::WeightShape`] on mismatched buffers.
-pub fn forward(
-    map: &KernelMap,
-    x: &[f32],
-    c_in: usize,
-    w: &[f32],
-    c_out: usize,
-) -> Result<Vec<f32>> {
+pub fn forward(map: &KernelMap, x: &[f32], c_in: usize, w: &[f32], c_out: usize) -> Result<Vec<f32>> {
     let mut y = vec![0f32; map.n_out() * c_out];
     forward_into(map, x, c_in, w, c_out, &mut y)?;
     Ok(y)
@@ -144,14 +99,7 @@ pub fn forward(
 ///
 /// # Errors
 /// As [`forward`], and for a `y` of the wrong size.
-pub fn forward_into(
-    map: &KernelMap,
-    x: &[f32],
-    c_in: usize,
-    w: &[f32],
-    c_out: usize,
-    y: &mut [f32],
-) -> Result<()> {
+pub fn forward_into(map: &KernelMap, x: &[f32], c_in: usize, w: &[f32], c_out: usize, y: &mut [f32]) -> Result<()> {
     check_rows("x", x, map.n_in(), c_in)?;
     check_weights(w, map.kernel_volume(), c_in, c_out)?;
     check_rows("y", y, map.n_out(), c_out)?;
@@ -167,13 +115,7 @@ pub fn forward_into(
 ///
 /// # Errors
 /// As [`forward`].
-pub fn backward_input(
-    map: &KernelMap,
-    dy: &[f32],
-    c_out: usize,
-    w: &[f32],
-    c_in: usize,
-) -> Result<Vec<f32>> {
+pub fn backward_input(map: &KernelMap, dy: &[f32], c_out: usize, w: &[f32], c_in: usize) -> Result<Vec<f32>> {
     let mut dx = vec![0f32; map.n_in() * c_in];
     backward_input_into(map, dy, c_out, w, c_in, &mut dx)?;
     Ok(dx)
@@ -211,13 +153,7 @@ pub fn backward_input_into(
 ///
 /// # Errors
 /// As [`forward`].
-pub fn backward_weight(
-    map: &KernelMap,
-    x: &[f32],
-    c_in: usize,
-    dy: &[f32],
-    c_out: usize,
-) -> Result<Vec<f32>> {
+pub fn backward_weight(map: &KernelMap, x: &[f32], c_in: usize, dy: &[f32], c_out: usize) -> Result<Vec<f32>> {
     check_rows("x", x, map.n_in(), c_in)?;
     check_rows("dy", dy, map.n_out(), c_out)?;
     let kv = map.kernel_volume();
@@ -225,25 +161,21 @@ pub fn backward_weight(
     if c_in * c_out == 0 {
         return Ok(dw);
     }
-    dw.par_chunks_mut(c_in * c_out)
-        .enumerate()
-        .for_each(|(k, dwk)| {
-            let (ins, outs) = map.pairs(k);
-            let p = ins.len();
-            let ident = iota(p);
-            if map.centre() == Some(k) {
-                gemm_tn_rows(x, c_in, &ident, c_in, dy, c_out, &ident, c_out, dwk);
-                return;
-            }
-            let mut a = vec![0f32; p * c_in];
-            let mut b = vec![0f32; p * c_out];
-            for (j, (&i, &o)) in ins.iter().zip(outs).enumerate() {
-                a[j * c_in..(j + 1) * c_in]
-                    .copy_from_slice(&x[i as usize * c_in..(i as usize + 1) * c_in]);
-                b[j * c_out..(j + 1) * c_out]
-                    .copy_from_slice(&dy[o as usize * c_out..(o as usize + 1) * c_out]);
-            }
-            gemm_tn_rows(&a, c_in, &ident, c_in, &b, c_out, &ident, c_out, dwk);
-        });
+    dw.par_chunks_mut(c_in * c_out).enumerate().for_each(|(k, dwk)| {
+        let (ins, outs) = map.pairs(k);
+        let p = ins.len();
+        let ident = iota(p);
+        if map.centre() == Some(k) {
+            gemm_tn_rows(x, c_in, &ident, c_in, dy, c_out, &ident, c_out, dwk);
+            return;
+        }
+        let mut a = vec![0f32; p * c_in];
+        let mut b = vec![0f32; p * c_out];
+        for (j, (&i, &o)) in ins.iter().zip(outs).enumerate() {
+            a[j * c_in..(j + 1) * c_in].copy_from_slice(&x[i as usize * c_in..(i as usize + 1) * c_in]);
+            b[j * c_out..(j + 1) * c_out].copy_from_slice(&dy[o as usize * c_out..(o as usize + 1) * c_out]);
+        }
+        gemm_tn_rows(&a, c_in, &ident, c_in, &b, c_out, &ident, c_out, dwk);
+    });
     Ok(dw)
 }

@@ -20,11 +20,7 @@ unsafe impl Sync for DisjointRows<'_> {}
 
 impl<'a> DisjointRows<'a> {
     pub(crate) fn new(buf: &'a mut [f32]) -> Self {
-        Self {
-            ptr: buf.as_mut_ptr(),
-            len: buf.len(),
-            _buf: PhantomData,
-        }
+        Self { ptr: buf.as_mut_ptr(), len: buf.len(), _buf: PhantomData }
     }
 
     /// The elements `start..start + len`.

@@ -19,19 +19,9 @@ pub struct SparseTensor {
 }
 
 /// Checks that a feature buffer holds `rows x channels` values.
-pub(crate) fn check_rows(
-    what: &'static str,
-    data: &[f32],
-    rows: usize,
-    channels: usize,
-) -> Result<()> {
+pub(crate) fn check_rows(what: &'static str, data: &[f32], rows: usize, channels: usize) -> Result<()> {
     if rows.checked_mul(channels) != Some(data.len()) {
-        return Err(SparseError::FeatureShape {
-            what,
-            len: data.len(),
-            rows,
-            channels,
-        });
+        return Err(SparseError::FeatureShape { what, len: data.len(), rows, channels });
     }
     Ok(())
 }
@@ -71,11 +61,7 @@ impl SparseTensor {
             }
         }
         if unique as usize == coords.len() {
-            return Ok(Self {
-                coords,
-                features,
-                channels,
-            });
+            return Ok(Self { coords, features, channels });
         }
         let u = unique as usize;
         let mut merged_coords = vec![[0; 4]; u];
@@ -95,20 +81,12 @@ impl SparseTensor {
             .flat_map(|(s, &n)| s.iter().map(move |v| (v / f64::from(n)) as f32))
             .collect::<Vec<_>>();
         let merged = if channels == 0 { Vec::new() } else { merged };
-        Ok(Self {
-            coords: merged_coords,
-            features: merged,
-            channels,
-        })
+        Ok(Self { coords: merged_coords, features: merged, channels })
     }
 
     /// An empty tensor with `channels` channels.
     pub fn empty(channels: usize) -> Self {
-        Self {
-            coords: Vec::new(),
-            features: Vec::new(),
-            channels,
-        }
+        Self { coords: Vec::new(), features: Vec::new(), channels }
     }
 
     /// Voxel coordinates, `[n]`.
@@ -157,14 +135,7 @@ impl SparseTensor {
         for &r in &order {
             features.extend_from_slice(&self.features[r as usize * c..(r as usize + 1) * c]);
         }
-        (
-            Self {
-                coords,
-                features,
-                channels: c,
-            },
-            order,
-        )
+        (Self { coords, features, channels: c }, order)
     }
 }
 
@@ -175,22 +146,16 @@ mod tests {
 
     #[test]
     fn duplicates_are_averaged_into_the_first_row() {
-        let t = SparseTensor::new(
-            vec![[0, 0, 0, 0], [1, 0, 0, 0], [0, 0, 0, 0]],
-            vec![1.0, 10.0, 2.0, 20.0, 3.0, 30.0],
-            2,
-        )
-        .unwrap();
+        let t =
+            SparseTensor::new(vec![[0, 0, 0, 0], [1, 0, 0, 0], [0, 0, 0, 0]], vec![1.0, 10.0, 2.0, 20.0, 3.0, 30.0], 2)
+                .unwrap();
         assert_eq!(t.coords(), &[[0, 0, 0, 0], [1, 0, 0, 0]]);
         assert_eq!(t.features(), &[2.0, 20.0, 2.0, 20.0]);
     }
 
     #[test]
     fn bad_shapes_and_ranges_are_errors() {
-        assert!(matches!(
-            SparseTensor::new(vec![[0, 0, 0, 0]], vec![1.0], 2),
-            Err(SparseError::FeatureShape { .. })
-        ));
+        assert!(matches!(SparseTensor::new(vec![[0, 0, 0, 0]], vec![1.0], 2), Err(SparseError::FeatureShape { .. })));
         assert!(matches!(
             SparseTensor::new(vec![[0, 0, 0, 5]], vec![1.0], 1),
             Err(SparseError::CoordOutOfRange { row: 0, .. })

@@ -35,9 +35,7 @@ pub fn voxelize(
     batch: i32,
 ) -> Result<Voxelization> {
     if !(voxel_size.is_finite() && voxel_size > 0.0) {
-        return Err(SparseError::InvalidArgument(format!(
-            "voxel size {voxel_size} must be positive and finite"
-        )));
+        return Err(SparseError::InvalidArgument(format!("voxel size {voxel_size} must be positive and finite")));
     }
     check_rows("features", features, points.len(), channels)?;
     check_row_count(points.len())?;
@@ -47,9 +45,7 @@ pub fn voxelize(
     let mut point_voxel = Vec::with_capacity(points.len());
     for (row, p) in points.iter().enumerate() {
         if !p.iter().all(|v| v.is_finite()) {
-            return Err(SparseError::InvalidArgument(format!(
-                "point {row} is not finite: {p:?}"
-            )));
+            return Err(SparseError::InvalidArgument(format!("point {row} is not finite: {p:?}")));
         }
         let q = p.map(|v| (f64::from(v) * inv).floor());
         if q.iter().any(|v| v.abs() > f64::from(i32::MAX / 2)) {
@@ -91,10 +87,7 @@ pub fn voxelize(
             feats.push((sums[v * channels + ch] / f64::from(n)) as f32);
         }
     }
-    Ok(Voxelization {
-        tensor: SparseTensor::new(sorted, feats, channels)?,
-        point_to_voxel,
-    })
+    Ok(Voxelization { tensor: SparseTensor::new(sorted, feats, channels)?, point_to_voxel })
 }
 
 #[cfg(test)]
@@ -104,12 +97,7 @@ mod tests {
 
     #[test]
     fn features_are_averaged_and_points_map_back() {
-        let pts = [
-            [0.01, 0.01, 0.01],
-            [0.04, 0.02, 0.03],
-            [-0.01, 0.0, 0.0],
-            [0.12, 0.0, 0.0],
-        ];
+        let pts = [[0.01, 0.01, 0.01], [0.04, 0.02, 0.03], [-0.01, 0.0, 0.0], [0.12, 0.0, 0.0]];
         let f = [1.0, 3.0, 5.0, 7.0];
         let v = voxelize(&pts, &f, 1, 0.05, 0).unwrap();
         assert_eq!(v.tensor.len(), 3);

@@ -5,8 +5,7 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use semrecon_sparse::{
-    reference, rulebook, voxelize, ChunkConfig, ChunkedConv, Coord, KernelMap, MapKind,
-    SparseError, SparseTensor,
+    reference, rulebook, voxelize, ChunkConfig, ChunkedConv, Coord, KernelMap, MapKind, SparseError, SparseTensor,
 };
 
 /// A random sparse set: `n` distinct voxels in a cube of side `side`, two batches.
@@ -23,10 +22,7 @@ fn random_set(seed: u64, n: usize, side: i32) -> Vec<Coord> {
         })
         .collect();
     let feats = vec![0.0; coords.len()];
-    SparseTensor::new(coords, feats, 1)
-        .unwrap()
-        .coords()
-        .to_vec()
+    SparseTensor::new(coords, feats, 1).unwrap().coords().to_vec()
 }
 
 /// Surface-like sets: a voxelised plane patch, box shell and sphere shell (0.05 m voxels).
@@ -53,11 +49,7 @@ fn surface_set(which: usize) -> Vec<Coord> {
                     }
                 }
             };
-            let (na, nb, nc) = (
-                (a / step) as usize,
-                (b / step) as usize,
-                (c / step) as usize,
-            );
+            let (na, nb, nc) = ((a / step) as usize, (b / step) as usize, (c / step) as usize);
             face(na, nb, &|u, v| [u, v, 0.0]);
             face(na, nb, &|u, v| [u, v, c]);
             face(na, nc, &|u, v| [u, 0.0, v]);
@@ -71,21 +63,13 @@ fn surface_set(which: usize) -> Vec<Coord> {
                 let th = std::f32::consts::PI * (i as f32 + 0.5) / 80.0;
                 for j in 0..160 {
                     let ph = 2.0 * std::f32::consts::PI * j as f32 / 160.0;
-                    pts.push([
-                        -0.2 + 0.35 * th.sin() * ph.cos(),
-                        -0.1 + 0.35 * th.sin() * ph.sin(),
-                        0.35 * th.cos(),
-                    ]);
+                    pts.push([-0.2 + 0.35 * th.sin() * ph.cos(), -0.1 + 0.35 * th.sin() * ph.sin(), 0.35 * th.cos()]);
                 }
             }
         }
     }
     let feats = vec![0.0; pts.len()];
-    voxelize(&pts, &feats, 1, 0.05, 0)
-        .unwrap()
-        .tensor
-        .coords()
-        .to_vec()
+    voxelize(&pts, &feats, 1, 0.05, 0).unwrap().tensor.coords().to_vec()
 }
 
 fn values(seed: u64, n: usize) -> Vec<f32> {
@@ -111,18 +95,8 @@ fn layers(set: &[Coord], kernel_size: usize) -> Vec<Layer> {
             output: set.to_vec(),
             map: KernelMap::submanifold(set, kernel_size).unwrap(),
         },
-        Layer {
-            kind: MapKind::Down,
-            input: set.to_vec(),
-            output: coarse.clone(),
-            map: down,
-        },
-        Layer {
-            kind: MapKind::Up,
-            input: coarse,
-            output: set.to_vec(),
-            map: up,
-        },
+        Layer { kind: MapKind::Down, input: set.to_vec(), output: coarse.clone(), map: down },
+        Layer { kind: MapKind::Up, input: coarse, output: set.to_vec(), map: up },
     ]
 }
 
@@ -131,18 +105,11 @@ fn assert_close(got: &[f32], want: &[f32], what: &str) {
     assert_eq!(got.len(), want.len(), "{what}: length");
     let scale = want.iter().fold(1.0f32, |m, v| m.max(v.abs()));
     for (i, (g, w)) in got.iter().zip(want).enumerate() {
-        assert!(
-            (g - w).abs() <= 2e-5 * scale * 8.0,
-            "{what}: element {i}: {g} vs {w} (scale {scale})"
-        );
+        assert!((g - w).abs() <= 2e-5 * scale * 8.0, "{what}: element {i}: {g} vs {w} (scale {scale})");
     }
 }
 
-const SMALL_CHUNKS: ChunkConfig = ChunkConfig {
-    chunk_side: 8,
-    levels: 3,
-    max_region_rows: 24,
-};
+const SMALL_CHUNKS: ChunkConfig = ChunkConfig { chunk_side: 8, levels: 3, max_region_rows: 24 };
 
 /// All passes of both fast kernels against the reference on one layer.
 fn check_layer(layer: &Layer, c_in: usize, c_out: usize, seed: u64, configs: &[ChunkConfig]) {
@@ -150,33 +117,10 @@ fn check_layer(layer: &Layer, c_in: usize, c_out: usize, seed: u64, configs: &[C
     let x = values(seed, layer.input.len() * c_in);
     let dy = values(seed + 1, layer.output.len() * c_out);
     let w = values(seed + 2, kv * c_in * c_out);
-    let tag = format!(
-        "{:?} n={} c_in={c_in} c_out={c_out}",
-        layer.kind,
-        layer.input.len()
-    );
-    let y_ref =
-        reference::forward(layer.kind, &layer.input, &layer.output, &x, c_in, &w, c_out).unwrap();
-    let dx_ref = reference::backward_input(
-        layer.kind,
-        &layer.input,
-        &layer.output,
-        &dy,
-        c_out,
-        &w,
-        c_in,
-    )
-    .unwrap();
-    let dw_ref = reference::backward_weight(
-        layer.kind,
-        &layer.input,
-        &layer.output,
-        &x,
-        c_in,
-        &dy,
-        c_out,
-    )
-    .unwrap();
+    let tag = format!("{:?} n={} c_in={c_in} c_out={c_out}", layer.kind, layer.input.len());
+    let y_ref = reference::forward(layer.kind, &layer.input, &layer.output, &x, c_in, &w, c_out).unwrap();
+    let dx_ref = reference::backward_input(layer.kind, &layer.input, &layer.output, &dy, c_out, &w, c_in).unwrap();
+    let dw_ref = reference::backward_weight(layer.kind, &layer.input, &layer.output, &x, c_in, &dy, c_out).unwrap();
     assert_close(
         &rulebook::forward(&layer.map, &x, c_in, &w, c_out).unwrap(),
         &y_ref,
@@ -194,11 +138,7 @@ fn check_layer(layer: &Layer, c_in: usize, c_out: usize, seed: u64, configs: &[C
     );
     for cfg in configs {
         let conv = ChunkedConv::new(layer.map.clone(), &layer.input, &layer.output, cfg).unwrap();
-        assert_close(
-            &conv.forward(&x, c_in, &w, c_out).unwrap(),
-            &y_ref,
-            &format!("chunked forward {tag} {cfg:?}"),
-        );
+        assert_close(&conv.forward(&x, c_in, &w, c_out).unwrap(), &y_ref, &format!("chunked forward {tag} {cfg:?}"));
         assert_close(
             &conv.backward_input(&dy, c_out, &w, c_in).unwrap(),
             &dx_ref,
@@ -215,27 +155,11 @@ fn check_layer(layer: &Layer, c_in: usize, c_out: usize, seed: u64, configs: &[C
 #[test]
 fn random_sets_all_layers_all_channel_counts() {
     let set = random_set(1, 300, 6);
-    for (i, &(c_in, c_out)) in [
-        (1, 1),
-        (3, 16),
-        (16, 3),
-        (32, 32),
-        (64, 64),
-        (96, 96),
-        (7, 13),
-        (64, 96),
-    ]
-    .iter()
-    .enumerate()
+    for (i, &(c_in, c_out)) in
+        [(1, 1), (3, 16), (16, 3), (32, 32), (64, 64), (96, 96), (7, 13), (64, 96)].iter().enumerate()
     {
         for layer in layers(&set, 3) {
-            check_layer(
-                &layer,
-                c_in,
-                c_out,
-                10 + i as u64,
-                &[SMALL_CHUNKS, ChunkConfig::default()],
-            );
+            check_layer(&layer, c_in, c_out, 10 + i as u64, &[SMALL_CHUNKS, ChunkConfig::default()]);
         }
     }
 }
@@ -247,13 +171,7 @@ fn surface_sets_all_layers() {
         assert!(set.len() > 100, "surface {which} has {} voxels", set.len());
         for (i, &(c_in, c_out)) in [(16, 16), (32, 64), (3, 32)].iter().enumerate() {
             for layer in layers(&set, 3) {
-                check_layer(
-                    &layer,
-                    c_in,
-                    c_out,
-                    100 + i as u64,
-                    &[SMALL_CHUNKS, ChunkConfig::default()],
-                );
+                check_layer(&layer, c_in, c_out, 100 + i as u64, &[SMALL_CHUNKS, ChunkConfig::default()]);
             }
         }
     }
@@ -272,21 +190,10 @@ fn kernel_sizes_one_and_five() {
 fn chunk_configurations_agree() {
     let set = surface_set(1);
     let layer = &layers(&set, 3)[0];
-    let configs: Vec<ChunkConfig> = [
-        (1, 1, 1),
-        (2, 2, 5),
-        (4, 3, 16),
-        (16, 1, 10_000),
-        (32, 4, 64),
-        (64, 3, 100),
-    ]
-    .iter()
-    .map(|&(chunk_side, levels, max_region_rows)| ChunkConfig {
-        chunk_side,
-        levels,
-        max_region_rows,
-    })
-    .collect();
+    let configs: Vec<ChunkConfig> = [(1, 1, 1), (2, 2, 5), (4, 3, 16), (16, 1, 10_000), (32, 4, 64), (64, 3, 100)]
+        .iter()
+        .map(|&(chunk_side, levels, max_region_rows)| ChunkConfig { chunk_side, levels, max_region_rows })
+        .collect();
     check_layer(layer, 8, 24, 3, &configs);
 }
 
@@ -295,10 +202,7 @@ fn empty_input_works() {
     for layer in layers(&[], 3) {
         check_layer(&layer, 4, 5, 1, &[ChunkConfig::default()]);
         let conv = ChunkedConv::new(layer.map.clone(), &[], &[], &ChunkConfig::default()).unwrap();
-        assert!(conv
-            .forward(&[], 4, &vec![0.0; layer.map.kernel_volume() * 20], 5)
-            .unwrap()
-            .is_empty());
+        assert!(conv.forward(&[], 4, &vec![0.0; layer.map.kernel_volume() * 20], 5).unwrap().is_empty());
     }
 }
 
@@ -318,22 +222,13 @@ fn finite_differences_match_both_gradients() {
     for layer in layers(&set, 3) {
         let (c_in, c_out) = (3, 2);
         let kv = layer.map.kernel_volume();
-        let conv = ChunkedConv::new(
-            layer.map.clone(),
-            &layer.input,
-            &layer.output,
-            &SMALL_CHUNKS,
-        )
-        .unwrap();
+        let conv = ChunkedConv::new(layer.map.clone(), &layer.input, &layer.output, &SMALL_CHUNKS).unwrap();
         let x = values(1, layer.input.len() * c_in);
         let w = values(2, kv * c_in * c_out);
         let g = values(3, layer.output.len() * c_out);
         let loss = |x: &[f32], w: &[f32]| -> f64 {
             let y = conv.forward(x, c_in, w, c_out).unwrap();
-            y.iter()
-                .zip(&g)
-                .map(|(&a, &b)| f64::from(a) * f64::from(b))
-                .sum()
+            y.iter().zip(&g).map(|(&a, &b)| f64::from(a) * f64::from(b)).sum()
         };
         let dx = conv.backward_input(&g, c_out, &w, c_in).unwrap();
         let dw = conv.backward_weight(&x, c_in, &g, c_out).unwrap();
@@ -343,24 +238,14 @@ fn finite_differences_match_both_gradients() {
             xp[i] += eps;
             xm[i] -= eps;
             let fd = (loss(&xp, &w) - loss(&xm, &w)) / (2.0 * f64::from(eps));
-            assert!(
-                (fd - f64::from(dx[i])).abs() < 1e-3,
-                "{:?} dx[{i}]: fd {fd} vs {}",
-                layer.kind,
-                dx[i]
-            );
+            assert!((fd - f64::from(dx[i])).abs() < 1e-3, "{:?} dx[{i}]: fd {fd} vs {}", layer.kind, dx[i]);
         }
         for i in (0..w.len()).step_by(5) {
             let (mut wp, mut wm) = (w.clone(), w.clone());
             wp[i] += eps;
             wm[i] -= eps;
             let fd = (loss(&x, &wp) - loss(&x, &wm)) / (2.0 * f64::from(eps));
-            assert!(
-                (fd - f64::from(dw[i])).abs() < 1e-3,
-                "{:?} dw[{i}]: fd {fd} vs {}",
-                layer.kind,
-                dw[i]
-            );
+            assert!((fd - f64::from(dw[i])).abs() < 1e-3, "{:?} dw[{i}]: fd {fd} vs {}", layer.kind, dw[i]);
         }
     }
 }
@@ -370,13 +255,7 @@ fn same_bits_for_one_two_and_four_threads() {
     let set = surface_set(2);
     let (c_in, c_out) = (32, 48);
     let run = |layer: &Layer| {
-        let conv = ChunkedConv::new(
-            layer.map.clone(),
-            &layer.input,
-            &layer.output,
-            &SMALL_CHUNKS,
-        )
-        .unwrap();
+        let conv = ChunkedConv::new(layer.map.clone(), &layer.input, &layer.output, &SMALL_CHUNKS).unwrap();
         let kv = layer.map.kernel_volume();
         let x = values(1, layer.input.len() * c_in);
         let w = values(2, kv * c_in * c_out);
@@ -394,14 +273,8 @@ fn same_bits_for_one_two_and_four_threads() {
         let results: Vec<Vec<Vec<u32>>> = [1, 2, 4]
             .iter()
             .map(|&t| {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(t)
-                    .build()
-                    .unwrap();
-                pool.install(|| run(&layer))
-                    .into_iter()
-                    .map(|v| v.iter().map(|f| f.to_bits()).collect())
-                    .collect()
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
+                pool.install(|| run(&layer)).into_iter().map(|v| v.iter().map(|f| f.to_bits()).collect()).collect()
             })
             .collect();
         assert_eq!(results[0], results[1], "{:?}: 1 vs 2 threads", layer.kind);
@@ -416,61 +289,23 @@ fn bad_shapes_are_errors_not_panics() {
     let conv = ChunkedConv::new(map.clone(), &set, &set, &ChunkConfig::default()).unwrap();
     let x = vec![0.0; set.len() * 4];
     let w = vec![0.0; 27 * 4 * 5];
-    assert!(matches!(
-        conv.forward(&x[1..], 4, &w, 5),
-        Err(SparseError::FeatureShape { .. })
-    ));
-    assert!(matches!(
-        conv.forward(&x, 4, &w[1..], 5),
-        Err(SparseError::WeightShape { .. })
-    ));
-    assert!(matches!(
-        rulebook::forward(&map, &x, 4, &w, 4),
-        Err(SparseError::WeightShape { .. })
-    ));
-    assert!(matches!(
-        conv.backward_input(&x[2..], 4, &w, 5),
-        Err(SparseError::FeatureShape { .. })
-    ));
-    assert!(matches!(
-        conv.backward_input(&x, 4, &w, 6),
-        Err(SparseError::WeightShape { .. })
-    ));
-    assert!(matches!(
-        conv.backward_weight(&x, 4, &x[..8], 4),
-        Err(SparseError::FeatureShape { .. })
-    ));
-    assert!(matches!(
-        rulebook::backward_weight(&map, &x[4..], 4, &x, 4),
-        Err(SparseError::FeatureShape { .. })
-    ));
+    assert!(matches!(conv.forward(&x[1..], 4, &w, 5), Err(SparseError::FeatureShape { .. })));
+    assert!(matches!(conv.forward(&x, 4, &w[1..], 5), Err(SparseError::WeightShape { .. })));
+    assert!(matches!(rulebook::forward(&map, &x, 4, &w, 4), Err(SparseError::WeightShape { .. })));
+    assert!(matches!(conv.backward_input(&x[2..], 4, &w, 5), Err(SparseError::FeatureShape { .. })));
+    assert!(matches!(conv.backward_input(&x, 4, &w, 6), Err(SparseError::WeightShape { .. })));
+    assert!(matches!(conv.backward_weight(&x, 4, &x[..8], 4), Err(SparseError::FeatureShape { .. })));
+    assert!(matches!(rulebook::backward_weight(&map, &x[4..], 4, &x, 4), Err(SparseError::FeatureShape { .. })));
     assert!(matches!(
         ChunkedConv::new(map.clone(), &set[1..], &set, &ChunkConfig::default()),
         Err(SparseError::CoordCount { .. })
     ));
-    let bad = ChunkConfig {
-        chunk_side: 3,
-        ..ChunkConfig::default()
-    };
+    let bad = ChunkConfig { chunk_side: 3, ..ChunkConfig::default() };
     assert!(ChunkedConv::new(map, &set, &set, &bad).is_err());
+    assert!(matches!(KernelMap::submanifold(&[[1 << 20, 0, 0, 0]], 3), Err(SparseError::CoordOutOfRange { .. })));
+    assert!(matches!(KernelMap::downsample(&[[0, 0, 0, 2]]), Err(SparseError::CoordOutOfRange { .. })));
     assert!(matches!(
-        KernelMap::submanifold(&[[1 << 20, 0, 0, 0]], 3),
-        Err(SparseError::CoordOutOfRange { .. })
-    ));
-    assert!(matches!(
-        KernelMap::downsample(&[[0, 0, 0, 2]]),
-        Err(SparseError::CoordOutOfRange { .. })
-    ));
-    assert!(matches!(
-        reference::forward(
-            MapKind::Submanifold { kernel_size: 3 },
-            &set,
-            &set,
-            &x,
-            4,
-            &w,
-            3
-        ),
+        reference::forward(MapKind::Submanifold { kernel_size: 3 }, &set, &set, &x, 4, &w, 3),
         Err(SparseError::WeightShape { .. })
     ));
 }
@@ -480,37 +315,19 @@ fn transposed_strided_layer_reuses_the_plans() {
     let set = surface_set(1);
     let ls = layers(&set, 3);
     let (down, up) = (&ls[1], &ls[2]);
-    let down_conv =
-        ChunkedConv::new(down.map.clone(), &down.input, &down.output, &SMALL_CHUNKS).unwrap();
+    let down_conv = ChunkedConv::new(down.map.clone(), &down.input, &down.output, &SMALL_CHUNKS).unwrap();
     let up_conv = down_conv.transposed().unwrap();
     assert_eq!(up_conv.map(), &up.map);
     let (c_in, c_out) = (24, 16);
     let x = values(1, up.input.len() * c_in);
     let w = values(2, 8 * c_in * c_out);
     let dy = values(3, up.output.len() * c_out);
-    let y_ref =
-        reference::forward(MapKind::Up, &up.input, &up.output, &x, c_in, &w, c_out).unwrap();
-    assert_close(
-        &up_conv.forward(&x, c_in, &w, c_out).unwrap(),
-        &y_ref,
-        "up via transposed",
-    );
-    let dx_ref =
-        reference::backward_input(MapKind::Up, &up.input, &up.output, &dy, c_out, &w, c_in)
-            .unwrap();
-    assert_close(
-        &up_conv.backward_input(&dy, c_out, &w, c_in).unwrap(),
-        &dx_ref,
-        "up dx via transposed",
-    );
-    let dw_ref =
-        reference::backward_weight(MapKind::Up, &up.input, &up.output, &x, c_in, &dy, c_out)
-            .unwrap();
-    assert_close(
-        &up_conv.backward_weight(&x, c_in, &dy, c_out).unwrap(),
-        &dw_ref,
-        "up dw via transposed",
-    );
+    let y_ref = reference::forward(MapKind::Up, &up.input, &up.output, &x, c_in, &w, c_out).unwrap();
+    assert_close(&up_conv.forward(&x, c_in, &w, c_out).unwrap(), &y_ref, "up via transposed");
+    let dx_ref = reference::backward_input(MapKind::Up, &up.input, &up.output, &dy, c_out, &w, c_in).unwrap();
+    assert_close(&up_conv.backward_input(&dy, c_out, &w, c_in).unwrap(), &dx_ref, "up dx via transposed");
+    let dw_ref = reference::backward_weight(MapKind::Up, &up.input, &up.output, &x, c_in, &dy, c_out).unwrap();
+    assert_close(&up_conv.backward_weight(&x, c_in, &dy, c_out).unwrap(), &dw_ref, "up dw via transposed");
     let sub = ChunkedConv::new(ls[0].map.clone(), &set, &set, &SMALL_CHUNKS).unwrap();
     assert!(sub.transposed().is_none());
 }

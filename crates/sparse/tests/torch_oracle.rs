@@ -31,12 +31,7 @@ fn coords(v: &Value) -> Vec<Coord> {
         .unwrap()
         .iter()
         .map(|c| {
-            let c: Vec<i32> = c
-                .as_array()
-                .unwrap()
-                .iter()
-                .map(|x| x.as_i64().unwrap() as i32)
-                .collect();
+            let c: Vec<i32> = c.as_array().unwrap().iter().map(|x| x.as_i64().unwrap() as i32).collect();
             [c[0], c[1], c[2], c[3]]
         })
         .collect()
@@ -44,13 +39,9 @@ fn coords(v: &Value) -> Vec<Coord> {
 
 fn load() -> Vec<Case> {
     let dir = fixtures();
-    let meta: Value =
-        serde_json::from_slice(&std::fs::read(dir.join("torch_oracle.json")).unwrap()).unwrap();
+    let meta: Value = serde_json::from_slice(&std::fs::read(dir.join("torch_oracle.json")).unwrap()).unwrap();
     let blob = std::fs::read(dir.join("torch_oracle.bin")).unwrap();
-    let floats: Vec<f32> = blob
-        .chunks_exact(4)
-        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-        .collect();
+    let floats: Vec<f32> = blob.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
     meta["cases"]
         .as_array()
         .unwrap()
@@ -91,15 +82,8 @@ fn load() -> Vec<Case> {
 fn assert_close(got: &[f32], want: &[f32], what: &str) {
     assert_eq!(got.len(), want.len(), "{what}: length");
     let scale = want.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
-    let worst = got
-        .iter()
-        .zip(want)
-        .map(|(g, w)| (g - w).abs() / scale)
-        .fold(0f32, f32::max);
-    assert!(
-        worst <= 1e-4,
-        "{what}: worst relative error {worst:e} (scale {scale})"
-    );
+    let worst = got.iter().zip(want).map(|(g, w)| (g - w).abs() / scale).fold(0f32, f32::max);
+    assert!(worst <= 1e-4, "{what}: worst relative error {worst:e} (scale {scale})");
 }
 
 /// Rows of `rows` (`[coords.len(), c]`, in the fixture's order of `coords`) reordered to
@@ -126,22 +110,13 @@ fn every_kernel_matches_pytorch_dense_convolution() {
         let a = |k: &str| case.arrays[k].as_slice();
         // The engine's own output set: the down layer orders its coarse voxels itself.
         let (out_coords, map) = match case.kind {
-            MapKind::Submanifold { kernel_size } => (
-                case.in_coords.clone(),
-                KernelMap::submanifold(&case.in_coords, kernel_size).unwrap(),
-            ),
+            MapKind::Submanifold { kernel_size } => {
+                (case.in_coords.clone(), KernelMap::submanifold(&case.in_coords, kernel_size).unwrap())
+            }
             MapKind::Down => KernelMap::downsample(&case.in_coords).unwrap(),
-            MapKind::Up => (
-                case.out_coords.clone(),
-                KernelMap::upsample(&case.in_coords, &case.out_coords).unwrap(),
-            ),
+            MapKind::Up => (case.out_coords.clone(), KernelMap::upsample(&case.in_coords, &case.out_coords).unwrap()),
         };
-        assert_eq!(
-            out_coords.len(),
-            case.out_coords.len(),
-            "{}: output set",
-            case.name
-        );
+        assert_eq!(out_coords.len(), case.out_coords.len(), "{}: output set", case.name);
         let y = reorder(a("y"), c_out, &case.out_coords, &out_coords);
         let dy = reorder(a("dy"), c_out, &case.out_coords, &out_coords);
         let (x, w, dx, dw) = (a("x"), a("w"), a("dx"), a("dw"));
@@ -164,16 +139,8 @@ fn every_kernel_matches_pytorch_dense_convolution() {
             &format!("{name} reference dw"),
         );
 
-        assert_close(
-            &rulebook::forward(&map, x, c_in, w, c_out).unwrap(),
-            &y,
-            &format!("{name} rulebook forward"),
-        );
-        assert_close(
-            &rulebook::backward_input(&map, &dy, c_out, w, c_in).unwrap(),
-            dx,
-            &format!("{name} rulebook dx"),
-        );
+        assert_close(&rulebook::forward(&map, x, c_in, w, c_out).unwrap(), &y, &format!("{name} rulebook forward"));
+        assert_close(&rulebook::backward_input(&map, &dy, c_out, w, c_in).unwrap(), dx, &format!("{name} rulebook dx"));
         assert_close(
             &rulebook::backward_weight(&map, x, c_in, &dy, c_out).unwrap(),
             dw,
@@ -181,23 +148,11 @@ fn every_kernel_matches_pytorch_dense_convolution() {
         );
 
         // The default plan and one with tiny chunks (many splits, regions crossing chunks).
-        let tiny = ChunkConfig {
-            chunk_side: 4,
-            levels: 3,
-            max_region_rows: 8,
-        };
+        let tiny = ChunkConfig { chunk_side: 4, levels: 3, max_region_rows: 8 };
         for cfg in [ChunkConfig::default(), tiny] {
             let conv = ChunkedConv::new(map.clone(), rin, &out_coords, &cfg).unwrap();
-            assert_close(
-                &conv.forward(x, c_in, w, c_out).unwrap(),
-                &y,
-                &format!("{name} chunked forward {cfg:?}"),
-            );
-            assert_close(
-                &conv.backward_input(&dy, c_out, w, c_in).unwrap(),
-                dx,
-                &format!("{name} chunked dx {cfg:?}"),
-            );
+            assert_close(&conv.forward(x, c_in, w, c_out).unwrap(), &y, &format!("{name} chunked forward {cfg:?}"));
+            assert_close(&conv.backward_input(&dy, c_out, w, c_in).unwrap(), dx, &format!("{name} chunked dx {cfg:?}"));
             assert_close(
                 &conv.backward_weight(x, c_in, &dy, c_out).unwrap(),
                 dw,
@@ -207,21 +162,12 @@ fn every_kernel_matches_pytorch_dense_convolution() {
         // The up layer as the transpose of the down layer's plan, as the network builds it.
         if case.kind == MapKind::Up {
             let (coarse, down) = KernelMap::downsample(&case.out_coords).unwrap();
-            let down =
-                ChunkedConv::new(down, &case.out_coords, &coarse, &ChunkConfig::default()).unwrap();
+            let down = ChunkedConv::new(down, &case.out_coords, &coarse, &ChunkConfig::default()).unwrap();
             let up = down.transposed().unwrap();
             let xu = reorder(x, c_in, &case.in_coords, &coarse);
             let dxu = reorder(dx, c_in, &case.in_coords, &coarse);
-            assert_close(
-                &up.forward(&xu, c_in, w, c_out).unwrap(),
-                &y,
-                &format!("{name} transposed-plan forward"),
-            );
-            assert_close(
-                &up.backward_input(&dy, c_out, w, c_in).unwrap(),
-                &dxu,
-                &format!("{name} transposed-plan dx"),
-            );
+            assert_close(&up.forward(&xu, c_in, w, c_out).unwrap(), &y, &format!("{name} transposed-plan forward"));
+            assert_close(&up.backward_input(&dy, c_out, w, c_in).unwrap(), &dxu, &format!("{name} transposed-plan dx"));
             assert_close(
                 &up.backward_weight(&xu, c_in, &dy, c_out).unwrap(),
                 dw,

@@ -85,7 +85,12 @@ pub fn render_ar(
             .world_from_camera
             .ok_or_else(|| bad(format!("{}: frame {i} has no pose (the AR view needs posed frames)", source.name())))?;
         if frame.color.len() != intrinsics.pixel_count() {
-            return Err(bad(format!("{}: frame {i} colour is not {}x{}", source.name(), intrinsics.width, intrinsics.height)));
+            return Err(bad(format!(
+                "{}: frame {i} colour is not {}x{}",
+                source.name(),
+                intrinsics.width,
+                intrinsics.height
+            )));
         }
         if i % throw_every == 0 {
             let forward = Vec3::from(world_from_camera.matrix3.z_axis).normalize_or(Vec3::X);

@@ -75,7 +75,11 @@ pub fn handle(folder: &ViewerFolder, method: &str, path: &str, body: &[u8]) -> R
     let path = path.split('?').next().unwrap_or(path);
     let get_only = |r: Response| if method == "GET" || method == "HEAD" { r } else { method_not_allowed(method, path) };
     match path {
-        "/" | "/index.html" => get_only(Response { status: 200, content_type: "text/html; charset=utf-8", body: assets::served_page().into_bytes() }),
+        "/" | "/index.html" => get_only(Response {
+            status: 200,
+            content_type: "text/html; charset=utf-8",
+            body: assets::served_page().into_bytes(),
+        }),
         "/api/info" => get_only(Response::json(200, &info_json(folder))),
         "/api/scene" => get_only(Response {
             status: 200,

@@ -97,7 +97,11 @@ pub fn print_summary(folder: &ViewerFolder) {
         folder.mesh_path.display(),
         folder.source_triangles,
         if folder.labelled { ", labelled" } else { ", no labels" },
-        folder.trajectory.as_ref().map(|(p, t)| format!("{} ({} poses)", p.display(), t.len())).unwrap_or("none".into())
+        folder
+            .trajectory
+            .as_ref()
+            .map(|(p, t)| format!("{} ({} poses)", p.display(), t.len()))
+            .unwrap_or("none".into())
     );
     for n in &folder.notes {
         println!("note: {n}");
@@ -117,7 +121,9 @@ fn answer(folder: &ViewerFolder, mut request: tiny_http::Request) {
         // to tell an oversized one.
         let mut body = Vec::new();
         match request.as_reader().take(MAX_BODY_BYTES as u64 + 1).read_to_end(&mut body) {
-            Ok(_) if body.len() > MAX_BODY_BYTES => Response::error(413, format!("request body over {MAX_BODY_BYTES} bytes")),
+            Ok(_) if body.len() > MAX_BODY_BYTES => {
+                Response::error(413, format!("request body over {MAX_BODY_BYTES} bytes"))
+            }
             Ok(_) => handle(folder, &method, &url, &body),
             Err(e) => Response::error(400, format!("cannot read the request body: {e}")),
         }

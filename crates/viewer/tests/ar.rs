@@ -57,12 +57,16 @@ fn balls_are_drawn_over_the_frames_and_a_gif_is_written() {
     let forward = Vec3::new(1.0, 0.0, -0.2).normalize();
     let right = forward.cross(Vec3::Z).normalize();
     let down = forward.cross(right);
-    let pose = Affine3A::from_rotation_translation(Quat::from_mat3(&Mat3::from_cols(right, down, forward)), Vec3::new(0.5, 2.0, 1.4));
+    let pose = Affine3A::from_rotation_translation(
+        Quat::from_mat3(&Mat3::from_cols(right, down, forward)),
+        Vec3::new(0.5, 2.0, 1.4),
+    );
     let frames: Vec<Frame> = (0..20).map(|i| renderer.render_frame(&prepared, pose, i)).collect();
     let plain: Vec<Vec<[u8; 3]>> = frames.iter().map(|f| f.color.clone()).collect();
     let dir = tempfile::tempdir().expect("tempdir");
     let options = ArOptions { max_frames: 20, speed: 2.0, throw_every_s: 0.3, gif_width: 40 };
-    let summary = render_ar(&Frames(frames, intrinsics), &mesh, MaterialTable::defaults(), dir.path(), &options).expect("ar");
+    let summary =
+        render_ar(&Frames(frames, intrinsics), &mesh, MaterialTable::defaults(), dir.path(), &options).expect("ar");
     assert_eq!(summary.frames, 20);
     assert!(summary.balls >= 2, "{summary:?}");
     assert!(summary.ball_pixels.0 > 50, "{summary:?}");

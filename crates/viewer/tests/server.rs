@@ -174,7 +174,8 @@ fn routes_answer_and_bad_requests_get_4xx_while_the_server_stays_up() {
     assert!(json(&body)["error"].is_string());
     let (status, _) = get(addr, "/assets/../Cargo.toml");
     assert_eq!(status, 404);
-    let (status, _) = raw(addr, b"POST /api/info HTTP/1.1\r\nHost: localhost\r\nContent-Length: 0\r\nConnection: close\r\n\r\n");
+    let (status, _) =
+        raw(addr, b"POST /api/info HTTP/1.1\r\nHost: localhost\r\nContent-Length: 0\r\nConnection: close\r\n\r\n");
     assert_eq!(status, 405);
     // DNS rebinding: a page of another site reaching 127.0.0.1 under its own name.
     let (status, _) = raw(addr, b"GET /api/info HTTP/1.1\r\nHost: evil.example:80\r\nConnection: close\r\n\r\n");
@@ -249,7 +250,8 @@ fn static_export_embeds_data_and_precomputed_throws() {
     assert!(page.contains("data:text/javascript;base64,") && page.contains("data.js"));
     assert!(!page.contains("/assets/"), "the static page must not fetch from a server");
     let data = std::fs::read_to_string(out.join("data.js")).expect("data.js");
-    let json_text = data.trim().strip_prefix("window.SEMRECON_STATIC = ").and_then(|s| s.strip_suffix(';')).expect("assignment");
+    let json_text =
+        data.trim().strip_prefix("window.SEMRECON_STATIC = ").and_then(|s| s.strip_suffix(';')).expect("assignment");
     let v: Value = serde_json::from_str(json_text).expect("data JSON");
     assert_eq!(v["throws"].as_array().map(|a| a.len()), Some(4));
     assert_eq!(v["info"]["static"], true);

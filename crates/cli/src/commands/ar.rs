@@ -54,7 +54,8 @@ pub fn run(args: ArArgs) -> anyhow::Result<()> {
         Some(p) => MaterialTable::load(p)?,
         None => MaterialTable::defaults(),
     };
-    let options = ArOptions { max_frames: args.frames, speed: args.speed, throw_every_s: args.every, ..Default::default() };
+    let options =
+        ArOptions { max_frames: args.frames, speed: args.speed, throw_every_s: args.every, ..Default::default() };
     let summary = render_ar(source.as_ref(), &mesh, materials, &args.out, &options)?;
     println!(
         "wrote {} frames with {} balls to {}/frame-NNNNNN.png and {} ({} ball pixels drawn, {} hidden behind the room)",

@@ -75,7 +75,13 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     config.frames = args.frames;
     let (room, scan) = synthetic_scan(&config)?;
     let scene = format!("synthetic {} room, seed {}", room.style, args.seed);
-    println!("{scene}: {} triangles, {} frames {}x{}", room.mesh.triangle_count(), scan.len(), config.intrinsics.width, config.intrinsics.height);
+    println!(
+        "{scene}: {} triangles, {} frames {}x{}",
+        room.mesh.triangle_count(),
+        scan.len(),
+        config.intrinsics.width,
+        config.intrinsics.height
+    );
 
     let mut recon = Reconstruction::new(args.voxel, args.truncation, args.keyframe_every)?;
     let mut poses: Option<PoseSource> = None;
@@ -108,9 +114,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
 
     recon.write_outputs(&args.out, &mesh)?;
     write_ply(args.out.join("ground_truth.ply"), &room.mesh, PlyEncoding::BinaryLittleEndian)?;
-    let ate_rmse_m = evaluate_trajectory(&gt, &recon.trajectory, &TrajectoryEvalConfig::default())
-        .map(|e| e.ate_rmse_m)
-        .ok();
+    let ate_rmse_m =
+        evaluate_trajectory(&gt, &recon.trajectory, &TrajectoryEvalConfig::default()).map(|e| e.ate_rmse_m).ok();
     let mesh_errors = if args.no_mesh_eval || mesh.triangles.is_empty() {
         None
     } else {
@@ -158,7 +163,10 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         mm(report.mesh_completeness_mm)
     );
     println!("total wall time {wall:.1} s (includes rendering the synthetic input)");
-    println!("map: {} chunks, {:.0} MB; mesh: {} vertices, {} triangles", report.chunks, report.memory_mb, report.mesh_vertices, report.mesh_triangles);
+    println!(
+        "map: {} chunks, {:.0} MB; mesh: {} vertices, {} triangles",
+        report.chunks, report.memory_mb, report.mesh_vertices, report.mesh_triangles
+    );
     println!("not built yet: {}", report.not_built_yet.join(", "));
     println!("wrote {}/{{mesh.ply, ground_truth.ply, trajectory.txt, report.json}}", args.out.display());
     Ok(())

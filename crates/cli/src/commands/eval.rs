@@ -127,17 +127,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
 fn traj(args: TrajArgs) -> anyhow::Result<()> {
     let gt = Trajectory::read_tum(&args.gt).context("reading the reference trajectory")?;
     let est = Trajectory::read_tum(&args.est).context("reading the estimated trajectory")?;
-    let config = TrajectoryEvalConfig {
-        max_time_difference_s: args.max_time_diff,
-        rpe_delta_s: args.delta,
-    };
-    let e = evaluate_trajectory(&gt, &est, &config).with_context(|| {
-        format!(
-            "comparing {} with {}",
-            args.est.display(),
-            args.gt.display()
-        )
-    })?;
+    let config = TrajectoryEvalConfig { max_time_difference_s: args.max_time_diff, rpe_delta_s: args.delta };
+    let e = evaluate_trajectory(&gt, &est, &config)
+        .with_context(|| format!("comparing {} with {}", args.est.display(), args.gt.display()))?;
     let report = TrajReport {
         gt: args.gt.display().to_string(),
         est: args.est.display().to_string(),
@@ -161,10 +153,7 @@ fn traj(args: TrajArgs) -> anyhow::Result<()> {
         println!("ATE max         {:.6} m", e.ate_max_m);
         match (e.rpe_trans_m_per_s, e.rpe_rot_deg_per_s) {
             (Some(t), Some(r)) => {
-                println!(
-                    "RPE trans rmse  {t:.6} m/s   ({} pairs {} s apart)",
-                    e.rpe_pairs, args.delta
-                );
+                println!("RPE trans rmse  {t:.6} m/s   ({} pairs {} s apart)", e.rpe_pairs, args.delta);
                 println!("RPE rot rmse    {r:.6} deg/s");
             }
             _ => println!("RPE             none: no two poses {} s apart", args.delta),
@@ -183,19 +172,9 @@ fn mesh(args: MeshArgs) -> anyhow::Result<()> {
         thresholds_m: vec![0.01, 0.02, 0.05],
         ..MeshEvalConfig::default()
     };
-    let e = evaluate_mesh(&gt, &est, &config).with_context(|| {
-        format!(
-            "comparing {} with {}",
-            args.est.display(),
-            args.gt.display()
-        )
-    })?;
-    let score = |i: usize| {
-        e.scores
-            .get(i)
-            .map(|s| (s.precision, s.recall, s.fscore))
-            .unwrap_or_default()
-    };
+    let e = evaluate_mesh(&gt, &est, &config)
+        .with_context(|| format!("comparing {} with {}", args.est.display(), args.gt.display()))?;
+    let score = |i: usize| e.scores.get(i).map(|s| (s.precision, s.recall, s.fscore)).unwrap_or_default();
     let ((p1, r1, f1), (p2, r2, f2), (p5, r5, f5)) = (score(0), score(1), score(2));
     let report = MeshReport {
         gt: args.gt.display().to_string(),
@@ -220,12 +199,7 @@ fn mesh(args: MeshArgs) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         println!("{:<14} {:>12} {:>12}", "", "mean mm", "median mm");
-        println!(
-            "{:<14} {:>12.3} {:>12.3}",
-            "accuracy",
-            1e3 * e.accuracy_mean_m,
-            1e3 * e.accuracy_median_m
-        );
+        println!("{:<14} {:>12.3} {:>12.3}", "accuracy", 1e3 * e.accuracy_mean_m, 1e3 * e.accuracy_median_m);
         println!(
             "{:<14} {:>12.3} {:>12.3}",
             "completeness",
@@ -233,10 +207,7 @@ fn mesh(args: MeshArgs) -> anyhow::Result<()> {
             1e3 * e.completeness_median_m
         );
         println!();
-        println!(
-            "{:<14} {:>10} {:>10} {:>10}",
-            "threshold", "precision", "recall", "F-score"
-        );
+        println!("{:<14} {:>10} {:>10} {:>10}", "threshold", "precision", "recall", "F-score");
         for s in &e.scores {
             println!(
                 "{:<14} {:>9.2}% {:>9.2}% {:>9.2}%",
@@ -246,10 +217,7 @@ fn mesh(args: MeshArgs) -> anyhow::Result<()> {
                 100.0 * s.fscore
             );
         }
-        println!(
-            "({} estimated vertices, {} ground-truth surface samples)",
-            e.est_vertices, e.gt_samples
-        );
+        println!("({} estimated vertices, {} ground-truth surface samples)", e.est_vertices, e.gt_samples);
     }
     write_json(args.out.as_deref(), &report)
 }

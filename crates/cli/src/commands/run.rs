@@ -75,18 +75,14 @@ impl FrameRange {
 /// Parses `A..B`, `A..` or `..B` (clap value parser).
 pub fn parse_frame_range(s: &str) -> Result<FrameRange, String> {
     let Some((a, b)) = s.split_once("..") else {
-        return Err(format!(
-            "`{s}`: expected a frame range A..B (B excluded), e.g. 0..100"
-        ));
+        return Err(format!("`{s}`: expected a frame range A..B (B excluded), e.g. 0..100"));
     };
     let number = |t: &str| -> Result<Option<usize>, String> {
         let t = t.trim();
         if t.is_empty() {
             Ok(None)
         } else {
-            t.parse::<usize>()
-                .map(Some)
-                .map_err(|_| format!("`{s}`: `{t}` is not a frame number"))
+            t.parse::<usize>().map(Some).map_err(|_| format!("`{s}`: `{t}` is not a frame number"))
         }
     };
     let (start, end) = (number(a)?.unwrap_or(0), number(b)?);
@@ -128,19 +124,11 @@ struct Report {
     ate_rmse_m: Option<f64>,
 }
 
-
 /// Runs the command.
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
-    let source =
-        open_dataset(&args.dataset).with_context(|| format!("opening {}", args.dataset))?;
+    let source = open_dataset(&args.dataset).with_context(|| format!("opening {}", args.dataset))?;
     anyhow::ensure!(!source.is_empty(), "{} has no frames", source.name());
-    let range = args
-        .frames
-        .unwrap_or(FrameRange {
-            start: 0,
-            end: None,
-        })
-        .resolve(source.len())?;
+    let range = args.frames.unwrap_or(FrameRange { start: 0, end: None }).resolve(source.len())?;
     let mut recon = Reconstruction::new(args.voxel, args.truncation, args.keyframe_every)?;
     let mut poses: Option<PoseSource> = None;
     let k = source.intrinsics();
@@ -210,10 +198,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let mesh = recon.finish();
     let wall_s = start.elapsed().as_secs_f64();
     if warnings > MAX_WARNINGS {
-        eprintln!(
-            "warning: {} more warnings not shown",
-            warnings - MAX_WARNINGS
-        );
+        eprintln!("warning: {} more warnings not shown", warnings - MAX_WARNINGS);
     }
 
     recon.write_outputs(&args.out, &mesh)?;
@@ -250,10 +235,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         mesh_triangles: mesh.triangle_count(),
         ate_rmse_m,
     };
-    write_atomic(
-        &args.out.join("report.json"),
-        serde_json::to_string_pretty(&report)?.as_bytes(),
-    )?;
+    write_atomic(&args.out.join("report.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
 
     println!();
     recon.times.print_table();
@@ -273,10 +255,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(ate) = ate_rmse_m {
         println!("ATE rmse {:.4} m against the dataset's ground truth", ate);
     }
-    println!(
-        "wrote {}/{{mesh.ply, trajectory.txt, report.json}}",
-        args.out.display()
-    );
+    println!("wrote {}/{{mesh.ply, trajectory.txt, report.json}}", args.out.display());
     Ok(())
 }
 
@@ -286,12 +265,7 @@ fn stages_json(recon: &Reconstruction) -> serde_json::Value {
     let summaries = recon.times.summaries();
     let mut map = serde_json::Map::new();
     let mut names: Vec<&str> = vec!["tracking", "fusion", "meshing"];
-    names.extend(
-        summaries
-            .iter()
-            .map(|(n, _)| *n)
-            .filter(|n| !["tracking", "fusion", "meshing"].contains(n)),
-    );
+    names.extend(summaries.iter().map(|(n, _)| *n).filter(|n| !["tracking", "fusion", "meshing"].contains(n)));
     for name in names {
         let stage = summaries.iter().find(|(n, _)| *n == name).map(|(_, s)| s);
         let json = StageJson {
@@ -300,10 +274,7 @@ fn stages_json(recon: &Reconstruction) -> serde_json::Value {
             max_ms: stage.map_or(0.0, |s| s.max_ms),
             count: stage.map_or(0, |s| s.count),
         };
-        map.insert(
-            name.to_string(),
-            serde_json::to_value(json).unwrap_or_default(),
-        );
+        map.insert(name.to_string(), serde_json::to_value(json).unwrap_or_default());
     }
     serde_json::Value::Object(map)
 }
@@ -314,36 +285,15 @@ mod tests {
 
     #[test]
     fn frame_ranges_parse_and_resolve() {
-        assert_eq!(
-            parse_frame_range("0..100"),
-            Ok(FrameRange {
-                start: 0,
-                end: Some(100)
-            })
-        );
-        assert_eq!(
-            parse_frame_range("5.."),
-            Ok(FrameRange {
-                start: 5,
-                end: None
-            })
-        );
-        assert_eq!(
-            parse_frame_range("..7"),
-            Ok(FrameRange {
-                start: 0,
-                end: Some(7)
-            })
-        );
+        assert_eq!(parse_frame_range("0..100"), Ok(FrameRange { start: 0, end: Some(100) }));
+        assert_eq!(parse_frame_range("5.."), Ok(FrameRange { start: 5, end: None }));
+        assert_eq!(parse_frame_range("..7"), Ok(FrameRange { start: 0, end: Some(7) }));
         assert!(parse_frame_range("5..5").is_err());
         assert!(parse_frame_range("9..3").is_err());
         assert!(parse_frame_range("a..3").is_err());
         assert!(parse_frame_range("12").is_err());
         let r = parse_frame_range("10..1000").expect("valid");
         assert_eq!(r.resolve(300).expect("clamped"), 10..300);
-        assert!(parse_frame_range("400..")
-            .expect("valid")
-            .resolve(300)
-            .is_err());
+        assert!(parse_frame_range("400..").expect("valid").resolve(300).is_err());
     }
 }

@@ -6,8 +6,8 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 use glam::{Affine3A, Mat3A, Vec3};
-use semrecon_data::depth_image::write_color_png;
 use semrecon_data::class::UNLABELED;
+use semrecon_data::depth_image::write_color_png;
 use semrecon_data::{read_ply, Intrinsics, LabeledMesh, PreparedMesh, Renderer, SemanticClass};
 
 /// Arguments of `semrecon snapshot`.

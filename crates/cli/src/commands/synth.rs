@@ -50,9 +50,11 @@ pub struct SynthArgs {
 }
 
 fn parse_intrinsics(s: &str) -> Result<[f32; 4], String> {
-    let v: Vec<f32> = s.split(',').map(|x| x.trim().parse::<f32>()).collect::<Result<_, _>>().map_err(|e| {
-        format!("`{s}`: {e}; expected fx,fy,cx,cy")
-    })?;
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f32>())
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("`{s}`: {e}; expected fx,fy,cx,cy"))?;
     match v[..] {
         [fx, fy, cx, cy] if v.iter().all(|x| x.is_finite()) && fx > 0.0 && fy > 0.0 => Ok([fx, fy, cx, cy]),
         _ => Err(format!("`{s}`: expected four finite numbers fx,fy,cx,cy with positive focal lengths")),

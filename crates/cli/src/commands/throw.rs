@@ -51,7 +51,14 @@ pub fn run(args: ThrowArgs) -> anyhow::Result<()> {
         println!("{:>8.3}  {:>24}  {:>10}  {:>11.2}", c.time, format!("{x:.3},{y:.3},{z:.3}"), c.class, c.restitution);
     }
     if let Some(last) = throw.positions.last() {
-        println!("{} bounces; ball at {:.3},{:.3},{:.3} after {} s", throw.contacts.len(), last[0], last[1], last[2], args.seconds);
+        println!(
+            "{} bounces; ball at {:.3},{:.3},{:.3} after {} s",
+            throw.contacts.len(),
+            last[0],
+            last[1],
+            last[2],
+            args.seconds
+        );
     }
     Ok(())
 }

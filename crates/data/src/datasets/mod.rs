@@ -144,8 +144,7 @@ pub(crate) fn read_open3d_intrinsics(path: &Path) -> Result<Option<Intrinsics>> 
     let Some(matrix) = value.get("intrinsic_matrix") else {
         return Ok(None);
     };
-    let m: Vec<f64> =
-        matrix.as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default();
+    let m: Vec<f64> = matrix.as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default();
     if m.len() != 9 {
         return Err(DataError::parse(path, None, "`intrinsic_matrix` must be an array of 9 numbers"));
     }
@@ -157,9 +156,8 @@ pub(crate) fn read_open3d_intrinsics(path: &Path) -> Result<Option<Intrinsics>> 
             .ok_or_else(|| DataError::parse(path, None, format!("missing or invalid `{key}`")))
     };
     // Column-major: [fx 0 0, 0 fy 0, cx cy 1].
-    let k =
-        Intrinsics::new(dim("width")?, dim("height")?, m[0] as f32, m[4] as f32, m[6] as f32, m[7] as f32)
-            .map_err(|e| DataError::parse(path, None, e.to_string()))?;
+    let k = Intrinsics::new(dim("width")?, dim("height")?, m[0] as f32, m[4] as f32, m[6] as f32, m[7] as f32)
+        .map_err(|e| DataError::parse(path, None, e.to_string()))?;
     Ok(Some(k))
 }
 

@@ -9,8 +9,7 @@ use glam::Affine3A;
 
 use crate::camera::Intrinsics;
 use crate::datasets::{
-    image_size, list_files, load_color_registered, load_depth_checked, read_open3d_intrinsics, require_dir,
-    validated,
+    image_size, list_files, load_color_registered, load_depth_checked, read_open3d_intrinsics, require_dir, validated,
 };
 use crate::depth_image::check_size;
 use crate::error::{DataError, Result};
@@ -46,19 +45,12 @@ impl Redwood {
         let color = images_in(&dir.join("color"), &["jpg", "jpeg", "png"])?;
         let depth = images_in(&dir.join("depth"), &["png", "pgm"])?;
         if depth.is_empty() {
-            return Err(DataError::dataset(
-                &dir,
-                format!("depth/ has no .png or .pgm image; expected {WHAT}"),
-            ));
+            return Err(DataError::dataset(&dir, format!("depth/ has no .png or .pgm image; expected {WHAT}")));
         }
         if color.len() != depth.len() {
             return Err(DataError::dataset(
                 &dir,
-                format!(
-                    "color/ has {} images but depth/ has {}; they pair in sorted order",
-                    color.len(),
-                    depth.len()
-                ),
+                format!("color/ has {} images but depth/ has {}; they pair in sorted order", color.len(), depth.len()),
             ));
         }
         let log = dir.join("trajectory.log");
@@ -77,15 +69,13 @@ impl Redwood {
         let (width, height) = image_size(&depth[0])?;
         let intrinsics = match find_open3d_intrinsics(&dir)? {
             Some((k, json)) => {
-                check_size(&depth[0], width, height, &k).map_err(|e| {
-                    DataError::dataset(&json, format!("intrinsics do not fit the depth images: {e}"))
-                })?;
+                check_size(&depth[0], width, height, &k)
+                    .map_err(|e| DataError::dataset(&json, format!("intrinsics do not fit the depth images: {e}")))?;
                 k
             }
             None => {
                 let [fx, fy, cx, cy] = DEFAULT_K;
-                Intrinsics::new(width, height, fx, fy, cx, cy)
-                    .map_err(|e| DataError::dataset(&dir, e.to_string()))?
+                Intrinsics::new(width, height, fx, fy, cx, cy).map_err(|e| DataError::dataset(&dir, e.to_string()))?
             }
         };
         Ok(Self { dir, intrinsics, depth, color, poses })
@@ -97,9 +87,7 @@ impl Redwood {
 fn images_in(dir: &Path, extensions: &[&str]) -> Result<Vec<PathBuf>> {
     let mut names: Vec<String> = list_files(dir)?
         .into_iter()
-        .filter(|n| {
-            n.rsplit_once('.').is_some_and(|(_, ext)| extensions.iter().any(|e| ext.eq_ignore_ascii_case(e)))
-        })
+        .filter(|n| n.rsplit_once('.').is_some_and(|(_, ext)| extensions.iter().any(|e| ext.eq_ignore_ascii_case(e))))
         .collect();
     names.sort_by_key(|n| {
         let stem = n.rsplit_once('.').map_or(n.as_str(), |(s, _)| s);

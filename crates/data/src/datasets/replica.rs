@@ -12,8 +12,7 @@ use glam::Affine3A;
 
 use crate::camera::Intrinsics;
 use crate::datasets::{
-    find_here_or_parent, list_files, load_color_registered, load_depth_checked, number_between, require_dir,
-    validated,
+    find_here_or_parent, list_files, load_color_registered, load_depth_checked, number_between, require_dir, validated,
 };
 use crate::error::{DataError, Result};
 use crate::frame::{Frame, FrameSource};
@@ -63,25 +62,18 @@ impl Replica {
         let traj = if traj_path.is_file() { Some(Trajectory::read_replica(&traj_path)?) } else { None };
         let mut frames = Vec::new();
         for (number, digits) in numbers {
-            let Some(color) = ["jpg", "png"]
-                .iter()
-                .map(|e| format!("frame{digits}.{e}"))
-                .find(|n| set.contains(n.as_str()))
+            let Some(color) =
+                ["jpg", "png"].iter().map(|e| format!("frame{digits}.{e}")).find(|n| set.contains(n.as_str()))
             else {
                 continue;
             };
             let pose = match &traj {
-                Some(t) => {
-                    Some(*usize::try_from(number).ok().and_then(|i| t.poses.get(i)).ok_or_else(|| {
-                        DataError::dataset(
-                            &traj_path,
-                            format!(
-                                "{} poses, but results/ has frame {number}; expected a pose per frame",
-                                t.len()
-                            ),
-                        )
-                    })?)
-                }
+                Some(t) => Some(*usize::try_from(number).ok().and_then(|i| t.poses.get(i)).ok_or_else(|| {
+                    DataError::dataset(
+                        &traj_path,
+                        format!("{} poses, but results/ has frame {number}; expected a pose per frame", t.len()),
+                    )
+                })?),
                 None => None,
             };
             frames.push(Entry {
@@ -97,13 +89,12 @@ impl Replica {
                 format!("no depthNNNNNN.png with a frameNNNNNN.jpg; expected {WHAT}"),
             ));
         }
-        let (width, height, [fx, fy, cx, cy], units_per_metre) =
-            match find_here_or_parent(&dir, "cam_params.json") {
-                Some(p) => read_cam_params(&p)?,
-                None => DEFAULT_CAMERA,
-            };
-        let intrinsics = Intrinsics::new(width, height, fx, fy, cx, cy)
-            .map_err(|e| DataError::dataset(&dir, e.to_string()))?;
+        let (width, height, [fx, fy, cx, cy], units_per_metre) = match find_here_or_parent(&dir, "cam_params.json") {
+            Some(p) => read_cam_params(&p)?,
+            None => DEFAULT_CAMERA,
+        };
+        let intrinsics =
+            Intrinsics::new(width, height, fx, fy, cx, cy).map_err(|e| DataError::dataset(&dir, e.to_string()))?;
         Ok(Self { dir, intrinsics, units_per_metre, frames, has_ground_truth: traj.is_some() })
     }
 
@@ -125,14 +116,10 @@ fn sequence_folder(root: &Path, what: &str) -> Result<PathBuf> {
     found.sort();
     match found.len() {
         1 => Ok(found.remove(0)),
-        0 => Err(DataError::dataset(
-            root,
-            format!("no results/ folder here or in a subfolder; expected {what}"),
-        )),
-        n => Err(DataError::dataset(
-            root,
-            format!("{n} subfolders have results/ ({}); name one of them", names(&found)),
-        )),
+        0 => Err(DataError::dataset(root, format!("no results/ folder here or in a subfolder; expected {what}"))),
+        n => {
+            Err(DataError::dataset(root, format!("{n} subfolders have results/ ({}); name one of them", names(&found))))
+        }
     }
 }
 
@@ -145,12 +132,13 @@ fn read_cam_params(path: &Path) -> Result<(u32, u32, [f32; 4], f32)> {
     let value: serde_json::Value = serde_json::from_str(&read_text(path)?)
         .map_err(|e| DataError::parse(path, Some(e.line()), format!("invalid JSON: {e}")))?;
     let camera = value.get("camera").ok_or_else(|| DataError::parse(path, None, "no `camera` object"))?;
-    let number =
-        |key: &str| {
-            camera.get(key).and_then(|v| v.as_f64()).filter(|v| v.is_finite()).ok_or_else(|| {
-                DataError::parse(path, None, format!("`camera.{key}` missing or not a number"))
-            })
-        };
+    let number = |key: &str| {
+        camera
+            .get(key)
+            .and_then(|v| v.as_f64())
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| DataError::parse(path, None, format!("`camera.{key}` missing or not a number")))
+    };
     let size = |key: &str| {
         let v = number(key)?;
         if v >= 1.0 && v <= u32::MAX as f64 && v.fract() == 0.0 {

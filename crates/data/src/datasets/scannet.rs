@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 
 use crate::camera::Intrinsics;
 use crate::datasets::{
-    image_size, list_files, load_color_registered, load_depth_checked, number_between,
-    read_intrinsics_matrix, require_dir, validated,
+    image_size, list_files, load_color_registered, load_depth_checked, number_between, read_intrinsics_matrix,
+    require_dir, validated,
 };
 use crate::error::{DataError, Result};
 use crate::frame::{Frame, FrameSource};
@@ -52,15 +52,11 @@ impl ScanNet {
         }
         let depth_k_path = dir.join("intrinsic").join("intrinsic_depth.txt");
         if !depth_k_path.is_file() {
-            return Err(DataError::dataset(
-                &dir,
-                format!("no intrinsic/intrinsic_depth.txt; expected {WHAT}"),
-            ));
+            return Err(DataError::dataset(&dir, format!("no intrinsic/intrinsic_depth.txt; expected {WHAT}")));
         }
         let [fx, fy, cx, cy] = read_intrinsics_matrix(&depth_k_path, 4)?;
         let color_k_path = dir.join("intrinsic").join("intrinsic_color.txt");
-        let color_k =
-            if color_k_path.is_file() { Some(read_intrinsics_matrix(&color_k_path, 4)?) } else { None };
+        let color_k = if color_k_path.is_file() { Some(read_intrinsics_matrix(&color_k_path, 4)?) } else { None };
 
         let color_names = list_files(&dir.join("color"))?;
         let color_set: HashSet<&str> = color_names.iter().map(String::as_str).collect();

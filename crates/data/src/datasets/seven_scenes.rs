@@ -8,6 +8,7 @@
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
+use crate::atomic_file::write_atomic;
 use crate::camera::Intrinsics;
 use crate::datasets::{
     find_here_or_parent, image_size, list_files, load_color_registered, load_depth_checked, number_between,
@@ -16,7 +17,6 @@ use crate::datasets::{
 use crate::depth_image::{check_size, load_labels, write_color_png, write_depth_png, write_label_png};
 use crate::error::{DataError, Result};
 use crate::frame::{Frame, FrameSource};
-use crate::atomic_file::write_atomic;
 use crate::trajectory::{read_pose_matrix, write_pose_matrix};
 
 /// Millimetres.
@@ -63,10 +63,7 @@ impl SevenScenes {
         stems.sort_unstable();
         stems.dedup_by_key(|(n, _)| *n);
         if stems.is_empty() {
-            return Err(DataError::dataset(
-                &dir,
-                format!("no frame-NNNNNN.depth.png files; expected {WHAT}"),
-            ));
+            return Err(DataError::dataset(&dir, format!("no frame-NNNNNN.depth.png files; expected {WHAT}")));
         }
         let mut frames = Vec::with_capacity(stems.len());
         for (number, stem) in stems {
@@ -75,10 +72,7 @@ impl SevenScenes {
                 .map(|ext| format!("{stem}{ext}"))
                 .find(|n| set.contains(n.as_str()))
                 .ok_or_else(|| {
-                    DataError::dataset(
-                        &dir,
-                        format!("{stem}.depth.png has no {stem}.color.png or {stem}.color.jpg"),
-                    )
+                    DataError::dataset(&dir, format!("{stem}.depth.png has no {stem}.color.png or {stem}.color.jpg"))
                 })?;
             let optional = |ext: &str| {
                 let n = format!("{stem}{ext}");
@@ -98,8 +92,8 @@ impl SevenScenes {
             Some(p) => read_intrinsics_matrix(&p, 3)?,
             None => DEFAULT_K,
         };
-        let intrinsics = Intrinsics::new(width, height, fx, fy, cx, cy)
-            .map_err(|e| DataError::dataset(&dir, e.to_string()))?;
+        let intrinsics =
+            Intrinsics::new(width, height, fx, fy, cx, cy).map_err(|e| DataError::dataset(&dir, e.to_string()))?;
         Ok(Self { dir, intrinsics, frames, has_ground_truth })
     }
 

@@ -52,17 +52,9 @@ impl FromStr for DatasetSpec {
             "scannet" => Self::ScanNet(path()),
             "replica" => Self::Replica(path()),
             "synth" => Self::Synth(rest.parse().map_err(|_| {
-                DataError::dataset(
-                    s,
-                    format!("`{rest}` is not a seed (a non-negative integer) for synth:SEED"),
-                )
+                DataError::dataset(s, format!("`{rest}` is not a seed (a non-negative integer) for synth:SEED"))
             })?),
-            _ => {
-                return Err(DataError::dataset(
-                    s,
-                    format!("unknown dataset kind `{kind}`; expected one of {KINDS}"),
-                ))
-            }
+            _ => return Err(DataError::dataset(s, format!("unknown dataset kind `{kind}`; expected one of {KINDS}"))),
         })
     }
 }
@@ -113,9 +105,7 @@ mod tests {
         }
         let e = "kinect:/x".parse::<DatasetSpec>().expect_err("unknown").to_string();
         assert!(
-            e.contains("unknown dataset kind `kinect`")
-                && e.contains("7scenes:PATH")
-                && e.contains("synth:SEED"),
+            e.contains("unknown dataset kind `kinect`") && e.contains("7scenes:PATH") && e.contains("synth:SEED"),
             "{e}"
         );
     }

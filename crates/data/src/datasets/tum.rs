@@ -83,8 +83,8 @@ impl Tum {
         }
         let (width, height) = image_size(&frames[0].depth)?;
         let [fx, fy, cx, cy] = freiburg_intrinsics(&dir);
-        let intrinsics = Intrinsics::new(width, height, fx, fy, cx, cy)
-            .map_err(|e| DataError::dataset(&dir, e.to_string()))?;
+        let intrinsics =
+            Intrinsics::new(width, height, fx, fy, cx, cy).map_err(|e| DataError::dataset(&dir, e.to_string()))?;
         let has_ground_truth = gt.is_some_and(|g| !g.is_empty());
         Ok(Self { dir, intrinsics, frames, has_ground_truth })
     }
@@ -131,9 +131,9 @@ pub(crate) fn parse_list(text: &str, path: &Path) -> Result<Vec<(f64, String)>> 
                 format!("expected `timestamp filename`, found {} fields", fields.len()),
             ));
         }
-        let t: f64 = fields[0].parse().map_err(|_| {
-            DataError::parse(path, Some(i + 1), format!("`{}` is not a timestamp", fields[0]))
-        })?;
+        let t: f64 = fields[0]
+            .parse()
+            .map_err(|_| DataError::parse(path, Some(i + 1), format!("`{}` is not a timestamp", fields[0])))?;
         if !t.is_finite() {
             return Err(DataError::parse(path, Some(i + 1), format!("non-finite timestamp {t}")));
         }

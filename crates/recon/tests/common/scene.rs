@@ -32,14 +32,7 @@ fn cast(o: Vec3, d: Vec3) -> Option<(f32, [u8; 3])> {
         let t = -o.z / d.z;
         let p = o + d * t;
         let check = ((p.x * 5.0).floor() as i32 + (p.y * 5.0).floor() as i32).rem_euclid(2);
-        offer(
-            t,
-            if check == 0 {
-                [200, 200, 200]
-            } else {
-                [60, 60, 60]
-            },
-        );
+        offer(t, if check == 0 { [200, 200, 200] } else { [60, 60, 60] });
     }
     // Back wall.
     if d.y.abs() > 1e-9 {
@@ -92,10 +85,7 @@ pub fn trajectory(n: usize) -> Vec<Affine3A> {
     (0..n)
         .map(|i| {
             let s = i as f32 / n.max(1) as f32;
-            camera_pose(
-                Vec3::new(-0.3 + 0.6 * s, 0.0 + 0.1 * s, 1.1 - 0.2 * s),
-                -0.15 + 0.3 * s,
-            )
+            camera_pose(Vec3::new(-0.3 + 0.6 * s, 0.0 + 0.1 * s, 1.1 - 0.2 * s), -0.15 + 0.3 * s)
         })
         .collect()
 }
