@@ -129,7 +129,10 @@ impl ViewerFolder {
     /// page shows in place of a file name. An empty mesh is an error (nothing to collide with).
     pub fn live(name: &str, mesh: &LabeledMesh, trajectory: &Trajectory) -> Result<Self> {
         if mesh.triangles.is_empty() {
-            return Err(ViewerError::NoMesh { dir: PathBuf::from(name), message: "the live mesh has no triangles yet".into() });
+            return Err(ViewerError::NoMesh {
+                dir: PathBuf::from(name),
+                message: "the live mesh has no triangles yet".into(),
+            });
         }
         // No folder: from_mesh then finds no trajectory file, and the live poses go in instead.
         let mut folder = Self::from_mesh(PathBuf::from(name), mesh.clone(), MaterialTable::defaults(), Path::new(""))?;

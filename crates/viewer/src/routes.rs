@@ -83,7 +83,8 @@ pub fn handle_scene(
     body: &[u8],
 ) -> Response {
     let route = path.split('?').next().unwrap_or(path);
-    let get_only = |r: Response| if method == "GET" || method == "HEAD" { r } else { method_not_allowed(method, route) };
+    let get_only =
+        |r: Response| if method == "GET" || method == "HEAD" { r } else { method_not_allowed(method, route) };
     match (route, folder) {
         ("/api/version", _) => {
             get_only(Response::json(200, &json!({ "version": version, "live": live, "ready": folder.is_some() })))
@@ -98,7 +99,9 @@ pub fn handle_scene(
         (_, None) if route.starts_with("/api/") => {
             Response::error(503, "the live reconstruction has no mesh yet: poll /api/version until ready")
         }
-        (_, None) => page_or_asset(route).map(get_only).unwrap_or_else(|| Response::error(404, format!("no route {route}"))),
+        (_, None) => {
+            page_or_asset(route).map(get_only).unwrap_or_else(|| Response::error(404, format!("no route {route}")))
+        }
     }
 }
 
@@ -110,10 +113,11 @@ fn page_or_asset(path: &str) -> Option<Response> {
             content_type: "text/html; charset=utf-8",
             body: assets::served_page().into_bytes(),
         }),
-        _ => path
-            .strip_prefix("/assets/")
-            .and_then(assets::asset)
-            .map(|(content_type, bytes)| Response { status: 200, content_type, body: bytes.to_vec() }),
+        _ => path.strip_prefix("/assets/").and_then(assets::asset).map(|(content_type, bytes)| Response {
+            status: 200,
+            content_type,
+            body: bytes.to_vec(),
+        }),
     }
 }
 
