@@ -3,6 +3,10 @@
 // throws simulated by the server) or exported by `semrecon export-viewer` (data embedded in
 // window.SEMRECON_STATIC, precomputed throws replayed). World frame: metres, z up.
 //
+// Behind `semrecon run --serve` the scene is live: the page polls /api/version and loads
+// the mesh and trajectory again when the version changes, keeping the camera where the
+// user put it (until the user moves it, each new mesh is framed as a whole).
+//
 // window.viewerState exposes what the browser test checks (ready, mode, balls in flight).
 
 import * as THREE from 'three';
@@ -24,6 +28,8 @@ const state = {
   frames: 0,
   ball: { active: false, position: null, time: 0 },
   lastThrow: null,
+  live: false,
+  version: null,
 };
 window.viewerState = state;
 
@@ -141,7 +147,7 @@ function srgbToLinear(c) {
   return c < 0.04045 ? c * 0.0773993808 : Math.pow(c * 0.9478672986 + 0.0521327014, 2.4);
 }
 
-function buildMesh(mesh, info) {
+function buildMesh(mesh, info, keepCamera) {
   const geometry = new THREE.BufferGeometry();
   geometry.setAttribute('position', new THREE.BufferAttribute(mesh.positions, 3));
   indexAll = new THREE.BufferAttribute(mesh.indices, 1);
@@ -185,7 +191,7 @@ function buildMesh(mesh, info) {
   scene.add(meshObject);
   geometry.computeBoundingSphere();
   geometry.computeBoundingBox();
-  frameCamera(geometry.boundingBox);
+  if (!keepCamera) frameCamera(geometry.boundingBox);
   // Drawn at least 1 % of the room's size: a 4 cm ball is a speck in a whole-room view.
   const diag = geometry.boundingBox.getSize(new THREE.Vector3()).length();
   ballGeometry = new THREE.SphereGeometry(Math.max(info.ball_radius || 0.04, 0.01 * diag), 24, 16);
@@ -263,12 +269,15 @@ function swatch(color) {
 }
 
 function fillPanel(info, materials, mesh, trajectory) {
+  $('notes').innerHTML = '';
+  $('legend').innerHTML = '';
   const counts = new Array(256).fill(0);
   for (let v = 0; v < mesh.n; v++) counts[mesh.labels[v]]++;
   const summary = [`${info.mesh}: ${info.triangles.toLocaleString()} triangles`];
   if (info.display_triangles < info.triangles) summary.push(`(${info.display_triangles.toLocaleString()} drawn)`);
   if (trajectory) summary.push(`· ${trajectory.positions.length} poses`);
   if (info.static) summary.push('· static export');
+  if (info.live) summary.push(`· live, update ${info.version}`);
   $('summary').textContent = summary.join(' ');
   for (const note of info.notes) {
     const div = document.createElement('div');
@@ -546,27 +555,96 @@ window.viewerPixelStats = () => {
   return { width: w, height: h, drawn: drawn / total, classes: perClass };
 };
 
+// ---------------------------------------------------------------- live updates
+
+const POLL_MS = 1500;
+let userMovedCamera = false;
+controls.addEventListener('start', () => { userMovedCamera = true; });
+
+function clearScene() {
+  if (meshObject) {
+    scene.remove(meshObject);
+    meshObject.geometry.dispose();
+    meshObject.material.dispose();
+    meshObject = null;
+  }
+  if (trajectoryLine) {
+    scene.remove(trajectoryLine);
+    trajectoryLine.traverse((o) => { if (o.geometry) o.geometry.dispose(); });
+    trajectoryLine = null;
+  }
+  indexNoCeiling = null;
+}
+
+// Shows loaded data; a later call (live update) replaces the scene but keeps the view
+// settings (mode, ceiling) and, once the user has moved it, the camera.
+function showScene(data) {
+  const first = meshObject === null;
+  palette = [];
+  for (const p of data.info.palette) palette[p.id] = p;
+  const mesh = decodeMesh(data.scene);
+  clearScene();
+  meshData = mesh;
+  state.triangles = meshData.t;
+  state.labelled = meshData.labelled;
+  buildMesh(meshData, data.info, userMovedCamera);
+  buildTrajectory(data.trajectory);
+  fillPanel(data.info, data.materials, meshData, data.trajectory);
+  $('show-ceiling').disabled = !meshData.labelled;
+  document.querySelector('input[name=mode][value=classes]').parentElement.title =
+    meshData.labelled ? '' : 'this mesh has no labels';
+  if (first && meshData.labelled) {
+    // Seen from above (the initial view) the ceiling hides the room.
+    $('show-ceiling').checked = false;
+  }
+  if (meshData.labelled) setCeiling($('show-ceiling').checked);
+  setMode(state.mode === 'classes' && !meshData.labelled ? 'color' : state.mode);
+}
+
+// The server's {version, live, ready}; a server without the route is a fixed scene.
+async function fetchVersion() {
+  if (STATIC) return { version: 0, live: false, ready: true };
+  try {
+    return await fetchJSON('/api/version');
+  } catch (e) {
+    return { version: 0, live: false, ready: true };
+  }
+}
+
+async function pollLive() {
+  try {
+    const v = await fetchJSON('/api/version');
+    if (v.ready && v.version !== state.version) {
+      // The version read before loading: the data is at least this new, so a newer
+      // update that lands during the load is caught by the next poll.
+      const data = await loadData();
+      showScene(data);
+      state.version = v.version;
+      state.ready = true;
+      setStatus('live: click the room to throw a ball');
+    } else if (!v.ready) {
+      setStatus('live: waiting for the first mesh…');
+    }
+  } catch (e) {
+    setStatus(`live: no answer from the server (${e.message})`);
+  }
+  setTimeout(pollLive, POLL_MS);
+}
+
 async function main() {
   try {
-    const data = await loadData();
-    palette = [];
-    for (const p of data.info.palette) palette[p.id] = p;
-    meshData = decodeMesh(data.scene);
-    state.triangles = meshData.t;
-    state.labelled = meshData.labelled;
-    buildMesh(meshData, data.info);
-    buildTrajectory(data.trajectory);
-    fillPanel(data.info, data.materials, meshData, data.trajectory);
-    if (!meshData.labelled) {
-      document.querySelector('input[name=mode][value=classes]').parentElement.title = 'this mesh has no labels';
-      $('show-ceiling').disabled = true;
+    const v = await fetchVersion();
+    state.live = !!v.live;
+    if (state.live) {
+      $('summary').textContent = 'live reconstruction';
+      pollLive();
     } else {
-      // Seen from above (the initial view) the ceiling hides the room.
-      $('show-ceiling').checked = false;
-      setCeiling(false);
+      const data = await loadData();
+      showScene(data);
+      state.version = v.version;
+      setStatus(STATIC ? 'click the room to replay a precomputed throw' : 'click the room to throw a ball');
+      state.ready = true;
     }
-    setStatus(STATIC ? 'click the room to replay a precomputed throw' : 'click the room to throw a ball');
-    state.ready = true;
   } catch (e) {
     showError(`cannot load the scene: ${e.message}`);
     $('summary').textContent = '';

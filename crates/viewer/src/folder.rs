@@ -123,6 +123,26 @@ impl ViewerFolder {
     }
 }
 
+impl ViewerFolder {
+    /// The scene of a live reconstruction: `mesh` as it stands (decimated for display like a
+    /// file's mesh) and the camera path so far, with default materials. `name` is what the
+    /// page shows in place of a file name. An empty mesh is an error (nothing to collide with).
+    pub fn live(name: &str, mesh: &LabeledMesh, trajectory: &Trajectory) -> Result<Self> {
+        if mesh.triangles.is_empty() {
+            return Err(ViewerError::NoMesh {
+                dir: PathBuf::from(name),
+                message: "the live mesh has no triangles yet".into(),
+            });
+        }
+        // No folder: from_mesh then finds no trajectory file, and the live poses go in instead.
+        let mut folder = Self::from_mesh(PathBuf::from(name), mesh.clone(), MaterialTable::defaults(), Path::new(""))?;
+        if !trajectory.is_empty() {
+            folder.trajectory = Some((PathBuf::from("trajectory (live)"), trajectory.clone()));
+        }
+        Ok(folder)
+    }
+}
+
 pub(crate) fn file_name(p: &Path) -> String {
     p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| p.display().to_string())
 }

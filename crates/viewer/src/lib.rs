@@ -6,6 +6,7 @@
 //! - [`folder`]: what is shown, read from an output folder (`run`, `demo`, `synth`, any PLY).
 //! - [`routes`]: the HTTP API, transport-independent; bad requests are 4xx JSON errors.
 //! - [`server`]: the 127.0.0.1-only HTTP server of `semrecon view`.
+//! - [`live`]: the scene of `semrecon run --serve`, replaced as the map grows.
 //! - [`export`]: the static page of `semrecon export-viewer` (works from file://).
 //! - [`scene_binary`]: the mesh's binary wire layout; [`decimate`]: simplification of huge meshes.
 //! - [`ar`]: the AR view of `semrecon ar`, balls drawn over a scan's RGB frames (PNG + GIF).
@@ -19,6 +20,7 @@ pub mod error;
 pub mod export;
 pub mod folder;
 mod gif;
+pub mod live;
 pub mod routes;
 pub mod scene_binary;
 pub mod server;
@@ -26,4 +28,5 @@ pub mod server;
 pub use error::{Result, ViewerError};
 pub use export::{export_static, ExportSummary, DEFAULT_EXPORT_THROWS};
 pub use folder::ViewerFolder;
+pub use live::LiveScene;
 pub use server::{serve, ViewerServer};

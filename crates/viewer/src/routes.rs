@@ -6,7 +6,8 @@
 //! |---|---|
 //! | `GET /` | the page |
 //! | `GET /assets/NAME` | the page's JavaScript (three.js is compiled into the binary) |
-//! | `GET /api/info` | mesh file, counts, labelled or not, notes, class palette, bounds |
+//! | `GET /api/version` | `{version, live, ready}`: the scene's version (0 for a fixed one) |
+//! | `GET /api/info` | mesh file, counts, labelled or not, notes, class palette, bounds, version |
 //! | `GET /api/scene` | the mesh in the binary layout of [`crate::scene_binary`] |
 //! | `GET /api/trajectory` | camera positions and viewing directions, or 404 when there is none |
 //! | `GET /api/materials` | restitution and friction per class |
@@ -69,17 +70,63 @@ pub struct ThrowRequest {
     pub seconds: Option<f64>,
 }
 
+/// Answers one request against the server's current scene: `folder` (none while a live
+/// scene has no mesh yet; its data routes then answer 503), at `version`, `live` when it
+/// can change. Adds `GET /api/version` and the `version`/`live` fields of `/api/info` to
+/// [`handle`].
+pub fn handle_scene(
+    folder: Option<&ViewerFolder>,
+    version: u64,
+    live: bool,
+    method: &str,
+    path: &str,
+    body: &[u8],
+) -> Response {
+    let route = path.split('?').next().unwrap_or(path);
+    let get_only =
+        |r: Response| if method == "GET" || method == "HEAD" { r } else { method_not_allowed(method, route) };
+    match (route, folder) {
+        ("/api/version", _) => {
+            get_only(Response::json(200, &json!({ "version": version, "live": live, "ready": folder.is_some() })))
+        }
+        ("/api/info", Some(folder)) => {
+            let mut info = info_json(folder);
+            info["version"] = json!(version);
+            info["live"] = json!(live);
+            get_only(Response::json(200, &info))
+        }
+        (_, Some(folder)) => handle(folder, method, path, body),
+        (_, None) if route.starts_with("/api/") => {
+            Response::error(503, "the live reconstruction has no mesh yet: poll /api/version until ready")
+        }
+        (_, None) => {
+            page_or_asset(route).map(get_only).unwrap_or_else(|| Response::error(404, format!("no route {route}")))
+        }
+    }
+}
+
+/// The page and its assets, which need no scene.
+fn page_or_asset(path: &str) -> Option<Response> {
+    match path {
+        "/" | "/index.html" => Some(Response {
+            status: 200,
+            content_type: "text/html; charset=utf-8",
+            body: assets::served_page().into_bytes(),
+        }),
+        _ => path.strip_prefix("/assets/").and_then(assets::asset).map(|(content_type, bytes)| Response {
+            status: 200,
+            content_type,
+            body: bytes.to_vec(),
+        }),
+    }
+}
+
 /// Answers one request against `folder`.
 pub fn handle(folder: &ViewerFolder, method: &str, path: &str, body: &[u8]) -> Response {
     // Query strings only serve to defeat caches.
     let path = path.split('?').next().unwrap_or(path);
     let get_only = |r: Response| if method == "GET" || method == "HEAD" { r } else { method_not_allowed(method, path) };
     match path {
-        "/" | "/index.html" => get_only(Response {
-            status: 200,
-            content_type: "text/html; charset=utf-8",
-            body: assets::served_page().into_bytes(),
-        }),
         "/api/info" => get_only(Response::json(200, &info_json(folder))),
         "/api/scene" => get_only(Response {
             status: 200,
@@ -106,8 +153,8 @@ pub fn handle(folder: &ViewerFolder, method: &str, path: &str, body: &[u8]) -> R
                 Err((status, message)) => Response::error(status, message),
             }
         }
-        _ => match path.strip_prefix("/assets/").and_then(assets::asset) {
-            Some((content_type, bytes)) => get_only(Response { status: 200, content_type, body: bytes.to_vec() }),
+        _ => match page_or_asset(path) {
+            Some(r) => get_only(r),
             None => Response::error(404, format!("no route {path}")),
         },
     }

@@ -3,6 +3,9 @@
 //! on 127.0.0.1 only: the page can make the machine simulate, so it must not be reachable
 //! from the network. A few worker threads share the listener so that a throw being
 //! simulated does not stall the page's other requests.
+//!
+//! The server shows either a folder's fixed scene ([`ViewerServer::start`]) or a live one
+//! that a running reconstruction replaces as it goes ([`ViewerServer::start_live`]).
 
 use std::io::Read;
 use std::net::SocketAddr;
@@ -13,7 +16,8 @@ use std::thread::JoinHandle;
 
 use crate::error::{Result, ViewerError};
 use crate::folder::ViewerFolder;
-use crate::routes::{handle, Response, MAX_BODY_BYTES};
+use crate::live::{LiveScene, SceneSlot};
+use crate::routes::{handle_scene, Response, MAX_BODY_BYTES};
 
 /// Worker threads answering requests.
 const WORKERS: usize = 4;
@@ -30,19 +34,31 @@ pub struct ViewerServer {
 impl ViewerServer {
     /// Serves `folder` on 127.0.0.1 at `port`, or at a free port when `None`.
     pub fn start(folder: ViewerFolder, port: Option<u16>) -> Result<Self> {
+        Self::start_slot(Arc::new(SceneSlot::fixed(folder)), port)
+    }
+
+    /// Serves a live scene on 127.0.0.1 at `port` (a free port when `None`): nothing until
+    /// the first [`LiveScene::update`] (the page waits), then each update's mesh and
+    /// trajectory. The page polls `GET /api/version` and reloads on a change.
+    pub fn start_live(port: Option<u16>) -> Result<(Self, LiveScene)> {
+        let slot = Arc::new(SceneSlot::live());
+        let server = Self::start_slot(slot.clone(), port)?;
+        Ok((server, LiveScene::new(slot)))
+    }
+
+    fn start_slot(slot: Arc<SceneSlot>, port: Option<u16>) -> Result<Self> {
         let wanted = format!("127.0.0.1:{}", port.unwrap_or(0));
         let bind_err = |message: String| ViewerError::Bind { addr: wanted.clone(), message };
         let server = tiny_http::Server::http(wanted.as_str()).map_err(|e| bind_err(e.to_string()))?;
         let addr = server.server_addr().to_ip().ok_or_else(|| bind_err("not an IP address".into()))?;
         let server = Arc::new(server);
-        let folder = Arc::new(folder);
         let stopping = Arc::new(AtomicBool::new(false));
         let workers = (0..WORKERS)
             .map(|_| {
-                let (server, folder, stopping) = (server.clone(), folder.clone(), stopping.clone());
+                let (server, slot, stopping) = (server.clone(), slot.clone(), stopping.clone());
                 std::thread::spawn(move || loop {
                     match server.recv() {
-                        Ok(request) => answer(&folder, request),
+                        Ok(request) => answer(&slot, request),
                         // Errors are failed accepts (a client gone); only a stop ends the loop.
                         Err(_) if stopping.load(Ordering::SeqCst) => break,
                         Err(_) => continue,
@@ -108,7 +124,7 @@ pub fn print_summary(folder: &ViewerFolder) {
     }
 }
 
-fn answer(folder: &ViewerFolder, mut request: tiny_http::Request) {
+fn answer(slot: &SceneSlot, mut request: tiny_http::Request) {
     let method = request.method().as_str().to_string();
     let url = request.url().to_string();
     let host = request.headers().iter().find(|h| h.field.equiv("Host")).map(|h| h.value.as_str().to_string());
@@ -124,7 +140,10 @@ fn answer(folder: &ViewerFolder, mut request: tiny_http::Request) {
             Ok(_) if body.len() > MAX_BODY_BYTES => {
                 Response::error(413, format!("request body over {MAX_BODY_BYTES} bytes"))
             }
-            Ok(_) => handle(folder, &method, &url, &body),
+            Ok(_) => {
+                let (folder, version) = slot.current();
+                handle_scene(folder.as_deref(), version, slot.is_live(), &method, &url, &body)
+            }
             Err(e) => Response::error(400, format!("cannot read the request body: {e}")),
         }
     };

@@ -3,6 +3,11 @@
 //! `DIR/mesh.ply` (binary), `DIR/trajectory.txt` (TUM) and `DIR/report.json`, and prints a
 //! timing table.
 //!
+//! With `--serve` the viewer of `semrecon view` follows the run live on 127.0.0.1: the mesh
+//! and trajectory are pushed to it at keyframes (at most once per [`LIVE_PUSH_INTERVAL`] of
+//! wall time, outside the timed pipeline stages), and the final result stays served until
+//! Ctrl-C (or, with `--serve-exit`, the server stops when the run ends).
+//!
 //! Bad input never stops a run half-way: a frame that fails to load, has no pose or is
 //! rejected by fusion is reported once, counted in `lost_frames`, and skipped, leaving the
 //! map as it was. Only problems that make the whole run meaningless (a dataset that does not
@@ -10,13 +15,14 @@
 
 use std::ops::Range;
 use std::path::PathBuf;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use semrecon_data::atomic_file::write_atomic;
 use semrecon_data::datasets::{open_dataset, DatasetSpec};
-use semrecon_data::Trajectory;
+use semrecon_data::{LabeledMesh, Trajectory};
 use semrecon_eval::{evaluate_trajectory, TrajectoryEvalConfig};
+use semrecon_viewer::{LiveScene, ViewerServer};
 use serde::Serialize;
 
 use crate::progress::progress_bar;
@@ -24,6 +30,10 @@ use crate::reconstruction::{PoseMode, PoseSource, Reconstruction};
 
 /// Warnings printed one by one before they are only counted.
 const MAX_WARNINGS: usize = 10;
+
+/// Shortest wall time between two pushes to the live viewer: building the whole mesh and
+/// its collision geometry costs far more than a keyframe's incremental meshing.
+pub const LIVE_PUSH_INTERVAL: Duration = Duration::from_secs(1);
 
 /// Arguments of `semrecon run`.
 #[derive(clap::Args)]
@@ -49,6 +59,48 @@ pub struct RunArgs {
     /// Output folder.
     #[arg(long)]
     out: PathBuf,
+    /// Show the growing map live in the viewer on 127.0.0.1 (open the printed URL), and
+    /// keep serving the final result after the run until Ctrl-C.
+    #[arg(long)]
+    serve: bool,
+    /// Port of the live viewer (a free port by default).
+    #[arg(long, requires = "serve")]
+    port: Option<u16>,
+    /// Stop the live viewer when the run ends instead of serving on (for scripts and tests).
+    #[arg(long, requires = "serve")]
+    serve_exit: bool,
+}
+
+/// The live viewer of `--serve`.
+struct LiveView {
+    server: ViewerServer,
+    scene: LiveScene,
+    /// Fused frame count at the last push (the map has not changed while it is the same).
+    pushed_at: Option<usize>,
+    last_push: Option<Instant>,
+}
+
+impl LiveView {
+    fn start(port: Option<u16>) -> anyhow::Result<Self> {
+        let (server, scene) = ViewerServer::start_live(port).context("starting the live viewer")?;
+        Ok(Self { server, scene, pushed_at: None, last_push: None })
+    }
+
+    /// Whether the map changed since the last push and the push interval has passed.
+    fn due(&self, fused: usize) -> bool {
+        self.pushed_at != Some(fused) && self.last_push.is_none_or(|t| t.elapsed() >= LIVE_PUSH_INTERVAL)
+    }
+
+    /// Shows `mesh` and `trajectory`; an empty mesh (nothing surfaced yet) is skipped.
+    fn push(&mut self, fused: usize, mesh: &LabeledMesh, trajectory: &Trajectory) -> Result<(), String> {
+        if mesh.triangles.is_empty() {
+            return Ok(());
+        }
+        self.scene.update(mesh, trajectory).map_err(|e| format!("live viewer not updated: {e}"))?;
+        self.pushed_at = Some(fused);
+        self.last_push = Some(Instant::now());
+        Ok(())
+    }
 }
 
 /// A `--frames` value: `A..B`, `A..` or `..B`.
@@ -143,6 +195,15 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         args.voxel
     );
 
+    let mut live = match args.serve {
+        true => {
+            let live = LiveView::start(args.port)?;
+            println!("live viewer at {} (follows the run; open it in a browser)", live.server.url());
+            Some(live)
+        }
+        false => None,
+    };
+
     let mut gt = Trajectory::default();
     let mut lost = 0usize;
     let mut failed_loads = 0usize;
@@ -192,11 +253,26 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             warn(format!("frame {i} not fused: {e}"));
             lost += 1;
         }
+        // Only at keyframes, where the incremental mesh was just brought up to date.
+        let fused = recon.fused_frames();
+        if let Some(live) = live.as_mut().filter(|l| fused > 0 && fused % args.keyframe_every == 0 && l.due(fused)) {
+            let t = Instant::now();
+            let mesh = recon.mesher.mesh();
+            if let Err(why) = live.push(fused, &mesh, &recon.trajectory) {
+                warn(why);
+            }
+            recon.times.record("live view", t.elapsed());
+        }
         bar.inc(1);
     }
     bar.finish_and_clear();
     let mesh = recon.finish();
     let wall_s = start.elapsed().as_secs_f64();
+    if let Some(live) = live.as_mut() {
+        if let Err(why) = live.push(recon.fused_frames(), &mesh, &recon.trajectory) {
+            eprintln!("warning: {why}");
+        }
+    }
     if warnings > MAX_WARNINGS {
         eprintln!("warning: {} more warnings not shown", warnings - MAX_WARNINGS);
     }
@@ -256,6 +332,14 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         println!("ATE rmse {:.4} m against the dataset's ground truth", ate);
     }
     println!("wrote {}/{{mesh.ply, trajectory.txt, report.json}}", args.out.display());
+    if let Some(live) = live {
+        if args.serve_exit {
+            live.server.stop();
+        } else {
+            println!("live viewer serving the final result at {} (Ctrl-C to stop)", live.server.url());
+            live.server.wait();
+        }
+    }
     Ok(())
 }
 
