@@ -104,6 +104,23 @@ impl Reconstruction {
     }
 }
 
+/// Options of the dense-geometry loop, shared by `run` and `demo`.
+#[derive(clap::Args)]
+pub struct ReconArgs {
+    /// TSDF voxel size in metres.
+    #[arg(long, default_value_t = 0.005)]
+    pub voxel: f32,
+    /// Re-mesh every this many fused frames (a keyframe).
+    #[arg(long, default_value_t = 10)]
+    pub keyframe_every: usize,
+    /// TSDF truncation in voxels (about 10 suits noisy depth sensors at 5 mm voxels).
+    #[arg(long, default_value_t = 10.0)]
+    pub truncation: f32,
+    /// Where poses come from: tracking, or the dataset's ground truth.
+    #[arg(long, value_enum, default_value_t = PoseMode::Track)]
+    pub poses: PoseMode,
+}
+
 /// Where the pose of each frame comes from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum PoseMode {

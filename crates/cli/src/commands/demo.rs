@@ -17,7 +17,7 @@ use semrecon_eval::{evaluate_mesh, evaluate_trajectory, MeshEvalConfig, Trajecto
 use serde::Serialize;
 
 use crate::progress::progress_bar;
-use crate::reconstruction::{PoseMode, PoseSource, Reconstruction};
+use crate::reconstruction::{PoseSource, ReconArgs, Reconstruction};
 
 /// Arguments of `semrecon demo`.
 #[derive(clap::Args)]
@@ -31,18 +31,8 @@ pub struct DemoArgs {
     /// Number of frames of the scan (30 per second).
     #[arg(long, default_value_t = 300)]
     frames: usize,
-    /// TSDF voxel size in metres.
-    #[arg(long, default_value_t = 0.005)]
-    voxel: f32,
-    /// Re-mesh every this many frames (a keyframe).
-    #[arg(long, default_value_t = 10)]
-    keyframe_every: usize,
-    /// TSDF truncation in voxels.
-    #[arg(long, default_value_t = 10.0)]
-    truncation: f32,
-    /// Where poses come from: tracking, or the synthetic ground truth.
-    #[arg(long, value_enum, default_value_t = PoseMode::Track)]
-    poses: PoseMode,
+    #[command(flatten)]
+    recon: ReconArgs,
     /// Skip measuring the mesh against the ground truth (saves a few seconds).
     #[arg(long)]
     no_mesh_eval: bool,
@@ -70,7 +60,7 @@ struct Report {
 /// Runs the command.
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.frames > 0, "--frames must be at least 1");
-    anyhow::ensure!(args.keyframe_every > 0, "--keyframe-every must be at least 1");
+    anyhow::ensure!(args.recon.keyframe_every > 0, "--keyframe-every must be at least 1");
     let mut config = SyntheticScanConfig::new(args.seed);
     config.frames = args.frames;
     let (room, scan) = synthetic_scan(&config)?;
@@ -83,7 +73,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         config.intrinsics.height
     );
 
-    let mut recon = Reconstruction::new(args.voxel, args.truncation, args.keyframe_every)?;
+    let mut recon = Reconstruction::new(args.recon.voxel, args.recon.truncation, args.recon.keyframe_every)?;
     let mut poses: Option<PoseSource> = None;
     let mut gt = Trajectory::default();
     let mut lost = 0;
@@ -97,7 +87,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         gt.push(frame.timestamp, truth);
         let source = match &mut poses {
             Some(p) => p,
-            None => poses.insert(PoseSource::new(args.poses, Some(truth), args.keyframe_every)?),
+            None => poses.insert(PoseSource::new(args.recon.poses, Some(truth), args.recon.keyframe_every)?),
         };
         let t = Instant::now();
         let pose = source.estimate(&frame, &recon.map);
@@ -131,7 +121,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let report = Report {
         scene: scene.clone(),
         frames: scan.len(),
-        voxel_size_m: args.voxel,
+        voxel_size_m: args.recon.voxel,
         poses: poses.as_ref().map_or("none", PoseSource::describe),
         lost_frames: lost,
         ate_rmse_m,

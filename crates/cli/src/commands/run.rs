@@ -26,7 +26,7 @@ use semrecon_viewer::{LiveScene, ViewerServer};
 use serde::Serialize;
 
 use crate::progress::progress_bar;
-use crate::reconstruction::{PoseMode, PoseSource, Reconstruction};
+use crate::reconstruction::{PoseSource, ReconArgs, Reconstruction};
 
 /// Warnings printed one by one before they are only counted.
 const MAX_WARNINGS: usize = 10;
@@ -44,18 +44,8 @@ pub struct RunArgs {
     /// Frames to process as A..B (B excluded; either end may be left out): all by default.
     #[arg(long, value_parser = parse_frame_range)]
     frames: Option<FrameRange>,
-    /// TSDF voxel size in metres.
-    #[arg(long, default_value_t = 0.005)]
-    voxel: f32,
-    /// Re-mesh every this many fused frames (a keyframe).
-    #[arg(long, default_value_t = 10)]
-    keyframe_every: usize,
-    /// TSDF truncation in voxels (about 10 suits noisy depth sensors at 5 mm voxels).
-    #[arg(long, default_value_t = 10.0)]
-    truncation: f32,
-    /// Where poses come from: tracking, or the dataset's ground truth.
-    #[arg(long, value_enum, default_value_t = PoseMode::Track)]
-    poses: PoseMode,
+    #[command(flatten)]
+    recon: ReconArgs,
     /// Output folder.
     #[arg(long)]
     out: PathBuf,
@@ -181,7 +171,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let source = open_dataset(&args.dataset).with_context(|| format!("opening {}", args.dataset))?;
     anyhow::ensure!(!source.is_empty(), "{} has no frames", source.name());
     let range = args.frames.unwrap_or(FrameRange { start: 0, end: None }).resolve(source.len())?;
-    let mut recon = Reconstruction::new(args.voxel, args.truncation, args.keyframe_every)?;
+    let mut recon = Reconstruction::new(args.recon.voxel, args.recon.truncation, args.recon.keyframe_every)?;
     let mut poses: Option<PoseSource> = None;
     let k = source.intrinsics();
     println!(
@@ -192,7 +182,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         source.len(),
         k.width,
         k.height,
-        args.voxel
+        args.recon.voxel
     );
 
     let mut live = match args.serve {
@@ -235,7 +225,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
 
         let source_of_poses = match &mut poses {
             Some(p) => p,
-            None => poses.insert(PoseSource::new(args.poses, frame.world_from_camera, args.keyframe_every)?),
+            None => {
+                poses.insert(PoseSource::new(args.recon.poses, frame.world_from_camera, args.recon.keyframe_every)?)
+            }
         };
         let t = Instant::now();
         let pose = source_of_poses.estimate(&frame, &recon.map);
@@ -255,7 +247,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         }
         // Only at keyframes, where the incremental mesh was just brought up to date.
         let fused = recon.fused_frames();
-        if let Some(live) = live.as_mut().filter(|l| fused > 0 && fused % args.keyframe_every == 0 && l.due(fused)) {
+        if let Some(live) =
+            live.as_mut().filter(|l| fused > 0 && fused % args.recon.keyframe_every == 0 && l.due(fused))
+        {
             let t = Instant::now();
             let mesh = recon.mesher.mesh();
             if let Err(why) = live.push(fused, &mesh, &recon.trajectory) {
@@ -297,8 +291,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         fused_frames: recon.fused_frames(),
         lost_frames: lost,
         failed_loads,
-        voxel_size_m: args.voxel,
-        keyframe_every: args.keyframe_every,
+        voxel_size_m: args.recon.voxel,
+        keyframe_every: args.recon.keyframe_every,
         poses: poses.as_ref().map_or("none", PoseSource::describe),
         realtime_factor: input_s / recon.pipeline_s.max(1e-9),
         input_s,
