@@ -28,14 +28,14 @@ fn assert_clean_failure(o: &Output, needle: &str) {
 fn every_subcommand_has_help() {
     let top = semrecon(&["--help"]);
     assert!(top.status.success());
-    for cmd in ["demo", "info", "synth", "snapshot", "throw", "bench"] {
+    for cmd in ["demo", "info", "synth", "run", "eval", "snapshot", "throw", "view", "export-viewer", "ar", "bench"] {
         assert!(stdout(&top).contains(cmd), "`{cmd}` missing from --help");
         let o = semrecon(&[cmd, "--help"]);
         assert!(o.status.success(), "{cmd} --help failed: {}", stderr(&o));
         assert!(stdout(&o).contains("Usage"), "{cmd} --help");
     }
-    for sub in ["render", "conv"] {
-        assert!(semrecon(&["bench", sub, "--help"]).status.success());
+    for (cmd, sub) in [("bench", "render"), ("bench", "conv"), ("eval", "traj"), ("eval", "mesh")] {
+        assert!(semrecon(&[cmd, sub, "--help"]).status.success(), "{cmd} {sub} --help");
     }
 }
 
@@ -147,4 +147,25 @@ fn bad_input_gives_errors_not_panics() {
     assert_clean_failure(&semrecon(&["throw", "--mesh", bad, "--from", "0,0,1", "--dir", "0,0,-1"]), "bad.ply");
     assert_clean_failure(&semrecon(&["throw", "--mesh", bad, "--from", "0,0,nan", "--dir", "0,0,-1"]), "x,y,z");
     assert_clean_failure(&semrecon(&["synth", "--out", empty, "--traj", "/no/such/traj.txt"]), "/no/such/traj.txt");
+}
+
+#[test]
+fn demo_writes_its_outputs_and_measures_them() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("demo");
+    let o = semrecon(&["demo", "--out", out.to_str().expect("utf-8"), "--frames", "6", "--voxel", "0.02"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in ["mesh.ply", "ground_truth.ply", "trajectory.txt", "report.json"] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).expect("report")).expect("json");
+    assert_eq!(report["frames"], 6);
+    assert_eq!(report["lost_frames"], 0);
+    assert!(report["ate_rmse_m"].as_f64().expect("ATE") < 0.01, "{report}");
+    assert!(report["mesh_accuracy_mm"].as_f64().expect("accuracy") < 20.0, "{report}");
+    for stage in ["tracking", "fusion", "meshing"] {
+        assert!(report["stages"][stage]["median_ms"].is_number(), "{stage} in {report}");
+    }
+    assert!(stdout(&o).contains("median ms"), "{}", stdout(&o));
 }
