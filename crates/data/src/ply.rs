@@ -740,6 +740,22 @@ fn put_count(ty: ScalarType, n: usize, out: &mut Vec<u8>, format: PlyFormat) {
     }
 }
 
+/// One empty column per property definition, with room for `cap` rows (callers bound `cap`
+/// by what the file's remaining bytes can hold, so a lying header cannot force a huge
+/// allocation).
+fn empty_columns(defs: &[PropertyDef], cap: usize) -> Vec<PropertyData> {
+    defs.iter()
+        .map(|d| match d.list_count {
+            None => PropertyData::Scalar(Column::with_capacity(d.ty, cap)),
+            Some(ct) => {
+                let mut l = ListColumn::new(ct, d.ty);
+                l.offsets.reserve(cap);
+                PropertyData::List(l)
+            }
+        })
+        .collect()
+}
+
 /// Parses the header: the file skeleton with empty columns, the property definitions per
 /// element, the byte offset of the body and the line number the body starts on.
 fn parse_header(bytes: &[u8], path: &Path) -> Result<(PlyFile, Vec<Vec<PropertyDef>>, usize, usize)> {
@@ -886,17 +902,7 @@ fn read_binary_element(
     // bounds what may be reserved by what the file can hold.
     let min_row: usize = defs.iter().map(|d| d.list_count.unwrap_or(d.ty).size()).sum();
     let cap = el.count.min(remaining / min_row.max(1));
-    let mut data: Vec<PropertyData> = defs
-        .iter()
-        .map(|d| match d.list_count {
-            None => PropertyData::Scalar(Column::with_capacity(d.ty, cap)),
-            Some(ct) => {
-                let mut l = ListColumn::new(ct, d.ty);
-                l.offsets.reserve(cap);
-                PropertyData::List(l)
-            }
-        })
-        .collect();
+    let mut data = empty_columns(defs, cap);
     let mut p = pos;
     for row in 0..el.count {
         for (d, data) in defs.iter().zip(data.iter_mut()) {
@@ -974,17 +980,7 @@ fn read_ascii_element(
     }
     // Every value takes at least two bytes (digit + separator), bounding reservations.
     let cap = el.count.min((cur.data.len() - cur.pos) / (2 * defs.len()) + 1);
-    let mut data: Vec<PropertyData> = defs
-        .iter()
-        .map(|d| match d.list_count {
-            None => PropertyData::Scalar(Column::with_capacity(d.ty, cap)),
-            Some(ct) => {
-                let mut l = ListColumn::new(ct, d.ty);
-                l.offsets.reserve(cap);
-                PropertyData::List(l)
-            }
-        })
-        .collect();
+    let mut data = empty_columns(defs, cap);
     let mut first_line = None;
     let mut one_per_line = true;
     for row in 0..el.count {
