@@ -8,7 +8,8 @@
 //! - [`geometry`]: kernel maps, chunk plans and interpolation tables of one input;
 //! - [`inference`]: the fused CPU forward on the sparse engine ([`Segmenter`]);
 //! - [`reference`](mod@reference): a plain, unfused forward, the oracle of the tests;
-//! - [`surface`]: coloured, labelled point samples of a mesh surface (network input).
+//! - [`surface`]: coloured, labelled point samples of a mesh surface (network input);
+//! - [`sample`]: voxelised, labelled rooms ([`VoxelSample`]), the unit of training and evaluation.
 //!
 //! ```
 //! use semrecon_net::{NetConfig, Segmenter, Weights};
@@ -29,6 +30,7 @@ pub mod geometry;
 pub mod inference;
 pub mod model;
 pub mod reference;
+pub mod sample;
 pub mod surface;
 pub mod weights;
 
@@ -37,4 +39,5 @@ pub use error::{NetError, Result};
 pub use geometry::NetGeometry;
 pub use inference::{color_features, ConvKernel, Segmenter, Timing};
 pub use model::{forward_flops, parameter_count, LevelStats};
+pub use sample::VoxelSample;
 pub use weights::{Tensor, Weights};
