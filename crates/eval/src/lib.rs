@@ -14,6 +14,7 @@
 
 pub mod error;
 pub mod mesh_metrics;
+pub mod semantic_labels;
 pub mod trajectory_metrics;
 
 pub use error::{EvalError, Result};
@@ -21,4 +22,5 @@ pub use mesh_metrics::{
     closest_point_on_triangle, evaluate_mesh, sample_surface, MeshErrors, MeshEvalConfig, SurfaceIndex, SurfaceSamples,
     ThresholdScores,
 };
+pub use semantic_labels::SurfaceLabeler;
 pub use trajectory_metrics::{align_rigid, evaluate_trajectory, TrajectoryErrors, TrajectoryEvalConfig};

@@ -267,24 +267,36 @@ impl SampleTree {
     }
 
     fn distance(&self, mesh: &LabeledMesh, p: Vec3, candidates: NonZeroUsize) -> f32 {
+        self.nearest(mesh, p, candidates).0
+    }
+
+    /// Distance to the surface and the triangle that is nearest among the candidates (`None`
+    /// when the tree holds vertices or a sample itself was nearer than every triangle).
+    fn nearest(&self, mesh: &LabeledMesh, p: Vec3, candidates: NonZeroUsize) -> (f32, Option<u32>) {
         let q = p.to_array();
         if self.triangle_of.is_empty() {
             let nearest = self.tree.query(&q).nearest_one::<SquaredEuclidean<f32>>().execute();
-            return nearest.distance.sqrt();
+            return (nearest.distance.sqrt(), None);
         }
         let found = self.tree.query(&q).nearest_n::<SquaredEuclidean<f32>>(candidates).execute();
-        let mut best = f32::INFINITY;
+        let mut best = (f32::INFINITY, None);
         let mut seen: Vec<u32> = Vec::with_capacity(found.len());
         for item in &found {
-            // The sample itself lies on the surface: an upper bound whatever the triangles say.
-            best = best.min(item.distance.sqrt());
             let t = self.triangle_of[item.item as usize];
+            // The sample itself lies on its triangle: an upper bound whatever the exact test says.
+            let sample_distance = item.distance.sqrt();
+            if sample_distance < best.0 {
+                best = (sample_distance, Some(t));
+            }
             if seen.contains(&t) {
                 continue;
             }
             seen.push(t);
             let [a, b, c] = mesh.triangles[t as usize].map(|i| mesh.positions[i as usize]);
-            best = best.min(closest_point_on_triangle(p, a, b, c).distance(p));
+            let d = closest_point_on_triangle(p, a, b, c).distance(p);
+            if d < best.0 {
+                best = (d, Some(t));
+            }
         }
         best
     }
@@ -332,6 +344,12 @@ impl<'a> SurfaceIndex<'a> {
             }
         }
         self.fine.distance(self.mesh, p, self.candidates)
+    }
+
+    /// The nearest triangle to `p` (among the candidates of the dense samples) and its
+    /// distance; `None` for a mesh indexed by its vertices.
+    pub fn nearest_triangle(&self, p: Vec3) -> (f32, Option<u32>) {
+        self.fine.nearest(self.mesh, p, self.candidates)
     }
 
     /// [`SurfaceIndex::distance`] of every point, in parallel, in input order.
