@@ -33,7 +33,7 @@ impl<'a> SurfaceLabeler<'a> {
     /// triangle's corner nearest to `p`, else [`UNLABELED`].
     pub fn label(&self, p: Vec3) -> u8 {
         let (d, triangle) = self.index.nearest_triangle(p);
-        if !(d <= self.max_distance_m) {
+        if d.is_nan() || d > self.max_distance_m {
             return UNLABELED;
         }
         let Some(t) = triangle else { return UNLABELED };
