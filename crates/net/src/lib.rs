@@ -10,7 +10,8 @@
 //! - [`inference`]: the fused CPU forward on the sparse engine ([`Segmenter`]);
 //! - [`reference`](mod@reference): a plain, unfused forward, the oracle of the tests;
 //! - [`surface`]: coloured, labelled point samples of a mesh surface (network input);
-//! - [`sample`]: voxelised, labelled rooms ([`VoxelSample`]), the unit of training and evaluation.
+//! - [`sample`]: voxelised, labelled rooms ([`VoxelSample`]), the unit of training and evaluation;
+//! - [`shipped`]: the shipped default model and the checked loading of model files.
 //!
 //! ```
 //! use semrecon_net::{NetConfig, Segmenter, Weights};
@@ -33,6 +34,7 @@ pub mod metrics;
 pub mod model;
 pub mod reference;
 pub mod sample;
+pub mod shipped;
 pub mod surface;
 pub mod weights;
 
