@@ -30,6 +30,8 @@ enum Command {
     Info(commands::info::InfoArgs),
     /// Reconstruct a dataset: poses, TSDF fusion, meshing; writes mesh, trajectory and report.
     Run(commands::run::RunArgs),
+    /// Label every vertex of a point cloud or mesh (PLY) with the network: adds a `label` property.
+    Segment(commands::segment::SegmentArgs),
     /// Generate a synthetic labelled room and render an RGB-D scan of it (7-Scenes layout).
     Synth(commands::synth::SynthArgs),
     /// Render a mesh to a PNG (bird's-eye corner view), in its colours or class colours.
@@ -51,6 +53,7 @@ fn main() -> std::process::ExitCode {
         Command::Eval(args) => commands::eval::run(args),
         Command::Info(args) => commands::info::run(args),
         Command::Run(args) => commands::run::run(args),
+        Command::Segment(args) => commands::segment::run(args),
         Command::Synth(args) => commands::synth::run(args),
         Command::Snapshot(args) => commands::snapshot::run(args),
         Command::Throw(args) => commands::throw::run(args),

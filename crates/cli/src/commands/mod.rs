@@ -6,6 +6,7 @@ pub mod demo;
 pub mod eval;
 pub mod info;
 pub mod run;
+pub mod segment;
 pub mod snapshot;
 pub mod synth;
 pub mod throw;

@@ -1,0 +1,231 @@
+//! `semrecon segment`: labels every vertex of a point cloud or mesh (PLY) with one of the 13
+//! classes by running CBSCN on it, and writes the same file with a `label` vertex property
+//! (u8, MISSION.md's class order) added or replaced; every other element and property (faces,
+//! normals, colours, anything else) is kept as it was.
+//!
+//! The network sees voxels of coloured surface: for a mesh, the vertices alone can be far
+//! apart on large flat triangles, so the surface is also sampled densely (several points per
+//! voxel, as the training data is made) and every vertex takes the class of its voxel. Inputs
+//! are in metres with z up (the S3DIS and ScanNet convention); `--up` names another up axis,
+//! which is rotated onto z for the network only (the output keeps the input's coordinates).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use glam::Vec3;
+use semrecon_data::ply::{mesh_from_ply, Column, PlyFile, PlyFormat, Property, PropertyData};
+use semrecon_data::{LabeledMesh, PlyEncoding};
+use semrecon_net::surface::sample_surface;
+use semrecon_net::{shipped, NetConfig, Segmenter};
+
+/// Arguments of `semrecon segment`.
+#[derive(clap::Args)]
+pub struct SegmentArgs {
+    /// Input point cloud or mesh (PLY: x y z, optional red green blue, optional faces).
+    #[arg(long)]
+    input: PathBuf,
+    /// Output PLY: the input with a `label` vertex property (0..12).
+    #[arg(long)]
+    out: PathBuf,
+    /// Model file (safetensors); default: the shipped model (see `SEMRECON_MODEL`).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// Configuration of a model file that does not store one (s20, s50, live or a file); when
+    /// the file stores one, the two must agree.
+    #[arg(long)]
+    config: Option<String>,
+    /// The input's up axis (x, y, z, -x, -y, -z); it is rotated onto +z for the network.
+    #[arg(long, default_value = "z", value_parser = parse_up, allow_hyphen_values = true)]
+    up: UpAxis,
+}
+
+/// Which axis of an input points up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum UpAxis {
+    /// `+x`.
+    X,
+    /// `+y`.
+    Y,
+    /// `+z` (no rotation).
+    Z,
+    /// `-x`.
+    NegX,
+    /// `-y`.
+    NegY,
+    /// `-z`.
+    NegZ,
+}
+
+impl UpAxis {
+    /// A proper rotation (determinant +1, no mirroring) taking this axis onto +z.
+    pub fn to_z_up(self, p: Vec3) -> Vec3 {
+        match self {
+            Self::Z => p,
+            Self::Y => Vec3::new(p.x, -p.z, p.y),
+            Self::X => Vec3::new(-p.z, p.y, p.x),
+            Self::NegZ => Vec3::new(p.x, -p.y, -p.z),
+            Self::NegY => Vec3::new(p.x, p.z, -p.y),
+            Self::NegX => Vec3::new(p.z, p.y, -p.x),
+        }
+    }
+}
+
+/// Parses `x|y|z|-x|-y|-z` (also `+x`, any case).
+pub fn parse_up(s: &str) -> Result<UpAxis, String> {
+    match s.trim().to_ascii_lowercase().as_str() {
+        "x" | "+x" => Ok(UpAxis::X),
+        "y" | "+y" => Ok(UpAxis::Y),
+        "z" | "+z" => Ok(UpAxis::Z),
+        "-x" => Ok(UpAxis::NegX),
+        "-y" => Ok(UpAxis::NegY),
+        "-z" => Ok(UpAxis::NegZ),
+        _ => Err(format!("`{s}`: expected one of x, y, z, -x, -y, -z")),
+    }
+}
+
+/// The network of `--model` (with `--config`), or the shipped one.
+pub fn load_model(model: Option<&Path>, config: Option<&str>) -> anyhow::Result<Segmenter> {
+    let config = config.map(NetConfig::from_name_or_file).transpose()?;
+    Ok(match model {
+        Some(path) => shipped::load(path, config.as_ref())?,
+        None => {
+            let net = shipped::load_default()?;
+            if let Some(c) = &config {
+                anyhow::ensure!(
+                    net.config().same_shape(c),
+                    "the shipped model is {}, not {} (pass --model)",
+                    net.config().summary(),
+                    c.summary()
+                );
+            }
+            net
+        }
+    })
+}
+
+/// Surface samples per voxel face area: enough that every voxel a triangle crosses gets
+/// several points, as in the training data.
+const SAMPLES_PER_VOXEL_AREA: f32 = 4.0;
+
+/// Most surface samples added to a mesh's vertices (the density drops beyond it).
+const MAX_SURFACE_SAMPLES: f32 = 4_000_000.0;
+
+/// Class of every vertex of `mesh` (in the network's z-up frame): the vertices and, for a
+/// mesh, dense samples of its surface are voxelised together, and each vertex takes the class
+/// of its voxel.
+pub fn label_vertices(net: &mut Segmenter, mesh: &LabeledMesh) -> anyhow::Result<Vec<u8>> {
+    let n = mesh.positions.len();
+    if n == 0 {
+        return Ok(Vec::new());
+    }
+    let mut points: Vec<[f32; 3]> = mesh.positions.iter().map(|p| p.to_array()).collect();
+    let mut colors = mesh.colors.clone();
+    if !mesh.triangles.is_empty() {
+        let voxel = net.config().voxel_size;
+        let area: f32 = mesh
+            .triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+                0.5 * (b - a).cross(c - a).length()
+            })
+            .sum();
+        let density = (SAMPLES_PER_VOXEL_AREA / (voxel * voxel)).min(MAX_SURFACE_SAMPLES / area.max(1e-6));
+        let samples = sample_surface(mesh, density, 0);
+        points.extend(samples.positions.iter().map(|p| p.to_array()));
+        colors.extend_from_slice(&samples.colors);
+    }
+    let labels = net.segment_points(&points, &colors)?;
+    Ok(labels[..n].to_vec())
+}
+
+/// Runs the command.
+pub fn run(args: SegmentArgs) -> anyhow::Result<()> {
+    let mut net = load_model(args.model.as_deref(), args.config.as_deref())?;
+    let t_read = Instant::now();
+    let mut ply = PlyFile::read(&args.input)?;
+    let vertex = ply
+        .element_mut("vertex")
+        .with_context(|| format!("{}: the PLY file has no 'vertex' element", args.input.display()))?;
+    // The old label (whatever its type) is replaced; take it out so that reading the
+    // geometry does not judge it, and put the new one at its place.
+    let label_at = vertex.properties.iter().position(|p| p.name == "label");
+    if let Some(i) = label_at {
+        vertex.properties.remove(i);
+    }
+    let has_color = ["red", "diffuse_red"].iter().any(|n| vertex.scalar(n).is_some());
+    let mut mesh = mesh_from_ply(&ply, &args.input)?;
+    let read_s = t_read.elapsed().as_secs_f64();
+    if !has_color && !mesh.positions.is_empty() {
+        eprintln!(
+            "warning: {} has no red/green/blue vertex colours: the network sees uniform grey, labels will be poor",
+            args.input.display()
+        );
+    }
+    for p in &mut mesh.positions {
+        *p = args.up.to_z_up(*p);
+    }
+    let t = Instant::now();
+    let labels = label_vertices(&mut net, &mesh)
+        .with_context(|| format!("segmenting {} with {}", args.input.display(), net.config().summary()))?;
+    let segment_s = t.elapsed().as_secs_f64();
+
+    let vertex = ply
+        .element_mut("vertex")
+        .with_context(|| format!("{}: the PLY file has no 'vertex' element", args.input.display()))?;
+    let property = Property { name: "label".into(), data: PropertyData::Scalar(Column::UChar(labels.clone())) };
+    match label_at {
+        Some(i) => vertex.properties.insert(i, property),
+        None => vertex.set_property(property).map_err(|m| anyhow::anyhow!("{}: {m}", args.input.display()))?,
+    }
+    let encoding = if ply.format == PlyFormat::Ascii { PlyEncoding::Ascii } else { PlyEncoding::BinaryLittleEndian };
+    ply.write(&args.out, encoding)?;
+
+    let mut counts = [0usize; 13];
+    for &l in &labels {
+        if let Some(c) = counts.get_mut(l as usize) {
+            *c += 1;
+        }
+    }
+    let voxels = net.level_stats().first().map_or(0, |s| s.voxels);
+    println!(
+        "labelled {} vertices ({} voxels of {} m, model {}) in {:.0} ms (reading {:.0} ms); wrote {}",
+        labels.len(),
+        voxels,
+        net.config().voxel_size,
+        net.config().name,
+        segment_s * 1e3,
+        read_s * 1e3,
+        args.out.display()
+    );
+    let summary: Vec<String> = semrecon_data::SemanticClass::ALL
+        .iter()
+        .zip(counts)
+        .filter(|(_, n)| *n > 0)
+        .map(|(c, n)| format!("{} {:.1}%", c.name(), 100.0 * n as f64 / labels.len().max(1) as f64))
+        .collect();
+    if !summary.is_empty() {
+        println!("classes: {}", summary.join(", "));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn up_axes_rotate_onto_z_without_mirroring() {
+        let cases =
+            [("x", Vec3::X), ("y", Vec3::Y), ("z", Vec3::Z), ("-x", -Vec3::X), ("-y", -Vec3::Y), ("-Z", -Vec3::Z)];
+        for (name, up) in cases {
+            let axis = parse_up(name).unwrap_or(UpAxis::Z);
+            assert!(axis.to_z_up(up).abs_diff_eq(Vec3::Z, 0.0), "{name}");
+            // A rotation: the images of x, y, z form a right-handed frame.
+            let (x, y, z) = (axis.to_z_up(Vec3::X), axis.to_z_up(Vec3::Y), axis.to_z_up(Vec3::Z));
+            assert!(x.cross(y).abs_diff_eq(z, 0.0), "{name}");
+        }
+        assert!(parse_up("w").is_err());
+    }
+}

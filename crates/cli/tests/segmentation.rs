@@ -1,0 +1,192 @@
+//! End-to-end tests of the network commands (`segment`, `eval seg`, `make-scans`, `bench
+//! net`) with a tiny random-weight model, so that they run in seconds: what is checked is the
+//! plumbing (files in and out, properties kept, errors), not the quality of the labels.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use glam::Vec3;
+use semrecon_data::ply::{mesh_to_ply, Column, PlyFile, Property, PropertyData};
+use semrecon_data::synth::{generate_room, RoomConfig};
+use semrecon_data::{LabeledMesh, PlyEncoding};
+use semrecon_net::{NetConfig, Weights};
+
+fn semrecon(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_semrecon")).args(args).output().expect("run semrecon")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn assert_clean_failure(o: &Output, needles: &[&str]) {
+    let err = stderr(o);
+    assert!(!o.status.success(), "expected failure, got success: {}", stdout(o));
+    assert!(!err.contains("panicked"), "panic: {err}");
+    for needle in needles {
+        assert!(err.contains(needle), "error does not mention `{needle}`: {err}");
+    }
+}
+
+fn tiny() -> NetConfig {
+    NetConfig::new("tiny", 3, 4, 0.05)
+}
+
+/// A random-weight tiny model written to `dir/tiny.safetensors`.
+fn tiny_model(dir: &Path) -> PathBuf {
+    let path = dir.join("tiny.safetensors");
+    let mut w = Weights::random(&tiny(), 7);
+    w.perturb_normalisation(8);
+    w.save(&path, &tiny()).expect("save model");
+    path
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+/// Part of a generated room (the triangles within 2 m of the origin) as a PLY file with an
+/// extra vertex property `quality` and the given position transform.
+fn room_ply(path: &Path, transform: impl Fn(Vec3) -> Vec3, with_color: bool) -> LabeledMesh {
+    let room = generate_room(&RoomConfig { seed: 4, style: None });
+    let mut mesh = LabeledMesh::default();
+    let mut map = vec![u32::MAX; room.mesh.positions.len()];
+    for t in &room.mesh.triangles {
+        if t.iter().all(|&i| room.mesh.positions[i as usize].truncate().length() < 2.0) {
+            let tri = t.map(|i| {
+                if map[i as usize] == u32::MAX {
+                    map[i as usize] = mesh.positions.len() as u32;
+                    mesh.positions.push(room.mesh.positions[i as usize]);
+                    mesh.colors.push(room.mesh.colors[i as usize]);
+                }
+                map[i as usize]
+            });
+            mesh.triangles.push(tri);
+        }
+    }
+    assert!(mesh.triangles.len() > 100, "{} triangles", mesh.triangles.len());
+    let mut out = mesh.clone();
+    out.positions.iter_mut().for_each(|p| *p = transform(*p));
+    let mut ply = mesh_to_ply(&out).expect("ply");
+    let vertex = ply.element_mut("vertex").expect("vertex");
+    if !with_color {
+        for c in ["red", "green", "blue"] {
+            vertex.remove_property(c);
+        }
+    }
+    let quality: Vec<f32> = (0..out.positions.len()).map(|i| i as f32 * 0.5).collect();
+    vertex
+        .set_property(Property { name: "quality".into(), data: PropertyData::Scalar(Column::Float(quality)) })
+        .expect("quality");
+    ply.write(path, PlyEncoding::BinaryLittleEndian).expect("write ply");
+    mesh
+}
+
+fn labels_of(path: &Path) -> Vec<u8> {
+    let ply = PlyFile::read(path).expect("read output");
+    match ply.element("vertex").and_then(|v| v.scalar("label")) {
+        Some(Column::UChar(l)) => l.clone(),
+        other => panic!("no u8 label column: {other:?}"),
+    }
+}
+
+#[test]
+fn segment_labels_every_vertex_and_keeps_everything_else() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let model = tiny_model(dir.path());
+    let input = dir.path().join("room.ply");
+    let mesh = room_ply(&input, |p| p, true);
+    let out = dir.path().join("labelled.ply");
+    let o = semrecon(&["segment", "--input", s(&input), "--out", s(&out), "--model", s(&model)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let labels = labels_of(&out);
+    assert_eq!(labels.len(), mesh.positions.len());
+    assert!(labels.iter().all(|&l| l < 13), "labels out of range");
+    // Everything else is as it was.
+    let (a, b) = (PlyFile::read(&input).expect("in"), PlyFile::read(&out).expect("out"));
+    let (va, vb) = (a.element("vertex").expect("v"), b.element("vertex").expect("v"));
+    for p in &va.properties {
+        assert_eq!(Some(p), vb.property(&p.name), "property {} changed", p.name);
+    }
+    assert_eq!(a.element("face"), b.element("face"));
+
+    // The same room given with y up, rotated back by --up y: the same labels, and the output
+    // keeps the input's coordinates.
+    let yup = dir.path().join("room_yup.ply");
+    room_ply(&yup, |p| Vec3::new(p.x, p.z, -p.y), true);
+    let out_yup = dir.path().join("labelled_yup.ply");
+    let o = semrecon(&["segment", "--input", s(&yup), "--out", s(&out_yup), "--model", s(&model), "--up", "y"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(labels_of(&out_yup), labels);
+    let rotated = PlyFile::read(&out_yup).expect("out");
+    assert_eq!(
+        rotated.element("vertex").and_then(|v| v.property("y")),
+        PlyFile::read(&yup).expect("in").element("vertex").and_then(|v| v.property("y"))
+    );
+
+    // Running again on the output replaces the label in place.
+    let again = dir.path().join("again.ply");
+    let o = semrecon(&["segment", "--input", s(&out), "--out", s(&again), "--model", s(&model)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(PlyFile::read(&again).expect("again"), PlyFile::read(&out).expect("out"));
+}
+
+#[test]
+fn segment_warns_without_colour_and_handles_empty_input() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let model = tiny_model(dir.path());
+    let input = dir.path().join("grey.ply");
+    let mesh = room_ply(&input, |p| p, false);
+    let out = dir.path().join("grey_out.ply");
+    let o = semrecon(&["segment", "--input", s(&input), "--out", s(&out), "--model", s(&model)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("warning") && stderr(&o).contains("colour"), "{}", stderr(&o));
+    assert_eq!(labels_of(&out).len(), mesh.positions.len());
+
+    let empty = dir.path().join("empty.ply");
+    std::fs::write(&empty, "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n")
+        .expect("write");
+    let out = dir.path().join("empty_out.ply");
+    let o = semrecon(&["segment", "--input", s(&empty), "--out", s(&out), "--model", s(&model)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(labels_of(&out).is_empty());
+    let text = std::fs::read_to_string(&out).expect("ascii output");
+    assert!(text.contains("element vertex 0") && text.contains("property uchar label"), "{text}");
+}
+
+#[test]
+fn segment_rejects_bad_models_and_inputs_clearly() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let model = tiny_model(dir.path());
+    let input = dir.path().join("room.ply");
+    room_ply(&input, |p| p, true);
+    let out = dir.path().join("out.ply");
+    let run = |model: &Path, extra: &[&str]| {
+        let mut args = vec!["segment", "--input", s(&input), "--out", s(&out), "--model", s(model)];
+        args.extend_from_slice(extra);
+        semrecon(&args)
+    };
+    // Weights of another configuration.
+    assert_clean_failure(&run(&model, &["--config", "s20"]), &["tiny.safetensors", "levels 3 vs 5", "width 4 vs 32"]);
+    // A truncated file.
+    let bytes = std::fs::read(&model).expect("model");
+    let cut = dir.path().join("cut.safetensors");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).expect("write");
+    assert_clean_failure(&run(&cut, &[]), &["cut.safetensors", "truncated", &format!("describes {}", bytes.len())]);
+    // No model anywhere.
+    let o = Command::new(env!("CARGO_BIN_EXE_semrecon"))
+        .args(["segment", "--input", s(&input), "--out", s(&out)])
+        .env("SEMRECON_MODEL", dir.path().join("none.safetensors"))
+        .output()
+        .expect("run");
+    assert_clean_failure(&o, &["no shipped model at", "none.safetensors", "semrecon train", "--model"]);
+    // A bad up axis, a missing input.
+    assert_clean_failure(&run(&model, &["--up", "w"]), &["expected one of x, y, z"]);
+    let o = semrecon(&["segment", "--input", "/nonexistent.ply", "--out", s(&out), "--model", s(&model)]);
+    assert_clean_failure(&o, &["/nonexistent.ply"]);
+    assert!(!out.exists(), "no output on failure");
+}
