@@ -28,6 +28,8 @@ enum Command {
     Eval(commands::eval::EvalArgs),
     /// Describe a dataset: frame count, resolution, intrinsics, depth range, ground truth.
     Info(commands::info::InfoArgs),
+    /// Training data: reconstructions of rendered scans of synthetic rooms, every vertex labelled.
+    MakeScans(commands::make_scans::MakeScansArgs),
     /// Reconstruct a dataset: poses, TSDF fusion, meshing; writes mesh, trajectory and report.
     Run(commands::run::RunArgs),
     /// Label every vertex of a point cloud or mesh (PLY) with the network: adds a `label` property.
@@ -52,6 +54,7 @@ fn main() -> std::process::ExitCode {
         Command::Demo(args) => commands::demo::run(args),
         Command::Eval(args) => commands::eval::run(args),
         Command::Info(args) => commands::info::run(args),
+        Command::MakeScans(args) => commands::make_scans::run(args),
         Command::Run(args) => commands::run::run(args),
         Command::Segment(args) => commands::segment::run(args),
         Command::Synth(args) => commands::synth::run(args),

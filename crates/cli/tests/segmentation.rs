@@ -148,8 +148,11 @@ fn segment_warns_without_colour_and_handles_empty_input() {
     assert_eq!(labels_of(&out).len(), mesh.positions.len());
 
     let empty = dir.path().join("empty.ply");
-    std::fs::write(&empty, "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n")
-        .expect("write");
+    std::fs::write(
+        &empty,
+        "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n",
+    )
+    .expect("write");
     let out = dir.path().join("empty_out.ply");
     let o = semrecon(&["segment", "--input", s(&empty), "--out", s(&out), "--model", s(&model)]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -189,4 +192,49 @@ fn segment_rejects_bad_models_and_inputs_clearly() {
     let o = semrecon(&["segment", "--input", "/nonexistent.ply", "--out", s(&out), "--model", s(&model)]);
     assert_clean_failure(&o, &["/nonexistent.ply"]);
     assert!(!out.exists(), "no output on failure");
+}
+
+#[test]
+fn make_scans_writes_labelled_reconstructions() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("scans");
+    let json = dir.path().join("rows.json");
+    let o = semrecon(&[
+        "make-scans",
+        "--seeds",
+        "3..5",
+        "--out",
+        s(&out),
+        "--frames",
+        "8",
+        "--size",
+        "80x60",
+        "--voxel",
+        "0.05",
+        "--partial",
+        "--json",
+        s(&json),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for seed in [3, 4] {
+        let path = out.join(format!("room_{seed}.ply"));
+        let mesh = semrecon_data::read_ply(&path).expect("read scan");
+        assert!(mesh.positions.len() > 100 && !mesh.triangles.is_empty(), "{}", mesh.positions.len());
+        assert_eq!(mesh.vertex_labels.len(), mesh.positions.len());
+        let labelled = mesh.vertex_labels.iter().filter(|&&l| l < 13).count();
+        assert!(labelled > mesh.positions.len() * 9 / 10, "{labelled} of {}", mesh.positions.len());
+        let names: Vec<String> = PlyFile::read(&path)
+            .expect("ply")
+            .element("vertex")
+            .expect("v")
+            .properties
+            .iter()
+            .map(|p| p.name.clone())
+            .collect();
+        assert_eq!(names, ["x", "y", "z", "red", "green", "blue", "label"]);
+    }
+    let rows: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("json");
+    assert_eq!(rows.as_array().map(Vec::len), Some(2));
+    assert_eq!(rows[0]["frames_fused"], 2);
+    assert_clean_failure(&semrecon(&["make-scans", "--seeds", "5..5", "--out", s(&out)]), &["range is empty"]);
 }

@@ -80,7 +80,11 @@ pub fn load(path: &Path, config: Option<&NetConfig>) -> Result<Segmenter> {
                 return Err(NetError::ConfigMismatch {
                     file: path.display().to_string(),
                     saved: saved.summary(),
-                    wanted: format!("{} (they differ in {}; file first)", wanted.summary(), config_differences(&saved, wanted)),
+                    wanted: format!(
+                        "{} (they differ in {}; file first)",
+                        wanted.summary(),
+                        config_differences(&saved, wanted)
+                    ),
                 });
             }
             // The file's own values (name, epsilon) are those it was trained with.
@@ -217,10 +221,8 @@ mod tests {
             .iter()
             .map(|(n, t)| (n.clone(), t.data.iter().flat_map(|v| v.to_le_bytes()).collect(), t.shape.clone()))
             .collect();
-        let views: Vec<(String, TensorView)> = bytes
-            .iter()
-            .map(|(n, b, s)| (n.clone(), TensorView::new(Dtype::F32, s.clone(), b).unwrap()))
-            .collect();
+        let views: Vec<(String, TensorView)> =
+            bytes.iter().map(|(n, b, s)| (n.clone(), TensorView::new(Dtype::F32, s.clone(), b).unwrap())).collect();
         std::fs::write(&path, safetensors::tensor::serialize(views, None).unwrap()).unwrap();
         let e = load(&path, None).unwrap_err().to_string();
         assert!(e.contains("no configuration is stored") && e.contains("--config"), "{e}");

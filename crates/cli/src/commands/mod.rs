@@ -5,6 +5,7 @@ pub mod bench;
 pub mod demo;
 pub mod eval;
 pub mod info;
+pub mod make_scans;
 pub mod run;
 pub mod segment;
 pub mod snapshot;
