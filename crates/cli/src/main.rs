@@ -20,7 +20,7 @@ struct Cli {
 enum Command {
     /// AR view: virtual balls thrown into a scanned room, drawn over its RGB frames (PNG + GIF).
     Ar(commands::ar::ArArgs),
-    /// Benchmarks (table + JSON): rendering, sparse convolution.
+    /// Benchmarks (table + JSON): rendering, sparse convolution, the network.
     Bench(commands::bench::BenchArgs),
     /// Run the whole pipeline on a built-in synthetic scene and write the outputs.
     Demo(commands::demo::DemoArgs),

@@ -6,6 +6,7 @@
 //! - `conv`: the sparse convolution kernels (chunked vs rulebook) on voxelised synthetic rooms,
 //!   with the machine's dense GEMM rate measured in the same run; `--export DIR` writes the
 //!   voxel sets and kernel maps for the peer benchmark `bench/peers_conv.py`.
+//! - `net`: the whole network, chunked vs rulebook kernels (see [`super::bench_net`]).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -34,6 +35,8 @@ enum Which {
     Render(RenderArgs),
     /// Sparse convolution speed: chunked vs rulebook, forward and both gradients.
     Conv(ConvArgs),
+    /// Network speed: CBSCN on a voxelised room, chunked vs rulebook kernels.
+    Net(super::bench_net::NetArgs),
 }
 
 /// Arguments of `semrecon bench render`.
@@ -76,6 +79,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     match args.which {
         Which::Render(a) => render(a),
         Which::Conv(a) => conv(a),
+        Which::Net(a) => super::bench_net::run(a),
     }
 }
 

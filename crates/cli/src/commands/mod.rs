@@ -2,6 +2,7 @@
 
 pub mod ar;
 pub mod bench;
+pub mod bench_net;
 pub mod demo;
 pub mod eval;
 pub mod info;
