@@ -10,7 +10,8 @@
 //! - [`inference`]: the fused CPU forward on the sparse engine ([`Segmenter`]);
 //! - [`reference`](mod@reference): a plain, unfused forward, the oracle of the tests;
 //! - [`surface`]: coloured, labelled point samples of a mesh surface (network input);
-//! - [`sample`]: voxelised, labelled rooms ([`VoxelSample`]), the unit of training and evaluation.
+//! - [`sample`]: voxelised, labelled rooms ([`VoxelSample`]), the unit of training and evaluation;
+//! - [`dataset`]: data sources (`synth:`, `s3dis:`, `scannet:`, `ply:`), loading and augmentation.
 //!
 //! ```
 //! use semrecon_net::{NetConfig, Segmenter, Weights};
@@ -26,6 +27,7 @@
 #![warn(missing_docs)]
 
 pub mod config;
+pub mod dataset;
 pub mod error;
 pub mod geometry;
 pub mod inference;
@@ -34,6 +36,8 @@ pub mod model;
 pub mod reference;
 pub mod sample;
 pub mod surface;
+#[cfg(feature = "train")]
+pub mod train;
 pub mod weights;
 
 pub use config::NetConfig;
