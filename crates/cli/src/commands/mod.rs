@@ -9,4 +9,5 @@ pub mod run;
 pub mod snapshot;
 pub mod synth;
 pub mod throw;
+pub mod train;
 pub mod view;
