@@ -40,6 +40,8 @@ enum Command {
     Snapshot(commands::snapshot::SnapshotArgs),
     /// Throw a virtual ball into a labelled mesh; bounces use the class's material.
     Throw(commands::throw::ThrowArgs),
+    /// Train the semantic network (CBSCN) on labelled rooms; needs the `train` cargo feature.
+    Train(commands::train::TrainArgs),
     /// Show a labelled mesh in a local web page (127.0.0.1); click to throw balls.
     View(commands::view::ViewArgs),
     /// Write the viewer as a static page (works from file://) with precomputed throws.
@@ -60,6 +62,7 @@ fn main() -> std::process::ExitCode {
         Command::Synth(args) => commands::synth::run(args),
         Command::Snapshot(args) => commands::snapshot::run(args),
         Command::Throw(args) => commands::throw::run(args),
+        Command::Train(args) => commands::train::run(args),
         Command::View(args) => commands::view::run(args),
         Command::ExportViewer(args) => commands::view::run_export(args),
     };

@@ -86,6 +86,9 @@ pub enum NetError {
     /// Input buffers that do not fit the network (shape, channels).
     #[error("invalid input: {0}")]
     InvalidInput(String),
+    /// An error reading training or evaluation data (names the file).
+    #[error(transparent)]
+    Data(#[from] semrecon_data::DataError),
     /// An error of the sparse convolution engine.
     #[error(transparent)]
     Sparse(#[from] semrecon_sparse::SparseError),

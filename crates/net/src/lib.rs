@@ -11,6 +11,7 @@
 //! - [`reference`](mod@reference): a plain, unfused forward, the oracle of the tests;
 //! - [`surface`]: coloured, labelled point samples of a mesh surface (network input);
 //! - [`sample`]: voxelised, labelled rooms ([`VoxelSample`]), the unit of training and evaluation;
+//! - [`dataset`]: data sources (`synth:`, `s3dis:`, `scannet:`, `ply:`), loading and augmentation;
 //! - [`shipped`]: the shipped default model and the checked loading of model files.
 //!
 //! ```
@@ -27,6 +28,7 @@
 #![warn(missing_docs)]
 
 pub mod config;
+pub mod dataset;
 pub mod error;
 pub mod geometry;
 pub mod inference;
@@ -36,6 +38,8 @@ pub mod reference;
 pub mod sample;
 pub mod shipped;
 pub mod surface;
+#[cfg(feature = "train")]
+pub mod train;
 pub mod weights;
 
 pub use config::NetConfig;

@@ -12,4 +12,5 @@ pub mod segment;
 pub mod snapshot;
 pub mod synth;
 pub mod throw;
+pub mod train;
 pub mod view;

@@ -1,0 +1,569 @@
+//! Training and evaluation data of the network: where labelled rooms come from, how they
+//! become [`VoxelSample`]s, and the augmentation that makes a few thousand synthetic rooms
+//! look like many more (and like partial, noisy scans).
+//!
+//! A data source is a string, so that the command line, configuration files and tests name
+//! data the same way ([`DataSource::parse`]):
+//!
+//! | source | rooms |
+//! |---|---|
+//! | `synth:A..B` | procedural rooms of seeds `A..B` (`semrecon_data::synth`), style drawn from the seed |
+//! | `synth:A..B:office,lounge` | the same seeds, styles taken in turn from the list (`seed % len`) |
+//! | `s3dis:PATH` | S3DIS rooms under `PATH` (root, `Area_N` or room folder) |
+//! | `scannet:PATH` | one ScanNet scene (folder or `.labels.ply`), or a folder of scene folders |
+//! | `ply:PATH` | a PLY file, or every `.ply` file of a folder (sorted), with a vertex `label` property |
+//!
+//! Meshes (synthetic rooms, ScanNet scenes, PLY files with faces, such as fused TSDF
+//! reconstructions of rendered scans) are sampled over their surface at
+//! [`points_per_m2`] (several points per voxel, [`crate::surface::sample_surface`]); point
+//! clouds (S3DIS, PLY files without faces) are used as they are. The cloud is augmented
+//! ([`Augment`]) and voxelised ([`VoxelSample::from_cloud`]).
+//!
+//! **Split.** Synthetic training and validation rooms are told apart by their seeds only: the
+//! recipe in docs/model.md trains on `synth:0..100000` and validates on
+//! `synth:1000000..1000040`, seeds that training never sees; [`RoomRef::group`] (the room
+//! style for synthetic rooms) lets validation report per style. For S3DIS the usual split is
+//! by area (train Areas 1-4 and 6, validate on Area 5), given as two `s3dis:` sources.
+//!
+//! Everything is deterministic: a room and a seed give the same sample, bit for bit.
+//!
+//! ```
+//! use semrecon_net::dataset::{load_sample, Augment, DataSource};
+//!
+//! let source = DataSource::parse("synth:7..9:office")?;
+//! let rooms = source.rooms()?;
+//! assert_eq!(rooms.len(), 2);
+//! assert_eq!(rooms[0].group, "office");
+//! let sample = load_sample(&rooms[0], 0.1, Some(&Augment::training()), 42)?;
+//! assert!(sample.len() > 100);
+//! # Ok::<(), semrecon_net::NetError>(())
+//! ```
+
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use glam::{Mat3, Vec3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use semrecon_data::synth::{generate_room, RoomConfig, RoomStyle};
+use semrecon_data::{read_ply, LabeledMesh, LabeledPointCloud};
+
+use crate::error::{NetError, Result};
+use crate::sample::VoxelSample;
+use crate::surface::sample_surface;
+
+/// Surface samples per voxel face area: enough that every surface voxel gets several points.
+const POINTS_PER_VOXEL_FACE: f32 = 6.0;
+
+/// Density of surface sampling (points per square metre) for a voxel size (metres): about
+/// six points per voxel face.
+pub fn points_per_m2(voxel_size: f32) -> f32 {
+    POINTS_PER_VOXEL_FACE / (voxel_size * voxel_size).max(1e-8)
+}
+
+/// Where labelled rooms come from (see the module table for the string forms).
+#[derive(Debug, Clone, PartialEq)]
+pub enum DataSource {
+    /// Procedural rooms.
+    Synth {
+        /// Room seeds.
+        seeds: Range<u64>,
+        /// Styles taken in turn (`seed % len`); empty: drawn from the seed.
+        styles: Vec<RoomStyle>,
+    },
+    /// S3DIS rooms under a folder.
+    S3dis(PathBuf),
+    /// ScanNet scenes: one scene (folder or `.labels.ply`) or a folder of scene folders.
+    Scannet(PathBuf),
+    /// A labelled PLY file or a folder of them.
+    Ply(PathBuf),
+}
+
+/// One room of a [`DataSource`], cheap to list and to send to a loader thread.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RoomRef {
+    /// Short unique name (`synth:17`, a path) for logs.
+    pub name: String,
+    /// Group for per-group reports: the style of a synthetic room, else the source kind
+    /// (`s3dis`, `scannet`, `ply`).
+    pub group: String,
+    kind: RoomKind,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+enum RoomKind {
+    Synth { seed: u64, style: Option<RoomStyle> },
+    S3dis(PathBuf),
+    Scannet(PathBuf),
+    Ply(PathBuf),
+}
+
+impl DataSource {
+    /// Parses `synth:A..B[:style,style]`, `s3dis:PATH`, `scannet:PATH` or `ply:PATH`.
+    ///
+    /// # Errors
+    /// [`NetError::InvalidInput`] naming the string and what is wrong (paths are checked
+    /// later, by [`Self::rooms`]).
+    pub fn parse(spec: &str) -> Result<Self> {
+        let bad = |why: &str| {
+            NetError::InvalidInput(format!(
+                "data source {spec:?}: {why} (expected synth:A..B[:style,...], s3dis:PATH, scannet:PATH or ply:PATH)"
+            ))
+        };
+        let (kind, rest) = spec.split_once(':').ok_or_else(|| bad("no `kind:` prefix"))?;
+        match kind {
+            "synth" => {
+                let (range, styles) = match rest.split_once(':') {
+                    Some((r, s)) => (r, Some(s)),
+                    None => (rest, None),
+                };
+                let (a, b) = range.split_once("..").ok_or_else(|| bad("seeds must be a range A..B"))?;
+                let a: u64 = a.trim().parse().map_err(|_| bad("first seed is not an integer"))?;
+                let b: u64 = b.trim().parse().map_err(|_| bad("last seed is not an integer"))?;
+                if b <= a {
+                    return Err(bad("empty seed range"));
+                }
+                let styles = match styles {
+                    Some(s) => s
+                        .split(',')
+                        .map(|x| x.parse::<RoomStyle>().map_err(|e| bad(&e.to_string())))
+                        .collect::<Result<Vec<_>>>()?,
+                    None => Vec::new(),
+                };
+                Ok(Self::Synth { seeds: a..b, styles })
+            }
+            "s3dis" | "scannet" | "ply" if rest.is_empty() => Err(bad("empty path")),
+            "s3dis" => Ok(Self::S3dis(PathBuf::from(rest))),
+            "scannet" => Ok(Self::Scannet(PathBuf::from(rest))),
+            "ply" => Ok(Self::Ply(PathBuf::from(rest))),
+            _ => Err(bad(&format!("unknown kind `{kind}`"))),
+        }
+    }
+
+    /// The rooms of the source, in a fixed order (seeds ascending, paths sorted).
+    ///
+    /// # Errors
+    /// Missing folders or folders without rooms ([`NetError::Data`]).
+    pub fn rooms(&self) -> Result<Vec<RoomRef>> {
+        match self {
+            Self::Synth { seeds, styles } => Ok(seeds
+                .clone()
+                .map(|seed| {
+                    let style =
+                        if styles.is_empty() { None } else { Some(styles[(seed % styles.len() as u64) as usize]) };
+                    RoomRef {
+                        name: format!("synth:{seed}"),
+                        group: style.unwrap_or_else(|| drawn_style(seed)).name().to_string(),
+                        kind: RoomKind::Synth { seed, style },
+                    }
+                })
+                .collect()),
+            Self::S3dis(root) => Ok(semrecon_data::s3dis::find_s3dis_rooms(root)?
+                .into_iter()
+                .map(|p| RoomRef { name: p.display().to_string(), group: "s3dis".into(), kind: RoomKind::S3dis(p) })
+                .collect()),
+            Self::Scannet(path) => {
+                let scenes = if path.is_dir() && !semrecon_data::scannet_mesh::scannet_labels_path(path).exists() {
+                    let mut scenes: Vec<PathBuf> = list_dir(path)?
+                        .into_iter()
+                        .filter(|p| semrecon_data::scannet_mesh::scannet_labels_path(p).exists())
+                        .collect();
+                    scenes.sort();
+                    if scenes.is_empty() {
+                        return Err(semrecon_data::DataError::dataset(path, "no ScanNet scene (*_vh_clean_2.labels.ply) found").into());
+                    }
+                    scenes
+                } else if path.exists() {
+                    vec![path.clone()]
+                } else {
+                    return Err(semrecon_data::DataError::dataset(path, "does not exist").into());
+                };
+                Ok(scenes
+                    .into_iter()
+                    .map(|p| RoomRef {
+                        name: p.display().to_string(),
+                        group: "scannet".into(),
+                        kind: RoomKind::Scannet(p),
+                    })
+                    .collect())
+            }
+            Self::Ply(path) => {
+                let files = if path.is_dir() {
+                    let mut files: Vec<PathBuf> = list_dir(path)?
+                        .into_iter()
+                        .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("ply")) && p.is_file())
+                        .collect();
+                    files.sort();
+                    if files.is_empty() {
+                        return Err(semrecon_data::DataError::dataset(path, "no .ply file in the folder").into());
+                    }
+                    files
+                } else if path.is_file() {
+                    vec![path.clone()]
+                } else {
+                    return Err(semrecon_data::DataError::dataset(path, "does not exist").into());
+                };
+                Ok(files
+                    .into_iter()
+                    .map(|p| RoomRef { name: p.display().to_string(), group: "ply".into(), kind: RoomKind::Ply(p) })
+                    .collect())
+            }
+        }
+    }
+}
+
+/// Rooms of several sources, concatenated in order.
+///
+/// # Errors
+/// The first failing source's error.
+pub fn rooms_of(sources: &[DataSource]) -> Result<Vec<RoomRef>> {
+    let mut all = Vec::new();
+    for s in sources {
+        all.extend(s.rooms()?);
+    }
+    Ok(all)
+}
+
+fn list_dir(path: &Path) -> Result<Vec<PathBuf>> {
+    let entries = std::fs::read_dir(path).map_err(|e| NetError::io(path, e))?;
+    let mut out = Vec::new();
+    for e in entries {
+        out.push(e.map_err(|e| NetError::io(path, e))?.path());
+    }
+    Ok(out)
+}
+
+/// The style `generate_room` draws for `seed` when none is given: its first draw from the
+/// seeded generator (checked against `generate_room` by a test), so listing rooms does not
+/// have to generate them.
+fn drawn_style(seed: u64) -> RoomStyle {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    RoomStyle::ALL[rng.random_range(0..RoomStyle::ALL.len())]
+}
+
+/// The labelled point cloud of a room, before augmentation: surface samples of meshes
+/// (seeded by `seed`), the points of point clouds.
+///
+/// # Errors
+/// Unreadable or invalid files, naming the file.
+pub fn load_cloud(room: &RoomRef, voxel_size: f32, seed: u64) -> Result<LabeledPointCloud> {
+    let density = points_per_m2(voxel_size);
+    let from_mesh = |mesh: &LabeledMesh| {
+        if mesh.triangles.is_empty() {
+            LabeledPointCloud::from_mesh(mesh)
+        } else {
+            sample_surface(mesh, density, seed)
+        }
+    };
+    Ok(match &room.kind {
+        RoomKind::Synth { seed: room_seed, style } => {
+            let r = generate_room(&RoomConfig { seed: *room_seed, style: *style });
+            sample_surface(&r.mesh, density, seed)
+        }
+        RoomKind::S3dis(p) => semrecon_data::s3dis::read_s3dis_room(p)?,
+        RoomKind::Scannet(p) => from_mesh(&semrecon_data::scannet_mesh::read_scannet_mesh(p)?),
+        RoomKind::Ply(p) => {
+            let mesh = read_ply(p)?;
+            if mesh.vertex_labels.is_empty() && mesh.triangle_labels.is_empty() {
+                return Err(semrecon_data::DataError::parse(
+                    p,
+                    None,
+                    "no vertex or face `label` property: not a labelled room",
+                )
+                .into());
+            }
+            from_mesh(&mesh)
+        }
+    })
+}
+
+/// A room as network input: [`load_cloud`], then `augment` (seeded by `seed`) when given,
+/// then [`VoxelSample::from_cloud`] at `voxel_size`. An empty room gives an empty sample.
+///
+/// # Errors
+/// Those of [`load_cloud`] and of voxelisation.
+pub fn load_sample(room: &RoomRef, voxel_size: f32, augment: Option<&Augment>, seed: u64) -> Result<VoxelSample> {
+    let mut cloud = load_cloud(room, voxel_size, seed)?;
+    if let Some(a) = augment {
+        a.apply(&mut cloud, seed);
+    }
+    VoxelSample::from_cloud(&cloud, voxel_size)
+}
+
+/// Seed of the sample of `room_index` in `epoch` of a run seeded with `run_seed`: every
+/// (epoch, room) pair gets its own augmentation, reproducibly.
+pub fn sample_seed(run_seed: u64, epoch: u64, room_index: u64) -> u64 {
+    // SplitMix64 finaliser over the packed triple: nearby inputs give unrelated seeds.
+    let mut z = run_seed ^ epoch.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ room_index.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Random augmentation of a labelled point cloud. Geometry: rotation about the vertical axis,
+/// x/y flips, scaling, elastic distortion, a random box crop (which also imitates partial
+/// scans) and point dropout; colour: per-channel gain, brightness and per-point noise.
+/// Fields set to zero (or `None`) switch a part off; [`Augment::none`] changes nothing.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Augment {
+    /// Random rotation about z, uniform in `[-max, max]` radians (`PI`: any angle).
+    pub rotate_max: f32,
+    /// Flip x and y, each with probability 1/2.
+    pub flip: bool,
+    /// Uniform scale range (`[1, 1]`: none).
+    pub scale: [f32; 2],
+    /// Elastic distortion: displacement amplitude (metres) of a smooth random field.
+    pub elastic_amplitude: f32,
+    /// Elastic distortion: grid spacing of the random field (metres).
+    pub elastic_spacing: f32,
+    /// Probability of cropping to a box.
+    pub crop_probability: f32,
+    /// Horizontal edge range of the crop box (metres); the box spans all heights.
+    pub crop_size: [f32; 2],
+    /// Fraction of points dropped at random (at most; uniform in `[0, max]`).
+    pub dropout_max: f32,
+    /// Standard deviation of the per-channel colour gain (around 1).
+    pub color_gain: f32,
+    /// Brightness offset range, `[-b, b]` on 0..255 values.
+    pub brightness: f32,
+    /// Per-point colour noise amplitude on 0..255 values.
+    pub color_noise: f32,
+}
+
+impl Augment {
+    /// No augmentation.
+    pub fn none() -> Self {
+        Self {
+            rotate_max: 0.0,
+            flip: false,
+            scale: [1.0, 1.0],
+            elastic_amplitude: 0.0,
+            elastic_spacing: 1.0,
+            crop_probability: 0.0,
+            crop_size: [1.0, 1.0],
+            dropout_max: 0.0,
+            color_gain: 0.0,
+            brightness: 0.0,
+            color_noise: 0.0,
+        }
+    }
+
+    /// The training recipe of docs/model.md: any rotation, flips, scale 0.9-1.1, elastic
+    /// distortion of 4 cm over 0.5 m, crops of 3-5 m half of the time, up to 20 % dropout,
+    /// colour gain 8 %, brightness 20, noise 6.
+    pub fn training() -> Self {
+        Self {
+            rotate_max: std::f32::consts::PI,
+            flip: true,
+            scale: [0.9, 1.1],
+            elastic_amplitude: 0.04,
+            elastic_spacing: 0.5,
+            crop_probability: 0.5,
+            crop_size: [3.0, 5.0],
+            dropout_max: 0.2,
+            color_gain: 0.08,
+            brightness: 20.0,
+            color_noise: 6.0,
+        }
+    }
+
+    /// Applies the augmentation to `cloud` in place, seeded by `seed`.
+    pub fn apply(&self, cloud: &mut LabeledPointCloud, seed: u64) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_A06E);
+        if cloud.is_empty() {
+            return;
+        }
+        // Geometry about the cloud's horizontal centre, so that rotations keep it in place.
+        let (lo, hi) = bounds(&cloud.positions);
+        let centre = Vec3::new((lo.x + hi.x) * 0.5, (lo.y + hi.y) * 0.5, 0.0);
+        let angle = if self.rotate_max > 0.0 { rng.random_range(-self.rotate_max..=self.rotate_max) } else { 0.0 };
+        let flip_x = self.flip && rng.random_bool(0.5);
+        let flip_y = self.flip && rng.random_bool(0.5);
+        let s = if self.scale[1] > self.scale[0] { rng.random_range(self.scale[0]..=self.scale[1]) } else { self.scale[0] };
+        let flips = Mat3::from_diagonal(Vec3::new(if flip_x { -1.0 } else { 1.0 }, if flip_y { -1.0 } else { 1.0 }, 1.0));
+        let m = Mat3::from_rotation_z(angle) * flips * s;
+        let field = (self.elastic_amplitude > 0.0).then(|| ElasticField::new(lo, hi, self.elastic_spacing, &mut rng));
+        for p in &mut cloud.positions {
+            let mut q = *p;
+            if let Some(f) = &field {
+                q += f.displacement(q) * self.elastic_amplitude;
+            }
+            *p = m * (q - centre);
+        }
+        // Crop a box around a random point, then drop points.
+        let mut keep: Vec<bool> = vec![true; cloud.len()];
+        if self.crop_probability > 0.0 && rng.random::<f32>() < self.crop_probability {
+            let (a, b) = (self.crop_size[0], self.crop_size[1].max(self.crop_size[0]));
+            let sx = if b > a { rng.random_range(a..=b) } else { a };
+            let sy = if b > a { rng.random_range(a..=b) } else { a };
+            let c = cloud.positions[rng.random_range(0..cloud.len())];
+            for (k, p) in keep.iter_mut().zip(&cloud.positions) {
+                *k = (p.x - c.x).abs() <= sx * 0.5 && (p.y - c.y).abs() <= sy * 0.5;
+            }
+        }
+        if self.dropout_max > 0.0 {
+            let rate = rng.random_range(0.0..=self.dropout_max);
+            for k in keep.iter_mut() {
+                if rng.random::<f32>() < rate {
+                    *k = false;
+                }
+            }
+        }
+        if keep.iter().any(|k| !k) {
+            let mut i = 0;
+            cloud.positions.retain(|_| {
+                i += 1;
+                keep[i - 1]
+            });
+            i = 0;
+            cloud.colors.retain(|_| {
+                i += 1;
+                keep[i - 1]
+            });
+            i = 0;
+            cloud.labels.retain(|_| {
+                i += 1;
+                keep[i - 1]
+            });
+        }
+        // Colour: gain per channel and brightness per room, noise per point.
+        if self.color_gain > 0.0 || self.brightness > 0.0 || self.color_noise > 0.0 {
+            let gain: [f32; 3] =
+                std::array::from_fn(|_| 1.0 + self.color_gain * (rng.random::<f32>() * 2.0 - 1.0) * 1.7);
+            let bright = if self.brightness > 0.0 { rng.random_range(-self.brightness..=self.brightness) } else { 0.0 };
+            for c in &mut cloud.colors {
+                for (k, v) in c.iter_mut().enumerate() {
+                    let noise =
+                        if self.color_noise > 0.0 { (rng.random::<f32>() * 2.0 - 1.0) * self.color_noise } else { 0.0 };
+                    *v = (f32::from(*v) * gain[k] + bright + noise).round().clamp(0.0, 255.0) as u8;
+                }
+            }
+        }
+    }
+}
+
+fn bounds(points: &[Vec3]) -> (Vec3, Vec3) {
+    points.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)))
+}
+
+/// A smooth random displacement field: unit-variance random vectors on a coarse grid,
+/// interpolated trilinearly (the elastic distortion of SparseConvNet's recipes, one scale).
+struct ElasticField {
+    origin: Vec3,
+    spacing: f32,
+    dims: [usize; 3],
+    vectors: Vec<Vec3>,
+}
+
+impl ElasticField {
+    fn new(lo: Vec3, hi: Vec3, spacing: f32, rng: &mut ChaCha8Rng) -> Self {
+        let spacing = spacing.max(0.05);
+        let dims = [0, 1, 2].map(|a| (((hi[a] - lo[a]) / spacing).ceil().max(0.0) as usize + 2).min(512));
+        let n = dims[0] * dims[1] * dims[2];
+        let vectors = (0..n)
+            .map(|_| Vec3::new(rng.random::<f32>() * 2.0 - 1.0, rng.random::<f32>() * 2.0 - 1.0, rng.random::<f32>() * 2.0 - 1.0))
+            .collect();
+        Self { origin: lo, spacing, dims, vectors }
+    }
+
+    fn displacement(&self, p: Vec3) -> Vec3 {
+        let g = (p - self.origin) / self.spacing;
+        let mut i = [0usize; 3];
+        let mut f = [0f32; 3];
+        for a in 0..3 {
+            let x = g[a].clamp(0.0, (self.dims[a] - 1) as f32 - 1e-3);
+            i[a] = x.floor() as usize;
+            f[a] = x - i[a] as f32;
+        }
+        let mut d = Vec3::ZERO;
+        for corner in 0..8 {
+            let mut w = 1.0;
+            let mut idx = [0usize; 3];
+            for a in 0..3 {
+                let hi = (corner >> a) & 1 == 1;
+                idx[a] = (i[a] + usize::from(hi)).min(self.dims[a] - 1);
+                w *= if hi { f[a] } else { 1.0 - f[a] };
+            }
+            d += self.vectors[(idx[2] * self.dims[1] + idx[1]) * self.dims[0] + idx[0]] * w;
+        }
+        d
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_sources_and_rejects_bad_ones() {
+        assert_eq!(
+            DataSource::parse("synth:3..5").unwrap(),
+            DataSource::Synth { seeds: 3..5, styles: vec![] }
+        );
+        assert_eq!(
+            DataSource::parse("synth:0..10:office,hallway").unwrap(),
+            DataSource::Synth { seeds: 0..10, styles: vec![RoomStyle::Office, RoomStyle::Hallway] }
+        );
+        assert_eq!(DataSource::parse("ply:/x/y").unwrap(), DataSource::Ply("/x/y".into()));
+        for bad in ["synth:5..5", "synth:a..b", "synth:0..3:kitchen", "foo:bar", "s3dis:", "nothing"] {
+            let e = DataSource::parse(bad).unwrap_err().to_string();
+            assert!(e.contains(bad), "{e}");
+        }
+        let e = DataSource::parse("ply:/no/such/dir").unwrap().rooms().unwrap_err().to_string();
+        assert!(e.contains("/no/such/dir"), "{e}");
+    }
+
+    #[test]
+    fn listed_style_is_the_generated_style() {
+        let rooms = DataSource::parse("synth:0..6").unwrap().rooms().unwrap();
+        for r in &rooms[..3] {
+            let RoomKind::Synth { seed, .. } = r.kind else { unreachable!() };
+            assert_eq!(generate_room(&RoomConfig { seed, style: None }).style.name(), r.group);
+        }
+        let fixed = DataSource::parse("synth:0..4:office,lounge").unwrap().rooms().unwrap();
+        let groups: Vec<_> = fixed.iter().map(|r| r.group.as_str()).collect();
+        assert_eq!(groups, ["office", "lounge", "office", "lounge"]);
+    }
+
+    #[test]
+    fn samples_are_deterministic_and_augmentation_changes_them() {
+        let room = &DataSource::parse("synth:11..12").unwrap().rooms().unwrap()[0];
+        let plain = load_sample(room, 0.1, None, 1).unwrap();
+        assert_eq!(plain, load_sample(room, 0.1, None, 1).unwrap());
+        let labelled = plain.labels.iter().filter(|&&l| l < 13).count();
+        assert!(labelled * 10 > plain.len() * 9, "{labelled} of {}", plain.len());
+        let aug = Augment::training();
+        let a = load_sample(room, 0.1, Some(&aug), 2).unwrap();
+        assert_eq!(a, load_sample(room, 0.1, Some(&aug), 2).unwrap());
+        assert_ne!(a, plain);
+        assert!(!a.is_empty());
+        let mut cloud = load_cloud(room, 0.1, 1).unwrap();
+        let before = cloud.clone();
+        Augment::none().apply(&mut cloud, 5);
+        assert_eq!(cloud.positions.len(), before.positions.len());
+        assert_eq!(cloud.colors, before.colors);
+        assert_eq!(VoxelSample::from_cloud(&LabeledPointCloud::default(), 0.1).unwrap().len(), 0);
+    }
+
+    #[test]
+    fn ply_rooms_with_colour_and_label_load() {
+        let dir = tempfile::tempdir().unwrap();
+        let mesh = generate_room(&RoomConfig { seed: 3, style: None }).mesh;
+        let mut recon = mesh.clone();
+        recon.triangle_labels.clear();
+        semrecon_data::write_ply(dir.path().join("a.ply"), &recon, semrecon_data::PlyEncoding::BinaryLittleEndian)
+            .unwrap();
+        let rooms = DataSource::parse(&format!("ply:{}", dir.path().display())).unwrap().rooms().unwrap();
+        assert_eq!(rooms.len(), 1);
+        let s = load_sample(&rooms[0], 0.1, None, 0).unwrap();
+        assert!(s.len() > 100);
+        assert!(s.labels.iter().filter(|&&l| l < 13).count() * 10 > s.len() * 9);
+        let mut unlabelled = recon;
+        unlabelled.vertex_labels.clear();
+        let p = dir.path().join("b.ply");
+        semrecon_data::write_ply(&p, &unlabelled, semrecon_data::PlyEncoding::Ascii).unwrap();
+        let e = load_sample(&DataSource::Ply(p).rooms().unwrap()[0], 0.1, None, 0).unwrap_err().to_string();
+        assert!(e.contains("b.ply") && e.contains("label"), "{e}");
+    }
+}
