@@ -24,7 +24,7 @@ enum Command {
     Bench(commands::bench::BenchArgs),
     /// Run the whole pipeline on a built-in synthetic scene and write the outputs.
     Demo(commands::demo::DemoArgs),
-    /// Evaluate against ground truth: trajectory (ATE, RPE) or mesh (accuracy, completeness, F-score).
+    /// Evaluate against ground truth: trajectory (ATE, RPE), mesh (accuracy, completeness, F-score) or segmentation (IoU).
     Eval(commands::eval::EvalArgs),
     /// Describe a dataset: frame count, resolution, intrinsics, depth range, ground truth.
     Info(commands::info::InfoArgs),

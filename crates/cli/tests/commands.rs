@@ -28,13 +28,29 @@ fn assert_clean_failure(o: &Output, needle: &str) {
 fn every_subcommand_has_help() {
     let top = semrecon(&["--help"]);
     assert!(top.status.success());
-    for cmd in ["demo", "info", "synth", "run", "eval", "snapshot", "throw", "view", "export-viewer", "ar", "bench"] {
+    for cmd in [
+        "demo",
+        "info",
+        "synth",
+        "run",
+        "eval",
+        "snapshot",
+        "throw",
+        "view",
+        "export-viewer",
+        "ar",
+        "bench",
+        "segment",
+        "make-scans",
+    ] {
         assert!(stdout(&top).contains(cmd), "`{cmd}` missing from --help");
         let o = semrecon(&[cmd, "--help"]);
         assert!(o.status.success(), "{cmd} --help failed: {}", stderr(&o));
         assert!(stdout(&o).contains("Usage"), "{cmd} --help");
     }
-    for (cmd, sub) in [("bench", "render"), ("bench", "conv"), ("eval", "traj"), ("eval", "mesh")] {
+    for (cmd, sub) in
+        [("bench", "render"), ("bench", "conv"), ("eval", "traj"), ("eval", "mesh"), ("eval", "seg"), ("bench", "net")]
+    {
         assert!(semrecon(&[cmd, sub, "--help"]).status.success(), "{cmd} {sub} --help");
     }
 }

@@ -238,3 +238,108 @@ fn make_scans_writes_labelled_reconstructions() {
     assert_eq!(rows[0]["frames_fused"], 2);
     assert_clean_failure(&semrecon(&["make-scans", "--seeds", "5..5", "--out", s(&out)]), &["range is empty"]);
 }
+
+#[test]
+fn eval_seg_reports_the_table_and_json_keys() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let model = tiny_model(dir.path());
+    let json = dir.path().join("seg.json");
+    let o = semrecon(&["eval", "seg", "--model", s(&model), "--data", "synth:0..2", "--json", s(&json)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let table = stdout(&o);
+    let header = table.lines().find(|l| l.contains("ceiling")).expect("table header");
+    let names: Vec<&str> = header.split_whitespace().collect();
+    assert_eq!(
+        names,
+        [
+            "ceiling", "floor", "wall", "beam", "column", "window", "door", "table", "chair", "sofa", "bookcase",
+            "board", "clutter", "mIoU", "accuracy"
+        ]
+    );
+    assert!(table.contains("ms"), "{table}");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("json");
+    let miou = v["miou"].as_f64().expect("miou");
+    let accuracy = v["accuracy"].as_f64().expect("accuracy");
+    assert!((0.0..=1.0).contains(&miou) && (0.0..=1.0).contains(&accuracy), "{v}");
+    assert!(v["ms_per_room"].as_f64().expect("ms") > 0.0);
+    assert_eq!(v["rooms"], 2);
+    let per_class = v["per_class"].as_object().expect("per_class");
+    assert_eq!(per_class.len(), 13);
+    assert!(per_class.values().all(|x| x.is_null() || x.as_f64().is_some_and(|f| (0.0..=1.0).contains(&f))));
+    // Walls and floors exist in every room, so their IoU is defined.
+    assert!(per_class["wall"].is_f64() && per_class["floor"].is_f64(), "{v}");
+    // mIoU is the mean of the defined per-class values.
+    let defined: Vec<f64> = per_class.values().filter_map(serde_json::Value::as_f64).collect();
+    assert!((defined.iter().sum::<f64>() / defined.len() as f64 - miou).abs() < 1e-9);
+
+    // The reconstructions of make-scans are valid evaluation data too.
+    let scans = dir.path().join("scans");
+    let o = semrecon(&[
+        "make-scans",
+        "--seeds",
+        "1",
+        "--out",
+        s(&scans),
+        "--frames",
+        "6",
+        "--size",
+        "80x60",
+        "--voxel",
+        "0.05",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let data = format!("ply:{}", scans.display());
+    let o = semrecon(&["eval", "seg", "--model", s(&model), "--data", &data, "synth:5..6"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("on 2 rooms"), "{}", stdout(&o));
+
+    assert_clean_failure(&semrecon(&["eval", "seg", "--model", s(&model), "--data", "nope:1"]), &["nope:1"]);
+    let cut = dir.path().join("cut.safetensors");
+    std::fs::write(&cut, b"12345").expect("write");
+    assert_clean_failure(&semrecon(&["eval", "seg", "--model", s(&cut), "--data", "synth:0..1"]), &["truncated"]);
+}
+
+#[test]
+fn bench_net_compares_the_kernels_and_exports_for_the_peer() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let config = dir.path().join("tiny.json");
+    std::fs::write(&config, tiny().to_json()).expect("config");
+    let (json, export) = (dir.path().join("net.json"), dir.path().join("export"));
+    let o = semrecon(&[
+        "bench",
+        "net",
+        "--config",
+        s(&config),
+        "--repeats",
+        "1",
+        "--json",
+        s(&json),
+        "--export",
+        s(&export),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("chunked is"), "{}", stdout(&o));
+    let rows: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("json");
+    assert_eq!(rows[0]["kernel"], "chunked");
+    assert_eq!(rows[1]["kernel"], "rulebook");
+    for r in rows.as_array().expect("rows") {
+        assert!(r["ms_per_room"].as_f64().expect("ms") > 0.0 && r["flops"].as_u64().expect("flops") > 0);
+        assert!(r["voxels"].as_u64().expect("voxels") > 1000);
+    }
+    // The export: the model loads, the arrays have the sizes the header says.
+    let header: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(export.join("net.json")).expect("header")).expect("header");
+    let n = header["n"].as_u64().expect("n") as usize;
+    let size = |key: &serde_json::Value| {
+        std::fs::metadata(export.join(key.as_str().expect("name"))).expect("file").len() as usize
+    };
+    assert_eq!(size(&header["coords"]), n * 16);
+    assert_eq!(size(&header["features"]), n * 12);
+    assert_eq!(size(&header["logits"]), n * 13 * 4);
+    assert_eq!(header["levels"].as_array().map(Vec::len), Some(3));
+    assert_eq!(header["interp"].as_array().map(Vec::len), Some(1));
+    let subm = &header["levels"][0]["subm"];
+    let pairs = subm["offset_start"].as_array().expect("starts").last().expect("last");
+    assert_eq!(size(&subm["in_rows"]), pairs.as_u64().expect("pairs") as usize * 4);
+    Weights::load(&export.join("model.safetensors"), &tiny()).expect("exported model");
+}

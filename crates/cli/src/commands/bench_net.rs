@@ -16,6 +16,7 @@ use std::time::Instant;
 use anyhow::Context;
 use semrecon_data::atomic_file::write_atomic;
 use semrecon_data::synth::{generate_room, RoomConfig};
+use semrecon_net::dataset::points_per_m2;
 use semrecon_net::surface::sample_surface;
 use semrecon_net::{forward_flops, ConvKernel, NetConfig, NetGeometry, Segmenter, VoxelSample, Weights};
 use semrecon_sparse::{ChunkConfig, KernelMap};
@@ -73,9 +74,6 @@ struct NetRow {
     simd: String,
 }
 
-/// Surface samples per voxel face area (as `semrecon segment` and the training data).
-const SAMPLES_PER_VOXEL_AREA: f32 = 4.0;
-
 /// Runs `semrecon bench net`.
 pub fn run(args: NetArgs) -> anyhow::Result<()> {
     let config = NetConfig::from_name_or_file(&args.config)?;
@@ -90,7 +88,7 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
     };
     let room = generate_room(&RoomConfig { seed: args.seed, style: None });
     let voxel = config.voxel_size;
-    let cloud = sample_surface(&room.mesh, SAMPLES_PER_VOXEL_AREA / (voxel * voxel), args.seed);
+    let cloud = sample_surface(&room.mesh, points_per_m2(voxel), args.seed);
     let sample = VoxelSample::from_cloud(&cloud, voxel)?;
     let scene = format!("synthetic {} seed {}", room.style, args.seed);
     anyhow::ensure!(!sample.is_empty(), "the room has no voxels");
@@ -122,10 +120,8 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
     }
     let stats = nets[0].level_stats().to_vec();
     let flops = forward_flops(&config, &stats);
-    let best: Vec<(f64, f64, f64)> = times
-        .iter()
-        .map(|t| t.iter().copied().min_by(|a, b| a.0.total_cmp(&b.0)).unwrap_or_default())
-        .collect();
+    let best: Vec<(f64, f64, f64)> =
+        times.iter().map(|t| t.iter().copied().min_by(|a, b| a.0.total_cmp(&b.0)).unwrap_or_default()).collect();
     let rows: Vec<NetRow> = kernels
         .iter()
         .enumerate()

@@ -5,6 +5,8 @@
 //!   (bench/check_eval_against_evo.sh compares the numbers with `evo`).
 //! - `mesh`: accuracy and completeness (mean, median) and precision / recall / F-score at 1,
 //!   2 and 5 cm of an estimated mesh against a ground-truth mesh (PLY files).
+//! - `seg`: per-class IoU, mIoU, accuracy and time per room of a segmentation model on
+//!   labelled rooms (see [`super::eval_seg`]).
 //!
 //! Both print a table, or JSON with `--json`; `--out FILE` also writes the JSON to a file.
 
@@ -29,6 +31,8 @@ enum Which {
     Traj(TrajArgs),
     /// Surface errors: accuracy, completeness, precision / recall / F-score.
     Mesh(MeshArgs),
+    /// Segmentation: per-class IoU, mIoU, accuracy and time per room of a model on labelled rooms.
+    Seg(super::eval_seg::SegArgs),
 }
 
 /// Arguments of `semrecon eval traj`.
@@ -121,6 +125,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     match args.which {
         Which::Traj(a) => traj(a),
         Which::Mesh(a) => mesh(a),
+        Which::Seg(a) => super::eval_seg::run(a),
     }
 }
 

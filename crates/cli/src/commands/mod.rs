@@ -5,6 +5,7 @@ pub mod bench;
 pub mod bench_net;
 pub mod demo;
 pub mod eval;
+pub mod eval_seg;
 pub mod info;
 pub mod make_scans;
 pub mod run;

@@ -16,6 +16,7 @@ use anyhow::Context;
 use glam::Vec3;
 use semrecon_data::ply::{mesh_from_ply, Column, PlyFile, PlyFormat, Property, PropertyData};
 use semrecon_data::{LabeledMesh, PlyEncoding};
+use semrecon_net::dataset::points_per_m2;
 use semrecon_net::surface::sample_surface;
 use semrecon_net::{shipped, NetConfig, Segmenter};
 
@@ -104,10 +105,6 @@ pub fn load_model(model: Option<&Path>, config: Option<&str>) -> anyhow::Result<
     })
 }
 
-/// Surface samples per voxel face area: enough that every voxel a triangle crosses gets
-/// several points, as in the training data.
-const SAMPLES_PER_VOXEL_AREA: f32 = 4.0;
-
 /// Most surface samples added to a mesh's vertices (the density drops beyond it).
 const MAX_SURFACE_SAMPLES: f32 = 4_000_000.0;
 
@@ -131,7 +128,7 @@ pub fn label_vertices(net: &mut Segmenter, mesh: &LabeledMesh) -> anyhow::Result
                 0.5 * (b - a).cross(c - a).length()
             })
             .sum();
-        let density = (SAMPLES_PER_VOXEL_AREA / (voxel * voxel)).min(MAX_SURFACE_SAMPLES / area.max(1e-6));
+        let density = points_per_m2(voxel).min(MAX_SURFACE_SAMPLES / area.max(1e-6));
         let samples = sample_surface(mesh, density, 0);
         points.extend(samples.positions.iter().map(|p| p.to_array()));
         colors.extend_from_slice(&samples.colors);
