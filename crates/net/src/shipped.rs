@@ -250,6 +250,24 @@ mod tests {
         assert!(e.contains(&format!("describes {}", full.len())) && e.contains("100 missing"), "{e}");
     }
 
+    /// The repository's model, once trained: `s20`, f16 throughout, at most 20 MB, loadable.
+    #[test]
+    fn the_shipped_model_is_a_small_f16_s20() {
+        let path = Path::new(SOURCE_TREE_MODEL);
+        if !path.is_file() {
+            eprintln!("skipped: no shipped model at {} yet", path.display());
+            return;
+        }
+        let bytes = std::fs::read(path).unwrap();
+        assert!(bytes.len() <= 20_000_000, "{} bytes", bytes.len());
+        let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+        for (name, view) in st.tensors() {
+            assert_eq!(view.dtype(), safetensors::Dtype::F16, "{name}");
+        }
+        let net = load(path, Some(&NetConfig::s20())).unwrap();
+        assert!(net.config().same_shape(&NetConfig::s20()));
+    }
+
     #[test]
     fn the_default_path_follows_the_environment() {
         // One test touches the variable, so no other test of this process races with it.
