@@ -10,7 +10,7 @@
 use glam::{IVec3, Vec3};
 use rayon::prelude::*;
 
-use crate::map::{ChunkKey, TsdfMap, CHUNK_SIDE};
+use crate::map::{ChunkKey, TsdfMap, CHUNK_SIDE, TSDF_SCALE};
 
 /// One voxel on the surface.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -33,6 +33,13 @@ pub struct SurfaceVoxel {
 pub fn chunk_surface_voxels(map: &TsdfMap, key: ChunkKey, max_distance_voxels: f32) -> Vec<SurfaceVoxel> {
     let Some(chunk) = map.chunk(key) else { return Vec::new() };
     let limit = max_distance_voxels / map.config().truncation_voxels;
+    // Most chunks of the truncation band hold no voxel near the zero crossing: an integer scan
+    // of the quantised distances rules them out before any voxel is decoded.
+    let limit_q = (limit * TSDF_SCALE).ceil().min(TSDF_SCALE) as u16;
+    let block = &chunk.voxels;
+    if !block.tsdf.iter().zip(block.weight.iter()).any(|(t, w)| *w != 0 && t.unsigned_abs() <= limit_q) {
+        return Vec::new();
+    }
     let side = CHUNK_SIDE as i32;
     let base = key * side;
     // Signed distance of a neighbour, from this chunk when it holds it, else through the map.
