@@ -6,7 +6,9 @@
 //! so the surface normals that lie near the camera's average "up" (-y of the camera; people
 //! hold cameras roughly upright) are averaged, in narrowing cones, to the dominant horizontal
 //! direction. The floor is then the lowest height band that holds a large share of the upward
-//! facing surface. A known gravity direction (an IMU, a dataset's gravity file) replaces the
+//! facing surface below the cameras (a handheld camera is carried above the floor, so table
+//! tops and shelves seen before the floor are not taken for it; with no such surface yet the
+//! floor is put [`HANDHELD_HEIGHT_M`] below the lowest camera). A known gravity direction (an IMU, a dataset's gravity file) replaces the
 //! estimate.
 //!
 //! Only the network's input is rotated: the map, the mesh and every output stay in the map
@@ -76,10 +78,13 @@ pub fn camera_up_prior(poses: &[Affine3A]) -> Option<Vec3> {
     sum.try_normalize()
 }
 
+/// Usual height of a handheld camera above the floor, metres.
+pub const HANDHELD_HEIGHT_M: f32 = 1.4;
+
 /// Estimates up and the floor from surface samples, starting from `prior` (the cameras'
-/// average up). Falls back to the prior when less than 3 % of the surface weight is
-/// horizontal.
-pub fn estimate_up(samples: &[SurfaceSample], prior: Vec3) -> UpEstimate {
+/// average up); `cameras` are the camera positions (map frame). Falls back to the prior when
+/// less than 3 % of the surface weight is horizontal.
+pub fn estimate_up(samples: &[SurfaceSample], prior: Vec3, cameras: &[Vec3]) -> UpEstimate {
     let prior = prior.normalize_or(Vec3::Z);
     let total: f32 = samples.iter().map(|s| s.weight).sum();
     let mut up = prior;
@@ -116,21 +121,21 @@ pub fn estimate_up(samples: &[SurfaceSample], prior: Vec3) -> UpEstimate {
     }
     UpEstimate {
         up,
-        floor_height: floor_height(samples, up),
+        floor_height: floor_height(samples, up, cameras),
         source: if planes { UpSource::Planes } else { UpSource::CameraPrior },
         horizontal_share,
     }
 }
 
 /// The estimate for a known up direction: only the floor is looked for.
-pub fn given_up(samples: &[SurfaceSample], up: Vec3) -> UpEstimate {
+pub fn given_up(samples: &[SurfaceSample], up: Vec3, cameras: &[Vec3]) -> UpEstimate {
     let up = up.normalize_or(Vec3::Z);
     let cos15 = 15f32.to_radians().cos();
     let total: f32 = samples.iter().map(|s| s.weight).sum();
     let horizontal: f32 = samples.iter().filter(|s| s.normal.dot(up).abs() >= cos15).map(|s| s.weight).sum();
     UpEstimate {
         up,
-        floor_height: floor_height(samples, up),
+        floor_height: floor_height(samples, up, cameras),
         source: UpSource::Given,
         horizontal_share: if total > 0.0 { horizontal / total } else { 0.0 },
     }
@@ -139,13 +144,23 @@ pub fn given_up(samples: &[SurfaceSample], up: Vec3) -> UpEstimate {
 /// Height band of 5 cm.
 const FLOOR_BIN_M: f32 = 0.05;
 
-/// The lowest 5 cm band of upward-facing surface holding at least a quarter of the weight
-/// of the fullest band; the lowest sample when nothing faces up; 0 without samples.
-fn floor_height(samples: &[SurfaceSample], up: Vec3) -> f32 {
+/// The lowest 5 cm band of upward-facing surface at least 0.3 m below the lowest camera
+/// holding a quarter of the weight of the fullest such band; without one,
+/// [`HANDHELD_HEIGHT_M`] below the lowest camera, or the lowest sample when there is no
+/// camera; 0 without either.
+fn floor_height(samples: &[SurfaceSample], up: Vec3, cameras: &[Vec3]) -> f32 {
     let cos15 = 15f32.to_radians().cos();
-    let heights: Vec<(f32, f32)> =
-        samples.iter().filter(|s| s.normal.dot(up) >= cos15).map(|s| (s.position.dot(up), s.weight)).collect();
+    let lowest_camera = cameras.iter().map(|c| c.dot(up)).reduce(f32::min);
+    let ceiling = lowest_camera.map_or(f32::INFINITY, |c| c - 0.3);
+    let heights: Vec<(f32, f32)> = samples
+        .iter()
+        .filter(|s| s.normal.dot(up) >= cos15 && s.position.dot(up) < ceiling)
+        .map(|s| (s.position.dot(up), s.weight))
+        .collect();
     if heights.is_empty() {
+        if let Some(c) = lowest_camera {
+            return c - HANDHELD_HEIGHT_M;
+        }
         return samples.iter().map(|s| s.position.dot(up)).reduce(f32::min).unwrap_or(0.0);
     }
     let lo = heights.iter().map(|h| h.0).fold(f32::INFINITY, f32::min);
@@ -215,7 +230,7 @@ mod tests {
         let true_up = map_from_world.transform_vector3(Vec3::Z);
         // A prior 20 degrees off.
         let prior = glam::Quat::from_rotation_x(0.35) * true_up;
-        let e = estimate_up(&samples, prior);
+        let e = estimate_up(&samples, prior, &[map_from_world.transform_point3(Vec3::new(2.0, 2.0, 1.5))]);
         assert_eq!(e.source, UpSource::Planes);
         assert!(e.angle_to_deg(true_up) < 0.5, "{} deg", e.angle_to_deg(true_up));
         // The floor maps to z = 0 and the table top to 0.7 m.
@@ -230,9 +245,9 @@ mod tests {
         let samples: Vec<SurfaceSample> = (0..100)
             .map(|i| SurfaceSample { position: Vec3::new(i as f32 * 0.1, 0.0, 0.0), normal: Vec3::Y, weight: 1.0 })
             .collect();
-        let e = estimate_up(&samples, Vec3::Z);
+        let e = estimate_up(&samples, Vec3::Z, &[]);
         assert_eq!((e.up, e.source), (Vec3::Z, UpSource::CameraPrior));
-        let g = given_up(&samples, Vec3::new(0.0, 0.0, 2.0));
+        let g = given_up(&samples, Vec3::new(0.0, 0.0, 2.0), &[]);
         assert_eq!((g.up, g.source), (Vec3::Z, UpSource::Given));
     }
 

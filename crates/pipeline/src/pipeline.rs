@@ -280,11 +280,12 @@ impl Pipeline {
             return Ok(false);
         }
         let samples = s.cells.samples();
+        let cameras: Vec<Vec3> = self.trajectory.poses.iter().map(|p| Vec3::from(p.translation)).collect();
         let up = match self.config.semantics.up {
-            Some(u) => given_up(&samples, u),
+            Some(u) => given_up(&samples, u, &cameras),
             None => {
                 let prior = camera_up_prior(&self.trajectory.poses).unwrap_or(Vec3::Z);
-                estimate_up(&samples, prior)
+                estimate_up(&samples, prior, &cameras)
             }
         };
         s.up = Some(up);
