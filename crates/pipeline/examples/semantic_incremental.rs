@@ -4,7 +4,8 @@
 //!
 //! ```text
 //! cargo run --release -p semrecon-pipeline --example semantic_incremental -- \
-//!     [--frames 450] [--seed 1] [--net s20|live|FILE.safetensors] [--out bench/results/semantic_incremental.json]
+//!     [--frames 450] [--seed 1] [--style hallway] [--net s20|live|FILE.safetensors]
+//!     [--out bench/results/semantic_incremental.json]
 //! ```
 //!
 //! Ground-truth poses and 1 cm TSDF voxels keep the front end cheap: the network works at
@@ -39,6 +40,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     let mut scan_config = SyntheticScanConfig::new(seed);
     scan_config.frames = frames;
+    scan_config.style = arg("--style").map(|s| s.parse()).transpose()?;
     let (room, scan) = synthetic_scan(&scan_config)?;
     println!("synthetic {} room, seed {seed}, {frames} frames, network {net_spec}", room.style);
     let loaded: Vec<_> = (0..scan.len()).map(|i| scan.frame(i)).collect::<Result<_, _>>()?;

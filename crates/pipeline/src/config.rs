@@ -47,6 +47,10 @@ pub struct SemanticConfig {
     pub tile_m: f32,
     /// Surface voxels are those within this many TSDF voxels of the zero crossing.
     pub surface_band_voxels: f32,
+    /// Incremental passes re-label a tile when one of its cells is new, lost its surface, or
+    /// its number of surface voxels moved by more than this fraction since it was last
+    /// labelled (0.25: re-observing a surface leaves its cells alone, filling a hole does not).
+    pub min_cell_change: f32,
     /// Real-time mode: the front end never waits for the back end; a keyframe that finds the
     /// back end busy is skipped, and results are applied as they arrive. Off (the default), the
     /// front end waits at each keyframe for the previous keyframe's labels, so results do not
@@ -59,7 +63,14 @@ pub struct SemanticConfig {
 
 impl Default for SemanticConfig {
     fn default() -> Self {
-        Self { mode: SemanticMode::default(), tile_m: 0.5, surface_band_voxels: 1.0, realtime: false, up: None }
+        Self {
+            mode: SemanticMode::default(),
+            tile_m: 0.5,
+            surface_band_voxels: 1.0,
+            min_cell_change: 0.25,
+            realtime: false,
+            up: None,
+        }
     }
 }
 
@@ -115,6 +126,9 @@ impl PipelineConfig {
         }
         if !(s.surface_band_voxels.is_finite() && (0.1..=16.0).contains(&s.surface_band_voxels)) {
             return bad(format!("surface band {} voxels is outside 0.1..16", s.surface_band_voxels));
+        }
+        if !(s.min_cell_change.is_finite() && (0.0..=10.0).contains(&s.min_cell_change)) {
+            return bad(format!("minimum cell change {} is outside 0..10", s.min_cell_change));
         }
         if let SemanticMode::Incremental { context_m } = s.mode {
             if !(context_m.is_finite() && (0.0..=100.0).contains(&context_m)) {

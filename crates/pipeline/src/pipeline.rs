@@ -290,10 +290,15 @@ impl Pipeline {
         };
         s.up = Some(up);
         let tile_cells = ((self.config.semantics.tile_m / s.cells.cell_size()).round() as i32).max(1);
+        let changed_cells = s.cells.take_changed_cells(self.config.semantics.min_cell_change);
         let selected = match self.config.semantics.mode {
             SemanticMode::Full => s.cells.select(None, tile_cells, 0),
             SemanticMode::Incremental { context_m } => {
-                let tiles: BTreeSet<(i32, i32, i32)> = s.cells.tiles_of_chunks(&changed, tile_cells);
+                if changed_cells.is_empty() {
+                    self.times.record("semantic snapshot", t.elapsed());
+                    return Ok(false);
+                }
+                let tiles: BTreeSet<(i32, i32, i32)> = s.cells.tiles_of_cells(&changed_cells, tile_cells);
                 let tile_m = tile_cells as f32 * s.cells.cell_size();
                 s.cells.select(Some(&tiles), tile_cells, (context_m / tile_m).ceil() as i32)
             }

@@ -18,7 +18,7 @@ use glam::{IVec3, Vec3};
 use semrecon_data::class::UNLABELED;
 use semrecon_recon::map::ChunkHashBuilder;
 use semrecon_recon::surface_voxels::surface_voxels;
-use semrecon_recon::{ChunkKey, TsdfMap, CHUNK_SIDE};
+use semrecon_recon::{ChunkKey, TsdfMap};
 
 use crate::gravity::SurfaceSample;
 
@@ -89,6 +89,8 @@ pub struct SurfaceCells {
     /// Chunk -> (revision seen, its contribution per cell).
     chunks: HashMap<ChunkKey, (u64, Vec<(CellKey, CellSum)>), ChunkHashBuilder>,
     cells: BTreeMap<(i32, i32, i32), CellSum>,
+    /// Surface voxels of each cell when it was last reported changed.
+    seen: HashMap<CellKey, u64, ChunkHashBuilder>,
 }
 
 impl SurfaceCells {
@@ -101,6 +103,7 @@ impl SurfaceCells {
             band_voxels,
             chunks: HashMap::default(),
             cells: BTreeMap::new(),
+            seen: HashMap::default(),
         }
     }
 
@@ -207,22 +210,47 @@ impl SurfaceCells {
             .collect()
     }
 
-    /// Tiles (cubes of `tile_cells` cells) that the given chunks overlap.
-    pub fn tiles_of_chunks(&self, chunks: &[ChunkKey], tile_cells: i32) -> BTreeSet<(i32, i32, i32)> {
-        let side = CHUNK_SIDE as i32;
-        let mut tiles = BTreeSet::new();
-        for &k in chunks {
-            let lo = self.cell_of_voxel(k * side).div_euclid(IVec3::splat(tile_cells));
-            let hi = self.cell_of_voxel(k * side + (side - 1)).div_euclid(IVec3::splat(tile_cells));
-            for z in lo.z..=hi.z {
-                for y in lo.y..=hi.y {
-                    for x in lo.x..=hi.x {
-                        tiles.insert((z, y, x));
-                    }
-                }
+    /// Cells whose surface changed noticeably since they were last reported: new cells, cells
+    /// that lost their surface, and cells whose surface voxel count moved by more than
+    /// `min_change` (a fraction) from the count they were last reported with. Re-observing a
+    /// surface changes its chunks' revisions at every frame but hardly its cells, so this is
+    /// what decides where the network runs again. Cells in (z, y, x) order.
+    pub fn take_changed_cells(&mut self, min_change: f32) -> Vec<CellKey> {
+        let mut changed = Vec::new();
+        for (k, s) in &self.cells {
+            let key = IVec3::new(k.2, k.1, k.0);
+            let moved = match self.seen.get(&key) {
+                None => true,
+                Some(&old) => (s.count as f64 - old as f64).abs() > f64::from(min_change) * old as f64,
+            };
+            if moved {
+                changed.push(key);
             }
         }
-        tiles
+        for key in &changed {
+            if let Some(s) = self.cells.get(&order(*key)) {
+                self.seen.insert(*key, s.count);
+            }
+        }
+        let mut gone: Vec<CellKey> = self.seen.keys().filter(|k| !self.cells.contains_key(&order(**k))).copied().collect();
+        gone.sort_unstable_by_key(|k| order(*k));
+        for k in &gone {
+            self.seen.remove(k);
+        }
+        changed.extend(gone);
+        changed.sort_unstable_by_key(|k| order(*k));
+        changed
+    }
+
+    /// Tiles (cubes of `tile_cells` cells) holding the given cells.
+    pub fn tiles_of_cells(&self, cells: &[CellKey], tile_cells: i32) -> BTreeSet<(i32, i32, i32)> {
+        cells
+            .iter()
+            .map(|c| {
+                let t = c.div_euclid(IVec3::splat(tile_cells));
+                (t.z, t.y, t.x)
+            })
+            .collect()
     }
 
     /// The cells of a pass: those in `update` tiles (labels to write back) and those within
