@@ -291,6 +291,8 @@ impl Pipeline {
         s.up = Some(up);
         let tile_cells = ((self.config.semantics.tile_m / s.cells.cell_size()).round() as i32).max(1);
         let changed_cells = s.cells.take_changed_cells(self.config.semantics.min_cell_change);
+        let cells = &s.cells;
+        s.labels.retain(|k| cells.contains(k));
         let selected = match self.config.semantics.mode {
             SemanticMode::Full => s.cells.select(None, tile_cells, 0),
             SemanticMode::Incremental { context_m } => {

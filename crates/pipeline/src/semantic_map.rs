@@ -121,6 +121,11 @@ impl SurfaceCells {
         self.cell_of_point(v.as_vec3() * self.voxel_size)
     }
 
+    /// Whether cell `key` has surface.
+    pub fn contains(&self, key: CellKey) -> bool {
+        self.cells.contains_key(&order(key))
+    }
+
     /// Number of cells with surface.
     pub fn len(&self) -> usize {
         self.cells.len()
@@ -301,6 +306,12 @@ impl LabelStore {
                 *a += b;
             }
         }
+    }
+
+    /// Forgets the labels of the cells for which `keep` is false (cells that lost their
+    /// surface: early noise that later observations carved away).
+    pub fn retain(&mut self, mut keep: impl FnMut(CellKey) -> bool) {
+        self.probs.retain(|k, _| keep(*k));
     }
 
     /// Cells with a label.
