@@ -127,7 +127,8 @@ pub fn load_network(args: &SemanticArgs) -> anyhow::Result<(Option<Segmenter>, S
                 .with_context(|| format!("reading {}", path.display()))?
                 .unwrap_or_else(NetConfig::s20);
             let weights = Weights::load(path, &config).with_context(|| format!("loading {}", path.display()))?;
-            let net = Segmenter::new(weights, config.clone()).with_context(|| format!("network of {}", path.display()))?;
+            let net =
+                Segmenter::new(weights, config.clone()).with_context(|| format!("network of {}", path.display()))?;
             Ok((Some(net), format!("{} ({})", path.display(), config.summary())))
         }
         None => {

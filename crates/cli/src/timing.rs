@@ -57,4 +57,3 @@ pub fn stages_json(times: &StageTimes) -> serde_json::Value {
     }
     serde_json::Value::Object(map)
 }
-

@@ -87,8 +87,20 @@ fn run_in_real_time_keeps_every_frame_and_reports_the_lag() {
     let dir = tempfile::tempdir().expect("temp dir");
     let out_dir = dir.path().join("out");
     let out = semrecon(&[
-        "run", "--dataset", "synth:2", "--frames", "0..6", "--voxel", "0.02", "--keyframe-every", "2", "--realtime",
-        "--semantics", "full", "--out", s(&out_dir),
+        "run",
+        "--dataset",
+        "synth:2",
+        "--frames",
+        "0..6",
+        "--voxel",
+        "0.02",
+        "--keyframe-every",
+        "2",
+        "--realtime",
+        "--semantics",
+        "full",
+        "--out",
+        s(&out_dir),
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: serde_json::Value =
@@ -110,7 +122,16 @@ fn run_model_and_semantics_options() {
     let out = semrecon(&["run", "--dataset", "synth:1", "--frames", "0..2", "--model", s(&bad), "--out", s(&out_dir)]);
     assert_clean_failure(&out, "weights.safetensors");
     let out = semrecon(&[
-        "run", "--dataset", "synth:1", "--frames", "0..3", "--voxel", "0.02", "--semantics", "off", "--out",
+        "run",
+        "--dataset",
+        "synth:1",
+        "--frames",
+        "0..3",
+        "--voxel",
+        "0.02",
+        "--semantics",
+        "off",
+        "--out",
         s(&out_dir),
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -133,8 +154,17 @@ fn run_stops_cleanly_when_the_dataset_ends_early() {
     }
     let out_dir = dir.path().join("out");
     let out = semrecon(&[
-        "run", "--dataset", &format!("7scenes:{}", s(&scan)), "--poses", "ground-truth", "--voxel", "0.05",
-        "--keyframe-every", "2", "--out", s(&out_dir),
+        "run",
+        "--dataset",
+        &format!("7scenes:{}", s(&scan)),
+        "--poses",
+        "ground-truth",
+        "--voxel",
+        "0.05",
+        "--keyframe-every",
+        "2",
+        "--out",
+        s(&out_dir),
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(String::from_utf8_lossy(&out.stdout).contains("ended early"), "{}", String::from_utf8_lossy(&out.stdout));

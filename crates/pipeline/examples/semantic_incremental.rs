@@ -51,9 +51,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("synthetic {} room, seed {seed}, {frames} frames, network {net_spec}", room.style);
     let loaded: Vec<_> = (0..scan.len()).map(|i| scan.frame(i)).collect::<Result<_, _>>()?;
 
-    let mut runs: Vec<(&str, Vec<SemanticPass>, Vec<(glam::IVec3, u8)>, f64)> = Vec::new();
+    // (mode, passes, final cell labels)
+    type Run = (&'static str, Vec<SemanticPass>, Vec<(glam::IVec3, u8)>);
+    let mut runs: Vec<Run> = Vec::new();
     for (name, mode) in [("full", SemanticMode::Full), ("incremental", SemanticMode::Incremental { context_m })] {
-        let mut config = PipelineConfig { poses: PoseMode::GroundTruth, keyframe_every: 10, ..PipelineConfig::default() };
+        let mut config =
+            PipelineConfig { poses: PoseMode::GroundTruth, keyframe_every: 10, ..PipelineConfig::default() };
         config.tsdf.voxel_size = 0.01;
         config.tsdf.truncation_voxels = 5.0;
         config.semantics.mode = mode;
@@ -65,13 +68,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         p.finish()?;
         let wall = t.elapsed().as_secs_f64();
         println!("{name}: {} passes, {wall:.1} s wall", p.semantic_passes().len());
-        runs.push((name, p.semantic_passes().to_vec(), p.cell_labels(), wall));
+        runs.push((name, p.semantic_passes().to_vec(), p.cell_labels()));
     }
     let full: HashMap<glam::IVec3, u8> = runs[0].2.iter().copied().collect();
     let inc = &runs[1].2;
     let same = inc.iter().filter(|(k, l)| full.get(k) == Some(l)).count();
     let agreement = same as f64 / inc.len().max(1) as f64;
-    println!("final labels: {:.2}% of {} cells agree between full and incremental passes", agreement * 100.0, inc.len());
+    println!(
+        "final labels: {:.2}% of {} cells agree between full and incremental passes",
+        agreement * 100.0,
+        inc.len()
+    );
 
     // The network alone on slabs of the final map (cells sorted along x), grey input.
     let mut cells: Vec<glam::IVec3> = inc.iter().map(|(k, _)| *k).collect();

@@ -139,7 +139,8 @@ impl Pipeline {
                         c.name, c.in_channels
                     )));
                 }
-                let cells = SurfaceCells::new(c.voxel_size, config.tsdf.voxel_size, config.semantics.surface_band_voxels);
+                let cells =
+                    SurfaceCells::new(c.voxel_size, config.tsdf.voxel_size, config.semantics.surface_band_voxels);
                 Some(Semantics {
                     cells,
                     labels: LabelStore::default(),
@@ -206,8 +207,10 @@ impl Pipeline {
                     Some(t) => t,
                     None => {
                         let start = self.config.initial_pose.or(frame.world_from_camera).unwrap_or(Affine3A::IDENTITY);
-                        let config =
-                            TrackerConfig { keyframe_interval: self.config.keyframe_every, ..self.config.tracker.clone() };
+                        let config = TrackerConfig {
+                            keyframe_interval: self.config.keyframe_every,
+                            ..self.config.tracker.clone()
+                        };
                         self.tracker.insert(Tracker::with_initial_pose(config, start)?)
                     }
                 };

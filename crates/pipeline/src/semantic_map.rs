@@ -75,6 +75,9 @@ pub struct Cell {
     pub voxels: u64,
 }
 
+/// A chunk's contribution to the cells it overlaps.
+type ChunkCells = Vec<(CellKey, CellSum)>;
+
 /// Order of cells and tiles: z, then y, then x.
 fn order(k: IVec3) -> (i32, i32, i32) {
     (k.z, k.y, k.x)
@@ -87,7 +90,7 @@ pub struct SurfaceCells {
     voxel_size: f32,
     band_voxels: f32,
     /// Chunk -> (revision seen, its contribution per cell).
-    chunks: HashMap<ChunkKey, (u64, Vec<(CellKey, CellSum)>), ChunkHashBuilder>,
+    chunks: HashMap<ChunkKey, (u64, ChunkCells), ChunkHashBuilder>,
     cells: BTreeMap<(i32, i32, i32), CellSum>,
     /// Surface voxels of each cell when it was last reported changed.
     seen: HashMap<CellKey, u64, ChunkHashBuilder>,
@@ -159,8 +162,7 @@ impl SurfaceCells {
                 }
                 e.count += 1;
             }
-            let parts: Vec<(CellKey, CellSum)> =
-                parts.into_iter().map(|((z, y, x), s)| (IVec3::new(x, y, z), s)).collect();
+            let parts: ChunkCells = parts.into_iter().map(|((z, y, x), s)| (IVec3::new(x, y, z), s)).collect();
             let revision = map.chunk(*key).map_or(0, |c| c.revision());
             if let Some((_, old)) = self.chunks.insert(*key, (revision, parts.clone())) {
                 self.remove_parts(&old);
@@ -237,7 +239,8 @@ impl SurfaceCells {
                 self.seen.insert(*key, s.count);
             }
         }
-        let mut gone: Vec<CellKey> = self.seen.keys().filter(|k| !self.cells.contains_key(&order(**k))).copied().collect();
+        let mut gone: Vec<CellKey> =
+            self.seen.keys().filter(|k| !self.cells.contains_key(&order(**k))).copied().collect();
         gone.sort_unstable_by_key(|k| order(*k));
         for k in &gone {
             self.seen.remove(k);

@@ -55,7 +55,12 @@ fn up_is_found_in_the_tilted_frame_of_the_first_camera() {
     let up = p.up().expect("a pass ran");
     eprintln!("up {:.2} deg off, camera tilt {tilt:.1} deg", up.angle_to_deg(true_up));
     assert_eq!(up.source, UpSource::Planes);
-    assert!(up.angle_to_deg(true_up) < 2.0, "up {:?} is {} deg off (camera tilt {tilt} deg)", up.up, up.angle_to_deg(true_up));
+    assert!(
+        up.angle_to_deg(true_up) < 2.0,
+        "up {:?} is {} deg off (camera tilt {tilt} deg)",
+        up.up,
+        up.angle_to_deg(true_up)
+    );
     // The floor (z = 0 in the world) lands at z = 0 of the aligned frame.
     let floor_in_map = map_from_world.transform_point3(Vec3::new(0.0, 0.0, 0.0));
     let z = up.aligned_from_map().transform_point3(floor_in_map).z;

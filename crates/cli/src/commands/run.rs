@@ -40,8 +40,7 @@ use serde::Serialize;
 
 use crate::progress::progress_bar;
 use crate::reconstruction::{
-    dataset_up, labelled_share, load_network, pipeline_config, semantic_score, write_outputs, ReconArgs,
-    SemanticArgs,
+    dataset_up, labelled_share, load_network, pipeline_config, semantic_score, write_outputs, ReconArgs, SemanticArgs,
 };
 use crate::timing::{print_table, stages_json};
 
