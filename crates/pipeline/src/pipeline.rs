@@ -324,7 +324,12 @@ impl Pipeline {
             snapshot_ms: t.elapsed().as_secs_f64() * 1e3,
             network_ms: 0.0,
         };
-        s.backend.submit(job)?;
+        if let Err(e) = s.backend.submit(job) {
+            // The back end is gone (its thread panicked): go on without semantics.
+            self.warnings.push(format!("semantics stopped at frame {frame}: {e}"));
+            self.semantics = None;
+            return Ok(false);
+        }
         s.in_flight = Some(record);
         self.times.record_ms("semantic snapshot", record.snapshot_ms);
         Ok(true)
@@ -360,7 +365,8 @@ impl Pipeline {
     /// since, brings the mesh up to date and returns the labelled mesh.
     ///
     /// # Errors
-    /// The back end thread died (its failures of single passes are only warnings).
+    /// None at present (failures of the back end are [`Pipeline::warnings`]); the `Result`
+    /// leaves room for outputs that can fail.
     pub fn finish(&mut self) -> Result<LabeledMesh> {
         for _ in 0..2 {
             if let Some(s) = &self.semantics {
