@@ -78,6 +78,7 @@ fn run_reconstructs_a_few_synthetic_frames() {
     assert!(out_dir.join("semantic.ply").is_file());
     // synth: datasets carry their labelled room, so the labels are scored.
     assert!(report["miou"].is_number(), "{report}");
+    assert!(report["mesh_accuracy_mm"].as_f64().expect("accuracy") < 20.0, "{report}");
     assert!(report["semantic_passes"].as_u64().expect("passes") >= 2, "{report}");
     assert_eq!(report["realtime"], false);
 }
