@@ -15,9 +15,10 @@
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use glam::{IVec3, Vec3};
+use rayon::prelude::*;
 use semrecon_data::class::UNLABELED;
 use semrecon_recon::map::ChunkHashBuilder;
-use semrecon_recon::surface_voxels::surface_voxels;
+use semrecon_recon::surface_voxels::chunk_surface_voxels;
 use semrecon_recon::{ChunkKey, TsdfMap};
 
 use crate::gravity::SurfaceSample;
@@ -149,26 +150,31 @@ impl SurfaceCells {
             .collect();
         let freed: Vec<ChunkKey> = self.chunks.keys().filter(|k| map.chunk(**k).is_none()).copied().collect();
         changed.sort_unstable_by_key(|k| order(*k));
-        let extracted = surface_voxels(map, &changed, self.band_voxels);
-        for (key, voxels) in changed.iter().zip(extracted) {
-            let mut parts: BTreeMap<(i32, i32, i32), CellSum> = BTreeMap::new();
-            for s in voxels {
-                let c = self.cell_of_voxel(s.voxel);
-                let e = parts.entry(order(c)).or_default();
-                for k in 0..3 {
-                    e.voxel[k] += i64::from(s.voxel[k]);
-                    e.color[k] += u64::from(s.color[k]);
-                    e.normal[k] += (s.normal[k] * NORMAL_SCALE).round() as i64;
+        // Extraction and the per-chunk sums in parallel; only merging the sums is serial.
+        let all_parts: Vec<ChunkCells> = changed
+            .par_iter()
+            .map(|key| {
+                let mut parts: BTreeMap<(i32, i32, i32), CellSum> = BTreeMap::new();
+                for s in chunk_surface_voxels(map, *key, self.band_voxels) {
+                    let c = self.cell_of_voxel(s.voxel);
+                    let e = parts.entry(order(c)).or_default();
+                    for k in 0..3 {
+                        e.voxel[k] += i64::from(s.voxel[k]);
+                        e.color[k] += u64::from(s.color[k]);
+                        e.normal[k] += (s.normal[k] * NORMAL_SCALE).round() as i64;
+                    }
+                    e.count += 1;
                 }
-                e.count += 1;
-            }
-            let parts: ChunkCells = parts.into_iter().map(|((z, y, x), s)| (IVec3::new(x, y, z), s)).collect();
-            let revision = map.chunk(*key).map_or(0, |c| c.revision());
-            if let Some((_, old)) = self.chunks.insert(*key, (revision, parts.clone())) {
-                self.remove_parts(&old);
-            }
+                parts.into_iter().map(|((z, y, x), s)| (IVec3::new(x, y, z), s)).collect()
+            })
+            .collect();
+        for (key, parts) in changed.iter().zip(all_parts) {
             for (c, s) in &parts {
                 self.cells.entry(order(*c)).or_default().add(s);
+            }
+            let revision = map.chunk(*key).map_or(0, |c| c.revision());
+            if let Some((_, old)) = self.chunks.insert(*key, (revision, parts)) {
+                self.remove_parts(&old);
             }
         }
         for key in &freed {
