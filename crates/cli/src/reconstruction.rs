@@ -1,108 +1,24 @@
-//! The dense-geometry loop shared by `semrecon demo` and `semrecon run`: frames fused into a
-//! TSDF map at their poses, the mesh brought up to date every keyframe, per-stage timings
-//! kept, and the outputs (mesh, trajectory) written at the end.
+//! What `semrecon demo` and `semrecon run` share around the live [`Pipeline`]: their options
+//! (map, poses, semantics, network), loading the network, the outputs (`mesh.ply` with a
+//! `label` property, `semantic.ply` in class colours, `trajectory.txt`) and the semantic score
+//! against a labelled ground truth.
 //!
-//! The pipeline time (what the real-time factor divides by) counts only the stages a live
-//! system runs per frame (tracking, fusion, meshing); producing the input (decoding files,
-//! simulating the sensor) is timed as its own stage but left out, as a camera delivers it.
+//! The pipeline time (what the real-time factor divides by) counts only the front end's
+//! stages (tracking, fusion, meshing, the semantic snapshot); the network runs in the back
+//! end thread beside it and is reported on its own line. Producing the input (decoding files,
+//! simulating the sensor) is timed but left out, as a camera delivers it.
 
-use std::path::Path;
-use std::time::{Duration, Instant};
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use glam::Affine3A;
-use semrecon_data::{write_ply, Frame, LabeledMesh, PlyEncoding, Trajectory};
-use semrecon_recon::{IncrementalMesher, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
-
-use crate::timing::StageTimes;
-
-/// Map, mesher, trajectory and timings of one reconstruction.
-pub struct Reconstruction {
-    /// The TSDF map.
-    pub map: TsdfMap,
-    /// The incremental mesher (only dirty chunks are re-meshed).
-    pub mesher: IncrementalMesher,
-    /// Per-stage timings.
-    pub times: StageTimes,
-    /// The pose of every fused frame.
-    pub trajectory: Trajectory,
-    /// Seconds spent in pipeline stages (see the module documentation).
-    pub pipeline_s: f64,
-    keyframe_every: usize,
-    fused: usize,
-    meshed_at: usize,
-}
-
-impl Reconstruction {
-    /// An empty map at `voxel` metres with a truncation of `truncation_voxels`, re-meshed
-    /// every `keyframe_every` fused frames.
-    pub fn new(voxel: f32, truncation_voxels: f32, keyframe_every: usize) -> anyhow::Result<Self> {
-        anyhow::ensure!(keyframe_every > 0, "the keyframe interval must be at least 1 frame");
-        let mut config = TsdfConfig::with_voxel_size(voxel).with_context(|| format!("voxel size {voxel} m"))?;
-        config.truncation_voxels = truncation_voxels;
-        config.validate().with_context(|| format!("truncation of {truncation_voxels} voxels"))?;
-        Ok(Self {
-            map: TsdfMap::new(config)?,
-            mesher: IncrementalMesher::new(),
-            times: StageTimes::default(),
-            trajectory: Trajectory::default(),
-            pipeline_s: 0.0,
-            keyframe_every,
-            fused: 0,
-            meshed_at: 0,
-        })
-    }
-
-    /// Records a pipeline stage's time (counted in [`Reconstruction::pipeline_s`]).
-    pub fn record_pipeline(&mut self, stage: &str, elapsed: Duration) {
-        self.times.record(stage, elapsed);
-        self.pipeline_s += elapsed.as_secs_f64();
-    }
-
-    /// Fuses `frame` at `world_from_camera`, records the pose, and re-meshes when this frame
-    /// completes a keyframe interval. On a fusion error the map is unchanged and nothing is
-    /// recorded.
-    pub fn add_frame(&mut self, frame: &Frame, world_from_camera: Affine3A) -> semrecon_recon::Result<()> {
-        let t = Instant::now();
-        self.map.integrate(frame, world_from_camera)?;
-        self.record_pipeline("fusion", t.elapsed());
-        self.trajectory.push(frame.timestamp, world_from_camera);
-        self.fused += 1;
-        if self.fused.is_multiple_of(self.keyframe_every) {
-            self.remesh();
-        }
-        Ok(())
-    }
-
-    /// Frames fused so far.
-    pub fn fused_frames(&self) -> usize {
-        self.fused
-    }
-
-    /// Brings the mesh up to date (if anything was fused since the last keyframe) and
-    /// returns it.
-    pub fn finish(&mut self) -> LabeledMesh {
-        if self.meshed_at != self.fused {
-            self.remesh();
-        }
-        self.mesher.mesh()
-    }
-
-    fn remesh(&mut self) {
-        let t = Instant::now();
-        self.mesher.update(&self.map);
-        self.record_pipeline("meshing", t.elapsed());
-        self.meshed_at = self.fused;
-    }
-
-    /// Writes `dir/mesh.ply` (binary) and `dir/trajectory.txt` (TUM), creating `dir`.
-    pub fn write_outputs(&self, dir: &Path, mesh: &LabeledMesh) -> anyhow::Result<()> {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        write_ply(dir.join("mesh.ply"), mesh, PlyEncoding::BinaryLittleEndian)?;
-        self.trajectory.write_tum(dir.join("trajectory.txt"))?;
-        Ok(())
-    }
-}
+use glam::Vec3;
+use rayon::prelude::*;
+use semrecon_data::class::UNLABELED;
+use semrecon_data::{write_ply, LabeledMesh, PlyEncoding, SemanticClass, Trajectory};
+use semrecon_eval::{MeshEvalConfig, SurfaceIndex, SurfaceLabeler};
+use semrecon_net::{ConfusionMatrix, NetConfig, Segmenter, Weights};
+use semrecon_pipeline::{PipelineConfig, SemanticMode};
+use semrecon_recon::{TrackerConfig, TsdfConfig};
 
 /// Options of the dense-geometry loop, shared by `run` and `demo`.
 #[derive(clap::Args)]
@@ -110,7 +26,7 @@ pub struct ReconArgs {
     /// TSDF voxel size in metres.
     #[arg(long, default_value_t = 0.005)]
     pub voxel: f32,
-    /// Re-mesh every this many fused frames (a keyframe).
+    /// Re-mesh and start a semantic pass every this many fused frames (a keyframe).
     #[arg(long, default_value_t = 10)]
     pub keyframe_every: usize,
     /// TSDF truncation in voxels (about 10 suits noisy depth sensors at 5 mm voxels).
@@ -130,48 +46,173 @@ pub enum PoseMode {
     GroundTruth,
 }
 
-/// The per-frame pose estimator of `run` and `demo`.
-pub enum PoseSource {
-    /// Tracking against the map.
-    Track(Box<Tracker>),
-    /// Ground-truth poses from the frames.
-    GroundTruth,
-}
-
-impl PoseSource {
-    /// A source for `mode`; the tracker starts at `initial_pose` (the first frame's
-    /// ground truth when there is one, so that trajectories compare without alignment;
-    /// the identity otherwise).
-    pub fn new(mode: PoseMode, initial_pose: Option<Affine3A>, keyframe_every: usize) -> anyhow::Result<Self> {
-        Ok(match mode {
-            PoseMode::GroundTruth => Self::GroundTruth,
-            PoseMode::Track => {
-                let config = TrackerConfig { keyframe_interval: keyframe_every, ..TrackerConfig::default() };
-                Self::Track(Box::new(Tracker::with_initial_pose(config, initial_pose.unwrap_or(Affine3A::IDENTITY))?))
-            }
-        })
-    }
-
+impl PoseMode {
     /// What the report says the poses come from.
-    pub fn describe(&self) -> &'static str {
+    pub fn describe(self) -> &'static str {
         match self {
-            Self::Track(_) => "tracking (frame-to-model ICP)",
+            Self::Track => "tracking (frame-to-model ICP)",
             Self::GroundTruth => "ground truth",
         }
     }
+}
 
-    /// The pose to fuse `frame` at, or why there is none (tracking lost, no ground truth).
-    pub fn estimate(&mut self, frame: &Frame, map: &TsdfMap) -> Result<Affine3A, String> {
-        match self {
-            Self::GroundTruth => frame.world_from_camera.ok_or_else(|| "no ground-truth pose".to_string()),
-            Self::Track(tracker) => {
-                let result = tracker.track(frame, map).map_err(|e| e.to_string())?;
-                match result.status {
-                    TrackingStatus::Lost(reason) => Err(format!("tracking lost ({reason:?})")),
-                    _ if result.should_fuse() => Ok(result.world_from_camera),
-                    other => Err(format!("not fused ({other:?})")),
-                }
-            }
+/// Options of the semantic back end, shared by `run` and `demo`.
+#[derive(clap::Args)]
+pub struct SemanticArgs {
+    /// Network weights (safetensors written by training; the configuration stored in the file
+    /// is used, s20 when it has none). Without it an untrained s20 network with random
+    /// weights runs: timings are real, labels are not.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Semantic passes: incremental (changed tiles plus context), full (the whole map each
+    /// keyframe), or off.
+    #[arg(long, value_enum, default_value_t = SemanticsMode::Incremental)]
+    pub semantics: SemanticsMode,
+    /// Context around the changed tiles in incremental passes, metres.
+    #[arg(long, default_value_t = 1.0)]
+    pub context: f32,
+}
+
+/// `--semantics`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum SemanticsMode {
+    /// Only the changed part of the map and its context.
+    Incremental,
+    /// The whole map at every keyframe.
+    Full,
+    /// No network.
+    Off,
+}
+
+/// The pipeline configuration of the options; `up` is the map's up direction when known.
+pub fn pipeline_config(
+    recon: &ReconArgs,
+    semantics: &SemanticArgs,
+    realtime: bool,
+    up: Option<Vec3>,
+) -> anyhow::Result<PipelineConfig> {
+    anyhow::ensure!(recon.keyframe_every > 0, "--keyframe-every must be at least 1");
+    let mut tsdf = TsdfConfig::with_voxel_size(recon.voxel).with_context(|| format!("voxel size {} m", recon.voxel))?;
+    tsdf.truncation_voxels = recon.truncation;
+    tsdf.validate().with_context(|| format!("truncation of {} voxels", recon.truncation))?;
+    let mut config = PipelineConfig {
+        tsdf,
+        tracker: TrackerConfig { keyframe_interval: recon.keyframe_every, ..TrackerConfig::default() },
+        poses: match recon.poses {
+            PoseMode::Track => semrecon_pipeline::PoseMode::Track,
+            PoseMode::GroundTruth => semrecon_pipeline::PoseMode::GroundTruth,
+        },
+        initial_pose: None,
+        keyframe_every: recon.keyframe_every,
+        ..PipelineConfig::default()
+    };
+    config.semantics.mode = match semantics.semantics {
+        SemanticsMode::Full => SemanticMode::Full,
+        _ => SemanticMode::Incremental { context_m: semantics.context },
+    };
+    config.semantics.realtime = realtime;
+    config.semantics.up = up;
+    config.validate().context("pipeline options")?;
+    Ok(config)
+}
+
+/// The network of `--model` (or an untrained s20), `None` with `--semantics off`; with a
+/// sentence saying which.
+pub fn load_network(args: &SemanticArgs) -> anyhow::Result<(Option<Segmenter>, String)> {
+    if args.semantics == SemanticsMode::Off {
+        return Ok((None, "off".into()));
+    }
+    match &args.model {
+        Some(path) => {
+            let config = Weights::read_config(path)
+                .with_context(|| format!("reading {}", path.display()))?
+                .unwrap_or_else(NetConfig::s20);
+            let weights = Weights::load(path, &config).with_context(|| format!("loading {}", path.display()))?;
+            let net =
+                Segmenter::new(weights, config.clone()).with_context(|| format!("network of {}", path.display()))?;
+            Ok((Some(net), format!("{} ({})", path.display(), config.summary())))
+        }
+        None => {
+            let config = NetConfig::s20();
+            let net = Segmenter::new(Weights::random(&config, 1), config.clone())?;
+            Ok((Some(net), format!("untrained {} with random weights (labels meaningless; pass --model)", config.name)))
         }
     }
+}
+
+/// The mesh with every vertex coloured by its class ([`UNLABELED`] grey).
+pub fn class_colored(mesh: &LabeledMesh) -> LabeledMesh {
+    let mut m = mesh.clone();
+    m.colors = mesh
+        .vertex_labels
+        .iter()
+        .map(|&l| SemanticClass::from_id(l).map_or([160, 160, 160], SemanticClass::color))
+        .collect();
+    if m.colors.len() != m.positions.len() {
+        m.colors = vec![[160, 160, 160]; m.positions.len()];
+    }
+    m
+}
+
+/// Writes `dir/mesh.ply` (observed colours and a vertex `label`), `dir/semantic.ply` (class
+/// colours) and `dir/trajectory.txt` (TUM), creating `dir`.
+pub fn write_outputs(dir: &Path, mesh: &LabeledMesh, trajectory: &Trajectory) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    write_ply(dir.join("mesh.ply"), mesh, PlyEncoding::BinaryLittleEndian)?;
+    write_ply(dir.join("semantic.ply"), &class_colored(mesh), PlyEncoding::BinaryLittleEndian)?;
+    trajectory.write_tum(dir.join("trajectory.txt"))?;
+    Ok(())
+}
+
+/// mIoU of the mesh's vertex labels against the class of the nearest ground-truth surface
+/// (within 5 cm; further vertices have no true class and are not counted). Unlabelled vertices
+/// count as wrong. `None` when no vertex has a true class.
+pub fn semantic_score(gt: &LabeledMesh, mesh: &LabeledMesh) -> anyhow::Result<Option<(f64, ConfusionMatrix)>> {
+    if mesh.positions.is_empty() || mesh.vertex_labels.len() != mesh.positions.len() {
+        return Ok(None);
+    }
+    let labeler = SurfaceLabeler::new(gt, 0.05).context("indexing the ground-truth mesh")?;
+    let truth = labeler.labels(&mesh.positions);
+    let mut cm = ConfusionMatrix::new(SemanticClass::COUNT);
+    cm.add(&truth, &mesh.vertex_labels);
+    Ok((cm.total() > 0).then(|| (cm.miou(), cm)))
+}
+
+/// Mean distance from the mesh's vertices to the ground-truth surface, millimetres (a quick
+/// accuracy for `run`: `evaluate_mesh` samples both surfaces both ways and costs seconds more).
+/// `None` for a mesh without vertices.
+pub fn vertex_accuracy_mm(gt: &LabeledMesh, mesh: &LabeledMesh) -> anyhow::Result<Option<f64>> {
+    if mesh.positions.is_empty() {
+        return Ok(None);
+    }
+    let config = MeshEvalConfig { sample_spacing_m: 0.01, ..MeshEvalConfig::default() };
+    let index = SurfaceIndex::new(gt, &config, "ground-truth").context("indexing the ground-truth mesh")?;
+    let sum: f64 = mesh.positions.par_iter().map(|p| f64::from(index.nearest_triangle(*p).0)).sum();
+    Ok(Some(sum / mesh.positions.len() as f64 * 1e3))
+}
+
+/// The up direction of a dataset's world frame when the dataset says it: a 7-Scenes style
+/// `gravity-direction.txt` (three numbers, the direction of gravity in the world frame of the
+/// poses) in the folder. `None` when there is no such file; an error when it is unreadable.
+pub fn dataset_up(folder: Option<&Path>) -> anyhow::Result<Option<Vec3>> {
+    let Some(path) = folder.map(|f| f.join("gravity-direction.txt")).filter(|p| p.is_file()) else {
+        return Ok(None);
+    };
+    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let v: Vec<f32> = text
+        .split_whitespace()
+        .map(|t| t.parse::<f32>().with_context(|| format!("{}: `{t}` is not a number", path.display())))
+        .collect::<anyhow::Result<_>>()?;
+    anyhow::ensure!(v.len() == 3, "{}: expected 3 numbers (a direction), found {}", path.display(), v.len());
+    let g = Vec3::new(v[0], v[1], v[2]);
+    anyhow::ensure!(g.is_finite() && g.length() > 1e-6, "{}: the direction is zero or not finite", path.display());
+    Ok(Some(-g.normalize()))
+}
+
+/// Share of labelled vertices, for messages.
+pub fn labelled_share(mesh: &LabeledMesh) -> f64 {
+    if mesh.vertex_labels.is_empty() {
+        return 0.0;
+    }
+    mesh.vertex_labels.iter().filter(|&&l| l != UNLABELED).count() as f64 / mesh.vertex_labels.len() as f64
 }

@@ -1,80 +1,59 @@
-//! Per-stage timing statistics (median, p95, max) for the tables the commands print and the
-//! `stages` object of `report.json`.
+//! Per-stage timing tables: the table the commands print, in the layout of the paper's
+//! Table 5 (tracking, global optimisation, reconstruction, semantic segmentation), and the
+//! `stages` object of `report.json`. The statistics themselves are
+//! [`semrecon_pipeline::StageTimes`], recorded by the pipeline.
 
-use std::time::Duration;
+pub use semrecon_pipeline::StageTimes;
 
-/// Durations recorded per named stage, in the order stages first appear.
-#[derive(Default)]
-pub struct StageTimes {
-    stages: Vec<(String, Vec<f64>)>,
-}
+/// One row of the Table 5 layout: `(label, stage name in the timings)`.
+const TABLE5: [(&str, &str); 6] = [
+    ("frame tracking (per frame)", "tracking"),
+    ("global pose optimisation", ""),
+    ("reconstruction: fusion (per frame)", "fusion"),
+    ("reconstruction: meshing (per keyframe)", "meshing"),
+    ("semantic snapshot (per keyframe, front end)", "semantic snapshot"),
+    ("semantic segmentation (per pass, back end)", "semantic"),
+];
 
-/// Summary of one stage in milliseconds.
-pub struct StageSummary {
-    pub median_ms: f64,
-    pub p95_ms: f64,
-    pub max_ms: f64,
-    pub count: usize,
-}
-
-impl StageTimes {
-    /// Adds one measurement of `stage`.
-    pub fn record(&mut self, stage: &str, elapsed: Duration) {
-        let ms = elapsed.as_secs_f64() * 1e3;
-        match self.stages.iter_mut().find(|(name, _)| name == stage) {
-            Some((_, v)) => v.push(ms),
-            None => self.stages.push((stage.to_string(), vec![ms])),
+/// Prints the per-component table in the layout of the paper's Table 5, then the other
+/// recorded stages.
+pub fn print_table(times: &StageTimes) {
+    println!("{:<46} {:>10} {:>10} {:>10} {:>7}", "component", "median ms", "p95 ms", "max ms", "count");
+    for (label, stage) in TABLE5 {
+        match times.summary(stage) {
+            _ if stage.is_empty() => println!("{label:<46} {:>10}", "n/a (not built: no loop closure yet)"),
+            Some(s) => {
+                println!("{label:<46} {:>10.2} {:>10.2} {:>10.2} {:>7}", s.median_ms, s.p95_ms, s.max_ms, s.count)
+            }
+            None => println!("{label:<46} {:>10}", "n/a (did not run)"),
         }
     }
-
-    /// Median, p95 (nearest rank) and max of every stage.
-    pub fn summaries(&self) -> Vec<(&str, StageSummary)> {
-        self.stages
-            .iter()
-            .map(|(name, v)| {
-                let mut s = v.clone();
-                s.sort_by(f64::total_cmp);
-                let rank = |q: f64| s[((q * s.len() as f64).ceil() as usize).clamp(1, s.len()) - 1];
-                (
-                    name.as_str(),
-                    StageSummary { median_ms: rank(0.5), p95_ms: rank(0.95), max_ms: s[s.len() - 1], count: s.len() },
-                )
-            })
-            .collect()
-    }
-
-    /// `{stage: {median_ms, p95_ms, max_ms, count}}`.
-    pub fn to_json(&self) -> serde_json::Value {
-        let mut map = serde_json::Map::new();
-        for (name, s) in self.summaries() {
-            map.insert(
-                name.to_string(),
-                serde_json::json!({"median_ms": s.median_ms, "p95_ms": s.p95_ms, "max_ms": s.max_ms, "count": s.count}),
-            );
-        }
-        serde_json::Value::Object(map)
-    }
-
-    /// The table the commands print.
-    pub fn print_table(&self) {
-        println!("{:<20} {:>10} {:>10} {:>10} {:>7}", "stage", "median ms", "p95 ms", "max ms", "count");
-        for (name, s) in self.summaries() {
-            println!("{:<20} {:>10.2} {:>10.2} {:>10.2} {:>7}", name, s.median_ms, s.p95_ms, s.max_ms, s.count);
+    for (name, s) in times.summaries() {
+        if !TABLE5.iter().any(|(_, st)| *st == name) {
+            println!("{name:<46} {:>10.2} {:>10.2} {:>10.2} {:>7}", s.median_ms, s.p95_ms, s.max_ms, s.count);
         }
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn summaries_use_nearest_rank() {
-        let mut t = StageTimes::default();
-        for ms in 1..=100 {
-            t.record("fusion", Duration::from_millis(ms));
-        }
-        let s = &t.summaries()[0].1;
-        assert_eq!((s.median_ms.round(), s.p95_ms.round(), s.max_ms.round(), s.count), (50.0, 95.0, 100.0, 100));
+/// `{stage: {median_ms, p95_ms, max_ms, count}}` with `tracking`, `fusion`, `meshing` and
+/// `semantic` always present (zeros when a stage never ran), then the others.
+pub fn stages_json(times: &StageTimes) -> serde_json::Value {
+    const ALWAYS: [&str; 4] = ["tracking", "fusion", "meshing", "semantic"];
+    let mut map = serde_json::Map::new();
+    let mut names: Vec<&str> = ALWAYS.to_vec();
+    let summaries = times.summaries();
+    names.extend(summaries.iter().map(|(n, _)| *n).filter(|n| !ALWAYS.contains(n)));
+    for name in names {
+        let s = times.summary(name);
+        map.insert(
+            name.to_string(),
+            serde_json::json!({
+                "median_ms": s.map_or(0.0, |s| s.median_ms),
+                "p95_ms": s.map_or(0.0, |s| s.p95_ms),
+                "max_ms": s.map_or(0.0, |s| s.max_ms),
+                "count": s.map_or(0, |s| s.count),
+            }),
+        );
     }
+    serde_json::Value::Object(map)
 }

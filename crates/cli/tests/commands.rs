@@ -171,7 +171,7 @@ fn demo_writes_its_outputs_and_measures_them() {
     let out = dir.path().join("demo");
     let o = semrecon(&["demo", "--out", out.to_str().expect("utf-8"), "--frames", "6", "--voxel", "0.02"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    for f in ["mesh.ply", "ground_truth.ply", "trajectory.txt", "report.json"] {
+    for f in ["mesh.ply", "semantic.ply", "ground_truth.ply", "trajectory.txt", "report.json"] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
     let report: serde_json::Value =
@@ -180,8 +180,20 @@ fn demo_writes_its_outputs_and_measures_them() {
     assert_eq!(report["lost_frames"], 0);
     assert!(report["ate_rmse_m"].as_f64().expect("ATE") < 0.01, "{report}");
     assert!(report["mesh_accuracy_mm"].as_f64().expect("accuracy") < 20.0, "{report}");
-    for stage in ["tracking", "fusion", "meshing"] {
+    for stage in ["tracking", "fusion", "meshing", "semantic"] {
         assert!(report["stages"][stage]["median_ms"].is_number(), "{stage} in {report}");
     }
-    assert!(stdout(&o).contains("median ms"), "{}", stdout(&o));
+    // Untrained network: the score is computed, not good.
+    let miou = report["miou"].as_f64().expect("mIoU");
+    assert!((0.0..=1.0).contains(&miou), "{report}");
+    assert!(report["semantic_passes"].as_u64().expect("passes") >= 1, "{report}");
+    assert!(report["labelled_vertices"].as_f64().expect("share") > 0.9, "{report}");
+    let text = stdout(&o);
+    assert!(text.contains("median ms") && text.contains("global pose optimisation") && text.contains("n/a"), "{text}");
+    assert!(text.contains("semantic segmentation"), "{text}");
+    let mesh = semrecon_data::read_ply(out.join("mesh.ply")).expect("mesh");
+    assert_eq!(mesh.vertex_labels.len(), mesh.vertex_count(), "mesh.ply has a vertex label");
+    let classes = semrecon_data::read_ply(out.join("semantic.ply")).expect("semantic mesh");
+    let class_colors: Vec<[u8; 3]> = semrecon_data::SemanticClass::ALL.iter().map(|c| c.color()).collect();
+    assert!(classes.colors.iter().all(|c| class_colors.contains(c) || *c == [160, 160, 160]));
 }

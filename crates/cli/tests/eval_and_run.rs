@@ -56,7 +56,7 @@ fn run_reconstructs_a_few_synthetic_frames() {
     assert!(report["realtime_factor"].as_f64().expect("number") > 0.0);
     assert!(report["chunks"].as_u64().expect("number") > 0);
     assert!(report["memory_mb"].as_f64().expect("number") > 0.0);
-    for stage in ["tracking", "fusion", "meshing"] {
+    for stage in ["tracking", "fusion", "meshing", "semantic"] {
         for key in ["median_ms", "p95_ms", "max_ms"] {
             assert!(report["stages"][stage][key].is_number(), "{stage}.{key} in {report}");
         }
@@ -74,6 +74,108 @@ fn run_reconstructs_a_few_synthetic_frames() {
     assert!(mesh.triangle_count() > 100, "{} triangles", mesh.triangle_count());
     let header = std::fs::read(out_dir.join("mesh.ply")).expect("bytes");
     assert!(header.windows(20).any(|w| w == b"binary_little_endian"));
+    assert_eq!(mesh.vertex_labels.len(), mesh.vertex_count(), "labelled vertices");
+    assert!(out_dir.join("semantic.ply").is_file());
+    // synth: datasets carry their labelled room, so the labels are scored.
+    assert!(report["miou"].is_number(), "{report}");
+    assert!(report["mesh_accuracy_mm"].as_f64().expect("accuracy") < 20.0, "{report}");
+    assert!(report["semantic_passes"].as_u64().expect("passes") >= 2, "{report}");
+    assert_eq!(report["realtime"], false);
+}
+
+#[test]
+fn run_in_real_time_keeps_every_frame_and_reports_the_lag() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out_dir = dir.path().join("out");
+    let out = semrecon(&[
+        "run",
+        "--dataset",
+        "synth:2",
+        "--frames",
+        "0..6",
+        "--voxel",
+        "0.02",
+        "--keyframe-every",
+        "2",
+        "--realtime",
+        "--semantics",
+        "full",
+        "--out",
+        s(&out_dir),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).expect("report")).expect("JSON");
+    assert_eq!(report["realtime"], true);
+    assert_eq!((report["frames"].as_u64(), report["fused_frames"].as_u64()), (Some(6), Some(6)));
+    assert!(report["max_lag_s"].as_f64().expect("lag") >= 0.0);
+    // Frames come at 30 fps: 6 frames take at least 5/30 s.
+    assert!(report["wall_s"].as_f64().expect("wall") >= 5.0 / 30.0);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("fell behind"));
+}
+
+#[test]
+fn run_model_and_semantics_options() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out_dir = dir.path().join("out");
+    let bad = dir.path().join("weights.safetensors");
+    std::fs::write(&bad, b"not weights").expect("write");
+    let out = semrecon(&["run", "--dataset", "synth:1", "--frames", "0..2", "--model", s(&bad), "--out", s(&out_dir)]);
+    assert_clean_failure(&out, "weights.safetensors");
+    let out = semrecon(&[
+        "run",
+        "--dataset",
+        "synth:1",
+        "--frames",
+        "0..3",
+        "--voxel",
+        "0.02",
+        "--semantics",
+        "off",
+        "--out",
+        s(&out_dir),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).expect("report")).expect("JSON");
+    assert_eq!(report["semantic_passes"], 0);
+    assert_eq!(report["stages"]["semantic"]["count"], 0);
+}
+
+#[test]
+fn run_stops_cleanly_when_the_dataset_ends_early() {
+    // 34 frames, of which the last 31 cannot be read: the run stops after 30 failures in a row
+    // and still writes valid outputs of the first three frames.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scan = dir.path().join("scan");
+    let out = semrecon(&["synth", "--out", s(&scan), "--frames", "34", "--size", "64x48"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    for i in 3..34 {
+        std::fs::write(scan.join(format!("frame-{i:06}.depth.png")), b"truncated").expect("corrupt");
+    }
+    let out_dir = dir.path().join("out");
+    let out = semrecon(&[
+        "run",
+        "--dataset",
+        &format!("7scenes:{}", s(&scan)),
+        "--poses",
+        "ground-truth",
+        "--voxel",
+        "0.05",
+        "--keyframe-every",
+        "2",
+        "--out",
+        s(&out_dir),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("ended early"), "{}", String::from_utf8_lossy(&out.stdout));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).expect("report")).expect("JSON");
+    assert_eq!(report["stopped_early_at"], 33);
+    assert_eq!((report["fused_frames"].as_u64(), report["failed_loads"].as_u64()), (Some(3), Some(30)));
+    assert_eq!(Trajectory::read_tum(out_dir.join("trajectory.txt")).expect("TUM").len(), 3);
+    let mesh = semrecon_data::read_ply(out_dir.join("mesh.ply")).expect("mesh");
+    mesh.validate().expect("valid mesh");
 }
 
 #[test]

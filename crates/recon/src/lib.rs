@@ -25,6 +25,7 @@ mod linalg;
 pub mod map;
 pub mod marching_cubes;
 pub mod raycast;
+pub mod surface_voxels;
 pub mod tracking;
 
 pub use error::{ReconError, Result};

@@ -1,7 +1,16 @@
-//! `semrecon run`: the geometric pipeline on a dataset, frame by frame: a pose for every frame
-//! (see [`estimate_pose`]), TSDF fusion, incremental meshing every keyframe; writes
-//! `DIR/mesh.ply` (binary), `DIR/trajectory.txt` (TUM) and `DIR/report.json`, and prints a
-//! timing table.
+//! `semrecon run`: the live pipeline on a dataset, frame by frame: a pose for every frame
+//! (tracking, or the dataset's ground truth), TSDF fusion, incremental meshing and a semantic
+//! pass of the back end at every keyframe; writes `DIR/mesh.ply` (binary, with a vertex
+//! `label`), `DIR/semantic.ply` (class colours), `DIR/trajectory.txt` (TUM) and
+//! `DIR/report.json`, and prints the timing table in the layout of the paper's Table 5.
+//!
+//! With `--realtime` frames are fed at their capture rate (their timestamps): the front end
+//! never drops a frame, but it may fall behind (the report says by how much), and semantic
+//! passes run on the freshest map, skipping keyframes while the back end is busy.
+//!
+//! The up direction for the network is estimated from the map, or read from a
+//! `gravity-direction.txt` in a 7-Scenes folder (the direction of gravity in the poses' world
+//! frame) when the run starts at the dataset's ground-truth pose.
 //!
 //! With `--serve` the viewer of `semrecon view` follows the run live on 127.0.0.1: the mesh
 //! and trajectory are pushed to it at keyframes (at most once per [`LIVE_PUSH_INTERVAL`] of
@@ -10,8 +19,10 @@
 //!
 //! Bad input never stops a run half-way: a frame that fails to load, has no pose or is
 //! rejected by fusion is reported once, counted in `lost_frames`, and skipped, leaving the
-//! map as it was. Only problems that make the whole run meaningless (a dataset that does not
-//! open, an empty frame range, an unwritable output folder) are errors.
+//! map as it was; after [`MAX_CONSECUTIVE_FAILED_LOADS`] failed loads in a row the dataset is
+//! taken to have ended early and the run stops there, writing its outputs. Only problems that
+//! make the whole run meaningless (a dataset that does not open, an empty frame range, an
+//! unwritable output folder) are errors.
 
 use std::ops::Range;
 use std::path::PathBuf;
@@ -20,16 +31,25 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use semrecon_data::atomic_file::write_atomic;
 use semrecon_data::datasets::{open_dataset, DatasetSpec};
+use semrecon_data::synth::{generate_room, RoomConfig};
 use semrecon_data::{LabeledMesh, Trajectory};
 use semrecon_eval::{evaluate_trajectory, TrajectoryEvalConfig};
+use semrecon_pipeline::{FrameStatus, Pipeline, UpEstimate};
 use semrecon_viewer::{LiveScene, ViewerServer};
 use serde::Serialize;
 
 use crate::progress::progress_bar;
-use crate::reconstruction::{PoseSource, ReconArgs, Reconstruction};
+use crate::reconstruction::{
+    dataset_up, labelled_share, load_network, pipeline_config, semantic_score, vertex_accuracy_mm, write_outputs,
+    ReconArgs, SemanticArgs,
+};
+use crate::timing::{print_table, stages_json};
 
 /// Warnings printed one by one before they are only counted.
 const MAX_WARNINGS: usize = 10;
+
+/// Failed loads in a row after which the dataset is taken to have ended early.
+pub const MAX_CONSECUTIVE_FAILED_LOADS: usize = 30;
 
 /// Shortest wall time between two pushes to the live viewer: building the whole mesh and
 /// its collision geometry costs far more than a keyframe's incremental meshing.
@@ -46,6 +66,12 @@ pub struct RunArgs {
     frames: Option<FrameRange>,
     #[command(flatten)]
     recon: ReconArgs,
+    #[command(flatten)]
+    semantics: SemanticArgs,
+    /// Feed frames at their capture rate (timestamps) instead of as fast as possible;
+    /// semantic passes skip keyframes while the back end is busy.
+    #[arg(long)]
+    realtime: bool,
     /// Output folder.
     #[arg(long)]
     out: PathBuf,
@@ -135,11 +161,22 @@ pub fn parse_frame_range(s: &str) -> Result<FrameRange, String> {
 }
 
 #[derive(Serialize)]
-struct StageJson {
-    median_ms: f64,
-    p95_ms: f64,
-    max_ms: f64,
-    count: usize,
+struct UpJson {
+    up: [f32; 3],
+    floor_height_m: f32,
+    source: semrecon_pipeline::UpSource,
+    horizontal_share: f32,
+}
+
+impl From<UpEstimate> for UpJson {
+    fn from(u: UpEstimate) -> Self {
+        Self {
+            up: u.up.to_array(),
+            floor_height_m: u.floor_height,
+            source: u.source,
+            horizontal_share: u.horizontal_share,
+        }
+    }
 }
 
 #[derive(Serialize)]
@@ -150,20 +187,35 @@ struct Report {
     fused_frames: usize,
     lost_frames: usize,
     failed_loads: usize,
+    /// The run stopped before the end of the frame range (the dataset ended early).
+    stopped_early_at: Option<usize>,
     voxel_size_m: f32,
     keyframe_every: usize,
     poses: &'static str,
+    realtime: bool,
+    /// Real-time mode: the largest delay between a frame's capture time and the end of its
+    /// processing by the front end, seconds.
+    max_lag_s: Option<f64>,
     realtime_factor: f64,
     input_s: f64,
     pipeline_s: f64,
     wall_s: f64,
     stages: serde_json::Value,
+    network: String,
+    semantic_passes: usize,
+    skipped_keyframes: usize,
+    labelled_vertices: f64,
+    up: Option<UpJson>,
     memory_mb: f64,
     chunks: usize,
     mesh_vertices: usize,
     mesh_triangles: usize,
     #[serde(skip_serializing_if = "Option::is_none")]
     ate_rmse_m: Option<f64>,
+    /// Mean distance from the mesh vertices to the true surface (synthetic datasets), mm.
+    mesh_accuracy_mm: Option<f64>,
+    /// mIoU of the mesh vertices' classes (synthetic datasets: against the generated room).
+    miou: Option<f64>,
 }
 
 /// Runs the command.
@@ -171,8 +223,14 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let source = open_dataset(&args.dataset).with_context(|| format!("opening {}", args.dataset))?;
     anyhow::ensure!(!source.is_empty(), "{} has no frames", source.name());
     let range = args.frames.unwrap_or(FrameRange { start: 0, end: None }).resolve(source.len())?;
-    let mut recon = Reconstruction::new(args.recon.voxel, args.recon.truncation, args.recon.keyframe_every)?;
-    let mut poses: Option<PoseSource> = None;
+    // A dataset's gravity is in its world frame: the map is in it when tracking starts at the
+    // first frame's ground-truth pose.
+    let up = match &args.dataset {
+        DatasetSpec::SevenScenes(dir) if source.has_ground_truth() => dataset_up(Some(dir))?,
+        _ => None,
+    };
+    let config = pipeline_config(&args.recon, &args.semantics, args.realtime, up)?;
+    let (net, network) = load_network(&args.semantics)?;
     let k = source.intrinsics();
     println!(
         "{}: frames {}..{} of {}, {}x{}, voxel {} m",
@@ -184,6 +242,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         k.height,
         args.recon.voxel
     );
+    println!("semantics: {network}{}", if up.is_some() { "; up from the dataset's gravity file" } else { "" });
+    let mut pipeline = Pipeline::new(config, k, net)?;
 
     let mut live = match args.serve {
         true => {
@@ -195,9 +255,14 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     };
 
     let mut gt = Trajectory::default();
+    let mut other_times = semrecon_pipeline::StageTimes::default();
     let mut lost = 0usize;
     let mut failed_loads = 0usize;
+    let mut failed_in_a_row = 0usize;
+    let mut stopped_early_at = None;
     let mut warnings = 0usize;
+    let mut max_lag_s: Option<f64> = None;
+    let mut first_timestamp: Option<f64> = None;
     let bar = progress_bar(range.len() as u64, "run");
     let mut warn = |message: String| {
         warnings += 1;
@@ -213,67 +278,88 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             Err(e) => {
                 warn(format!("frame {i} skipped: {e}"));
                 failed_loads += 1;
+                failed_in_a_row += 1;
                 lost += 1;
                 bar.inc(1);
+                if failed_in_a_row >= MAX_CONSECUTIVE_FAILED_LOADS {
+                    warn(format!(
+                        "{failed_in_a_row} frames in a row failed to load: the dataset ends early, stopping at frame {i}"
+                    ));
+                    stopped_early_at = Some(i + 1);
+                    break;
+                }
                 continue;
             }
         };
-        recon.times.record("loading", t.elapsed());
+        failed_in_a_row = 0;
+        other_times.record("loading", t.elapsed());
         if let Some(pose) = frame.world_from_camera {
             gt.push(frame.timestamp, pose);
         }
-
-        let source_of_poses = match &mut poses {
-            Some(p) => p,
-            None => {
-                poses.insert(PoseSource::new(args.recon.poses, frame.world_from_camera, args.recon.keyframe_every)?)
+        // Real time: the frame is delivered at its capture time, never earlier.
+        let due = args.realtime.then(|| {
+            let t0 = *first_timestamp.get_or_insert(frame.timestamp);
+            start + Duration::from_secs_f64((frame.timestamp - t0).max(0.0))
+        });
+        if let Some(due) = due {
+            if let Some(wait) = due.checked_duration_since(Instant::now()) {
+                std::thread::sleep(wait);
             }
-        };
-        let t = Instant::now();
-        let pose = source_of_poses.estimate(&frame, &recon.map);
-        recon.record_pipeline("tracking", t.elapsed());
-        let pose = match pose {
-            Ok(pose) => pose,
-            Err(why) => {
-                warn(format!("frame {i} skipped: {why}"));
+        }
+        match pipeline.push_frame(&frame) {
+            Ok(r) => match r.status {
+                FrameStatus::Lost(reason) => {
+                    warn(format!("frame {i} skipped: tracking lost ({reason:?})"));
+                    lost += 1;
+                }
+                FrameStatus::NoPose => {
+                    warn(format!("frame {i} skipped: no ground-truth pose"));
+                    lost += 1;
+                }
+                FrameStatus::Initialized | FrameStatus::Fused => {}
+            },
+            Err(e) => {
+                warn(format!("frame {i} not fused: {e}"));
                 lost += 1;
-                bar.inc(1);
-                continue;
             }
-        };
-        if let Err(e) = recon.add_frame(&frame, pose) {
-            warn(format!("frame {i} not fused: {e}"));
-            lost += 1;
+        }
+        if let Some(due) = due {
+            let lag = Instant::now().saturating_duration_since(due).as_secs_f64();
+            max_lag_s = Some(max_lag_s.map_or(lag, |m: f64| m.max(lag)));
         }
         // Only at keyframes, where the incremental mesh was just brought up to date.
-        let fused = recon.fused_frames();
+        let fused = pipeline.frame_counts().1;
         if let Some(live) =
             live.as_mut().filter(|l| fused > 0 && fused % args.recon.keyframe_every == 0 && l.due(fused))
         {
             let t = Instant::now();
-            let mesh = recon.mesher.mesh();
-            if let Err(why) = live.push(fused, &mesh, &recon.trajectory) {
+            let mesh = pipeline.mesh();
+            if let Err(why) = live.push(fused, &mesh, pipeline.trajectory()) {
                 warn(why);
             }
-            recon.times.record("live view", t.elapsed());
+            other_times.record("live view", t.elapsed());
         }
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let mesh = recon.finish();
+    let mesh = pipeline.finish()?;
     let wall_s = start.elapsed().as_secs_f64();
+    let fused = pipeline.frame_counts().1;
     if let Some(live) = live.as_mut() {
-        if let Err(why) = live.push(recon.fused_frames(), &mesh, &recon.trajectory) {
+        if let Err(why) = live.push(fused, &mesh, pipeline.trajectory()) {
             eprintln!("warning: {why}");
         }
+    }
+    for w in pipeline.warnings() {
+        eprintln!("warning: {w}");
     }
     if warnings > MAX_WARNINGS {
         eprintln!("warning: {} more warnings not shown", warnings - MAX_WARNINGS);
     }
 
-    recon.write_outputs(&args.out, &mesh)?;
-    let ate_rmse_m = if source.has_ground_truth() && !recon.trajectory.is_empty() {
-        match evaluate_trajectory(&gt, &recon.trajectory, &TrajectoryEvalConfig::default()) {
+    write_outputs(&args.out, &mesh, pipeline.trajectory())?;
+    let ate_rmse_m = if source.has_ground_truth() && !pipeline.trajectory().is_empty() {
+        match evaluate_trajectory(&gt, pipeline.trajectory(), &TrajectoryEvalConfig::default()) {
             Ok(e) => Some(e.ate_rmse_m),
             Err(e) => {
                 eprintln!("warning: no ATE: {e}");
@@ -283,40 +369,80 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     } else {
         None
     };
-    let input_s = range.len() as f64 / source.frame_rate();
+    // A synthetic dataset's labelled room is the geometric and semantic ground truth.
+    let (mesh_accuracy_mm, miou) = match &args.dataset {
+        DatasetSpec::Synth(seed) if !mesh.triangles.is_empty() => {
+            let room = generate_room(&RoomConfig { seed: *seed, style: None });
+            let accuracy = vertex_accuracy_mm(&room.mesh, &mesh)?;
+            let miou = if pipeline.has_semantics() { semantic_score(&room.mesh, &mesh)?.map(|s| s.0) } else { None };
+            (accuracy, miou)
+        }
+        _ => (None, None),
+    };
+    let mut times = pipeline.timings().clone();
+    times.merge(&other_times);
+    let processed = stopped_early_at.unwrap_or(range.end) - range.start;
+    let input_s = processed as f64 / source.frame_rate();
+    let pipeline_s = pipeline.front_end_seconds();
+    let map = pipeline.map();
     let report = Report {
         dataset: source.name(),
         first_frame: range.start,
-        frames: range.len(),
-        fused_frames: recon.fused_frames(),
+        frames: processed,
+        fused_frames: fused,
         lost_frames: lost,
         failed_loads,
+        stopped_early_at,
         voxel_size_m: args.recon.voxel,
         keyframe_every: args.recon.keyframe_every,
-        poses: poses.as_ref().map_or("none", PoseSource::describe),
-        realtime_factor: input_s / recon.pipeline_s.max(1e-9),
+        poses: args.recon.poses.describe(),
+        realtime: args.realtime,
+        max_lag_s,
+        realtime_factor: input_s / pipeline_s.max(1e-9),
         input_s,
-        pipeline_s: recon.pipeline_s,
+        pipeline_s,
         wall_s,
-        stages: stages_json(&recon),
-        memory_mb: recon.map.memory_bytes() as f64 / 1e6,
-        chunks: recon.map.chunk_count(),
+        stages: stages_json(&times),
+        network,
+        semantic_passes: pipeline.semantic_passes().len(),
+        skipped_keyframes: pipeline.skipped_keyframes(),
+        labelled_vertices: labelled_share(&mesh),
+        up: pipeline.up().map(UpJson::from),
+        memory_mb: map.memory_bytes() as f64 / 1e6,
+        chunks: map.chunk_count(),
         mesh_vertices: mesh.vertex_count(),
         mesh_triangles: mesh.triangle_count(),
         ate_rmse_m,
+        mesh_accuracy_mm,
+        miou,
     };
     write_atomic(&args.out.join("report.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
 
     println!();
-    recon.times.print_table();
+    print_table(&times);
     println!();
     println!(
         "frames {} (fused {}, lost {}), poses: {}",
         report.frames, report.fused_frames, report.lost_frames, report.poses
     );
+    if let Some(at) = stopped_early_at {
+        println!("the dataset ended early: stopped at frame {at} after {MAX_CONSECUTIVE_FAILED_LOADS} failed loads");
+    }
     println!(
-        "pipeline (tracking + fusion + meshing): {:.2} s for {:.2} s of input, real-time factor {:.2} (wall {:.1} s with loading)",
+        "front end (tracking + fusion + meshing + semantic snapshot): {:.2} s for {:.2} s of input, real-time factor {:.2} (wall {:.1} s with loading)",
         report.pipeline_s, input_s, report.realtime_factor, wall_s
+    );
+    if let Some(lag) = max_lag_s {
+        println!(
+            "real time: the front end fell behind the camera by up to {lag:.2} s; {} keyframes skipped by semantics",
+            report.skipped_keyframes
+        );
+    }
+    println!(
+        "semantics: {} passes, {:.0}% of vertices labelled{}",
+        report.semantic_passes,
+        report.labelled_vertices * 100.0,
+        miou.map_or(String::new(), |m| format!(", mIoU {:.1}% against the synthetic room", m * 100.0))
     );
     println!(
         "map: {} chunks, {:.1} MB; mesh: {} vertices, {} triangles",
@@ -325,7 +451,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(ate) = ate_rmse_m {
         println!("ATE rmse {:.4} m against the dataset's ground truth", ate);
     }
-    println!("wrote {}/{{mesh.ply, trajectory.txt, report.json}}", args.out.display());
+    if let Some(acc) = mesh_accuracy_mm {
+        println!("mesh accuracy {acc:.1} mm (mean vertex distance to the generated room)");
+    }
+    println!("wrote {}/{{mesh.ply, semantic.ply, trajectory.txt, report.json}}", args.out.display());
     if let Some(live) = live {
         if args.serve_exit {
             live.server.stop();
@@ -335,26 +464,6 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         }
     }
     Ok(())
-}
-
-/// `{stage: {median_ms, p95_ms, max_ms, count}}` with `tracking`, `fusion` and `meshing`
-/// always present (zeros when a stage never ran), then the others (`loading`).
-fn stages_json(recon: &Reconstruction) -> serde_json::Value {
-    let summaries = recon.times.summaries();
-    let mut map = serde_json::Map::new();
-    let mut names: Vec<&str> = vec!["tracking", "fusion", "meshing"];
-    names.extend(summaries.iter().map(|(n, _)| *n).filter(|n| !["tracking", "fusion", "meshing"].contains(n)));
-    for name in names {
-        let stage = summaries.iter().find(|(n, _)| *n == name).map(|(_, s)| s);
-        let json = StageJson {
-            median_ms: stage.map_or(0.0, |s| s.median_ms),
-            p95_ms: stage.map_or(0.0, |s| s.p95_ms),
-            max_ms: stage.map_or(0.0, |s| s.max_ms),
-            count: stage.map_or(0, |s| s.count),
-        };
-        map.insert(name.to_string(), serde_json::to_value(json).unwrap_or_default());
-    }
-    serde_json::Value::Object(map)
 }
 
 #[cfg(test)]

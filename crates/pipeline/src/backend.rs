@@ -1,0 +1,160 @@
+//! The semantic back end: a thread that owns the network and labels snapshots of the map's
+//! surface sent by the front end, so that tracking and fusion never wait for it (in real-time
+//! mode) and the network runs beside them.
+//!
+//! A job carries everything the pass needs (coarse cells of the map frame with mean positions
+//! and colours, and the gravity-aligned frame), so the result depends only on the job: the
+//! front end decides when jobs are made and when results are applied, and with that the
+//! pipeline's determinism.
+
+use std::sync::mpsc::{channel, Receiver, Sender, TryRecvError};
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+use glam::{Affine3A, Vec3};
+use semrecon_net::{color_features, Segmenter};
+use semrecon_sparse::Coord;
+
+use crate::error::{PipelineError, Result};
+use crate::semantic_map::{CellKey, CLASSES};
+
+/// One semantic pass to run.
+#[derive(Debug, Clone)]
+pub(crate) struct Job {
+    /// Keys of the input cells.
+    pub keys: Vec<CellKey>,
+    /// Mean positions of the cells, map frame.
+    pub positions: Vec<Vec3>,
+    /// Mean colours.
+    pub colors: Vec<[u8; 3]>,
+    /// Whether each cell's labels are written back (the others are context).
+    pub update: Vec<bool>,
+    /// Map to the frame the network expects (z up, floor at 0).
+    pub aligned_from_map: Affine3A,
+}
+
+/// The outcome of a [`Job`].
+#[derive(Debug, Clone)]
+pub(crate) struct JobResult {
+    /// The cells whose labels are written back.
+    pub keys: Vec<CellKey>,
+    /// Their class probabilities.
+    pub probs: Vec<[f32; CLASSES]>,
+    /// Voxels the network saw (cells merged by the aligned grid).
+    pub network_voxels: usize,
+    /// Wall time of voxelising, the network and the softmax, milliseconds.
+    pub total_ms: f64,
+}
+
+/// Voxelises a job in the aligned frame, runs the network, and returns the probabilities of
+/// the cells to update (each cell takes its aligned voxel's).
+pub(crate) fn run_job(net: &mut Segmenter, job: Job) -> Result<JobResult> {
+    let t = Instant::now();
+    let size = net.config().voxel_size;
+    let mut index: std::collections::HashMap<[i32; 3], u32> = std::collections::HashMap::with_capacity(job.keys.len());
+    let mut coords: Vec<Coord> = Vec::with_capacity(job.keys.len());
+    let mut sums: Vec<[f32; 4]> = Vec::with_capacity(job.keys.len());
+    let mut voxel_of = Vec::with_capacity(job.keys.len());
+    let feats = color_features(&job.colors);
+    for (i, p) in job.positions.iter().enumerate() {
+        let q = (job.aligned_from_map.transform_point3(*p) / size).floor();
+        if !q.is_finite() {
+            return Err(PipelineError::Backend(format!("cell {} has a non-finite position", job.keys[i])));
+        }
+        let c = [q.x as i32, q.y as i32, q.z as i32];
+        let v = *index.entry(c).or_insert_with(|| {
+            coords.push([c[0], c[1], c[2], 0]);
+            sums.push([0.0; 4]);
+            (coords.len() - 1) as u32
+        });
+        let s = &mut sums[v as usize];
+        for k in 0..3 {
+            s[k] += feats[i * 3 + k];
+        }
+        s[3] += 1.0;
+        voxel_of.push(v);
+    }
+    let features: Vec<f32> = sums.iter().flat_map(|s| [s[0] / s[3], s[1] / s[3], s[2] / s[3]]).collect();
+    let logits = if coords.is_empty() { Vec::new() } else { net.segment(&coords, &features)? };
+    let classes = net.config().classes;
+    let probs_of = |v: usize| -> [f32; CLASSES] {
+        let row = &logits[v * classes..(v + 1) * classes];
+        let max = row.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        let mut p = [0f32; CLASSES];
+        let mut sum = 0.0;
+        for (o, &l) in p.iter_mut().zip(row) {
+            *o = (l - max).exp();
+            sum += *o;
+        }
+        p.iter_mut().for_each(|o| *o /= sum);
+        p
+    };
+    let mut keys = Vec::new();
+    let mut probs = Vec::new();
+    for (i, &u) in job.update.iter().enumerate() {
+        if u {
+            keys.push(job.keys[i]);
+            probs.push(probs_of(voxel_of[i] as usize));
+        }
+    }
+    Ok(JobResult { keys, probs, network_voxels: coords.len(), total_ms: t.elapsed().as_secs_f64() * 1e3 })
+}
+
+/// The back-end thread and its two channels.
+pub(crate) struct Backend {
+    jobs: Option<Sender<Job>>,
+    results: Receiver<Result<JobResult>>,
+    handle: Option<JoinHandle<()>>,
+}
+
+impl Backend {
+    /// Starts the thread, which owns `net`.
+    pub fn start(mut net: Segmenter) -> Result<Self> {
+        let (job_tx, job_rx) = channel::<Job>();
+        let (res_tx, res_rx) = channel::<Result<JobResult>>();
+        let handle = std::thread::Builder::new()
+            .name("semantic back end".into())
+            .spawn(move || {
+                for job in job_rx {
+                    if res_tx.send(run_job(&mut net, job)).is_err() {
+                        break;
+                    }
+                }
+            })
+            .map_err(|e| PipelineError::Backend(format!("cannot start the thread: {e}")))?;
+        Ok(Self { jobs: Some(job_tx), results: res_rx, handle: Some(handle) })
+    }
+
+    /// Hands a job to the thread.
+    pub fn submit(&self, job: Job) -> Result<()> {
+        self.jobs
+            .as_ref()
+            .ok_or_else(|| PipelineError::Backend("already stopped".into()))?
+            .send(job)
+            .map_err(|_| PipelineError::Backend("the thread has exited".into()))
+    }
+
+    /// Waits for the next result.
+    pub fn wait(&self) -> Result<JobResult> {
+        self.results.recv().map_err(|_| PipelineError::Backend("the thread has exited".into()))?
+    }
+
+    /// The next result if one is ready.
+    pub fn poll(&self) -> Option<Result<JobResult>> {
+        match self.results.try_recv() {
+            Ok(r) => Some(r),
+            Err(TryRecvError::Empty) => None,
+            Err(TryRecvError::Disconnected) => Some(Err(PipelineError::Backend("the thread has exited".into()))),
+        }
+    }
+}
+
+impl Drop for Backend {
+    fn drop(&mut self) {
+        // Closing the job channel ends the thread's loop after the job in hand.
+        self.jobs.take();
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}

@@ -1,0 +1,146 @@
+//! Configuration of the live pipeline: the map, tracking, keyframes, and how semantics run.
+
+use glam::{Affine3A, Vec3};
+use semrecon_recon::{TrackerConfig, TsdfConfig};
+
+use crate::error::{PipelineError, Result};
+
+/// Where the pose of each frame comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum PoseMode {
+    /// Frame-to-model ICP tracking (the live system).
+    #[default]
+    Track,
+    /// The frames' ground-truth poses (to judge fusion and semantics alone).
+    GroundTruth,
+}
+
+/// Which part of the map the network sees at a keyframe.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SemanticMode {
+    /// The whole map, every time (the paper's way; cost grows with the map).
+    Full,
+    /// Only the tiles changed since the last pass, with `context_m` metres of unchanged map
+    /// around them as context; labels elsewhere are kept. The network's own receptive field
+    /// (five levels, 3x3x3 convolutions at 80 cm voxels on the coarsest) spans several metres,
+    /// so a bounded context changes labels a little (measured in the crate's tests and
+    /// docs/benchmarks.md), in exchange for a cost that follows the camera, not the map.
+    Incremental {
+        /// Context around the changed tiles, metres (1 m by default).
+        context_m: f32,
+    },
+}
+
+impl Default for SemanticMode {
+    fn default() -> Self {
+        Self::Incremental { context_m: 1.0 }
+    }
+}
+
+/// How semantics run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SemanticConfig {
+    /// Full or incremental passes.
+    pub mode: SemanticMode,
+    /// Side of the tiles that changes are tracked in, metres (a multiple of the network's voxel
+    /// is used: 0.5 m at 5 cm voxels).
+    pub tile_m: f32,
+    /// Surface voxels are those within this many TSDF voxels of the zero crossing.
+    pub surface_band_voxels: f32,
+    /// Incremental passes re-label a tile when one of its cells is new, lost its surface, or
+    /// its number of surface voxels moved by more than this fraction since it was last
+    /// labelled (0.25: re-observing a surface leaves its cells alone, filling a hole does not).
+    pub min_cell_change: f32,
+    /// Real-time mode: the front end never waits for the back end; a keyframe that finds the
+    /// back end busy is skipped, and results are applied as they arrive. Off (the default), the
+    /// front end waits at each keyframe for the previous keyframe's labels, so results do not
+    /// depend on timing.
+    pub realtime: bool,
+    /// Up direction in the map frame when known (gravity sensor, a dataset's gravity file);
+    /// estimated from the map otherwise.
+    pub up: Option<Vec3>,
+}
+
+impl Default for SemanticConfig {
+    fn default() -> Self {
+        Self {
+            mode: SemanticMode::default(),
+            tile_m: 0.5,
+            surface_band_voxels: 1.0,
+            min_cell_change: 0.25,
+            realtime: false,
+            up: None,
+        }
+    }
+}
+
+/// Everything [`crate::Pipeline::new`] needs besides the camera and the network.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PipelineConfig {
+    /// The TSDF map.
+    pub tsdf: TsdfConfig,
+    /// The tracker (its keyframe interval is overridden by `keyframe_every`).
+    pub tracker: TrackerConfig,
+    /// Where poses come from.
+    pub poses: PoseMode,
+    /// The first frame's pose when tracking: `None` starts at the first frame's ground-truth
+    /// pose when it has one (so that trajectories compare without alignment), else at the
+    /// identity (the map frame is then the first camera's).
+    pub initial_pose: Option<Affine3A>,
+    /// A keyframe every this many fused frames: the mesh is brought up to date and a semantic
+    /// pass is started.
+    pub keyframe_every: usize,
+    /// Semantics.
+    pub semantics: SemanticConfig,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        Self {
+            tsdf: TsdfConfig { truncation_voxels: 10.0, ..TsdfConfig::default() },
+            tracker: TrackerConfig::default(),
+            poses: PoseMode::Track,
+            initial_pose: None,
+            keyframe_every: 10,
+            semantics: SemanticConfig::default(),
+        }
+    }
+}
+
+impl PipelineConfig {
+    /// Checks the ranges of every field.
+    ///
+    /// # Errors
+    /// [`PipelineError::InvalidConfig`] naming the field, or the map's and tracker's own
+    /// checks.
+    pub fn validate(&self) -> Result<()> {
+        self.tsdf.validate()?;
+        self.tracker.validate()?;
+        let bad = |m: String| Err(PipelineError::InvalidConfig(m));
+        if self.keyframe_every == 0 {
+            return bad("keyframe_every must be at least 1".into());
+        }
+        let s = &self.semantics;
+        if !(s.tile_m.is_finite() && (0.05..=10.0).contains(&s.tile_m)) {
+            return bad(format!("semantic tile {} m is outside 0.05..10 m", s.tile_m));
+        }
+        if !(s.surface_band_voxels.is_finite() && (0.1..=16.0).contains(&s.surface_band_voxels)) {
+            return bad(format!("surface band {} voxels is outside 0.1..16", s.surface_band_voxels));
+        }
+        if !(s.min_cell_change.is_finite() && (0.0..=10.0).contains(&s.min_cell_change)) {
+            return bad(format!("minimum cell change {} is outside 0..10", s.min_cell_change));
+        }
+        if let SemanticMode::Incremental { context_m } = s.mode {
+            if !(context_m.is_finite() && (0.0..=100.0).contains(&context_m)) {
+                return bad(format!("semantic context {context_m} m is outside 0..100 m"));
+            }
+        }
+        if s.up.is_some_and(|u| !u.is_finite() || u.length() < 1e-6) {
+            return bad("the given up direction is zero or not finite".into());
+        }
+        if self.initial_pose.is_some_and(|p| !p.is_finite()) {
+            return bad("the initial pose is not finite".into());
+        }
+        Ok(())
+    }
+}

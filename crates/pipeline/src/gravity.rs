@@ -1,0 +1,261 @@
+//! The up direction of the map, and the gravity-aligned frame the network sees.
+//!
+//! The SLAM map frame is whatever the first camera's frame (or the dataset's world frame) was;
+//! the network was trained on rooms with z up and the floor at z = 0. Up is estimated from the
+//! map itself: indoor scenes are full of horizontal planes (floor, table tops, seats, ceiling),
+//! so the surface normals that lie near the camera's average "up" (-y of the camera; people
+//! hold cameras roughly upright) are averaged, in narrowing cones, to the dominant horizontal
+//! direction. The floor is then the lowest height band that holds a large share of the upward
+//! facing surface below the cameras (a handheld camera is carried above the floor, so table
+//! tops and shelves seen before the floor are not taken for it; with no such surface yet the
+//! floor is put [`HANDHELD_HEIGHT_M`] below the lowest camera). A known gravity direction (an IMU, a dataset's gravity file) replaces the
+//! estimate.
+//!
+//! Only the network's input is rotated: the map, the mesh and every output stay in the map
+//! frame.
+
+use glam::{Affine3A, Mat3, Vec3};
+
+/// Where an up direction came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum UpSource {
+    /// Given by the caller (gravity sensor, dataset file).
+    Given,
+    /// The dominant horizontal planes of the map.
+    Planes,
+    /// The cameras' average up alone (too few horizontal surfaces yet).
+    CameraPrior,
+}
+
+/// One surface sample for the estimate: a position, a unit normal (or zero) and a weight.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfaceSample {
+    /// Position, metres, map frame.
+    pub position: Vec3,
+    /// Unit normal or zero.
+    pub normal: Vec3,
+    /// Weight (for instance the number of fine voxels the sample stands for).
+    pub weight: f32,
+}
+
+/// The gravity-aligned frame of a map.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UpEstimate {
+    /// Unit up direction in the map frame.
+    pub up: Vec3,
+    /// Height of the floor along `up`, metres (map frame origin at 0).
+    pub floor_height: f32,
+    /// Where `up` came from.
+    pub source: UpSource,
+    /// Share of the surface weight that is horizontal (within 15 degrees of `up`).
+    pub horizontal_share: f32,
+}
+
+impl UpEstimate {
+    /// `aligned_from_map`: rotates `up` onto +z and moves the floor to z = 0; x is the map's
+    /// x axis (or y, when x is nearly vertical) made horizontal.
+    pub fn aligned_from_map(&self) -> Affine3A {
+        let z = self.up.normalize_or(Vec3::Z);
+        let seed = if z.dot(Vec3::X).abs() < 0.9 { Vec3::X } else { Vec3::Y };
+        let x = (seed - z * seed.dot(z)).normalize();
+        let y = z.cross(x);
+        // Rows x, y, z: the map-frame axes of the aligned frame.
+        let rotation = Mat3::from_cols(x, y, z).transpose();
+        Affine3A::from_mat3_translation(rotation, Vec3::new(0.0, 0.0, -self.floor_height))
+    }
+
+    /// Angle between this estimate's up and `other`, degrees.
+    pub fn angle_to_deg(&self, other: Vec3) -> f32 {
+        self.up.dot(other.normalize_or_zero()).clamp(-1.0, 1.0).acos().to_degrees()
+    }
+}
+
+/// The cameras' average up direction (-y of every camera) in the map frame; `None` when
+/// there is no pose or they cancel out.
+pub fn camera_up_prior(poses: &[Affine3A]) -> Option<Vec3> {
+    let sum: Vec3 = poses.iter().map(|p| -p.transform_vector3(Vec3::Y)).sum();
+    sum.try_normalize()
+}
+
+/// Usual height of a handheld camera above the floor, metres.
+pub const HANDHELD_HEIGHT_M: f32 = 1.4;
+
+/// Estimates up and the floor from surface samples, starting from `prior` (the cameras'
+/// average up); `cameras` are the camera positions (map frame). Falls back to the prior when
+/// less than 3 % of the surface weight is horizontal.
+pub fn estimate_up(samples: &[SurfaceSample], prior: Vec3, cameras: &[Vec3]) -> UpEstimate {
+    let prior = prior.normalize_or(Vec3::Z);
+    let total: f32 = samples.iter().map(|s| s.weight).sum();
+    let mut up = prior;
+    let mut planes = false;
+    // Cones of 35, 20 and 10 degrees: the first catches a tilted prior, the last rejects
+    // sloped surfaces from the average.
+    for cone_deg in [35f32, 20.0, 10.0] {
+        let cos = cone_deg.to_radians().cos();
+        let (mut acc, mut w) = (Vec3::ZERO, 0.0f32);
+        for s in samples {
+            let d = s.normal.dot(up);
+            if d.abs() >= cos {
+                acc += s.normal * d.signum() * s.weight;
+                w += s.weight;
+            }
+        }
+        if w <= 0.03 * total || w <= 0.0 {
+            break;
+        }
+        if let Some(u) = acc.try_normalize() {
+            up = u;
+            planes = true;
+        }
+    }
+    if up.dot(prior) < 0.0 {
+        up = -up;
+    }
+    let cos15 = 15f32.to_radians().cos();
+    let horizontal: f32 = samples.iter().filter(|s| s.normal.dot(up).abs() >= cos15).map(|s| s.weight).sum();
+    let horizontal_share = if total > 0.0 { horizontal / total } else { 0.0 };
+    if horizontal_share < 0.03 {
+        up = prior;
+        planes = false;
+    }
+    UpEstimate {
+        up,
+        floor_height: floor_height(samples, up, cameras),
+        source: if planes { UpSource::Planes } else { UpSource::CameraPrior },
+        horizontal_share,
+    }
+}
+
+/// The estimate for a known up direction: only the floor is looked for.
+pub fn given_up(samples: &[SurfaceSample], up: Vec3, cameras: &[Vec3]) -> UpEstimate {
+    let up = up.normalize_or(Vec3::Z);
+    let cos15 = 15f32.to_radians().cos();
+    let total: f32 = samples.iter().map(|s| s.weight).sum();
+    let horizontal: f32 = samples.iter().filter(|s| s.normal.dot(up).abs() >= cos15).map(|s| s.weight).sum();
+    UpEstimate {
+        up,
+        floor_height: floor_height(samples, up, cameras),
+        source: UpSource::Given,
+        horizontal_share: if total > 0.0 { horizontal / total } else { 0.0 },
+    }
+}
+
+/// Height band of 5 cm.
+const FLOOR_BIN_M: f32 = 0.05;
+
+/// The lowest 5 cm band of upward-facing surface at least 0.3 m below the lowest camera
+/// holding a quarter of the weight of the fullest such band; without one,
+/// [`HANDHELD_HEIGHT_M`] below the lowest camera, or the lowest sample when there is no
+/// camera; 0 without either.
+fn floor_height(samples: &[SurfaceSample], up: Vec3, cameras: &[Vec3]) -> f32 {
+    let cos15 = 15f32.to_radians().cos();
+    let lowest_camera = cameras.iter().map(|c| c.dot(up)).reduce(f32::min);
+    let ceiling = lowest_camera.map_or(f32::INFINITY, |c| c - 0.3);
+    let heights: Vec<(f32, f32)> = samples
+        .iter()
+        .filter(|s| s.normal.dot(up) >= cos15 && s.position.dot(up) < ceiling)
+        .map(|s| (s.position.dot(up), s.weight))
+        .collect();
+    if heights.is_empty() {
+        if let Some(c) = lowest_camera {
+            return c - HANDHELD_HEIGHT_M;
+        }
+        return samples.iter().map(|s| s.position.dot(up)).reduce(f32::min).unwrap_or(0.0);
+    }
+    let lo = heights.iter().map(|h| h.0).fold(f32::INFINITY, f32::min);
+    let bins = (((heights.iter().map(|h| h.0).fold(f32::NEG_INFINITY, f32::max) - lo) / FLOOR_BIN_M) as usize + 1)
+        .min(100_000);
+    let mut hist = vec![0f32; bins];
+    for (h, w) in &heights {
+        hist[(((h - lo) / FLOOR_BIN_M) as usize).min(bins - 1)] += w;
+    }
+    let peak = hist.iter().copied().fold(0.0, f32::max);
+    let bin = hist.iter().position(|&w| w >= 0.25 * peak).unwrap_or(0);
+    // Mean height of the band.
+    let (mut sum, mut w) = (0.0f32, 0.0f32);
+    for (h, wt) in &heights {
+        if (((h - lo) / FLOOR_BIN_M) as usize).min(bins - 1) == bin {
+            sum += h * wt;
+            w += wt;
+        }
+    }
+    if w > 0.0 {
+        sum / w
+    } else {
+        lo
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A box room (floor at z = 0, ceiling at 2.5 m, four walls) with a table top at 0.7 m,
+    /// sampled on a 10 cm grid, in a frame rotated by `map_from_world`.
+    fn room(map_from_world: Affine3A) -> Vec<SurfaceSample> {
+        let mut s = Vec::new();
+        let mut push = |p: Vec3, n: Vec3| {
+            s.push(SurfaceSample {
+                position: map_from_world.transform_point3(p),
+                normal: map_from_world.transform_vector3(n),
+                weight: 1.0,
+            })
+        };
+        for i in 0..40 {
+            for j in 0..40 {
+                let (a, b) = (i as f32 * 0.1, j as f32 * 0.1);
+                push(Vec3::new(a, b, 0.0), Vec3::Z);
+                push(Vec3::new(a, b, 2.5), -Vec3::Z);
+                if j < 25 {
+                    push(Vec3::new(a, 0.0, b), Vec3::Y);
+                    push(Vec3::new(0.0, a, b), Vec3::X);
+                }
+                if i < 10 && j < 8 {
+                    push(Vec3::new(1.0 + a, 1.0 + b, 0.7), Vec3::Z);
+                }
+            }
+        }
+        s
+    }
+
+    #[test]
+    fn up_and_floor_are_found_in_a_tilted_frame() {
+        // A camera-like frame: pitched 25 degrees, rolled 8, and moved.
+        let map_from_world = Affine3A::from_rotation_translation(
+            glam::Quat::from_rotation_x(-(90f32 + 25.0).to_radians()) * glam::Quat::from_rotation_y(0.14),
+            Vec3::new(0.3, -1.2, 2.0),
+        );
+        let samples = room(map_from_world);
+        let true_up = map_from_world.transform_vector3(Vec3::Z);
+        // A prior 20 degrees off.
+        let prior = glam::Quat::from_rotation_x(0.35) * true_up;
+        let e = estimate_up(&samples, prior, &[map_from_world.transform_point3(Vec3::new(2.0, 2.0, 1.5))]);
+        assert_eq!(e.source, UpSource::Planes);
+        assert!(e.angle_to_deg(true_up) < 0.5, "{} deg", e.angle_to_deg(true_up));
+        // The floor maps to z = 0 and the table top to 0.7 m.
+        let aligned = e.aligned_from_map() * map_from_world;
+        assert!(aligned.transform_point3(Vec3::new(2.0, 2.0, 0.0)).z.abs() < 0.01);
+        assert!((aligned.transform_point3(Vec3::new(1.2, 1.2, 0.7)).z - 0.7).abs() < 0.01);
+        assert!((aligned.transform_vector3(Vec3::Z) - Vec3::Z).length() < 0.01);
+    }
+
+    #[test]
+    fn without_horizontal_surfaces_the_prior_stays() {
+        let samples: Vec<SurfaceSample> = (0..100)
+            .map(|i| SurfaceSample { position: Vec3::new(i as f32 * 0.1, 0.0, 0.0), normal: Vec3::Y, weight: 1.0 })
+            .collect();
+        let e = estimate_up(&samples, Vec3::Z, &[]);
+        assert_eq!((e.up, e.source), (Vec3::Z, UpSource::CameraPrior));
+        let g = given_up(&samples, Vec3::new(0.0, 0.0, 2.0), &[]);
+        assert_eq!((g.up, g.source), (Vec3::Z, UpSource::Given));
+    }
+
+    #[test]
+    fn camera_prior_is_minus_camera_y() {
+        // Camera looking along +x of a z-up world: camera y (down) is -z.
+        let pose = Affine3A::from_mat3(Mat3::from_cols(-Vec3::Y, -Vec3::Z, Vec3::X));
+        assert!((camera_up_prior(&[pose]).expect("one pose") - Vec3::Z).length() < 1e-6);
+        assert_eq!(camera_up_prior(&[]), None);
+    }
+}

@@ -1,0 +1,474 @@
+//! [`Pipeline`]: the live system of MISSION.md section 1 behind one object. Every frame is
+//! tracked and fused on the caller's thread (the front end); every `keyframe_every` fused
+//! frames the mesh is brought up to date and the changed part of the map's surface is handed to
+//! the semantic back end (its own thread, see [`crate::backend`]), whose class probabilities
+//! are accumulated per 5 cm cell and read by [`Pipeline::mesh`].
+//!
+//! Timing rules: without `realtime`, the front end waits at each keyframe for the previous
+//! keyframe's labels before it snapshots the map again, so every pass sees the same map and
+//! results are applied at the same frames whatever the machine's speed: the output is
+//! deterministic. With `realtime`, keyframes that find the back end busy are skipped (the next
+//! pass then covers their changes too) and results are applied as soon as they arrive.
+
+use std::collections::BTreeSet;
+use std::time::Instant;
+
+use glam::{Affine3A, Vec3};
+use semrecon_data::{class::UNLABELED, Frame, Intrinsics, LabeledMesh, SemanticClass, Trajectory};
+use semrecon_net::Segmenter;
+use semrecon_recon::{IncrementalMesher, LostReason, Tracker, TrackerConfig, TrackingStatus, TsdfMap};
+use serde::Serialize;
+
+use crate::backend::{Backend, Job, JobResult};
+use crate::config::{PipelineConfig, PoseMode, SemanticMode};
+use crate::error::{PipelineError, Result};
+use crate::gravity::{camera_up_prior, estimate_up, given_up, UpEstimate};
+use crate::semantic_map::{LabelStore, SurfaceCells, CLASSES};
+use crate::timing::StageTimes;
+
+/// Stages the front end runs (their sum is [`Pipeline::front_end_seconds`]).
+pub const FRONT_END_STAGES: [&str; 4] = ["tracking", "fusion", "meshing", "semantic snapshot"];
+
+/// What happened to one frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FrameStatus {
+    /// The first fused frame: its pose is the initial pose.
+    Initialized,
+    /// Tracked (or given a ground-truth pose) and fused.
+    Fused,
+    /// Tracking failed: the frame was not fused (the map is unchanged).
+    Lost(LostReason),
+    /// Ground-truth mode and the frame has no pose: not fused.
+    NoPose,
+}
+
+/// The outcome of [`Pipeline::push_frame`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameResult {
+    /// The frame's index in its source.
+    pub index: usize,
+    /// Fused, lost, ...
+    pub status: FrameStatus,
+    /// The frame's `world_from_camera` when fused; `None` otherwise.
+    pub pose: Option<Affine3A>,
+    /// Whether this frame was a keyframe (mesh updated, semantics considered).
+    pub keyframe: bool,
+    /// Whether a semantic pass was started at this frame.
+    pub semantic_pass: bool,
+}
+
+/// One semantic pass, for reports and benchmarks.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SemanticPass {
+    /// Frame index the snapshot was taken at.
+    pub frame: usize,
+    /// Cells with surface in the whole map at that time.
+    pub map_cells: usize,
+    /// Cells given to the network (changed tiles and their context).
+    pub input_cells: usize,
+    /// Cells whose labels were written back.
+    pub updated_cells: usize,
+    /// Voxels of the network's input (cells merged in the gravity-aligned grid).
+    pub network_voxels: usize,
+    /// Front-end time of the snapshot (surface extraction, up estimate, selection), ms.
+    pub snapshot_ms: f64,
+    /// Back-end time (voxelising, network, softmax), ms.
+    pub network_ms: f64,
+}
+
+/// Semantic state: surface cells, labels, the back end.
+struct Semantics {
+    cells: SurfaceCells,
+    labels: LabelStore,
+    backend: Backend,
+    /// Snapshot record of the job in flight.
+    in_flight: Option<SemanticPass>,
+    passes: Vec<SemanticPass>,
+    skipped: usize,
+    up: Option<UpEstimate>,
+    /// Whether the map changed since the last snapshot.
+    stale: bool,
+}
+
+/// The live pipeline. See the module documentation.
+pub struct Pipeline {
+    config: PipelineConfig,
+    intrinsics: Intrinsics,
+    map: TsdfMap,
+    mesher: IncrementalMesher,
+    tracker: Option<Tracker>,
+    trajectory: Trajectory,
+    times: StageTimes,
+    fused: usize,
+    meshed_at: usize,
+    frames: usize,
+    lost: usize,
+    last_pose: Option<Affine3A>,
+    semantics: Option<Semantics>,
+    warnings: Vec<String>,
+}
+
+impl std::fmt::Debug for Pipeline {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Pipeline").field("frames", &self.frames).field("fused", &self.fused).finish_non_exhaustive()
+    }
+}
+
+impl Pipeline {
+    /// A pipeline for frames of camera `intrinsics`; `net` labels the map (without one, the
+    /// mesh stays unlabelled and no back end runs).
+    ///
+    /// # Errors
+    /// An invalid configuration; a network that does not output the 13 classes.
+    pub fn new(config: PipelineConfig, intrinsics: Intrinsics, net: Option<Segmenter>) -> Result<Self> {
+        config.validate()?;
+        let map = TsdfMap::new(config.tsdf)?;
+        let semantics = match net {
+            None => None,
+            Some(net) => {
+                let c = net.config();
+                if c.classes != CLASSES {
+                    return Err(PipelineError::InvalidConfig(format!(
+                        "network {} outputs {} classes, the pipeline labels {CLASSES}",
+                        c.name, c.classes
+                    )));
+                }
+                if c.in_channels != 3 {
+                    return Err(PipelineError::InvalidConfig(format!(
+                        "network {} takes {} input channels, the pipeline gives RGB",
+                        c.name, c.in_channels
+                    )));
+                }
+                let cells =
+                    SurfaceCells::new(c.voxel_size, config.tsdf.voxel_size, config.semantics.surface_band_voxels);
+                Some(Semantics {
+                    cells,
+                    labels: LabelStore::default(),
+                    backend: Backend::start(net)?,
+                    in_flight: None,
+                    passes: Vec::new(),
+                    skipped: 0,
+                    up: None,
+                    stale: false,
+                })
+            }
+        };
+        Ok(Self {
+            config,
+            intrinsics,
+            map,
+            mesher: IncrementalMesher::new(),
+            tracker: None,
+            trajectory: Trajectory::default(),
+            times: StageTimes::default(),
+            fused: 0,
+            meshed_at: 0,
+            frames: 0,
+            lost: 0,
+            last_pose: None,
+            semantics,
+            warnings: Vec::new(),
+        })
+    }
+
+    /// Tracks and fuses one frame; at keyframes updates the mesh and starts a semantic pass.
+    ///
+    /// Frames must come in capture order. A frame that cannot be tracked is reported in the
+    /// result and leaves the map unchanged; the pipeline goes on with the next.
+    ///
+    /// # Errors
+    /// [`PipelineError::InvalidFrame`] when the frame's buffers do not match the camera (the
+    /// frame is skipped, nothing changes). Failures of the semantic back end are not errors
+    /// of the frame: they are collected in [`Pipeline::warnings`].
+    pub fn push_frame(&mut self, frame: &Frame) -> Result<FrameResult> {
+        let k = &self.intrinsics;
+        if frame.intrinsics.width != k.width || frame.intrinsics.height != k.height {
+            return Err(PipelineError::InvalidFrame {
+                index: frame.index,
+                message: format!(
+                    "{}x{} frame for a {}x{} camera",
+                    frame.intrinsics.width, frame.intrinsics.height, k.width, k.height
+                ),
+            });
+        }
+        frame.validate().map_err(|message| PipelineError::InvalidFrame { index: frame.index, message })?;
+        self.frames += 1;
+        if self.config.semantics.realtime {
+            self.poll_semantics();
+        }
+        let t = Instant::now();
+        let (status, pose) = match self.config.poses {
+            PoseMode::GroundTruth => match frame.world_from_camera {
+                Some(p) => (if self.fused == 0 { FrameStatus::Initialized } else { FrameStatus::Fused }, Some(p)),
+                None => (FrameStatus::NoPose, None),
+            },
+            PoseMode::Track => {
+                let tracker = match &mut self.tracker {
+                    Some(t) => t,
+                    None => {
+                        let start = self.config.initial_pose.or(frame.world_from_camera).unwrap_or(Affine3A::IDENTITY);
+                        let config = TrackerConfig {
+                            keyframe_interval: self.config.keyframe_every,
+                            ..self.config.tracker.clone()
+                        };
+                        self.tracker.insert(Tracker::with_initial_pose(config, start)?)
+                    }
+                };
+                let r = tracker.track(frame, &self.map)?;
+                match r.status {
+                    TrackingStatus::Lost(reason) => (FrameStatus::Lost(reason), None),
+                    TrackingStatus::Initialized => (FrameStatus::Initialized, Some(r.world_from_camera)),
+                    TrackingStatus::Tracked => (FrameStatus::Fused, Some(r.world_from_camera)),
+                }
+            }
+        };
+        self.times.record("tracking", t.elapsed());
+        let mut result = FrameResult { index: frame.index, status, pose: None, keyframe: false, semantic_pass: false };
+        let Some(pose) = pose else {
+            self.lost += 1;
+            return Ok(result);
+        };
+        let t = Instant::now();
+        self.map.integrate(frame, pose)?;
+        self.times.record("fusion", t.elapsed());
+        self.trajectory.push(frame.timestamp, pose);
+        self.last_pose = Some(pose);
+        self.fused += 1;
+        result.pose = Some(pose);
+        if let Some(s) = &mut self.semantics {
+            s.stale = true;
+        }
+        if self.fused.is_multiple_of(self.config.keyframe_every) {
+            result.keyframe = true;
+            self.remesh();
+            result.semantic_pass = self.keyframe_semantics(frame.index)?;
+        }
+        Ok(result)
+    }
+
+    fn remesh(&mut self) {
+        let t = Instant::now();
+        self.mesher.update(&self.map);
+        self.times.record("meshing", t.elapsed());
+        self.meshed_at = self.fused;
+    }
+
+    /// At a keyframe: collects the previous pass (waiting for it unless real-time) and starts
+    /// a new one. Returns whether one was started.
+    fn keyframe_semantics(&mut self, frame: usize) -> Result<bool> {
+        let Some(s) = &mut self.semantics else { return Ok(false) };
+        if s.in_flight.is_some() {
+            if self.config.semantics.realtime {
+                s.skipped += 1;
+                return Ok(false);
+            }
+            let t = Instant::now();
+            let r = s.backend.wait();
+            self.times.record("semantic wait", t.elapsed());
+            self.apply(r);
+        }
+        self.start_pass(frame)
+    }
+
+    /// Snapshots the changed surface and hands it to the back end; false when nothing changed.
+    fn start_pass(&mut self, frame: usize) -> Result<bool> {
+        let Some(s) = &mut self.semantics else { return Ok(false) };
+        if !s.stale {
+            return Ok(false);
+        }
+        let t = Instant::now();
+        let changed = s.cells.update(&self.map);
+        s.stale = false;
+        if changed.is_empty() || s.cells.is_empty() {
+            return Ok(false);
+        }
+        let samples = s.cells.samples();
+        let cameras: Vec<Vec3> = self.trajectory.poses.iter().map(|p| Vec3::from(p.translation)).collect();
+        let up = match self.config.semantics.up {
+            Some(u) => given_up(&samples, u, &cameras),
+            None => {
+                let prior = camera_up_prior(&self.trajectory.poses).unwrap_or(Vec3::Z);
+                estimate_up(&samples, prior, &cameras)
+            }
+        };
+        s.up = Some(up);
+        let tile_cells = ((self.config.semantics.tile_m / s.cells.cell_size()).round() as i32).max(1);
+        let changed_cells = s.cells.take_changed_cells(self.config.semantics.min_cell_change);
+        let cells = &s.cells;
+        s.labels.retain(|k| cells.contains(k));
+        let selected = match self.config.semantics.mode {
+            SemanticMode::Full => s.cells.select(None, tile_cells, 0),
+            SemanticMode::Incremental { context_m } => {
+                if changed_cells.is_empty() {
+                    self.times.record("semantic snapshot", t.elapsed());
+                    return Ok(false);
+                }
+                let tiles: BTreeSet<(i32, i32, i32)> = s.cells.tiles_of_cells(&changed_cells, tile_cells);
+                let tile_m = tile_cells as f32 * s.cells.cell_size();
+                s.cells.select(Some(&tiles), tile_cells, (context_m / tile_m).ceil() as i32)
+            }
+        };
+        let job = Job {
+            keys: selected.iter().map(|(c, _)| c.key).collect(),
+            positions: selected.iter().map(|(c, _)| c.position).collect(),
+            colors: selected.iter().map(|(c, _)| c.color).collect(),
+            update: selected.iter().map(|(_, u)| *u).collect(),
+            aligned_from_map: up.aligned_from_map(),
+        };
+        let record = SemanticPass {
+            frame,
+            map_cells: s.cells.len(),
+            input_cells: job.keys.len(),
+            updated_cells: job.update.iter().filter(|u| **u).count(),
+            network_voxels: 0,
+            snapshot_ms: t.elapsed().as_secs_f64() * 1e3,
+            network_ms: 0.0,
+        };
+        if let Err(e) = s.backend.submit(job) {
+            // The back end is gone (its thread panicked): go on without semantics.
+            self.warnings.push(format!("semantics stopped at frame {frame}: {e}"));
+            self.semantics = None;
+            return Ok(false);
+        }
+        s.in_flight = Some(record);
+        self.times.record_ms("semantic snapshot", record.snapshot_ms);
+        Ok(true)
+    }
+
+    /// Applies a finished pass (or records its failure).
+    fn apply(&mut self, r: Result<JobResult>) {
+        let Some(s) = &mut self.semantics else { return };
+        let Some(mut record) = s.in_flight.take() else { return };
+        match r {
+            Ok(r) => {
+                s.labels.accumulate(&r.keys, &r.probs);
+                record.network_voxels = r.network_voxels;
+                record.network_ms = r.total_ms;
+                s.passes.push(record);
+                self.times.record_ms("semantic", r.total_ms);
+            }
+            Err(e) => self.warnings.push(format!("semantic pass of frame {} failed: {e}", record.frame)),
+        }
+    }
+
+    fn poll_semantics(&mut self) {
+        let Some(s) = &self.semantics else { return };
+        if s.in_flight.is_none() {
+            return;
+        }
+        if let Some(r) = s.backend.poll() {
+            self.apply(r);
+        }
+    }
+
+    /// Ends the stream: waits for the pass in flight, runs a last pass over what changed
+    /// since, brings the mesh up to date and returns the labelled mesh.
+    ///
+    /// # Errors
+    /// None at present (failures of the back end are [`Pipeline::warnings`]); the `Result`
+    /// leaves room for outputs that can fail.
+    pub fn finish(&mut self) -> Result<LabeledMesh> {
+        for _ in 0..2 {
+            if let Some(s) = &self.semantics {
+                if s.in_flight.is_some() {
+                    let t = Instant::now();
+                    let r = s.backend.wait();
+                    self.times.record("semantic wait", t.elapsed());
+                    self.apply(r);
+                }
+            }
+            let frame = self.frames.saturating_sub(1);
+            if !self.start_pass(frame)? {
+                break;
+            }
+        }
+        if self.meshed_at != self.fused {
+            self.remesh();
+        }
+        Ok(self.mesh())
+    }
+
+    /// The pose of the last fused frame (`None` before the first).
+    pub fn pose(&self) -> Option<Affine3A> {
+        self.last_pose
+    }
+
+    /// Poses of the fused frames.
+    pub fn trajectory(&self) -> &Trajectory {
+        &self.trajectory
+    }
+
+    /// The mesh as of the last keyframe, with per-vertex classes ([`UNLABELED`] where no pass
+    /// reached yet) and observed colours.
+    pub fn mesh(&self) -> LabeledMesh {
+        let mut mesh = self.mesher.mesh();
+        mesh.vertex_labels = match &self.semantics {
+            Some(s) => mesh.positions.iter().map(|p| s.labels.label_near(s.cells.cell_of_point(*p))).collect(),
+            None => vec![UNLABELED; mesh.positions.len()],
+        };
+        mesh
+    }
+
+    /// The class at map point `p` (the class of its 5 cm cell), `None` when unlabelled.
+    pub fn label_at(&self, p: Vec3) -> Option<SemanticClass> {
+        let s = self.semantics.as_ref()?;
+        SemanticClass::from_id(s.labels.label(s.cells.cell_of_point(p)))
+    }
+
+    /// Per-stage timings: `tracking` and `fusion` per frame, `meshing` and `semantic snapshot`
+    /// per keyframe (front end), `semantic` per pass (back end), `semantic wait` where the
+    /// front end waited for the back end.
+    pub fn timings(&self) -> &StageTimes {
+        &self.times
+    }
+
+    /// Seconds the front end spent in [`FRONT_END_STAGES`] (what a real-time factor divides).
+    pub fn front_end_seconds(&self) -> f64 {
+        FRONT_END_STAGES.iter().filter_map(|s| self.times.summary(s)).map(|s| s.total_ms).sum::<f64>() / 1e3
+    }
+
+    /// The TSDF map.
+    pub fn map(&self) -> &TsdfMap {
+        &self.map
+    }
+
+    /// Frames pushed (valid ones), fused, and not fused (lost or without pose).
+    pub fn frame_counts(&self) -> (usize, usize, usize) {
+        (self.frames, self.fused, self.lost)
+    }
+
+    /// Semantic passes applied so far, in order.
+    pub fn semantic_passes(&self) -> &[SemanticPass] {
+        self.semantics.as_ref().map_or(&[], |s| s.passes.as_slice())
+    }
+
+    /// Keyframes skipped because the back end was busy (real-time mode).
+    pub fn skipped_keyframes(&self) -> usize {
+        self.semantics.as_ref().map_or(0, |s| s.skipped)
+    }
+
+    /// The up direction and floor used by the last pass.
+    pub fn up(&self) -> Option<UpEstimate> {
+        self.semantics.as_ref().and_then(|s| s.up)
+    }
+
+    /// Labelled 5 cm cells and their classes, in (z, y, x) order.
+    pub fn cell_labels(&self) -> Vec<(glam::IVec3, u8)> {
+        self.semantics.as_ref().map_or_else(Vec::new, |s| s.labels.labels())
+    }
+
+    /// Whether a network labels the map.
+    pub fn has_semantics(&self) -> bool {
+        self.semantics.is_some()
+    }
+
+    /// Problems that did not stop the pipeline (failed semantic passes).
+    pub fn warnings(&self) -> &[String] {
+        &self.warnings
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &PipelineConfig {
+        &self.config
+    }
+}

@@ -1,0 +1,173 @@
+//! End-to-end tests of the pipeline on small synthetic scans: the up direction in a tilted map
+//! frame, determinism, incremental against full semantics, bad input.
+
+use glam::{Affine3A, Vec3};
+use semrecon_data::class::UNLABELED;
+use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
+use semrecon_data::{Frame, FrameSource};
+use semrecon_net::{NetConfig, Segmenter, Weights};
+use semrecon_pipeline::{FrameStatus, Pipeline, PipelineConfig, PoseMode, SemanticMode, UpSource};
+
+/// Frames of a 160x120 synthetic scan, re-expressed in the first camera's frame (as a SLAM
+/// system started at the identity sees them); also returns `map_from_world`.
+fn scan_in_first_camera_frame(seed: u64, frames: usize) -> (Vec<Frame>, Affine3A) {
+    let mut config = SyntheticScanConfig::new(seed);
+    config.frames = frames;
+    config.intrinsics = config.intrinsics.scaled(160, 120);
+    let (_room, scan) = synthetic_scan(&config).expect("scan");
+    let mut out: Vec<Frame> = (0..scan.len()).map(|i| scan.frame(i).expect("frame")).collect();
+    let map_from_world = out[0].world_from_camera.expect("pose").inverse();
+    for f in &mut out {
+        f.world_from_camera = f.world_from_camera.map(|p| map_from_world * p);
+    }
+    (out, map_from_world)
+}
+
+fn tiny_net(seed: u64) -> Segmenter {
+    let c = NetConfig::new("tiny", 3, 8, 0.05);
+    Segmenter::new(Weights::random(&c, seed), c).expect("net")
+}
+
+fn config(mode: SemanticMode) -> PipelineConfig {
+    let mut c = PipelineConfig { poses: PoseMode::GroundTruth, keyframe_every: 5, ..PipelineConfig::default() };
+    c.tsdf.voxel_size = 0.02;
+    c.tsdf.truncation_voxels = 4.0;
+    c.semantics.mode = mode;
+    c
+}
+
+fn run(frames: &[Frame], config: PipelineConfig, net: Option<Segmenter>) -> (Pipeline, semrecon_data::LabeledMesh) {
+    let mut p = Pipeline::new(config, frames[0].intrinsics, net).expect("pipeline");
+    for f in frames {
+        p.push_frame(f).expect("frame");
+    }
+    let mesh = p.finish().expect("finish");
+    (p, mesh)
+}
+
+#[test]
+fn up_is_found_in_the_tilted_frame_of_the_first_camera() {
+    let (frames, map_from_world) = scan_in_first_camera_frame(3, 30);
+    let (p, mesh) = run(&frames, config(SemanticMode::Full), Some(tiny_net(1)));
+    let true_up = map_from_world.transform_vector3(Vec3::Z);
+    // The first camera is tilted: up is not -y of the map.
+    let tilt = true_up.dot(-Vec3::Y).acos().to_degrees();
+    let up = p.up().expect("a pass ran");
+    eprintln!("up {:.2} deg off, camera tilt {tilt:.1} deg", up.angle_to_deg(true_up));
+    assert_eq!(up.source, UpSource::Planes);
+    assert!(
+        up.angle_to_deg(true_up) < 2.0,
+        "up {:?} is {} deg off (camera tilt {tilt} deg)",
+        up.up,
+        up.angle_to_deg(true_up)
+    );
+    // The floor (z = 0 in the world) lands at z = 0 of the aligned frame.
+    let floor_in_map = map_from_world.transform_point3(Vec3::new(0.0, 0.0, 0.0));
+    let z = up.aligned_from_map().transform_point3(floor_in_map).z;
+    assert!(z.abs() < 0.05, "floor at {z} m after alignment (tilt {tilt} deg)");
+    mesh.validate().expect("valid mesh");
+    let labelled = mesh.vertex_labels.iter().filter(|&&l| l != UNLABELED).count();
+    assert!(labelled * 100 >= mesh.vertex_count() * 99, "{labelled} of {} vertices labelled", mesh.vertex_count());
+}
+
+#[test]
+fn results_do_not_depend_on_timing() {
+    let (frames, _) = scan_in_first_camera_frame(4, 20);
+    let (a, ma) = run(&frames, config(SemanticMode::default()), Some(tiny_net(2)));
+    let (b, mb) = run(&frames, config(SemanticMode::default()), Some(tiny_net(2)));
+    assert_eq!(ma, mb);
+    assert_eq!(a.cell_labels(), b.cell_labels());
+    assert_eq!(a.semantic_passes().len(), b.semantic_passes().len());
+    assert!(a.semantic_passes().len() >= 4);
+}
+
+#[test]
+fn incremental_labels_agree_with_full_passes() {
+    let (frames, _) = scan_in_first_camera_frame(5, 40);
+    let (full, _) = run(&frames, config(SemanticMode::Full), Some(tiny_net(3)));
+    let (inc, _) = run(&frames, config(SemanticMode::Incremental { context_m: 1.0 }), Some(tiny_net(3)));
+    let a = full.cell_labels();
+    let b: std::collections::HashMap<_, _> = inc.cell_labels().into_iter().collect();
+    assert_eq!(a.len(), b.len(), "both label every cell");
+    let same = a.iter().filter(|(k, l)| b.get(k) == Some(l)).count();
+    let agreement = same as f64 / a.len() as f64;
+    eprintln!("incremental vs full: {:.2}% of {} cells agree", agreement * 100.0, a.len());
+    // A 3-level network sees about 0.5 m: 1 m of context covers it; full passes still relabel
+    // old cells with later context and sum more passes, and incremental ones skip tiles whose
+    // surface barely changed. Measured: 99.3 % of 5192 cells.
+    assert!(agreement >= 0.97, "agreement {agreement}");
+    let last_full = full.semantic_passes().last().expect("passes");
+    let last_inc = inc.semantic_passes().last().expect("passes");
+    assert!(last_inc.input_cells <= last_full.input_cells);
+}
+
+#[test]
+fn bad_frames_and_lost_tracking_leave_a_valid_result() {
+    let (mut frames, _) = scan_in_first_camera_frame(6, 16);
+    // Frame 6 has no depth at all (tracking must call it lost), frame 9 the wrong size.
+    frames[6].depth.iter_mut().for_each(|d| *d = 0.0);
+    let mut c = config(SemanticMode::default());
+    c.poses = PoseMode::Track;
+    let mut p = Pipeline::new(c, frames[0].intrinsics, Some(tiny_net(4))).expect("pipeline");
+    let mut statuses = Vec::new();
+    for (i, f) in frames.iter().enumerate() {
+        let mut f = f.clone();
+        if i == 9 {
+            f.intrinsics = f.intrinsics.scaled(80, 60);
+        }
+        match p.push_frame(&f) {
+            Ok(r) => statuses.push(r.status),
+            Err(e) => {
+                assert_eq!(i, 9, "{e}");
+                assert!(e.to_string().contains("frame 9"), "{e}");
+            }
+        }
+    }
+    assert!(matches!(statuses[6], FrameStatus::Lost(_)), "{:?}", statuses[6]);
+    assert!(statuses.iter().filter(|s| matches!(s, FrameStatus::Fused)).count() >= 12, "{statuses:?}");
+    let mesh = p.finish().expect("finish");
+    mesh.validate().expect("valid mesh");
+    assert!(mesh.triangle_count() > 100);
+    let (pushed, fused, lost) = p.frame_counts();
+    assert_eq!((pushed, fused + lost), (15, 15));
+    assert_eq!(p.trajectory().len(), fused);
+}
+
+#[test]
+fn realtime_mode_and_no_network_finish_cleanly() {
+    let (frames, _) = scan_in_first_camera_frame(7, 12);
+    let mut c = config(SemanticMode::default());
+    c.semantics.realtime = true;
+    let (p, mesh) = run(&frames, c, Some(tiny_net(5)));
+    assert!(!p.semantic_passes().is_empty());
+    assert!(mesh.vertex_labels.iter().any(|&l| l != UNLABELED));
+    let (p, mesh) = run(&frames, config(SemanticMode::Full), None);
+    assert!(!p.has_semantics() && p.semantic_passes().is_empty());
+    assert!(mesh.vertex_labels.iter().all(|&l| l == UNLABELED) && mesh.vertex_count() > 0);
+}
+
+#[test]
+fn up_on_7scenes_matches_its_gravity_file() {
+    // The real kitchen: 60 frames at 2 cm with the reference poses. The folder's
+    // gravity-direction.txt is gravity (down) in the poses' world frame; the estimate from the
+    // map's planes must agree with it (measured: 1.8 degrees over 200 frames).
+    let Some(dir) = semrecon_data::shared_data::shared_data_path("7scenes-redkitchen") else { return };
+    let Ok(text) = std::fs::read_to_string(dir.join("gravity-direction.txt")) else {
+        println!("skipping: no gravity-direction.txt");
+        return;
+    };
+    let g: Vec<f32> = text.split_whitespace().filter_map(|t| t.parse().ok()).collect();
+    assert_eq!(g.len(), 3, "{text}");
+    let up_true = -Vec3::new(g[0], g[1], g[2]).normalize();
+    let source = semrecon_data::datasets::SevenScenes::open(&dir).expect("7-Scenes folder");
+    let mut c = config(SemanticMode::Full);
+    c.keyframe_every = 20;
+    let mut p = Pipeline::new(c, source.intrinsics(), Some(tiny_net(8))).expect("pipeline");
+    for i in (0..120).step_by(2) {
+        p.push_frame(&source.frame(i).expect("frame")).expect("push");
+    }
+    p.finish().expect("finish");
+    let up = p.up().expect("a pass ran");
+    eprintln!("7-Scenes up {:?}: {:.2} deg from the gravity file", up.up, up.angle_to_deg(up_true));
+    assert!(up.angle_to_deg(up_true) < 4.0, "{:?} vs {up_true:?}", up.up);
+}
