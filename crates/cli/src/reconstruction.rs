@@ -16,7 +16,7 @@ use rayon::prelude::*;
 use semrecon_data::class::UNLABELED;
 use semrecon_data::{write_ply, LabeledMesh, PlyEncoding, SemanticClass, Trajectory};
 use semrecon_eval::{MeshEvalConfig, SurfaceIndex, SurfaceLabeler};
-use semrecon_net::{ConfusionMatrix, NetConfig, Segmenter, Weights};
+use semrecon_net::{shipped, ConfusionMatrix, NetConfig, Segmenter, Weights};
 use semrecon_pipeline::{PipelineConfig, SemanticMode};
 use semrecon_recon::{TrackerConfig, TsdfConfig};
 
@@ -124,18 +124,28 @@ pub fn load_network(args: &SemanticArgs) -> anyhow::Result<(Option<Segmenter>, S
     }
     match &args.model {
         Some(path) => {
-            let config = Weights::read_config(path)
-                .with_context(|| format!("reading {}", path.display()))?
-                .unwrap_or_else(NetConfig::s20);
-            let weights = Weights::load(path, &config).with_context(|| format!("loading {}", path.display()))?;
-            let net =
-                Segmenter::new(weights, config.clone()).with_context(|| format!("network of {}", path.display()))?;
-            Ok((Some(net), format!("{} ({})", path.display(), config.summary())))
+            let net = shipped::load(path, None).with_context(|| format!("loading the model {}", path.display()))?;
+            let summary = format!("{} ({})", path.display(), net.config().summary());
+            Ok((Some(net), summary))
         }
         None => {
+            let path = shipped::default_model_path();
+            if path.is_file() {
+                let net = shipped::load(&path, None)
+                    .with_context(|| format!("loading the shipped model {}", path.display()))?;
+                let summary = format!("shipped {} ({})", path.display(), net.config().summary());
+                return Ok((Some(net), summary));
+            }
             let config = NetConfig::s20();
             let net = Segmenter::new(Weights::random(&config, 1), config.clone())?;
-            Ok((Some(net), format!("untrained {} with random weights (labels meaningless; pass --model)", config.name)))
+            Ok((
+                Some(net),
+                format!(
+                    "untrained {} with random weights: no model at {} (labels meaningless; pass --model)",
+                    config.name,
+                    path.display()
+                ),
+            ))
         }
     }
 }

@@ -170,7 +170,11 @@ impl DataSource {
                         .collect();
                     scenes.sort();
                     if scenes.is_empty() {
-                        return Err(semrecon_data::DataError::dataset(path, "no ScanNet scene (*_vh_clean_2.labels.ply) found").into());
+                        return Err(semrecon_data::DataError::dataset(
+                            path,
+                            "no ScanNet scene (*_vh_clean_2.labels.ply) found",
+                        )
+                        .into());
                     }
                     scenes
                 } else if path.exists() {
@@ -379,8 +383,10 @@ impl Augment {
         let angle = if self.rotate_max > 0.0 { rng.random_range(-self.rotate_max..=self.rotate_max) } else { 0.0 };
         let flip_x = self.flip && rng.random_bool(0.5);
         let flip_y = self.flip && rng.random_bool(0.5);
-        let s = if self.scale[1] > self.scale[0] { rng.random_range(self.scale[0]..=self.scale[1]) } else { self.scale[0] };
-        let flips = Mat3::from_diagonal(Vec3::new(if flip_x { -1.0 } else { 1.0 }, if flip_y { -1.0 } else { 1.0 }, 1.0));
+        let s =
+            if self.scale[1] > self.scale[0] { rng.random_range(self.scale[0]..=self.scale[1]) } else { self.scale[0] };
+        let flips =
+            Mat3::from_diagonal(Vec3::new(if flip_x { -1.0 } else { 1.0 }, if flip_y { -1.0 } else { 1.0 }, 1.0));
         let m = Mat3::from_rotation_z(angle) * flips * s;
         let field = (self.elastic_amplitude > 0.0).then(|| ElasticField::new(lo, hi, self.elastic_spacing, &mut rng));
         for p in &mut cloud.positions {
@@ -461,7 +467,13 @@ impl ElasticField {
         let dims = [0, 1, 2].map(|a| (((hi[a] - lo[a]) / spacing).ceil().max(0.0) as usize + 2).min(512));
         let n = dims[0] * dims[1] * dims[2];
         let vectors = (0..n)
-            .map(|_| Vec3::new(rng.random::<f32>() * 2.0 - 1.0, rng.random::<f32>() * 2.0 - 1.0, rng.random::<f32>() * 2.0 - 1.0))
+            .map(|_| {
+                Vec3::new(
+                    rng.random::<f32>() * 2.0 - 1.0,
+                    rng.random::<f32>() * 2.0 - 1.0,
+                    rng.random::<f32>() * 2.0 - 1.0,
+                )
+            })
             .collect();
         Self { origin: lo, spacing, dims, vectors }
     }
@@ -497,10 +509,7 @@ mod tests {
 
     #[test]
     fn parses_sources_and_rejects_bad_ones() {
-        assert_eq!(
-            DataSource::parse("synth:3..5").unwrap(),
-            DataSource::Synth { seeds: 3..5, styles: vec![] }
-        );
+        assert_eq!(DataSource::parse("synth:3..5").unwrap(), DataSource::Synth { seeds: 3..5, styles: vec![] });
         assert_eq!(
             DataSource::parse("synth:0..10:office,hallway").unwrap(),
             DataSource::Synth { seeds: 0..10, styles: vec![RoomStyle::Office, RoomStyle::Hallway] }

@@ -22,9 +22,8 @@ use semrecon_data::datasets::synthetic::{synthetic_scan, SyntheticScanConfig};
 use semrecon_data::synth::RoomStyle;
 use semrecon_data::{write_ply, FrameSource, PlyEncoding};
 use semrecon_eval::SurfaceLabeler;
+use semrecon_recon::{extract_mesh, TsdfConfig, TsdfMap};
 use serde::Serialize;
-
-use crate::reconstruction::Reconstruction;
 
 /// Arguments of `semrecon make-scans`.
 #[derive(clap::Args)]
@@ -168,7 +167,9 @@ fn make_room(args: &MakeScansArgs, seed: u64, file: &std::path::Path) -> anyhow:
         (0..scan.len()).collect()
     };
     // Re-meshed once at the end: intermediate meshes are not needed.
-    let mut recon = Reconstruction::new(args.voxel, 4.0, usize::MAX)?;
+    let mut tsdf = TsdfConfig::with_voxel_size(args.voxel).with_context(|| format!("voxel size {} m", args.voxel))?;
+    tsdf.truncation_voxels = 4.0;
+    let mut map = TsdfMap::new(tsdf)?;
     let mut render_s = 0.0;
     let t_fuse = Instant::now();
     for batch in frames.chunks(RENDER_BATCH) {
@@ -177,10 +178,10 @@ fn make_room(args: &MakeScansArgs, seed: u64, file: &std::path::Path) -> anyhow:
         render_s += t.elapsed().as_secs_f64();
         for frame in &rendered {
             let pose = frame.world_from_camera.context("a synthetic frame without its ground-truth pose")?;
-            recon.add_frame(frame, pose)?;
+            map.integrate(frame, pose)?;
         }
     }
-    let mut mesh = recon.finish();
+    let mut mesh = extract_mesh(&map);
     let fusion_s = t_fuse.elapsed().as_secs_f64() - render_s;
     let t = Instant::now();
     let labeler = SurfaceLabeler::new(&room.mesh, args.max_distance)?;

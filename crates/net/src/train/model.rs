@@ -171,7 +171,8 @@ impl BurnCbscn {
                 let centred = x - mean.clone();
                 let var = centred.clone().powi_scalar(2).mean_dim(0);
                 // Running statistics: detached values, unbiased variance.
-                let (mv, vv) = (tensor_values(mean.detach().reshape([c])), tensor_values(var.clone().detach().reshape([c])));
+                let (mv, vv) =
+                    (tensor_values(mean.detach().reshape([c])), tensor_values(var.clone().detach().reshape([c])));
                 let unbias = if n > 1 { n as f32 / (n - 1) as f32 } else { 1.0 };
                 if let Some(rm) = self.running.get_mut(&m) {
                     rm.iter_mut().zip(&mv).for_each(|(r, x)| *r = (1.0 - momentum) * *r + momentum * x);
@@ -234,7 +235,8 @@ impl BurnCbscn {
         let mut enc = vec![self.res_block(x0, "extract.0", &subm[0], mode)?];
         for i in 1..l {
             let h = self.bn_relu(enc[i - 1].clone(), &format!("down.{}.bn", i - 1), mode)?;
-            let h = sparse_conv(h, self.kernel(&format!("down.{}.conv.weight", i - 1))?, &layer(ConvSite::Down(i - 1))?);
+            let h =
+                sparse_conv(h, self.kernel(&format!("down.{}.conv.weight", i - 1))?, &layer(ConvSite::Down(i - 1))?);
             enc.push(self.res_block(h, &format!("extract.{i}"), &subm[i], mode)?);
         }
         let mut dec: Vec<Option<Tensor<2>>> = vec![None; l];
@@ -247,7 +249,8 @@ impl BurnCbscn {
             let mut d = self.res_block(up + skip, &format!("up.{t}"), &subm[t], mode)?;
             for j in t + 1..=l.saturating_sub(2) {
                 let dj = dec[j].clone().ok_or_else(|| NetError::InvalidInput("missing decoder level".into()))?;
-                let att = sigmoid(dj.clone().matmul(self.matrix(&format!("fuse.{t}.{j}.attention.weight"), c(j), 1)?));
+                let att =
+                    sigmoid(dj.clone().matmul(self.matrix(&format!("fuse.{t}.{j}.attention.weight"), c(j), 1)?));
                 let val = dj.matmul(self.matrix(&format!("fuse.{t}.{j}.value.weight"), c(j), c(t))?) * att;
                 d = d + self.upsample(geometry, val, t, j)?;
             }
@@ -354,6 +357,9 @@ mod tests {
         assert!(g["input.conv.weight"].iter().any(|v| *v != 0.0));
         assert!(g["fuse.0.1.attention.weight"].iter().any(|v| *v != 0.0));
         let after = net.to_weights();
-        assert_ne!(after.get("extract.0.bn1.running_mean").unwrap(), weights.get("extract.0.bn1.running_mean").unwrap());
+        assert_ne!(
+            after.get("extract.0.bn1.running_mean").unwrap(),
+            weights.get("extract.0.bn1.running_mean").unwrap()
+        );
     }
 }

@@ -15,8 +15,8 @@ use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::autodiff::Autodiff;
 use burn::backend::flex::FlexTensor;
-use burn::backend::{backend_extension, Backend, Dispatch, Flex};
 use burn::backend::tensor::FloatTensor;
+use burn::backend::{backend_extension, Backend, Dispatch, Flex};
 use burn::tensor::{Tensor, TensorData};
 use semrecon_sparse::ChunkedConv;
 
@@ -235,8 +235,13 @@ mod tests {
                         wp[idx] += h;
                         wm[idx] -= h;
                     }
-                    let fd = (loss(&xp, &wp, &layer, ci, co, &r) - loss(&xm, &wm, &layer, ci, co, &r)) / (2.0 * f64::from(h));
-                    assert!((fd - f64::from(g[idx])).abs() < 1e-2 * (1.0 + fd.abs()), "{site:?} {which} {idx}: {fd} vs {}", g[idx]);
+                    let fd = (loss(&xp, &wp, &layer, ci, co, &r) - loss(&xm, &wm, &layer, ci, co, &r))
+                        / (2.0 * f64::from(h));
+                    assert!(
+                        (fd - f64::from(g[idx])).abs() < 1e-2 * (1.0 + fd.abs()),
+                        "{site:?} {which} {idx}: {fd} vs {}",
+                        g[idx]
+                    );
                 }
             };
             check(&gx, 0);

@@ -205,7 +205,13 @@ impl Adam {
 
     /// One update of `params` with `grads` at learning rate `lr`; weight decay applies to
     /// matrices and kernels only (names ending in `.weight` outside batch norms).
-    pub fn step(&mut self, params: &mut BTreeMap<String, Vec<f32>>, grads: &BTreeMap<String, Vec<f32>>, lr: f32, decay: f32) {
+    pub fn step(
+        &mut self,
+        params: &mut BTreeMap<String, Vec<f32>>,
+        grads: &BTreeMap<String, Vec<f32>>,
+        lr: f32,
+        decay: f32,
+    ) {
         self.t += 1;
         let (b1, b2) = (self.beta1, self.beta2);
         let c1 = 1.0 - b1.powi(self.t.min(i32::MAX as u64) as i32);
@@ -404,7 +410,12 @@ fn spawn_loader(opts: &TrainOptions, start: u64) -> Receiver<Result<Batch>> {
 
 /// Masked, optionally class-weighted cross-entropy of `logits` (`[n, k]`) against `labels`.
 /// Returns `None` when no voxel is labelled.
-fn cross_entropy(logits: Tensor<2>, labels: &[u8], class_weights: Option<&[f32]>, device: &Device) -> Option<Tensor<1>> {
+fn cross_entropy(
+    logits: Tensor<2>,
+    labels: &[u8],
+    class_weights: Option<&[f32]>,
+    device: &Device,
+) -> Option<Tensor<1>> {
     let k = logits.dims()[1];
     let rows: Vec<i64> = labels.iter().enumerate().filter(|(_, &l)| (l as usize) < k).map(|(i, _)| i as i64).collect();
     if rows.is_empty() {
@@ -412,10 +423,8 @@ fn cross_entropy(logits: Tensor<2>, labels: &[u8], class_weights: Option<&[f32]>
     }
     let m = rows.len();
     let targets: Vec<i64> = rows.iter().map(|&r| i64::from(labels[r as usize])).collect();
-    let weights: Vec<f32> = targets
-        .iter()
-        .map(|&t| class_weights.and_then(|w| w.get(t as usize).copied()).unwrap_or(1.0))
-        .collect();
+    let weights: Vec<f32> =
+        targets.iter().map(|&t| class_weights.and_then(|w| w.get(t as usize).copied()).unwrap_or(1.0)).collect();
     let total: f32 = weights.iter().sum::<f32>().max(1e-12);
     let idx = Tensor::<1, Int>::from_data(TensorData::new(rows, [m]), device);
     let tgt = Tensor::<2, Int>::from_data(TensorData::new(targets, [m, 1]), device);
@@ -505,10 +514,8 @@ pub fn train(opts: &TrainOptions, progress: &mut dyn FnMut(&Progress)) -> Result
     let (weights, mut state) = if opts.resume && last_path.exists() {
         let w = Weights::load(&last_path, config)?;
         let text = std::fs::read_to_string(&state_path).map_err(|e| NetError::io(&state_path, e))?;
-        let s: TrainState = serde_json::from_str(&text).map_err(|e| NetError::WeightFile {
-            file: state_path.display().to_string(),
-            message: e.to_string(),
-        })?;
+        let s: TrainState = serde_json::from_str(&text)
+            .map_err(|e| NetError::WeightFile { file: state_path.display().to_string(), message: e.to_string() })?;
         (w, s)
     } else {
         (
@@ -571,7 +578,13 @@ pub fn train(opts: &TrainOptions, progress: &mut dyn FnMut(&Progress)) -> Result
             break;
         }
         let batch = rx.recv().map_err(|_| NetError::InvalidInput("the data loader stopped".into()))??;
-        let lr = learning_rate(opts.lr, opts.lr_final_fraction, opts.warmup_steps, state.step, fraction(state.step, elapsed));
+        let lr = learning_rate(
+            opts.lr,
+            opts.lr_final_fraction,
+            opts.warmup_steps,
+            state.step,
+            fraction(state.step, elapsed),
+        );
         let n = batch.labels.len();
         let x = Tensor::<2>::from_data(TensorData::new(batch.features, [n, config.in_channels]), &device);
         let logits = net.forward(&batch.geometry, x, Mode::Train { momentum: opts.bn_momentum })?;
@@ -633,7 +646,10 @@ pub fn train(opts: &TrainOptions, progress: &mut dyn FnMut(&Progress)) -> Result
                 "rooms_per_s": rooms_done as f64 / secs.max(1e-9), "secs_per_step": secs / steps_done as f64,
             }))?;
         }
-        if state.step % opts.checkpoint_every_steps.max(1) == 0 || last_ckpt.elapsed() >= opts.checkpoint_every || finished {
+        if state.step % opts.checkpoint_every_steps.max(1) == 0
+            || last_ckpt.elapsed() >= opts.checkpoint_every
+            || finished
+        {
             save(&net, &state, &adam)?;
             last_ckpt = Instant::now();
         }
