@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release -p semrecon-recon --example track_bench -- SPEC [--frames N]
 //!     [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--iters F,M,C] [--photometric W] [--size WxH]
-//!     [--fine-stride S] [--model-interval N]
+//!     [--fine-stride S] [--model-interval N] [--max-depth M]
 //! ```
 //!
 //! `SPEC` is a dataset spec (`7scenes:/work/shared/data/7scenes-redkitchen`, `synth:3`).
@@ -30,6 +30,7 @@ struct Args {
     iterations: Option<[usize; 3]>,
     fine_stride: Option<usize>,
     model_interval: Option<usize>,
+    max_depth: Option<f32>,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -45,6 +46,7 @@ fn parse_args() -> Result<Args, String> {
         iterations: None,
         fine_stride: None,
         model_interval: None,
+        max_depth: None,
     };
     while let Some(arg) = it.next() {
         let mut value = || it.next().ok_or_else(|| format!("{arg} needs a value"));
@@ -62,6 +64,7 @@ fn parse_args() -> Result<Args, String> {
                 a.iterations =
                     Some(parts.try_into().map_err(|_| format!("--iters {v}: expected three counts, fine to coarse"))?);
             }
+            "--max-depth" => a.max_depth = Some(value()?.parse().map_err(|e| format!("--max-depth: {e}"))?),
             "--fine-stride" => a.fine_stride = Some(value()?.parse().map_err(|e| format!("--fine-stride: {e}"))?),
             "--model-interval" => {
                 a.model_interval = Some(value()?.parse().map_err(|e| format!("--model-interval: {e}"))?)
@@ -125,6 +128,9 @@ fn run(a: Args) -> Result<(), String> {
     if let Some(t) = a.truncation {
         map_config.truncation_voxels = t;
     }
+    if let Some(d) = a.max_depth {
+        map_config.max_depth = d;
+    }
     let mut map = TsdfMap::new(map_config).map_err(|e| e.to_string())?;
     let mut config = TrackerConfig { photometric_weight: a.photometric, ..TrackerConfig::default() };
     if let Some(d) = a.downscale {
@@ -138,6 +144,9 @@ fn run(a: Args) -> Result<(), String> {
     }
     if let Some(m) = a.model_interval {
         config.model_interval = m;
+    }
+    if let Some(d) = a.max_depth {
+        config.max_depth = d;
     }
     let mut tracker: Option<Tracker> = None;
     let (mut track_ms, mut cast_ms, mut fuse_ms) = (vec![], vec![], vec![]);
