@@ -257,6 +257,9 @@ struct Level {
     /// Empty when the photometric term is off or the frame has no colour.
     intensity: Vec<f32>,
     valid: usize,
+    /// The normals computed from this level's own vertices, which the next finer level takes
+    /// (`normals` holds those of the next coarser level); empty on levels 0 and the coarsest.
+    own_normals: Vec<Vec3>,
 }
 
 /// The model view with its intensity image and gradients, ready for association.
@@ -462,7 +465,7 @@ impl Tracker {
             let max_distance = c.max_distance * (1u32 << level) as f32;
             for _ in 0..iters {
                 let stride = if level == 0 { c.fine_stride } else { 1 };
-                stats = normal_equations(data, &model, &estimate, max_distance, stride, &c);
+                stats = normal_equations(data, pyramid.get(level + 1), &model, &estimate, max_distance, stride, &c);
                 let h = stats.symmetric();
                 let neg_g = stats.g.map(|v| -v);
                 let Some(xi) = cholesky_solve(&h, &neg_g) else {
@@ -596,8 +599,11 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
     } else {
         frame.color.iter().map(|&c| luma(c)).collect()
     };
-    // Level 0 takes its normals from level 1 below: no need to compute its own.
-    let mut levels = vec![make_level(k0, depth0, intensity0, false)];
+    // Level 0 takes its normals from level 1, and its vertices are one multiply-add away from
+    // its depth: both are formed where association visits a pixel (a stride of them).
+    let valid0 = depth0.iter().filter(|&&d| d > 0.0).count();
+    let mut levels =
+        vec![Level { k: k0, depth: depth0, vertices: Vec::new(), normals: Vec::new(), intensity: intensity0, valid: valid0, own_normals: Vec::new() }];
     for _ in 1..LEVELS {
         let prev = levels.last().expect("level 0 exists");
         let (pw, ph) = (prev.k.width as usize, prev.k.height as usize);
@@ -658,11 +664,12 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
     // their normals scatter by tens of degrees; the coarser level averages 2x2 blocks and
     // spans twice the baseline. Pixels whose depth disagrees with the coarse one (edges)
     // get none.
-    for l in 0..LEVELS - 1 {
+    for l in 1..LEVELS - 1 {
         let (fine, coarse) = levels.split_at_mut(l + 1);
         let (fine, coarse) = (&mut fine[l], &coarse[0]);
         let (w, cw, ch) = (fine.k.width as usize, coarse.k.width as usize, coarse.k.height as usize);
         let fine_depth = &fine.depth;
+        fine.own_normals = fine.normals.clone();
         fine.normals.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             for (x, n) in row.iter_mut().enumerate() {
                 let d = fine_depth[y * w + x];
@@ -710,13 +717,16 @@ fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>, with_normals:
         }
     });
     let valid = depth.iter().filter(|&&d| d > 0.0).count();
-    Level { k, depth, vertices, normals, intensity, valid }
+    Level { k, depth, vertices, normals, intensity, valid, own_normals: Vec::new() }
 }
 
 /// Normal equations of one Gauss-Newton step at `estimate` (`reference_from_current`: the model view's camera from the frame's).
-/// Visits every `stride`-th pixel of every `stride`-th row.
+/// Visits every `stride`-th pixel of every `stride`-th row. A level without vertices
+/// (level 0) forms them from its depth and takes its normals from `coarse`, the next level.
+#[allow(clippy::too_many_arguments)]
 fn normal_equations(
     data: &Level,
+    coarse: Option<&Level>,
     model: &Model,
     estimate: &Affine3A,
     max_distance: f32,
@@ -741,12 +751,24 @@ fn normal_equations(
             for &y in rows {
                 for x in (0..w).step_by(stride) {
                     let i = y * w + x;
-                    acc.sampled += (data.depth[i] > 0.0) as u64;
-                    let n_cur = data.normals[i];
+                    let d = data.depth[i];
+                    acc.sampled += (d > 0.0) as u64;
+                    let (p_cur, n_cur) = if data.vertices.is_empty() {
+                        // As `build_pyramid` does for level 1 from level 2.
+                        let Some(c) = coarse else { continue };
+                        let (cw, ch) = (c.k.width as usize, c.k.height as usize);
+                        let ci = (y / 2).min(ch - 1) * cw + (x / 2).min(cw - 1);
+                        if !(d > 0.0 && (d - c.depth[ci]).abs() <= 0.05 * d) {
+                            continue;
+                        }
+                        (data.k.unproject(x as f32, y as f32, d), c.own_normals[ci])
+                    } else {
+                        (data.vertices[i], data.normals[i])
+                    };
                     if n_cur == Vec3::ZERO {
                         continue;
                     }
-                    let q = rot * data.vertices[i] + trans;
+                    let q = rot * p_cur + trans;
                     if q.z <= 0.0 {
                         continue;
                     }
@@ -992,5 +1014,50 @@ mod tests {
         let q = Vec3::new(0.3, -0.2, 1.5);
         let lin = q + Vec3::new(1e-4, -2e-4, 3e-4).cross(q) + Vec3::new(1e-3, 0.0, -1e-3);
         assert!((t.transform_point3(q) - lin).length() < 1e-6);
+    }
+
+    #[test]
+    fn lazy_finest_level_equals_the_materialised_one() {
+        // A tilted, bumpy plane; the model is the frame's own half-resolution level.
+        let k = Intrinsics::new(64, 48, 60.0, 60.0, 31.5, 23.5).expect("camera");
+        let depth: Vec<f32> =
+            (0..64 * 48).map(|i| 1.0 + 0.004 * (i % 64) as f32 + 0.01 * ((i / 64) as f32 * 0.7).sin()).collect();
+        let frame = Frame {
+            index: 0,
+            timestamp: 0.0,
+            depth,
+            color: Vec::new(),
+            intrinsics: k,
+            world_from_camera: None,
+            labels: None,
+        };
+        let c = TrackerConfig { fine_stride: 1, ..TrackerConfig::default() };
+        let pyramid = build_pyramid(&frame, &c);
+        let l1 = &pyramid[1];
+        let view = ModelView {
+            intrinsics: l1.k,
+            world_from_camera: Affine3A::IDENTITY,
+            vertices: l1.vertices.clone(),
+            normals: l1.normals.clone(),
+            colors: vec![[0; 3]; l1.vertices.len()],
+        };
+        let model = Model { view, intensity: Vec::new(), gradient: Vec::new() };
+        // The materialised level 0: its vertices, and level 1's own normals per 2x2 block.
+        let mut eager = make_level(k, pyramid[0].depth.clone(), Vec::new(), false);
+        for (i, n) in eager.normals.iter_mut().enumerate() {
+            let (x, y) = (i % 64, i / 64);
+            let ci = (y / 2).min(23) * 32 + (x / 2).min(31);
+            let d = eager.depth[i];
+            if d > 0.0 && (d - l1.depth[ci]).abs() <= 0.05 * d {
+                *n = l1.own_normals[ci];
+            }
+        }
+        let motion = se3_exp([0.001, -0.002, 0.0005, 0.002, 0.001, -0.003]);
+        for stride in [1, 2] {
+            let lazy = normal_equations(&pyramid[0], Some(l1), &model, &motion, 0.05, stride, &c);
+            let full = normal_equations(&eager, None, &model, &motion, 0.05, stride, &c);
+            assert!(lazy.inliers > 100);
+            assert_eq!((lazy.h, lazy.g, lazy.inliers, lazy.sampled), (full.h, full.g, full.inliers, full.sampled));
+        }
     }
 }
