@@ -56,7 +56,8 @@ fn parse_args() -> Result<Args, String> {
             "--size" => {
                 let v = value()?;
                 let (w, h) = v.split_once('x').ok_or_else(|| format!("--size {v}: expected WxH"))?;
-                a.size = (w.parse().map_err(|e| format!("--size: {e}"))?, h.parse().map_err(|e| format!("--size: {e}"))?);
+                a.size =
+                    (w.parse().map_err(|e| format!("--size: {e}"))?, h.parse().map_err(|e| format!("--size: {e}"))?);
             }
             s if !s.starts_with("--") && a.source.is_empty() => a.source = s.to_string(),
             other => return Err(format!("unknown argument {other}")),
@@ -88,7 +89,8 @@ fn replica_poses(path: &Path, n: usize) -> Result<Vec<Affine3A>, String> {
 
 fn run(a: Args) -> Result<(), String> {
     let sensor = |seed: u64| if a.ideal { SensorModel::ideal() } else { SensorModel::kinect().with_seed(seed) };
-    let k = Intrinsics::new(640, 480, 525.0, 525.0, 319.5, 239.5).map_err(|e| e.to_string())?.scaled(a.size.0, a.size.1);
+    let k =
+        Intrinsics::new(640, 480, 525.0, 525.0, 319.5, 239.5).map_err(|e| e.to_string())?.scaled(a.size.0, a.size.1);
     let (gt_mesh, scan): (LabeledMesh, RenderedScan) = if let Some(seed) = a.source.strip_prefix("synth:") {
         let seed: u64 = seed.parse().map_err(|e| format!("{}: {e}", a.source))?;
         let mut config = SyntheticScanConfig::new(seed);
@@ -129,11 +131,8 @@ fn run(a: Args) -> Result<(), String> {
         map.integrate(f, f.world_from_camera.ok_or("rendered frames have poses")?).map_err(|e| e.to_string())?;
     }
     let mesh = extract_mesh(&map);
-    let eval = MeshEvalConfig {
-        sample_spacing_m: 0.005,
-        thresholds_m: vec![0.005, 0.01, 0.05],
-        ..MeshEvalConfig::default()
-    };
+    let eval =
+        MeshEvalConfig { sample_spacing_m: 0.005, thresholds_m: vec![0.005, 0.01, 0.05], ..MeshEvalConfig::default() };
     let e = evaluate_mesh(&gt_mesh, &mesh, &eval).map_err(|e| e.to_string())?;
     let recall = |i: usize| e.scores[i].recall * 100.0;
     println!(

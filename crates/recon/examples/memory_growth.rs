@@ -43,7 +43,8 @@ fn parse_args() -> Result<Args, String> {
             "--size" => {
                 let v = value()?;
                 let (w, h) = v.split_once('x').ok_or_else(|| format!("--size {v}: expected WxH"))?;
-                a.size = (w.parse().map_err(|e| format!("--size: {e}"))?, h.parse().map_err(|e| format!("--size: {e}"))?);
+                a.size =
+                    (w.parse().map_err(|e| format!("--size: {e}"))?, h.parse().map_err(|e| format!("--size: {e}"))?);
             }
             other => return Err(format!("unknown argument {other}")),
         }

@@ -34,8 +34,14 @@ struct Args {
 
 fn parse_args() -> Result<Args, String> {
     let mut it = std::env::args().skip(1);
-    let mut a =
-        Args { spec: String::new(), frames: usize::MAX, voxel: 0.005, truncation: 10.0, max_depth: 5.0, mesh_repeats: 3 };
+    let mut a = Args {
+        spec: String::new(),
+        frames: usize::MAX,
+        voxel: 0.005,
+        truncation: 10.0,
+        max_depth: 5.0,
+        mesh_repeats: 3,
+    };
     while let Some(arg) = it.next() {
         let mut value = || it.next().ok_or_else(|| format!("{arg} needs a value"));
         match arg.as_str() {

@@ -207,7 +207,8 @@ fn run(a: Args) -> Result<(), String> {
     println!("lost frames: {} {:?}", lost.len(), &lost[..lost.len().min(10)]);
     if let Ok(path) = std::env::var("TRACK_BENCH_POSITIONS") {
         // Estimated and reference positions, one pair per line (for offline analysis).
-        let text: String = est.iter().zip(&gt).map(|(e, g)| format!("{} {} {} {} {} {}\n", e.x, e.y, e.z, g.x, g.y, g.z)).collect();
+        let text: String =
+            est.iter().zip(&gt).map(|(e, g)| format!("{} {} {} {} {} {}\n", e.x, e.y, e.z, g.x, g.y, g.z)).collect();
         std::fs::write(&path, text).map_err(|e| format!("{path}: {e}"))?;
     }
     match ate_rmse(&est, &gt) {

@@ -289,8 +289,16 @@ struct Normals {
 }
 
 impl Normals {
-    const ZERO: Self =
-        Self { h: [[0.0; 6]; 6], g: [0.0; 6], sq_residual: 0.0, sq_normalised: 0.0, inliers: 0, far: 0, turned: 0, sampled: 0 };
+    const ZERO: Self = Self {
+        h: [[0.0; 6]; 6],
+        g: [0.0; 6],
+        sq_residual: 0.0,
+        sq_normalised: 0.0,
+        inliers: 0,
+        far: 0,
+        turned: 0,
+        sampled: 0,
+    };
 
     #[inline]
     fn add(&mut self, j: [f64; 6], r: f64, w: f64) {
@@ -602,8 +610,15 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
     // Level 0 takes its normals from level 1, and its vertices are one multiply-add away from
     // its depth: both are formed where association visits a pixel (a stride of them).
     let valid0 = depth0.iter().filter(|&&d| d > 0.0).count();
-    let mut levels =
-        vec![Level { k: k0, depth: depth0, vertices: Vec::new(), normals: Vec::new(), intensity: intensity0, valid: valid0, own_normals: Vec::new() }];
+    let mut levels = vec![Level {
+        k: k0,
+        depth: depth0,
+        vertices: Vec::new(),
+        normals: Vec::new(),
+        intensity: intensity0,
+        valid: valid0,
+        own_normals: Vec::new(),
+    }];
     for _ in 1..LEVELS {
         let prev = levels.last().expect("level 0 exists");
         let (pw, ph) = (prev.k.width as usize, prev.k.height as usize);

@@ -255,7 +255,12 @@ fn reused_model_and_subsampled_fine_level_track_like_the_full_pass() {
     let all = p_plain.iter().chain(&p_reused).chain(&p_strided);
     assert!(all.clone().all(|p| p.is_some()), "no frame lost");
     let (e_plain, e_reused, e_strided) = (ate(&frames, &p_plain), ate(&frames, &p_reused), ate(&frames, &p_strided));
-    eprintln!("ATE plain {:.2} mm, reused model {:.2} mm, strided {:.2} mm", e_plain * 1e3, e_reused * 1e3, e_strided * 1e3);
+    eprintln!(
+        "ATE plain {:.2} mm, reused model {:.2} mm, strided {:.2} mm",
+        e_plain * 1e3,
+        e_reused * 1e3,
+        e_strided * 1e3
+    );
     assert!(e_reused < e_plain + 0.002, "reused model {e_reused} m against plain {e_plain} m");
     // At 320x240 the strided finest level has no more pixels than the next level (the
     // default stride 2 is meant for 640x480, see `config`): only the bound of the plain test.
