@@ -2,7 +2,7 @@
 //!
 //! ```text
 //! cargo run --release -p semrecon-recon --example fusion_bench -- [--frames N] [--voxel M]
-//!     [--7scenes DIR] [--out mesh.ply] [--keyframe K]
+//!     [--7scenes DIR] [--out mesh.ply] [--keyframe K] [--trunc VOXELS]
 //! ```
 //!
 //! Without `--7scenes` the frames are ray-cast from an analytic scene (floor, wall, sphere).
@@ -30,16 +30,18 @@ struct Args {
     seven_scenes: Option<PathBuf>,
     out: Option<PathBuf>,
     keyframe: usize,
+    truncation: f32,
 }
 
 fn parse_args() -> Result<Args, String> {
-    let mut a = Args { frames: 100, voxel: 0.005, seven_scenes: None, out: None, keyframe: 10 };
+    let mut a = Args { frames: 100, voxel: 0.005, seven_scenes: None, out: None, keyframe: 10, truncation: 10.0 };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
         let mut value = || it.next().ok_or_else(|| format!("{flag} needs a value"));
         match flag.as_str() {
             "--frames" => a.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?,
             "--voxel" => a.voxel = value()?.parse().map_err(|e| format!("--voxel: {e}"))?,
+            "--trunc" => a.truncation = value()?.parse().map_err(|e| format!("--trunc: {e}"))?,
             "--keyframe" => a.keyframe = value()?.parse().map_err(|e| format!("--keyframe: {e}"))?,
             "--7scenes" => a.seven_scenes = Some(PathBuf::from(value()?)),
             "--out" => a.out = Some(PathBuf::from(value()?)),
@@ -117,7 +119,10 @@ fn main() {
             std::process::exit(2);
         }
     };
-    let config = match TsdfConfig::with_voxel_size(args.voxel) {
+    let config = match TsdfConfig::with_voxel_size(args.voxel)
+        .map(|c| TsdfConfig { truncation_voxels: args.truncation, ..c })
+        .and_then(|c| c.validate().map(|()| c))
+    {
         Ok(c) => c,
         Err(e) => {
             eprintln!("fusion_bench: {e}");

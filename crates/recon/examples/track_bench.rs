@@ -4,6 +4,7 @@
 //! ```text
 //! cargo run --release -p semrecon-recon --example track_bench -- SPEC [--frames N]
 //!     [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--iters F,M,C] [--photometric W] [--size WxH]
+//!     [--fine-stride S] [--model-interval N] [--max-depth M]
 //! ```
 //!
 //! `SPEC` is a dataset spec (`7scenes:/work/shared/data/7scenes-redkitchen`, `synth:3`).
@@ -27,6 +28,9 @@ struct Args {
     truncation: Option<f32>,
     downscale: Option<u32>,
     iterations: Option<[usize; 3]>,
+    fine_stride: Option<usize>,
+    model_interval: Option<usize>,
+    max_depth: Option<f32>,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -40,6 +44,9 @@ fn parse_args() -> Result<Args, String> {
         truncation: None,
         downscale: None,
         iterations: None,
+        fine_stride: None,
+        model_interval: None,
+        max_depth: None,
     };
     while let Some(arg) = it.next() {
         let mut value = || it.next().ok_or_else(|| format!("{arg} needs a value"));
@@ -56,6 +63,11 @@ fn parse_args() -> Result<Args, String> {
                     .collect::<Result<_, _>>()?;
                 a.iterations =
                     Some(parts.try_into().map_err(|_| format!("--iters {v}: expected three counts, fine to coarse"))?);
+            }
+            "--max-depth" => a.max_depth = Some(value()?.parse().map_err(|e| format!("--max-depth: {e}"))?),
+            "--fine-stride" => a.fine_stride = Some(value()?.parse().map_err(|e| format!("--fine-stride: {e}"))?),
+            "--model-interval" => {
+                a.model_interval = Some(value()?.parse().map_err(|e| format!("--model-interval: {e}"))?)
             }
             "--downscale" => a.downscale = Some(value()?.parse().map_err(|e| format!("--downscale: {e}"))?),
             "--size" => {
@@ -116,6 +128,9 @@ fn run(a: Args) -> Result<(), String> {
     if let Some(t) = a.truncation {
         map_config.truncation_voxels = t;
     }
+    if let Some(d) = a.max_depth {
+        map_config.max_depth = d;
+    }
     let mut map = TsdfMap::new(map_config).map_err(|e| e.to_string())?;
     let mut config = TrackerConfig { photometric_weight: a.photometric, ..TrackerConfig::default() };
     if let Some(d) = a.downscale {
@@ -123,6 +138,15 @@ fn run(a: Args) -> Result<(), String> {
     }
     if let Some(i) = a.iterations {
         config.iterations = i;
+    }
+    if let Some(s) = a.fine_stride {
+        config.fine_stride = s;
+    }
+    if let Some(m) = a.model_interval {
+        config.model_interval = m;
+    }
+    if let Some(d) = a.max_depth {
+        config.max_depth = d;
     }
     let mut tracker: Option<Tracker> = None;
     let (mut track_ms, mut cast_ms, mut fuse_ms) = (vec![], vec![], vec![]);
@@ -169,16 +193,24 @@ fn run(a: Args) -> Result<(), String> {
     }
     let wall = t_all.elapsed().as_secs_f64() - load_s;
     println!(
-        "{}: {n} frames, {} threads, voxel {} mm, truncation {} voxels, model 1/{}, iterations {:?}, photometric weight {}",
+        "{}: {n} frames, {} threads, voxel {} mm, truncation {} voxels, model 1/{} every {} frames, iterations {:?}, fine stride {}, photometric weight {}",
         source.name(),
         rayon::current_num_threads(),
         a.voxel * 1e3,
         map_config.truncation_voxels,
         config.model_downscale,
+        config.model_interval,
         config.iterations,
+        config.fine_stride,
         a.photometric
     );
     println!("lost frames: {} {:?}", lost.len(), &lost[..lost.len().min(10)]);
+    if let Ok(path) = std::env::var("TRACK_BENCH_POSITIONS") {
+        // Estimated and reference positions, one pair per line (for offline analysis).
+        let text: String =
+            est.iter().zip(&gt).map(|(e, g)| format!("{} {} {} {} {} {}\n", e.x, e.y, e.z, g.x, g.y, g.z)).collect();
+        std::fs::write(&path, text).map_err(|e| format!("{path}: {e}"))?;
+    }
     match ate_rmse(&est, &gt) {
         Some(e) => println!(
             "ATE RMSE (Horn, no scale): {:.2} mm; first-pose aligned: {:.2} mm ({} poses)",

@@ -247,12 +247,21 @@ const RECIPROCALS: [u32; 256] = {
 };
 
 /// Contiguous runs of frame indices, compact because a scan touches a chunk in runs.
+///
+/// At most [`FrameRuns::MAX_RUNS`] runs are kept: a long scan that comes back to a place
+/// again and again would otherwise add a run per visit, and map memory would grow with the
+/// frame count instead of with the surface. Beyond the cap the two runs with the smallest
+/// gap between them merge, so the runs become a superset of the frames (re-integrating a
+/// frame that did not touch the chunk only adds its observations).
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct FrameRuns {
     runs: Vec<(u32, u32)>,
 }
 
 impl FrameRuns {
+    /// Most runs kept per chunk (8 bytes each).
+    pub const MAX_RUNS: usize = 8;
+
     /// Records `frame` (inclusive runs; repeated or consecutive indices extend the last run).
     pub fn push(&mut self, frame: u32) {
         if let Some(last) = self.runs.last_mut() {
@@ -261,10 +270,21 @@ impl FrameRuns {
                 return;
             }
         }
+        if self.runs.len() == Self::MAX_RUNS {
+            // Merge the closest neighbours (first such pair on ties: deterministic).
+            let gap = |i: usize| self.runs[i + 1].0.abs_diff(self.runs[i].1);
+            let i = (0..self.runs.len() - 1).min_by_key(|&i| gap(i)).unwrap_or(0);
+            let (a, b) = (self.runs[i], self.runs[i + 1]);
+            self.runs[i] = (a.0.min(b.0), a.1.max(b.1));
+            self.runs.remove(i + 1);
+        }
+        if self.runs.capacity() == 0 {
+            self.runs.reserve_exact(2);
+        }
         self.runs.push((frame, frame));
     }
 
-    /// Whether `frame` was recorded.
+    /// Whether `frame` was recorded (or lies in a gap merged away, see the type).
     pub fn contains(&self, frame: u32) -> bool {
         self.runs.iter().any(|&(a, b)| (a..=b).contains(&frame))
     }
@@ -274,7 +294,7 @@ impl FrameRuns {
         &self.runs
     }
 
-    /// Every recorded frame index, in recording order.
+    /// Every recorded frame index, in recording order (a superset once runs merged).
     pub fn frames(&self) -> impl Iterator<Item = u32> + '_ {
         self.runs.iter().flat_map(|&(a, b)| a..=b)
     }
@@ -449,7 +469,7 @@ impl TsdfMap {
     }
 
     /// Bytes one allocated chunk costs: the 4 KiB voxel block, the chunk record and its hash
-    /// entry (frame runs, usually a few runs of 8 bytes, come on top).
+    /// entry (frame runs come on top: 8 bytes a run, at most [`FrameRuns::MAX_RUNS`]).
     pub const fn bytes_per_chunk() -> usize {
         std::mem::size_of::<VoxelBlock>() + std::mem::size_of::<Chunk>() + std::mem::size_of::<(ChunkKey, u32)>() + 1
     }
@@ -602,6 +622,23 @@ mod tests {
         assert_eq!(r.runs(), &[(0, 3), (7, 8), (20, 20)]);
         assert!(r.contains(8) && !r.contains(5));
         assert_eq!(r.frames().count(), 7);
+    }
+
+    #[test]
+    fn frame_runs_stay_bounded_when_a_place_is_revisited() {
+        let mut r = FrameRuns::default();
+        // A chunk seen for three frames every hundred frames, 50 times.
+        for visit in 0..50u32 {
+            for f in 0..3 {
+                r.push(visit * 100 + f);
+            }
+        }
+        assert_eq!(r.runs().len(), FrameRuns::MAX_RUNS);
+        for visit in 0..50u32 {
+            assert!(r.contains(visit * 100) && r.contains(visit * 100 + 2), "visit {visit} kept");
+        }
+        let runs = r.runs();
+        assert!(runs.windows(2).all(|w| w[0].1 < w[1].0), "ordered, disjoint: {runs:?}");
     }
 
     #[test]

@@ -58,11 +58,27 @@ pub struct ChunkMesh {
 ///
 /// Distances stay quantised (`i16`) until a vertex needs them; `flags` holds bit 0 for a
 /// negative distance and bit 1 for an observed voxel, so a cell's case and mask come from
-/// 8 byte loads.
+/// 8 byte loads. Colours are not copied: only vertices need them, a few per cell crossed,
+/// so they are read from the chunks when a vertex is made ([`voxel_color`]).
 struct PaddedBlock {
     tsdf: [i16; PAD * PAD2],
     flags: [u8; PAD * PAD2],
-    color: [[u8; 4]; PAD * PAD2],
+}
+
+/// Colour `[r, g, b, count]` of the voxel at padded coordinates `p` (`-1 ..= 9` local plus
+/// one), read from the chunk that holds it; unobserved black when it is not allocated.
+#[inline]
+fn voxel_color(nb: &[Option<&Chunk>; 27], p: [usize; 3]) -> [u8; 4] {
+    let split = |p: usize| -> (usize, usize) {
+        let l = p as i32 - 1;
+        let o = l.div_euclid(CHUNK_SIDE as i32);
+        ((o + 1) as usize, (l - o * CHUNK_SIDE as i32) as usize)
+    };
+    let ((ox, ix), (oy, iy), (oz, iz)) = (split(p[0]), split(p[1]), split(p[2]));
+    match nb[ox + 3 * oy + 9 * oz] {
+        Some(c) => c.voxels.color[ix + CHUNK_SIDE * (iy + CHUNK_SIDE * iz)],
+        None => [0; 4],
+    }
 }
 
 const NEGATIVE: u8 = 1;
@@ -108,7 +124,7 @@ impl PaddedBlock {
     }
 
     fn new() -> Box<Self> {
-        Box::new(PaddedBlock { tsdf: [0; PAD * PAD2], flags: [0; PAD * PAD2], color: [[0; 4]; PAD * PAD2] })
+        Box::new(PaddedBlock { tsdf: [0; PAD * PAD2], flags: [0; PAD * PAD2] })
     }
 
     /// Copies the voxels of padded coordinates `-1 ..= 9` (local) from the neighbours
@@ -143,7 +159,6 @@ impl PaddedBlock {
                         for r in 0..run {
                             let t = v.tsdf[src + r];
                             b.tsdf[dst + r] = t;
-                            b.color[dst + r] = v.color[src + r];
                             b.flags[dst + r] = (t < 0) as u8 | ((v.weight[src + r] != 0) as u8) << 1;
                         }
                     } else {
@@ -311,7 +326,10 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
                             let mut p = low_global.as_vec3();
                             p[axis] += s;
                             mesh.positions.push(p * vs);
-                            let (ca, cb) = (block.color[ia], block.color[ib]);
+                            let pa = [low[0] + 1, low[1] + 1, low[2] + 1];
+                            let mut pb = pa;
+                            pb[axis] += 1;
+                            let (ca, cb) = (voxel_color(&nb, pa), voxel_color(&nb, pb));
                             // Interpolate only between voxels that have a colour.
                             let (ca, cb) = match (ca[3], cb[3]) {
                                 (0, 0) | (1.., 1..) => (ca, cb),
@@ -321,9 +339,6 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
                             mesh.colors.push(std::array::from_fn(|k| {
                                 (ca[k] as f32 + s * (cb[k] as f32 - ca[k] as f32) + 0.5) as u8
                             }));
-                            let pa = [low[0] + 1, low[1] + 1, low[2] + 1];
-                            let mut pb = pa;
-                            pb[axis] += 1;
                             let g = gradient(ia, pa).lerp(gradient(ib, pb), s);
                             mesh.normals.push(g.normalize_or_zero());
                             let shared = (0..3).any(|q| q != axis && (low[q] == 0 || low[q] == CHUNK_SIDE));
