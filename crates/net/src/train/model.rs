@@ -416,5 +416,28 @@ mod timing {
             "s20, {n} voxels: forward {:.3} s, backward {:.3} s; 3x3x3 convolutions alone (engine, fwd+bwd) {:.3} s",
             best.0, best.1, best.2
         );
+        // Single burn operations at level 0 (32 channels), forward + backward.
+        let c = cfg.channels(0);
+        let x = || {
+            Tensor::<2>::from_data(TensorData::new(vec![0.3f32; n * c], [n, c]), &device).require_grad()
+        };
+        let t = Instant::now();
+        let mut bn = BurnCbscn::from_weights(&Weights::random(&cfg, 0), &cfg, &device).unwrap();
+        let y = bn.bn_relu(x(), "extract.0.bn1", Mode::Train { momentum: 0.1 }).unwrap();
+        let _ = y.sum().backward();
+        let t_bn = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let coarse = geo.coords(1).len();
+        let v = Tensor::<2>::from_data(TensorData::new(vec![0.3f32; coarse * c], [coarse, c]), &device).require_grad();
+        let y = net.upsample(&geo, v, 0, 1).unwrap();
+        let _ = y.sum().backward();
+        let t_up = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let w = Tensor::<2>::from_data(TensorData::new(vec![0.1f32; c * c], [c, c]), &device).require_grad();
+        let _ = x().matmul(w).sum().backward();
+        let t_mm = t.elapsed().as_secs_f64();
+        println!(
+            "burn ops at level 0 ([{n}, {c}]), fwd+bwd: batch norm + ReLU {t_bn:.3} s, trilinear upsampling (gather 8 rows + weighted sum) {t_up:.3} s, linear {c}x{c} {t_mm:.3} s"
+        );
     }
 }
