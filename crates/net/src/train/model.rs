@@ -245,8 +245,8 @@ impl BurnCbscn {
             let up = sparse_conv(h, self.kernel(&format!("up.{t}.conv.weight"))?, &layer(ConvSite::Up(t))?);
             let skip = enc[t].clone().matmul(self.matrix(&format!("up.{t}.skip.weight"), c(t), c(t))?);
             let mut d = self.res_block(up + skip, &format!("up.{t}"), &subm[t], mode)?;
-            for j in t + 1..=l.saturating_sub(2) {
-                let dj = dec[j].clone().ok_or_else(|| NetError::InvalidInput("missing decoder level".into()))?;
+            for (j, dj) in dec.iter().enumerate().take(l.saturating_sub(1)).skip(t + 1) {
+                let dj = dj.clone().ok_or_else(|| NetError::InvalidInput("missing decoder level".into()))?;
                 let att = sigmoid(dj.clone().matmul(self.matrix(&format!("fuse.{t}.{j}.attention.weight"), c(j), 1)?));
                 let val = dj.matmul(self.matrix(&format!("fuse.{t}.{j}.value.weight"), c(j), c(t))?) * att;
                 d = d + self.upsample(geometry, val, t, j)?;
