@@ -11,7 +11,9 @@
 //! - [`reference`](mod@reference): a plain, unfused forward, the oracle of the tests;
 //! - [`surface`]: coloured, labelled point samples of a mesh surface (network input);
 //! - [`sample`]: voxelised, labelled rooms ([`VoxelSample`]), the unit of training and evaluation;
-//! - [`dataset`]: data sources (`synth:`, `s3dis:`, `scannet:`, `ply:`), loading and augmentation.
+//! - [`dataset`]: data sources (`synth:`, `s3dis:`, `scannet:`, `ply:`), loading and augmentation;
+//! - `train` (cargo feature `train`): training with burn (custom sparse-convolution operation,
+//!   the network in burn, the training loop); see docs/model.md.
 //!
 //! ```
 //! use semrecon_net::{NetConfig, Segmenter, Weights};
