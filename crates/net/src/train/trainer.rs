@@ -626,7 +626,8 @@ pub fn train(opts: &TrainOptions, progress: &mut dyn FnMut(&Progress)) -> Result
                 || last_val.elapsed() >= opts.val_every
                 || finished)
         {
-            let w = net.to_weights();
+            // Validate what is shipped: the weights as they are after the f16 round trip.
+            let w = net.to_weights().rounded_to_f16();
             let v = validate(&w, config, &val_samples)?;
             let miou = v.total.miou();
             val_miou = Some(miou);
