@@ -12,7 +12,9 @@
 //! - [`surface`]: coloured, labelled point samples of a mesh surface (network input);
 //! - [`sample`]: voxelised, labelled rooms ([`VoxelSample`]), the unit of training and evaluation;
 //! - [`dataset`]: data sources (`synth:`, `s3dis:`, `scannet:`, `ply:`), loading and augmentation;
-//! - [`shipped`]: the shipped default model and the checked loading of model files.
+//! - [`shipped`]: the shipped default model and the checked loading of model files;
+//! - `train` (cargo feature `train`): training with burn (custom sparse-convolution operation,
+//!   the network in burn, the training loop); see docs/model.md.
 //!
 //! ```
 //! use semrecon_net::{NetConfig, Segmenter, Weights};

@@ -42,7 +42,11 @@ pub struct TrainArgs {
     /// Validate every N steps (and every 10 minutes, and at the end).
     #[arg(long, default_value_t = 500)]
     val_every: u64,
-    /// Continue from the checkpoint in --out.
+    /// Write a checkpoint every N steps (and every 5 minutes, and at the end).
+    #[arg(long, default_value_t = 200)]
+    checkpoint_every: u64,
+    /// Continue from the checkpoint in --out (weights, optimiser state, data position,
+    /// elapsed time); starts afresh when --out holds no checkpoint.
     #[arg(long)]
     resume: bool,
     /// Seed of initialisation, room order and augmentation.
@@ -97,6 +101,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     opts.max_voxels = args.max_voxels;
     opts.class_weights = class_weights;
     opts.val_every_steps = args.val_every.max(1);
+    opts.checkpoint_every_steps = args.checkpoint_every.max(1);
     opts.resume = args.resume;
     opts.seed = args.seed;
     eprintln!(

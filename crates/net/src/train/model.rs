@@ -247,8 +247,8 @@ impl BurnCbscn {
             let up = sparse_conv(h, self.kernel(&format!("up.{t}.conv.weight"))?, &layer(ConvSite::Up(t))?);
             let skip = enc[t].clone().matmul(self.matrix(&format!("up.{t}.skip.weight"), c(t), c(t))?);
             let mut d = self.res_block(up + skip, &format!("up.{t}"), &subm[t], mode)?;
-            for j in t + 1..=l.saturating_sub(2) {
-                let dj = dec[j].clone().ok_or_else(|| NetError::InvalidInput("missing decoder level".into()))?;
+            for (j, dj) in dec.iter().enumerate().take(l.saturating_sub(1)).skip(t + 1) {
+                let dj = dj.clone().ok_or_else(|| NetError::InvalidInput("missing decoder level".into()))?;
                 let att =
                     sigmoid(dj.clone().matmul(self.matrix(&format!("fuse.{t}.{j}.attention.weight"), c(j), 1)?));
                 let val = dj.matmul(self.matrix(&format!("fuse.{t}.{j}.value.weight"), c(j), c(t))?) * att;
@@ -360,6 +360,88 @@ mod tests {
         assert_ne!(
             after.get("extract.0.bn1.running_mean").unwrap(),
             weights.get("extract.0.bn1.running_mean").unwrap()
+        );
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod timing {
+    use std::time::Instant;
+
+    use semrecon_sparse::ChunkConfig;
+
+    use super::*;
+    use crate::dataset::{load_sample, DataSource};
+
+    /// Time of one training step of `s20` on a synthetic room against the time of its
+    /// convolutions alone (engine kernels, forward + both gradients): the share of burn's
+    /// other operations. Run with `cargo test --release --features train -- --ignored
+    /// step_time_breakdown --nocapture`.
+    #[test]
+    #[ignore = "timing, prints numbers"]
+    fn step_time_breakdown() {
+        let cfg = NetConfig::s20();
+        let room = &DataSource::parse("synth:5..6").unwrap().rooms().unwrap()[0];
+        let s = load_sample(room, cfg.voxel_size, None, 0).unwrap();
+        let n = s.len();
+        let geo = Arc::new(NetGeometry::build(s.coords.clone(), &cfg, &ChunkConfig::default()).unwrap());
+        let device = Device::flex().autodiff();
+        let mut net = BurnCbscn::from_weights(&Weights::random(&cfg, 0), &cfg, &device).unwrap();
+        let mut best = (f64::MAX, f64::MAX, f64::MAX);
+        for _ in 0..3 {
+            let t0 = Instant::now();
+            let x = Tensor::<2>::from_data(TensorData::new(s.features.clone(), [n, 3]), &device);
+            let y = net.forward(&geo, x, Mode::Train { momentum: 0.1 }).unwrap();
+            let loss = y.powi_scalar(2).mean();
+            let _ = tensor_values(loss.clone().detach());
+            let t1 = Instant::now();
+            let grads = loss.backward();
+            let _ = net.gradients(&grads);
+            let t2 = Instant::now();
+            // The same convolutions on the engine alone.
+            let mut conv = 0.0;
+            for i in 0..cfg.levels {
+                let c = cfg.channels(i);
+                let rows = geo.coords(i).len();
+                let x = vec![0.5f32; rows * c];
+                let w = vec![0.01f32; 27 * c * c];
+                let layer = geo.submanifold(i);
+                let reps = if i + 1 < cfg.levels { 4.0 } else { 2.0 };
+                let t = Instant::now();
+                let y = layer.forward(&x, c, &w, c).unwrap();
+                let _ = layer.backward_input(&y, c, &w, c).unwrap();
+                let _ = layer.backward_weight(&x, c, &y, c).unwrap();
+                conv += t.elapsed().as_secs_f64() * reps;
+            }
+            best.0 = best.0.min((t1 - t0).as_secs_f64());
+            best.1 = best.1.min((t2 - t1).as_secs_f64());
+            best.2 = best.2.min(conv);
+        }
+        println!(
+            "s20, {n} voxels: forward {:.3} s, backward {:.3} s; 3x3x3 convolutions alone (engine, fwd+bwd) {:.3} s",
+            best.0, best.1, best.2
+        );
+        // Single burn operations at level 0 (32 channels), forward + backward.
+        let c = cfg.channels(0);
+        let x = || Tensor::<2>::from_data(TensorData::new(vec![0.3f32; n * c], [n, c]), &device).require_grad();
+        let t = Instant::now();
+        let mut bn = BurnCbscn::from_weights(&Weights::random(&cfg, 0), &cfg, &device).unwrap();
+        let y = bn.bn_relu(x(), "extract.0.bn1", Mode::Train { momentum: 0.1 }).unwrap();
+        let _ = y.sum().backward();
+        let t_bn = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let coarse = geo.coords(1).len();
+        let v = Tensor::<2>::from_data(TensorData::new(vec![0.3f32; coarse * c], [coarse, c]), &device).require_grad();
+        let y = net.upsample(&geo, v, 0, 1).unwrap();
+        let _ = y.sum().backward();
+        let t_up = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let w = Tensor::<2>::from_data(TensorData::new(vec![0.1f32; c * c], [c, c]), &device).require_grad();
+        let _ = x().matmul(w).sum().backward();
+        let t_mm = t.elapsed().as_secs_f64();
+        println!(
+            "burn ops at level 0 ([{n}, {c}]), fwd+bwd: batch norm + ReLU {t_bn:.3} s, trilinear upsampling (gather 8 rows + weighted sum) {t_up:.3} s, linear {c}x{c} {t_mm:.3} s"
         );
     }
 }

@@ -32,11 +32,12 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use semrecon_data::atomic_file::write_atomic;
 use semrecon_data::class::UNLABELED;
+use semrecon_data::LabeledPointCloud;
 use semrecon_sparse::ChunkConfig;
 use serde::{Deserialize, Serialize};
 
 use crate::config::NetConfig;
-use crate::dataset::{load_sample, sample_seed, Augment, RoomRef};
+use crate::dataset::{load_cloud, load_sample, sample_seed, Augment, RoomRef};
 use crate::error::{NetError, Result};
 use crate::geometry::NetGeometry;
 use crate::metrics::ConfusionMatrix;
@@ -284,6 +285,9 @@ impl Adam {
     }
 }
 
+/// Data sets of at most this many rooms keep their point clouds in memory between epochs.
+const CACHED_ROOMS: usize = 16;
+
 /// One prepared batch: merged geometry, features and labels.
 struct Batch {
     geometry: Arc<NetGeometry>,
@@ -363,6 +367,7 @@ fn spawn_loader(opts: &TrainOptions, start: u64) -> Receiver<Result<Batch>> {
     let (seed, batch, max_voxels) = (opts.seed, opts.batch.max(1), opts.max_voxels);
     std::thread::spawn(move || {
         let mut position = start;
+        let mut cache: std::collections::HashMap<usize, LabeledPointCloud> = std::collections::HashMap::new();
         loop {
             let mut samples = Vec::with_capacity(batch);
             let mut attempts = 0;
@@ -372,7 +377,22 @@ fn spawn_loader(opts: &TrainOptions, start: u64) -> Receiver<Result<Batch>> {
                 let (epoch, room) = room_at(rooms.len(), seed, position);
                 let s_seed = sample_seed(seed, epoch, position % n);
                 position += 1;
-                let sample = match load_sample(&rooms[room], config.voxel_size, Some(&augment), s_seed) {
+                let loaded = if rooms.len() <= CACHED_ROOMS {
+                    // Few rooms (tests, fine-tuning on a handful of scans): keep their clouds.
+                    let cloud = match cache.get(&room) {
+                        Some(c) => Ok(c),
+                        None => load_cloud(&rooms[room], config.voxel_size, room as u64)
+                            .map(|c| &*cache.entry(room).or_insert(c)),
+                    };
+                    cloud.and_then(|c| {
+                        let mut c = c.clone();
+                        augment.apply(&mut c, s_seed);
+                        VoxelSample::from_cloud(&c, config.voxel_size)
+                    })
+                } else {
+                    load_sample(&rooms[room], config.voxel_size, Some(&augment), s_seed)
+                };
+                let sample = match loaded {
                     Ok(s) => s,
                     Err(e) => {
                         if tx.send(Err(e)).is_err() {
@@ -557,6 +577,8 @@ pub fn train(opts: &TrainOptions, progress: &mut dyn FnMut(&Progress)) -> Result
     let session = Instant::now();
     let base_elapsed = state.elapsed_secs;
     let (mut last_val, mut last_ckpt) = (Instant::now(), Instant::now());
+    // A validation triggered by time is not repeated by the step rule a few steps later.
+    let mut last_val_step = state.step;
     let (mut rooms_done, mut steps_done) = (0u64, 0u64);
     let mut mean_loss: Option<f32> = None;
     let mut val_miou = state.best_miou;
@@ -612,9 +634,13 @@ pub fn train(opts: &TrainOptions, progress: &mut dyn FnMut(&Progress)) -> Result
 
         let finished = state.step >= opts.steps || fraction(state.step, state.elapsed_secs) >= 1.0;
         if !val_samples.is_empty()
-            && (state.step % opts.val_every_steps.max(1) == 0 || last_val.elapsed() >= opts.val_every || finished)
+            && ((state.step % opts.val_every_steps.max(1) == 0
+                && state.step - last_val_step >= opts.val_every_steps.max(2) / 2)
+                || last_val.elapsed() >= opts.val_every
+                || finished)
         {
-            let w = net.to_weights();
+            // Validate what is shipped: the weights as they are after the f16 round trip.
+            let w = net.to_weights().rounded_to_f16();
             let v = validate(&w, config, &val_samples)?;
             let miou = v.total.miou();
             val_miou = Some(miou);
@@ -628,6 +654,9 @@ pub fn train(opts: &TrainOptions, progress: &mut dyn FnMut(&Progress)) -> Result
                 state.best_miou = Some(miou);
                 state.best_step = Some(state.step);
                 w.save(&best_path, config)?;
+                // The state on disk must name the best weights it sits next to.
+                save(&net, &state, &adam)?;
+                last_ckpt = Instant::now();
             }
             let groups: Vec<String> = per_group.iter().map(|(k, m)| format!("{k} {:.1}", m * 100.0)).collect();
             message = Some(format!(
@@ -638,6 +667,7 @@ pub fn train(opts: &TrainOptions, progress: &mut dyn FnMut(&Progress)) -> Result
                 groups.join(", ")
             ));
             last_val = Instant::now();
+            last_val_step = state.step;
         }
         if state.step % 10 == 0 || steps_done <= 5 {
             log.write(serde_json::json!({
