@@ -16,13 +16,21 @@
 //! 1 cm of ours, and within 5 cm (about the share the path saw at all: surfaces the camera
 //! never faced cannot be reconstructed).
 
+#[path = "common/flags.rs"]
+mod flags;
+#[path = "common/tracked_path.rs"]
+mod tracked_path;
+
 use std::path::Path;
 
-use glam::{Affine3A, Mat4, Vec3};
+use glam::{Affine3A, Mat4};
 use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
 use semrecon_data::{read_ply, FrameSource, Intrinsics, LabeledMesh, RenderedScan, SensorModel};
 use semrecon_eval::{evaluate_mesh, MeshEvalConfig};
-use semrecon_recon::{ate_rmse, extract_mesh, Tracker, TrackerConfig, TsdfConfig, TsdfMap};
+use semrecon_recon::{extract_mesh, Tracker, TrackerConfig, TsdfConfig, TsdfMap};
+
+use flags::Flags;
+use tracked_path::track_and_fuse;
 
 struct Args {
     source: String,
@@ -44,21 +52,15 @@ fn parse_args() -> Result<Args, String> {
         ideal: false,
         skip_tracking: false,
     };
-    let mut it = std::env::args().skip(1);
-    while let Some(flag) = it.next() {
-        let mut value = || it.next().ok_or_else(|| format!("{flag} needs a value"));
+    let mut flags = Flags::from_env();
+    while let Some(flag) = flags.next_flag() {
         match flag.as_str() {
-            "--frames" => a.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?,
-            "--voxel" => a.voxel = value()?.parse().map_err(|e| format!("--voxel: {e}"))?,
-            "--trunc" => a.truncation = value()?.parse().map_err(|e| format!("--trunc: {e}"))?,
+            "--frames" => a.frames = flags.value(&flag)?,
+            "--voxel" => a.voxel = flags.value(&flag)?,
+            "--trunc" => a.truncation = flags.value(&flag)?,
             "--ideal" => a.ideal = true,
             "--skip-tracking" => a.skip_tracking = true,
-            "--size" => {
-                let v = value()?;
-                let (w, h) = v.split_once('x').ok_or_else(|| format!("--size {v}: expected WxH"))?;
-                a.size =
-                    (w.parse().map_err(|e| format!("--size: {e}"))?, h.parse().map_err(|e| format!("--size: {e}"))?);
-            }
+            "--size" => a.size = flags.size(&flag)?,
             s if !s.starts_with("--") && a.source.is_empty() => a.source = s.to_string(),
             other => return Err(format!("unknown argument {other}")),
         }
@@ -157,20 +159,8 @@ fn run(a: Args) -> Result<(), String> {
         let first = frames.first().and_then(|f| f.world_from_camera).unwrap_or(Affine3A::IDENTITY);
         let mut tracker = Tracker::with_initial_pose(config, first).map_err(|e| e.to_string())?;
         let mut tmap = TsdfMap::new(map_config).map_err(|e| e.to_string())?;
-        let (mut est, mut gt, mut lost) = (Vec::new(), Vec::new(), 0);
-        for f in &frames {
-            let r = tracker.track(f, &tmap).map_err(|e| e.to_string())?;
-            if !r.should_fuse() {
-                lost += 1;
-                continue;
-            }
-            tmap.integrate(f, r.world_from_camera).map_err(|e| e.to_string())?;
-            if let Some(g) = f.world_from_camera {
-                est.push(Vec3::from(r.world_from_camera.translation));
-                gt.push(Vec3::from(g.translation));
-            }
-        }
-        let ate = ate_rmse(&est, &gt).map_or(f64::NAN, |v| v * 1e3);
+        let path = track_and_fuse(&frames, &mut tmap, |f, tmap| tracker.track(f, tmap).map_err(|e| e.to_string()))?;
+        let (ate, lost) = (path.ate_mm(), path.lost);
         println!("tracking: ATE {ate:.2} mm (Horn, no scale), {lost} lost of {n}");
     }
     Ok(())

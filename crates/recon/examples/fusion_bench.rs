@@ -11,6 +11,10 @@
 //! the reference poses. Thread count: `RAYON_NUM_THREADS`. `--out` writes the final mesh as
 //! binary PLY (a minimal writer local to this example).
 
+#[path = "common/cpu_time.rs"]
+mod cpu_time;
+#[path = "common/flags.rs"]
+mod flags;
 #[path = "../tests/common/scene.rs"]
 mod scene;
 #[path = "../tests/common/seven_scenes.rs"]
@@ -24,6 +28,9 @@ use glam::Affine3A;
 use semrecon_data::{Frame, Intrinsics, LabeledMesh};
 use semrecon_recon::{IncrementalMesher, TsdfConfig, TsdfMap};
 
+use cpu_time::cpu_ns;
+use flags::Flags;
+
 struct Args {
     frames: usize,
     voxel: f32,
@@ -35,16 +42,15 @@ struct Args {
 
 fn parse_args() -> Result<Args, String> {
     let mut a = Args { frames: 100, voxel: 0.005, seven_scenes: None, out: None, keyframe: 10, truncation: 10.0 };
-    let mut it = std::env::args().skip(1);
-    while let Some(flag) = it.next() {
-        let mut value = || it.next().ok_or_else(|| format!("{flag} needs a value"));
+    let mut flags = Flags::from_env();
+    while let Some(flag) = flags.next_flag() {
         match flag.as_str() {
-            "--frames" => a.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?,
-            "--voxel" => a.voxel = value()?.parse().map_err(|e| format!("--voxel: {e}"))?,
-            "--trunc" => a.truncation = value()?.parse().map_err(|e| format!("--trunc: {e}"))?,
-            "--keyframe" => a.keyframe = value()?.parse().map_err(|e| format!("--keyframe: {e}"))?,
-            "--7scenes" => a.seven_scenes = Some(PathBuf::from(value()?)),
-            "--out" => a.out = Some(PathBuf::from(value()?)),
+            "--frames" => a.frames = flags.value(&flag)?,
+            "--voxel" => a.voxel = flags.value(&flag)?,
+            "--trunc" => a.truncation = flags.value(&flag)?,
+            "--keyframe" => a.keyframe = flags.value(&flag)?,
+            "--7scenes" => a.seven_scenes = Some(flags.value(&flag)?),
+            "--out" => a.out = Some(flags.value(&flag)?),
             other => return Err(format!("unknown argument {other}")),
         }
     }
@@ -84,20 +90,6 @@ fn write_ply(path: &Path, mesh: &LabeledMesh) -> std::io::Result<()> {
         w.flush()?;
     }
     std::fs::rename(&tmp, path)
-}
-
-/// CPU time of all threads of this process in nanoseconds (Linux schedstat; 0 elsewhere).
-/// The machine this runs on may be shared, so CPU time is the fair measure of work; on
-/// dedicated cores the wall time of a parallel stage approaches CPU time / threads.
-fn cpu_ns() -> u64 {
-    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
-        return 0;
-    };
-    tasks
-        .filter_map(|t| t.ok())
-        .filter_map(|t| std::fs::read_to_string(t.path().join("schedstat")).ok())
-        .filter_map(|s| s.split_whitespace().next().and_then(|v| v.parse::<u64>().ok()))
-        .sum()
 }
 
 fn stats(label: &str, ms: &mut [f64]) {

@@ -12,11 +12,16 @@
 //! Prints a table every `K` frames: chunks, map bytes, bytes per chunk, and growth since the
 //! previous row.
 
+#[path = "common/flags.rs"]
+mod flags;
+
 use std::time::Instant;
 
 use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
 use semrecon_data::FrameSource;
 use semrecon_recon::{TsdfConfig, TsdfMap};
+
+use flags::Flags;
 
 struct Args {
     seed: u64,
@@ -30,22 +35,16 @@ struct Args {
 
 fn parse_args() -> Result<Args, String> {
     let mut a = Args { seed: 3, frames: 600, loops: 2, size: (320, 240), voxel: 0.005, truncation: 10.0, every: 100 };
-    let mut it = std::env::args().skip(1);
-    while let Some(flag) = it.next() {
-        let mut value = || it.next().ok_or_else(|| format!("{flag} needs a value"));
+    let mut flags = Flags::from_env();
+    while let Some(flag) = flags.next_flag() {
         match flag.as_str() {
-            "--seed" => a.seed = value()?.parse().map_err(|e| format!("--seed: {e}"))?,
-            "--frames" => a.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?,
-            "--loops" => a.loops = value()?.parse().map_err(|e| format!("--loops: {e}"))?,
-            "--voxel" => a.voxel = value()?.parse().map_err(|e| format!("--voxel: {e}"))?,
-            "--trunc" => a.truncation = value()?.parse().map_err(|e| format!("--trunc: {e}"))?,
-            "--every" => a.every = value()?.parse().map_err(|e| format!("--every: {e}"))?,
-            "--size" => {
-                let v = value()?;
-                let (w, h) = v.split_once('x').ok_or_else(|| format!("--size {v}: expected WxH"))?;
-                a.size =
-                    (w.parse().map_err(|e| format!("--size: {e}"))?, h.parse().map_err(|e| format!("--size: {e}"))?);
-            }
+            "--seed" => a.seed = flags.value(&flag)?,
+            "--frames" => a.frames = flags.value(&flag)?,
+            "--loops" => a.loops = flags.value(&flag)?,
+            "--voxel" => a.voxel = flags.value(&flag)?,
+            "--trunc" => a.truncation = flags.value(&flag)?,
+            "--every" => a.every = flags.value(&flag)?,
+            "--size" => a.size = flags.size(&flag)?,
             other => return Err(format!("unknown argument {other}")),
         }
     }

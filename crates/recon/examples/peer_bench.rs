@@ -17,11 +17,20 @@
 //!
 //! Thread count: `RAYON_NUM_THREADS`.
 
-use std::time::Instant;
+#[path = "common/cpu_time.rs"]
+mod cpu_time;
+#[path = "common/flags.rs"]
+mod flags;
+#[path = "common/tracked_path.rs"]
+mod tracked_path;
 
-use glam::{Affine3A, Vec3};
+use glam::Affine3A;
 use semrecon_data::{open_dataset, DatasetSpec, Frame};
-use semrecon_recon::{ate_rmse, extract_mesh, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
+use semrecon_recon::{extract_mesh, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
+
+use cpu_time::timed;
+use flags::Flags;
+use tracked_path::track_and_fuse;
 
 struct Args {
     spec: String,
@@ -33,7 +42,7 @@ struct Args {
 }
 
 fn parse_args() -> Result<Args, String> {
-    let mut it = std::env::args().skip(1);
+    let mut flags = Flags::from_env();
     let mut a = Args {
         spec: String::new(),
         frames: usize::MAX,
@@ -42,14 +51,13 @@ fn parse_args() -> Result<Args, String> {
         max_depth: 5.0,
         mesh_repeats: 3,
     };
-    while let Some(arg) = it.next() {
-        let mut value = || it.next().ok_or_else(|| format!("{arg} needs a value"));
+    while let Some(arg) = flags.next_flag() {
         match arg.as_str() {
-            "--frames" => a.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?,
-            "--voxel" => a.voxel = value()?.parse().map_err(|e| format!("--voxel: {e}"))?,
-            "--trunc" => a.truncation = value()?.parse().map_err(|e| format!("--trunc: {e}"))?,
-            "--max-depth" => a.max_depth = value()?.parse().map_err(|e| format!("--max-depth: {e}"))?,
-            "--mesh-repeats" => a.mesh_repeats = value()?.parse().map_err(|e| format!("--mesh-repeats: {e}"))?,
+            "--frames" => a.frames = flags.value(&arg)?,
+            "--voxel" => a.voxel = flags.value(&arg)?,
+            "--trunc" => a.truncation = flags.value(&arg)?,
+            "--max-depth" => a.max_depth = flags.value(&arg)?,
+            "--mesh-repeats" => a.mesh_repeats = flags.value(&arg)?,
             s if !s.starts_with("--") && a.spec.is_empty() => a.spec = s.to_string(),
             other => return Err(format!("unknown argument {other}")),
         }
@@ -58,26 +66,6 @@ fn parse_args() -> Result<Args, String> {
         return Err("usage: peer_bench SPEC [--frames N] [--voxel M] [--trunc VOXELS] [--max-depth M]".into());
     }
     Ok(a)
-}
-
-/// CPU time of all threads of this process in nanoseconds (Linux schedstat; 0 elsewhere).
-fn cpu_ns() -> u64 {
-    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
-        return 0;
-    };
-    tasks
-        .filter_map(|t| t.ok())
-        .filter_map(|t| std::fs::read_to_string(t.path().join("schedstat")).ok())
-        .filter_map(|s| s.split_whitespace().next().and_then(|v| v.parse::<u64>().ok()))
-        .sum()
-}
-
-/// Wall and CPU milliseconds of one call.
-fn timed<T>(f: impl FnOnce() -> T) -> (T, f64, f64) {
-    let c = cpu_ns();
-    let t = Instant::now();
-    let out = f();
-    (out, t.elapsed().as_secs_f64() * 1e3, cpu_ns().saturating_sub(c) as f64 * 1e-6)
 }
 
 fn median(v: &[f64]) -> f64 {
@@ -138,26 +126,16 @@ fn run(a: Args) -> Result<(), String> {
     let initial = frames.first().and_then(|f| f.world_from_camera).unwrap_or(Affine3A::IDENTITY);
     let mut tracker = Tracker::with_initial_pose(config, initial).map_err(|e| e.to_string())?;
     let (mut track_wall, mut track_cpu) = (Vec::new(), Vec::new());
-    let (mut est, mut gt) = (Vec::new(), Vec::new());
-    let mut lost = 0;
-    for f in &frames {
-        let (r, w, c) = timed(|| tracker.track(f, &tmap));
+    let path = track_and_fuse(&frames, &mut tmap, |f, tmap| {
+        let (r, w, c) = timed(|| tracker.track(f, tmap));
         let r = r.map_err(|e| e.to_string())?;
         if r.status == TrackingStatus::Tracked {
             track_wall.push(w);
             track_cpu.push(c);
         }
-        if !r.should_fuse() {
-            lost += 1;
-            continue;
-        }
-        tmap.integrate(f, r.world_from_camera).map_err(|e| e.to_string())?;
-        if let Some(g) = f.world_from_camera {
-            est.push(Vec3::from(r.world_from_camera.translation));
-            gt.push(Vec3::from(g.translation));
-        }
-    }
-    let ate = ate_rmse(&est, &gt).map_or(f64::NAN, |e| e * 1e3);
+        Ok(r)
+    })?;
+    let (ate, lost) = (path.ate_mm(), path.lost);
     println!(
         "{{\"name\": \"semrecon\", \"frames\": {n}, \"threads\": {}, \"voxel_m\": {}, \"truncation_voxels\": {}, \
          \"chunks\": {}, \"map_bytes\": {}, \"bytes_per_chunk\": {}, \"fusion\": {}, \

@@ -13,11 +13,16 @@
 //! frames; the error with only the first pose aligned is printed too. `--size` resamples
 //! frames (nearest pixel) before tracking. Thread count: `RAYON_NUM_THREADS`.
 
+#[path = "common/flags.rs"]
+mod flags;
+
 use std::time::Instant;
 
 use glam::Vec3;
 use semrecon_data::{open_dataset, DatasetSpec, Frame};
 use semrecon_recon::{ate_rmse, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
+
+use flags::Flags;
 
 struct Args {
     spec: String,
@@ -34,7 +39,7 @@ struct Args {
 }
 
 fn parse_args() -> Result<Args, String> {
-    let mut it = std::env::args().skip(1);
+    let mut flags = Flags::from_env();
     let mut a = Args {
         spec: String::new(),
         frames: usize::MAX,
@@ -48,15 +53,14 @@ fn parse_args() -> Result<Args, String> {
         model_interval: None,
         max_depth: None,
     };
-    while let Some(arg) = it.next() {
-        let mut value = || it.next().ok_or_else(|| format!("{arg} needs a value"));
+    while let Some(arg) = flags.next_flag() {
         match arg.as_str() {
-            "--frames" => a.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?,
-            "--voxel" => a.voxel = value()?.parse().map_err(|e| format!("--voxel: {e}"))?,
-            "--photometric" => a.photometric = value()?.parse().map_err(|e| format!("--photometric: {e}"))?,
-            "--trunc" => a.truncation = Some(value()?.parse().map_err(|e| format!("--trunc: {e}"))?),
+            "--frames" => a.frames = flags.value(&arg)?,
+            "--voxel" => a.voxel = flags.value(&arg)?,
+            "--photometric" => a.photometric = flags.value(&arg)?,
+            "--trunc" => a.truncation = Some(flags.value(&arg)?),
             "--iters" => {
-                let v = value()?;
+                let v: String = flags.value(&arg)?;
                 let parts: Vec<usize> = v
                     .split(',')
                     .map(|p| p.parse().map_err(|e| format!("--iters {v}: {e}")))
@@ -64,20 +68,11 @@ fn parse_args() -> Result<Args, String> {
                 a.iterations =
                     Some(parts.try_into().map_err(|_| format!("--iters {v}: expected three counts, fine to coarse"))?);
             }
-            "--max-depth" => a.max_depth = Some(value()?.parse().map_err(|e| format!("--max-depth: {e}"))?),
-            "--fine-stride" => a.fine_stride = Some(value()?.parse().map_err(|e| format!("--fine-stride: {e}"))?),
-            "--model-interval" => {
-                a.model_interval = Some(value()?.parse().map_err(|e| format!("--model-interval: {e}"))?)
-            }
-            "--downscale" => a.downscale = Some(value()?.parse().map_err(|e| format!("--downscale: {e}"))?),
-            "--size" => {
-                let v = value()?;
-                let (w, h) = v.split_once('x').ok_or_else(|| format!("--size {v}: expected WxH"))?;
-                a.size = Some((
-                    w.parse().map_err(|e| format!("--size: {e}"))?,
-                    h.parse().map_err(|e| format!("--size: {e}"))?,
-                ));
-            }
+            "--max-depth" => a.max_depth = Some(flags.value(&arg)?),
+            "--fine-stride" => a.fine_stride = Some(flags.value(&arg)?),
+            "--model-interval" => a.model_interval = Some(flags.value(&arg)?),
+            "--downscale" => a.downscale = Some(flags.value(&arg)?),
+            "--size" => a.size = Some(flags.size(&arg)?),
             s if !s.starts_with("--") && a.spec.is_empty() => a.spec = s.to_string(),
             other => return Err(format!("unknown argument {other}")),
         }
