@@ -164,23 +164,13 @@ impl DataSource {
                 .collect()),
             Self::Scannet(path) => {
                 let scenes = if path.is_dir() && !semrecon_data::scannet_mesh::scannet_labels_path(path).exists() {
-                    let mut scenes: Vec<PathBuf> = list_dir(path)?
-                        .into_iter()
-                        .filter(|p| semrecon_data::scannet_mesh::scannet_labels_path(p).exists())
-                        .collect();
-                    scenes.sort();
-                    if scenes.is_empty() {
-                        return Err(semrecon_data::DataError::dataset(
-                            path,
-                            "no ScanNet scene (*_vh_clean_2.labels.ply) found",
-                        )
-                        .into());
-                    }
-                    scenes
-                } else if path.exists() {
-                    vec![path.clone()]
+                    folder_rooms(
+                        path,
+                        |p| semrecon_data::scannet_mesh::scannet_labels_path(p).exists(),
+                        "no ScanNet scene (*_vh_clean_2.labels.ply) found",
+                    )?
                 } else {
-                    return Err(semrecon_data::DataError::dataset(path, "does not exist").into());
+                    single_room(path, path.exists())?
                 };
                 Ok(scenes
                     .into_iter()
@@ -193,19 +183,13 @@ impl DataSource {
             }
             Self::Ply(path) => {
                 let files = if path.is_dir() {
-                    let mut files: Vec<PathBuf> = list_dir(path)?
-                        .into_iter()
-                        .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("ply")) && p.is_file())
-                        .collect();
-                    files.sort();
-                    if files.is_empty() {
-                        return Err(semrecon_data::DataError::dataset(path, "no .ply file in the folder").into());
-                    }
-                    files
-                } else if path.is_file() {
-                    vec![path.clone()]
+                    folder_rooms(
+                        path,
+                        |p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("ply")) && p.is_file(),
+                        "no .ply file in the folder",
+                    )?
                 } else {
-                    return Err(semrecon_data::DataError::dataset(path, "does not exist").into());
+                    single_room(path, path.is_file())?
                 };
                 Ok(files
                     .into_iter()
@@ -226,6 +210,26 @@ pub fn rooms_of(sources: &[DataSource]) -> Result<Vec<RoomRef>> {
         all.extend(s.rooms()?);
     }
     Ok(all)
+}
+
+/// The entries of the folder `dir` that `is_room` accepts, sorted; an error naming `dir` with
+/// `none_found` when there is none.
+fn folder_rooms(dir: &Path, is_room: impl Fn(&Path) -> bool, none_found: &str) -> Result<Vec<PathBuf>> {
+    let mut rooms: Vec<PathBuf> = list_dir(dir)?.into_iter().filter(|p| is_room(p)).collect();
+    rooms.sort();
+    if rooms.is_empty() {
+        return Err(semrecon_data::DataError::dataset(dir, none_found).into());
+    }
+    Ok(rooms)
+}
+
+/// The one room `path` when it `exists` (as the kind of source wants it), else an error.
+fn single_room(path: &Path, exists: bool) -> Result<Vec<PathBuf>> {
+    if exists {
+        Ok(vec![path.to_path_buf()])
+    } else {
+        Err(semrecon_data::DataError::dataset(path, "does not exist").into())
+    }
 }
 
 fn list_dir(path: &Path) -> Result<Vec<PathBuf>> {
