@@ -393,18 +393,7 @@ impl Segmenter {
         let (coords, feats) = v.tensor.into_parts();
         let logits = self.forward_sorted(coords, &feats)?;
         let k = self.config.classes;
-        let voxel_class: Vec<u8> = logits
-            .chunks_exact(k)
-            .map(|row| {
-                let mut best = 0;
-                for (c, &s) in row.iter().enumerate() {
-                    if s > row[best] {
-                        best = c;
-                    }
-                }
-                best as u8
-            })
-            .collect();
+        let voxel_class = argmax_rows(&logits, k);
         Ok(v.point_to_voxel.iter().map(|&r| voxel_class[r as usize]).collect())
     }
 
@@ -528,6 +517,26 @@ impl Segmenter {
         });
         Ok(())
     }
+}
+
+/// The index of the largest score of every row of `k` scores (the first on ties): the class
+/// of each voxel from its logits.
+///
+/// # Shapes
+/// `scores`: rows x `k`, row-major; the result has one entry per row.
+pub(crate) fn argmax_rows(scores: &[f32], k: usize) -> Vec<u8> {
+    scores
+        .chunks_exact(k.max(1))
+        .map(|row| {
+            let mut best = 0;
+            for (c, &s) in row.iter().enumerate() {
+                if s > row[best] {
+                    best = c;
+                }
+            }
+            best as u8
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -40,6 +40,7 @@ use crate::config::NetConfig;
 use crate::dataset::{load_cloud, load_sample, sample_seed, Augment, RoomRef};
 use crate::error::{NetError, Result};
 use crate::geometry::NetGeometry;
+use crate::inference::argmax_rows;
 use crate::metrics::ConfusionMatrix;
 use crate::sample::VoxelSample;
 use crate::train::model::{tensor_values, BurnCbscn, Mode};
@@ -468,22 +469,6 @@ pub fn validate(weights: &Weights, config: &NetConfig, samples: &[(String, Voxel
         groups.entry(group.clone()).or_insert_with(|| ConfusionMatrix::new(config.classes)).add(&s.labels, &pred);
     }
     Ok(Validation { total, groups })
-}
-
-/// The index of the largest score of every row.
-pub fn argmax_rows(scores: &[f32], k: usize) -> Vec<u8> {
-    scores
-        .chunks_exact(k.max(1))
-        .map(|row| {
-            let mut best = 0;
-            for (c, &s) in row.iter().enumerate() {
-                if s > row[best] {
-                    best = c;
-                }
-            }
-            best as u8
-        })
-        .collect()
 }
 
 fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
