@@ -114,6 +114,17 @@ impl LabeledMesh {
         Some(self.positions.iter().fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p))))
     }
 
+    /// Total area of the triangles in square metres (f32, summed in triangle order).
+    pub fn surface_area(&self) -> f32 {
+        self.triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| self.positions[i as usize]);
+                0.5 * (b - a).cross(c - a).length()
+            })
+            .sum()
+    }
+
     /// Per-vertex labels derived from triangle labels (each vertex takes the label of the
     /// first triangle that uses it); the mesh's own vertex labels when it has them.
     pub fn vertex_labels_or_from_triangles(&self) -> Vec<u8> {
@@ -169,6 +180,7 @@ mod tests {
         assert_eq!(m.vertex_labels_or_from_triangles(), vec![1, 1, 1, 2, 2, 2]);
         m.compute_normals();
         assert!((m.normals[0] - Vec3::Z).length() < 1e-6);
+        assert_eq!(m.surface_area(), 1.0);
     }
 
     #[test]

@@ -18,14 +18,7 @@ pub fn decimate_for_display(mesh: &LabeledMesh, max_triangles: usize) -> Labeled
     if mesh.triangles.len() <= max_triangles.max(1) {
         return mesh.clone();
     }
-    let area: f32 = mesh
-        .triangles
-        .iter()
-        .map(|t| {
-            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-            0.5 * (b - a).cross(c - a).length()
-        })
-        .sum();
+    let area = mesh.surface_area();
     // A clustered surface has about two triangles per cell it crosses.
     let mut cell = (2.0 * area / max_triangles.max(1) as f32).sqrt().max(1e-6);
     loop {

@@ -120,14 +120,7 @@ pub fn label_vertices(net: &mut Segmenter, mesh: &LabeledMesh) -> anyhow::Result
     let mut colors = mesh.colors.clone();
     if !mesh.triangles.is_empty() {
         let voxel = net.config().voxel_size;
-        let area: f32 = mesh
-            .triangles
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-                0.5 * (b - a).cross(c - a).length()
-            })
-            .sum();
+        let area = mesh.surface_area();
         let density = points_per_m2(voxel).min(MAX_SURFACE_SAMPLES / area.max(1e-6));
         let samples = sample_surface(mesh, density, 0);
         points.extend(samples.positions.iter().map(|p| p.to_array()));
