@@ -2,19 +2,11 @@
 //! commands work on small generated data, and bad input gives an error (exit code 1 with a
 //! message naming the problem), never a panic.
 
-use std::process::{Command, Output};
+mod common;
 
-fn semrecon(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_semrecon")).args(args).output().expect("run semrecon")
-}
+use std::process::Output;
 
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+use common::{semrecon, stderr, stdout};
 
 /// A failure the user can read: exit code 1 or 2 (clap), a message, no panic.
 fn assert_clean_failure(o: &Output, needle: &str) {

@@ -2,15 +2,15 @@
 //! written and well-formed, numbers right on hand-made inputs, bad input reported as an error
 //! (exit code 1 and a message), never a panic.
 
+mod common;
+
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use glam::{Affine3A, Quat, Vec3};
 use semrecon_data::{write_ply, LabeledMesh, PlyEncoding, Trajectory};
 
-fn semrecon(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_semrecon")).args(args).output().expect("the binary runs")
-}
+use common::{s, semrecon};
 
 fn stdout_json(out: &Output) -> serde_json::Value {
     assert!(out.status.success(), "failed: {}", String::from_utf8_lossy(&out.stderr));
@@ -24,33 +24,30 @@ fn assert_clean_failure(out: &Output, needle: &str) {
     assert!(stderr.contains(needle), "expected `{needle}` in: {stderr}");
 }
 
-fn s(p: &Path) -> &str {
-    p.to_str().expect("UTF-8 temp path")
+/// `semrecon run --dataset DATASET ARGS.. --out OUT_DIR`, which must succeed.
+fn run_ok(dataset: &str, args: &[&str], out_dir: &Path) -> Output {
+    let mut all = vec!["run", "--dataset", dataset];
+    all.extend_from_slice(args);
+    all.extend(["--out", s(out_dir)]);
+    let out = semrecon(&all);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    out
+}
+
+/// The `report.json` that `semrecon run` wrote to `out_dir`.
+fn read_report(out_dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).expect("report")).expect("JSON")
 }
 
 #[test]
 fn run_reconstructs_a_few_synthetic_frames() {
     let dir = tempfile::tempdir().expect("temp dir");
     let out_dir = dir.path().join("out");
-    let out = semrecon(&[
-        "run",
-        "--dataset",
-        "synth:3",
-        "--frames",
-        "0..5",
-        "--voxel",
-        "0.02",
-        "--keyframe-every",
-        "2",
-        "--out",
-        s(&out_dir),
-    ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = run_ok("synth:3", &["--frames", "0..5", "--voxel", "0.02", "--keyframe-every", "2"], &out_dir);
     let table = String::from_utf8_lossy(&out.stdout);
     assert!(table.contains("fusion") && table.contains("meshing"), "{table}");
 
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).expect("report")).expect("JSON");
+    let report = read_report(&out_dir);
     assert_eq!(report["frames"], 5);
     assert_eq!(report["lost_frames"], 0);
     assert!(report["realtime_factor"].as_f64().expect("number") > 0.0);
@@ -87,25 +84,12 @@ fn run_reconstructs_a_few_synthetic_frames() {
 fn run_in_real_time_keeps_every_frame_and_reports_the_lag() {
     let dir = tempfile::tempdir().expect("temp dir");
     let out_dir = dir.path().join("out");
-    let out = semrecon(&[
-        "run",
-        "--dataset",
+    let out = run_ok(
         "synth:2",
-        "--frames",
-        "0..6",
-        "--voxel",
-        "0.02",
-        "--keyframe-every",
-        "2",
-        "--realtime",
-        "--semantics",
-        "full",
-        "--out",
-        s(&out_dir),
-    ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).expect("report")).expect("JSON");
+        &["--frames", "0..6", "--voxel", "0.02", "--keyframe-every", "2", "--realtime", "--semantics", "full"],
+        &out_dir,
+    );
+    let report = read_report(&out_dir);
     assert_eq!(report["realtime"], true);
     assert_eq!((report["frames"].as_u64(), report["fused_frames"].as_u64()), (Some(6), Some(6)));
     assert!(report["max_lag_s"].as_f64().expect("lag") >= 0.0);
@@ -122,22 +106,8 @@ fn run_model_and_semantics_options() {
     std::fs::write(&bad, b"not weights").expect("write");
     let out = semrecon(&["run", "--dataset", "synth:1", "--frames", "0..2", "--model", s(&bad), "--out", s(&out_dir)]);
     assert_clean_failure(&out, "weights.safetensors");
-    let out = semrecon(&[
-        "run",
-        "--dataset",
-        "synth:1",
-        "--frames",
-        "0..3",
-        "--voxel",
-        "0.02",
-        "--semantics",
-        "off",
-        "--out",
-        s(&out_dir),
-    ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).expect("report")).expect("JSON");
+    run_ok("synth:1", &["--frames", "0..3", "--voxel", "0.02", "--semantics", "off"], &out_dir);
+    let report = read_report(&out_dir);
     assert_eq!(report["semantic_passes"], 0);
     assert_eq!(report["stages"]["semantic"]["count"], 0);
 }
@@ -154,23 +124,10 @@ fn run_stops_cleanly_when_the_dataset_ends_early() {
         std::fs::write(scan.join(format!("frame-{i:06}.depth.png")), b"truncated").expect("corrupt");
     }
     let out_dir = dir.path().join("out");
-    let out = semrecon(&[
-        "run",
-        "--dataset",
-        &format!("7scenes:{}", s(&scan)),
-        "--poses",
-        "ground-truth",
-        "--voxel",
-        "0.05",
-        "--keyframe-every",
-        "2",
-        "--out",
-        s(&out_dir),
-    ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let dataset = format!("7scenes:{}", s(&scan));
+    let out = run_ok(&dataset, &["--poses", "ground-truth", "--voxel", "0.05", "--keyframe-every", "2"], &out_dir);
     assert!(String::from_utf8_lossy(&out.stdout).contains("ended early"), "{}", String::from_utf8_lossy(&out.stdout));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).expect("report")).expect("JSON");
+    let report = read_report(&out_dir);
     assert_eq!(report["stopped_early_at"], 33);
     assert_eq!((report["fused_frames"].as_u64(), report["failed_loads"].as_u64()), (Some(3), Some(30)));
     assert_eq!(Trajectory::read_tum(out_dir.join("trajectory.txt")).expect("TUM").len(), 3);
@@ -203,22 +160,11 @@ fn run_skips_frames_that_fail_to_load() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     std::fs::write(scan.join("frame-000002.depth.png"), b"not a png").expect("corrupt a frame");
     let out_dir = dir.path().join("out");
-    let out = semrecon(&[
-        "run",
-        "--dataset",
-        &format!("7scenes:{}", s(&scan)),
-        // 64x48 frames are too small to track: this test is about skipping bad frames.
-        "--poses",
-        "ground-truth",
-        "--voxel",
-        "0.05",
-        "--out",
-        s(&out_dir),
-    ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // 64x48 frames are too small to track: this test is about skipping bad frames.
+    let dataset = format!("7scenes:{}", s(&scan));
+    let out = run_ok(&dataset, &["--poses", "ground-truth", "--voxel", "0.05"], &out_dir);
     assert!(String::from_utf8_lossy(&out.stderr).contains("frame 2 skipped"));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).expect("report")).expect("JSON");
+    let report = read_report(&out_dir);
     assert_eq!((report["frames"].as_u64(), report["lost_frames"].as_u64()), (Some(6), Some(1)));
     assert_eq!(Trajectory::read_tum(out_dir.join("trajectory.txt")).expect("TUM").len(), 5);
 }

@@ -2,6 +2,8 @@
 //! net`) with a tiny random-weight model, so that they run in seconds: what is checked is the
 //! plumbing (files in and out, properties kept, errors), not the quality of the labels.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -11,17 +13,7 @@ use semrecon_data::synth::{generate_room, RoomConfig};
 use semrecon_data::{LabeledMesh, PlyEncoding};
 use semrecon_net::{NetConfig, Weights};
 
-fn semrecon(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_semrecon")).args(args).output().expect("run semrecon")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
+use common::{s, semrecon, stderr, stdout};
 
 fn assert_clean_failure(o: &Output, needles: &[&str]) {
     let err = stderr(o);
@@ -43,10 +35,6 @@ fn tiny_model(dir: &Path) -> PathBuf {
     w.perturb_normalisation(8);
     w.save(&path, &tiny()).expect("save model");
     path
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().expect("utf-8 path")
 }
 
 /// Part of a generated room (the triangles within 2 m of the origin) as a PLY file with an

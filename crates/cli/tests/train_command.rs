@@ -3,11 +3,9 @@
 //! named errors. (Training itself is tested in crates/net/tests/train_end_to_end.rs.)
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::process::{Command, Output};
+mod common;
 
-fn semrecon(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_semrecon")).args(args).output().expect("run semrecon")
-}
+use common::semrecon;
 
 #[test]
 fn train_has_help_and_explains_the_feature_or_rejects_bad_sources() {
