@@ -4,7 +4,7 @@
 
 mod common;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Output;
 
 use glam::{Affine3A, Quat, Vec3};
@@ -32,6 +32,15 @@ fn run_ok(dataset: &str, args: &[&str], out_dir: &Path) -> Output {
     let out = semrecon(&all);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     out
+}
+
+/// A `frames`-frame 64x48 dataset in the 7-Scenes layout, written by `semrecon synth` to
+/// `dir/scan`.
+fn tiny_seven_scenes(dir: &Path, frames: usize) -> PathBuf {
+    let scan = dir.join("scan");
+    let out = semrecon(&["synth", "--out", s(&scan), "--frames", &frames.to_string(), "--size", "64x48"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    scan
 }
 
 /// The `report.json` that `semrecon run` wrote to `out_dir`.
@@ -117,9 +126,7 @@ fn run_stops_cleanly_when_the_dataset_ends_early() {
     // 34 frames, of which the last 31 cannot be read: the run stops after 30 failures in a row
     // and still writes valid outputs of the first three frames.
     let dir = tempfile::tempdir().expect("temp dir");
-    let scan = dir.path().join("scan");
-    let out = semrecon(&["synth", "--out", s(&scan), "--frames", "34", "--size", "64x48"]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let scan = tiny_seven_scenes(dir.path(), 34);
     for i in 3..34 {
         std::fs::write(scan.join(format!("frame-{i:06}.depth.png")), b"truncated").expect("corrupt");
     }
@@ -155,9 +162,7 @@ fn run_rejects_bad_input_cleanly() {
 fn run_skips_frames_that_fail_to_load() {
     // A tiny 7-Scenes layout dataset with one frame's depth image corrupted.
     let dir = tempfile::tempdir().expect("temp dir");
-    let scan = dir.path().join("scan");
-    let out = semrecon(&["synth", "--out", s(&scan), "--frames", "6", "--size", "64x48"]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let scan = tiny_seven_scenes(dir.path(), 6);
     std::fs::write(scan.join("frame-000002.depth.png"), b"not a png").expect("corrupt a frame");
     let out_dir = dir.path().join("out");
     // 64x48 frames are too small to track: this test is about skipping bad frames.
