@@ -81,7 +81,7 @@ mod tests {
             triangle_labels: vec![0, 7],
             ..LabeledMesh::default()
         };
-        let labeler = SurfaceLabeler::new(&mesh, 0.1).unwrap();
+        let labeler = SurfaceLabeler::new(&mesh, 0.1).expect("indexed");
         let labels = labeler.labels(&[Vec3::new(0.2, 0.2, 0.03), Vec3::new(0.2, 0.2, 0.95), Vec3::new(0.2, 0.2, 0.5)]);
         assert_eq!(labels, vec![0, 7, UNLABELED]);
     }

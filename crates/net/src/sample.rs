@@ -91,9 +91,9 @@ mod tests {
             colors: vec![[255, 0, 0], [255, 0, 0], [0, 0, 0], [9, 9, 9]],
             labels: vec![4, 4, 2, UNLABELED],
         };
-        let s = VoxelSample::from_cloud(&cloud, 0.05).unwrap();
+        let s = VoxelSample::from_cloud(&cloud, 0.05).expect("voxelised");
         assert_eq!(s.len(), 2);
-        let first = s.coords.iter().position(|c| c[0] == 0).unwrap();
+        let first = s.coords.iter().position(|c| c[0] == 0).expect("the voxel at the origin");
         assert_eq!(s.labels[first], 4);
         assert_eq!(s.labels[1 - first], UNLABELED);
         assert_eq!(s.features.len(), 6);
