@@ -4,7 +4,7 @@
 //! label of their points, which is what the network sees and what its loss compares with.
 
 use semrecon_data::class::UNLABELED;
-use semrecon_data::LabeledPointCloud;
+use semrecon_data::{LabeledPointCloud, SemanticClass};
 use semrecon_sparse::voxelize::voxelize;
 use semrecon_sparse::Coord;
 
@@ -50,9 +50,9 @@ impl VoxelSample {
         let points: Vec<[f32; 3]> = cloud.positions.iter().map(|p| p.to_array()).collect();
         let v = voxelize(&points, &color_features(&cloud.colors), 3, voxel_size, 0)?;
         let n = v.tensor.len();
-        let mut votes = vec![[0u32; 13]; n];
+        let mut votes = vec![[0u32; SemanticClass::COUNT]; n];
         for (&voxel, &label) in v.point_to_voxel.iter().zip(&cloud.labels) {
-            if (label as usize) < 13 {
+            if (label as usize) < SemanticClass::COUNT {
                 votes[voxel as usize][label as usize] += 1;
             }
         }

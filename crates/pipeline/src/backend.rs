@@ -13,7 +13,7 @@ use std::time::Instant;
 
 use glam::{Affine3A, Vec3};
 use semrecon_net::{color_features, Segmenter};
-use semrecon_sparse::Coord;
+use semrecon_sparse::voxelize::voxelize;
 
 use crate::error::{PipelineError, Result};
 use crate::semantic_map::{CellKey, CLASSES};
@@ -51,30 +51,16 @@ pub(crate) struct JobResult {
 pub(crate) fn run_job(net: &mut Segmenter, job: Job) -> Result<JobResult> {
     let t = Instant::now();
     let size = net.config().voxel_size;
-    let mut index: std::collections::HashMap<[i32; 3], u32> = std::collections::HashMap::with_capacity(job.keys.len());
-    let mut coords: Vec<Coord> = Vec::with_capacity(job.keys.len());
-    let mut sums: Vec<[f32; 4]> = Vec::with_capacity(job.keys.len());
-    let mut voxel_of = Vec::with_capacity(job.keys.len());
-    let feats = color_features(&job.colors);
-    for (i, p) in job.positions.iter().enumerate() {
-        let q = (job.aligned_from_map.transform_point3(*p) / size).floor();
-        if !q.is_finite() {
-            return Err(PipelineError::Backend(format!("cell {} has a non-finite position", job.keys[i])));
-        }
-        let c = [q.x as i32, q.y as i32, q.z as i32];
-        let v = *index.entry(c).or_insert_with(|| {
-            coords.push([c[0], c[1], c[2], 0]);
-            sums.push([0.0; 4]);
-            (coords.len() - 1) as u32
-        });
-        let s = &mut sums[v as usize];
-        for k in 0..3 {
-            s[k] += feats[i * 3 + k];
-        }
-        s[3] += 1.0;
-        voxel_of.push(v);
+    let aligned: Vec<[f32; 3]> =
+        job.positions.iter().map(|p| job.aligned_from_map.transform_point3(*p).to_array()).collect();
+    if let Some(i) = aligned.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+        return Err(PipelineError::Backend(format!("cell {} has a non-finite position", job.keys[i])));
     }
-    let features: Vec<f32> = sums.iter().flat_map(|s| [s[0] / s[3], s[1] / s[3], s[2] / s[3]]).collect();
+    // The engine's voxelisation averages the cells' colours per network voxel and keeps the
+    // cell-to-voxel map; its voxels come out in the order the network wants.
+    let voxels = voxelize(&aligned, &color_features(&job.colors), 3, size, 0).map_err(semrecon_net::NetError::from)?;
+    let voxel_of = voxels.point_to_voxel;
+    let (coords, features) = voxels.tensor.into_parts();
     let logits = if coords.is_empty() { Vec::new() } else { net.segment(&coords, &features)? };
     let classes = net.config().classes;
     let probs_of = |v: usize| -> [f32; CLASSES] {
