@@ -61,6 +61,8 @@ struct Report {
     miou: Option<f64>,
     /// Per-class IoU (`null` for classes absent from both).
     class_iou: Option<Vec<Option<f64>>>,
+    /// Vertex counts, `confusion[truth][predicted]`, in MISSION.md's class order.
+    confusion: Option<Vec<Vec<u64>>>,
     network: String,
     semantic_passes: usize,
     labelled_vertices: f64,
@@ -149,6 +151,10 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             .and_then(|e| e.scores.iter().find(|t| (t.threshold_m - 0.05).abs() < 1e-6).map(|t| t.recall)),
         miou: score.as_ref().map(|s| s.0),
         class_iou: score.as_ref().map(|s| s.1.iou()),
+        confusion: score.as_ref().map(|s| {
+            let cm = &s.1;
+            (0..cm.classes()).map(|t| (0..cm.classes()).map(|p| cm.count(t, p)).collect()).collect()
+        }),
         network,
         semantic_passes: pipeline.semantic_passes().len(),
         labelled_vertices: labelled_share(&mesh),
