@@ -214,7 +214,9 @@ impl Furnisher<'_> {
         let kind = pick(self.rng, &[BoardKind::White, BoardKind::White, BoardKind::Black]);
         let z0 = uniform(self.rng, 0.85, 0.95);
         let z1 = (z0 + uniform(self.rng, 1.0, 1.2)).min(2.15);
-        let centred = (0..16).map(|i| len * 0.5 + if i % 2 == 0 { 1.0 } else { -1.0 } * (i / 2) as f32 * 0.2).find(|&s| {
+        // Centre, then 0.2 m steps out to alternate sides.
+        let offsets = (0..16).map(|i| (i / 2) as f32 * 0.2 * if i % 2 == 0 { 1.0 } else { -1.0 });
+        let centred = offsets.map(|o| len * 0.5 + o).find(|&s| {
             let (s0, s1) = (s - bw * 0.5, s + bw * 0.5);
             s0 >= 0.2 && s1 <= len - 0.2 && self.layout.wall_free(front, s0, s1, z0 - 0.05, z1 + 0.05, 0.1)
         });
@@ -579,7 +581,15 @@ impl Furnisher<'_> {
 
     /// Takes `width` of wall `k` centred at `s`, `z0..z1` high (checked free by the
     /// caller), and builds there with `build(self, s0, s1)` in the wall frame.
-    fn build_on_wall(&mut self, k: usize, s: f32, width: f32, z0: f32, z1: f32, build: impl FnOnce(&mut Self, f32, f32)) {
+    fn build_on_wall(
+        &mut self,
+        k: usize,
+        s: f32,
+        width: f32,
+        z0: f32,
+        z1: f32,
+        build: impl FnOnce(&mut Self, f32, f32),
+    ) {
         let (s0, s1) = (s - width * 0.5, s + width * 0.5);
         self.layout.reserve_wall(k, s0, s1, z0 - 0.05, z1 + 0.05);
         let wall = self.layout.walls[k];
