@@ -397,3 +397,28 @@ fn classroom_has_rows_of_tables_a_board_and_windows_along_one_wall() {
         assert!(room.obstacles.len() >= 18, "seed {seed}: {} obstacles", room.obstacles.len());
     }
 }
+
+/// A camera can walk through every classroom: the scan planner finds a loop in the free
+/// space between the rows, and the camera never stands inside furniture.
+#[test]
+fn classrooms_can_be_scanned() {
+    use semrecon_data::datasets::synthetic::room_scan_poses;
+    for seed in SEEDS {
+        let room = generate_room(&RoomConfig { seed, style: Some(RoomStyle::Classroom) });
+        let poses = room_scan_poses(&room, seed, 300, 30.0).unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+        assert_eq!(poses.len(), 300);
+        let mut path = 0.0;
+        for (i, pose) in poses.iter().enumerate() {
+            let p = Vec3::from(pose.translation);
+            if i > 0 {
+                path += p.distance(Vec3::from(poses[i - 1].translation));
+            }
+            assert!(p.x > 0.0 && p.y > 0.0 && p.x < room.floor_max.x && p.y < room.floor_max.y, "seed {seed}: {p}");
+            for (a, b) in &room.obstacles {
+                let inside = p.x > a.x && p.y > a.y && p.x < b.x && p.y < b.y;
+                assert!(!inside, "seed {seed}: camera at {p} inside obstacle {a}-{b}");
+            }
+        }
+        println!("classroom seed {seed}: path {path:.1} m");
+    }
+}
