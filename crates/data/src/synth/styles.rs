@@ -6,7 +6,7 @@
 //! holds every furniture class.
 
 use glam::Vec2;
-use rand::Rng;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::clutter::{self, FloorItem, WallItem};
@@ -282,8 +282,8 @@ impl Furnisher<'_> {
         let block = cols as f32 * tw + (cols - 1) as f32 * aisle;
         let slack = ((len - 2.0 * margin - block) * 0.5).max(0.0);
         let s_first = (len - block) * 0.5 + uniform(self.rng, -slack, slack) + tw * 0.5;
-        // Matching tables: every one is built from the same draws.
-        let table_rng = self.rng.clone();
+        // Matching tables: every one is built from the same draws, of a generator of its own.
+        let table_seed: u64 = self.rng.random();
         for row in 0..rows {
             let t = first + row as f32 * pitch + td * 0.5;
             for col in 0..cols {
@@ -296,7 +296,7 @@ impl Furnisher<'_> {
                 self.layout.add_obstacle(r);
                 self.layout.interest.push(center.extend(th));
                 self.b.place_on_floor(center, desk_yaw);
-                furniture::table(self.b, &mut table_rng.clone(), self.pal, tw, td, th);
+                furniture::table(self.b, &mut ChaCha8Rng::seed_from_u64(table_seed), self.pal, tw, td, th);
                 if self.rng.random_bool(0.5) {
                     clutter::table_items(self.b, self.rng, self.pal, tw, td, th, false);
                 }
@@ -311,10 +311,6 @@ impl Furnisher<'_> {
                 }
             }
         }
-        // Skip the draws the tables' copy of the RNG made, so that what follows does not
-        // repeat them.
-        *self.rng = table_rng;
-        let _: u64 = self.rng.random();
 
         // The back: bookcases, a reading corner, a notice board; the long wall without
         // windows gets some too.
