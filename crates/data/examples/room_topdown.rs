@@ -19,7 +19,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let seed: u64 = args.next().map(|s| s.parse()).transpose()?.unwrap_or(1);
     let out = PathBuf::from(args.next().unwrap_or_else(|| "target/rooms".into()));
     std::fs::create_dir_all(&out)?;
-    for style in RoomStyle::ALL {
+    for style in RoomStyle::ALL.into_iter().chain(RoomStyle::HELD_OUT) {
         let t = std::time::Instant::now();
         let room = generate_room(&RoomConfig { seed, style: Some(style) });
         let ms = t.elapsed().as_secs_f64() * 1e3;

@@ -1,6 +1,7 @@
-//! Properties of generated rooms, for every style and several seeds: all 13 classes
-//! present, a valid mesh, determinism, plausible bounds and sizes, disjoint obstacles inside
-//! the floor, triangle budget, no degenerate triangles, correct facing of the shell.
+//! Properties of generated rooms, for every style (trained and held out) and several seeds:
+//! all 13 classes present, a valid mesh, determinism, plausible bounds and sizes, disjoint
+//! obstacles inside the floor, triangle budget, no degenerate triangles, correct facing of
+//! the shell; the classroom's own layout; the trained styles' rooms unchanged.
 
 use std::time::Instant;
 
@@ -10,9 +11,13 @@ use semrecon_data::SemanticClass;
 
 const SEEDS: std::ops::Range<u64> = 0..16;
 
+/// Trained and held-out styles alike.
+fn styles() -> impl Iterator<Item = RoomStyle> {
+    RoomStyle::ALL.into_iter().chain(RoomStyle::HELD_OUT)
+}
+
 fn rooms() -> impl Iterator<Item = (RoomStyle, u64, SyntheticRoom)> {
-    RoomStyle::ALL
-        .into_iter()
+    styles()
         .flat_map(|style| SEEDS.map(move |seed| (style, seed, generate_room(&RoomConfig { seed, style: Some(style) }))))
 }
 
@@ -77,19 +82,19 @@ fn meshes_validate_and_have_no_degenerate_triangles() {
 
 #[test]
 fn generation_is_deterministic_and_seeds_differ() {
-    for style in RoomStyle::ALL {
+    for style in styles() {
         let a = generate_room(&RoomConfig { seed: 42, style: Some(style) });
         let b = generate_room(&RoomConfig { seed: 42, style: Some(style) });
         assert_eq!(a, b, "{style}");
         let c = generate_room(&RoomConfig { seed: 43, style: Some(style) });
         assert_ne!(a.mesh.positions, c.mesh.positions, "{style}");
     }
-    // Drawn styles: all four appear over a few seeds.
+    // Drawn styles: all four trained ones appear over a few seeds, never a held-out one.
     let mut seen = std::collections::HashSet::new();
     for seed in 0..40 {
         seen.insert(generate_room(&RoomConfig { seed, style: None }).style);
     }
-    assert_eq!(seen.len(), 4);
+    assert_eq!(seen, RoomStyle::ALL.into_iter().collect());
 }
 
 #[test]
@@ -219,7 +224,7 @@ fn shell_faces_into_the_room() {
 
 #[test]
 fn triangle_budget_and_timing() {
-    for style in RoomStyle::ALL {
+    for style in styles() {
         let (mut lo, mut hi, mut total) = (usize::MAX, 0, 0);
         let start = Instant::now();
         for seed in SEEDS {
@@ -271,4 +276,149 @@ fn colour_alone_does_not_decide_the_class() {
     println!("nearest-mean-colour balanced accuracy {balanced:.3}; per class {recall:.2?}");
     assert!(balanced > 1.5 / n as f32, "colour carries no class signal: {balanced}");
     assert!(balanced < 0.6, "colour alone nearly decides the class: {balanced}");
+}
+
+/// FNV-1a over every bit of a room: vertex positions, normals, colours and labels, triangles
+/// and their labels, the room's box, obstacles (scan paths avoid them), interest points (scan
+/// paths look at them) and style.
+fn room_fingerprint(room: &SyntheticRoom) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |bytes: &[u8]| {
+        for &b in bytes {
+            h = (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    };
+    let m = &room.mesh;
+    for p in m.positions.iter().chain(&m.normals) {
+        for x in p.to_array() {
+            eat(&x.to_bits().to_le_bytes());
+        }
+    }
+    for c in &m.colors {
+        eat(c);
+    }
+    eat(&m.vertex_labels);
+    for t in &m.triangles {
+        for i in t {
+            eat(&i.to_le_bytes());
+        }
+    }
+    eat(&m.triangle_labels);
+    let points = room.obstacles.iter().flat_map(|&(a, b)| [a, b]).flat_map(|p| p.to_array());
+    let interest = room.interest_points.iter().flat_map(|p| p.to_array());
+    for x in [room.floor_max.x, room.floor_max.y, room.ceiling_height].into_iter().chain(points).chain(interest) {
+        eat(&x.to_bits().to_le_bytes());
+    }
+    eat(room.style.name().as_bytes());
+    h
+}
+
+/// The held-out style must not change the training data: the rooms of the trained styles
+/// (drawn from the seed, as training draws them, and named) have the same bits as before the
+/// held-out style was added. The fingerprints were recorded on the generator before that
+/// change.
+#[test]
+fn trained_styles_rooms_are_unchanged() {
+    let mut got = Vec::new();
+    for seed in 0..4u64 {
+        let mut row = vec![room_fingerprint(&generate_room(&RoomConfig { seed, style: None }))];
+        for style in RoomStyle::ALL {
+            row.push(room_fingerprint(&generate_room(&RoomConfig { seed, style: Some(style) })));
+        }
+        got.push(row);
+    }
+    let expected: [[u64; 5]; 4] = [
+        [
+            0x5894_7caa_813d_8763,
+            0x4bb2_ce4f_da93_b292,
+            0x862f_0f9a_15ff_d816,
+            0x5894_7caa_813d_8763,
+            0x286a_ed10_9380_dc4a,
+        ],
+        [
+            0x9449_8c0c_dce2_f45a,
+            0xc279_4c59_409f_2486,
+            0xaed9_03a5_ff92_dd8e,
+            0x9449_8c0c_dce2_f45a,
+            0xc1fa_c9fa_1ff9_8a1b,
+        ],
+        [
+            0x7697_4950_d1a4_f08e,
+            0x7697_4950_d1a4_f08e,
+            0x9fbd_6fe0_e892_eb93,
+            0x4793_bae5_b0be_cb36,
+            0x0dfc_5354_6a02_1aeb,
+        ],
+        [
+            0x550a_c5bb_b6ab_f468,
+            0x550a_c5bb_b6ab_f468,
+            0xcfbd_77a2_f807_e4cb,
+            0x43ab_53bf_58f8_23ce,
+            0x8eea_2634_646d_91a2,
+        ],
+    ];
+    for (seed, (g, e)) in got.iter().zip(&expected).enumerate() {
+        assert_eq!(g[..], e[..], "seed {seed}: drawn, office, conference, lounge, hallway: {g:#018x?}");
+    }
+}
+
+/// The held-out classroom looks like one: a board on a short wall, windows along one long
+/// wall only, and many tables and chairs (rows of them) standing on the floor.
+#[test]
+fn classroom_has_rows_of_tables_a_board_and_windows_along_one_wall() {
+    for seed in SEEDS {
+        let room = generate_room(&RoomConfig { seed, style: Some(RoomStyle::Classroom) });
+        let (w, d) = (room.floor_max.x, room.floor_max.y);
+        let along_x = w >= d;
+        // Which wall plane a vertex lies in or behind (0: y = 0, 1: x = w, 2: y = d, 3: x = 0).
+        let wall_of = |p: Vec3| {
+            let dist = [p.y, w - p.x, d - p.y, p.x];
+            (0..4).min_by(|&a, &b| dist[a].total_cmp(&dist[b])).expect("four walls")
+        };
+        let mut window_walls = std::collections::HashSet::new();
+        let mut board_walls = std::collections::HashSet::new();
+        for (t, &l) in room.mesh.triangles.iter().zip(&room.mesh.triangle_labels) {
+            let p = room.mesh.positions[t[0] as usize];
+            match SemanticClass::from_id(l) {
+                Some(SemanticClass::Window) => {
+                    window_walls.insert(wall_of(p));
+                }
+                Some(SemanticClass::Board) => {
+                    board_walls.insert(wall_of(p));
+                }
+                _ => {}
+            }
+        }
+        let long = if along_x { [0, 2] } else { [1, 3] };
+        assert_eq!(window_walls.len(), 1, "seed {seed}: windows on walls {window_walls:?}");
+        assert!(window_walls.iter().all(|k| long.contains(k)), "seed {seed}: windows on {window_walls:?}");
+        assert!(board_walls.iter().any(|k| !long.contains(k)), "seed {seed}: boards on {board_walls:?}");
+        // Tables and chairs of the rows (plus the teacher's desk, bookcases, clutter).
+        assert!(room.obstacles.len() >= 18, "seed {seed}: {} obstacles", room.obstacles.len());
+    }
+}
+
+/// A camera can walk through every classroom: the scan planner finds a loop in the free
+/// space between the rows, and the camera never stands inside furniture.
+#[test]
+fn classrooms_can_be_scanned() {
+    use semrecon_data::datasets::synthetic::room_scan_poses;
+    for seed in SEEDS {
+        let room = generate_room(&RoomConfig { seed, style: Some(RoomStyle::Classroom) });
+        let poses = room_scan_poses(&room, seed, 300, 30.0).unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+        assert_eq!(poses.len(), 300);
+        let mut path = 0.0;
+        for (i, pose) in poses.iter().enumerate() {
+            let p = Vec3::from(pose.translation);
+            if i > 0 {
+                path += p.distance(Vec3::from(poses[i - 1].translation));
+            }
+            assert!(p.x > 0.0 && p.y > 0.0 && p.x < room.floor_max.x && p.y < room.floor_max.y, "seed {seed}: {p}");
+            for (a, b) in &room.obstacles {
+                let inside = p.x > a.x && p.y > a.y && p.x < b.x && p.y < b.y;
+                assert!(!inside, "seed {seed}: camera at {p} inside obstacle {a}-{b}");
+            }
+        }
+        println!("classroom seed {seed}: path {path:.1} m");
+    }
 }

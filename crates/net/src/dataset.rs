@@ -9,6 +9,7 @@
 //! |---|---|
 //! | `synth:A..B` | procedural rooms of seeds `A..B` (`semrecon_data::synth`), style drawn from the seed |
 //! | `synth:A..B:office,lounge` | the same seeds, styles taken in turn from the list (`seed % len`) |
+//! | `synth:A..B:classroom` | the held-out style, which no seed draws: rooms unlike any in training |
 //! | `s3dis:PATH` | S3DIS rooms under `PATH` (root, `Area_N` or room folder) |
 //! | `scannet:PATH` | one ScanNet scene (folder or `.labels.ply`), or a folder of scene folders |
 //! | `ply:PATH` | a PLY file, or every `.ply` file of a folder (sorted), with a vertex `label` property |
@@ -22,7 +23,10 @@
 //! **Split.** Synthetic training and validation rooms are told apart by their seeds only: the
 //! recipe in docs/model.md trains on `synth:0..100000` and validates on
 //! `synth:1000000..1000040`, seeds that training never sees; [`RoomRef::group`] (the room
-//! style for synthetic rooms) lets validation report per style. For S3DIS the usual split is
+//! style for synthetic rooms) lets validation report per style. The `classroom` style
+//! (`RoomStyle::HELD_OUT`) is never drawn from a seed, so `synth:A..B` never holds one:
+//! `synth:1000000..1000040:classroom` tests on rooms of a style training never saw. For
+//! S3DIS the usual split is
 //! by area (train Areas 1-4 and 6, validate on Area 5), given as two `s3dis:` sources.
 //!
 //! Everything is deterministic: a room and a seed give the same sample, bit for bit.
@@ -537,6 +541,13 @@ mod tests {
         let fixed = DataSource::parse("synth:0..4:office,lounge").unwrap().rooms().unwrap();
         let groups: Vec<_> = fixed.iter().map(|r| r.group.as_str()).collect();
         assert_eq!(groups, ["office", "lounge", "office", "lounge"]);
+        // The held-out style only when named; the room really is one.
+        let held_out = DataSource::parse("synth:7..9:Classroom").unwrap().rooms().unwrap();
+        assert!(held_out.iter().all(|r| r.group == "classroom"));
+        let RoomKind::Synth { seed, style } = held_out[0].kind else { unreachable!() };
+        assert_eq!(generate_room(&RoomConfig { seed, style }).style, RoomStyle::Classroom);
+        let drawn = DataSource::parse("synth:0..200").unwrap().rooms().unwrap();
+        assert!(drawn.iter().all(|r| r.group != "classroom"));
     }
 
     #[test]

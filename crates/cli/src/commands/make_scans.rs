@@ -41,7 +41,8 @@ pub struct MakeScansArgs {
     /// (an incomplete map, as the live system sees while scanning).
     #[arg(long)]
     partial: bool,
-    /// Room style; drawn from each seed when absent.
+    /// Room style (office, conference, lounge, hallway, or the held-out classroom); drawn
+    /// from each seed, among the trained styles, when absent.
     #[arg(long)]
     style: Option<RoomStyle>,
     /// Rendered image size WxH (depth and colour).

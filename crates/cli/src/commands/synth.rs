@@ -27,8 +27,9 @@ pub struct SynthArgs {
     /// Number of frames (with --traj: at most the trajectory's length; default all of it).
     #[arg(long)]
     frames: Option<usize>,
-    /// Room style of the generated room (office, conference, lounge, hallway); drawn from the
-    /// seed when absent.
+    /// Room style of the generated room (office, conference, lounge, hallway, or the
+    /// held-out classroom, which training never sees); drawn from the seed (never
+    /// classroom) when absent.
     #[arg(long, conflicts_with = "mesh")]
     style: Option<RoomStyle>,
     /// Render this mesh (PLY, z up unless --traj is given) instead of a generated room.

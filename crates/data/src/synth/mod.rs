@@ -3,7 +3,8 @@
 //! with real window and door openings, beams, columns — furnished with tables, chairs,
 //! sofas, bookcases full of books, boards and clutter, as one [`LabeledMesh`] with an
 //! S3DIS class per triangle (and per vertex) and a colour per vertex. Every room of every
-//! style contains all 13 classes.
+//! style contains all 13 classes. Four styles are for training; a fifth, the classroom, is
+//! held out (never drawn from a seed) to test on rooms unlike any seen in training.
 //!
 //! World frame: metres, z up, floor at z = 0; the interior floor is the rectangle
 //! `floor_min..floor_max` (from the origin). Triangles are counter-clockwise seen from the
@@ -30,6 +31,11 @@ use crate::error::DataError;
 use crate::mesh::LabeledMesh;
 
 /// Kind of room to generate.
+///
+/// [`RoomStyle::ALL`] holds the four styles training draws from; `classroom`
+/// ([`RoomStyle::HELD_OUT`]) is held out from training by design: a seed never draws it, so
+/// it is generated only when named (`--style classroom`, `synth:A..B:classroom`), and the
+/// rooms it gives test how the network does on a kind of room it has never seen.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum RoomStyle {
     /// Desks with swivel chairs and monitors along the walls, bookcases, a sofa corner.
@@ -40,20 +46,34 @@ pub enum RoomStyle {
     Lounge,
     /// A long narrow corridor with doors, benches, shelves and notice boards.
     Hallway,
+    /// Rows of student tables with chairs facing a board on the front wall, a teacher's
+    /// desk, bookcases at the back, windows along one long wall, a reading corner. Held out
+    /// from training: not in [`RoomStyle::ALL`].
+    Classroom,
 }
 
 impl RoomStyle {
-    /// Every style.
+    /// The styles training uses, and the only ones a seed draws. Changing this list
+    /// changes the room of every seed (the style is the seed's first draw).
     pub const ALL: [RoomStyle; 4] = [Self::Office, Self::Conference, Self::Lounge, Self::Hallway];
 
-    /// Lower-case name (`office`, `conference`, `lounge`, `hallway`).
+    /// Styles never used in training, generated only when named: held-out test rooms.
+    pub const HELD_OUT: [RoomStyle; 1] = [Self::Classroom];
+
+    /// Lower-case name (`office`, `conference`, `lounge`, `hallway`, `classroom`).
     pub fn name(self) -> &'static str {
         match self {
             Self::Office => "office",
             Self::Conference => "conference",
             Self::Lounge => "lounge",
             Self::Hallway => "hallway",
+            Self::Classroom => "classroom",
         }
+    }
+
+    /// Whether training never sees this style (it is in [`RoomStyle::HELD_OUT`]).
+    pub fn is_held_out(self) -> bool {
+        Self::HELD_OUT.contains(&self)
     }
 }
 
@@ -66,12 +86,12 @@ impl std::fmt::Display for RoomStyle {
 impl std::str::FromStr for RoomStyle {
     type Err = DataError;
 
-    /// Parses a style name, case-insensitive.
+    /// Parses a style name, case-insensitive: the trained styles and the held-out ones.
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let lower = s.trim().to_ascii_lowercase();
-        Self::ALL.into_iter().find(|st| st.name() == lower).ok_or_else(|| {
+        Self::ALL.into_iter().chain(Self::HELD_OUT).find(|st| st.name() == lower).ok_or_else(|| {
             DataError::InvalidArgument(format!(
-                "unknown room style {s:?} (expected one of office, conference, lounge, hallway)"
+                "unknown room style {s:?} (expected one of office, conference, lounge, hallway, classroom)"
             ))
         })
     }
@@ -82,7 +102,8 @@ impl std::str::FromStr for RoomStyle {
 pub struct RoomConfig {
     /// Seed of every random choice.
     pub seed: u64,
-    /// Style of the room; `None` draws it from the seed.
+    /// Style of the room; `None` draws it from the seed (among [`RoomStyle::ALL`], never a
+    /// held-out style).
     pub style: Option<RoomStyle>,
 }
 
@@ -113,7 +134,8 @@ const PATCH: f32 = 0.2;
 pub fn generate_room(config: &RoomConfig) -> SyntheticRoom {
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
     // Always draw the style so that the rest of the room does not depend on whether the
-    // style was given.
+    // style was given. Only trained styles are drawn, so adding a held-out style leaves
+    // every seed's room as it was.
     let drawn = RoomStyle::ALL[rng.random_range(0..RoomStyle::ALL.len())];
     let style = config.style.unwrap_or(drawn);
     let u = palette::uniform;
@@ -122,6 +144,7 @@ pub fn generate_room(config: &RoomConfig) -> SyntheticRoom {
         RoomStyle::Conference => (u(&mut rng, 6.0, 10.0), u(&mut rng, 4.6, 7.0), u(&mut rng, 2.8, 3.5)),
         RoomStyle::Lounge => (u(&mut rng, 5.5, 9.0), u(&mut rng, 5.0, 8.0), u(&mut rng, 2.7, 3.4)),
         RoomStyle::Hallway => (u(&mut rng, 9.0, 18.0), u(&mut rng, 2.0, 2.8), u(&mut rng, 2.6, 3.0)),
+        RoomStyle::Classroom => (u(&mut rng, 7.0, 10.0), u(&mut rng, 5.8, 8.0), u(&mut rng, 2.8, 3.4)),
     };
     // Rooms are not always longer along x.
     let (width, depth) = if rng.random_bool(0.5) { (width, depth) } else { (depth, width) };
@@ -152,9 +175,11 @@ mod tests {
 
     #[test]
     fn style_names_round_trip() {
-        for s in RoomStyle::ALL {
+        for s in RoomStyle::ALL.into_iter().chain(RoomStyle::HELD_OUT) {
             assert_eq!(s.name().parse::<RoomStyle>().ok(), Some(s));
+            assert_eq!(s.is_held_out(), !RoomStyle::ALL.contains(&s));
         }
+        assert_eq!("CLASSROOM".parse::<RoomStyle>().ok(), Some(RoomStyle::Classroom));
         assert_eq!(" Hallway ".parse::<RoomStyle>().ok(), Some(RoomStyle::Hallway));
         assert!("kitchen".parse::<RoomStyle>().is_err());
     }
@@ -164,5 +189,13 @@ mod tests {
         let drawn = generate_room(&RoomConfig { seed: 5, style: None });
         let given = generate_room(&RoomConfig { seed: 5, style: Some(drawn.style) });
         assert_eq!(drawn, given);
+    }
+
+    #[test]
+    fn seeds_never_draw_a_held_out_style() {
+        for seed in 0..200 {
+            let style = generate_room(&RoomConfig { seed, style: None }).style;
+            assert!(!style.is_held_out(), "seed {seed} drew {style}");
+        }
     }
 }

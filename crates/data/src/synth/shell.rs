@@ -97,6 +97,8 @@ pub(crate) fn add_structure(
         let free_p = match style {
             RoomStyle::Hallway => 0.0,
             RoomStyle::Conference => 0.15,
+            // Rows of tables need the middle of the room.
+            RoomStyle::Classroom => 0.1,
             _ => 0.35,
         };
         if short >= 4.5 && rng.random_bool(free_p) {
@@ -192,12 +194,19 @@ fn add_pilaster(
 pub(crate) fn plan_openings(layout: &mut Layout, rng: &mut ChaCha8Rng, style: RoomStyle) -> Vec<Opening> {
     let mut openings = Vec::new();
     let h = layout.height;
+    // A classroom has its windows along one long wall and its doors in the other.
+    let classroom_walls = (style == RoomStyle::Classroom).then(|| {
+        let long = if layout.width >= layout.depth { [0, 2] } else { [1, 3] };
+        let i = rng.random_range(0..2);
+        (long[i], long[1 - i])
+    });
     // Doors.
-    let (door_walls, n_doors): (Vec<usize>, usize) = match style {
-        RoomStyle::Hallway => {
+    let (door_walls, n_doors): (Vec<usize>, usize) = match (style, classroom_walls) {
+        (RoomStyle::Hallway, _) => {
             let long = if layout.width >= layout.depth { vec![0, 2] } else { vec![1, 3] };
             (long, rng.random_range(2..=4))
         }
+        (_, Some((_, doors))) => (vec![doors], rng.random_range(1..=2)),
         _ => (vec![0, 1, 2, 3], rng.random_range(1..=2)),
     };
     let mut tries = 0;
@@ -240,8 +249,9 @@ pub(crate) fn plan_openings(layout: &mut Layout, rng: &mut ChaCha8Rng, style: Ro
         }
     }
     // Windows on one or two outside walls.
-    let outside: Vec<usize> = match style {
-        RoomStyle::Hallway => {
+    let outside: Vec<usize> = match (style, classroom_walls) {
+        (_, Some((windows, _))) => vec![windows],
+        (RoomStyle::Hallway, _) => {
             let ends = if layout.width >= layout.depth { [1, 3] } else { [0, 2] };
             let long = if layout.width >= layout.depth { 2 } else { 1 };
             if rng.random_bool(0.5) {
@@ -263,7 +273,7 @@ pub(crate) fn plan_openings(layout: &mut Layout, rng: &mut ChaCha8Rng, style: Ro
     let head = uniform(rng, 2.0, 2.2).min(h - 0.4);
     let mut windows = 0;
     let mut tries = 0;
-    let wanted = rng.random_range(1..=4);
+    let wanted = if style == RoomStyle::Classroom { rng.random_range(3..=5) } else { rng.random_range(1..=4) };
     while (windows < wanted && tries < 60) || (windows == 0 && tries < 400) {
         tries += 1;
         let k = outside[rng.random_range(0..outside.len())];

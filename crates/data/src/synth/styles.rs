@@ -1,11 +1,12 @@
-//! Per-style furnishing recipes (office, conference room, lounge, hallway) on top of the
-//! occupancy bookkeeping of [`layout`](super::layout): which pieces go where (desks
-//! against walls with their chairs, a conference table with chairs all around, sofas
-//! facing a coffee table, benches and notice boards along a corridor), then a last pass
-//! that guarantees every room holds every furniture class.
+//! Per-style furnishing recipes (office, conference room, lounge, hallway, and the
+//! held-out classroom) on top of the occupancy bookkeeping of [`layout`](super::layout):
+//! which pieces go where (desks against walls with their chairs, a conference table with
+//! chairs all around, sofas facing a coffee table, benches and notice boards along a
+//! corridor, rows of tables facing a board), then a last pass that guarantees every room
+//! holds every furniture class.
 
 use glam::Vec2;
-use rand::Rng;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::clutter::{self, FloorItem, WallItem};
@@ -40,6 +41,7 @@ impl Furnisher<'_> {
             RoomStyle::Conference => self.conference(),
             RoomStyle::Lounge => self.lounge(),
             RoomStyle::Hallway => self.hallway(),
+            RoomStyle::Classroom => self.classroom(openings),
         }
         self.ensure_classes();
     }
@@ -193,6 +195,143 @@ impl Furnisher<'_> {
         self.floor_clutter(n);
         let n = self.rng.random_range(0..=2);
         self.wall_clutter(n, &[WallItem::Picture, WallItem::Clock]);
+    }
+
+    /// A classroom: a board centred on one short (front) wall, the teacher's desk between it
+    /// and the class, rows of matching student tables with their chairs facing the board,
+    /// bookcases and a reading corner at the back, notice board, posters, clutter. The
+    /// windows are along one long wall (see `shell::plan_openings`).
+    fn classroom(&mut self, openings: &[Opening]) {
+        let short = self.short_walls();
+        let [front, back] = if self.rng.random_bool(0.5) { short } else { [short[1], short[0]] };
+        let fw = self.layout.walls[front];
+        let len = fw.length;
+        // Distance from the front wall to the back wall.
+        let room_len = self.layout.walls[(front + 1) % 4].length;
+
+        // The board, as near the middle of the front wall as the wall allows.
+        let bw = uniform(self.rng, 2.4, 4.0).min(len - 1.0);
+        let kind = pick(self.rng, &[BoardKind::White, BoardKind::White, BoardKind::Black]);
+        let z0 = uniform(self.rng, 0.85, 0.95);
+        let z1 = (z0 + uniform(self.rng, 1.0, 1.2)).min(2.15);
+        // Centre, then 0.2 m steps out to alternate sides.
+        let offsets = (0..16).map(|i| (i / 2) as f32 * 0.2 * if i % 2 == 0 { 1.0 } else { -1.0 });
+        let centred = offsets.map(|o| len * 0.5 + o).find(|&s| {
+            let (s0, s1) = (s - bw * 0.5, s + bw * 0.5);
+            s0 >= 0.2 && s1 <= len - 0.2 && self.layout.wall_free(front, s0, s1, z0 - 0.05, z1 + 0.05, 0.1)
+        });
+        match centred {
+            Some(s) => self.build_on_wall(front, s, bw, z0, z1, |f, s0, s1| {
+                furniture::board(f.b, f.rng, f.pal, s0, s1, z0, z1, kind);
+            }),
+            None => {
+                self.boards(&[front], 1, 1.5, 2.5);
+            }
+        }
+        // A clock above the board when the ceiling leaves room for it.
+        if self.layout.height - z1 > 0.6 && self.rng.random_bool(0.6) {
+            self.wall_item(&[front], WallItem::Clock, 0.3, 0.3, z1 + 0.12, self.layout.height - 0.15);
+        }
+
+        // The teacher's desk, off-centre in front of the board, its user side (and chair)
+        // towards the board so that the teacher faces the class.
+        let (dw, dd) = (uniform(self.rng, 1.2, 1.6), uniform(self.rng, 0.65, 0.8));
+        let dh = table_height(self.rng);
+        let swivel = self.rng.random_bool(0.6);
+        let teacher = ChairStyle::draw(self.rng, self.pal, swivel);
+        let gap = uniform(self.rng, 0.08, 0.2);
+        let desk_t = 0.25 + teacher.size + gap + dd * 0.5;
+        let desk_yaw = fw.yaw + PI;
+        let side = if self.rng.random_bool(0.5) { 1.0 } else { -1.0 };
+        for _ in 0..12 {
+            let s = len * 0.5 + side * uniform(self.rng, 0.1, 0.3) * len;
+            let (center, chair) = (fw.point(s, desk_t), fw.point(s, desk_t - dd * 0.5 - gap - teacher.size * 0.5));
+            let r = footprint(center, dw, dd, desk_yaw);
+            if self.layout.floor_free(&r) && self.layout.floor_free(&footprint(chair, teacher.size, teacher.size, 0.0))
+            {
+                self.layout.add_obstacle(r);
+                self.layout.interest.push(center.extend(dh));
+                self.b.place_on_floor(center, desk_yaw);
+                furniture::desk(self.b, self.rng, self.pal, dw, dd, dh);
+                let workstation = self.rng.random_bool(0.5);
+                clutter::table_items(self.b, self.rng, self.pal, dw, dd, dh, workstation);
+                let yaw = fw.yaw + uniform(self.rng, -0.3, 0.3);
+                self.chair_at(chair, yaw, &teacher);
+                break;
+            }
+        }
+
+        // Rows of student tables (single desks or two-seat tables), all alike, each with
+        // its chairs behind it facing the board; aisles between the columns.
+        let pairs = self.rng.random_bool(0.6);
+        let (tw, seats) = if pairs { (uniform(self.rng, 1.1, 1.4), 2) } else { (uniform(self.rng, 0.6, 0.75), 1) };
+        let td = uniform(self.rng, 0.5, 0.6);
+        let th = table_height(self.rng);
+        let student = ChairStyle::draw(self.rng, self.pal, false);
+        let cs = student.size;
+        // Far enough from the table that the footprints, turned a little, stay apart.
+        let chair_gap = uniform(self.rng, 0.1, 0.18);
+        let row_gap = uniform(self.rng, 0.25, 0.4);
+        let pitch = td + chair_gap + cs + row_gap;
+        let first = desk_t + dd * 0.5 + uniform(self.rng, 0.55, 0.8);
+        let last = room_len - uniform(self.rng, 0.8, 1.1);
+        let rows = ((last - first + row_gap) / pitch).floor().max(1.0) as usize;
+        let margin = uniform(self.rng, 0.6, 0.85);
+        let aisle = uniform(self.rng, 0.5, 0.75);
+        let cols = (((len - 2.0 * margin + aisle) / (tw + aisle)).floor() as usize).max(1);
+        let block = cols as f32 * tw + (cols - 1) as f32 * aisle;
+        let slack = ((len - 2.0 * margin - block) * 0.5).max(0.0);
+        let s_first = (len - block) * 0.5 + uniform(self.rng, -slack, slack) + tw * 0.5;
+        // Matching tables: every one is built from the same draws, of a generator of its own.
+        let table_seed: u64 = self.rng.random();
+        for row in 0..rows {
+            let t = first + row as f32 * pitch + td * 0.5;
+            for col in 0..cols {
+                let s = s_first + col as f32 * (tw + aisle);
+                let center = fw.point(s, t);
+                let r = footprint(center, tw, td, desk_yaw);
+                if !self.layout.floor_free(&r) {
+                    continue;
+                }
+                self.layout.add_obstacle(r);
+                self.layout.interest.push(center.extend(th));
+                self.b.place_on_floor(center, desk_yaw);
+                furniture::table(self.b, &mut ChaCha8Rng::seed_from_u64(table_seed), self.pal, tw, td, th);
+                if self.rng.random_bool(0.5) {
+                    clutter::table_items(self.b, self.rng, self.pal, tw, td, th, false);
+                }
+                for seat in 0..seats {
+                    if self.rng.random_bool(0.08) {
+                        continue;
+                    }
+                    let x = s - tw * 0.5 + (seat as f32 + 0.5) * tw / seats as f32;
+                    let chair = fw.point(x, t + td * 0.5 + chair_gap + cs * 0.5);
+                    let yaw = desk_yaw + uniform(self.rng, -0.12, 0.12);
+                    self.chair_at(chair, yaw, &student);
+                }
+            }
+        }
+
+        // The back: bookcases, a reading corner, a notice board; the long wall without
+        // windows gets some too.
+        let windows: Vec<usize> = openings.iter().filter(|o| o.kind == OpeningKind::Window).map(|o| o.wall).collect();
+        let inner = self.long_walls().into_iter().find(|k| !windows.contains(k)).unwrap_or(back);
+        for _ in 0..self.rng.random_range(1..=3) {
+            let (w, d, h) = (uniform(self.rng, 0.8, 1.2), uniform(self.rng, 0.3, 0.4), uniform(self.rng, 1.0, 2.0));
+            self.bookcase(&[back, back, inner], w, d, h, 40);
+        }
+        if self.rng.random_bool(0.6) {
+            self.sofa_on_wall(&[back], 1.2, 1.8);
+        }
+        self.boards(&[back, inner], 1, 0.8, 1.6);
+        let n = self.rng.random_range(1..=3);
+        self.wall_clutter(n, &[WallItem::Picture, WallItem::Picture, WallItem::Clock]);
+        self.floor_item(FloorItem::Bin);
+        if self.rng.random_bool(0.5) {
+            self.floor_item(FloorItem::Plant);
+        }
+        let n = self.rng.random_range(1..=3);
+        self.floor_clutter(n);
     }
 
     /// Radiators under some windows (clutter).
@@ -429,15 +568,30 @@ impl Furnisher<'_> {
             let s = uniform(self.rng, 0.2 + w * 0.5, len - 0.2 - w * 0.5);
             let (s0, s1) = (s - w * 0.5, s + w * 0.5);
             if self.layout.wall_free(k, s0, s1, z0 - 0.05, z1 + 0.05, 0.1) {
-                self.layout.reserve_wall(k, s0, s1, z0 - 0.05, z1 + 0.05);
-                let wall = self.layout.walls[k];
-                self.layout.interest.push(wall.point(s, 0.05).extend((z0 + z1) * 0.5));
-                self.b.place(wall.start.extend(0.0), wall.yaw);
-                build(self, s0, s1);
+                self.build_on_wall(k, s, w, z0, z1, build);
                 return true;
             }
         }
         false
+    }
+
+    /// Takes `width` of wall `k` centred at `s`, `z0..z1` high (checked free by the
+    /// caller), and builds there with `build(self, s0, s1)` in the wall frame.
+    fn build_on_wall(
+        &mut self,
+        k: usize,
+        s: f32,
+        width: f32,
+        z0: f32,
+        z1: f32,
+        build: impl FnOnce(&mut Self, f32, f32),
+    ) {
+        let (s0, s1) = (s - width * 0.5, s + width * 0.5);
+        self.layout.reserve_wall(k, s0, s1, z0 - 0.05, z1 + 0.05);
+        let wall = self.layout.walls[k];
+        self.layout.interest.push(wall.point(s, 0.05).extend((z0 + z1) * 0.5));
+        self.b.place(wall.start.extend(0.0), wall.yaw);
+        build(self, s0, s1);
     }
 
     fn wall_item(&mut self, walls: &[usize], kind: WallItem, w: f32, h: f32, zmin: f32, zmax: f32) -> bool {
