@@ -643,7 +643,7 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
     let k0 = frame.intrinsics;
     let depth0: Vec<f32> = frame
         .depth
-        .iter()
+        .par_iter()
         .map(|&d| if d.is_finite() && d >= c.min_depth && d <= c.max_depth { d } else { 0.0 })
         .collect();
     // Intensity only feeds the photometric term: empty at every level when it is off.
@@ -654,7 +654,7 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
     };
     // Level 0 takes its normals from level 1, and its vertices are one multiply-add away from
     // its depth: both are formed where association visits a pixel (a stride of them).
-    let valid0 = depth0.iter().filter(|&&d| d > 0.0).count();
+    let valid0 = depth0.par_iter().filter(|&&d| d > 0.0).count();
     let mut levels = vec![Level {
         k: k0,
         depth: depth0,
@@ -676,7 +676,8 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
         intensity_rows.resize_with(h, Default::default);
         depth.par_chunks_mut(w).zip(intensity_rows.par_iter_mut()).enumerate().for_each(|(y, (drow, irow))| {
             for x in 0..w {
-                let mut vals = [0.0f32; 4];
+                // Unused slots sort last.
+                let mut vals = [f32::INFINITY; 4];
                 let mut n = 0;
                 let mut inten = 0.0;
                 let mut m = 0;
@@ -704,8 +705,8 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
                 if n == 0 {
                     continue;
                 }
-                let vals = &mut vals[..n];
-                vals.sort_by(f32::total_cmp);
+                sort4(&mut vals);
+                let vals = &vals[..n];
                 let median = vals[(n - 1) / 2];
                 let (mut sum, mut cnt) = (0.0, 0);
                 for &d in vals.iter() {
@@ -743,14 +744,33 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
     levels
 }
 
+/// Sorts four depths ascending with a five-comparison network (the pyramid's median of a
+/// 2x2 block; a library sort is an out-of-line call per block). Depths are never NaN.
+#[inline]
+fn sort4(v: &mut [f32; 4]) {
+    let mut cmp = |i: usize, j: usize| {
+        let (a, b) = (v[i], v[j]);
+        v[i] = a.min(b);
+        v[j] = a.max(b);
+    };
+    cmp(0, 1);
+    cmp(2, 3);
+    cmp(0, 2);
+    cmp(1, 3);
+    cmp(1, 2);
+}
+
 /// Vertices and normals of one level.
 fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>, with_normals: bool) -> Level {
     let (w, h) = (k.width as usize, k.height as usize);
-    let vertices: Vec<Vec3> = depth
-        .iter()
-        .enumerate()
-        .map(|(i, &d)| if d > 0.0 { k.unproject((i % w) as f32, (i / w) as f32, d) } else { Vec3::ZERO })
-        .collect();
+    let mut vertices = vec![Vec3::ZERO; w * h];
+    vertices.par_chunks_mut(w).zip(depth.par_chunks(w)).enumerate().for_each(|(y, (row, drow))| {
+        for (x, (p, &d)) in row.iter_mut().zip(drow).enumerate() {
+            if d > 0.0 {
+                *p = k.unproject(x as f32, y as f32, d);
+            }
+        }
+    });
     let mut normals = vec![Vec3::ZERO; w * h];
     normals.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         if !with_normals || y == 0 || y + 1 >= h {
@@ -1096,6 +1116,24 @@ mod tests {
             // The gradient sums signed terms that cancel: compare with the scale of its terms.
             let scale = (plain.h[a][a] * 0.01f64.powi(2) * 20_000.0).sqrt();
             assert!((plain.g[a] - simd.g[a]).abs() <= 1e-4 * scale, "g[{a}]: {} vs {}", plain.g[a], simd.g[a]);
+        }
+    }
+
+    #[test]
+    fn sort4_sorts_like_the_library() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        for _ in 0..1000 {
+            let n = rng.random_range(0..=4);
+            let mut v = [f32::INFINITY; 4];
+            for d in v.iter_mut().take(n) {
+                // Repeated values too.
+                *d = rng.random_range(0..6) as f32 * 0.5;
+            }
+            let mut want = v;
+            want.sort_by(f32::total_cmp);
+            sort4(&mut v);
+            assert_eq!(v, want);
         }
     }
 
