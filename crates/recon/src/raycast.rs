@@ -68,6 +68,10 @@ struct ChunkGrid<'a> {
     /// The chunk per cell (one pointer to follow, not slab record then voxel box); empty
     /// when falling back.
     slots: Vec<Option<&'a Chunk>>,
+    /// One bit per cell, set where a chunk is allocated: most lookups of a march are in
+    /// empty space, and this 64x smaller array stays in cache where `slots` (megabytes)
+    /// costs a memory access per lookup.
+    occupied: Vec<u64>,
 }
 
 /// Largest dense chunk grid (16 MB of pointers; a 15 m x 15 m x 4 m site at 5 mm voxels).
@@ -84,14 +88,17 @@ impl<'a> ChunkGrid<'a> {
         let dims = (max - min + 1).max(IVec3::ZERO);
         let cells = dims.x as usize * dims.y as usize * dims.z as usize;
         if map.chunks.is_empty() || cells > MAX_GRID_CELLS {
-            return Self { min, dims: IVec3::ZERO, slots: Vec::new() };
+            return Self { min, dims: IVec3::ZERO, slots: Vec::new(), occupied: Vec::new() };
         }
         let mut slots = vec![None; cells];
+        let mut occupied = vec![0u64; cells.div_ceil(64)];
         for c in &map.chunks {
             let l = c.key - min;
-            slots[(l.x + dims.x * (l.y + dims.y * l.z)) as usize] = Some(c);
+            let i = (l.x + dims.x * (l.y + dims.y * l.z)) as usize;
+            slots[i] = Some(c);
+            occupied[i / 64] |= 1 << (i % 64);
         }
-        Self { min, dims, slots }
+        Self { min, dims, slots, occupied }
     }
 }
 
@@ -121,7 +128,12 @@ impl<'a> VoxelReader<'a> {
                 if l.cmplt(IVec3::ZERO).any() || l.cmpge(d).any() {
                     None
                 } else {
-                    self.grid.slots[(l.x + d.x * (l.y + d.y * l.z)) as usize]
+                    let i = (l.x + d.x * (l.y + d.y * l.z)) as usize;
+                    if self.grid.occupied[i / 64] & (1 << (i % 64)) == 0 {
+                        None
+                    } else {
+                        self.grid.slots[i]
+                    }
                 }
             };
         }
