@@ -120,24 +120,28 @@ impl<'a> VoxelReader<'a> {
     fn chunk(&mut self, key: ChunkKey) -> Option<&'a Chunk> {
         if key != self.key {
             self.key = key;
-            self.chunk = if self.grid.slots.is_empty() {
-                self.map.chunk(key)
-            } else {
-                let l = key - self.grid.min;
-                let d = self.grid.dims;
-                if l.cmplt(IVec3::ZERO).any() || l.cmpge(d).any() {
-                    None
-                } else {
-                    let i = (l.x + d.x * (l.y + d.y * l.z)) as usize;
-                    if self.grid.occupied[i / 64] & (1 << (i % 64)) == 0 {
-                        None
-                    } else {
-                        self.grid.slots[i]
-                    }
-                }
-            };
+            self.chunk = self.lookup(key);
         }
         self.chunk
+    }
+
+    /// The chunk at `key`, without touching the one-chunk cache.
+    #[inline]
+    fn lookup(&self, key: ChunkKey) -> Option<&'a Chunk> {
+        if self.grid.slots.is_empty() {
+            return self.map.chunk(key);
+        }
+        let l = key - self.grid.min;
+        let d = self.grid.dims;
+        if l.cmplt(IVec3::ZERO).any() || l.cmpge(d).any() {
+            return None;
+        }
+        let i = (l.x + d.x * (l.y + d.y * l.z)) as usize;
+        if self.grid.occupied[i / 64] & (1 << (i % 64)) == 0 {
+            None
+        } else {
+            self.grid.slots[i]
+        }
     }
 
     /// Quantised distance of voxel `v` when observed.
@@ -443,5 +447,62 @@ impl MaskToInt for glam::BVec3 {
     #[inline]
     fn into_ivec3_mask(self) -> IVec3 {
         IVec3::new(self.x as i32, self.y as i32, self.z as i32)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::map::TsdfConfig;
+    use semrecon_data::Frame;
+
+    #[test]
+    fn corners_match_voxel_by_voxel_reads_across_chunk_faces() {
+        // A tilted wall a metre away, fused once: cells of its band straddle chunk faces
+        // on every axis, and some of their corners are unobserved.
+        let k = Intrinsics::new(64, 48, 50.0, 50.0, 31.5, 23.5).expect("camera");
+        let depth: Vec<f32> = (0..64 * 48).map(|i| 1.0 + 0.003 * (i % 64) as f32 + 0.002 * (i / 64) as f32).collect();
+        let frame = Frame {
+            index: 0,
+            timestamp: 0.0,
+            depth,
+            color: Vec::new(),
+            intrinsics: k,
+            world_from_camera: None,
+            labels: None,
+        };
+        let mut map = TsdfMap::new(TsdfConfig::default()).expect("config");
+        map.integrate(&frame, Affine3A::IDENTITY).expect("fusion");
+        let grid = ChunkGrid::new(&map);
+        let mut reader = VoxelReader::new(&map, &grid);
+        let inv_voxel = 1.0 / map.config().voxel_size;
+        let (mut straddling, mut some, mut none) = (0, 0, 0);
+        for i in 0..20_000 {
+            // Points along the viewing rays around the surface, in voxel units.
+            let u = (i % 64) as f32;
+            let v = ((i / 64) % 48) as f32;
+            let z = 0.95 + 0.15 * ((i * 7919) % 1000) as f32 / 1000.0;
+            let p = k.unproject(u, v, z) * inv_voxel;
+            let b = floor_i(p);
+            let want: Option<[f32; 8]> = (0..8)
+                .map(|j| {
+                    let o = IVec3::new((j & 1) as i32, ((j >> 1) & 1) as i32, (j >> 2) as i32);
+                    map.voxel(b + o).filter(|v| v.is_observed()).map(|v| v.tsdf())
+                })
+                .collect::<Option<Vec<f32>>>()
+                .map(|c| c.try_into().expect("eight corners"));
+            let (key, _) = split_voxel(b);
+            if (b - key * CHUNK_SIDE as i32).cmpeq(IVec3::splat(CHUNK_SIDE as i32 - 1)).any() {
+                straddling += 1;
+            }
+            let got = reader.corners(p).map(|(c, _)| c);
+            assert_eq!(got, want, "at {p}");
+            if got.is_some() {
+                some += 1;
+            } else {
+                none += 1;
+            }
+        }
+        assert!(straddling > 1000 && some > 1000 && none > 1000, "{straddling} {some} {none}");
     }
 }

@@ -672,52 +672,31 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
         let mut depth = vec![0.0f32; w * h];
         let mut intensity = vec![0.0f32; if prev.intensity.is_empty() { 0 } else { w * h }];
         let has_intensity = !intensity.is_empty();
-        let mut intensity_rows: Vec<&mut [f32]> = intensity.chunks_mut(w).collect();
-        intensity_rows.resize_with(h, Default::default);
-        depth.par_chunks_mut(w).zip(intensity_rows.par_iter_mut()).enumerate().for_each(|(y, (drow, irow))| {
-            for x in 0..w {
-                // Unused slots sort last.
-                let mut vals = [f32::INFINITY; 4];
-                let mut n = 0;
-                let mut inten = 0.0;
-                let mut m = 0;
-                for dy in 0..2 {
-                    for dx in 0..2 {
-                        let (sx, sy) = (2 * x + dx, 2 * y + dy);
-                        if sx >= pw || sy >= ph {
-                            continue;
-                        }
-                        let i = sy * pw + sx;
-                        if has_intensity {
-                            inten += prev.intensity[i];
-                            m += 1;
-                        }
-                        let d = prev.depth[i];
-                        if d > 0.0 {
-                            vals[n] = d;
-                            n += 1;
-                        }
-                    }
-                }
-                if m > 0 {
-                    irow[x] = inten / m as f32;
-                }
-                if n == 0 {
-                    continue;
-                }
-                sort4(&mut vals);
-                let vals = &vals[..n];
-                let median = vals[(n - 1) / 2];
-                let (mut sum, mut cnt) = (0.0, 0);
-                for &d in vals.iter() {
-                    if (d - median).abs() <= 0.03 * median {
-                        sum += d;
-                        cnt += 1;
-                    }
-                }
-                drow[x] = sum / cnt as f32;
+        depth.par_chunks_mut(w).enumerate().for_each(|(y, drow)| {
+            // A row past the edge (odd heights) reads as invalid, as does a column.
+            let src_row = |sy: usize| if sy < ph { &prev.depth[sy * pw..(sy + 1) * pw] } else { &[][..] };
+            let (r0, r1) = (src_row(2 * y), src_row(2 * y + 1));
+            let at = |r: &[f32], sx: usize| r.get(sx).copied().unwrap_or(0.0);
+            for (x, d) in drow.iter_mut().enumerate() {
+                *d = block_depth([at(r0, 2 * x), at(r0, 2 * x + 1), at(r1, 2 * x), at(r1, 2 * x + 1)]);
             }
         });
+        if has_intensity {
+            intensity.par_chunks_mut(w).enumerate().for_each(|(y, irow)| {
+                for (x, out) in irow.iter_mut().enumerate() {
+                    let (mut inten, mut m) = (0.0, 0);
+                    for (sx, sy) in [(2 * x, 2 * y), (2 * x + 1, 2 * y), (2 * x, 2 * y + 1), (2 * x + 1, 2 * y + 1)] {
+                        if sx < pw && sy < ph {
+                            inten += prev.intensity[sy * pw + sx];
+                            m += 1;
+                        }
+                    }
+                    if m > 0 {
+                        *out = inten / m as f32;
+                    }
+                }
+            });
+        }
         levels.push(make_level(k, depth, intensity, true));
     }
     // Normals of a level come from the next coarser level: neighbouring pixels of a noisy,
@@ -742,6 +721,28 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
         });
     }
     levels
+}
+
+/// The depth of a 2x2 block (0 = invalid in and out): the mean of its valid depths within
+/// 3% of their median (the lower one of an even count), summed in ascending order.
+#[inline]
+fn block_depth(block: [f32; 4]) -> f32 {
+    let n = block.iter().filter(|&&d| d > 0.0).count();
+    if n == 0 {
+        return 0.0;
+    }
+    // Invalid depths sort last, past the `n` valid ones.
+    let mut vals = block.map(|d| if d > 0.0 { d } else { f32::INFINITY });
+    sort4(&mut vals);
+    let median = vals[(n - 1) / 2];
+    let (mut sum, mut cnt) = (0.0f32, 0u32);
+    for (k, &d) in vals.iter().enumerate() {
+        let keep = k < n && (d - median).abs() <= 0.03 * median;
+        // Adding 0 to a positive sum leaves its bits: the same as skipping.
+        sum += if keep { d } else { 0.0 };
+        cnt += keep as u32;
+    }
+    sum / cnt as f32
 }
 
 /// Sorts four depths ascending with a five-comparison network (the pyramid's median of a
@@ -1116,6 +1117,31 @@ mod tests {
             // The gradient sums signed terms that cancel: compare with the scale of its terms.
             let scale = (plain.h[a][a] * 0.01f64.powi(2) * 20_000.0).sqrt();
             assert!((plain.g[a] - simd.g[a]).abs() <= 1e-4 * scale, "g[{a}]: {} vs {}", plain.g[a], simd.g[a]);
+        }
+    }
+
+    #[test]
+    fn block_depth_matches_the_sorted_median_rule() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        for _ in 0..5000 {
+            // Invalid, close and outlying depths, repeats included.
+            let block: [f32; 4] = std::array::from_fn(|_| match rng.random_range(0..4) {
+                0 => 0.0,
+                1 => 2.0,
+                2 => 2.0 + rng.random_range(-0.05..0.05),
+                _ => rng.random_range(0.5..4.0),
+            });
+            let mut valid: Vec<f32> = block.iter().copied().filter(|&d| d > 0.0).collect();
+            valid.sort_by(f32::total_cmp);
+            let want = if valid.is_empty() {
+                0.0
+            } else {
+                let median = valid[(valid.len() - 1) / 2];
+                let kept: Vec<f32> = valid.into_iter().filter(|d| (d - median).abs() <= 0.03 * median).collect();
+                kept.iter().fold(0.0f32, |s, d| s + d) / kept.len() as f32
+            };
+            assert_eq!(block_depth(block).to_bits(), want.to_bits(), "{block:?}");
         }
     }
 
