@@ -281,9 +281,11 @@ fn march(
 ///
 /// `start_depth`, when given, holds per pixel a depth (same shape as the view, 0 = none)
 /// measured from this pose, so free space up to about that depth: the march then runs
-/// only within three truncation distances of it. Pixels without one start at the nearest
-/// depth in their 5x5 neighbourhood and march to `max_depth`; pixels with none there are
-/// not cast (the measurement saw nothing there). The previous frame's depth at the same
+/// only within three truncation distances of it. Pixels without one march from the nearest
+/// to the farthest depth of their 5x5 neighbourhood (three truncations beyond each: the
+/// background behind a depth edge is among the neighbours); pixels with none there are
+/// not cast (the measurement saw nothing there). Marching those to `max_depth` instead
+/// spent 40% of all steps on 7% of the rays. The previous frame's depth at the same
 /// pose is such a bound, and it saves most of the march through empty space.
 ///
 /// # Shapes
@@ -336,11 +338,9 @@ pub fn raycast(
                         let (mut d0, mut d1) = (min_depth, max_depth);
                         if let Some(s) = start_depth {
                             match hint(s, w, h, u, v) {
-                                Some((s, exact)) => {
-                                    d0 = d0.max(s - 3.0 * truncation);
-                                    if exact {
-                                        d1 = d1.min(s + 3.0 * truncation);
-                                    }
+                                Some((near, far)) => {
+                                    d0 = d0.max(near - 3.0 * truncation);
+                                    d1 = d1.min(far + 3.0 * truncation);
                                 }
                                 None => continue,
                             }
@@ -404,25 +404,26 @@ fn diff(reader: &mut VoxelReader, p: Vec3, axis: Vec3, f0: Option<f32>) -> Optio
     }
 }
 
-/// The march window for pixel `(u, v)` from the start-depth image: its own depth (`true`)
-/// or the nearest valid depth of its 5x5 neighbourhood (`false`); `None` when all are
-/// missing.
+/// The depth range to march for pixel `(u, v)` from the start-depth image: its own depth
+/// (both ends), else the nearest and the farthest valid depth of its 5x5 neighbourhood;
+/// `None` when all are missing.
 #[inline]
-fn hint(s: &[f32], w: usize, h: usize, u: usize, v: usize) -> Option<(f32, bool)> {
+fn hint(s: &[f32], w: usize, h: usize, u: usize, v: usize) -> Option<(f32, f32)> {
     let own = s[v * w + u];
     if own.is_finite() && own > 0.0 {
-        return Some((own, true));
+        return Some((own, own));
     }
-    let mut best = f32::INFINITY;
+    let (mut near, mut far) = (f32::INFINITY, 0.0f32);
     for y in v.saturating_sub(2)..(v + 3).min(h) {
         for x in u.saturating_sub(2)..(u + 3).min(w) {
             let d = s[y * w + x];
-            if d.is_finite() && d > 0.0 && d < best {
-                best = d;
+            if d.is_finite() && d > 0.0 {
+                near = near.min(d);
+                far = far.max(d);
             }
         }
     }
-    best.is_finite().then_some((best, false))
+    near.is_finite().then_some((near, far))
 }
 
 /// `floor` per component as integers (`f32::floor` is a library call on baseline x86-64).
