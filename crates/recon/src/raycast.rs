@@ -487,7 +487,7 @@ mod tests {
             let b = floor_i(p);
             let want: Option<[f32; 8]> = (0..8)
                 .map(|j| {
-                    let o = IVec3::new((j & 1) as i32, ((j >> 1) & 1) as i32, (j >> 2) as i32);
+                    let o = IVec3::new(j & 1, (j >> 1) & 1, j >> 2);
                     map.voxel(b + o).filter(|v| v.is_observed()).map(|v| v.tsdf())
                 })
                 .collect::<Option<Vec<f32>>>()
