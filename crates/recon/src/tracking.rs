@@ -10,10 +10,12 @@
 //! point-to-plane distances plus, where colour is registered to depth and the weight is
 //! non-zero, intensity differences, both under Huber weights.
 //!
-//! Normal equations are summed per fixed block of rows and the blocks then added in order,
-//! so poses are bit-identical for any rayon thread count. The model is ray-cast once per
-//! frame at a reduced resolution (default half) and serves every pyramid level; the last
-//! tracked frame's depth bounds where the march starts, which removes most of its cost.
+//! Normal equations are summed in f32 SIMD lanes per row of pixels, in f64 per fixed block
+//! of rows, and the blocks then added in order, so poses are bit-identical for any rayon
+//! thread count; a level stops iterating once the update is negligible. The model is
+//! ray-cast at a reduced resolution (default a quarter) every `model_interval` tracked
+//! frames and serves every pyramid level; the last tracked frame's depth bounds where the
+//! march runs, which removes most of its cost.
 //!
 //! A quality check (inlier ratio, residual, jump from the prediction, conditioning of the
 //! system) declares the frame lost instead of returning a doubtful pose; the caller then
