@@ -10,9 +10,12 @@
 //! `SPEC` is a dataset spec (`7scenes:/work/shared/data/7scenes-redkitchen`, `synth:3`).
 //! The first frame starts at its ground-truth pose when there is one. ATE is the RMS
 //! position error after Horn alignment (rotation + translation, no scale) over the tracked
-//! frames; the error with only the first pose aligned is printed too. `--size` resamples
+//! frames; the error with only the first pose aligned is printed too. Tracking is timed in
+//! wall and CPU milliseconds (all threads; the machine may be shared). `--size` resamples
 //! frames (nearest pixel) before tracking. Thread count: `RAYON_NUM_THREADS`.
 
+#[path = "common/cpu_time.rs"]
+mod cpu_time;
 #[path = "common/flags.rs"]
 mod flags;
 
@@ -22,6 +25,7 @@ use glam::Vec3;
 use semrecon_data::{open_dataset, DatasetSpec, Frame};
 use semrecon_recon::{ate_rmse, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
 
+use cpu_time::timed;
 use flags::Flags;
 
 struct Args {
@@ -144,7 +148,7 @@ fn run(a: Args) -> Result<(), String> {
         config.max_depth = d;
     }
     let mut tracker: Option<Tracker> = None;
-    let (mut track_ms, mut cast_ms, mut fuse_ms) = (vec![], vec![], vec![]);
+    let (mut track_ms, mut track_cpu_ms, mut cast_ms, mut fuse_ms) = (vec![], vec![], vec![], vec![]);
     let (mut est, mut gt) = (Vec::new(), Vec::new());
     let mut first_err = Vec::new();
     let mut lost = Vec::new();
@@ -164,9 +168,11 @@ fn run(a: Args) -> Result<(), String> {
                     .map_err(|e| e.to_string())?,
             ),
         };
-        let r = tracker.track(&frame, &map).map_err(|e| e.to_string())?;
+        let (r, _, cpu) = timed(|| tracker.track(&frame, &map));
+        let r = r.map_err(|e| e.to_string())?;
         if r.status == TrackingStatus::Tracked {
             track_ms.push(r.total_ms);
+            track_cpu_ms.push(cpu);
             if r.raycast_ms > 0.0 {
                 cast_ms.push(r.raycast_ms);
             }
@@ -216,6 +222,7 @@ fn run(a: Args) -> Result<(), String> {
         None => println!("ATE: no ground truth"),
     }
     percentiles("tracking (per frame)", &mut track_ms);
+    percentiles("  CPU, all threads", &mut track_cpu_ms);
     percentiles("  of which ray-cast", &mut cast_ms);
     percentiles("fusion (per frame)", &mut fuse_ms);
     println!(

@@ -8,7 +8,8 @@
 //! The march skips unallocated chunks whole (no surface can be there), steps by the stored
 //! distance in observed free space (at most a truncation, at least half a voxel) and, on a
 //! positive-to-negative change of the trilinearly interpolated distance, places the surface
-//! by linear interpolation between the two samples. A negative distance reached without a
+//! by linear interpolation between the two samples. Unobserved voxels before the first
+//! observed sample are crossed a voxel at a time. A negative distance reached without a
 //! positive one before it is the back of a surface: the ray stops there without a hit.
 //! Normals are the normalised central-difference gradient of the interpolated distance.
 //!
@@ -67,6 +68,10 @@ struct ChunkGrid<'a> {
     /// The chunk per cell (one pointer to follow, not slab record then voxel box); empty
     /// when falling back.
     slots: Vec<Option<&'a Chunk>>,
+    /// One bit per cell, set where a chunk is allocated: most lookups of a march are in
+    /// empty space, and this 64x smaller array stays in cache where `slots` (megabytes)
+    /// costs a memory access per lookup.
+    occupied: Vec<u64>,
 }
 
 /// Largest dense chunk grid (16 MB of pointers; a 15 m x 15 m x 4 m site at 5 mm voxels).
@@ -83,14 +88,17 @@ impl<'a> ChunkGrid<'a> {
         let dims = (max - min + 1).max(IVec3::ZERO);
         let cells = dims.x as usize * dims.y as usize * dims.z as usize;
         if map.chunks.is_empty() || cells > MAX_GRID_CELLS {
-            return Self { min, dims: IVec3::ZERO, slots: Vec::new() };
+            return Self { min, dims: IVec3::ZERO, slots: Vec::new(), occupied: Vec::new() };
         }
         let mut slots = vec![None; cells];
+        let mut occupied = vec![0u64; cells.div_ceil(64)];
         for c in &map.chunks {
             let l = c.key - min;
-            slots[(l.x + dims.x * (l.y + dims.y * l.z)) as usize] = Some(c);
+            let i = (l.x + dims.x * (l.y + dims.y * l.z)) as usize;
+            slots[i] = Some(c);
+            occupied[i / 64] |= 1 << (i % 64);
         }
-        Self { min, dims, slots }
+        Self { min, dims, slots, occupied }
     }
 }
 
@@ -112,19 +120,28 @@ impl<'a> VoxelReader<'a> {
     fn chunk(&mut self, key: ChunkKey) -> Option<&'a Chunk> {
         if key != self.key {
             self.key = key;
-            self.chunk = if self.grid.slots.is_empty() {
-                self.map.chunk(key)
-            } else {
-                let l = key - self.grid.min;
-                let d = self.grid.dims;
-                if l.cmplt(IVec3::ZERO).any() || l.cmpge(d).any() {
-                    None
-                } else {
-                    self.grid.slots[(l.x + d.x * (l.y + d.y * l.z)) as usize]
-                }
-            };
+            self.chunk = self.lookup(key);
         }
         self.chunk
+    }
+
+    /// The chunk at `key`, without touching the one-chunk cache.
+    #[inline]
+    fn lookup(&self, key: ChunkKey) -> Option<&'a Chunk> {
+        if self.grid.slots.is_empty() {
+            return self.map.chunk(key);
+        }
+        let l = key - self.grid.min;
+        let d = self.grid.dims;
+        if l.cmplt(IVec3::ZERO).any() || l.cmpge(d).any() {
+            return None;
+        }
+        let i = (l.x + d.x * (l.y + d.y * l.z)) as usize;
+        if self.grid.occupied[i / 64] & (1 << (i % 64)) == 0 {
+            None
+        } else {
+            self.grid.slots[i]
+        }
     }
 
     /// Quantised distance of voxel `v` when observed.
@@ -207,6 +224,7 @@ fn march(
     let inv_voxel = 1.0 / voxel_size;
     let chunk_side = CHUNK_SIDE as f32;
     let half_voxel = 0.5 * voxel_size;
+    let unobserved_step = voxel_size;
     let mut t = t_min;
     // Last sample with an interpolated distance: (t, distance in truncation units).
     let mut prev: Option<(f32, f32)> = None;
@@ -245,8 +263,13 @@ fn march(
             }
             None => {
                 // Unobserved corners near the surface (dropouts): keep the last positive
-                // sample, the crossing is interpolated across the gap.
-                t += half_voxel;
+                // sample, the crossing is interpolated across the gap. Before any
+                // observed sample (unobserved voxels of an allocated chunk, a third of all
+                // samples on 7-Scenes) a whole voxel: the interpolation needs all eight
+                // corners observed, so it is defined only a voxel into observed space
+                // anyway. (A fifth of the truncation, 2 voxels at 10, saved 20% more
+                // samples but moved the 24-frame Kinect-noise test from 2.2 to 3.3 mm.)
+                t += if prev.is_some() { half_voxel } else { unobserved_step };
             }
         }
     }
@@ -258,9 +281,11 @@ fn march(
 ///
 /// `start_depth`, when given, holds per pixel a depth (same shape as the view, 0 = none)
 /// measured from this pose, so free space up to about that depth: the march then runs
-/// only within three truncation distances of it. Pixels without one start at the nearest
-/// depth in their 5x5 neighbourhood and march to `max_depth`; pixels with none there are
-/// not cast (the measurement saw nothing there). The previous frame's depth at the same
+/// only within three truncation distances of it. Pixels without one march from the nearest
+/// to the farthest depth of their 5x5 neighbourhood (three truncations beyond each: the
+/// background behind a depth edge is among the neighbours); pixels with none there are
+/// not cast (the measurement saw nothing there). Marching those to `max_depth` instead
+/// spent 40% of all steps on 7% of the rays. The previous frame's depth at the same
 /// pose is such a bound, and it saves most of the march through empty space.
 ///
 /// # Shapes
@@ -313,11 +338,9 @@ pub fn raycast(
                         let (mut d0, mut d1) = (min_depth, max_depth);
                         if let Some(s) = start_depth {
                             match hint(s, w, h, u, v) {
-                                Some((s, exact)) => {
-                                    d0 = d0.max(s - 3.0 * truncation);
-                                    if exact {
-                                        d1 = d1.min(s + 3.0 * truncation);
-                                    }
+                                Some((near, far)) => {
+                                    d0 = d0.max(near - 3.0 * truncation);
+                                    d1 = d1.min(far + 3.0 * truncation);
                                 }
                                 None => continue,
                             }
@@ -381,25 +404,26 @@ fn diff(reader: &mut VoxelReader, p: Vec3, axis: Vec3, f0: Option<f32>) -> Optio
     }
 }
 
-/// The march window for pixel `(u, v)` from the start-depth image: its own depth (`true`)
-/// or the nearest valid depth of its 5x5 neighbourhood (`false`); `None` when all are
-/// missing.
+/// The depth range to march for pixel `(u, v)` from the start-depth image: its own depth
+/// (both ends), else the nearest and the farthest valid depth of its 5x5 neighbourhood;
+/// `None` when all are missing.
 #[inline]
-fn hint(s: &[f32], w: usize, h: usize, u: usize, v: usize) -> Option<(f32, bool)> {
+fn hint(s: &[f32], w: usize, h: usize, u: usize, v: usize) -> Option<(f32, f32)> {
     let own = s[v * w + u];
     if own.is_finite() && own > 0.0 {
-        return Some((own, true));
+        return Some((own, own));
     }
-    let mut best = f32::INFINITY;
+    let (mut near, mut far) = (f32::INFINITY, 0.0f32);
     for y in v.saturating_sub(2)..(v + 3).min(h) {
         for x in u.saturating_sub(2)..(u + 3).min(w) {
             let d = s[y * w + x];
-            if d.is_finite() && d > 0.0 && d < best {
-                best = d;
+            if d.is_finite() && d > 0.0 {
+                near = near.min(d);
+                far = far.max(d);
             }
         }
     }
-    best.is_finite().then_some((best, false))
+    near.is_finite().then_some((near, far))
 }
 
 /// `floor` per component as integers (`f32::floor` is a library call on baseline x86-64).
@@ -424,5 +448,62 @@ impl MaskToInt for glam::BVec3 {
     #[inline]
     fn into_ivec3_mask(self) -> IVec3 {
         IVec3::new(self.x as i32, self.y as i32, self.z as i32)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::map::TsdfConfig;
+    use semrecon_data::Frame;
+
+    #[test]
+    fn corners_match_voxel_by_voxel_reads_across_chunk_faces() {
+        // A tilted wall a metre away, fused once: cells of its band straddle chunk faces
+        // on every axis, and some of their corners are unobserved.
+        let k = Intrinsics::new(64, 48, 50.0, 50.0, 31.5, 23.5).expect("camera");
+        let depth: Vec<f32> = (0..64 * 48).map(|i| 1.0 + 0.003 * (i % 64) as f32 + 0.002 * (i / 64) as f32).collect();
+        let frame = Frame {
+            index: 0,
+            timestamp: 0.0,
+            depth,
+            color: Vec::new(),
+            intrinsics: k,
+            world_from_camera: None,
+            labels: None,
+        };
+        let mut map = TsdfMap::new(TsdfConfig::default()).expect("config");
+        map.integrate(&frame, Affine3A::IDENTITY).expect("fusion");
+        let grid = ChunkGrid::new(&map);
+        let mut reader = VoxelReader::new(&map, &grid);
+        let inv_voxel = 1.0 / map.config().voxel_size;
+        let (mut straddling, mut some, mut none) = (0, 0, 0);
+        for i in 0..20_000 {
+            // Points along the viewing rays around the surface, in voxel units.
+            let u = (i % 64) as f32;
+            let v = ((i / 64) % 48) as f32;
+            let z = 0.95 + 0.15 * ((i * 7919) % 1000) as f32 / 1000.0;
+            let p = k.unproject(u, v, z) * inv_voxel;
+            let b = floor_i(p);
+            let want: Option<[f32; 8]> = (0..8)
+                .map(|j| {
+                    let o = IVec3::new(j & 1, (j >> 1) & 1, j >> 2);
+                    map.voxel(b + o).filter(|v| v.is_observed()).map(|v| v.tsdf())
+                })
+                .collect::<Option<Vec<f32>>>()
+                .map(|c| c.try_into().expect("eight corners"));
+            let (key, _) = split_voxel(b);
+            if (b - key * CHUNK_SIDE as i32).cmpeq(IVec3::splat(CHUNK_SIDE as i32 - 1)).any() {
+                straddling += 1;
+            }
+            let got = reader.corners(p).map(|(c, _)| c);
+            assert_eq!(got, want, "at {p}");
+            if got.is_some() {
+                some += 1;
+            } else {
+                none += 1;
+            }
+        }
+        assert!(straddling > 1000 && some > 1000 && none > 1000, "{straddling} {some} {none}");
     }
 }
