@@ -3,8 +3,8 @@
 //! Cells join 2x2x2 voxel centres. A chunk owns the 8x8x8 cells whose lowest corner is one
 //! of its voxels, so the cells between two chunks are computed once, by the lower chunk,
 //! reading the upper neighbours' boundary voxels. Cells with an unobserved corner (weight 0)
-//! are skipped, and so are cells where a crossed edge jumps by more than one truncation
-//! distance (the seam between observed free space and the back of a surface, not a
+//! are skipped, and so are cells where a crossed edge jumps by more than the narrowest
+//! truncation band (the seam between observed free space and the back of a surface, not a
 //! surface), so no phantom surfaces appear. Vertex colours are interpolated from the voxel
 //! colours; normals are the interpolated central-difference gradient of the TSDF, pointing
 //! to the positive (free-space, camera) side; triangles wind counter-clockwise seen from it.
@@ -24,10 +24,11 @@ use semrecon_data::LabeledMesh;
 use crate::cube_cases::{case_table, EDGES};
 use crate::map::{key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE, TSDF_SCALE};
 
-/// Largest TSDF difference (in truncation units) across a cell edge that still counts as a
-/// surface crossing; a real surface changes the TSDF by about one voxel per voxel, i.e. by
-/// `1 / truncation_voxels` per edge.
-const MAX_EDGE_JUMP: f32 = 1.0;
+/// Largest TSDF difference across a cell edge that still counts as a surface crossing, in
+/// units of the narrowest truncation band: a real surface changes the TSDF by about one
+/// voxel per voxel, the seam between free space and the back of a surface by two bands or
+/// more (with the band depending on depth, the narrowest band bounds that seam from below).
+const MAX_EDGE_JUMP_BANDS: f32 = 1.0;
 
 /// Side of the padded block: the chunk plus one voxel on every side.
 const PAD: usize = CHUNK_SIDE + 3;
@@ -260,6 +261,7 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
     };
     let table = case_table();
     let vs = map.config().voxel_size;
+    let max_jump = MAX_EDGE_JUMP_BANDS * map.config().narrowest_band_voxels() / map.config().truncation_voxels;
     let key_voxel = key * CHUNK_SIDE as i32;
     let corner_offset: [usize; 8] = std::array::from_fn(|c| (c & 1) + PAD * ((c >> 1) & 1) + PAD2 * ((c >> 2) & 1));
     // Pass 1: the cells the surface crosses, and how many triangles they make, so that the
@@ -304,7 +306,7 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
                 let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + corner_offset[c]));
                 let jump = EDGES.iter().any(|&(a, b)| {
                     let (fa, fb) = (f[a as usize], f[b as usize]);
-                    (fa < 0.0) != (fb < 0.0) && (fa - fb).abs() > MAX_EDGE_JUMP
+                    (fa < 0.0) != (fb < 0.0) && (fa - fb).abs() > max_jump
                 });
                 if jump {
                     continue;
