@@ -435,27 +435,25 @@ impl IncrementalMesher {
             self.cache.remove(k);
         }
         changed.extend_from_slice(&freed);
-        let mut todo: Vec<ChunkKey> = Vec::with_capacity(changed.len() * 4);
+        // Mark the changed chunks' allocated neighbours by slab position: a mask instead of
+        // collecting 27 keys per changed chunk and sorting them (most are shared).
+        let mut marked = vec![false; map.chunks.len()];
         for &k in &changed {
             for dz in -1..=1 {
                 for dy in -1..=1 {
                     for dx in -1..=1 {
-                        let n = k + IVec3::new(dx, dy, dz);
-                        if map.chunk(n).is_some() {
-                            todo.push(n);
+                        if let Some(&slot) = map.index.get(&(k + IVec3::new(dx, dy, dz))) {
+                            marked[slot as usize] = true;
                         }
                     }
                 }
             }
         }
-        todo.sort_unstable_by_key(|k| key_order(*k));
-        todo.dedup();
+        let todo: Vec<(ChunkKey, u64)> =
+            map.chunks.iter().zip(&marked).filter(|(_, &m)| m).map(|(c, _)| (c.key, c.revision)).collect();
         let meshes: Vec<(ChunkKey, u64, ChunkMesh)> = todo
             .par_iter()
-            .map_init(Scratch::new, |s, &k| {
-                let rev = map.chunk(k).map_or(0, |c| c.revision());
-                (k, rev, mesh_chunk_with(map, k, s))
-            })
+            .map_init(Scratch::new, |s, &(k, rev)| (k, rev, mesh_chunk_with(map, k, s)))
             .collect();
         let remeshed = meshes.len();
         for (k, rev, m) in meshes {
