@@ -3,7 +3,8 @@
 //!
 //! ```text
 //! cargo run --release -p semrecon-recon --example accuracy_bench -- SOURCE [--frames N]
-//!     [--size WxH] [--voxel M] [--trunc VOXELS] [--band-factor K] [--ideal] [--skip-tracking]
+//!     [--size WxH] [--voxel M] [--trunc VOXELS] [--band-factor K] [--min-band VOXELS]
+//!     [--ideal] [--skip-tracking]
 //! ```
 //!
 //! `SOURCE` is `synth:SEED` (a generated room along its generated handheld path) or
@@ -39,6 +40,7 @@ struct Args {
     voxel: f32,
     truncation: f32,
     band_factor: f32,
+    min_band: f32,
     ideal: bool,
     skip_tracking: bool,
 }
@@ -51,6 +53,7 @@ fn parse_args() -> Result<Args, String> {
         voxel: 0.005,
         truncation: 10.0,
         band_factor: TsdfConfig::default().truncation_noise_factor,
+        min_band: TsdfConfig::default().min_truncation_voxels,
         ideal: false,
         skip_tracking: false,
     };
@@ -61,6 +64,7 @@ fn parse_args() -> Result<Args, String> {
             "--voxel" => a.voxel = flags.value(&flag)?,
             "--trunc" => a.truncation = flags.value(&flag)?,
             "--band-factor" => a.band_factor = flags.value(&flag)?,
+            "--min-band" => a.min_band = flags.value(&flag)?,
             "--ideal" => a.ideal = true,
             "--skip-tracking" => a.skip_tracking = true,
             "--size" => a.size = flags.size(&flag)?,
@@ -118,6 +122,7 @@ fn run(a: Args) -> Result<(), String> {
     let map_config = TsdfConfig {
         truncation_voxels: a.truncation,
         truncation_noise_factor: a.band_factor,
+        min_truncation_voxels: a.min_band,
         ..TsdfConfig::with_voxel_size(a.voxel).map_err(|e| e.to_string())?
     };
     println!(

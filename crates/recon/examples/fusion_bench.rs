@@ -3,7 +3,7 @@
 //! ```text
 //! cargo run --release -p semrecon-recon --example fusion_bench -- [--frames N] [--voxel M]
 //!     [--7scenes DIR] [--out mesh.ply] [--keyframe K] [--trunc VOXELS]
-//!     [--band-factor K]
+//!     [--band-factor K] [--min-band VOXELS]
 //! ```
 //!
 //! Without `--7scenes` the frames are ray-cast from an analytic scene (floor, wall, sphere).
@@ -11,7 +11,8 @@
 //! 0 and 65535 invalid, `.color.png`/`.color.jpg`, `.pose.txt` 4x4 camera-to-world) read with
 //! the reference poses. Thread count: `RAYON_NUM_THREADS`. `--out` writes the final mesh as
 //! binary PLY (a minimal writer local to this example). `--band-factor` is
-//! `TsdfConfig::truncation_noise_factor` (0: the fixed band of `--trunc` voxels).
+//! `TsdfConfig::truncation_noise_factor` (0: the fixed band of `--trunc` voxels), `--min-band`
+//! its `min_truncation_voxels`.
 
 #[path = "common/cpu_time.rs"]
 mod cpu_time;
@@ -41,12 +42,14 @@ struct Args {
     keyframe: usize,
     truncation: f32,
     band_factor: f32,
+    min_band: f32,
 }
 
 fn parse_args() -> Result<Args, String> {
     let mut a = Args { frames: 100, voxel: 0.005, seven_scenes: None, out: None, keyframe: 10,
         truncation: 10.0,
         band_factor: TsdfConfig::default().truncation_noise_factor,
+        min_band: TsdfConfig::default().min_truncation_voxels,
     };
     let mut flags = Flags::from_env();
     while let Some(flag) = flags.next_flag() {
@@ -55,6 +58,7 @@ fn parse_args() -> Result<Args, String> {
             "--voxel" => a.voxel = flags.value(&flag)?,
             "--trunc" => a.truncation = flags.value(&flag)?,
             "--band-factor" => a.band_factor = flags.value(&flag)?,
+            "--min-band" => a.min_band = flags.value(&flag)?,
             "--keyframe" => a.keyframe = flags.value(&flag)?,
             "--7scenes" => a.seven_scenes = Some(flags.value(&flag)?),
             "--out" => a.out = Some(flags.value(&flag)?),
@@ -119,7 +123,12 @@ fn main() {
         }
     };
     let config = match TsdfConfig::with_voxel_size(args.voxel)
-        .map(|c| TsdfConfig { truncation_voxels: args.truncation, truncation_noise_factor: args.band_factor, ..c })
+        .map(|c| TsdfConfig {
+            truncation_voxels: args.truncation,
+            truncation_noise_factor: args.band_factor,
+            min_truncation_voxels: args.min_band,
+            ..c
+        })
         .and_then(|c| c.validate().map(|()| c))
     {
         Ok(c) => c,
