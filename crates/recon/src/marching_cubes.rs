@@ -55,6 +55,16 @@ pub struct ChunkMesh {
     shared: Vec<(u32, EdgeKey)>,
 }
 
+impl ChunkMesh {
+    fn clear(&mut self) {
+        self.positions.clear();
+        self.colors.clear();
+        self.normals.clear();
+        self.triangles.clear();
+        self.shared.clear();
+    }
+}
+
 /// A padded copy of one chunk and the one-voxel shell around it.
 ///
 /// Distances stay quantised (`i16`) until a vertex needs them; `flags` holds bit 0 for a
@@ -229,6 +239,8 @@ struct Scratch {
     /// negative and observed voxels, from [`PaddedBlock::gather`].
     weight: Box<[u16; PAD * PAD2]>,
     masks: Box<[(u16, u16); PAD2]>,
+    /// The mesh being built (copied out at its exact size when the chunk is done).
+    mesh: ChunkMesh,
     /// Local cell-edge index -> vertex, `u32::MAX` when none; reset through `used`.
     edge_vertex: Vec<u32>,
     used: Vec<u32>,
@@ -247,6 +259,7 @@ impl Scratch {
             block: PaddedBlock::new(),
             weight: Box::new([0; PAD * PAD2]),
             masks: Box::new([(0, 0); PAD2]),
+            mesh: ChunkMesh::default(),
             edge_vertex: vec![u32::MAX; ES * ES * ES * 3],
             used: Vec::new(),
             cells: Vec::new(),
@@ -263,10 +276,9 @@ pub fn mesh_chunk(map: &TsdfMap, key: ChunkKey) -> ChunkMesh {
 }
 
 fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> ChunkMesh {
-    let mut mesh = ChunkMesh::default();
     let nb = neighbours(map, key);
     if !PaddedBlock::may_have_surface(&nb) {
-        return mesh;
+        return ChunkMesh::default();
     }
     scratch.block.gather(&nb, &mut scratch.weight, &mut scratch.masks);
     let block = &*scratch.block;
@@ -324,14 +336,14 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
         }
     }
     if cells.is_empty() {
-        return mesh;
+        return ChunkMesh::default();
     }
-    mesh.triangles.reserve_exact(triangle_count);
-    // A closed surface has about half as many vertices as triangles.
-    let vertex_guess = triangle_count / 2 + 16;
-    mesh.positions.reserve(vertex_guess);
-    mesh.colors.reserve(vertex_guess);
-    mesh.normals.reserve(vertex_guess);
+    // Built in the worker's buffers and copied out at their exact size: growing five vectors
+    // per chunk (and freeing the cached mesh it replaces) cost a sixth of meshing in the
+    // allocator, and exact sizes keep the cache compact.
+    let mut mesh = std::mem::take(&mut scratch.mesh);
+    mesh.clear();
+    mesh.triangles.reserve(triangle_count);
     // Pass 2: the triangles.
     for &(cell, case) in cells.iter() {
         let cell = cell as usize;
@@ -395,7 +407,10 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
         edge_vertex[ek as usize] = u32::MAX;
     }
     used.clear();
-    mesh
+    // `clone` allocates each vector at its length.
+    let out = mesh.clone();
+    scratch.mesh = mesh;
+    out
 }
 
 /// What one incremental update did.
