@@ -43,8 +43,8 @@ pub struct TsdfConfig {
     /// away, where the sensor noise is largest.
     pub truncation_voxels: f32,
     /// Depth-dependent band: at measured depth `z` the band is
-    /// `clamp(truncation_noise_factor * sigma(z), min_truncation_voxels, truncation_voxels)`
-    /// voxels, with `sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2` m the axial noise of a Kinect
+    /// `clamp(truncation_noise_factor * sigma(z) / voxel_size, min_truncation_voxels,
+    /// truncation_voxels)` voxels, with `sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2` m the axial noise of a Kinect
     /// (Nguyen, Izadi and Lovell 2012). Near surfaces then get a narrow band, which fusion and
     /// meshing pay for per voxel, and far, noisy ones the full width, which averaging needs
     /// (a band narrower than the noise clips it one-sidedly and biases the surface). 0 turns
@@ -729,5 +729,26 @@ mod tests {
         assert!(TsdfConfig::with_voxel_size(0.02).is_ok());
         let c = TsdfConfig { max_depth: f32::NAN, ..TsdfConfig::default() };
         assert!(c.validate().is_err());
+        assert!(TsdfConfig { truncation_noise_factor: -1.0, ..TsdfConfig::default() }.validate().is_err());
+        assert!(TsdfConfig { truncation_noise_factor: f32::NAN, ..TsdfConfig::default() }.validate().is_err());
+        assert!(TsdfConfig { min_truncation_voxels: 0.5, ..TsdfConfig::default() }.validate().is_err());
+    }
+
+    #[test]
+    fn band_follows_the_noise_between_its_limits() {
+        let c = TsdfConfig { truncation_voxels: 10.0, ..TsdfConfig::default() };
+        let voxels = |z: f32| c.band(z) / c.voxel_size;
+        // 3 sigma: 4 voxels (the floor) near, 10 (the cap) far, the noise model between.
+        assert!((voxels(0.5) - 4.0).abs() < 1e-4 && (voxels(2.0) - 4.0).abs() < 1e-4);
+        let sigma = |z: f32| 0.0012 + 0.0019 * (z - 0.4) * (z - 0.4);
+        assert!((voxels(2.7) - 3.0 * sigma(2.7) / c.voxel_size).abs() < 1e-3, "{}", voxels(2.7));
+        assert!((voxels(3.5) - 10.0).abs() < 1e-4);
+        assert!((c.narrowest_band_voxels() - 4.0).abs() < 1e-6);
+        // Off: the fixed band everywhere, and the library default (4 voxels) is fixed too.
+        let fixed = TsdfConfig { truncation_noise_factor: 0.0, ..c };
+        assert!([0.5f32, 2.0, 3.5].iter().all(|&z| fixed.band(z) == fixed.truncation()));
+        assert_eq!(fixed.narrowest_band_voxels(), 10.0);
+        let d = TsdfConfig::default();
+        assert!([0.5f32, 2.0, 4.5].iter().all(|&z| d.band(z) == d.truncation()));
     }
 }
