@@ -46,7 +46,12 @@ struct Args {
 }
 
 fn parse_args() -> Result<Args, String> {
-    let mut a = Args { frames: 100, voxel: 0.005, seven_scenes: None, out: None, keyframe: 10,
+    let mut a = Args {
+        frames: 100,
+        voxel: 0.005,
+        seven_scenes: None,
+        out: None,
+        keyframe: 10,
         truncation: 10.0,
         band_factor: TsdfConfig::default().truncation_noise_factor,
         min_band: TsdfConfig::default().min_truncation_voxels,

@@ -313,7 +313,8 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
         for y in 0..CHUNK_SIDE {
             // The four padded rows holding the corners of this row of 8 cells; bit x of
             // `m >> 1 | m >> 2`-style shifts is cell x's pair of corners along x.
-            let rows = [(y + 1) + PAD * (z + 1), (y + 2) + PAD * (z + 1), (y + 1) + PAD * (z + 2), (y + 2) + PAD * (z + 2)];
+            let rows =
+                [(y + 1) + PAD * (z + 1), (y + 2) + PAD * (z + 1), (y + 1) + PAD * (z + 2), (y + 2) + PAD * (z + 2)];
             let (mut all_obs, mut any_neg, mut all_neg) = (0xffu16, 0u16, 0xffu16);
             for r in rows {
                 let (neg, obs) = masks[r];
@@ -466,10 +467,8 @@ impl IncrementalMesher {
         }
         let todo: Vec<(ChunkKey, u64)> =
             map.chunks.iter().zip(&marked).filter(|(_, &m)| m).map(|(c, _)| (c.key, c.revision)).collect();
-        let meshes: Vec<(ChunkKey, u64, ChunkMesh)> = todo
-            .par_iter()
-            .map_init(Scratch::new, |s, &(k, rev)| (k, rev, mesh_chunk_with(map, k, s)))
-            .collect();
+        let meshes: Vec<(ChunkKey, u64, ChunkMesh)> =
+            todo.par_iter().map_init(Scratch::new, |s, &(k, rev)| (k, rev, mesh_chunk_with(map, k, s))).collect();
         let remeshed = meshes.len();
         for (k, rev, m) in meshes {
             self.cache.insert(k, (rev, m));
