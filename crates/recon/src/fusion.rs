@@ -206,7 +206,20 @@ impl TsdfMap {
         }
         let mut targets: Vec<&mut Chunk> =
             self.chunks.iter_mut().zip(&selected).filter(|(_, &sel)| sel).map(|(c, _)| c).collect();
-        let outcomes: Vec<ChunkOutcome> = targets.par_iter_mut().map(|chunk| integrate_chunk(chunk, &view)).collect();
+        // A fixed band (clamped to exactly 1 truncation) skips the band arithmetic.
+        let fixed = view.band.min_relative >= 1.0;
+        let outcomes: Vec<ChunkOutcome> = targets
+            .par_iter_mut()
+            .map(
+                |chunk| {
+                    if fixed {
+                        integrate_chunk::<false>(chunk, &view)
+                    } else {
+                        integrate_chunk::<true>(chunk, &view)
+                    }
+                },
+            )
+            .collect();
         drop(targets);
         // `targets` and `outcomes` are in slab order, like the sorted `slots`.
         let revision = self.next_revision;
@@ -260,7 +273,10 @@ fn check_frame(frame: &Frame, world_from_camera: &Affine3A) -> Result<()> {
 /// of branches. Colours, needed only inside the truncation band, follow per voxel. The
 /// arithmetic is that of `Voxel::fuse` lane for lane (same operations, same rounding), so
 /// results do not depend on how rows are split into registers.
-fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
+///
+/// `DEPTH_BAND` false: the band is the full truncation for every depth (the band model
+/// clamps to exactly 1 then, so both forms give the same bits).
+fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
     const N: usize = CHUNK_SIDE;
     let side = N as i32;
     let origin = (chunk.key * side).as_vec3() * f.voxel_size;
@@ -304,8 +320,12 @@ fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
         let d = f32x8::new(std::array::from_fn(|l| f.depth[pix[l] as usize]));
         // Signed distance and this observation's band, in truncation units.
         let sdf = (d - pz) * inv_trunc;
-        let e = d - noise_offset;
-        let mu = (band_c + band_q * (e * e)).fast_max(band_min).fast_min(one);
+        let mu = if DEPTH_BAND {
+            let e = d - noise_offset;
+            (band_c + band_q * (e * e)).fast_max(band_min).fast_min(one)
+        } else {
+            one
+        };
         let valid = inside & d.simd_ge(min_d) & d.simd_le(max_d) & sdf.simd_ge(-mu);
         let valid_bits = valid.to_bitmask();
         let tsdf_row = &mut tsdf_rows[r];
@@ -409,7 +429,6 @@ mod tests {
 
     #[test]
     fn simd_rows_equal_the_scalar_specification_bit_for_bit() {
-        let mut rng = ChaCha8Rng::seed_from_u64(7);
         // A depth-dependent band (about 5 voxels at these depths, changing with depth).
         let config = TsdfConfig {
             max_weight: 3.0,
@@ -419,6 +438,17 @@ mod tests {
             ..TsdfConfig::default()
         };
         assert!(config.band(0.5) < config.band(0.7) && config.band(0.7) < config.truncation());
+        check_simd_against_scalar(config);
+    }
+
+    #[test]
+    fn fixed_band_kernel_equals_the_scalar_specification_bit_for_bit() {
+        let config = TsdfConfig { max_weight: 3.0, truncation_noise_factor: 0.0, ..TsdfConfig::default() };
+        check_simd_against_scalar(config);
+    }
+
+    fn check_simd_against_scalar(config: TsdfConfig) {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
         let mut map = TsdfMap::new(config).expect("valid");
         let mut spec: Vec<(IVec3, Vec<Voxel>)> = Vec::new();
         for index in 0..6 {
