@@ -29,7 +29,8 @@ pub struct ReconArgs {
     /// Re-mesh and start a semantic pass every this many fused frames (a keyframe).
     #[arg(long, default_value_t = 10)]
     pub keyframe_every: usize,
-    /// TSDF truncation in voxels (about 10 suits noisy depth sensors at 5 mm voxels).
+    /// TSDF truncation in voxels, the band far away (about 10 suits noisy depth sensors at 5 mm
+    /// voxels); nearer surfaces get a narrower band that follows the sensor noise, down to 4.
     #[arg(long, default_value_t = 10.0)]
     pub truncation: f32,
     /// Where poses come from: tracking, or the dataset's ground truth.

@@ -3,7 +3,8 @@
 //!
 //! ```text
 //! cargo run --release -p semrecon-recon --example accuracy_bench -- SOURCE [--frames N]
-//!     [--size WxH] [--voxel M] [--trunc VOXELS] [--ideal] [--skip-tracking]
+//!     [--size WxH] [--voxel M] [--trunc VOXELS] [--band-factor K] [--min-band VOXELS]
+//!     [--ideal] [--skip-tracking]
 //! ```
 //!
 //! `SOURCE` is `synth:SEED` (a generated room along its generated handheld path) or
@@ -38,6 +39,8 @@ struct Args {
     size: (u32, u32),
     voxel: f32,
     truncation: f32,
+    band_factor: f32,
+    min_band: f32,
     ideal: bool,
     skip_tracking: bool,
 }
@@ -49,6 +52,8 @@ fn parse_args() -> Result<Args, String> {
         size: (640, 480),
         voxel: 0.005,
         truncation: 10.0,
+        band_factor: TsdfConfig::default().truncation_noise_factor,
+        min_band: TsdfConfig::default().min_truncation_voxels,
         ideal: false,
         skip_tracking: false,
     };
@@ -58,6 +63,8 @@ fn parse_args() -> Result<Args, String> {
             "--frames" => a.frames = flags.value(&flag)?,
             "--voxel" => a.voxel = flags.value(&flag)?,
             "--trunc" => a.truncation = flags.value(&flag)?,
+            "--band-factor" => a.band_factor = flags.value(&flag)?,
+            "--min-band" => a.min_band = flags.value(&flag)?,
             "--ideal" => a.ideal = true,
             "--skip-tracking" => a.skip_tracking = true,
             "--size" => a.size = flags.size(&flag)?,
@@ -114,17 +121,20 @@ fn run(a: Args) -> Result<(), String> {
     let frames: Vec<_> = (0..n).map(|i| scan.frame(i).map_err(|e| e.to_string())).collect::<Result<_, _>>()?;
     let map_config = TsdfConfig {
         truncation_voxels: a.truncation,
+        truncation_noise_factor: a.band_factor,
+        min_truncation_voxels: a.min_band,
         ..TsdfConfig::with_voxel_size(a.voxel).map_err(|e| e.to_string())?
     };
     println!(
-        "{} frames of {} at {}x{}, {} sensor, voxel {} mm, truncation {} voxels",
+        "{} frames of {} at {}x{}, {} sensor, voxel {} mm, truncation {} voxels (band factor {})",
         n,
         a.source,
         a.size.0,
         a.size.1,
         if a.ideal { "ideal" } else { "Kinect-like" },
         a.voxel * 1e3,
-        a.truncation
+        a.truncation,
+        a.band_factor
     );
 
     // Mesh with ground-truth poses.

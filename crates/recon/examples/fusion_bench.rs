@@ -3,13 +3,16 @@
 //! ```text
 //! cargo run --release -p semrecon-recon --example fusion_bench -- [--frames N] [--voxel M]
 //!     [--7scenes DIR] [--out mesh.ply] [--keyframe K] [--trunc VOXELS]
+//!     [--band-factor K] [--min-band VOXELS]
 //! ```
 //!
 //! Without `--7scenes` the frames are ray-cast from an analytic scene (floor, wall, sphere).
 //! With it, `DIR` is a 7-Scenes sequence folder (`frame-NNNNNN.depth.png` in millimetres with
 //! 0 and 65535 invalid, `.color.png`/`.color.jpg`, `.pose.txt` 4x4 camera-to-world) read with
 //! the reference poses. Thread count: `RAYON_NUM_THREADS`. `--out` writes the final mesh as
-//! binary PLY (a minimal writer local to this example).
+//! binary PLY (a minimal writer local to this example). `--band-factor` is
+//! `TsdfConfig::truncation_noise_factor` (0: the fixed band of `--trunc` voxels), `--min-band`
+//! its `min_truncation_voxels`.
 
 #[path = "common/cpu_time.rs"]
 mod cpu_time;
@@ -38,16 +41,29 @@ struct Args {
     out: Option<PathBuf>,
     keyframe: usize,
     truncation: f32,
+    band_factor: f32,
+    min_band: f32,
 }
 
 fn parse_args() -> Result<Args, String> {
-    let mut a = Args { frames: 100, voxel: 0.005, seven_scenes: None, out: None, keyframe: 10, truncation: 10.0 };
+    let mut a = Args {
+        frames: 100,
+        voxel: 0.005,
+        seven_scenes: None,
+        out: None,
+        keyframe: 10,
+        truncation: 10.0,
+        band_factor: TsdfConfig::default().truncation_noise_factor,
+        min_band: TsdfConfig::default().min_truncation_voxels,
+    };
     let mut flags = Flags::from_env();
     while let Some(flag) = flags.next_flag() {
         match flag.as_str() {
             "--frames" => a.frames = flags.value(&flag)?,
             "--voxel" => a.voxel = flags.value(&flag)?,
             "--trunc" => a.truncation = flags.value(&flag)?,
+            "--band-factor" => a.band_factor = flags.value(&flag)?,
+            "--min-band" => a.min_band = flags.value(&flag)?,
             "--keyframe" => a.keyframe = flags.value(&flag)?,
             "--7scenes" => a.seven_scenes = Some(flags.value(&flag)?),
             "--out" => a.out = Some(flags.value(&flag)?),
@@ -112,7 +128,12 @@ fn main() {
         }
     };
     let config = match TsdfConfig::with_voxel_size(args.voxel)
-        .map(|c| TsdfConfig { truncation_voxels: args.truncation, ..c })
+        .map(|c| TsdfConfig {
+            truncation_voxels: args.truncation,
+            truncation_noise_factor: args.band_factor,
+            min_truncation_voxels: args.min_band,
+            ..c
+        })
         .and_then(|c| c.validate().map(|()| c))
     {
         Ok(c) => c,

@@ -3,7 +3,8 @@
 //!
 //! ```text
 //! cargo run --release -p semrecon-recon --example peer_bench -- SPEC [--frames N]
-//!     [--voxel M] [--trunc VOXELS] [--max-depth M] [--mesh-repeats R]
+//!     [--voxel M] [--trunc VOXELS] [--band-factor K] [--max-depth M]
+//!     [--mesh-repeats R]
 //! ```
 //!
 //! Stages, each timed per call (wall milliseconds; CPU milliseconds of all threads too, the
@@ -37,6 +38,7 @@ struct Args {
     frames: usize,
     voxel: f32,
     truncation: f32,
+    band_factor: f32,
     max_depth: f32,
     mesh_repeats: usize,
 }
@@ -48,6 +50,7 @@ fn parse_args() -> Result<Args, String> {
         frames: usize::MAX,
         voxel: 0.005,
         truncation: 10.0,
+        band_factor: TsdfConfig::default().truncation_noise_factor,
         max_depth: 5.0,
         mesh_repeats: 3,
     };
@@ -56,6 +59,7 @@ fn parse_args() -> Result<Args, String> {
             "--frames" => a.frames = flags.value(&arg)?,
             "--voxel" => a.voxel = flags.value(&arg)?,
             "--trunc" => a.truncation = flags.value(&arg)?,
+            "--band-factor" => a.band_factor = flags.value(&arg)?,
             "--max-depth" => a.max_depth = flags.value(&arg)?,
             "--mesh-repeats" => a.mesh_repeats = flags.value(&arg)?,
             s if !s.starts_with("--") && a.spec.is_empty() => a.spec = s.to_string(),
@@ -95,6 +99,7 @@ fn run(a: Args) -> Result<(), String> {
     let frames: Vec<Frame> = (0..n).map(|i| source.frame(i).map_err(|e| e.to_string())).collect::<Result<_, _>>()?;
     let map_config = TsdfConfig {
         truncation_voxels: a.truncation,
+        truncation_noise_factor: a.band_factor,
         max_depth: a.max_depth,
         ..TsdfConfig::with_voxel_size(a.voxel).map_err(|e| e.to_string())?
     };

@@ -1,12 +1,18 @@
 //! Projective TSDF fusion of one RGB-D frame into a [`TsdfMap`].
 //!
 //! Two steps. Chunk selection back-projects a sub-sampled set of depth pixels, walks each
-//! pixel's ray through the truncation band `depth ± truncation` and collects the chunks it
+//! pixel's ray through the truncation band `depth ± band(depth)` and collects the chunks it
 //! crosses; only those chunks are visited, so the cost follows the observed surface, not the
 //! camera frustum. Integration then updates every voxel of the selected chunks: the voxel
 //! centre is projected into the depth image (nearest pixel), its signed distance is the depth
-//! minus the voxel's depth along the optical axis, truncated to ±truncation, and folded into
+//! minus the voxel's depth along the optical axis, truncated to ±band(depth), and folded into
 //! the voxel's running weighted mean with a depth-dependent weight.
+//!
+//! The band follows the sensor noise ([`crate::TsdfConfig::band`]): narrow for near surfaces,
+//! the full truncation distance far away. Distances are stored in units of the full
+//! truncation whatever the band, so observations with different bands average correctly;
+//! a narrow band means fewer chunks selected and fewer voxels updated, which is where fusion
+//! and meshing spend their time.
 //!
 //! Chunks are updated in parallel with rayon, one task per chunk; every voxel's update
 //! depends only on its own state and the frame, so results are bit-identical for any thread
@@ -24,8 +30,8 @@ use wide::{f32x8, i16x8, i32x8, u16x8};
 
 use crate::error::{ReconError, Result};
 use crate::map::{
-    blend_color, key_order, Chunk, ChunkHashBuilder, ChunkKey, SignSummary, TsdfMap, CHUNK_SIDE, TSDF_SCALE,
-    WEIGHT_SCALE,
+    blend_color, key_order, BandModel, Chunk, ChunkHashBuilder, ChunkKey, SignSummary, TsdfMap, CHUNK_SIDE,
+    NOISE_OFFSET, TSDF_SCALE, WEIGHT_SCALE,
 };
 
 /// Weight of one depth observation: `1 / z²` (z in metres) capped at 4.
@@ -64,7 +70,9 @@ struct FrameView<'a> {
     rot: [Vec3A; 3],
     trans: Vec3A,
     voxel_size: f32,
+    /// The widest band, the unit of the stored distances (metres).
     truncation: f32,
+    band: BandModel,
     min_depth: f32,
     max_depth: f32,
     weight_cap: u16,
@@ -87,9 +95,10 @@ impl TsdfMap {
         let (w, h) = (k.width as usize, k.height as usize);
         let stride = c.selection_stride;
         let trunc = c.truncation();
+        let band = c.band_model();
         // Samples along the band no further apart than two voxels, so that the walk cannot
         // step over a chunk (8 voxels) except at a corner clipped by less than a voxel.
-        let steps = ((2.0 * trunc) / (2.0 * c.voxel_size)).ceil().max(1.0) as usize;
+        let max_steps = (trunc / c.voxel_size).ceil().max(1.0) as usize;
         // Work in chunk units shifted so that chunk k spans [k, k + 1): voxel centres sit
         // at multiples of the voxel size, so a chunk spans voxels [8k - 0.5, 8k + 7.5).
         // `OFFSET` keeps coordinates positive so that truncation is floor (one instruction,
@@ -101,7 +110,10 @@ impl TsdfMap {
         let origin =
             (world_from_camera.translation + Vec3A::splat(0.5 * c.voxel_size)) * inv_chunk + Vec3A::splat(OFFSET);
         let offset = ChunkKey::splat(OFFSET as i32);
-        let z_step = 2.0 * trunc / steps as f32;
+        let inv_voxel = 1.0 / c.voxel_size;
+        // `1 / steps` by table: a division and a `ceil` (a library call without SSE4.1) per
+        // pixel cost as much as the band itself.
+        let inv_steps: Vec<f32> = (0..=max_steps).map(|n| 1.0 / n.max(1) as f32).collect();
         let rows: Vec<usize> = (0..h).step_by(stride).collect();
         let (min_d, max_d) = (c.min_depth, c.max_depth);
         let depth = &frame.depth;
@@ -109,7 +121,7 @@ impl TsdfMap {
             .par_chunks(16)
             .map(|rows| {
                 let mut set: HashSet<ChunkKey, ChunkHashBuilder> = HashSet::default();
-                let mut last = vec![ChunkKey::MAX; steps + 1];
+                let mut last = vec![ChunkKey::MAX; max_steps + 1];
                 for &v in rows {
                     // Ray (camera z = 1) in chunk units: x part per pixel, y part per row.
                     let row_ray = rot.y_axis * ((v as f32 - k.cy) / k.fy) + rot.z_axis;
@@ -118,10 +130,15 @@ impl TsdfMap {
                         if !(d >= min_d && d <= max_d) {
                             continue;
                         }
+                        // This pixel's band, the one integration applies to its voxels.
+                        let mu = band.relative(d) * trunc;
+                        let x = mu * inv_voxel;
+                        let whole = x as usize;
+                        let steps = (whole + ((whole as f32) < x) as usize).clamp(1, max_steps);
                         let ray = rot.x_axis * ((u as f32 - k.cx) / k.fx) + row_ray;
-                        let p_near = origin + ray * (d - trunc);
-                        let step = ray * z_step;
-                        for (s, last) in last.iter_mut().enumerate() {
+                        let p_near = origin + ray * (d - mu);
+                        let step = ray * (2.0 * mu * inv_steps[steps]);
+                        for (s, last) in last[..=steps].iter_mut().enumerate() {
                             let p = p_near + step * s as f32;
                             if p.cmplt(Vec3A::ZERO).any() || p.cmpge(Vec3A::splat(2.0 * OFFSET)).any() {
                                 continue;
@@ -177,6 +194,7 @@ impl TsdfMap {
             trans: camera_from_world.translation,
             voxel_size: c.voxel_size,
             truncation: c.truncation(),
+            band: c.band_model(),
             min_depth: c.min_depth,
             max_depth: c.max_depth,
             weight_cap: (c.max_weight * WEIGHT_SCALE).round().clamp(1.0, u16::MAX as f32) as u16,
@@ -188,7 +206,20 @@ impl TsdfMap {
         }
         let mut targets: Vec<&mut Chunk> =
             self.chunks.iter_mut().zip(&selected).filter(|(_, &sel)| sel).map(|(c, _)| c).collect();
-        let outcomes: Vec<ChunkOutcome> = targets.par_iter_mut().map(|chunk| integrate_chunk(chunk, &view)).collect();
+        // A fixed band (clamped to exactly 1 truncation) skips the band arithmetic.
+        let fixed = view.band.min_relative >= 1.0;
+        let outcomes: Vec<ChunkOutcome> = targets
+            .par_iter_mut()
+            .map(
+                |chunk| {
+                    if fixed {
+                        integrate_chunk::<false>(chunk, &view)
+                    } else {
+                        integrate_chunk::<true>(chunk, &view)
+                    }
+                },
+            )
+            .collect();
         drop(targets);
         // `targets` and `outcomes` are in slab order, like the sorted `slots`.
         let revision = self.next_revision;
@@ -242,7 +273,10 @@ fn check_frame(frame: &Frame, world_from_camera: &Affine3A) -> Result<()> {
 /// of branches. Colours, needed only inside the truncation band, follow per voxel. The
 /// arithmetic is that of `Voxel::fuse` lane for lane (same operations, same rounding), so
 /// results do not depend on how rows are split into registers.
-fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
+///
+/// `DEPTH_BAND` false: the band is the full truncation for every depth (the band model
+/// clamps to exactly 1 then, so both forms give the same bits).
+fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
     const N: usize = CHUNK_SIDE;
     let side = N as i32;
     let origin = (chunk.key * side).as_vec3() * f.voxel_size;
@@ -257,8 +291,9 @@ fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
     let (wf, hf) = (splat(f.k.width as f32 - 0.5), splat(f.k.height as f32 - 0.5));
     let width = splat(f.k.width as f32);
     let (min_d, max_d) = (splat(f.min_depth), splat(f.max_depth));
-    let (trunc, neg_trunc) = (splat(f.truncation), splat(-f.truncation));
     let inv_trunc = splat(1.0 / f.truncation);
+    let (band_c, band_q, band_min) = (splat(f.band.constant), splat(f.band.quadratic), splat(f.band.min_relative));
+    let noise_offset = splat(NOISE_OFFSET);
     let (zero, half, one) = (f32x8::ZERO, f32x8::HALF, f32x8::ONE);
     let cap = splat(f.weight_cap as f32);
     let has_color = !f.color.is_empty();
@@ -283,15 +318,22 @@ fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
         let pix = inside.select(pix_f, zero).fast_trunc_int().to_array();
         // `from_fn`, not `map`: `map` stays an out-of-line call here, a fifth of the kernel.
         let d = f32x8::new(std::array::from_fn(|l| f.depth[pix[l] as usize]));
-        let sdf = d - pz;
-        let valid = inside & d.simd_ge(min_d) & d.simd_le(max_d) & sdf.simd_ge(neg_trunc);
+        // Signed distance and this observation's band, in truncation units.
+        let sdf = (d - pz) * inv_trunc;
+        let mu = if DEPTH_BAND {
+            let e = d - noise_offset;
+            (band_c + band_q * (e * e)).fast_max(band_min).fast_min(one)
+        } else {
+            one
+        };
+        let valid = inside & d.simd_ge(min_d) & d.simd_le(max_d) & sdf.simd_ge(-mu);
         let valid_bits = valid.to_bitmask();
         let tsdf_row = &mut tsdf_rows[r];
         let weight_row = &mut weight_rows[r];
         let t_old = i32x8::from_i16x8(i16x8::new(*tsdf_row)).round_float();
         let w_old_q = i32x8::from_u16x8(u16x8::new(*weight_row)).round_float();
         let (t_now, w_now) = if valid_bits != 0 {
-            let obs = (sdf * inv_trunc).fast_min(one);
+            let obs = sdf.fast_min(mu);
             let w_obs = valid.select((one / (d * d)).fast_min(splat(4.0)), zero);
             let w_old = w_old_q * splat(1.0 / WEIGHT_SCALE);
             let w_sum = w_old + w_obs;
@@ -306,7 +348,7 @@ fn integrate_chunk(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
             *tsdf_row = i16x8::from_i32x8_truncate(t_new.fast_trunc_int()).to_array();
             *weight_row = i16x8::from_i32x8_truncate(w_new.fast_trunc_int()).to_array().map(|w| w as u16);
             updated += valid_bits.count_ones();
-            let near_bits = (valid & sdf.simd_lt(trunc)).to_bitmask();
+            let near_bits = (valid & sdf.simd_lt(mu)).to_bitmask();
             if near_bits != 0 {
                 near_any = true;
                 if has_color {
@@ -375,19 +417,38 @@ mod tests {
             }
             let pix = ((v + 0.5) as i32 as f32 * f.k.width as f32 + (u + 0.5) as i32 as f32) as usize;
             let d = f.depth[pix];
-            let sdf = d - pz;
-            if !(d >= f.min_depth && d <= f.max_depth && sdf >= -f.truncation) {
+            let sdf = (d - pz) * (1.0 / f.truncation);
+            let mu = f.band.relative(d);
+            if !(d >= f.min_depth && d <= f.max_depth && sdf >= -mu) {
                 continue;
             }
-            let color = (sdf < f.truncation).then_some(f.color[pix]);
-            vox.fuse((sdf * (1.0 / f.truncation)).min(1.0), depth_weight(d), color, f.weight_cap);
+            let color = (sdf < mu).then_some(f.color[pix]);
+            vox.fuse(sdf.min(mu), depth_weight(d), color, f.weight_cap);
         }
     }
 
     #[test]
     fn simd_rows_equal_the_scalar_specification_bit_for_bit() {
+        // A depth-dependent band (about 5 voxels at these depths, changing with depth).
+        let config = TsdfConfig {
+            max_weight: 3.0,
+            truncation_voxels: 8.0,
+            min_truncation_voxels: 2.0,
+            truncation_noise_factor: 20.0,
+            ..TsdfConfig::default()
+        };
+        assert!(config.band(0.5) < config.band(0.7) && config.band(0.7) < config.truncation());
+        check_simd_against_scalar(config);
+    }
+
+    #[test]
+    fn fixed_band_kernel_equals_the_scalar_specification_bit_for_bit() {
+        let config = TsdfConfig { max_weight: 3.0, truncation_noise_factor: 0.0, ..TsdfConfig::default() };
+        check_simd_against_scalar(config);
+    }
+
+    fn check_simd_against_scalar(config: TsdfConfig) {
         let mut rng = ChaCha8Rng::seed_from_u64(7);
-        let config = TsdfConfig { max_weight: 3.0, ..TsdfConfig::default() };
         let mut map = TsdfMap::new(config).expect("valid");
         let mut spec: Vec<(IVec3, Vec<Voxel>)> = Vec::new();
         for index in 0..6 {
@@ -411,6 +472,7 @@ mod tests {
                 trans: camera_from_world.translation,
                 voxel_size: config.voxel_size,
                 truncation: config.truncation(),
+                band: config.band_model(),
                 min_depth: config.min_depth,
                 max_depth: config.max_depth,
                 weight_cap: (config.max_weight * WEIGHT_SCALE) as u16,

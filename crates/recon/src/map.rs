@@ -38,8 +38,21 @@ pub(crate) const TSDF_SCALE: f32 = i16::MAX as f32;
 pub struct TsdfConfig {
     /// Voxel edge length in metres (2 mm to 5 cm).
     pub voxel_size: f32,
-    /// Truncation distance in voxels (at least 1; about 4 is usual).
+    /// Truncation distance in voxels (at least 1; about 4 is usual): the widest band, and the
+    /// unit of the stored distances. With a depth-dependent band (below) it is the band far
+    /// away, where the sensor noise is largest.
     pub truncation_voxels: f32,
+    /// Depth-dependent band: at measured depth `z` the band is
+    /// `clamp(truncation_noise_factor * sigma(z) / voxel_size, min_truncation_voxels,
+    /// truncation_voxels)` voxels, with `sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2` m the axial noise of a Kinect
+    /// (Nguyen, Izadi and Lovell 2012). Near surfaces then get a narrow band, which fusion and
+    /// meshing pay for per voxel, and far, noisy ones the full width, which averaging needs
+    /// (a band narrower than the noise clips it one-sidedly and biases the surface). 0 turns
+    /// this off: a fixed band of `truncation_voxels` everywhere (0 to 100).
+    pub truncation_noise_factor: f32,
+    /// Narrowest band in voxels (at least 1); at or above `truncation_voxels` the band is
+    /// fixed. Tracking errors of a few millimetres also need a margin, hence 4 voxels.
+    pub min_truncation_voxels: f32,
     /// Weight cap of a voxel (at most 255): the map keeps adapting once a voxel reaches it.
     pub max_weight: f32,
     /// Depths below this many metres are ignored.
@@ -55,6 +68,8 @@ impl Default for TsdfConfig {
         Self {
             voxel_size: 0.005,
             truncation_voxels: 4.0,
+            truncation_noise_factor: 3.0,
+            min_truncation_voxels: 4.0,
             max_weight: 64.0,
             min_depth: 0.1,
             max_depth: 5.0,
@@ -80,6 +95,12 @@ impl TsdfConfig {
         if !(1.0..=64.0).contains(&self.truncation_voxels) {
             return bad(format!("truncation {} voxels is outside 1..64", self.truncation_voxels));
         }
+        if !(0.0..=100.0).contains(&self.truncation_noise_factor) {
+            return bad(format!("truncation noise factor {} is outside 0..100", self.truncation_noise_factor));
+        }
+        if !(1.0..=64.0).contains(&self.min_truncation_voxels) {
+            return bad(format!("narrowest truncation {} voxels is outside 1..64", self.min_truncation_voxels));
+        }
         if !(1.0 / WEIGHT_SCALE..=255.0).contains(&self.max_weight) {
             return bad(format!("weight cap {} is outside 1/256..255", self.max_weight));
         }
@@ -92,14 +113,60 @@ impl TsdfConfig {
         Ok(())
     }
 
-    /// Truncation distance in metres.
+    /// Truncation distance in metres: the widest band, and the unit of [`Voxel::tsdf`].
     pub fn truncation(&self) -> f32 {
         self.voxel_size * self.truncation_voxels
+    }
+
+    /// Half-width of the truncation band for a measured depth of `depth` metres, in metres
+    /// (see [`TsdfConfig::truncation_noise_factor`]).
+    pub fn band(&self, depth: f32) -> f32 {
+        self.band_model().relative(depth) * self.truncation()
+    }
+
+    /// Narrowest band in voxels: the band's width where the sensor is most precise.
+    pub fn narrowest_band_voxels(&self) -> f32 {
+        self.band_model().min_relative * self.truncation_voxels
+    }
+
+    pub(crate) fn band_model(&self) -> BandModel {
+        let k = self.truncation_noise_factor / self.truncation();
+        let min_relative = if self.truncation_noise_factor > 0.0 {
+            (self.min_truncation_voxels / self.truncation_voxels).min(1.0)
+        } else {
+            1.0
+        };
+        BandModel { constant: k * NOISE_CONSTANT, quadratic: k * NOISE_QUADRATIC, min_relative }
     }
 
     /// Chunk edge length in metres.
     pub fn chunk_size(&self) -> f32 {
         self.voxel_size * CHUNK_SIDE as f32
+    }
+}
+
+/// Kinect axial noise `sigma(z) = NOISE_CONSTANT + NOISE_QUADRATIC (z - NOISE_OFFSET)^2`
+/// metres (Nguyen, Izadi and Lovell 2012, for 10-60 degree surfaces).
+const NOISE_CONSTANT: f32 = 0.0012;
+const NOISE_QUADRATIC: f32 = 0.0019;
+pub(crate) const NOISE_OFFSET: f32 = 0.4;
+
+/// The band of [`TsdfConfig::band`] in units of the truncation distance:
+/// `clamp(constant + quadratic (z - 0.4)^2, min_relative, 1)`. Fusion evaluates this exact
+/// expression in SIMD lanes, so selection, integration and tests agree bit for bit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct BandModel {
+    pub(crate) constant: f32,
+    pub(crate) quadratic: f32,
+    pub(crate) min_relative: f32,
+}
+
+impl BandModel {
+    /// Band half-width at measured depth `depth`, in truncation units (in `min_relative..=1`).
+    #[inline]
+    pub(crate) fn relative(&self, depth: f32) -> f32 {
+        let e = depth - NOISE_OFFSET;
+        (self.constant + self.quadratic * (e * e)).max(self.min_relative).min(1.0)
     }
 }
 
@@ -662,5 +729,26 @@ mod tests {
         assert!(TsdfConfig::with_voxel_size(0.02).is_ok());
         let c = TsdfConfig { max_depth: f32::NAN, ..TsdfConfig::default() };
         assert!(c.validate().is_err());
+        assert!(TsdfConfig { truncation_noise_factor: -1.0, ..TsdfConfig::default() }.validate().is_err());
+        assert!(TsdfConfig { truncation_noise_factor: f32::NAN, ..TsdfConfig::default() }.validate().is_err());
+        assert!(TsdfConfig { min_truncation_voxels: 0.5, ..TsdfConfig::default() }.validate().is_err());
+    }
+
+    #[test]
+    fn band_follows_the_noise_between_its_limits() {
+        let c = TsdfConfig { truncation_voxels: 10.0, ..TsdfConfig::default() };
+        let voxels = |z: f32| c.band(z) / c.voxel_size;
+        // 3 sigma: 4 voxels (the floor) near, 10 (the cap) far, the noise model between.
+        assert!((voxels(0.5) - 4.0).abs() < 1e-4 && (voxels(2.0) - 4.0).abs() < 1e-4);
+        let sigma = |z: f32| 0.0012 + 0.0019 * (z - 0.4) * (z - 0.4);
+        assert!((voxels(2.7) - 3.0 * sigma(2.7) / c.voxel_size).abs() < 1e-3, "{}", voxels(2.7));
+        assert!((voxels(3.5) - 10.0).abs() < 1e-4);
+        assert!((c.narrowest_band_voxels() - 4.0).abs() < 1e-6);
+        // Off: the fixed band everywhere, and the library default (4 voxels) is fixed too.
+        let fixed = TsdfConfig { truncation_noise_factor: 0.0, ..c };
+        assert!([0.5f32, 2.0, 3.5].iter().all(|&z| fixed.band(z) == fixed.truncation()));
+        assert_eq!(fixed.narrowest_band_voxels(), 10.0);
+        let d = TsdfConfig::default();
+        assert!([0.5f32, 2.0, 4.5].iter().all(|&z| d.band(z) == d.truncation()));
     }
 }

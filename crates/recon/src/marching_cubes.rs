@@ -3,8 +3,8 @@
 //! Cells join 2x2x2 voxel centres. A chunk owns the 8x8x8 cells whose lowest corner is one
 //! of its voxels, so the cells between two chunks are computed once, by the lower chunk,
 //! reading the upper neighbours' boundary voxels. Cells with an unobserved corner (weight 0)
-//! are skipped, and so are cells where a crossed edge jumps by more than one truncation
-//! distance (the seam between observed free space and the back of a surface, not a
+//! are skipped, and so are cells where a crossed edge jumps by more than the narrowest
+//! truncation band (the seam between observed free space and the back of a surface, not a
 //! surface), so no phantom surfaces appear. Vertex colours are interpolated from the voxel
 //! colours; normals are the interpolated central-difference gradient of the TSDF, pointing
 //! to the positive (free-space, camera) side; triangles wind counter-clockwise seen from it.
@@ -24,10 +24,11 @@ use semrecon_data::LabeledMesh;
 use crate::cube_cases::{case_table, EDGES};
 use crate::map::{key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE, TSDF_SCALE};
 
-/// Largest TSDF difference (in truncation units) across a cell edge that still counts as a
-/// surface crossing; a real surface changes the TSDF by about one voxel per voxel, i.e. by
-/// `1 / truncation_voxels` per edge.
-const MAX_EDGE_JUMP: f32 = 1.0;
+/// Largest TSDF difference across a cell edge that still counts as a surface crossing, in
+/// units of the narrowest truncation band: a real surface changes the TSDF by about one
+/// voxel per voxel, the seam between free space and the back of a surface by two bands or
+/// more (with the band depending on depth, the narrowest band bounds that seam from below).
+const MAX_EDGE_JUMP_BANDS: f32 = 1.0;
 
 /// Side of the padded block: the chunk plus one voxel on every side.
 const PAD: usize = CHUNK_SIDE + 3;
@@ -52,6 +53,16 @@ pub struct ChunkMesh {
     /// Vertices on cell edges that neighbouring chunks also use, with the edge's global key
     /// (ascending vertex order); the assembly welds them.
     shared: Vec<(u32, EdgeKey)>,
+}
+
+impl ChunkMesh {
+    fn clear(&mut self) {
+        self.positions.clear();
+        self.colors.clear();
+        self.normals.clear();
+        self.triangles.clear();
+        self.shared.clear();
+    }
 }
 
 /// A padded copy of one chunk and the one-voxel shell around it.
@@ -128,47 +139,68 @@ impl PaddedBlock {
     }
 
     /// Copies the voxels of padded coordinates `-1 ..= 9` (local) from the neighbours
-    /// (unallocated neighbours read as unobserved).
-    fn gather(&mut self, nb: &[Option<&Chunk>; 27]) {
+    /// (unallocated neighbours read as unobserved), and returns per padded row (`py + 11 pz`)
+    /// the bit masks (bit `px`) of negative and of observed voxels.
+    ///
+    /// Distances and weights are copied first, row piece by row piece (fixed lengths the
+    /// compiler turns into a few moves), then flags and masks come from one pass over the
+    /// copy: per-element branching on the neighbour cost more than the marching.
+    fn gather(&mut self, nb: &[Option<&Chunk>; 27], weight: &mut [u16; PAD * PAD2], masks: &mut [(u16, u16); PAD2]) {
+        const N: usize = CHUNK_SIDE;
         let b = self;
         // Padded coordinate p holds local voxel p - 1 (-1 ..= 9): in chunk offset -1, 0 or 1.
         let split = |p: usize| -> (usize, usize) {
             let l = p as i32 - 1;
-            let o = l.div_euclid(CHUNK_SIDE as i32);
-            ((o + 1) as usize, (l - o * CHUNK_SIDE as i32) as usize)
+            let o = l.div_euclid(N as i32);
+            ((o + 1) as usize, (l - o * N as i32) as usize)
         };
         for pz in 0..PAD {
             let (oz, iz) = split(pz);
             for py in 0..PAD {
                 let (oy, iy) = split(py);
-                let mut px = 0;
-                while px < PAD {
-                    let (ox, ix) = split(px);
-                    // Run of padded x that falls in the same neighbour chunk.
-                    let run = match ox {
-                        0 => 1,
-                        1 => CHUNK_SIDE,
-                        _ => PAD - px,
-                    };
-                    let dst = px + PAD * py + PAD2 * pz;
-                    if let Some(c) = nb[ox + 3 * oy + 9 * oz] {
-                        let src = ix + CHUNK_SIDE * (iy + CHUNK_SIDE * iz);
-                        let v = &c.voxels;
-                        // Element loops, not `copy_from_slice`: runs are 1, 2 or 8 long and a
-                        // `memmove` call per run costs more than the copy.
-                        for r in 0..run {
-                            let t = v.tsdf[src + r];
-                            b.tsdf[dst + r] = t;
-                            b.flags[dst + r] = (t < 0) as u8 | ((v.weight[src + r] != 0) as u8) << 1;
-                        }
-                    } else {
-                        for r in 0..run {
-                            b.flags[dst + r] = 0;
-                        }
+                let dst = PAD * py + PAD2 * pz;
+                let src = N * (iy + N * iz);
+                let nb_row = 3 * oy + 9 * oz;
+                // Padded x 0: local x 7 of the lower neighbour.
+                match nb[nb_row] {
+                    Some(c) => {
+                        b.tsdf[dst] = c.voxels.tsdf[src + N - 1];
+                        weight[dst] = c.voxels.weight[src + N - 1];
                     }
-                    px += run;
+                    None => weight[dst] = 0,
+                }
+                // Padded x 1..=8: the whole row of the middle chunk.
+                let (t_row, w_row) = (&mut b.tsdf[dst + 1..dst + 1 + N], &mut weight[dst + 1..dst + 1 + N]);
+                match nb[nb_row + 1] {
+                    Some(c) => {
+                        t_row.copy_from_slice(&c.voxels.tsdf[src..src + N]);
+                        w_row.copy_from_slice(&c.voxels.weight[src..src + N]);
+                    }
+                    None => w_row.fill(0),
+                }
+                // Padded x 9, 10: local x 0, 1 of the upper neighbour.
+                let (t_row, w_row) = (&mut b.tsdf[dst + 1 + N..dst + PAD], &mut weight[dst + 1 + N..dst + PAD]);
+                match nb[nb_row + 2] {
+                    Some(c) => {
+                        t_row.copy_from_slice(&c.voxels.tsdf[src..src + 2]);
+                        w_row.copy_from_slice(&c.voxels.weight[src..src + 2]);
+                    }
+                    None => w_row.fill(0),
                 }
             }
+        }
+        for ((f, &t), &w) in b.flags.iter_mut().zip(&b.tsdf).zip(weight.iter()) {
+            let observed = (w != 0) as u8;
+            *f = ((t < 0) as u8 & observed) | observed << 1;
+        }
+        for (r, m) in masks.iter_mut().enumerate() {
+            let row = &b.flags[r * PAD..(r + 1) * PAD];
+            let (mut neg, mut obs) = (0u16, 0u16);
+            for (x, &f) in row.iter().enumerate() {
+                neg |= ((f & NEGATIVE) as u16) << x;
+                obs |= (((f & OBSERVED) >> 1) as u16) << x;
+            }
+            *m = (neg, obs);
         }
     }
 
@@ -203,6 +235,12 @@ impl PaddedBlock {
 /// cost as much as the marching itself).
 struct Scratch {
     block: Box<PaddedBlock>,
+    /// Padded weights (only their being non-zero matters) and per padded row the masks of
+    /// negative and observed voxels, from [`PaddedBlock::gather`].
+    weight: Box<[u16; PAD * PAD2]>,
+    masks: Box<[(u16, u16); PAD2]>,
+    /// The mesh being built (copied out at its exact size when the chunk is done).
+    mesh: ChunkMesh,
     /// Local cell-edge index -> vertex, `u32::MAX` when none; reset through `used`.
     edge_vertex: Vec<u32>,
     used: Vec<u32>,
@@ -219,6 +257,9 @@ impl Scratch {
     fn new() -> Self {
         Self {
             block: PaddedBlock::new(),
+            weight: Box::new([0; PAD * PAD2]),
+            masks: Box::new([(0, 0); PAD2]),
+            mesh: ChunkMesh::default(),
             edge_vertex: vec![u32::MAX; ES * ES * ES * 3],
             used: Vec::new(),
             cells: Vec::new(),
@@ -235,13 +276,13 @@ pub fn mesh_chunk(map: &TsdfMap, key: ChunkKey) -> ChunkMesh {
 }
 
 fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> ChunkMesh {
-    let mut mesh = ChunkMesh::default();
     let nb = neighbours(map, key);
     if !PaddedBlock::may_have_surface(&nb) {
-        return mesh;
+        return ChunkMesh::default();
     }
-    scratch.block.gather(&nb);
+    scratch.block.gather(&nb, &mut scratch.weight, &mut scratch.masks);
     let block = &*scratch.block;
+    let masks = &*scratch.masks;
     let edge_vertex = &mut scratch.edge_vertex;
     let used = &mut scratch.used;
     scratch.stamp = scratch.stamp.wrapping_add(1);
@@ -260,6 +301,7 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
     };
     let table = case_table();
     let vs = map.config().voxel_size;
+    let max_jump = MAX_EDGE_JUMP_BANDS * map.config().narrowest_band_voxels() / map.config().truncation_voxels;
     let key_voxel = key * CHUNK_SIDE as i32;
     let corner_offset: [usize; 8] = std::array::from_fn(|c| (c & 1) + PAD * ((c >> 1) & 1) + PAD2 * ((c >> 2) & 1));
     // Pass 1: the cells the surface crosses, and how many triangles they make, so that the
@@ -269,31 +311,40 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
     let mut triangle_count = 0;
     for z in 0..CHUNK_SIDE {
         for y in 0..CHUNK_SIDE {
-            for x in 0..CHUNK_SIDE {
+            // The four padded rows holding the corners of this row of 8 cells; bit x of
+            // `m >> 1 | m >> 2`-style shifts is cell x's pair of corners along x.
+            let rows =
+                [(y + 1) + PAD * (z + 1), (y + 2) + PAD * (z + 1), (y + 1) + PAD * (z + 2), (y + 2) + PAD * (z + 2)];
+            let (mut all_obs, mut any_neg, mut all_neg) = (0xffu16, 0u16, 0xffu16);
+            for r in rows {
+                let (neg, obs) = masks[r];
+                all_obs &= (obs >> 1) & (obs >> 2);
+                any_neg |= (neg >> 1) | (neg >> 2);
+                all_neg &= (neg >> 1) & (neg >> 2);
+            }
+            let mut crossed = all_obs & any_neg & !all_neg;
+            while crossed != 0 {
+                let x = crossed.trailing_zeros() as usize;
+                crossed &= crossed - 1;
                 let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
                 let mut case = 0u8;
-                let mut all_observed = OBSERVED;
                 for (c, off) in corner_offset.iter().enumerate() {
-                    let fl = block.flags[base + off];
-                    all_observed &= fl;
-                    case |= (fl & NEGATIVE) << c;
+                    case |= (block.flags[base + off] & NEGATIVE) << c;
                 }
-                if case != 0 && case != 255 && all_observed != 0 {
-                    cells.push(((x + CHUNK_SIDE * (y + CHUNK_SIDE * z)) as u16, case));
-                    triangle_count += table.triangles(case).len();
-                }
+                cells.push(((x + CHUNK_SIDE * (y + CHUNK_SIDE * z)) as u16, case));
+                triangle_count += table.triangles(case).len();
             }
         }
     }
     if cells.is_empty() {
-        return mesh;
+        return ChunkMesh::default();
     }
-    mesh.triangles.reserve_exact(triangle_count);
-    // A closed surface has about half as many vertices as triangles.
-    let vertex_guess = triangle_count / 2 + 16;
-    mesh.positions.reserve(vertex_guess);
-    mesh.colors.reserve(vertex_guess);
-    mesh.normals.reserve(vertex_guess);
+    // Built in the worker's buffers and copied out at their exact size: growing five vectors
+    // per chunk (and freeing the cached mesh it replaces) cost a sixth of meshing in the
+    // allocator, and exact sizes keep the cache compact.
+    let mut mesh = std::mem::take(&mut scratch.mesh);
+    mesh.clear();
+    mesh.triangles.reserve(triangle_count);
     // Pass 2: the triangles.
     for &(cell, case) in cells.iter() {
         let cell = cell as usize;
@@ -304,7 +355,7 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
                 let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + corner_offset[c]));
                 let jump = EDGES.iter().any(|&(a, b)| {
                     let (fa, fb) = (f[a as usize], f[b as usize]);
-                    (fa < 0.0) != (fb < 0.0) && (fa - fb).abs() > MAX_EDGE_JUMP
+                    (fa < 0.0) != (fb < 0.0) && (fa - fb).abs() > max_jump
                 });
                 if jump {
                     continue;
@@ -357,7 +408,10 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
         edge_vertex[ek as usize] = u32::MAX;
     }
     used.clear();
-    mesh
+    // `clone` allocates each vector at its length.
+    let out = mesh.clone();
+    scratch.mesh = mesh;
+    out
 }
 
 /// What one incremental update did.
@@ -397,28 +451,24 @@ impl IncrementalMesher {
             self.cache.remove(k);
         }
         changed.extend_from_slice(&freed);
-        let mut todo: Vec<ChunkKey> = Vec::with_capacity(changed.len() * 4);
+        // Mark the changed chunks' allocated neighbours by slab position: a mask instead of
+        // collecting 27 keys per changed chunk and sorting them (most are shared).
+        let mut marked = vec![false; map.chunks.len()];
         for &k in &changed {
             for dz in -1..=1 {
                 for dy in -1..=1 {
                     for dx in -1..=1 {
-                        let n = k + IVec3::new(dx, dy, dz);
-                        if map.chunk(n).is_some() {
-                            todo.push(n);
+                        if let Some(&slot) = map.index.get(&(k + IVec3::new(dx, dy, dz))) {
+                            marked[slot as usize] = true;
                         }
                     }
                 }
             }
         }
-        todo.sort_unstable_by_key(|k| key_order(*k));
-        todo.dedup();
-        let meshes: Vec<(ChunkKey, u64, ChunkMesh)> = todo
-            .par_iter()
-            .map_init(Scratch::new, |s, &k| {
-                let rev = map.chunk(k).map_or(0, |c| c.revision());
-                (k, rev, mesh_chunk_with(map, k, s))
-            })
-            .collect();
+        let todo: Vec<(ChunkKey, u64)> =
+            map.chunks.iter().zip(&marked).filter(|(_, &m)| m).map(|(c, _)| (c.key, c.revision)).collect();
+        let meshes: Vec<(ChunkKey, u64, ChunkMesh)> =
+            todo.par_iter().map_init(Scratch::new, |s, &(k, rev)| (k, rev, mesh_chunk_with(map, k, s))).collect();
         let remeshed = meshes.len();
         for (k, rev, m) in meshes {
             self.cache.insert(k, (rev, m));

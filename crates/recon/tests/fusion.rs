@@ -66,10 +66,12 @@ impl DenseTsdf {
                         continue;
                     }
                     let sdf = d - p.z;
-                    if sdf < -trunc {
+                    // The band of this observation (the full truncation unless depth-dependent).
+                    let mu = c.band(d);
+                    if sdf < -mu {
                         continue;
                     }
-                    if sdf < trunc {
+                    if sdf < mu {
                         band.push(v);
                     }
                     if !fuse_here(v) {
@@ -77,7 +79,7 @@ impl DenseTsdf {
                     }
                     let i = self.index(v).expect("inside");
                     let w = depth_weight(d);
-                    let t = (sdf / trunc).min(1.0);
+                    let t = (sdf / trunc).min(mu / trunc);
                     self.tsdf[i] = (self.tsdf[i] * self.weight[i] + t * w) / (self.weight[i] + w);
                     self.weight[i] = (self.weight[i] + w).min(c.max_weight);
                 }
@@ -112,8 +114,29 @@ fn fuse_both(config: TsdfConfig, frames: usize) -> (TsdfMap, DenseTsdf, usize, u
 
 #[test]
 fn hashed_fusion_matches_a_dense_reference() {
+    let fixed = TsdfConfig { voxel_size: 0.02, ..TsdfConfig::default() };
+    check_against_dense_reference(fixed);
+}
+
+/// A band from 1 voxel near to 8 far: selection must still cover every voxel of each
+/// pixel's band, and integration must clip each observation to its own band.
+#[test]
+fn depth_dependent_band_matches_a_dense_reference() {
+    let config = TsdfConfig {
+        voxel_size: 0.02,
+        truncation_voxels: 8.0,
+        min_truncation_voxels: 1.0,
+        truncation_noise_factor: 6.0,
+        ..TsdfConfig::default()
+    };
+    let (near, far) = (config.band(1.0) / config.voxel_size, config.band(4.0) / config.voxel_size);
+    assert!(near == 1.0 && far > 7.0 && far <= 8.0, "band {near} .. {far} voxels");
+    check_against_dense_reference(config);
+}
+
+fn check_against_dense_reference(base: TsdfConfig) {
     for stride in [1, 2] {
-        let config = TsdfConfig { voxel_size: 0.02, selection_stride: stride, ..TsdfConfig::default() };
+        let config = TsdfConfig { selection_stride: stride, ..base };
         let (map, dense, band, missing) = fuse_both(config, 3);
         assert!(map.chunk_count() > 50, "{} chunks", map.chunk_count());
         // Every allocated voxel agrees with the reference.

@@ -245,7 +245,10 @@ fn reused_model_and_subsampled_fine_level_track_like_the_full_pass() {
     // The fast paths (a model ray-cast every other frame; every other pixel at the finest
     // level) against the plain pass (a model per frame, every pixel).
     let frames = scan(3, 24, false);
-    let map_config = TsdfConfig { truncation_voxels: 10.0, ..TsdfConfig::default() };
+    // A fixed band: over 24 frames the ATE moves by a few millimetres with any change of the
+    // model (band 4..10 voxels: plain 4.4, reused 7.7, strided 8.3 mm; fixed 10: 6.0, 2.2,
+    // 14.6 mm), so this compares the tracker's paths on the map they were tuned with.
+    let map_config = TsdfConfig { truncation_voxels: 10.0, truncation_noise_factor: 0.0, ..TsdfConfig::default() };
     let plain = TrackerConfig { fine_stride: 1, model_interval: 1, ..config() };
     let reused = TrackerConfig { fine_stride: 1, model_interval: 2, ..config() };
     let strided = TrackerConfig { fine_stride: 2, model_interval: 1, ..config() };
