@@ -51,10 +51,9 @@ impl NetGeometry {
         let mut levels: Vec<Level> = Vec::with_capacity(l);
         let mut current = coords;
         for i in 0..l {
-            let map = KernelMap::submanifold(&current, 3)?;
-            let nbr = if i >= 1 && i + 2 <= l { neighbour_table(&map) } else { Vec::new() };
-            let subm = ChunkedConv::new(map, &current, &current, chunk)?;
-            let point = ChunkedConv::new(KernelMap::submanifold(&current, 1)?, &current, &current, chunk)?;
+            let subm = ChunkedConv::submanifold(&current, 3, chunk)?;
+            let nbr = if i >= 1 && i + 2 <= l { neighbour_table(subm.map()) } else { Vec::new() };
+            let point = ChunkedConv::pointwise(current.len())?;
             let (next, parent, down) = if i + 1 < l {
                 let (coarse, dmap) = KernelMap::downsample(&current)?;
                 let mut parent = vec![0u32; current.len()];

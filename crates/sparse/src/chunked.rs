@@ -139,10 +139,28 @@ struct Marks {
     generation: u32,
 }
 
+thread_local! {
+    /// Planning scratch of this thread, grown to the largest source set seen: a fresh pair of
+    /// `n_src` arrays per rayon job costs more (zeroing, page faults) than planning itself.
+    static MARKS: std::cell::RefCell<Marks> = const {
+        std::cell::RefCell::new(Marks { mark: Vec::new(), local: Vec::new(), generation: 0 })
+    };
+}
+
+/// Runs `f` with this thread's [`Marks`], sized for `n_src` rows.
+fn with_marks<R>(n_src: usize, f: impl FnOnce(&mut Marks) -> R) -> R {
+    MARKS.with(|m| {
+        let mut m = m.borrow_mut();
+        if m.mark.len() < n_src {
+            // New entries are 0, a generation never handed out after a wrap-around reset.
+            m.mark.resize(n_src, 0);
+            m.local.resize(n_src, 0);
+        }
+        f(&mut m)
+    })
+}
+
 impl Marks {
-    fn new(n_src: usize) -> Self {
-        Self { mark: vec![0; n_src], local: vec![0; n_src], generation: 0 }
-    }
 
     fn next(&mut self) -> u32 {
         self.generation = self.generation.wrapping_add(1);
@@ -169,42 +187,53 @@ impl Marks {
     }
 
     /// The region (identity-centre rows first, then first appearance) and local pairs.
+    ///
+    /// Two passes over the chunk's table rows (row-major, contiguous): the first builds the
+    /// region and counts pairs per offset, the second writes every pair straight to its slot,
+    /// so pairs of an offset come out in destination order with no per-offset rescans.
     fn chunk_parts(&mut self, dsts: &[(u64, u32)], nbr: &[u32], kv: usize, centre: Option<usize>) -> ChunkParts {
         let g = self.next();
-        let mut src = Vec::new();
+        let mut src = Vec::with_capacity(dsts.len() * 2);
         let (mark, local) = (&mut self.mark, &mut self.local);
-        let mut add = |s: u32, src: &mut Vec<u32>| {
-            if mark[s as usize] != g {
-                mark[s as usize] = g;
-                local[s as usize] = src.len() as u32;
-                src.push(s);
-            }
-        };
         if let Some(c) = centre {
             for &(_, d) in dsts {
-                add(nbr[d as usize * kv + c], &mut src);
+                let s = nbr[d as usize * kv + c];
+                if mark[s as usize] != g {
+                    mark[s as usize] = g;
+                    local[s as usize] = src.len() as u32;
+                    src.push(s);
+                }
             }
         }
+        let mut counts = vec![0u32; kv];
         for &(_, d) in dsts {
-            for &s in &nbr[d as usize * kv..(d as usize + 1) * kv] {
+            for (count, &s) in counts.iter_mut().zip(&nbr[d as usize * kv..(d as usize + 1) * kv]) {
                 if s != NONE {
-                    add(s, &mut src);
+                    *count += 1;
+                    if mark[s as usize] != g {
+                        mark[s as usize] = g;
+                        local[s as usize] = src.len() as u32;
+                        src.push(s);
+                    }
                 }
             }
         }
-        let mut pair_src = Vec::new();
-        let mut pair_dst = Vec::new();
-        let mut counts = Vec::with_capacity(kv);
-        for k in 0..kv {
-            let before = pair_src.len();
-            for (j, &(_, d)) in dsts.iter().enumerate() {
-                let s = nbr[d as usize * kv + k];
+        let mut next: Vec<usize> = Vec::with_capacity(kv);
+        let mut total = 0;
+        for &count in &counts {
+            next.push(total);
+            total += count as usize;
+        }
+        let mut pair_src = vec![0u32; total];
+        let mut pair_dst = vec![0u32; total];
+        for (j, &(_, d)) in dsts.iter().enumerate() {
+            for (slot, &s) in next.iter_mut().zip(&nbr[d as usize * kv..(d as usize + 1) * kv]) {
                 if s != NONE {
-                    pair_src.push(local[s as usize]);
-                    pair_dst.push(j as u32);
+                    pair_src[*slot] = local[s as usize];
+                    pair_dst[*slot] = j as u32;
+                    *slot += 1;
                 }
             }
-            counts.push((pair_src.len() - before) as u32);
         }
         ChunkParts { src, pair_src, pair_dst, counts, rows: dsts.len() }
     }
@@ -228,23 +257,41 @@ impl ChunkPlan {
             return Err(SparseError::InvalidArgument(format!("bad chunk configuration {config:?}")));
         }
         let kv = map.kernel_volume();
-        let n_dst = map.n_out();
-        let n_src = map.n_in();
-        let centre = map.centre();
         // Neighbour table: the source row of every (destination, offset), or NONE.
-        let mut nbr = vec![NONE; n_dst * kv];
+        let mut nbr = vec![NONE; map.n_out() * kv];
         for k in 0..kv {
             let (ins, outs) = map.pairs(k);
             for (&i, &o) in ins.iter().zip(outs) {
                 nbr[o as usize * kv + k] = i;
             }
         }
+        Self::from_table(&nbr, kv, map.centre(), map.n_in(), dst_coords, config)
+    }
+
+    /// [`Self::new`] from the `[n_dst, kv]` neighbour table of the map (source row of every
+    /// destination and offset, or `u32::MAX`) instead of its pair lists.
+    pub(crate) fn from_table(
+        nbr: &[u32],
+        kv: usize,
+        centre: Option<usize>,
+        n_src: usize,
+        dst_coords: &[Coord],
+        config: &ChunkConfig,
+    ) -> Result<Self> {
+        let side = config.chunk_side;
+        if !side.is_power_of_two() || side > 1 << 20 || config.levels == 0 || config.max_region_rows == 0 {
+            return Err(SparseError::InvalidArgument(format!("bad chunk configuration {config:?}")));
+        }
+        let n_dst = dst_coords.len();
+        let num_pairs = nbr.iter().filter(|&&s| s != NONE).count();
         for (row, &c) in dst_coords.iter().enumerate() {
             pack_key(c, row)?;
         }
         let mut keyed: Vec<(u64, u32)> =
             dst_coords.par_iter().enumerate().map(|(r, &c)| (morton_unchecked(c), r as u32)).collect();
-        keyed.par_sort_unstable();
+        if !keyed.windows(2).all(|w| w[0] <= w[1]) {
+            keyed.par_sort_unstable();
+        }
 
         // Adaptive splitting over runs of equal Morton prefix, top-level cubes in parallel.
         let top_shift = 3 * side.trailing_zeros();
@@ -252,14 +299,13 @@ impl ChunkPlan {
         runs(&keyed, 0, n_dst, top_shift, 0, &mut top);
         let nested: Vec<Vec<(usize, usize)>> = top
             .par_iter()
-            .map_init(
-                || Marks::new(n_src),
-                |marks, &(lo, hi, _)| {
+            .map(|&(lo, hi, _)| {
+                with_marks(n_src, |marks| {
                     let mut out = Vec::new();
                     let mut stack = vec![(lo, hi, 0u32)];
                     while let Some((lo, hi, level)) = stack.pop() {
                         let last = level + 1 >= config.levels || top_shift < 3 * (level + 1);
-                        if last || marks.region_size(&keyed[lo..hi], &nbr, kv) <= config.max_region_rows {
+                        if last || marks.region_size(&keyed[lo..hi], nbr, kv) <= config.max_region_rows {
                             out.push((lo, hi));
                         } else {
                             let mut sub = Vec::new();
@@ -268,15 +314,15 @@ impl ChunkPlan {
                         }
                     }
                     out
-                },
-            )
+                })
+            })
             .collect();
         let chunks: Vec<(usize, usize)> = nested.concat();
 
         // Regions and chunk-local pairs, chunks in parallel, then concatenated in order.
         let parts: Vec<ChunkParts> = chunks
             .par_iter()
-            .map_init(|| Marks::new(n_src), |marks, &(lo, hi)| marks.chunk_parts(&keyed[lo..hi], &nbr, kv, centre))
+            .map(|&(lo, hi)| with_marks(n_src, |marks| marks.chunk_parts(&keyed[lo..hi], nbr, kv, centre)))
             .collect();
         let total_src: usize = parts.iter().map(|p| p.src.len()).sum();
         let mut plan = Self {
@@ -289,8 +335,8 @@ impl ChunkPlan {
             src_start: Vec::with_capacity(chunks.len() + 1),
             src_rows: Vec::with_capacity(total_src),
             pair_start: Vec::with_capacity(chunks.len() * kv + 1),
-            pair_src: Vec::with_capacity(map.num_pairs()),
-            pair_dst: Vec::with_capacity(map.num_pairs()),
+            pair_src: Vec::with_capacity(num_pairs),
+            pair_dst: Vec::with_capacity(num_pairs),
             iota: Vec::new(),
         };
         let too_many = |n: usize| u32::try_from(n).map_err(|_| SparseError::TooManyRows(n));
@@ -314,6 +360,27 @@ impl ChunkPlan {
         }
         plan.iota = (0..max_rows as u32).collect();
         Ok(plan)
+    }
+
+    /// The plan of the identity map of `n` rows: chunks of [`IDENTITY_ROWS`] consecutive rows.
+    pub(crate) fn identity(n: usize) -> Self {
+        let chunks = n.div_ceil(IDENTITY_ROWS);
+        let bounds: Vec<u32> = (0..=chunks).map(|c| (c * IDENTITY_ROWS).min(n) as u32).collect();
+        let pair_local: Vec<u32> = (0..n).map(|r| (r % IDENTITY_ROWS) as u32).collect();
+        Self {
+            kernel_volume: 1,
+            centre: Some(0),
+            n_src: n,
+            n_dst: n,
+            dst_start: bounds.clone(),
+            dst_rows: (0..n as u32).collect(),
+            src_start: bounds.clone(),
+            src_rows: (0..n as u32).collect(),
+            pair_start: bounds,
+            pair_src: pair_local.clone(),
+            pair_dst: pair_local,
+            iota: (0..IDENTITY_ROWS.min(n) as u32).collect(),
+        }
     }
 
     /// The plan's plain index arrays (layout in the type's documentation), for backends that
@@ -503,6 +570,9 @@ impl ChunkPlan {
     }
 }
 
+/// Rows per chunk of an identity (pointwise) plan: 64 KiB of 64-channel rows.
+const IDENTITY_ROWS: usize = 256;
+
 /// Fixed number of partial weight-gradient sums (independent of the thread count).
 const WEIGHT_GROUPS: usize = 16;
 
@@ -538,6 +608,30 @@ impl ChunkedConv {
             _ => Some(ChunkPlan::new(&map.transposed(), in_coords, config)?),
         };
         Ok(Self::from_parts(map, forward, backward))
+    }
+
+    /// The submanifold layer of `coords` with an odd `kernel_size` (3 in the network): its
+    /// kernel map and chunk plan from one neighbour table, the same map and plan as
+    /// `ChunkedConv::new(KernelMap::submanifold(coords, kernel_size)?, coords, coords, config)`
+    /// with half the work.
+    ///
+    /// # Errors
+    /// As [`KernelMap::submanifold`] and [`ChunkPlan::new`].
+    pub fn submanifold(coords: &[Coord], kernel_size: usize, config: &ChunkConfig) -> Result<Self> {
+        let (map, table) = KernelMap::submanifold_with_table(coords, kernel_size)?;
+        let forward = ChunkPlan::from_table(&table, map.kernel_volume(), map.centre(), map.n_in(), coords, config)?;
+        Ok(Self::from_parts(map, forward, None))
+    }
+
+    /// The pointwise (1x1x1) layer of `n` rows: a linear map applied to every row (the
+    /// identity kernel map, chunks of consecutive rows). Needs no coordinates, so it costs
+    /// nothing to build; the caller vouches that the rows are distinct voxels.
+    ///
+    /// # Errors
+    /// [`SparseError::TooManyRows`] beyond the `u32` row range.
+    pub fn pointwise(n: usize) -> Result<Self> {
+        let (map, forward) = (KernelMap::identity(n)?, ChunkPlan::identity(n));
+        Ok(Self::from_parts(map, forward, None))
     }
 
     fn from_parts(map: KernelMap, forward: ChunkPlan, backward: Option<ChunkPlan>) -> Self {
