@@ -21,7 +21,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let t = std::time::Instant::now();
     match mode.as_str() {
         "geometry" => {
-            for _ in 0..5 {
+            for _ in 0..15 {
                 let t = std::time::Instant::now();
                 let g = NetGeometry::build(sample.coords.clone(), &config, &Default::default())?;
                 println!("levels {}: {:.1} ms", g.levels(), t.elapsed().as_secs_f64() * 1e3);

@@ -442,6 +442,9 @@ impl Segmenter {
         }
         let t0 = Instant::now();
         let geo = NetGeometry::build(coords, &self.config, &self.chunk)?;
+        if self.kernel == ConvKernel::Rulebook {
+            geo.build_maps();
+        }
         let t1 = Instant::now();
         let mut logits = vec![0f32; geo.levels[0].coords.len() * k];
         self.run_layers(&geo, feats, &mut logits)?;

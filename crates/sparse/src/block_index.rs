@@ -141,19 +141,27 @@ impl VoxelIndex {
                         a
                     })
                     .collect();
+                // Per cell of a block and offset: which of the 27 blocks around holds the
+                // neighbour, and its cell there.
+                let lut: Vec<(u8, u8)> = (0..64i32)
+                    .flat_map(|cl| {
+                        let l = [cl & 3, (cl >> 2) & 3, cl >> 4];
+                        offsets.iter().map(move |o| {
+                            let t = [l[0] + o[0], l[1] + o[1], l[2] + o[2]];
+                            let q = ((t[2] >> 2) + 1) * 9 + ((t[1] >> 2) + 1) * 3 + (t[0] >> 2) + 1;
+                            (q as u8, ((t[0] & 3) | ((t[1] & 3) << 2) | ((t[2] & 3) << 4)) as u8)
+                        })
+                    })
+                    .collect();
                 table.par_chunks_mut(kv * 1024).enumerate().for_each(|(chunk, out)| {
                     for (j, row) in out.chunks_exact_mut(kv).enumerate() {
                         let u = chunk * 1024 + j;
-                        let c = coords[u];
                         let a = &around[b.row_block[u] as usize];
-                        let l = [c[0] & 3, c[1] & 3, c[2] & 3];
-                        for (slot, o) in row.iter_mut().zip(&offsets) {
-                            let t = [l[0] + o[0], l[1] + o[1], l[2] + o[2]];
-                            let q = (((t[2] >> 2) + 1) * 9 + ((t[1] >> 2) + 1) * 3 + (t[0] >> 2) + 1) as usize;
-                            let blk = a[q];
+                        let cl = cell(coords[u]);
+                        for (slot, &(q, cn)) in row.iter_mut().zip(&lut[cl * kv..(cl + 1) * kv]) {
+                            let blk = a[q as usize];
                             if blk != EMPTY {
-                                let cl = ((t[0] & 3) | ((t[1] & 3) << 2) | ((t[2] & 3) << 4)) as usize;
-                                *slot = b.cells[blk as usize * 64 + cl];
+                                *slot = b.cells[blk as usize * 64 + cn as usize];
                             }
                         }
                     }

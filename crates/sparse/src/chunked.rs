@@ -26,7 +26,7 @@
 //! as [`crate::voxelize()`] and [`crate::SparseTensor::sorted_morton`] make them) the chunk
 //! is computed in place in the output; otherwise through a chunk buffer and one copy.
 
-use std::sync::Mutex;
+use std::sync::{Mutex, OnceLock};
 
 use rayon::prelude::*;
 
@@ -403,6 +403,28 @@ impl ChunkPlan {
         self.centre
     }
 
+    /// Pairs over all chunks and offsets (those of the kernel map).
+    pub fn num_pairs(&self) -> usize {
+        self.pair_src.len()
+    }
+
+    /// The `[n_dst, K]` neighbour table of the planned map (source row of every destination
+    /// and offset, or `u32::MAX`), rebuilt from the chunk-local pairs.
+    pub(crate) fn table(&self) -> Vec<u32> {
+        let kv = self.kernel_volume;
+        let mut table = vec![NONE; self.n_dst * kv];
+        for c in 0..self.num_chunks() {
+            let (srcs, dsts) = (self.chunk_src(c), self.chunk_dst(c));
+            for k in 0..kv {
+                let (ps, pd) = self.chunk_pairs(c, k);
+                for (&s, &d) in ps.iter().zip(pd) {
+                    table[dsts[d as usize] as usize * kv + k] = srcs[s as usize];
+                }
+            }
+        }
+        table
+    }
+
     /// Number of chunks.
     pub fn num_chunks(&self) -> usize {
         self.dst_start.len() - 1
@@ -578,9 +600,16 @@ const WEIGHT_GROUPS: usize = 16;
 
 /// A convolution layer geometry ready for the chunked kernels: the kernel map and its chunk
 /// plans. Build it once per level (or per strided transition) and call it for every layer.
+///
+/// The chunked kernels only read the plans. A layer made by [`Self::submanifold`] therefore
+/// builds its kernel map (the pair lists, which the rulebook kernels and exports read) on the
+/// first call of [`Self::map`], from the plan, and a pure chunked forward never pays for it.
 #[derive(Debug)]
 pub struct ChunkedConv {
-    map: KernelMap,
+    map: OnceLock<KernelMap>,
+    kind: MapKind,
+    n_in: usize,
+    n_out: usize,
     forward: ChunkPlan,
     backward: Option<ChunkPlan>,
     /// Scratch of the weight gradient's partial sums, kept between calls.
@@ -589,7 +618,15 @@ pub struct ChunkedConv {
 
 impl Clone for ChunkedConv {
     fn clone(&self) -> Self {
-        Self::from_parts(self.map.clone(), self.forward.clone(), self.backward.clone())
+        Self {
+            map: self.map.clone(),
+            kind: self.kind,
+            n_in: self.n_in,
+            n_out: self.n_out,
+            forward: self.forward.clone(),
+            backward: self.backward.clone(),
+            workspace: Mutex::new(Vec::new()),
+        }
     }
 }
 
@@ -618,9 +655,34 @@ impl ChunkedConv {
     /// # Errors
     /// As [`KernelMap::submanifold`] and [`ChunkPlan::new`].
     pub fn submanifold(coords: &[Coord], kernel_size: usize, config: &ChunkConfig) -> Result<Self> {
-        let (map, table) = KernelMap::submanifold_with_table(coords, kernel_size)?;
-        let forward = ChunkPlan::from_table(&table, map.kernel_volume(), map.centre(), map.n_in(), coords, config)?;
-        Ok(Self::from_parts(map, forward, None))
+        Ok(Self::submanifold_with_table(coords, kernel_size, config)?.0)
+    }
+
+    /// [`Self::submanifold`] and the layer's `[n, K^3]` neighbour table: entry `(u, k)` is the
+    /// row of `coords[u] + offset(k)` (offset numbering of [`crate::kernel_map`]) or
+    /// `u32::MAX`.
+    ///
+    /// # Errors
+    /// As [`Self::submanifold`].
+    pub fn submanifold_with_table(
+        coords: &[Coord],
+        kernel_size: usize,
+        config: &ChunkConfig,
+    ) -> Result<(Self, Vec<u32>)> {
+        let table = KernelMap::submanifold_table(coords, kernel_size)?;
+        let kv = kernel_size.pow(3);
+        let n = coords.len();
+        let forward = ChunkPlan::from_table(&table, kv, Some(kv / 2), n, coords, config)?;
+        let layer = Self {
+            map: OnceLock::new(),
+            kind: MapKind::Submanifold { kernel_size },
+            n_in: n,
+            n_out: n,
+            forward,
+            backward: None,
+            workspace: Mutex::new(Vec::new()),
+        };
+        Ok((layer, table))
     }
 
     /// The pointwise (1x1x1) layer of `n` rows: a linear map applied to every row (the
@@ -635,7 +697,15 @@ impl ChunkedConv {
     }
 
     fn from_parts(map: KernelMap, forward: ChunkPlan, backward: Option<ChunkPlan>) -> Self {
-        Self { map, forward, backward, workspace: Mutex::new(Vec::new()) }
+        Self {
+            kind: map.kind(),
+            n_in: map.n_in(),
+            n_out: map.n_out(),
+            map: OnceLock::from(map),
+            forward,
+            backward,
+            workspace: Mutex::new(Vec::new()),
+        }
     }
 
     /// The transposed layer of a strided one: the `Up` convolution from this `Down` layer's
@@ -643,12 +713,28 @@ impl ChunkedConv {
     /// planning. `None` for submanifold layers, whose transpose is themselves.
     pub fn transposed(&self) -> Option<Self> {
         let backward = self.backward.clone()?;
-        Some(Self::from_parts(self.map.transposed(), backward, Some(self.forward.clone())))
+        Some(Self::from_parts(self.map().transposed(), backward, Some(self.forward.clone())))
     }
 
-    /// The kernel map.
+    /// The kernel map (built from the plan on the first call for layers made by
+    /// [`Self::submanifold`]).
     pub fn map(&self) -> &KernelMap {
-        &self.map
+        self.map.get_or_init(|| KernelMap::from_table(self.kind, self.n_in, &self.forward.table(), self.forward.kernel_volume))
+    }
+
+    /// Number of (input, output) pairs over all offsets.
+    pub fn num_pairs(&self) -> usize {
+        self.forward.num_pairs()
+    }
+
+    /// Rows of the input set.
+    pub fn n_in(&self) -> usize {
+        self.n_in
+    }
+
+    /// Rows of the output set.
+    pub fn n_out(&self) -> usize {
+        self.n_out
     }
 
     /// The plan over the outputs (forward pass and weight gradient).
@@ -670,7 +756,7 @@ impl ChunkedConv {
     /// # Errors
     /// [`SparseError::FeatureShape`] / [`SparseError::WeightShape`] on mismatched buffers.
     pub fn forward(&self, x: &[f32], c_in: usize, w: &[f32], c_out: usize) -> Result<Vec<f32>> {
-        let mut y = vec![0f32; self.map.n_out() * c_out];
+        let mut y = vec![0f32; self.n_out * c_out];
         self.forward_into(x, c_in, w, c_out, &mut y)?;
         Ok(y)
     }
@@ -684,9 +770,9 @@ impl ChunkedConv {
     /// # Errors
     /// As [`Self::forward`], and for a `y` of the wrong size.
     pub fn forward_into(&self, x: &[f32], c_in: usize, w: &[f32], c_out: usize, y: &mut [f32]) -> Result<()> {
-        check_rows("x", x, self.map.n_in(), c_in)?;
-        check_weights(w, self.map.kernel_volume(), c_in, c_out)?;
-        check_rows("y", y, self.map.n_out(), c_out)?;
+        check_rows("x", x, self.n_in, c_in)?;
+        check_weights(w, self.forward.kernel_volume, c_in, c_out)?;
+        check_rows("y", y, self.n_out, c_out)?;
         self.forward.apply(x, c_in, w, c_out, y);
         Ok(())
     }
@@ -699,7 +785,7 @@ impl ChunkedConv {
     /// # Errors
     /// As [`Self::forward`].
     pub fn backward_input(&self, dy: &[f32], c_out: usize, w: &[f32], c_in: usize) -> Result<Vec<f32>> {
-        let mut dx = vec![0f32; self.map.n_in() * c_in];
+        let mut dx = vec![0f32; self.n_in * c_in];
         self.backward_input_into(dy, c_out, w, c_in, &mut dx)?;
         Ok(dx)
     }
@@ -712,10 +798,10 @@ impl ChunkedConv {
     /// # Errors
     /// As [`Self::forward`], and for a `dx` of the wrong size.
     pub fn backward_input_into(&self, dy: &[f32], c_out: usize, w: &[f32], c_in: usize, dx: &mut [f32]) -> Result<()> {
-        check_rows("dy", dy, self.map.n_out(), c_out)?;
-        let kv = self.map.kernel_volume();
+        check_rows("dy", dy, self.n_out, c_out)?;
+        let kv = self.forward.kernel_volume;
         check_weights(w, kv, c_in, c_out)?;
-        check_rows("dx", dx, self.map.n_in(), c_in)?;
+        check_rows("dx", dx, self.n_in, c_in)?;
         match &self.backward {
             Some(plan) => {
                 let wt = transpose_weights(w, kv, c_in, c_out, |k| k);
@@ -737,7 +823,7 @@ impl ChunkedConv {
     /// # Errors
     /// As [`Self::forward`].
     pub fn backward_weight(&self, x: &[f32], c_in: usize, dy: &[f32], c_out: usize) -> Result<Vec<f32>> {
-        let mut dw = vec![0f32; self.map.kernel_volume() * c_in * c_out];
+        let mut dw = vec![0f32; self.forward.kernel_volume * c_in * c_out];
         self.backward_weight_into(x, c_in, dy, c_out, &mut dw)?;
         Ok(dw)
     }
@@ -750,9 +836,9 @@ impl ChunkedConv {
     /// # Errors
     /// As [`Self::forward`], and for a `dw` of the wrong size.
     pub fn backward_weight_into(&self, x: &[f32], c_in: usize, dy: &[f32], c_out: usize, dw: &mut [f32]) -> Result<()> {
-        check_rows("x", x, self.map.n_in(), c_in)?;
-        check_rows("dy", dy, self.map.n_out(), c_out)?;
-        check_weights(dw, self.map.kernel_volume(), c_in, c_out)?;
+        check_rows("x", x, self.n_in, c_in)?;
+        check_rows("dy", dy, self.n_out, c_out)?;
+        check_weights(dw, self.forward.kernel_volume, c_in, c_out)?;
         // A concurrent call on the same layer gets a scratch buffer of its own.
         match self.workspace.try_lock() {
             Ok(mut scratch) => self.forward.weight_grad(x, c_in, dy, c_out, dw, &mut scratch),

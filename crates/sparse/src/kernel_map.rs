@@ -110,19 +110,23 @@ impl KernelMap {
     /// array reads once the blocks around its block are known), then transposed into the
     /// per-offset pair lists in row blocks, so the pairs come out sorted by output row.
     pub(crate) fn submanifold_with_table(coords: &[Coord], kernel_size: usize) -> Result<(Self, Vec<u32>)> {
+        let table = Self::submanifold_table(coords, kernel_size)?;
+        let map = Self::from_table(MapKind::Submanifold { kernel_size }, coords.len(), &table, kernel_size.pow(3));
+        Ok((map, table))
+    }
+
+    /// The `[n, K^3]` neighbour table of [`Self::submanifold_with_table`] alone.
+    pub(crate) fn submanifold_table(coords: &[Coord], kernel_size: usize) -> Result<Vec<u32>> {
         if kernel_size.is_multiple_of(2) || kernel_size > 9 {
             return Err(SparseError::KernelSize(kernel_size));
         }
         check_row_count(coords.len())?;
         let index = VoxelIndex::build(coords)?;
-        let n = coords.len();
-        let table = if kernel_size == 1 { (0..n as u32).collect() } else { index.neighbour_table(coords, kernel_size) };
-        let map = Self::from_table(MapKind::Submanifold { kernel_size }, n, &table, kernel_size.pow(3));
-        Ok((map, table))
+        Ok(if kernel_size == 1 { (0..coords.len() as u32).collect() } else { index.neighbour_table(coords, kernel_size) })
     }
 
     /// The map whose pairs are the non-empty entries of an `[n_out, kv]` table.
-    fn from_table(kind: MapKind, n_in: usize, table: &[u32], kv: usize) -> Self {
+    pub(crate) fn from_table(kind: MapKind, n_in: usize, table: &[u32], kv: usize) -> Self {
         const ROWS: usize = 4096;
         let n_out = if kv == 0 { 0 } else { table.len() / kv };
         // Per block of rows, its pairs per offset; blocks then concatenated per offset.
