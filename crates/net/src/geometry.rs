@@ -51,8 +51,8 @@ impl NetGeometry {
         let mut levels: Vec<Level> = Vec::with_capacity(l);
         let mut current = coords;
         for i in 0..l {
-            let (subm, table) = ChunkedConv::submanifold_with_table(&current, 3, chunk)?;
-            let nbr = if i >= 1 && i + 2 <= l { table } else { Vec::new() };
+            let subm = ChunkedConv::submanifold(&current, 3, chunk)?;
+            let nbr = if i >= 1 && i + 2 <= l { subm.neighbour_table() } else { Vec::new() };
             let point = ChunkedConv::pointwise(current.len())?;
             let (next, parent, down) = if i + 1 < l {
                 let (coarse, dmap) = KernelMap::downsample(&current)?;

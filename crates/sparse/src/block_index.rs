@@ -119,16 +119,53 @@ impl VoxelIndex {
     /// `coords[u] + offset(k)` or `u32::MAX`, with the submanifold offset numbering of
     /// [`crate::kernel_map`] (`k = ((dz + r) K + dy + r) K + dx + r`). Odd `K <= 9`.
     pub(crate) fn neighbour_table(&self, coords: &[Coord], kernel_size: usize) -> Vec<u32> {
+        let finder = NeighbourFinder::new(self, coords, kernel_size);
+        let kv = finder.kernel_volume();
+        let mut table = vec![EMPTY; coords.len() * kv];
+        table.par_chunks_mut(kv * 1024).enumerate().for_each(|(chunk, out)| {
+            for (j, row) in out.chunks_exact_mut(kv).enumerate() {
+                finder.fill(chunk * 1024 + j, row);
+            }
+        });
+        table
+    }
+}
+
+/// The neighbours of any indexed row on demand, one table row at a time, so that a planner
+/// can walk them chunk by chunk without materialising the whole `[n, K^3]` table.
+pub(crate) struct NeighbourFinder<'a> {
+    index: &'a VoxelIndex,
+    coords: &'a [Coord],
+    offsets: Vec<[i32; 3]>,
+    /// Blocks index only: per cell of a block and offset, which of the 27 blocks around holds
+    /// the neighbour (`(dz + 1) 9 + (dy + 1) 3 + dx + 1`) and its cell there.
+    lut: Vec<(u8, u8)>,
+    /// Blocks index only: the 27 blocks around every block (`u32::MAX` where absent).
+    around: Vec<[u32; 27]>,
+}
+
+impl<'a> NeighbourFinder<'a> {
+    /// A finder over `index`, built from `coords`, for an odd `kernel_size <= 9` (so that every
+    /// neighbour lies in the 3 x 3 x 3 blocks around a voxel's block).
+    pub(crate) fn new(index: &'a VoxelIndex, coords: &'a [Coord], kernel_size: usize) -> Self {
         let ks = kernel_size as i32;
         let r = ks / 2;
         let kv = kernel_size.pow(3);
         let offsets: Vec<[i32; 3]> =
             (0..kv as i32).map(|k| [k % ks - r, (k / ks) % ks - r, k / (ks * ks) - r]).collect();
-        let mut table = vec![EMPTY; coords.len() * kv];
-        match self {
-            Self::Blocks(b) => {
-                // The 3x3x3 blocks around every block (r <= 4 keeps every neighbour inside).
-                let around: Vec<[u32; 27]> = b
+        let (lut, around) = match index {
+            VoxelIndex::Blocks(b) => {
+                let lut = (0..64i32)
+                    .flat_map(|cl| {
+                        let l = [cl & 3, (cl >> 2) & 3, cl >> 4];
+                        offsets.iter().map(move |o| {
+                            let t = [l[0] + o[0], l[1] + o[1], l[2] + o[2]];
+                            let q = ((t[2] >> 2) + 1) * 9 + ((t[1] >> 2) + 1) * 3 + (t[0] >> 2) + 1;
+                            (q as u8, ((t[0] & 3) | ((t[1] & 3) << 2) | ((t[2] & 3) << 4)) as u8)
+                        })
+                    })
+                    .collect();
+                let around = b
                     .block_coords
                     .par_iter()
                     .map(|bc| {
@@ -141,44 +178,38 @@ impl VoxelIndex {
                         a
                     })
                     .collect();
-                // Per cell of a block and offset: which of the 27 blocks around holds the
-                // neighbour, and its cell there.
-                let lut: Vec<(u8, u8)> = (0..64i32)
-                    .flat_map(|cl| {
-                        let l = [cl & 3, (cl >> 2) & 3, cl >> 4];
-                        offsets.iter().map(move |o| {
-                            let t = [l[0] + o[0], l[1] + o[1], l[2] + o[2]];
-                            let q = ((t[2] >> 2) + 1) * 9 + ((t[1] >> 2) + 1) * 3 + (t[0] >> 2) + 1;
-                            (q as u8, ((t[0] & 3) | ((t[1] & 3) << 2) | ((t[2] & 3) << 4)) as u8)
-                        })
-                    })
-                    .collect();
-                table.par_chunks_mut(kv * 1024).enumerate().for_each(|(chunk, out)| {
-                    for (j, row) in out.chunks_exact_mut(kv).enumerate() {
-                        let u = chunk * 1024 + j;
-                        let a = &around[b.row_block[u] as usize];
-                        let cl = cell(coords[u]);
-                        for (slot, &(q, cn)) in row.iter_mut().zip(&lut[cl * kv..(cl + 1) * kv]) {
-                            let blk = a[q as usize];
-                            if blk != EMPTY {
-                                *slot = b.cells[blk as usize * 64 + cn as usize];
-                            }
-                        }
-                    }
-                });
+                (lut, around)
             }
-            Self::Flat(_) => {
-                table.par_chunks_mut(kv * 1024).enumerate().for_each(|(chunk, out)| {
-                    for (j, row) in out.chunks_exact_mut(kv).enumerate() {
-                        let c = coords[chunk * 1024 + j];
-                        for (slot, o) in row.iter_mut().zip(&offsets) {
-                            *slot = self.get([c[0] + o[0], c[1] + o[1], c[2] + o[2], c[3]]).unwrap_or(EMPTY);
-                        }
-                    }
-                });
+            VoxelIndex::Flat(_) => (Vec::new(), Vec::new()),
+        };
+        Self { index, coords, offsets, lut, around }
+    }
+
+    /// Offsets per row (`K^3`).
+    pub(crate) fn kernel_volume(&self) -> usize {
+        self.offsets.len()
+    }
+
+    /// Row `u` of the neighbour table into `out` (`K^3` entries, all written).
+    #[inline]
+    pub(crate) fn fill(&self, u: usize, out: &mut [u32]) {
+        let kv = self.offsets.len();
+        let c = self.coords[u];
+        match self.index {
+            VoxelIndex::Blocks(b) => {
+                let a = &self.around[b.row_block[u] as usize];
+                let cl = cell(c);
+                for (slot, &(q, cn)) in out.iter_mut().zip(&self.lut[cl * kv..(cl + 1) * kv]) {
+                    let blk = a[q as usize];
+                    *slot = if blk == EMPTY { EMPTY } else { b.cells[blk as usize * 64 + cn as usize] };
+                }
+            }
+            VoxelIndex::Flat(_) => {
+                for (slot, o) in out.iter_mut().zip(&self.offsets) {
+                    *slot = self.index.get([c[0] + o[0], c[1] + o[1], c[2] + o[2], c[3]]).unwrap_or(EMPTY);
+                }
             }
         }
-        table
     }
 }
 

@@ -32,6 +32,7 @@ use rayon::prelude::*;
 
 use crate::error::{Result, SparseError};
 use crate::gemm::{gemm_rows, gemm_tn_rows};
+use crate::block_index::NeighbourFinder;
 use crate::kernel_map::{check_weights, transpose_weights, KernelMap, MapKind};
 use crate::key::{pack_key, Coord};
 use crate::morton::morton_unchecked;
@@ -171,33 +172,33 @@ impl Marks {
         self.generation
     }
 
-    /// Distinct source rows read by the destinations in `range`.
-    fn region_size(&mut self, range: &[(u64, u32)], nbr: &[u32], kv: usize) -> usize {
+    /// Distinct source rows read by the destinations whose table rows are `tab`.
+    fn region_size(&mut self, tab: &[u32]) -> usize {
         let g = self.next();
         let mut count = 0;
-        for &(_, d) in range {
-            for &s in &nbr[d as usize * kv..(d as usize + 1) * kv] {
-                if s != NONE && self.mark[s as usize] != g {
-                    self.mark[s as usize] = g;
-                    count += 1;
-                }
+        for &s in tab {
+            if s != NONE && self.mark[s as usize] != g {
+                self.mark[s as usize] = g;
+                count += 1;
             }
         }
         count
     }
 
-    /// The region (identity-centre rows first, then first appearance) and local pairs.
+    /// The region (identity-centre rows first, then first appearance) and local pairs of the
+    /// destinations whose table rows (`kv` entries each) are `tab`.
     ///
-    /// Two passes over the chunk's table rows (row-major, contiguous): the first builds the
-    /// region and counts pairs per offset, the second writes every pair straight to its slot,
-    /// so pairs of an offset come out in destination order with no per-offset rescans.
-    fn chunk_parts(&mut self, dsts: &[(u64, u32)], nbr: &[u32], kv: usize, centre: Option<usize>) -> ChunkParts {
+    /// Two passes over the rows: the first builds the region and counts pairs per offset, the
+    /// second writes every pair straight to its slot, so pairs of an offset come out in
+    /// destination order with no per-offset rescans.
+    fn chunk_parts(&mut self, tab: &[u32], kv: usize, centre: Option<usize>) -> ChunkParts {
         let g = self.next();
-        let mut src = Vec::with_capacity(dsts.len() * 2);
+        let m = tab.len() / kv.max(1);
+        let mut src = Vec::with_capacity(m * 2);
         let (mark, local) = (&mut self.mark, &mut self.local);
         if let Some(c) = centre {
-            for &(_, d) in dsts {
-                let s = nbr[d as usize * kv + c];
+            for row in tab.chunks_exact(kv) {
+                let s = row[c];
                 if mark[s as usize] != g {
                     mark[s as usize] = g;
                     local[s as usize] = src.len() as u32;
@@ -206,8 +207,8 @@ impl Marks {
             }
         }
         let mut counts = vec![0u32; kv];
-        for &(_, d) in dsts {
-            for (count, &s) in counts.iter_mut().zip(&nbr[d as usize * kv..(d as usize + 1) * kv]) {
+        for row in tab.chunks_exact(kv) {
+            for (count, &s) in counts.iter_mut().zip(row) {
                 if s != NONE {
                     *count += 1;
                     if mark[s as usize] != g {
@@ -226,8 +227,8 @@ impl Marks {
         }
         let mut pair_src = vec![0u32; total];
         let mut pair_dst = vec![0u32; total];
-        for (j, &(_, d)) in dsts.iter().enumerate() {
-            for (slot, &s) in next.iter_mut().zip(&nbr[d as usize * kv..(d as usize + 1) * kv]) {
+        for (j, row) in tab.chunks_exact(kv).enumerate() {
+            for (slot, &s) in next.iter_mut().zip(row) {
                 if s != NONE {
                     pair_src[*slot] = local[s as usize];
                     pair_dst[*slot] = j as u32;
@@ -235,7 +236,7 @@ impl Marks {
                 }
             }
         }
-        ChunkParts { src, pair_src, pair_dst, counts, rows: dsts.len() }
+        ChunkParts { src, pair_src, pair_dst, counts, rows: m }
     }
 }
 
@@ -265,13 +266,14 @@ impl ChunkPlan {
                 nbr[o as usize * kv + k] = i;
             }
         }
-        Self::from_table(&nbr, kv, map.centre(), map.n_in(), dst_coords, config)
+        Self::from_rows(|d, row| row.copy_from_slice(&nbr[d * kv..(d + 1) * kv]), kv, map.centre(), map.n_in(), dst_coords, config)
     }
 
-    /// [`Self::new`] from the `[n_dst, kv]` neighbour table of the map (source row of every
-    /// destination and offset, or `u32::MAX`) instead of its pair lists.
-    pub(crate) fn from_table(
-        nbr: &[u32],
+    /// [`Self::new`] from the rows of the map's `[n_dst, kv]` neighbour table (source row of
+    /// every destination and offset, or `u32::MAX`): `fill(d, row)` writes row `d`. Rows are
+    /// asked for chunk by chunk, so the whole table never needs to exist.
+    pub(crate) fn from_rows(
+        fill: impl Fn(usize, &mut [u32]) + Sync,
         kv: usize,
         centre: Option<usize>,
         n_src: usize,
@@ -283,7 +285,6 @@ impl ChunkPlan {
             return Err(SparseError::InvalidArgument(format!("bad chunk configuration {config:?}")));
         }
         let n_dst = dst_coords.len();
-        let num_pairs = nbr.iter().filter(|&&s| s != NONE).count();
         for (row, &c) in dst_coords.iter().enumerate() {
             pack_key(c, row)?;
         }
@@ -297,19 +298,26 @@ impl ChunkPlan {
         let top_shift = 3 * side.trailing_zeros();
         let mut top = Vec::new();
         runs(&keyed, 0, n_dst, top_shift, 0, &mut top);
-        let nested: Vec<Vec<(usize, usize)>> = top
+        // Per top-level cube: its table rows once, then the adaptive splitting and every
+        // final chunk's region and local pairs from them (sub-chunks are sub-ranges).
+        let nested: Vec<Vec<((usize, usize), ChunkParts)>> = top
             .par_iter()
             .map(|&(lo, hi, _)| {
+                let mut tab = vec![NONE; (hi - lo) * kv];
+                for (row, &(_, d)) in tab.chunks_exact_mut(kv.max(1)).zip(&keyed[lo..hi]) {
+                    fill(d as usize, row);
+                }
+                let rows = |a: usize, b: usize| &tab[(a - lo) * kv..(b - lo) * kv];
                 with_marks(n_src, |marks| {
                     let mut out = Vec::new();
                     let mut stack = vec![(lo, hi, 0u32)];
-                    while let Some((lo, hi, level)) = stack.pop() {
+                    while let Some((a, b, level)) = stack.pop() {
                         let last = level + 1 >= config.levels || top_shift < 3 * (level + 1);
-                        if last || marks.region_size(&keyed[lo..hi], nbr, kv) <= config.max_region_rows {
-                            out.push((lo, hi));
+                        if last || marks.region_size(rows(a, b)) <= config.max_region_rows {
+                            out.push(((a, b), marks.chunk_parts(rows(a, b), kv, centre)));
                         } else {
                             let mut sub = Vec::new();
-                            runs(&keyed, lo, hi, top_shift - 3 * (level + 1), level + 1, &mut sub);
+                            runs(&keyed, a, b, top_shift - 3 * (level + 1), level + 1, &mut sub);
                             stack.extend(sub.into_iter().rev());
                         }
                     }
@@ -317,13 +325,8 @@ impl ChunkPlan {
                 })
             })
             .collect();
-        let chunks: Vec<(usize, usize)> = nested.concat();
-
-        // Regions and chunk-local pairs, chunks in parallel, then concatenated in order.
-        let parts: Vec<ChunkParts> = chunks
-            .par_iter()
-            .map(|&(lo, hi)| with_marks(n_src, |marks| marks.chunk_parts(&keyed[lo..hi], nbr, kv, centre)))
-            .collect();
+        let (chunks, parts): (Vec<(usize, usize)>, Vec<ChunkParts>) = nested.into_iter().flatten().unzip();
+        let num_pairs: usize = parts.iter().map(|p| p.pair_src.len()).sum();
         let total_src: usize = parts.iter().map(|p| p.src.len()).sum();
         let mut plan = Self {
             kernel_volume: kv,
@@ -655,24 +658,15 @@ impl ChunkedConv {
     /// # Errors
     /// As [`KernelMap::submanifold`] and [`ChunkPlan::new`].
     pub fn submanifold(coords: &[Coord], kernel_size: usize, config: &ChunkConfig) -> Result<Self> {
-        Ok(Self::submanifold_with_table(coords, kernel_size, config)?.0)
-    }
-
-    /// [`Self::submanifold`] and the layer's `[n, K^3]` neighbour table: entry `(u, k)` is the
-    /// row of `coords[u] + offset(k)` (offset numbering of [`crate::kernel_map`]) or
-    /// `u32::MAX`.
-    ///
-    /// # Errors
-    /// As [`Self::submanifold`].
-    pub fn submanifold_with_table(
-        coords: &[Coord],
-        kernel_size: usize,
-        config: &ChunkConfig,
-    ) -> Result<(Self, Vec<u32>)> {
-        let table = KernelMap::submanifold_table(coords, kernel_size)?;
+        let index = KernelMap::submanifold_index(coords, kernel_size)?;
         let kv = kernel_size.pow(3);
         let n = coords.len();
-        let forward = ChunkPlan::from_table(&table, kv, Some(kv / 2), n, coords, config)?;
+        let forward = if kernel_size == 1 {
+            ChunkPlan::from_rows(|d, row| row[0] = d as u32, 1, Some(0), n, coords, config)?
+        } else {
+            let finder = NeighbourFinder::new(&index, coords, kernel_size);
+            ChunkPlan::from_rows(|d, row| finder.fill(d, row), kv, Some(kv / 2), n, coords, config)?
+        };
         let layer = Self {
             map: OnceLock::new(),
             kind: MapKind::Submanifold { kernel_size },
@@ -682,7 +676,14 @@ impl ChunkedConv {
             backward: None,
             workspace: Mutex::new(Vec::new()),
         };
-        Ok((layer, table))
+        Ok(layer)
+    }
+
+    /// The `[n_out, K]` neighbour table of the layer's map: entry `(u, k)` is the input row
+    /// paired with output `u` at offset `k`, or `u32::MAX` (for submanifold maps, the row of
+    /// `coords[u] + offset(k)` in the offset numbering of [`crate::kernel_map`]).
+    pub fn neighbour_table(&self) -> Vec<u32> {
+        self.forward.table()
     }
 
     /// The pointwise (1x1x1) layer of `n` rows: a linear map applied to every row (the

@@ -116,13 +116,18 @@ impl KernelMap {
     }
 
     /// The `[n, K^3]` neighbour table of [`Self::submanifold_with_table`] alone.
-    pub(crate) fn submanifold_table(coords: &[Coord], kernel_size: usize) -> Result<Vec<u32>> {
+    fn submanifold_table(coords: &[Coord], kernel_size: usize) -> Result<Vec<u32>> {
+        let index = Self::submanifold_index(coords, kernel_size)?;
+        Ok(if kernel_size == 1 { (0..coords.len() as u32).collect() } else { index.neighbour_table(coords, kernel_size) })
+    }
+
+    /// The voxel index of a submanifold layer, after the checks of [`Self::submanifold`].
+    pub(crate) fn submanifold_index(coords: &[Coord], kernel_size: usize) -> Result<VoxelIndex> {
         if kernel_size.is_multiple_of(2) || kernel_size > 9 {
             return Err(SparseError::KernelSize(kernel_size));
         }
         check_row_count(coords.len())?;
-        let index = VoxelIndex::build(coords)?;
-        Ok(if kernel_size == 1 { (0..coords.len() as u32).collect() } else { index.neighbour_table(coords, kernel_size) })
+        VoxelIndex::build(coords)
     }
 
     /// The map whose pairs are the non-empty entries of an `[n_out, kv]` table.
