@@ -465,7 +465,22 @@ impl ChunkPlan {
     }
 
     /// `dst[d] = sum over offsets of src[s] . w_k` for every chunk. `w`: `[kv, c_src, c_dst]`.
-    fn apply(&self, src: &[f32], c_src: usize, w: &[f32], c_dst: usize, dst: &mut [f32]) {
+    ///
+    /// With `pre = Some((scale, shift))` the sources are read as `max(0, src * scale + shift)`
+    /// per channel (a batch norm and ReLU folded into the gather, computed exactly as a
+    /// separate pass would); with `accumulate` the result is added to `dst` instead of
+    /// overwriting it.
+    #[allow(clippy::too_many_arguments)]
+    fn apply(
+        &self,
+        src: &[f32],
+        c_src: usize,
+        w: &[f32],
+        c_dst: usize,
+        dst: &mut [f32],
+        pre: Option<(&[f32], &[f32])>,
+        accumulate: bool,
+    ) {
         let kv = self.kernel_volume;
         let rows = DisjointRows::new(dst);
         (0..self.num_chunks()).into_par_iter().for_each_init(
@@ -475,8 +490,18 @@ impl ChunkPlan {
                 let dsts = self.chunk_dst(c);
                 let m = dsts.len();
                 xbuf.clear();
-                for &s in srcs {
-                    xbuf.extend_from_slice(&src[s as usize * c_src..(s as usize + 1) * c_src]);
+                match pre {
+                    None => {
+                        for &s in srcs {
+                            xbuf.extend_from_slice(&src[s as usize * c_src..(s as usize + 1) * c_src]);
+                        }
+                    }
+                    Some((scale, shift)) => {
+                        for &s in srcs {
+                            let row = &src[s as usize * c_src..(s as usize + 1) * c_src];
+                            xbuf.extend(row.iter().zip(scale).zip(shift).map(|((x, s), b)| (x * s + b).max(0.0)));
+                        }
+                    }
                 }
                 // Z-ordered tensors (as `voxelize` makes them) give chunks whose rows are one
                 // contiguous run: compute straight into the output, no copy-out.
@@ -486,7 +511,14 @@ impl ChunkPlan {
                     unsafe { rows.slice(dsts[0] as usize * c_dst, m * c_dst) }
                 } else {
                     ybuf.clear();
-                    ybuf.resize(m * c_dst, 0.0);
+                    if accumulate {
+                        for &d in dsts {
+                            // SAFETY: every destination row belongs to exactly one chunk.
+                            ybuf.extend_from_slice(unsafe { rows.slice(d as usize * c_dst, c_dst) });
+                        }
+                    } else {
+                        ybuf.resize(m * c_dst, 0.0);
+                    }
                     ybuf
                 };
                 let wk = |k: usize| &w[k * c_src * c_dst..(k + 1) * c_src * c_dst];
@@ -495,8 +527,9 @@ impl ChunkPlan {
                         // The region starts with the chunk's own rows: a dense GEMM, no
                         // indirection, storing (so `y` needs no clearing).
                         let id = &self.iota[..m];
-                        gemm_rows(xbuf, c_src, id, wk(ct), c_src, c_dst, y, c_dst, id, false);
+                        gemm_rows(xbuf, c_src, id, wk(ct), c_src, c_dst, y, c_dst, id, accumulate);
                     }
+                    None if accumulate => {}
                     None => y.fill(0.0),
                 }
                 for k in 0..kv {
@@ -774,7 +807,41 @@ impl ChunkedConv {
         check_rows("x", x, self.n_in, c_in)?;
         check_weights(w, self.forward.kernel_volume, c_in, c_out)?;
         check_rows("y", y, self.n_out, c_out)?;
-        self.forward.apply(x, c_in, w, c_out, y);
+        self.forward.apply(x, c_in, w, c_out, y, None, false);
+        Ok(())
+    }
+
+    /// [`Self::forward_into`] with a batch norm and ReLU folded into the read of `x` and,
+    /// with `accumulate`, the result added to `y` (a residual connection) instead of
+    /// overwriting it: `y (+)= conv(max(0, x * scale + shift), w)`, with per-channel
+    /// `scale`, `shift`. Saves the separate passes over the activations; the normalised
+    /// values are bit for bit those of a separate pass, and without `accumulate` the output
+    /// is that of [`Self::forward_into`] on them.
+    ///
+    /// # Shapes
+    /// `x`: `[n_in, c_in]`; `scale`, `shift`: `[c_in]`; `w`: `[K^3, c_in, c_out]`;
+    /// `y`: `[n_out, c_out]`.
+    ///
+    /// # Errors
+    /// As [`Self::forward_into`], and for `scale` / `shift` not of length `c_in`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn forward_bn_relu_into(
+        &self,
+        x: &[f32],
+        c_in: usize,
+        scale: &[f32],
+        shift: &[f32],
+        w: &[f32],
+        c_out: usize,
+        y: &mut [f32],
+        accumulate: bool,
+    ) -> Result<()> {
+        check_rows("x", x, self.n_in, c_in)?;
+        check_weights(w, self.forward.kernel_volume, c_in, c_out)?;
+        check_rows("y", y, self.n_out, c_out)?;
+        check_rows("scale", scale, 1, c_in)?;
+        check_rows("shift", shift, 1, c_in)?;
+        self.forward.apply(x, c_in, w, c_out, y, Some((scale, shift)), accumulate);
         Ok(())
     }
 
@@ -806,11 +873,11 @@ impl ChunkedConv {
         match &self.backward {
             Some(plan) => {
                 let wt = transpose_weights(w, kv, c_in, c_out, |k| k);
-                plan.apply(dy, c_out, &wt, c_in, dx);
+                plan.apply(dy, c_out, &wt, c_in, dx, None, false);
             }
             None => {
                 let wt = transpose_weights(w, kv, c_in, c_out, |k| kv - 1 - k);
-                self.forward.apply(dy, c_out, &wt, c_in, dx);
+                self.forward.apply(dy, c_out, &wt, c_in, dx, None, false);
             }
         }
         Ok(())

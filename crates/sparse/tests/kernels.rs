@@ -441,3 +441,44 @@ fn fast_geometry_paths_match_the_plain_ones() {
         assert_close(&y, &want, "pointwise");
     }
 }
+
+/// The batch norm + ReLU folded into the chunked gather gives the bits of a separate pass
+/// followed by the plain forward; with `accumulate` the result lands on top of `y`. Shuffled
+/// rows exercise the non-contiguous (chunk buffer) path.
+#[test]
+fn fused_bn_relu_forward_matches_separate_passes() {
+    let mut shuffled = surface_set(2);
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    for i in (1..shuffled.len()).rev() {
+        shuffled.swap(i, rng.random_range(0..=i));
+    }
+    for set in [surface_set(0), shuffled] {
+        let (coarse, down) = KernelMap::downsample(&set).unwrap();
+        let layers = [
+            ChunkedConv::submanifold(&set, 3, &SMALL_CHUNKS).unwrap(),
+            ChunkedConv::new(down, &set, &coarse, &SMALL_CHUNKS).unwrap(),
+            ChunkedConv::pointwise(set.len()).unwrap(),
+        ];
+        for (q, layer) in layers.iter().enumerate() {
+            let (c_in, c_out) = (6, 9);
+            let x = values(q as u64, layer.n_in() * c_in);
+            let w = values(10 + q as u64, layer.map().kernel_volume() * c_in * c_out);
+            let scale = values(20 + q as u64, c_in);
+            let shift = values(30 + q as u64, c_in);
+            let normed: Vec<f32> = x
+                .chunks_exact(c_in)
+                .flat_map(|r| r.iter().zip(&scale).zip(&shift).map(|((x, s), b)| (x * s + b).max(0.0)))
+                .collect();
+            let want = layer.forward(&normed, c_in, &w, c_out).unwrap();
+            let mut got = vec![f32::NAN; want.len()];
+            layer.forward_bn_relu_into(&x, c_in, &scale, &shift, &w, c_out, &mut got, false).unwrap();
+            assert_eq!(got, want, "layer {q}");
+            let base = values(40 + q as u64, want.len());
+            let mut acc = base.clone();
+            layer.forward_bn_relu_into(&x, c_in, &scale, &shift, &w, c_out, &mut acc, true).unwrap();
+            let sum: Vec<f32> = base.iter().zip(&want).map(|(a, b)| a + b).collect();
+            assert_close(&acc, &sum, "accumulated");
+            assert!(layer.forward_bn_relu_into(&x, c_in, &scale[1..], &shift, &w, c_out, &mut acc, true).is_err());
+        }
+    }
+}
