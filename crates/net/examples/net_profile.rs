@@ -1,6 +1,9 @@
-//! One CBSCN s20 call on the benchmark room (`bench net`'s geometry), for profilers:
-//! `valgrind --tool=callgrind target/release/examples/net_profile [geometry|layers|all] [rulebook]`.
-//! Builds the room and the sample first (not the interesting part), then runs the chosen phase once.
+//! CBSCN s20 on the benchmark room of `bench net`, for profilers and quick timings:
+//! `valgrind --tool=callgrind --toggle-collect='*NetGeometry*build*'
+//! target/release/examples/net_profile [geometry|layers|all] [rulebook]`.
+//! Builds the room and the sample first (not the interesting part), then runs the chosen
+//! phase: `geometry` builds the geometry 15 times and prints each wall time (the minimum is
+//! the least disturbed on a shared machine), `layers` and `all` run once.
 
 use semrecon_data::synth::{generate_room, RoomConfig};
 use semrecon_net::dataset::points_per_m2;

@@ -6,6 +6,11 @@
 //! transpose; and the trilinear interpolation tables of the cross-scale fusion, whose
 //! neighbour look-ups reuse the coarse level's submanifold map (the 8 coarse voxels around a
 //! fine voxel lie in the 3x3x3 neighbourhood of its ancestor).
+//!
+//! Cost: the submanifold plans are built straight from block-index neighbour look-ups (no
+//! per-level kernel map: the chunked kernels never read one, and [`NetGeometry::build_maps`]
+//! builds them for the rulebook kernels), coarser levels from runs of the Z-ordered voxels
+//! (no hashing), pointwise layers from the row count alone.
 
 use rayon::prelude::*;
 use semrecon_sparse::{ChunkConfig, ChunkedConv, Coord, KernelMap};

@@ -4,7 +4,8 @@
 //! Per input, the [`NetGeometry`] is built once (kernel maps and chunk plans per level, shared
 //! by every layer of the level, and the fusion's interpolation tables). Batch norm uses the
 //! running statistics folded into one scale and shift per channel, applied together with the
-//! ReLU in a single pass. Activation buffers live in a workspace that only grows, so repeated
+//! ReLU: with the chunked kernels inside the convolution's gather (and residual sums inside
+//! its output), with the rulebook kernels in a separate pass as the standard algorithm does. Activation buffers live in a workspace that only grows, so repeated
 //! calls on rooms of similar size allocate nothing per layer.
 //!
 //! Voxels are processed in Z-order (the layout the chunked kernel is fastest with); inputs in

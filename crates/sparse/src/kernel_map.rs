@@ -133,7 +133,7 @@ impl KernelMap {
     /// The map whose pairs are the non-empty entries of an `[n_out, kv]` table.
     pub(crate) fn from_table(kind: MapKind, n_in: usize, table: &[u32], kv: usize) -> Self {
         const ROWS: usize = 4096;
-        let n_out = if kv == 0 { 0 } else { table.len() / kv };
+        let n_out = table.len().checked_div(kv).unwrap_or(0);
         // Per block of rows, its pairs per offset; blocks then concatenated per offset.
         let blocks: Vec<Vec<(Vec<u32>, Vec<u32>)>> = table
             .par_chunks(kv * ROWS)
