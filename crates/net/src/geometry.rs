@@ -6,6 +6,11 @@
 //! transpose; and the trilinear interpolation tables of the cross-scale fusion, whose
 //! neighbour look-ups reuse the coarse level's submanifold map (the 8 coarse voxels around a
 //! fine voxel lie in the 3x3x3 neighbourhood of its ancestor).
+//!
+//! Cost: the submanifold plans are built straight from block-index neighbour look-ups (no
+//! per-level kernel map: the chunked kernels never read one, and [`NetGeometry::build_maps`]
+//! builds them for the rulebook kernels), coarser levels from runs of the Z-ordered voxels
+//! (no hashing), pointwise layers from the row count alone.
 
 use rayon::prelude::*;
 use semrecon_sparse::{ChunkConfig, ChunkedConv, Coord, KernelMap};
@@ -51,10 +56,9 @@ impl NetGeometry {
         let mut levels: Vec<Level> = Vec::with_capacity(l);
         let mut current = coords;
         for i in 0..l {
-            let map = KernelMap::submanifold(&current, 3)?;
-            let nbr = if i >= 1 && i + 2 <= l { neighbour_table(&map) } else { Vec::new() };
-            let subm = ChunkedConv::new(map, &current, &current, chunk)?;
-            let point = ChunkedConv::new(KernelMap::submanifold(&current, 1)?, &current, &current, chunk)?;
+            let subm = ChunkedConv::submanifold(&current, 3, chunk)?;
+            let nbr = if i >= 1 && i + 2 <= l { subm.neighbour_table() } else { Vec::new() };
+            let point = ChunkedConv::pointwise(current.len())?;
             let (next, parent, down) = if i + 1 < l {
                 let (coarse, dmap) = KernelMap::downsample(&current)?;
                 let mut parent = vec![0u32; current.len()];
@@ -132,15 +136,21 @@ impl NetGeometry {
 
     /// Voxels and neighbour pairs per level.
     pub fn stats(&self) -> Vec<LevelStats> {
-        self.levels
-            .iter()
-            .map(|l| LevelStats { voxels: l.coords.len(), neighbour_pairs: l.subm.map().num_pairs() })
-            .collect()
+        self.levels.iter().map(|l| LevelStats { voxels: l.coords.len(), neighbour_pairs: l.subm.num_pairs() }).collect()
+    }
+
+    /// Builds every layer's kernel map (pair lists) now. The chunked kernels never read them;
+    /// the rulebook kernels do, and call this so that building them counts as geometry.
+    pub fn build_maps(&self) {
+        self.levels.par_iter().for_each(|l| {
+            l.subm.map();
+        });
     }
 }
 
 /// `[n, 27]` neighbour rows of a submanifold map (`u32::MAX` where absent): the input of
 /// output `u` at offset `k` is `u + offset(k)`.
+#[cfg(test)]
 pub(crate) fn neighbour_table(map: &KernelMap) -> Vec<u32> {
     let kv = map.kernel_volume();
     let mut nbr = vec![u32::MAX; map.n_out() * kv];
@@ -169,42 +179,49 @@ pub(crate) fn interp_table(fine: &[Coord], ancestor: &[u32], nbr: &[u32], shift:
     let mut rows = vec![0u32; n * 8];
     let mut weights = vec![0f32; n * 8];
     let scale = 1.0 / f64::from(1u32 << shift);
-    rows.par_chunks_mut(8).zip(weights.par_chunks_mut(8)).enumerate().for_each(|(u, (r8, w8))| {
-        let c = fine[u];
-        let a = ancestor[u];
-        // Per axis: (offset from the ancestor, weight) of the two bracketing voxels.
-        let axis = |x: i32| {
-            let rem = x - ((x >> shift) << shift);
+    // Per axis and remainder `x mod 2^shift`: (offset from the ancestor, weight) of the two
+    // bracketing voxels; a table, since there are only 2^shift remainders.
+    let axis_of: Vec<[(i32, f64); 2]> = (0..1i32 << shift)
+        .map(|rem| {
             let pos = (f64::from(rem) + 0.5) * scale - 0.5;
             if pos < 0.0 {
                 [(-1, -pos), (0, 1.0 + pos)]
             } else {
                 [(0, 1.0 - pos), (1, pos)]
             }
-        };
-        let (ax, ay, az) = (axis(c[0]), axis(c[1]), axis(c[2]));
-        let mut total = 0.0;
-        let mut q = 0;
-        for &(dz, wz) in &az {
-            for &(dy, wy) in &ay {
-                for &(dx, wx) in &ax {
-                    let k = ((dz + 1) * 9 + (dy + 1) * 3 + dx + 1) as usize;
-                    let row = if k == 13 { a } else { nbr[a as usize * 27 + k] };
-                    if row != u32::MAX {
-                        let w = wx * wy * wz;
-                        r8[q] = row;
-                        w8[q] = w as f32;
-                        total += w;
-                    } else {
-                        r8[q] = a;
-                        w8[q] = 0.0;
+        })
+        .collect();
+    let mask = (1i32 << shift) - 1;
+    rows.par_chunks_mut(8 * 1024).zip(weights.par_chunks_mut(8 * 1024)).enumerate().for_each(|(blk, (rb, wb))| {
+        for (j, (r8, w8)) in rb.chunks_exact_mut(8).zip(wb.chunks_exact_mut(8)).enumerate() {
+            let u = blk * 1024 + j;
+            let c = fine[u];
+            let a = ancestor[u];
+            let axis = |x: i32| axis_of[(x & mask) as usize];
+            let (ax, ay, az) = (axis(c[0]), axis(c[1]), axis(c[2]));
+            let mut total = 0.0;
+            let mut q = 0;
+            for &(dz, wz) in &az {
+                for &(dy, wy) in &ay {
+                    for &(dx, wx) in &ax {
+                        let k = ((dz + 1) * 9 + (dy + 1) * 3 + dx + 1) as usize;
+                        let row = if k == 13 { a } else { nbr[a as usize * 27 + k] };
+                        if row != u32::MAX {
+                            let w = wx * wy * wz;
+                            r8[q] = row;
+                            w8[q] = w as f32;
+                            total += w;
+                        } else {
+                            r8[q] = a;
+                            w8[q] = 0.0;
+                        }
+                        q += 1;
                     }
-                    q += 1;
                 }
             }
-        }
-        for w in w8.iter_mut() {
-            *w = (f64::from(*w) / total) as f32;
+            for w in w8.iter_mut() {
+                *w = (f64::from(*w) / total) as f32;
+            }
         }
     });
     Interp { rows, weights }

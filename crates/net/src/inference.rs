@@ -4,7 +4,8 @@
 //! Per input, the [`NetGeometry`] is built once (kernel maps and chunk plans per level, shared
 //! by every layer of the level, and the fusion's interpolation tables). Batch norm uses the
 //! running statistics folded into one scale and shift per channel, applied together with the
-//! ReLU in a single pass. Activation buffers live in a workspace that only grows, so repeated
+//! ReLU: with the chunked kernels inside the convolution's gather (and residual sums inside
+//! its output), with the rulebook kernels in a separate pass as the standard algorithm does. Activation buffers live in a workspace that only grows, so repeated
 //! calls on rooms of similar size allocate nothing per layer.
 //!
 //! Voxels are processed in Z-order (the layout the chunked kernel is fastest with); inputs in
@@ -58,6 +59,31 @@ fn run_conv(
     match kernel {
         ConvKernel::Chunked => layer.forward_into(x, c_in, w, c_out, y)?,
         ConvKernel::Rulebook => rulebook::forward_into(layer.map(), x, c_in, w, c_out, y)?,
+    }
+    Ok(())
+}
+
+/// `y = conv(max(0, x * scale + shift))` with the batch norm `bn`: folded into the chunked
+/// kernel's gather, a separate pass into `scratch` for the rulebook (the standard algorithm).
+#[allow(clippy::too_many_arguments)]
+fn run_conv_bn(
+    kernel: ConvKernel,
+    layer: &ChunkedConv,
+    bn: &Affine,
+    x: &[f32],
+    c_in: usize,
+    w: &[f32],
+    c_out: usize,
+    y: &mut [f32],
+    scratch: &mut Vec<f32>,
+) -> Result<()> {
+    match kernel {
+        ConvKernel::Chunked => layer.forward_bn_relu_into(x, c_in, &bn.scale, &bn.shift, w, c_out, y, false)?,
+        ConvKernel::Rulebook => {
+            let a = sized(scratch, x.len());
+            bn.apply(x, a);
+            rulebook::forward_into(layer.map(), a, c_in, w, c_out, y)?;
+        }
     }
     Ok(())
 }
@@ -132,6 +158,13 @@ impl ResBlock {
         b: &mut Vec<f32>,
     ) -> Result<()> {
         let (a, b) = (sized(a, x.len()), sized(b, x.len()));
+        if kernel == ConvKernel::Chunked {
+            // Both batch norms folded into the convolutions' gathers, the residual sum into
+            // the second convolution's output.
+            conv.forward_bn_relu_into(x, c, &self.bn1.scale, &self.bn1.shift, &self.conv1, c, b, false)?;
+            conv.forward_bn_relu_into(b, c, &self.bn2.scale, &self.bn2.shift, &self.conv2, c, x, true)?;
+            return Ok(());
+        }
         self.bn1.apply(x, a);
         run_conv(kernel, conv, a, c, &self.conv1, c, b)?;
         self.bn2.apply_in_place(b);
@@ -442,6 +475,9 @@ impl Segmenter {
         }
         let t0 = Instant::now();
         let geo = NetGeometry::build(coords, &self.config, &self.chunk)?;
+        if self.kernel == ConvKernel::Rulebook {
+            geo.build_maps();
+        }
         let t1 = Instant::now();
         let mut logits = vec![0f32; geo.levels[0].coords.len() * k];
         self.run_layers(&geo, feats, &mut logits)?;
@@ -467,12 +503,11 @@ impl Segmenter {
         }
         for i in 1..l {
             let (prev, rest) = ws.enc.split_at_mut(i);
-            let a = sized(&mut ws.a, n(i - 1) * c(i - 1));
             let (bn, w) = &p.down[i - 1];
-            bn.apply(&prev[i - 1][..n(i - 1) * c(i - 1)], a);
             let e = sized(&mut rest[0], n(i) * c(i));
             if let Some((down, _)) = &geo.levels[i - 1].down {
-                run_conv(kernel, down, a, c(i - 1), w, c(i), e)?;
+                let x = &prev[i - 1][..n(i - 1) * c(i - 1)];
+                run_conv_bn(kernel, down, bn, x, c(i - 1), w, c(i), e, &mut ws.a)?;
             }
             p.extract[i].run(kernel, &geo.levels[i].subm, e, c(i), &mut ws.a, &mut ws.b)?;
         }
@@ -480,15 +515,12 @@ impl Segmenter {
         // Decoder, coarse to fine, with the cross-scale fusion.
         for t in (0..l.saturating_sub(1)).rev() {
             let up = &p.up[t];
-            {
-                let src: &[f32] = if t + 1 == l - 1 { &ws.enc[l - 1] } else { &ws.dec[t + 1] };
-                let a = sized(&mut ws.a, n(t + 1) * c(t + 1));
-                up.bn.apply(&src[..n(t + 1) * c(t + 1)], a);
-            }
             let (lower, higher) = ws.dec.split_at_mut(t + 1);
             let d = sized(&mut lower[t], n(t) * c(t));
             if let Some((_, tconv)) = &geo.levels[t].down {
-                run_conv(kernel, tconv, &ws.a[..n(t + 1) * c(t + 1)], c(t + 1), &up.conv, c(t), d)?;
+                let src: &[f32] = if t + 1 == l - 1 { &ws.enc[l - 1] } else { &higher[0] };
+                let x = &src[..n(t + 1) * c(t + 1)];
+                run_conv_bn(kernel, tconv, &up.bn, x, c(t + 1), &up.conv, c(t), d, &mut ws.a)?;
             }
             let b = sized(&mut ws.b, n(t) * c(t));
             run_conv(kernel, &geo.levels[t].point, &ws.enc[t][..n(t) * c(t)], c(t), &up.skip, c(t), b)?;
@@ -506,9 +538,8 @@ impl Segmenter {
 
         // Head.
         let d0: &[f32] = if l == 1 { &ws.enc[0] } else { &ws.dec[0] };
-        let a = sized(&mut ws.a, n(0) * c(0));
-        p.head_bn.apply(&d0[..n(0) * c(0)], a);
-        run_conv(kernel, &geo.levels[0].point, a, c(0), &p.head_w, config.classes, logits)?;
+        let x = &d0[..n(0) * c(0)];
+        run_conv_bn(kernel, &geo.levels[0].point, &p.head_bn, x, c(0), &p.head_w, config.classes, logits, &mut ws.a)?;
         let k = config.classes;
         logits.par_chunks_mut(k * ROWS_PER_TASK).for_each(|blk| {
             for row in blk.chunks_exact_mut(k) {

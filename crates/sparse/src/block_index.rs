@@ -4,6 +4,13 @@
 //! cache miss, while the block table of a surface is ~17x smaller and a neighbour mostly sits
 //! in a block already in cache. Only used where blocks are well filled (surfaces); very
 //! sparse sets fall back to the flat [`VoxelHashMap`].
+//!
+//! Whole neighbour tables ([`VoxelIndex::neighbour_table`]) go one step further: the 3x3x3
+//! neighbourhood of a voxel lies in the 3x3x3 blocks around its own, so the blocks' neighbours
+//! are looked up once per block (27 hash probes per block instead of 26 per voxel) and every
+//! voxel's neighbours are then plain array reads.
+
+use rayon::prelude::*;
 
 use crate::error::{Result, SparseError};
 use crate::hash_map::VoxelHashMap;
@@ -15,6 +22,10 @@ const EMPTY: u32 = u32::MAX;
 pub(crate) struct BlockIndex {
     blocks: VoxelHashMap,
     cells: Vec<u32>,
+    /// Block of every row.
+    row_block: Vec<u32>,
+    /// Block coordinate (`floor(c / 4)`, batch) of every block.
+    block_coords: Vec<Coord>,
 }
 
 #[inline]
@@ -45,24 +56,38 @@ impl VoxelIndex {
             ))
         };
         let mut blocks = VoxelHashMap::with_capacity(coords.len() / 8 + 16);
-        let mut n_blocks = 0u32;
+        let mut row_block = Vec::with_capacity(coords.len());
+        let mut block_coords = Vec::new();
+        // Consecutive rows mostly share a block (Z-ordered sets): skip the probe then.
+        let mut last: Option<(u64, u32)> = None;
         for (row, &c) in coords.iter().enumerate() {
             pack_key(c, row)?;
-            if blocks.insert_or_get(block_key(c), n_blocks).is_none() {
-                n_blocks += 1;
-            }
+            let key = block_key(c);
+            let b = match last {
+                Some((k, b)) if k == key => b,
+                _ => {
+                    let fresh = block_coords.len() as u32;
+                    let b = blocks.insert_or_get(key, fresh).unwrap_or(fresh);
+                    if b == fresh {
+                        block_coords.push([c[0] >> 2, c[1] >> 2, c[2] >> 2, c[3]]);
+                    }
+                    last = Some((key, b));
+                    b
+                }
+            };
+            row_block.push(b);
         }
-        if (n_blocks as usize) * 64 <= coords.len() * 8 {
-            let mut cells = vec![EMPTY; n_blocks as usize * 64];
-            for (row, &c) in coords.iter().enumerate() {
-                let b = blocks.get(block_key(c)).unwrap_or(0) as usize;
-                let slot = &mut cells[b * 64 + cell(c)];
+        let n_blocks = block_coords.len();
+        if n_blocks * 64 <= coords.len() * 8 {
+            let mut cells = vec![EMPTY; n_blocks * 64];
+            for (row, (&c, &b)) in coords.iter().zip(&row_block).enumerate() {
+                let slot = &mut cells[b as usize * 64 + cell(c)];
                 if *slot != EMPTY {
                     return Err(duplicate(row, c));
                 }
                 *slot = row as u32;
             }
-            return Ok(Self::Blocks(BlockIndex { blocks, cells }));
+            return Ok(Self::Blocks(BlockIndex { blocks, cells, row_block, block_coords }));
         }
         let mut map = VoxelHashMap::with_capacity(coords.len());
         for (row, &c) in coords.iter().enumerate() {
@@ -86,6 +111,104 @@ impl VoxelIndex {
                 (r != EMPTY).then_some(r)
             }
             Self::Flat(m) => m.get(pack_unchecked(c)),
+        }
+    }
+
+    /// The `[n, K^3]` neighbour table of the indexed rows `coords` (the same list, in the
+    /// same order, as given to [`Self::build`]): entry `(u, k)` is the row of
+    /// `coords[u] + offset(k)` or `u32::MAX`, with the submanifold offset numbering of
+    /// [`crate::kernel_map`] (`k = ((dz + r) K + dy + r) K + dx + r`). Odd `K <= 9`.
+    pub(crate) fn neighbour_table(&self, coords: &[Coord], kernel_size: usize) -> Vec<u32> {
+        let finder = NeighbourFinder::new(self, coords, kernel_size);
+        let kv = finder.kernel_volume();
+        let mut table = vec![EMPTY; coords.len() * kv];
+        table.par_chunks_mut(kv * 1024).enumerate().for_each(|(chunk, out)| {
+            for (j, row) in out.chunks_exact_mut(kv).enumerate() {
+                finder.fill(chunk * 1024 + j, row);
+            }
+        });
+        table
+    }
+}
+
+/// The neighbours of any indexed row on demand, one table row at a time, so that a planner
+/// can walk them chunk by chunk without materialising the whole `[n, K^3]` table.
+pub(crate) struct NeighbourFinder<'a> {
+    index: &'a VoxelIndex,
+    coords: &'a [Coord],
+    offsets: Vec<[i32; 3]>,
+    /// Blocks index only: per cell of a block and offset, which of the 27 blocks around holds
+    /// the neighbour (`(dz + 1) 9 + (dy + 1) 3 + dx + 1`) and its cell there.
+    lut: Vec<(u8, u8)>,
+    /// Blocks index only: the 27 blocks around every block (`u32::MAX` where absent).
+    around: Vec<[u32; 27]>,
+}
+
+impl<'a> NeighbourFinder<'a> {
+    /// A finder over `index`, built from `coords`, for an odd `kernel_size <= 9` (so that every
+    /// neighbour lies in the 3 x 3 x 3 blocks around a voxel's block).
+    pub(crate) fn new(index: &'a VoxelIndex, coords: &'a [Coord], kernel_size: usize) -> Self {
+        let ks = kernel_size as i32;
+        let r = ks / 2;
+        let kv = kernel_size.pow(3);
+        let offsets: Vec<[i32; 3]> =
+            (0..kv as i32).map(|k| [k % ks - r, (k / ks) % ks - r, k / (ks * ks) - r]).collect();
+        let (lut, around) = match index {
+            VoxelIndex::Blocks(b) => {
+                let lut = (0..64i32)
+                    .flat_map(|cl| {
+                        let l = [cl & 3, (cl >> 2) & 3, cl >> 4];
+                        offsets.iter().map(move |o| {
+                            let t = [l[0] + o[0], l[1] + o[1], l[2] + o[2]];
+                            let q = ((t[2] >> 2) + 1) * 9 + ((t[1] >> 2) + 1) * 3 + (t[0] >> 2) + 1;
+                            (q as u8, ((t[0] & 3) | ((t[1] & 3) << 2) | ((t[2] & 3) << 4)) as u8)
+                        })
+                    })
+                    .collect();
+                let around = b
+                    .block_coords
+                    .par_iter()
+                    .map(|bc| {
+                        let mut a = [EMPTY; 27];
+                        for (q, slot) in a.iter_mut().enumerate() {
+                            let q = q as i32;
+                            let nb = [bc[0] + q % 3 - 1, bc[1] + (q / 3) % 3 - 1, bc[2] + q / 9 - 1, bc[3]];
+                            *slot = b.blocks.get(pack_unchecked(nb)).unwrap_or(EMPTY);
+                        }
+                        a
+                    })
+                    .collect();
+                (lut, around)
+            }
+            VoxelIndex::Flat(_) => (Vec::new(), Vec::new()),
+        };
+        Self { index, coords, offsets, lut, around }
+    }
+
+    /// Offsets per row (`K^3`).
+    pub(crate) fn kernel_volume(&self) -> usize {
+        self.offsets.len()
+    }
+
+    /// Row `u` of the neighbour table into `out` (`K^3` entries, all written).
+    #[inline]
+    pub(crate) fn fill(&self, u: usize, out: &mut [u32]) {
+        let kv = self.offsets.len();
+        let c = self.coords[u];
+        match self.index {
+            VoxelIndex::Blocks(b) => {
+                let a = &self.around[b.row_block[u] as usize];
+                let cl = cell(c);
+                for (slot, &(q, cn)) in out.iter_mut().zip(&self.lut[cl * kv..(cl + 1) * kv]) {
+                    let blk = a[q as usize];
+                    *slot = if blk == EMPTY { EMPTY } else { b.cells[blk as usize * 64 + cn as usize] };
+                }
+            }
+            VoxelIndex::Flat(_) => {
+                for (slot, o) in out.iter_mut().zip(&self.offsets) {
+                    *slot = self.index.get([c[0] + o[0], c[1] + o[1], c[2] + o[2], c[3]]).unwrap_or(EMPTY);
+                }
+            }
         }
     }
 }

@@ -26,12 +26,13 @@
 //! as [`crate::voxelize()`] and [`crate::SparseTensor::sorted_morton`] make them) the chunk
 //! is computed in place in the output; otherwise through a chunk buffer and one copy.
 
-use std::sync::Mutex;
+use std::sync::{Mutex, OnceLock};
 
 use rayon::prelude::*;
 
 use crate::error::{Result, SparseError};
 use crate::gemm::{gemm_rows, gemm_tn_rows};
+use crate::block_index::NeighbourFinder;
 use crate::kernel_map::{check_weights, transpose_weights, KernelMap, MapKind};
 use crate::key::{pack_key, Coord};
 use crate::morton::morton_unchecked;
@@ -139,10 +140,28 @@ struct Marks {
     generation: u32,
 }
 
+thread_local! {
+    /// Planning scratch of this thread, grown to the largest source set seen: a fresh pair of
+    /// `n_src` arrays per rayon job costs more (zeroing, page faults) than planning itself.
+    static MARKS: std::cell::RefCell<Marks> = const {
+        std::cell::RefCell::new(Marks { mark: Vec::new(), local: Vec::new(), generation: 0 })
+    };
+}
+
+/// Runs `f` with this thread's [`Marks`], sized for `n_src` rows.
+fn with_marks<R>(n_src: usize, f: impl FnOnce(&mut Marks) -> R) -> R {
+    MARKS.with(|m| {
+        let mut m = m.borrow_mut();
+        if m.mark.len() < n_src {
+            // New entries are 0, a generation never handed out after a wrap-around reset.
+            m.mark.resize(n_src, 0);
+            m.local.resize(n_src, 0);
+        }
+        f(&mut m)
+    })
+}
+
 impl Marks {
-    fn new(n_src: usize) -> Self {
-        Self { mark: vec![0; n_src], local: vec![0; n_src], generation: 0 }
-    }
 
     fn next(&mut self) -> u32 {
         self.generation = self.generation.wrapping_add(1);
@@ -153,60 +172,71 @@ impl Marks {
         self.generation
     }
 
-    /// Distinct source rows read by the destinations in `range`.
-    fn region_size(&mut self, range: &[(u64, u32)], nbr: &[u32], kv: usize) -> usize {
+    /// Distinct source rows read by the destinations whose table rows are `tab`.
+    fn region_size(&mut self, tab: &[u32]) -> usize {
         let g = self.next();
         let mut count = 0;
-        for &(_, d) in range {
-            for &s in &nbr[d as usize * kv..(d as usize + 1) * kv] {
-                if s != NONE && self.mark[s as usize] != g {
-                    self.mark[s as usize] = g;
-                    count += 1;
-                }
+        for &s in tab {
+            if s != NONE && self.mark[s as usize] != g {
+                self.mark[s as usize] = g;
+                count += 1;
             }
         }
         count
     }
 
-    /// The region (identity-centre rows first, then first appearance) and local pairs.
-    fn chunk_parts(&mut self, dsts: &[(u64, u32)], nbr: &[u32], kv: usize, centre: Option<usize>) -> ChunkParts {
+    /// The region (identity-centre rows first, then first appearance) and local pairs of the
+    /// destinations whose table rows (`kv` entries each) are `tab`.
+    ///
+    /// Two passes over the rows: the first builds the region and counts pairs per offset, the
+    /// second writes every pair straight to its slot, so pairs of an offset come out in
+    /// destination order with no per-offset rescans.
+    fn chunk_parts(&mut self, tab: &[u32], kv: usize, centre: Option<usize>) -> ChunkParts {
         let g = self.next();
-        let mut src = Vec::new();
+        let m = tab.len() / kv.max(1);
+        let mut src = Vec::with_capacity(m * 2);
         let (mark, local) = (&mut self.mark, &mut self.local);
-        let mut add = |s: u32, src: &mut Vec<u32>| {
-            if mark[s as usize] != g {
-                mark[s as usize] = g;
-                local[s as usize] = src.len() as u32;
-                src.push(s);
-            }
-        };
         if let Some(c) = centre {
-            for &(_, d) in dsts {
-                add(nbr[d as usize * kv + c], &mut src);
-            }
-        }
-        for &(_, d) in dsts {
-            for &s in &nbr[d as usize * kv..(d as usize + 1) * kv] {
-                if s != NONE {
-                    add(s, &mut src);
+            for row in tab.chunks_exact(kv) {
+                let s = row[c];
+                if mark[s as usize] != g {
+                    mark[s as usize] = g;
+                    local[s as usize] = src.len() as u32;
+                    src.push(s);
                 }
             }
         }
-        let mut pair_src = Vec::new();
-        let mut pair_dst = Vec::new();
-        let mut counts = Vec::with_capacity(kv);
-        for k in 0..kv {
-            let before = pair_src.len();
-            for (j, &(_, d)) in dsts.iter().enumerate() {
-                let s = nbr[d as usize * kv + k];
+        let mut counts = vec![0u32; kv];
+        for row in tab.chunks_exact(kv) {
+            for (count, &s) in counts.iter_mut().zip(row) {
                 if s != NONE {
-                    pair_src.push(local[s as usize]);
-                    pair_dst.push(j as u32);
+                    *count += 1;
+                    if mark[s as usize] != g {
+                        mark[s as usize] = g;
+                        local[s as usize] = src.len() as u32;
+                        src.push(s);
+                    }
                 }
             }
-            counts.push((pair_src.len() - before) as u32);
         }
-        ChunkParts { src, pair_src, pair_dst, counts, rows: dsts.len() }
+        let mut next: Vec<usize> = Vec::with_capacity(kv);
+        let mut total = 0;
+        for &count in &counts {
+            next.push(total);
+            total += count as usize;
+        }
+        let mut pair_src = vec![0u32; total];
+        let mut pair_dst = vec![0u32; total];
+        for (j, row) in tab.chunks_exact(kv).enumerate() {
+            for (slot, &s) in next.iter_mut().zip(row) {
+                if s != NONE {
+                    pair_src[*slot] = local[s as usize];
+                    pair_dst[*slot] = j as u32;
+                    *slot += 1;
+                }
+            }
+        }
+        ChunkParts { src, pair_src, pair_dst, counts, rows: m }
     }
 }
 
@@ -228,56 +258,75 @@ impl ChunkPlan {
             return Err(SparseError::InvalidArgument(format!("bad chunk configuration {config:?}")));
         }
         let kv = map.kernel_volume();
-        let n_dst = map.n_out();
-        let n_src = map.n_in();
-        let centre = map.centre();
         // Neighbour table: the source row of every (destination, offset), or NONE.
-        let mut nbr = vec![NONE; n_dst * kv];
+        let mut nbr = vec![NONE; map.n_out() * kv];
         for k in 0..kv {
             let (ins, outs) = map.pairs(k);
             for (&i, &o) in ins.iter().zip(outs) {
                 nbr[o as usize * kv + k] = i;
             }
         }
+        Self::from_rows(|d, row| row.copy_from_slice(&nbr[d * kv..(d + 1) * kv]), kv, map.centre(), map.n_in(), dst_coords, config)
+    }
+
+    /// [`Self::new`] from the rows of the map's `[n_dst, kv]` neighbour table (source row of
+    /// every destination and offset, or `u32::MAX`): `fill(d, row)` writes row `d`. Rows are
+    /// asked for chunk by chunk, so the whole table never needs to exist.
+    pub(crate) fn from_rows(
+        fill: impl Fn(usize, &mut [u32]) + Sync,
+        kv: usize,
+        centre: Option<usize>,
+        n_src: usize,
+        dst_coords: &[Coord],
+        config: &ChunkConfig,
+    ) -> Result<Self> {
+        let side = config.chunk_side;
+        if !side.is_power_of_two() || side > 1 << 20 || config.levels == 0 || config.max_region_rows == 0 {
+            return Err(SparseError::InvalidArgument(format!("bad chunk configuration {config:?}")));
+        }
+        let n_dst = dst_coords.len();
         for (row, &c) in dst_coords.iter().enumerate() {
             pack_key(c, row)?;
         }
         let mut keyed: Vec<(u64, u32)> =
             dst_coords.par_iter().enumerate().map(|(r, &c)| (morton_unchecked(c), r as u32)).collect();
-        keyed.par_sort_unstable();
+        if !keyed.windows(2).all(|w| w[0] <= w[1]) {
+            keyed.par_sort_unstable();
+        }
 
         // Adaptive splitting over runs of equal Morton prefix, top-level cubes in parallel.
         let top_shift = 3 * side.trailing_zeros();
         let mut top = Vec::new();
         runs(&keyed, 0, n_dst, top_shift, 0, &mut top);
-        let nested: Vec<Vec<(usize, usize)>> = top
+        // Per top-level cube: its table rows once, then the adaptive splitting and every
+        // final chunk's region and local pairs from them (sub-chunks are sub-ranges).
+        let nested: Vec<Vec<((usize, usize), ChunkParts)>> = top
             .par_iter()
-            .map_init(
-                || Marks::new(n_src),
-                |marks, &(lo, hi, _)| {
+            .map(|&(lo, hi, _)| {
+                let mut tab = vec![NONE; (hi - lo) * kv];
+                for (row, &(_, d)) in tab.chunks_exact_mut(kv.max(1)).zip(&keyed[lo..hi]) {
+                    fill(d as usize, row);
+                }
+                let rows = |a: usize, b: usize| &tab[(a - lo) * kv..(b - lo) * kv];
+                with_marks(n_src, |marks| {
                     let mut out = Vec::new();
                     let mut stack = vec![(lo, hi, 0u32)];
-                    while let Some((lo, hi, level)) = stack.pop() {
+                    while let Some((a, b, level)) = stack.pop() {
                         let last = level + 1 >= config.levels || top_shift < 3 * (level + 1);
-                        if last || marks.region_size(&keyed[lo..hi], &nbr, kv) <= config.max_region_rows {
-                            out.push((lo, hi));
+                        if last || marks.region_size(rows(a, b)) <= config.max_region_rows {
+                            out.push(((a, b), marks.chunk_parts(rows(a, b), kv, centre)));
                         } else {
                             let mut sub = Vec::new();
-                            runs(&keyed, lo, hi, top_shift - 3 * (level + 1), level + 1, &mut sub);
+                            runs(&keyed, a, b, top_shift - 3 * (level + 1), level + 1, &mut sub);
                             stack.extend(sub.into_iter().rev());
                         }
                     }
                     out
-                },
-            )
+                })
+            })
             .collect();
-        let chunks: Vec<(usize, usize)> = nested.concat();
-
-        // Regions and chunk-local pairs, chunks in parallel, then concatenated in order.
-        let parts: Vec<ChunkParts> = chunks
-            .par_iter()
-            .map_init(|| Marks::new(n_src), |marks, &(lo, hi)| marks.chunk_parts(&keyed[lo..hi], &nbr, kv, centre))
-            .collect();
+        let (chunks, parts): (Vec<(usize, usize)>, Vec<ChunkParts>) = nested.into_iter().flatten().unzip();
+        let num_pairs: usize = parts.iter().map(|p| p.pair_src.len()).sum();
         let total_src: usize = parts.iter().map(|p| p.src.len()).sum();
         let mut plan = Self {
             kernel_volume: kv,
@@ -289,8 +338,8 @@ impl ChunkPlan {
             src_start: Vec::with_capacity(chunks.len() + 1),
             src_rows: Vec::with_capacity(total_src),
             pair_start: Vec::with_capacity(chunks.len() * kv + 1),
-            pair_src: Vec::with_capacity(map.num_pairs()),
-            pair_dst: Vec::with_capacity(map.num_pairs()),
+            pair_src: Vec::with_capacity(num_pairs),
+            pair_dst: Vec::with_capacity(num_pairs),
             iota: Vec::new(),
         };
         let too_many = |n: usize| u32::try_from(n).map_err(|_| SparseError::TooManyRows(n));
@@ -316,6 +365,27 @@ impl ChunkPlan {
         Ok(plan)
     }
 
+    /// The plan of the identity map of `n` rows: chunks of [`IDENTITY_ROWS`] consecutive rows.
+    pub(crate) fn identity(n: usize) -> Self {
+        let chunks = n.div_ceil(IDENTITY_ROWS);
+        let bounds: Vec<u32> = (0..=chunks).map(|c| (c * IDENTITY_ROWS).min(n) as u32).collect();
+        let pair_local: Vec<u32> = (0..n).map(|r| (r % IDENTITY_ROWS) as u32).collect();
+        Self {
+            kernel_volume: 1,
+            centre: Some(0),
+            n_src: n,
+            n_dst: n,
+            dst_start: bounds.clone(),
+            dst_rows: (0..n as u32).collect(),
+            src_start: bounds.clone(),
+            src_rows: (0..n as u32).collect(),
+            pair_start: bounds,
+            pair_src: pair_local.clone(),
+            pair_dst: pair_local,
+            iota: (0..IDENTITY_ROWS.min(n) as u32).collect(),
+        }
+    }
+
     /// The plan's plain index arrays (layout in the type's documentation), for backends that
     /// upload them as they are.
     pub fn arrays(&self) -> ChunkPlanArrays<'_> {
@@ -334,6 +404,28 @@ impl ChunkPlan {
     /// region rows are the chunk's own rows), if the map has one.
     pub fn centre(&self) -> Option<usize> {
         self.centre
+    }
+
+    /// Pairs over all chunks and offsets (those of the kernel map).
+    pub fn num_pairs(&self) -> usize {
+        self.pair_src.len()
+    }
+
+    /// The `[n_dst, K]` neighbour table of the planned map (source row of every destination
+    /// and offset, or `u32::MAX`), rebuilt from the chunk-local pairs.
+    pub(crate) fn table(&self) -> Vec<u32> {
+        let kv = self.kernel_volume;
+        let mut table = vec![NONE; self.n_dst * kv];
+        for c in 0..self.num_chunks() {
+            let (srcs, dsts) = (self.chunk_src(c), self.chunk_dst(c));
+            for k in 0..kv {
+                let (ps, pd) = self.chunk_pairs(c, k);
+                for (&s, &d) in ps.iter().zip(pd) {
+                    table[dsts[d as usize] as usize * kv + k] = srcs[s as usize];
+                }
+            }
+        }
+        table
     }
 
     /// Number of chunks.
@@ -373,7 +465,22 @@ impl ChunkPlan {
     }
 
     /// `dst[d] = sum over offsets of src[s] . w_k` for every chunk. `w`: `[kv, c_src, c_dst]`.
-    fn apply(&self, src: &[f32], c_src: usize, w: &[f32], c_dst: usize, dst: &mut [f32]) {
+    ///
+    /// With `pre = Some((scale, shift))` the sources are read as `max(0, src * scale + shift)`
+    /// per channel (a batch norm and ReLU folded into the gather, computed exactly as a
+    /// separate pass would); with `accumulate` the result is added to `dst` instead of
+    /// overwriting it.
+    #[allow(clippy::too_many_arguments)]
+    fn apply(
+        &self,
+        src: &[f32],
+        c_src: usize,
+        w: &[f32],
+        c_dst: usize,
+        dst: &mut [f32],
+        pre: Option<(&[f32], &[f32])>,
+        accumulate: bool,
+    ) {
         let kv = self.kernel_volume;
         let rows = DisjointRows::new(dst);
         (0..self.num_chunks()).into_par_iter().for_each_init(
@@ -383,8 +490,18 @@ impl ChunkPlan {
                 let dsts = self.chunk_dst(c);
                 let m = dsts.len();
                 xbuf.clear();
-                for &s in srcs {
-                    xbuf.extend_from_slice(&src[s as usize * c_src..(s as usize + 1) * c_src]);
+                match pre {
+                    None => {
+                        for &s in srcs {
+                            xbuf.extend_from_slice(&src[s as usize * c_src..(s as usize + 1) * c_src]);
+                        }
+                    }
+                    Some((scale, shift)) => {
+                        for &s in srcs {
+                            let row = &src[s as usize * c_src..(s as usize + 1) * c_src];
+                            xbuf.extend(row.iter().zip(scale).zip(shift).map(|((x, s), b)| (x * s + b).max(0.0)));
+                        }
+                    }
                 }
                 // Z-ordered tensors (as `voxelize` makes them) give chunks whose rows are one
                 // contiguous run: compute straight into the output, no copy-out.
@@ -394,7 +511,14 @@ impl ChunkPlan {
                     unsafe { rows.slice(dsts[0] as usize * c_dst, m * c_dst) }
                 } else {
                     ybuf.clear();
-                    ybuf.resize(m * c_dst, 0.0);
+                    if accumulate {
+                        for &d in dsts {
+                            // SAFETY: every destination row belongs to exactly one chunk.
+                            ybuf.extend_from_slice(unsafe { rows.slice(d as usize * c_dst, c_dst) });
+                        }
+                    } else {
+                        ybuf.resize(m * c_dst, 0.0);
+                    }
                     ybuf
                 };
                 let wk = |k: usize| &w[k * c_src * c_dst..(k + 1) * c_src * c_dst];
@@ -403,8 +527,9 @@ impl ChunkPlan {
                         // The region starts with the chunk's own rows: a dense GEMM, no
                         // indirection, storing (so `y` needs no clearing).
                         let id = &self.iota[..m];
-                        gemm_rows(xbuf, c_src, id, wk(ct), c_src, c_dst, y, c_dst, id, false);
+                        gemm_rows(xbuf, c_src, id, wk(ct), c_src, c_dst, y, c_dst, id, accumulate);
                     }
+                    None if accumulate => {}
                     None => y.fill(0.0),
                 }
                 for k in 0..kv {
@@ -503,14 +628,24 @@ impl ChunkPlan {
     }
 }
 
+/// Rows per chunk of an identity (pointwise) plan: 64 KiB of 64-channel rows.
+const IDENTITY_ROWS: usize = 256;
+
 /// Fixed number of partial weight-gradient sums (independent of the thread count).
 const WEIGHT_GROUPS: usize = 16;
 
 /// A convolution layer geometry ready for the chunked kernels: the kernel map and its chunk
 /// plans. Build it once per level (or per strided transition) and call it for every layer.
+///
+/// The chunked kernels only read the plans. A layer made by [`Self::submanifold`] therefore
+/// builds its kernel map (the pair lists, which the rulebook kernels and exports read) on the
+/// first call of [`Self::map`], from the plan, and a pure chunked forward never pays for it.
 #[derive(Debug)]
 pub struct ChunkedConv {
-    map: KernelMap,
+    map: OnceLock<KernelMap>,
+    kind: MapKind,
+    n_in: usize,
+    n_out: usize,
     forward: ChunkPlan,
     backward: Option<ChunkPlan>,
     /// Scratch of the weight gradient's partial sums, kept between calls.
@@ -519,7 +654,15 @@ pub struct ChunkedConv {
 
 impl Clone for ChunkedConv {
     fn clone(&self) -> Self {
-        Self::from_parts(self.map.clone(), self.forward.clone(), self.backward.clone())
+        Self {
+            map: self.map.clone(),
+            kind: self.kind,
+            n_in: self.n_in,
+            n_out: self.n_out,
+            forward: self.forward.clone(),
+            backward: self.backward.clone(),
+            workspace: Mutex::new(Vec::new()),
+        }
     }
 }
 
@@ -540,8 +683,63 @@ impl ChunkedConv {
         Ok(Self::from_parts(map, forward, backward))
     }
 
+    /// The submanifold layer of `coords` with an odd `kernel_size` (3 in the network): its
+    /// kernel map and chunk plan from one neighbour table, the same map and plan as
+    /// `ChunkedConv::new(KernelMap::submanifold(coords, kernel_size)?, coords, coords, config)`
+    /// with half the work.
+    ///
+    /// # Errors
+    /// As [`KernelMap::submanifold`] and [`ChunkPlan::new`].
+    pub fn submanifold(coords: &[Coord], kernel_size: usize, config: &ChunkConfig) -> Result<Self> {
+        let index = KernelMap::submanifold_index(coords, kernel_size)?;
+        let kv = kernel_size.pow(3);
+        let n = coords.len();
+        let forward = if kernel_size == 1 {
+            ChunkPlan::from_rows(|d, row| row[0] = d as u32, 1, Some(0), n, coords, config)?
+        } else {
+            let finder = NeighbourFinder::new(&index, coords, kernel_size);
+            ChunkPlan::from_rows(|d, row| finder.fill(d, row), kv, Some(kv / 2), n, coords, config)?
+        };
+        let layer = Self {
+            map: OnceLock::new(),
+            kind: MapKind::Submanifold { kernel_size },
+            n_in: n,
+            n_out: n,
+            forward,
+            backward: None,
+            workspace: Mutex::new(Vec::new()),
+        };
+        Ok(layer)
+    }
+
+    /// The `[n_out, K]` neighbour table of the layer's map: entry `(u, k)` is the input row
+    /// paired with output `u` at offset `k`, or `u32::MAX` (for submanifold maps, the row of
+    /// `coords[u] + offset(k)` in the offset numbering of [`crate::kernel_map`]).
+    pub fn neighbour_table(&self) -> Vec<u32> {
+        self.forward.table()
+    }
+
+    /// The pointwise (1x1x1) layer of `n` rows: a linear map applied to every row (the
+    /// identity kernel map, chunks of consecutive rows). Needs no coordinates, so it costs
+    /// nothing to build; the caller vouches that the rows are distinct voxels.
+    ///
+    /// # Errors
+    /// [`SparseError::TooManyRows`] beyond the `u32` row range.
+    pub fn pointwise(n: usize) -> Result<Self> {
+        let (map, forward) = (KernelMap::identity(n)?, ChunkPlan::identity(n));
+        Ok(Self::from_parts(map, forward, None))
+    }
+
     fn from_parts(map: KernelMap, forward: ChunkPlan, backward: Option<ChunkPlan>) -> Self {
-        Self { map, forward, backward, workspace: Mutex::new(Vec::new()) }
+        Self {
+            kind: map.kind(),
+            n_in: map.n_in(),
+            n_out: map.n_out(),
+            map: OnceLock::from(map),
+            forward,
+            backward,
+            workspace: Mutex::new(Vec::new()),
+        }
     }
 
     /// The transposed layer of a strided one: the `Up` convolution from this `Down` layer's
@@ -549,12 +747,28 @@ impl ChunkedConv {
     /// planning. `None` for submanifold layers, whose transpose is themselves.
     pub fn transposed(&self) -> Option<Self> {
         let backward = self.backward.clone()?;
-        Some(Self::from_parts(self.map.transposed(), backward, Some(self.forward.clone())))
+        Some(Self::from_parts(self.map().transposed(), backward, Some(self.forward.clone())))
     }
 
-    /// The kernel map.
+    /// The kernel map (built from the plan on the first call for layers made by
+    /// [`Self::submanifold`]).
     pub fn map(&self) -> &KernelMap {
-        &self.map
+        self.map.get_or_init(|| KernelMap::from_table(self.kind, self.n_in, &self.forward.table(), self.forward.kernel_volume))
+    }
+
+    /// Number of (input, output) pairs over all offsets.
+    pub fn num_pairs(&self) -> usize {
+        self.forward.num_pairs()
+    }
+
+    /// Rows of the input set.
+    pub fn n_in(&self) -> usize {
+        self.n_in
+    }
+
+    /// Rows of the output set.
+    pub fn n_out(&self) -> usize {
+        self.n_out
     }
 
     /// The plan over the outputs (forward pass and weight gradient).
@@ -576,7 +790,7 @@ impl ChunkedConv {
     /// # Errors
     /// [`SparseError::FeatureShape`] / [`SparseError::WeightShape`] on mismatched buffers.
     pub fn forward(&self, x: &[f32], c_in: usize, w: &[f32], c_out: usize) -> Result<Vec<f32>> {
-        let mut y = vec![0f32; self.map.n_out() * c_out];
+        let mut y = vec![0f32; self.n_out * c_out];
         self.forward_into(x, c_in, w, c_out, &mut y)?;
         Ok(y)
     }
@@ -590,10 +804,44 @@ impl ChunkedConv {
     /// # Errors
     /// As [`Self::forward`], and for a `y` of the wrong size.
     pub fn forward_into(&self, x: &[f32], c_in: usize, w: &[f32], c_out: usize, y: &mut [f32]) -> Result<()> {
-        check_rows("x", x, self.map.n_in(), c_in)?;
-        check_weights(w, self.map.kernel_volume(), c_in, c_out)?;
-        check_rows("y", y, self.map.n_out(), c_out)?;
-        self.forward.apply(x, c_in, w, c_out, y);
+        check_rows("x", x, self.n_in, c_in)?;
+        check_weights(w, self.forward.kernel_volume, c_in, c_out)?;
+        check_rows("y", y, self.n_out, c_out)?;
+        self.forward.apply(x, c_in, w, c_out, y, None, false);
+        Ok(())
+    }
+
+    /// [`Self::forward_into`] with a batch norm and ReLU folded into the read of `x` and,
+    /// with `accumulate`, the result added to `y` (a residual connection) instead of
+    /// overwriting it: `y (+)= conv(max(0, x * scale + shift), w)`, with per-channel
+    /// `scale`, `shift`. Saves the separate passes over the activations; the normalised
+    /// values are bit for bit those of a separate pass, and without `accumulate` the output
+    /// is that of [`Self::forward_into`] on them.
+    ///
+    /// # Shapes
+    /// `x`: `[n_in, c_in]`; `scale`, `shift`: `[c_in]`; `w`: `[K^3, c_in, c_out]`;
+    /// `y`: `[n_out, c_out]`.
+    ///
+    /// # Errors
+    /// As [`Self::forward_into`], and for `scale` / `shift` not of length `c_in`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn forward_bn_relu_into(
+        &self,
+        x: &[f32],
+        c_in: usize,
+        scale: &[f32],
+        shift: &[f32],
+        w: &[f32],
+        c_out: usize,
+        y: &mut [f32],
+        accumulate: bool,
+    ) -> Result<()> {
+        check_rows("x", x, self.n_in, c_in)?;
+        check_weights(w, self.forward.kernel_volume, c_in, c_out)?;
+        check_rows("y", y, self.n_out, c_out)?;
+        check_rows("scale", scale, 1, c_in)?;
+        check_rows("shift", shift, 1, c_in)?;
+        self.forward.apply(x, c_in, w, c_out, y, Some((scale, shift)), accumulate);
         Ok(())
     }
 
@@ -605,7 +853,7 @@ impl ChunkedConv {
     /// # Errors
     /// As [`Self::forward`].
     pub fn backward_input(&self, dy: &[f32], c_out: usize, w: &[f32], c_in: usize) -> Result<Vec<f32>> {
-        let mut dx = vec![0f32; self.map.n_in() * c_in];
+        let mut dx = vec![0f32; self.n_in * c_in];
         self.backward_input_into(dy, c_out, w, c_in, &mut dx)?;
         Ok(dx)
     }
@@ -618,18 +866,18 @@ impl ChunkedConv {
     /// # Errors
     /// As [`Self::forward`], and for a `dx` of the wrong size.
     pub fn backward_input_into(&self, dy: &[f32], c_out: usize, w: &[f32], c_in: usize, dx: &mut [f32]) -> Result<()> {
-        check_rows("dy", dy, self.map.n_out(), c_out)?;
-        let kv = self.map.kernel_volume();
+        check_rows("dy", dy, self.n_out, c_out)?;
+        let kv = self.forward.kernel_volume;
         check_weights(w, kv, c_in, c_out)?;
-        check_rows("dx", dx, self.map.n_in(), c_in)?;
+        check_rows("dx", dx, self.n_in, c_in)?;
         match &self.backward {
             Some(plan) => {
                 let wt = transpose_weights(w, kv, c_in, c_out, |k| k);
-                plan.apply(dy, c_out, &wt, c_in, dx);
+                plan.apply(dy, c_out, &wt, c_in, dx, None, false);
             }
             None => {
                 let wt = transpose_weights(w, kv, c_in, c_out, |k| kv - 1 - k);
-                self.forward.apply(dy, c_out, &wt, c_in, dx);
+                self.forward.apply(dy, c_out, &wt, c_in, dx, None, false);
             }
         }
         Ok(())
@@ -643,7 +891,7 @@ impl ChunkedConv {
     /// # Errors
     /// As [`Self::forward`].
     pub fn backward_weight(&self, x: &[f32], c_in: usize, dy: &[f32], c_out: usize) -> Result<Vec<f32>> {
-        let mut dw = vec![0f32; self.map.kernel_volume() * c_in * c_out];
+        let mut dw = vec![0f32; self.forward.kernel_volume * c_in * c_out];
         self.backward_weight_into(x, c_in, dy, c_out, &mut dw)?;
         Ok(dw)
     }
@@ -656,9 +904,9 @@ impl ChunkedConv {
     /// # Errors
     /// As [`Self::forward`], and for a `dw` of the wrong size.
     pub fn backward_weight_into(&self, x: &[f32], c_in: usize, dy: &[f32], c_out: usize, dw: &mut [f32]) -> Result<()> {
-        check_rows("x", x, self.map.n_in(), c_in)?;
-        check_rows("dy", dy, self.map.n_out(), c_out)?;
-        check_weights(dw, self.map.kernel_volume(), c_in, c_out)?;
+        check_rows("x", x, self.n_in, c_in)?;
+        check_rows("dy", dy, self.n_out, c_out)?;
+        check_weights(dw, self.forward.kernel_volume, c_in, c_out)?;
         // A concurrent call on the same layer gets a scratch buffer of its own.
         match self.workspace.try_lock() {
             Ok(mut scratch) => self.forward.weight_grad(x, c_in, dy, c_out, dw, &mut scratch),

@@ -23,6 +23,7 @@ use crate::block_index::VoxelIndex;
 use crate::error::{Result, SparseError};
 use crate::hash_map::VoxelHashMap;
 use crate::key::{pack_key, parent, Coord};
+use crate::morton::morton_unchecked;
 use crate::tensor::check_row_count;
 
 /// What a kernel map connects.
@@ -99,69 +100,105 @@ impl KernelMap {
     /// [`SparseError::KernelSize`] for an even or too large kernel, range errors and duplicate
     /// coordinates as [`SparseError::CoordOutOfRange`] / [`SparseError::InvalidArgument`].
     pub fn submanifold(coords: &[Coord], kernel_size: usize) -> Result<Self> {
+        Ok(Self::submanifold_with_table(coords, kernel_size)?.0)
+    }
+
+    /// [`Self::submanifold`] and its `[n, K^3]` neighbour table (entry `(u, k)`: the input row
+    /// of output `u` at offset `k`, or `u32::MAX`), which the chunk planner reads directly.
+    ///
+    /// The table is filled row by row from the block index (every voxel's neighbours are
+    /// array reads once the blocks around its block are known), then transposed into the
+    /// per-offset pair lists in row blocks, so the pairs come out sorted by output row.
+    pub(crate) fn submanifold_with_table(coords: &[Coord], kernel_size: usize) -> Result<(Self, Vec<u32>)> {
+        let table = Self::submanifold_table(coords, kernel_size)?;
+        let map = Self::from_table(MapKind::Submanifold { kernel_size }, coords.len(), &table, kernel_size.pow(3));
+        Ok((map, table))
+    }
+
+    /// The `[n, K^3]` neighbour table of [`Self::submanifold_with_table`] alone.
+    fn submanifold_table(coords: &[Coord], kernel_size: usize) -> Result<Vec<u32>> {
+        let index = Self::submanifold_index(coords, kernel_size)?;
+        Ok(if kernel_size == 1 { (0..coords.len() as u32).collect() } else { index.neighbour_table(coords, kernel_size) })
+    }
+
+    /// The voxel index of a submanifold layer, after the checks of [`Self::submanifold`].
+    pub(crate) fn submanifold_index(coords: &[Coord], kernel_size: usize) -> Result<VoxelIndex> {
         if kernel_size.is_multiple_of(2) || kernel_size > 9 {
             return Err(SparseError::KernelSize(kernel_size));
         }
         check_row_count(coords.len())?;
-        let index = VoxelIndex::build(coords)?;
-        let n = coords.len();
-        let kv = kernel_size.pow(3);
-        let centre = kv / 2;
-        let r = (kernel_size / 2) as i32;
-        let ks = kernel_size as i32;
-        let offset = |k: usize| {
-            let k = k as i32;
-            [k % ks - r, (k / ks) % ks - r, k / (ks * ks) - r]
-        };
-        // First half: look the neighbours up. Pairs come out sorted by output row.
-        let half: Vec<(Vec<u32>, Vec<u32>)> = (0..centre)
-            .into_par_iter()
-            .map(|k| {
-                let o = offset(k);
-                let mut ins = Vec::new();
-                let mut outs = Vec::new();
-                for (j, c) in coords.iter().enumerate() {
-                    let q = [c[0] + o[0], c[1] + o[1], c[2] + o[2], c[3]];
-                    if let Some(i) = index.get(q) {
-                        ins.push(i);
-                        outs.push(j as u32);
+        VoxelIndex::build(coords)
+    }
+
+    /// The map whose pairs are the non-empty entries of an `[n_out, kv]` table.
+    pub(crate) fn from_table(kind: MapKind, n_in: usize, table: &[u32], kv: usize) -> Self {
+        const ROWS: usize = 4096;
+        let n_out = table.len().checked_div(kv).unwrap_or(0);
+        // Per block of rows, its pairs per offset; blocks then concatenated per offset.
+        let blocks: Vec<Vec<(Vec<u32>, Vec<u32>)>> = table
+            .par_chunks(kv * ROWS)
+            .enumerate()
+            .map(|(b, t)| {
+                let mut per: Vec<(Vec<u32>, Vec<u32>)> = vec![(Vec::new(), Vec::new()); kv];
+                for (j, row) in t.chunks_exact(kv).enumerate() {
+                    let u = (b * ROWS + j) as u32;
+                    for (p, &i) in per.iter_mut().zip(row) {
+                        if i != u32::MAX {
+                            p.0.push(i);
+                            p.1.push(u);
+                        }
                     }
                 }
-                (ins, outs)
+                per
             })
             .collect();
-        // Second half: the mirror offset's pairs swapped, re-sorted by output row with a
-        // scatter (output rows are unique within an offset).
-        let mirrored: Vec<(Vec<u32>, Vec<u32>)> = (centre + 1..kv)
-            .into_par_iter()
-            .map(|k| {
-                let (ins, outs) = &half[kv - 1 - k];
-                let mut slot = vec![u32::MAX; n];
-                for (&i, &j) in ins.iter().zip(outs) {
-                    slot[i as usize] = j;
-                }
-                let mut new_in = Vec::with_capacity(ins.len());
-                let mut new_out = Vec::with_capacity(ins.len());
-                for (out, &inp) in slot.iter().enumerate() {
-                    if inp != u32::MAX {
-                        new_in.push(inp);
-                        new_out.push(out as u32);
-                    }
-                }
-                (new_in, new_out)
-            })
-            .collect();
-        let identity: Vec<u32> = (0..n as u32).collect();
         let mut offset_start = Vec::with_capacity(kv + 1);
-        let mut in_rows = Vec::new();
-        let mut out_rows = Vec::new();
         offset_start.push(0);
-        for (ins, outs) in half.iter().chain(std::iter::once(&(identity.clone(), identity))).chain(&mirrored) {
-            in_rows.extend_from_slice(ins);
-            out_rows.extend_from_slice(outs);
-            offset_start.push(in_rows.len());
+        for k in 0..kv {
+            let count: usize = blocks.iter().map(|b| b[k].0.len()).sum();
+            offset_start.push(offset_start[k] + count);
         }
-        Ok(Self { kind: MapKind::Submanifold { kernel_size }, n_in: n, n_out: n, offset_start, in_rows, out_rows })
+        let total = offset_start[kv];
+        let mut in_rows = vec![0u32; total];
+        let mut out_rows = vec![0u32; total];
+        // Disjoint destination ranges per offset, filled in parallel.
+        let mut tasks = Vec::with_capacity(kv);
+        let (mut rest_in, mut rest_out) = (&mut in_rows[..], &mut out_rows[..]);
+        for k in 0..kv {
+            let len = offset_start[k + 1] - offset_start[k];
+            let (a, b) = std::mem::take(&mut rest_in).split_at_mut(len);
+            let (c, d) = std::mem::take(&mut rest_out).split_at_mut(len);
+            tasks.push((k, a, c));
+            rest_in = b;
+            rest_out = d;
+        }
+        tasks.into_par_iter().for_each(|(k, ins, outs)| {
+            let mut q = 0;
+            for b in &blocks {
+                let (bi, bo) = &b[k];
+                ins[q..q + bi.len()].copy_from_slice(bi);
+                outs[q..q + bo.len()].copy_from_slice(bo);
+                q += bi.len();
+            }
+        });
+        Self { kind, n_in, n_out, offset_start, in_rows, out_rows }
+    }
+
+    /// The identity map of `n` rows (a 1x1x1 submanifold map, built without coordinates).
+    ///
+    /// # Errors
+    /// [`SparseError::TooManyRows`] beyond the `u32` row range.
+    pub fn identity(n: usize) -> Result<Self> {
+        check_row_count(n)?;
+        let rows: Vec<u32> = (0..n as u32).collect();
+        Ok(Self {
+            kind: MapKind::Submanifold { kernel_size: 1 },
+            n_in: n,
+            n_out: n,
+            offset_start: vec![0, n],
+            in_rows: rows.clone(),
+            out_rows: rows,
+        })
     }
 
     /// The coarse voxel set `{floor(u / 2)}` of `fine` (in order of first appearance, which is
@@ -170,19 +207,38 @@ impl KernelMap {
     /// # Errors
     /// Range errors and duplicate coordinates.
     pub fn downsample(fine: &[Coord]) -> Result<(Vec<Coord>, Self)> {
-        index_of(fine)?;
-        let mut coarse_index = VoxelHashMap::with_capacity(fine.len() / 2 + 4);
+        check_row_count(fine.len())?;
+        let mut codes = Vec::with_capacity(fine.len());
+        for (row, &c) in fine.iter().enumerate() {
+            pack_key(c, row)?;
+            codes.push(morton_unchecked(c));
+        }
         let mut coarse = Vec::new();
         let mut parent_row = Vec::with_capacity(fine.len());
-        for &c in fine {
-            let p = parent(c);
-            let v = coarse.len() as u32;
-            match coarse_index.insert_or_get(crate::key::pack_unchecked(p), v) {
-                None => {
-                    coarse.push(p);
-                    parent_row.push(v);
+        if codes.windows(2).all(|w| w[0] < w[1]) {
+            // Z-ordered without repeats (so no duplicates): the eight children of a coarse
+            // voxel share `code >> 3` and are consecutive, so parents are runs, no hashing.
+            let mut last = u64::MAX;
+            for (&c, &code) in fine.iter().zip(&codes) {
+                if code >> 3 != last {
+                    last = code >> 3;
+                    coarse.push(parent(c));
                 }
-                Some(v) => parent_row.push(v),
+                parent_row.push(coarse.len() as u32 - 1);
+            }
+        } else {
+            index_of(fine)?;
+            let mut coarse_index = VoxelHashMap::with_capacity(fine.len() / 2 + 4);
+            for &c in fine {
+                let p = parent(c);
+                let v = coarse.len() as u32;
+                match coarse_index.insert_or_get(crate::key::pack_unchecked(p), v) {
+                    None => {
+                        coarse.push(p);
+                        parent_row.push(v);
+                    }
+                    Some(v) => parent_row.push(v),
+                }
             }
         }
         let map = Self::strided(fine, &parent_row, coarse.len(), MapKind::Down);

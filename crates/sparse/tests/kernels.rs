@@ -358,3 +358,127 @@ fn plan_arrays_cover_every_output_once() {
         assert_eq!(ps.len(), dst.len());
     }
 }
+
+/// Submanifold pairs by brute force: per offset, every output looked up in a std `HashMap`.
+fn brute_force_pairs(set: &[Coord], kernel_size: usize) -> Vec<Vec<(u32, u32)>> {
+    let index: std::collections::HashMap<Coord, u32> = set.iter().enumerate().map(|(r, &c)| (c, r as u32)).collect();
+    let (ks, r) = (kernel_size as i32, kernel_size as i32 / 2);
+    (0..ks * ks * ks)
+        .map(|k| {
+            let o = [k % ks - r, (k / ks) % ks - r, k / (ks * ks) - r];
+            set.iter()
+                .enumerate()
+                .filter_map(|(u, c)| index.get(&[c[0] + o[0], c[1] + o[1], c[2] + o[2], c[3]]).map(|&i| (i, u as u32)))
+                .collect()
+        })
+        .collect()
+}
+
+/// The table-built submanifold maps, the one-table layer constructor, the run-based
+/// downsampling of Z-ordered sets and the coordinate-free pointwise layer against plain
+/// constructions, on blocky (surface) and scattered sets, Z-ordered and shuffled.
+#[test]
+fn fast_geometry_paths_match_the_plain_ones() {
+    let mut sets = vec![random_set(5, 300, 12), surface_set(0), surface_set(2)];
+    let mut shuffled = surface_set(1);
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    for i in (1..shuffled.len()).rev() {
+        shuffled.swap(i, rng.random_range(0..=i));
+    }
+    sets.push(shuffled);
+    for (s, set) in sets.iter().enumerate() {
+        for ks in [1, 3, 5] {
+            let map = KernelMap::submanifold(set, ks).unwrap();
+            for (k, want) in brute_force_pairs(set, ks).iter().enumerate() {
+                let (ins, outs) = map.pairs(k);
+                let got: Vec<(u32, u32)> = ins.iter().zip(outs).map(|(&i, &o)| (i, o)).collect();
+                assert_eq!(&got, want, "set {s}, kernel {ks}, offset {k}");
+            }
+        }
+        for config in [ChunkConfig::default(), SMALL_CHUNKS] {
+            let layer = ChunkedConv::submanifold(set, 3, &config).unwrap();
+            let plain = ChunkedConv::new(KernelMap::submanifold(set, 3).unwrap(), set, set, &config).unwrap();
+            assert_eq!(layer.map(), plain.map(), "set {s}");
+            assert_eq!(layer.forward_plan(), plain.forward_plan(), "set {s}");
+        }
+        // Downsampling: first-appearance parents, pairs per offset sorted by coarse row.
+        let (coarse, down) = KernelMap::downsample(set).unwrap();
+        let mut want_coarse: Vec<Coord> = Vec::new();
+        let mut parent_row = Vec::new();
+        for c in set {
+            let p = [c[0] >> 1, c[1] >> 1, c[2] >> 1, c[3]];
+            let row = want_coarse.iter().position(|&q| q == p).unwrap_or_else(|| {
+                want_coarse.push(p);
+                want_coarse.len() - 1
+            });
+            parent_row.push(row as u32);
+        }
+        assert_eq!(coarse, want_coarse, "set {s}");
+        for k in 0..8 {
+            let mut want: Vec<(u32, u32)> = (0..set.len())
+                .filter(|&u| {
+                    let c = set[u];
+                    ((c[0] & 1) + 2 * (c[1] & 1) + 4 * (c[2] & 1)) as usize == k
+                })
+                .map(|u| (u as u32, parent_row[u]))
+                .collect();
+            want.sort_by_key(|&(u, p)| (p, u));
+            let (ins, outs) = down.pairs(k);
+            let got: Vec<(u32, u32)> = ins.iter().zip(outs).map(|(&i, &o)| (i, o)).collect();
+            assert_eq!(got, want, "set {s}, down offset {k}");
+        }
+        // Pointwise: a linear map of every row.
+        let (c_in, c_out) = (5, 7);
+        let x = values(s as u64, set.len() * c_in);
+        let w = values(100 + s as u64, c_in * c_out);
+        let y = ChunkedConv::pointwise(set.len()).unwrap().forward(&x, c_in, &w, c_out).unwrap();
+        let mut want = vec![0f32; set.len() * c_out];
+        for u in 0..set.len() {
+            for o in 0..c_out {
+                want[u * c_out + o] = (0..c_in).map(|i| x[u * c_in + i] * w[i * c_out + o]).sum();
+            }
+        }
+        assert_close(&y, &want, "pointwise");
+    }
+}
+
+/// The batch norm + ReLU folded into the chunked gather gives the bits of a separate pass
+/// followed by the plain forward; with `accumulate` the result lands on top of `y`. Shuffled
+/// rows exercise the non-contiguous (chunk buffer) path.
+#[test]
+fn fused_bn_relu_forward_matches_separate_passes() {
+    let mut shuffled = surface_set(2);
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    for i in (1..shuffled.len()).rev() {
+        shuffled.swap(i, rng.random_range(0..=i));
+    }
+    for set in [surface_set(0), shuffled] {
+        let (coarse, down) = KernelMap::downsample(&set).unwrap();
+        let layers = [
+            ChunkedConv::submanifold(&set, 3, &SMALL_CHUNKS).unwrap(),
+            ChunkedConv::new(down, &set, &coarse, &SMALL_CHUNKS).unwrap(),
+            ChunkedConv::pointwise(set.len()).unwrap(),
+        ];
+        for (q, layer) in layers.iter().enumerate() {
+            let (c_in, c_out) = (6, 9);
+            let x = values(q as u64, layer.n_in() * c_in);
+            let w = values(10 + q as u64, layer.map().kernel_volume() * c_in * c_out);
+            let scale = values(20 + q as u64, c_in);
+            let shift = values(30 + q as u64, c_in);
+            let normed: Vec<f32> = x
+                .chunks_exact(c_in)
+                .flat_map(|r| r.iter().zip(&scale).zip(&shift).map(|((x, s), b)| (x * s + b).max(0.0)))
+                .collect();
+            let want = layer.forward(&normed, c_in, &w, c_out).unwrap();
+            let mut got = vec![f32::NAN; want.len()];
+            layer.forward_bn_relu_into(&x, c_in, &scale, &shift, &w, c_out, &mut got, false).unwrap();
+            assert_eq!(got, want, "layer {q}");
+            let base = values(40 + q as u64, want.len());
+            let mut acc = base.clone();
+            layer.forward_bn_relu_into(&x, c_in, &scale, &shift, &w, c_out, &mut acc, true).unwrap();
+            let sum: Vec<f32> = base.iter().zip(&want).map(|(a, b)| a + b).collect();
+            assert_close(&acc, &sum, "accumulated");
+            assert!(layer.forward_bn_relu_into(&x, c_in, &scale[1..], &shift, &w, c_out, &mut acc, true).is_err());
+        }
+    }
+}
