@@ -30,9 +30,9 @@ use std::sync::{Mutex, OnceLock};
 
 use rayon::prelude::*;
 
+use crate::block_index::NeighbourFinder;
 use crate::error::{Result, SparseError};
 use crate::gemm::{gemm_rows, gemm_tn_rows};
-use crate::block_index::NeighbourFinder;
 use crate::kernel_map::{check_weights, transpose_weights, KernelMap, MapKind};
 use crate::key::{pack_key, Coord};
 use crate::morton::morton_unchecked;
@@ -162,7 +162,6 @@ fn with_marks<R>(n_src: usize, f: impl FnOnce(&mut Marks) -> R) -> R {
 }
 
 impl Marks {
-
     fn next(&mut self) -> u32 {
         self.generation = self.generation.wrapping_add(1);
         if self.generation == 0 {
@@ -266,7 +265,14 @@ impl ChunkPlan {
                 nbr[o as usize * kv + k] = i;
             }
         }
-        Self::from_rows(|d, row| row.copy_from_slice(&nbr[d * kv..(d + 1) * kv]), kv, map.centre(), map.n_in(), dst_coords, config)
+        Self::from_rows(
+            |d, row| row.copy_from_slice(&nbr[d * kv..(d + 1) * kv]),
+            kv,
+            map.centre(),
+            map.n_in(),
+            dst_coords,
+            config,
+        )
     }
 
     /// [`Self::new`] from the rows of the map's `[n_dst, kv]` neighbour table (source row of
@@ -753,7 +759,9 @@ impl ChunkedConv {
     /// The kernel map (built from the plan on the first call for layers made by
     /// [`Self::submanifold`]).
     pub fn map(&self) -> &KernelMap {
-        self.map.get_or_init(|| KernelMap::from_table(self.kind, self.n_in, &self.forward.table(), self.forward.kernel_volume))
+        self.map.get_or_init(|| {
+            KernelMap::from_table(self.kind, self.n_in, &self.forward.table(), self.forward.kernel_volume)
+        })
     }
 
     /// Number of (input, output) pairs over all offsets.

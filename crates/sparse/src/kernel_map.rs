@@ -118,7 +118,11 @@ impl KernelMap {
     /// The `[n, K^3]` neighbour table of [`Self::submanifold_with_table`] alone.
     fn submanifold_table(coords: &[Coord], kernel_size: usize) -> Result<Vec<u32>> {
         let index = Self::submanifold_index(coords, kernel_size)?;
-        Ok(if kernel_size == 1 { (0..coords.len() as u32).collect() } else { index.neighbour_table(coords, kernel_size) })
+        Ok(if kernel_size == 1 {
+            (0..coords.len() as u32).collect()
+        } else {
+            index.neighbour_table(coords, kernel_size)
+        })
     }
 
     /// The voxel index of a submanifold layer, after the checks of [`Self::submanifold`].
