@@ -28,7 +28,11 @@ use crate::map::{key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SI
 /// units of the narrowest truncation band: a real surface changes the TSDF by about one
 /// voxel per voxel, the seam between free space and the back of a surface by two bands or
 /// more (with the band depending on depth, the narrowest band bounds that seam from below).
-const MAX_EDGE_JUMP_BANDS: f32 = 1.0;
+/// 1.5 bands, not less: far away (3-4 m) the averaged Kinect noise makes real crossings
+/// jump by several voxels, and a tighter limit (one narrowest band, 4 voxels) punched holes
+/// into the demo's far floor and walls. Never more than one whole truncation distance, the
+/// limit of the fixed band.
+const MAX_EDGE_JUMP_BANDS: f32 = 1.5;
 
 /// Side of the padded block: the chunk plus one voxel on every side.
 const PAD: usize = CHUNK_SIDE + 3;
@@ -301,7 +305,8 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
     };
     let table = case_table();
     let vs = map.config().voxel_size;
-    let max_jump = MAX_EDGE_JUMP_BANDS * map.config().narrowest_band_voxels() / map.config().truncation_voxels;
+    let max_jump =
+        (MAX_EDGE_JUMP_BANDS * map.config().narrowest_band_voxels() / map.config().truncation_voxels).min(1.0);
     let key_voxel = key * CHUNK_SIDE as i32;
     let corner_offset: [usize; 8] = std::array::from_fn(|c| (c & 1) + PAD * ((c >> 1) & 1) + PAD2 * ((c >> 2) & 1));
     // Pass 1: the cells the surface crosses, and how many triangles they make, so that the
