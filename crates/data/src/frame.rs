@@ -30,6 +30,15 @@ pub struct Frame {
 }
 
 impl Frame {
+    /// A frame with depth only (no colour, pose or labels), index 0 at time 0: what a
+    /// depth-only sensor gives, and what geometric tests need.
+    ///
+    /// # Shapes
+    /// `depth`: `height * width` metres, row-major.
+    pub fn from_depth(intrinsics: Intrinsics, depth: Vec<f32>) -> Self {
+        Self { index: 0, timestamp: 0.0, depth, color: Vec::new(), intrinsics, world_from_camera: None, labels: None }
+    }
+
     /// Checks that the buffers match the intrinsics' size and that depth and pose are
     /// finite; readers call this so that downstream code can index without checks.
     pub fn validate(&self) -> Result<(), String> {

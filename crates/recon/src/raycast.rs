@@ -463,15 +463,7 @@ mod tests {
         // on every axis, and some of their corners are unobserved.
         let k = Intrinsics::new(64, 48, 50.0, 50.0, 31.5, 23.5).expect("camera");
         let depth: Vec<f32> = (0..64 * 48).map(|i| 1.0 + 0.003 * (i % 64) as f32 + 0.002 * (i / 64) as f32).collect();
-        let frame = Frame {
-            index: 0,
-            timestamp: 0.0,
-            depth,
-            color: Vec::new(),
-            intrinsics: k,
-            world_from_camera: None,
-            labels: None,
-        };
+        let frame = Frame::from_depth(k, depth);
         let mut map = TsdfMap::new(TsdfConfig::default()).expect("config");
         map.integrate(&frame, Affine3A::IDENTITY).expect("fusion");
         let grid = ChunkGrid::new(&map);

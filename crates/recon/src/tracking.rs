@@ -1180,15 +1180,7 @@ mod tests {
         let k = Intrinsics::new(64, 48, 60.0, 60.0, 31.5, 23.5).expect("camera");
         let depth: Vec<f32> =
             (0..64 * 48).map(|i| 1.0 + 0.004 * (i % 64) as f32 + 0.01 * ((i / 64) as f32 * 0.7).sin()).collect();
-        let frame = Frame {
-            index: 0,
-            timestamp: 0.0,
-            depth,
-            color: Vec::new(),
-            intrinsics: k,
-            world_from_camera: None,
-            labels: None,
-        };
+        let frame = Frame::from_depth(k, depth);
         let c = TrackerConfig { fine_stride: 1, ..TrackerConfig::default() };
         let pyramid = build_pyramid(&frame, &c);
         let l1 = &pyramid[1];
