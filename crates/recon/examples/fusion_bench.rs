@@ -3,7 +3,7 @@
 //! ```text
 //! cargo run --release -p semrecon-recon --example fusion_bench -- [--frames N] [--voxel M]
 //!     [--7scenes DIR] [--out mesh.ply] [--keyframe K] [--trunc VOXELS]
-//!     [--band-factor K] [--min-band VOXELS]
+//!     [--band-factor K] [--min-band VOXELS] [--remesh-tol VOXELS]
 //! ```
 //!
 //! Without `--7scenes` the frames are ray-cast from an analytic scene (floor, wall, sphere).
@@ -12,7 +12,8 @@
 //! the reference poses. Thread count: `RAYON_NUM_THREADS`. `--out` writes the final mesh as
 //! binary PLY (a minimal writer local to this example). `--band-factor` is
 //! `TsdfConfig::truncation_noise_factor` (0: the fixed band of `--trunc` voxels), `--min-band`
-//! its `min_truncation_voxels`.
+//! its `min_truncation_voxels`. `--remesh-tol` is the incremental mesher's
+//! `RemeshTolerance::distance_voxels` (default 0: exact).
 
 #[path = "common/cpu_time.rs"]
 mod cpu_time;
@@ -29,7 +30,7 @@ use std::time::Instant;
 
 use glam::Affine3A;
 use semrecon_data::{Frame, Intrinsics, LabeledMesh};
-use semrecon_recon::{IncrementalMesher, TsdfConfig, TsdfMap};
+use semrecon_recon::{IncrementalMesher, RemeshTolerance, TsdfConfig, TsdfMap};
 
 use cpu_time::cpu_ns;
 use flags::Flags;
@@ -43,6 +44,7 @@ struct Args {
     truncation: f32,
     band_factor: f32,
     min_band: f32,
+    remesh_tol: f32,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -55,6 +57,7 @@ fn parse_args() -> Result<Args, String> {
         truncation: 10.0,
         band_factor: TsdfConfig::default().truncation_noise_factor,
         min_band: TsdfConfig::default().min_truncation_voxels,
+        remesh_tol: 0.0,
     };
     let mut flags = Flags::from_env();
     while let Some(flag) = flags.next_flag() {
@@ -64,6 +67,7 @@ fn parse_args() -> Result<Args, String> {
             "--trunc" => a.truncation = flags.value(&flag)?,
             "--band-factor" => a.band_factor = flags.value(&flag)?,
             "--min-band" => a.min_band = flags.value(&flag)?,
+            "--remesh-tol" => a.remesh_tol = flags.value(&flag)?,
             "--keyframe" => a.keyframe = flags.value(&flag)?,
             "--7scenes" => a.seven_scenes = Some(flags.value(&flag)?),
             "--out" => a.out = Some(flags.value(&flag)?),
@@ -177,7 +181,13 @@ fn main() {
             std::process::exit(2);
         }
     };
-    let mut mesher = IncrementalMesher::new();
+    let mut mesher = match IncrementalMesher::with_tolerance(RemeshTolerance { distance_voxels: args.remesh_tol }) {
+        Ok(m) => m,
+        Err(e) => {
+            eprintln!("fusion_bench: {e}");
+            std::process::exit(2);
+        }
+    };
     let (mut sel_ms, mut int_ms, mut tot_ms, mut mesh_ms) = (vec![], vec![], vec![], vec![]);
     let (mut sel_cpu, mut int_cpu, mut mesh_cpu) = (vec![], vec![], vec![]);
     let (mut visited, mut updated, mut remeshed, mut changed) = (0usize, 0usize, 0usize, 0usize);
@@ -234,9 +244,11 @@ fn main() {
     stats(&format!("incremental mesh / {} fr", args.keyframe), &mut mesh_ms);
     let keyframes = mesh_ms.len().max(1) as f64;
     println!(
-        "per keyframe: {:.0} chunks changed, {:.0} re-meshed (with neighbours)",
+        "per keyframe: {:.0} chunks changed, {:.0} re-meshed (with neighbours); remesh tolerance {} voxels, snapshots {:.1} MB",
         changed as f64 / keyframes,
-        remeshed as f64 / keyframes
+        remeshed as f64 / keyframes,
+        args.remesh_tol,
+        mesher.snapshot_bytes() as f64 / 1e6
     );
     println!("CPU time (all threads):");
     stats("chunk selection", &mut sel_cpu);

@@ -31,6 +31,6 @@ pub mod tracking;
 pub use error::{ReconError, Result};
 pub use fusion::{depth_weight, IntegrationStats};
 pub use map::{Chunk, ChunkKey, TsdfConfig, TsdfMap, Voxel, CHUNK_SIDE, CHUNK_VOXELS};
-pub use marching_cubes::{extract_mesh, mesh_chunk, ChunkMesh, IncrementalMesher, MeshingStats};
+pub use marching_cubes::{extract_mesh, mesh_chunk, ChunkMesh, IncrementalMesher, MeshingStats, RemeshTolerance};
 pub use raycast::{raycast, ModelView};
 pub use tracking::{ate_rmse, Keyframe, LostReason, Tracker, TrackerConfig, TrackingResult, TrackingStatus};
