@@ -77,34 +77,89 @@ impl ChunkMesh {
 /// so they are read from the chunks when a vertex is made ([`voxel_color`]).
 struct PaddedBlock {
     tsdf: [i16; PAD * PAD2],
-    flags: [u8; PAD * PAD2],
+    /// Eight spare zero bytes at the end: row masks read 16 bytes from an 11-byte row.
+    flags: [u8; PAD * PAD2 + 8],
 }
+
+/// Padded coordinate `p` (local `p - 1`, -1 ..= 9) -> (chunk offset + 1, local coordinate
+/// in that chunk).
+const SPLIT: [(u8, u8); PAD] = {
+    let mut t = [(0u8, 0u8); PAD];
+    let mut p = 0;
+    while p < PAD {
+        let l = p as i32 - 1;
+        let o = l.div_euclid(CHUNK_SIDE as i32);
+        t[p] = ((o + 1) as u8, (l - o * CHUNK_SIDE as i32) as u8);
+        p += 1;
+    }
+    t
+};
 
 /// Colour `[r, g, b, count]` of the voxel at padded coordinates `p` (`-1 ..= 9` local plus
 /// one), read from the chunk that holds it; unobserved black when it is not allocated.
 #[inline]
 fn voxel_color(nb: &[Option<&Chunk>; 27], p: [usize; 3]) -> [u8; 4] {
-    let split = |p: usize| -> (usize, usize) {
-        let l = p as i32 - 1;
-        let o = l.div_euclid(CHUNK_SIDE as i32);
-        ((o + 1) as usize, (l - o * CHUNK_SIDE as i32) as usize)
-    };
-    let ((ox, ix), (oy, iy), (oz, iz)) = (split(p[0]), split(p[1]), split(p[2]));
-    match nb[ox + 3 * oy + 9 * oz] {
-        Some(c) => c.voxels.color[ix + CHUNK_SIDE * (iy + CHUNK_SIDE * iz)],
+    let ((ox, ix), (oy, iy), (oz, iz)) = (SPLIT[p[0]], SPLIT[p[1]], SPLIT[p[2]]);
+    match nb[ox as usize + 3 * oy as usize + 9 * oz as usize] {
+        Some(c) => c.voxels.color[ix as usize + CHUNK_SIDE * (iy as usize + CHUNK_SIDE * iz as usize)],
         None => [0; 4],
     }
 }
 
+/// Per case, bit `e` set when edge `e` joins corners of different signs (crosses the surface).
+const CROSSED: [u16; 256] = {
+    let mut t = [0u16; 256];
+    let mut case = 0;
+    while case < 256 {
+        let mut e = 0;
+        while e < 12 {
+            let (a, b) = EDGES[e];
+            if ((case >> a) ^ (case >> b)) & 1 != 0 {
+                t[case] |= 1 << e;
+            }
+            e += 1;
+        }
+        case += 1;
+    }
+    t
+};
+
+/// Per edge, the offset of its key in the cell-edge grid from its cell's first key
+/// (`((z ES + y) ES + x) 3`): its low corner's offset and its axis.
+const EDGE_KEY: [usize; 12] = {
+    let mut t = [0usize; 12];
+    let mut e = 0;
+    while e < 12 {
+        let a = EDGES[e].0 as usize;
+        t[e] = (((a >> 2) & 1) * ES * ES + ((a >> 1) & 1) * ES + (a & 1)) * 3 + e / 4;
+        e += 1;
+    }
+    t
+};
+
 const NEGATIVE: u8 = 1;
 const OBSERVED: u8 = 2;
 
-/// Offsets of the chunk and its 26 neighbours, `(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`.
-fn neighbours(map: &TsdfMap, key: ChunkKey) -> [Option<&Chunk>; 27] {
-    std::array::from_fn(|i| {
-        let o = IVec3::new(i as i32 % 3, (i as i32 / 3) % 3, i as i32 / 9) - IVec3::ONE;
-        map.chunk(key + o)
-    })
+/// The chunk and its 26 neighbours at `(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`, or None when
+/// the chunk's cells cannot hold a surface ([`PaddedBlock::may_have_surface`]). The chunk and
+/// its 7 upper neighbours are looked up first: most chunks stop there.
+fn neighbours_if_surface(map: &TsdfMap, key: ChunkKey) -> Option<[Option<&Chunk>; 27]> {
+    let offset = |i: usize| IVec3::new(i as i32 % 3, (i as i32 / 3) % 3, i as i32 / 9) - IVec3::ONE;
+    let mut nb: [Option<&Chunk>; 27] = [None; 27];
+    for i in 0..27 {
+        if i % 3 != 0 && (i / 3) % 3 != 0 && i / 9 != 0 {
+            nb[i] = map.chunk(key + offset(i));
+        }
+    }
+    if !PaddedBlock::may_have_surface(&nb) {
+        return None;
+    }
+    for i in 0..27 {
+        if i % 3 == 0 || (i / 3) % 3 == 0 || i / 9 == 0 {
+            nb[i] = map.chunk(key + offset(i));
+        }
+    }
+    Some(nb)
 }
 
 impl PaddedBlock {
@@ -139,7 +194,7 @@ impl PaddedBlock {
     }
 
     fn new() -> Box<Self> {
-        Box::new(PaddedBlock { tsdf: [0; PAD * PAD2], flags: [0; PAD * PAD2] })
+        Box::new(PaddedBlock { tsdf: [0; PAD * PAD2], flags: [0; PAD * PAD2 + 8] })
     }
 
     /// Copies the voxels of padded coordinates `-1 ..= 9` (local) from the neighbours
@@ -197,13 +252,21 @@ impl PaddedBlock {
             let observed = (w != 0) as u8;
             *f = ((t < 0) as u8 & observed) | observed << 1;
         }
+        // Bit 0 of each of 8 bytes into bits 0..8: multiplying by this constant moves byte
+        // k's bit to bit 56 + k, with no carries between them.
+        const LSB: u64 = 0x0101_0101_0101_0101;
+        let pack = |x: u64| ((x & LSB).wrapping_mul(0x0102_0408_1020_4080) >> 56) as u16;
+        let word = |i: usize| {
+            let mut w = [0u8; 8];
+            w.copy_from_slice(&b.flags[i..i + 8]);
+            u64::from_le_bytes(w)
+        };
         for (r, m) in masks.iter_mut().enumerate() {
-            let row = &b.flags[r * PAD..(r + 1) * PAD];
-            let (mut neg, mut obs) = (0u16, 0u16);
-            for (x, &f) in row.iter().enumerate() {
-                neg |= ((f & NEGATIVE) as u16) << x;
-                obs |= (((f & OBSERVED) >> 1) as u16) << x;
-            }
+            let lo = word(r * PAD);
+            // Padded x 8 ..= 10: three bytes (the rest is the next row).
+            let hi = word(r * PAD + 8) & 0x00ff_ffff;
+            let neg = pack(lo) | pack(hi) << 8;
+            let obs = pack(lo >> 1) | pack(hi >> 1) << 8;
             *m = (neg, obs);
         }
     }
@@ -280,10 +343,41 @@ pub fn mesh_chunk(map: &TsdfMap, key: ChunkKey) -> ChunkMesh {
 }
 
 fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> ChunkMesh {
-    let nb = neighbours(map, key);
-    if !PaddedBlock::may_have_surface(&nb) {
-        return ChunkMesh::default();
+    if build(map, key, scratch) {
+        // `clone` allocates each vector at its length.
+        scratch.mesh.clone()
+    } else {
+        ChunkMesh::default()
     }
+}
+
+/// Re-meshes chunk `key` into `dst`, reusing its buffers: in steady state a re-mesh
+/// allocates and frees nothing (a fifth of the incremental update went to the allocator).
+fn remesh_into(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch, dst: &mut ChunkMesh) {
+    if !build(map, key, scratch) {
+        *dst = ChunkMesh::default();
+        return;
+    }
+    let src = &scratch.mesh;
+    fn copy<T: Copy>(dst: &mut Vec<T>, src: &[T]) {
+        dst.clear();
+        // Slack beyond twice the length would let the cache grow with the surface's history.
+        if dst.capacity() > 2 * src.len() + 8 {
+            dst.shrink_to(src.len());
+        }
+        dst.extend_from_slice(src);
+    }
+    copy(&mut dst.positions, &src.positions);
+    copy(&mut dst.colors, &src.colors);
+    copy(&mut dst.normals, &src.normals);
+    copy(&mut dst.triangles, &src.triangles);
+    copy(&mut dst.shared, &src.shared);
+}
+
+/// Marching cubes over chunk `key` into `scratch.mesh`; false (and the mesh left stale) when
+/// the chunk has no triangles.
+fn build(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> bool {
+    let Some(nb) = neighbours_if_surface(map, key) else { return false };
     scratch.block.gather(&nb, &mut scratch.weight, &mut scratch.masks);
     let block = &*scratch.block;
     let masks = &*scratch.masks;
@@ -342,7 +436,7 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
         }
     }
     if cells.is_empty() {
-        return ChunkMesh::default();
+        return false;
     }
     // Built in the worker's buffers and copied out at their exact size: growing five vectors
     // per chunk (and freeing the cached mesh it replaces) cost a sixth of meshing in the
@@ -358,21 +452,27 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
             {
                 let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
                 let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + corner_offset[c]));
-                let jump = EDGES.iter().any(|&(a, b)| {
-                    let (fa, fb) = (f[a as usize], f[b as usize]);
-                    (fa < 0.0) != (fb < 0.0) && (fa - fb).abs() > max_jump
-                });
+                // Only crossed edges can be seams (all corners are observed here, so the case
+                // bits are the signs).
+                let mut crossed = CROSSED[case as usize];
+                let mut jump = false;
+                while crossed != 0 {
+                    let (a, b) = EDGES[crossed.trailing_zeros() as usize];
+                    crossed &= crossed - 1;
+                    jump |= (f[a as usize] - f[b as usize]).abs() > max_jump;
+                }
                 if jump {
                     continue;
                 }
+                let cell_key = ((z * ES + y) * ES + x) * 3;
                 for tri in table.triangles(case) {
                     let mut t = [0u32; 3];
                     for (slot, &e) in t.iter_mut().zip(tri) {
-                        let (a, b) = EDGES[e as usize];
-                        let axis = (e / 4) as usize;
-                        let low = [x + (a & 1) as usize, y + ((a >> 1) & 1) as usize, z + ((a >> 2) & 1) as usize];
-                        let ek = ((low[2] * ES + low[1]) * ES + low[0]) * 3 + axis;
+                        let ek = cell_key + EDGE_KEY[e as usize];
                         if edge_vertex[ek] == u32::MAX {
+                            let (a, b) = EDGES[e as usize];
+                            let axis = (e / 4) as usize;
+                            let low = [x + (a & 1) as usize, y + ((a >> 1) & 1) as usize, z + ((a >> 2) & 1) as usize];
                             edge_vertex[ek] = mesh.positions.len() as u32;
                             used.push(ek as u32);
                             let (ia, ib) = (base + corner_offset[a as usize], base + corner_offset[b as usize]);
@@ -413,10 +513,8 @@ fn mesh_chunk_with(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> Chunk
         edge_vertex[ek as usize] = u32::MAX;
     }
     used.clear();
-    // `clone` allocates each vector at its length.
-    let out = mesh.clone();
     scratch.mesh = mesh;
-    out
+    true
 }
 
 /// What one incremental update did.
@@ -606,20 +704,27 @@ fn readers(changed: &[u64; CHUNK_VOXELS / 64]) -> u32 {
     out
 }
 
-/// One cached chunk: the map revision last seen, the mesh, and with a tolerance the
-/// snapshot its readers' meshes were made from.
-#[derive(Debug, Clone, Default)]
+/// One cached chunk: its key, the map revision last seen, the mesh, and with a tolerance
+/// the snapshot its readers' meshes were made from.
+#[derive(Debug, Clone)]
 struct CacheEntry {
+    key: ChunkKey,
     revision: u64,
     mesh: ChunkMesh,
     snapshot: Option<Box<Snapshot>>,
 }
 
+/// Revision of an entry not meshed yet (map revisions count up from 0 and never reach it).
+const UNSEEN: u64 = u64::MAX;
+
 /// Per-chunk mesh cache that re-meshes only what changed in the map (materially, with a
 /// [`RemeshTolerance`]).
 #[derive(Debug, Clone)]
 pub struct IncrementalMesher {
-    cache: HashMap<ChunkKey, CacheEntry, ChunkHashBuilder>,
+    /// Chunk key -> position in `entries`.
+    index: HashMap<ChunkKey, u32, ChunkHashBuilder>,
+    /// Entries in a slab, so that re-meshing can write into them in parallel.
+    entries: Vec<CacheEntry>,
     tolerance: RemeshTolerance,
 }
 
@@ -632,13 +737,13 @@ impl Default for IncrementalMesher {
 impl IncrementalMesher {
     /// An empty cache in exact mode: the mesh always equals a full re-mesh.
     pub fn new() -> Self {
-        Self { cache: HashMap::default(), tolerance: RemeshTolerance::EXACT }
+        Self { index: HashMap::default(), entries: Vec::new(), tolerance: RemeshTolerance::EXACT }
     }
 
     /// An empty cache with the given tolerance; fails outside its documented range.
     pub fn with_tolerance(tolerance: RemeshTolerance) -> crate::Result<Self> {
         tolerance.validate()?;
-        Ok(Self { cache: HashMap::default(), tolerance })
+        Ok(Self { tolerance, ..Self::new() })
     }
 
     /// The tolerance.
@@ -649,116 +754,139 @@ impl IncrementalMesher {
     /// Heap bytes of the snapshots (one per chunk with both signs when the tolerance is not
     /// 0, 2112 bytes each), on top of the chunk meshes.
     pub fn snapshot_bytes(&self) -> usize {
-        self.cache.values().filter(|e| e.snapshot.is_some()).count() * SNAPSHOT_BYTES
+        self.entries.iter().filter(|e| e.snapshot.is_some()).count() * SNAPSHOT_BYTES
     }
 
     /// Re-meshes the chunks that changed since the last update (materially, see
     /// [`RemeshTolerance`]), and their neighbours that read the changed voxels; drops meshes
     /// of freed chunks. Parallel over chunks, deterministic.
     pub fn update(&mut self, map: &TsdfMap) -> MeshingStats {
-        // Chunks whose revision changed, in slab order (deterministic).
-        let changed: Vec<u32> = map
-            .chunks
-            .iter()
+        // Freed chunks: drop their entries, highest position first (swap_remove moves only
+        // entries that stay).
+        let freed_entries: Vec<u32> = self
+            .entries
+            .par_iter()
             .enumerate()
-            .filter(|(_, c)| self.cache.get(&c.key).map(|e| e.revision) != Some(c.revision))
+            .filter(|(_, e)| !map.index.contains_key(&e.key))
             .map(|(i, _)| i as u32)
             .collect();
-        let mut freed: Vec<ChunkKey> = self.cache.keys().filter(|k| map.chunk(**k).is_none()).copied().collect();
-        freed.sort_unstable_by_key(|k| key_order(*k));
-        for k in &freed {
-            self.cache.remove(k);
-        }
-        // Per changed chunk, which of its neighbours (and itself) must be re-meshed.
-        let all_readers = (1u32 << 27) - 1;
-        let reader_masks: Vec<u32> = if self.tolerance.distance_voxels > 0.0 {
-            let config = map.config();
-            let tolerance =
-                (0.5 * self.tolerance.distance_voxels / config.truncation_voxels * TSDF_SCALE).floor() as i32;
-            let mut work: Vec<(u32, Option<Box<Snapshot>>)> = changed
-                .iter()
-                .map(|&slot| (slot, self.cache.get_mut(&map.chunks[slot as usize].key).and_then(|e| e.snapshot.take())))
-                .collect();
-            let masks: Vec<u32> = work
-                .par_iter_mut()
-                .map(|(slot, snapshot)| {
-                    let chunk = &map.chunks[*slot as usize];
-                    let mask = match snapshot {
-                        Some(s) => readers(&s.refresh_material(chunk, tolerance)),
-                        None => all_readers,
-                    };
-                    // Single-signed chunks hold no surface of their own; their rare changes
-                    // re-mesh all readers instead of costing a snapshot.
-                    if chunk.signs & 3 != 3 {
-                        *snapshot = None;
-                    } else if snapshot.is_none() {
-                        *snapshot = Some(Snapshot::of(chunk));
-                    }
-                    mask
-                })
-                .collect();
-            for (slot, snapshot) in work {
-                let c = &map.chunks[slot as usize];
-                let e = self.cache.entry(c.key).or_default();
-                e.snapshot = snapshot;
+        let freed: Vec<ChunkKey> = freed_entries.iter().map(|&i| self.entries[i as usize].key).collect();
+        for &i in freed_entries.iter().rev() {
+            let removed = self.entries.swap_remove(i as usize);
+            self.index.remove(&removed.key);
+            if let Some(moved) = self.entries.get(i as usize) {
+                self.index.insert(moved.key, i);
             }
-            masks
-        } else {
-            vec![all_readers; changed.len()]
-        };
-        // Mark by slab position: a mask instead of collecting keys and sorting them (most
-        // are shared).
-        let mut marked = vec![false; map.chunks.len()];
-        let mut mark = |key: ChunkKey, mask: u32| {
+        }
+        // The entry of every map chunk, new chunks getting one (in slab order: deterministic).
+        let found: Vec<Option<u32>> = map.chunks.par_iter().map(|c| self.index.get(&c.key).copied()).collect();
+        let entry_of: Vec<u32> = map
+            .chunks
+            .iter()
+            .zip(found)
+            .map(|(c, f)| {
+                f.unwrap_or_else(|| {
+                    let i = self.entries.len() as u32;
+                    self.entries.push(CacheEntry {
+                        key: c.key,
+                        revision: UNSEEN,
+                        mesh: ChunkMesh::default(),
+                        snapshot: None,
+                    });
+                    self.index.insert(c.key, i);
+                    i
+                })
+            })
+            .collect();
+        // Per entry, the map slot of its chunk when that changed.
+        let mut changed_slot = vec![u32::MAX; self.entries.len()];
+        let mut changed_count = 0;
+        for (slot, (c, &e)) in map.chunks.iter().zip(&entry_of).enumerate() {
+            if self.entries[e as usize].revision != c.revision {
+                changed_slot[e as usize] = slot as u32;
+                changed_count += 1;
+            }
+        }
+        // Per changed chunk, which of its neighbours (and itself) read what changed.
+        let all_readers = (1u32 << 27) - 1;
+        let tolerant = self.tolerance.distance_voxels > 0.0;
+        let tolerance =
+            (0.5 * self.tolerance.distance_voxels / map.config().truncation_voxels * TSDF_SCALE).floor() as i32;
+        let readers_of: Vec<(ChunkKey, u32)> = self
+            .entries
+            .par_iter_mut()
+            .zip(&changed_slot)
+            .filter(|(_, &slot)| slot != u32::MAX)
+            .map(|(e, &slot)| {
+                let chunk = &map.chunks[slot as usize];
+                e.revision = chunk.revision;
+                if !tolerant {
+                    return (chunk.key, all_readers);
+                }
+                let mask = match &mut e.snapshot {
+                    Some(s) => readers(&s.refresh_material(chunk, tolerance)),
+                    None => all_readers,
+                };
+                // Single-signed chunks hold no surface of their own; their changes re-mesh
+                // all readers instead of costing a snapshot.
+                if chunk.signs & 3 != 3 {
+                    e.snapshot = None;
+                } else if e.snapshot.is_none() {
+                    e.snapshot = Some(Snapshot::of(chunk));
+                }
+                (chunk.key, mask)
+            })
+            .collect();
+        // The map slots to re-mesh (a set: the order of marking does not matter).
+        let reader_slots = |&(key, mask): &(ChunkKey, u32)| {
+            let mut out = Vec::with_capacity(mask.count_ones() as usize);
             let mut bits = mask;
             while bits != 0 {
                 let b = bits.trailing_zeros() as i32;
                 bits &= bits - 1;
                 let o = IVec3::new(b % 3, (b / 3) % 3, b / 9) - IVec3::ONE;
                 if let Some(&slot) = map.index.get(&(key + o)) {
-                    marked[slot as usize] = true;
+                    out.push(slot);
                 }
             }
+            out
         };
-        for (&slot, &mask) in changed.iter().zip(&reader_masks) {
-            mark(map.chunks[slot as usize].key, mask);
+        let slots: Vec<u32> = readers_of.par_iter().flat_map_iter(reader_slots).collect();
+        let mut remesh = vec![false; self.entries.len()];
+        for slot in slots {
+            remesh[entry_of[slot as usize] as usize] = true;
         }
         for &k in &freed {
-            mark(k, all_readers);
+            for slot in reader_slots(&(k, all_readers)) {
+                remesh[entry_of[slot as usize] as usize] = true;
+            }
         }
-        for &slot in &changed {
-            let c = &map.chunks[slot as usize];
-            self.cache.entry(c.key).or_default().revision = c.revision;
-        }
-        let todo: Vec<ChunkKey> = map.chunks.iter().zip(&marked).filter(|(_, &m)| m).map(|(c, _)| c.key).collect();
-        let meshes: Vec<ChunkMesh> =
-            todo.par_iter().map_init(Scratch::new, |s, &k| mesh_chunk_with(map, k, s)).collect();
-        let remeshed = meshes.len();
-        for (k, m) in todo.into_iter().zip(meshes) {
-            self.cache.entry(k).or_default().mesh = m;
-        }
+        let remeshed = remesh.iter().filter(|&&r| r).count();
+        self.entries.par_iter_mut().zip(&remesh).filter(|(_, &r)| r).for_each_init(Scratch::new, |s, (e, _)| {
+            remesh_into(map, e.key, s, &mut e.mesh);
+        });
         MeshingStats {
-            changed_chunks: changed.len() + freed.len(),
+            changed_chunks: changed_count + freed.len(),
             remeshed_chunks: remeshed,
-            triangles: self.cache.values().map(|e| e.mesh.triangles.len()).sum(),
+            triangles: self.entries.iter().map(|e| e.mesh.triangles.len()).sum(),
         }
     }
 
     /// The cached mesh of chunk `key`.
     pub fn chunk_mesh(&self, key: ChunkKey) -> Option<&ChunkMesh> {
-        self.cache.get(&key).map(|e| &e.mesh)
+        self.index.get(&key).map(|&i| &self.entries[i as usize].mesh)
     }
 
     /// Number of cached chunk meshes.
     pub fn chunk_count(&self) -> usize {
-        self.cache.len()
+        self.entries.len()
     }
 
     /// The whole surface as one welded mesh (chunks in (z, y, x) key order; no labels).
     pub fn mesh(&self) -> LabeledMesh {
-        let mut keys: Vec<ChunkKey> = self.cache.keys().copied().collect();
-        keys.sort_unstable_by_key(|k| key_order(*k));
-        let meshes: Vec<&ChunkMesh> = keys.iter().filter_map(|k| self.chunk_mesh(*k)).collect();
+        let mut entries: Vec<&CacheEntry> = self.entries.iter().collect();
+        entries.sort_unstable_by_key(|e| key_order(e.key));
+        let meshes: Vec<&ChunkMesh> = entries.iter().map(|e| &e.mesh).collect();
         assemble(&meshes)
     }
 }
