@@ -9,11 +9,14 @@
 //! colours; normals are the interpolated central-difference gradient of the TSDF, pointing
 //! to the positive (free-space, camera) side; triangles wind counter-clockwise seen from it.
 //!
-//! Each chunk is meshed from a padded copy of its voxels and the one-voxel shell around it
-//! (the gradient needs it), so a chunk's mesh depends on its 26 neighbours: when a chunk
-//! changes, it and its allocated neighbours are re-meshed. Chunk meshes are welded into one
-//! mesh by the global key of the cell edge each vertex sits on, so the result is watertight
-//! where the surface is closed.
+//! Each chunk is meshed from a padded copy of its cells' corners (its voxels and its upper
+//! neighbours' boundary voxels); the gradients at vertices on the chunk's boundary also read
+//! the one-voxel shell beyond, straight from the neighbouring chunks. So a chunk's mesh
+//! depends on its 26 neighbours: when a chunk changes, it and its allocated neighbours are
+//! re-meshed (with a [`RemeshTolerance`], only when it changed materially, and only the
+//! neighbours that read the changed voxels). Chunk meshes are welded into one mesh by the
+//! global key of the cell edge each vertex sits on, so the result is watertight where the
+//! surface is closed.
 
 use std::collections::HashMap;
 
@@ -69,7 +72,8 @@ impl ChunkMesh {
     }
 }
 
-/// A padded copy of one chunk and the one-voxel shell around it.
+/// A padded copy of one chunk with room for the one-voxel shell around it (laid out over
+/// padded coordinates 0 ..= 10; [`PaddedBlock::gather`] fills 1 ..= 9, the cells' corners).
 ///
 /// Distances stay quantised (`i16`) until a vertex needs them; `flags` holds bit 0 for a
 /// negative distance and bit 1 for an observed voxel, so a cell's case and mask come from
@@ -145,19 +149,17 @@ const OBSERVED: u8 = 2;
 /// its 7 upper neighbours are looked up first: most chunks stop there.
 fn neighbours_if_surface(map: &TsdfMap, key: ChunkKey) -> Option<[Option<&Chunk>; 27]> {
     let offset = |i: usize| IVec3::new(i as i32 % 3, (i as i32 / 3) % 3, i as i32 / 9) - IVec3::ONE;
+    // Offsets 0 or +1 on every axis: the chunk and its 7 upper neighbours.
+    let upper = |i: usize| !i.is_multiple_of(3) && !(i / 3).is_multiple_of(3) && i / 9 != 0;
     let mut nb: [Option<&Chunk>; 27] = [None; 27];
-    for i in 0..27 {
-        if i % 3 != 0 && (i / 3) % 3 != 0 && i / 9 != 0 {
-            nb[i] = map.chunk(key + offset(i));
-        }
+    for (i, c) in nb.iter_mut().enumerate().filter(|(i, _)| upper(*i)) {
+        *c = map.chunk(key + offset(i));
     }
     if !PaddedBlock::may_have_surface(&nb) {
         return None;
     }
-    for i in 0..27 {
-        if i % 3 == 0 || (i / 3) % 3 == 0 || i / 9 == 0 {
-            nb[i] = map.chunk(key + offset(i));
-        }
+    for (i, c) in nb.iter_mut().enumerate().filter(|(i, _)| !upper(*i)) {
+        *c = map.chunk(key + offset(i));
     }
     Some(nb)
 }
@@ -197,9 +199,10 @@ impl PaddedBlock {
         Box::new(PaddedBlock { tsdf: [0; PAD * PAD2], flags: [0; PAD * PAD2 + 8] })
     }
 
-    /// Copies the voxels of padded coordinates `-1 ..= 9` (local) from the neighbours
-    /// (unallocated neighbours read as unobserved), and returns per padded row (`py + 11 pz`)
-    /// the bit masks (bit `px`) of negative and of observed voxels.
+    /// Copies the voxels of local coordinates `0 ..= 8` (padded 1 ..= 9: the corners of the
+    /// chunk's cells) from the chunk and its upper neighbours (unallocated ones read as
+    /// unobserved), and returns per padded row (`py + 11 pz`, rows with `py`, `pz` in 1 ..= 9)
+    /// the bit masks (bit `px`, valid for 1 ..= 9) of negative and of observed voxels.
     ///
     /// Distances and weights are copied first, row piece by row piece (fixed lengths the
     /// compiler turns into a few moves), then flags and masks come from one pass over the
@@ -743,9 +746,9 @@ fn readers(changed: &[u64; CHUNK_VOXELS / 64]) -> u32 {
         if w == 0 {
             continue;
         }
-        for oy in 0..3 {
-            for ox in 0..3 {
-                if w & X[ox] & Y[oy] != 0 {
+        for (oy, y) in Y.iter().enumerate() {
+            for (ox, x) in X.iter().enumerate() {
+                if w & x & y != 0 {
                     out |= 1 << (ox + 3 * oy + 9 * oz);
                 }
             }
