@@ -674,9 +674,7 @@ impl Snapshot {
             *d = rgb565(c);
         }
         for (z, o) in s.observed.iter_mut().enumerate() {
-            for i in 0..64 {
-                *o |= ((v.weight[z * 64 + i] != 0) as u64) << i;
-            }
+            *o = observed_bits(&v.weight[z * 64..(z + 1) * 64]);
         }
         s
     }
@@ -689,21 +687,17 @@ impl Snapshot {
         let mut out = [0u64; CHUNK_VOXELS / 64];
         for (z, word) in out.iter_mut().enumerate() {
             let range = z * 64..(z + 1) * 64;
+            let now_observed = observed_bits(&v.weight[range.clone()]);
             // Branch-free over 64 voxels into bytes, packed afterwards: vectorises.
-            let mut flags = [0u8; 64];
-            let was_observed = self.observed[z];
-            for (i, f) in flags.iter_mut().enumerate() {
+            let mut moved = [0u8; 64];
+            for (i, f) in moved.iter_mut().enumerate() {
                 let j = range.start + i;
                 let (t, s) = (v.tsdf[j] as i32, self.tsdf[j] as i32);
-                let observed = v.weight[j] != 0;
-                let was = (was_observed >> i) & 1 != 0;
-                let moved = ((t < 0) != (s < 0)) | ((t - s).abs() > tolerance) | (rgb565(v.color[j]) != self.color[j]);
-                *f = ((observed != was) | (observed & moved)) as u8;
+                let changed =
+                    ((t < 0) != (s < 0)) | ((t - s).abs() > tolerance) | (rgb565(v.color[j]) != self.color[j]);
+                *f = changed as u8;
             }
-            let mut m = 0u64;
-            for (i, &f) in flags.iter().enumerate() {
-                m |= (f as u64) << i;
-            }
+            let m = (pack_bytes(&moved) & now_observed) | (now_observed ^ self.observed[z]);
             if m == 0 {
                 continue;
             }
@@ -716,14 +710,34 @@ impl Snapshot {
                 self.tsdf[j] = v.tsdf[j];
                 self.color[j] = rgb565(v.color[j]);
             }
-            let mut now_observed = 0u64;
-            for i in 0..64 {
-                now_observed |= ((v.weight[range.start + i] != 0) as u64) << i;
-            }
             self.observed[z] = now_observed;
         }
         out
     }
+}
+
+/// Packs 64 bytes of 0 or 1 into a bit mask (byte `i` to bit `i`), eight at a time by a
+/// multiply that moves byte `k`'s bit to bit `56 + k` without carries.
+#[inline]
+fn pack_bytes(bytes: &[u8; 64]) -> u64 {
+    let mut m = 0u64;
+    for (k, chunk) in bytes.chunks_exact(8).enumerate() {
+        let mut w = [0u8; 8];
+        w.copy_from_slice(chunk);
+        let x = u64::from_le_bytes(w) & 0x0101_0101_0101_0101;
+        m |= (x.wrapping_mul(0x0102_0408_1020_4080) >> 56) << (8 * k);
+    }
+    m
+}
+
+/// Bit mask of the observed (non-zero weight) voxels among 64.
+#[inline]
+fn observed_bits(weight: &[u16]) -> u64 {
+    let mut bytes = [0u8; 64];
+    for (b, &w) in bytes.iter_mut().zip(weight) {
+        *b = (w != 0) as u8;
+    }
+    pack_bytes(&bytes)
 }
 
 /// Which chunks read the voxels in `changed` (bit mask as from
@@ -1037,6 +1051,29 @@ mod tests {
             }
         }
         uses
+    }
+
+    #[test]
+    fn readers_match_the_padded_ranges_and_bytes_pack_in_order() {
+        // Reference: the chunk at offset o reads our local coordinate l on an axis when its
+        // padded range, -1 ..= 9 in its own coordinates, holds l - 8 o.
+        let reads = |o: i32, l: i32| (-1..=9).contains(&(l - 8 * o));
+        for i in (0..CHUNK_VOXELS).step_by(7).chain([0, 7, 63, 511]) {
+            let mut changed = [0u64; CHUNK_VOXELS / 64];
+            changed[i / 64] |= 1 << (i % 64);
+            let l = [(i % 8) as i32, ((i / 8) % 8) as i32, (i / 64) as i32];
+            let mut want = 0u32;
+            for b in 0..27 {
+                let o = [b % 3 - 1, (b / 3) % 3 - 1, b / 9 - 1];
+                if (0..3).all(|a| reads(o[a], l[a])) {
+                    want |= 1 << b;
+                }
+            }
+            assert_eq!(readers(&changed), want, "voxel {l:?}");
+        }
+        let bytes: [u8; 64] = std::array::from_fn(|i| (i % 3 == 0 || i == 63) as u8);
+        let want = (0..64).filter(|&i| bytes[i] == 1).fold(0u64, |m, i| m | 1 << i);
+        assert_eq!(pack_bytes(&bytes), want);
     }
 
     #[test]
