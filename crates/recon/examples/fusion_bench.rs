@@ -108,6 +108,34 @@ fn write_ply(path: &Path, mesh: &LabeledMesh) -> std::io::Result<()> {
     std::fs::rename(&tmp, path)
 }
 
+/// FNV-1a over the sorted chunk keys and every voxel (distance, weight, colour, count) and
+/// the chunks' frame runs: equal fingerprints mean bit-identical maps, so kernels and thread
+/// counts can be compared run against run.
+fn fingerprint(map: &TsdfMap) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    let mut eat = |bytes: &[u8]| {
+        for &b in bytes {
+            h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+        }
+    };
+    for key in map.sorted_keys() {
+        let Some(chunk) = map.chunk(key) else { continue };
+        for c in key.to_array() {
+            eat(&c.to_le_bytes());
+        }
+        for v in chunk.voxels() {
+            eat(&v.tsdf().to_le_bytes());
+            eat(&v.weight().to_le_bytes());
+            eat(&v.color());
+        }
+        for &(a, b) in chunk.frames().runs() {
+            eat(&a.to_le_bytes());
+            eat(&b.to_le_bytes());
+        }
+    }
+    h
+}
+
 fn stats(label: &str, ms: &mut [f64]) {
     if ms.is_empty() {
         return;
@@ -219,6 +247,7 @@ fn main() {
         }
     }
     let wall = t_all.elapsed().as_secs_f64();
+    println!("map fingerprint {:016x}", fingerprint(&map));
     let n = frames.len().max(1);
     println!(
         "chunks {} ({:.1} MB, {} bytes/chunk), visited {:.0} chunks/frame, {:.2} M voxel updates/frame",

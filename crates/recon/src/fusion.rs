@@ -22,6 +22,7 @@
 //! Invalid depth (0, negative, NaN, infinite, outside the configured range) is skipped.
 
 use std::collections::HashSet;
+use std::sync::OnceLock;
 
 use glam::{Affine3A, Vec3A};
 use rayon::prelude::*;
@@ -42,6 +43,48 @@ use crate::map::{
 #[inline]
 pub fn depth_weight(depth: f32) -> f32 {
     (1.0 / (depth * depth)).min(4.0)
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2;
+
+/// Which integration kernel runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kernel {
+    /// `wide::f32x8` (whatever the build's target features make of it).
+    Portable,
+    /// AVX2 intrinsics with hardware gathers, chosen at run time.
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+}
+
+/// The kernel for this machine, chosen once: AVX2 where the CPU has it, unless
+/// `SEMRECON_FUSION_SIMD=portable` forces the portable one (both give the same bits).
+fn kernel() -> Kernel {
+    static KERNEL: OnceLock<Kernel> = OnceLock::new();
+    *KERNEL.get_or_init(|| {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let forced = std::env::var("SEMRECON_FUSION_SIMD").unwrap_or_default();
+            if forced != "portable" && is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
+                return Kernel::Avx2;
+            }
+        }
+        Kernel::Portable
+    })
+}
+
+/// Integrates one chunk with `kernel`; `fixed`: the band is the full truncation everywhere.
+fn integrate_chunk_with(kernel: Kernel, chunk: &mut Chunk, view: &FrameView, fixed: bool) -> ChunkOutcome {
+    match (kernel, fixed) {
+        (Kernel::Portable, false) => integrate_chunk::<true>(chunk, view),
+        (Kernel::Portable, true) => integrate_chunk::<false>(chunk, view),
+        // SAFETY: `Kernel::Avx2` is only chosen where the CPU has AVX2 and FMA.
+        #[cfg(target_arch = "x86_64")]
+        (Kernel::Avx2, false) => unsafe { avx2::integrate_chunk::<true>(chunk, view) },
+        #[cfg(target_arch = "x86_64")]
+        (Kernel::Avx2, true) => unsafe { avx2::integrate_chunk::<false>(chunk, view) },
+    }
 }
 
 /// What one integration did.
@@ -175,6 +218,17 @@ impl TsdfMap {
         world_from_camera: Affine3A,
         keys: &[ChunkKey],
     ) -> Result<IntegrationStats> {
+        self.integrate_chunks_with(kernel(), frame, world_from_camera, keys)
+    }
+
+    /// [`TsdfMap::integrate_chunks`] with the given kernel (tests compare the kernels).
+    fn integrate_chunks_with(
+        &mut self,
+        kernel: Kernel,
+        frame: &Frame,
+        world_from_camera: Affine3A,
+        keys: &[ChunkKey],
+    ) -> Result<IntegrationStats> {
         check_frame(frame, &world_from_camera)?;
         let mut stats = IntegrationStats::default();
         let mut slots: Vec<(u32, bool)> = keys.iter().map(|&key| self.allocate(key)).collect();
@@ -204,23 +258,30 @@ impl TsdfMap {
         for &(s, _) in &slots {
             selected[s as usize] = true;
         }
-        let mut targets: Vec<&mut Chunk> =
-            self.chunks.iter_mut().zip(&selected).filter(|(_, &sel)| sel).map(|(c, _)| c).collect();
+        // Chunks are integrated in image order (by the pixel tile their centre projects to,
+        // then slab order), so that the chunks one thread works through read neighbouring
+        // depth and colour pixels from cache; each chunk's update is independent of the
+        // order, so the result is too.
+        let mut targets: Vec<(u32, u32, &mut Chunk)> = self
+            .chunks
+            .iter_mut()
+            .zip(&selected)
+            .filter(|(_, &sel)| sel)
+            .enumerate()
+            .map(|(i, (c, _))| (image_tile(&view, c.key), i as u32, c))
+            .collect();
+        targets.sort_unstable_by_key(|t| (t.0, t.1));
         // A fixed band (clamped to exactly 1 truncation) skips the band arithmetic.
         let fixed = view.band.min_relative >= 1.0;
-        let outcomes: Vec<ChunkOutcome> = targets
+        let tiled: Vec<(u32, ChunkOutcome)> = targets
             .par_iter_mut()
-            .map(
-                |chunk| {
-                    if fixed {
-                        integrate_chunk::<false>(chunk, &view)
-                    } else {
-                        integrate_chunk::<true>(chunk, &view)
-                    }
-                },
-            )
+            .map(|(_, i, chunk)| (*i, integrate_chunk_with(kernel, chunk, &view, fixed)))
             .collect();
         drop(targets);
+        let mut outcomes = vec![ChunkOutcome::default(); tiled.len()];
+        for (i, out) in tiled {
+            outcomes[i as usize] = out;
+        }
         // `targets` and `outcomes` are in slab order, like the sorted `slots`.
         let revision = self.next_revision;
         self.next_revision += 1;
@@ -246,6 +307,24 @@ impl TsdfMap {
         self.free(to_free);
         Ok(stats)
     }
+}
+
+/// The 32x32-pixel image tile (row-major) that the centre of chunk `key` projects to;
+/// `u32::MAX` behind the camera or off the image.
+fn image_tile(f: &FrameView, key: ChunkKey) -> u32 {
+    const TILE: f32 = 32.0;
+    let centre = Vec3A::from((key * CHUNK_SIDE as i32).as_vec3() + 3.5) * f.voxel_size;
+    let p = f.rot[0] * centre.x + f.rot[1] * centre.y + f.rot[2] * centre.z + f.trans;
+    if !(p.z > 0.0) {
+        return u32::MAX;
+    }
+    let u = (f.k.fx * p.x / p.z + f.k.cx) / TILE;
+    let v = (f.k.fy * p.y / p.z + f.k.cy) / TILE;
+    let cols = (f.k.width as f32 / TILE).ceil();
+    if !(u >= 0.0 && v >= 0.0 && u < cols && v < f.k.height as f32) {
+        return u32::MAX;
+    }
+    (v as u32) * cols as u32 + u as u32
 }
 
 /// Rejects frames whose buffers do not match their camera and non-finite poses; depth values
@@ -447,7 +526,25 @@ mod tests {
         check_simd_against_scalar(config);
     }
 
+    /// The kernels this machine can run.
+    fn kernels() -> Vec<Kernel> {
+        let mut kernels = vec![Kernel::Portable];
+        #[cfg(target_arch = "x86_64")]
+        if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
+            kernels.push(Kernel::Avx2);
+        } else {
+            eprintln!("no AVX2/FMA on this machine: only the portable kernel is tested");
+        }
+        kernels
+    }
+
     fn check_simd_against_scalar(config: TsdfConfig) {
+        for kernel in kernels() {
+            check_kernel_against_scalar(kernel, config);
+        }
+    }
+
+    fn check_kernel_against_scalar(kernel: Kernel, config: TsdfConfig) {
         let mut rng = ChaCha8Rng::seed_from_u64(7);
         let mut map = TsdfMap::new(config).expect("valid");
         let mut spec: Vec<(IVec3, Vec<Voxel>)> = Vec::new();
@@ -487,7 +584,7 @@ mod tests {
                 };
                 scalar_integrate(&mut spec[entry].1, key, &view);
             }
-            map.integrate_chunks(&frame, pose, &keys).expect("fusion");
+            map.integrate_chunks_with(kernel, &frame, pose, &keys).expect("fusion");
             // The map frees new chunks that got nothing within the band; so does the spec.
             spec.retain(|(k, _)| map.chunk(*k).is_some());
         }
@@ -496,10 +593,42 @@ mod tests {
         for (key, voxels) in &spec {
             let chunk = map.chunk(*key).expect("kept");
             for (i, v) in voxels.iter().enumerate() {
-                assert_eq!(chunk.voxel(i), *v, "chunk {key} voxel {i}");
+                assert_eq!(chunk.voxel(i), *v, "{kernel:?}: chunk {key} voxel {i}");
                 compared += v.is_observed() as usize;
             }
         }
         assert!(compared > 1000, "{compared} observed voxels compared");
+        for chunk in map.chunks() {
+            assert_eq!(chunk.signs, chunk.voxels.signs(), "{kernel:?}: sign summary of chunk {}", chunk.key);
+        }
+    }
+
+    /// Colour pixels are 3 bytes and the AVX2 kernel gathers 4: the last pixel of the image
+    /// must be read without passing the end, and give the same colour as the portable kernel.
+    #[test]
+    fn last_pixel_colour_is_fused_by_every_kernel() {
+        let k = Intrinsics::new(16, 12, 20.0, 20.0, 7.5, 5.5).expect("valid camera");
+        let n = k.pixel_count();
+        let mut depth = vec![0.0; n];
+        depth[n - 1] = 0.6;
+        let mut color = vec![[10, 20, 30]; n];
+        color[n - 1] = [200, 150, 100];
+        let frame =
+            Frame { index: 0, timestamp: 0.0, depth, color, intrinsics: k, world_from_camera: None, labels: None };
+        let mut colours = Vec::new();
+        for kernel in kernels() {
+            // Stride 1: the default stride of 2 would not sample the last (odd) pixel.
+            let mut map = TsdfMap::new(TsdfConfig { selection_stride: 1, ..TsdfConfig::default() }).expect("valid");
+            let keys = map.select_chunks(&frame, Affine3A::IDENTITY).expect("select");
+            map.integrate_chunks_with(kernel, &frame, Affine3A::IDENTITY, &keys).expect("fusion");
+            let mut seen: Vec<[u8; 3]> =
+                map.chunks().flat_map(|c| c.voxels()).filter(|v| v.color_count > 0).map(|v| v.color()).collect();
+            assert!(!seen.is_empty(), "{kernel:?}: no voxel took a colour");
+            seen.sort_unstable();
+            seen.dedup();
+            assert_eq!(seen, vec![[200, 150, 100]], "{kernel:?}");
+            colours.push(map.chunks().map(|c| (c.key, c.voxels().collect::<Vec<_>>())).collect::<Vec<_>>());
+        }
+        assert!(colours.windows(2).all(|w| w[0] == w[1]), "kernels disagree");
     }
 }

@@ -1,0 +1,234 @@
+//! The integration kernel in AVX2 intrinsics, selected at run time where the CPU has AVX2.
+//!
+//! The portable kernel is written with `wide::f32x8`, which the baseline build (SSE2) turns
+//! into pairs of SSE operations with the depth gather, the pixel index and the colour blend
+//! done lane by lane. Here one row of 8 voxels is one AVX register throughout: the depths
+//! and the colours are fetched with hardware gathers and the colour running mean of the
+//! voxels near the surface is blended in 32-bit lanes instead of a scalar loop per voxel.
+//!
+//! The arithmetic is the portable kernel's operation for operation (no fused multiply-add,
+//! same rounding), so both kernels, and the scalar specification `Voxel::fuse`, give the
+//! same bits.
+
+use std::arch::x86_64::*;
+
+use super::{ChunkOutcome, FrameView};
+use crate::map::{Chunk, SignSummary, CHUNK_SIDE, NOISE_OFFSET, RECIPROCALS, TSDF_SCALE, WEIGHT_SCALE};
+
+/// The colour running mean's reciprocals, in memory for the gather.
+static RECIPROCAL_TABLE: [u32; 256] = RECIPROCALS;
+
+/// Rounds half away from zero like `wide`'s `round` and `map::round_half_away`:
+/// `trunc(|x| + 0.5)` with the sign restored, the largest float below 0.5 rounding to 0.
+/// Inputs here are far below 2^23 in magnitude.
+#[inline(always)]
+unsafe fn round_half_away(x: __m256) -> __m256 {
+    // SAFETY: register-only intrinsics of the features the caller enables.
+    unsafe {
+        let sign = _mm256_set1_ps(-0.0);
+        let abs = _mm256_andnot_ps(sign, x);
+        let r = _mm256_round_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(_mm256_add_ps(abs, _mm256_set1_ps(0.5)));
+        let r = _mm256_andnot_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(abs, _mm256_set1_ps(0.5f32.next_down())), r);
+        _mm256_or_ps(r, _mm256_and_ps(sign, x))
+    }
+}
+
+/// One colour channel of `map::blend_color` in 32-bit lanes: `((c n + o) recip + 2^15) >> 16`
+/// (no overflow: at most `(255 * 255 + 255) * 65536 + 2^15 < 2^32`).
+#[inline(always)]
+unsafe fn blend_channel(c: __m256i, o: __m256i, count: __m256i, recip: __m256i) -> __m256i {
+    // SAFETY: register-only intrinsics of the features the caller enables.
+    unsafe {
+        let sum = _mm256_add_epi32(_mm256_mullo_epi32(c, count), o);
+        let c = _mm256_srli_epi32::<16>(_mm256_add_epi32(_mm256_mullo_epi32(sum, recip), _mm256_set1_epi32(1 << 15)));
+        _mm256_and_si256(c, _mm256_set1_epi32(0xff))
+    }
+}
+
+/// `integrate_chunk` of the parent module with AVX2.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[target_feature(enable = "avx2,fma")]
+pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
+    const N: usize = CHUNK_SIDE;
+    let side = N as i32;
+    let origin = (chunk.key * side).as_vec3() * f.voxel_size;
+    let base = f.rot[0] * origin.x + f.rot[1] * origin.y + f.rot[2] * origin.z + f.trans;
+    let dx = f.rot[0] * f.voxel_size;
+    let dy = f.rot[1] * f.voxel_size;
+    let dz = f.rot[2] * f.voxel_size;
+    let n_pix = f.depth.len();
+    let has_color = !f.color.is_empty();
+    let block = &mut *chunk.voxels;
+    let mut updated = 0u32;
+    let mut signs = SignSummary::default();
+    // SAFETY (whole body): AVX2/FMA are enabled by the caller's check; every gather index
+    // is a pixel index below `n_pix` (lanes off the image read pixel 0, masked afterwards),
+    // colour gathers read 4 bytes at most at byte `3 n_pix - 4`, the table index is a
+    // count below 256, and row loads/stores stay within the chunk's 512-voxel arrays.
+    let near = unsafe {
+        let splat = _mm256_set1_ps;
+        let steps = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
+        let (step_x, step_y, step_z) =
+            (_mm256_mul_ps(steps, splat(dx.x)), _mm256_mul_ps(steps, splat(dx.y)), _mm256_mul_ps(steps, splat(dx.z)));
+        let (fx, fy, cx, cy) = (splat(f.k.fx), splat(f.k.fy), splat(f.k.cx), splat(f.k.cy));
+        let (wf, hf) = (splat(f.k.width as f32 - 0.5), splat(f.k.height as f32 - 0.5));
+        let width = splat(f.k.width as f32);
+        let (min_d, max_d) = (splat(f.min_depth), splat(f.max_depth));
+        let inv_trunc = splat(1.0 / f.truncation);
+        let (band_c, band_q, band_min) = (splat(f.band.constant), splat(f.band.quadratic), splat(f.band.min_relative));
+        let noise_offset = splat(NOISE_OFFSET);
+        let (zero, half, one) = (_mm256_setzero_ps(), splat(0.5), splat(1.0));
+        let neg_half = splat(-0.5);
+        let cap = splat(f.weight_cap as f32);
+        let four = splat(4.0);
+        let tiny = splat(1e-30);
+        let inv_wscale = splat(1.0 / WEIGHT_SCALE);
+        let wscale = splat(WEIGHT_SCALE);
+        let tscale = splat(TSDF_SCALE);
+        let depth_ptr = f.depth.as_ptr();
+        let color_ptr = f.color.as_ptr() as *const u8;
+        // Colour pixels are 3 bytes; a gather reads 4. The last pixel is read from one byte
+        // earlier and shifted, so no read passes the end of the image.
+        let last_color_offset = _mm256_set1_epi32((3 * n_pix).saturating_sub(4) as i32);
+        let byte_mask = _mm256_set1_epi32(0xff);
+        let count_max = _mm256_set1_epi32(255);
+        let int_one = _mm256_set1_epi32(1);
+        let tsdf_ptr = block.tsdf.as_mut_ptr();
+        let weight_ptr = block.weight.as_mut_ptr();
+        let color_rows = block.color.as_mut_ptr() as *mut u8;
+        let mut near_lanes = _mm256_setzero_ps();
+        for r in 0..N * N {
+            let (y, z) = ((r % N) as f32, (r / N) as f32);
+            let row = base + dy * y + dz * z;
+            let pz = _mm256_add_ps(splat(row.z), step_z);
+            let inv_z = _mm256_div_ps(one, pz);
+            let u = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(fx, _mm256_add_ps(splat(row.x), step_x)), inv_z), cx);
+            let v = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(fy, _mm256_add_ps(splat(row.y), step_y)), inv_z), cy);
+            let inside = _mm256_and_ps(
+                _mm256_and_ps(
+                    _mm256_and_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(pz, zero), _mm256_cmp_ps::<_CMP_GE_OQ>(u, neg_half)),
+                    _mm256_and_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(u, wf), _mm256_cmp_ps::<_CMP_GE_OQ>(v, neg_half)),
+                ),
+                _mm256_cmp_ps::<_CMP_LT_OQ>(v, hf),
+            );
+            let tsdf_row = tsdf_ptr.add(r * N) as *mut __m128i;
+            let weight_row = weight_ptr.add(r * N) as *mut __m128i;
+            let t_old_i = _mm256_cvtepi16_epi32(_mm_loadu_si128(tsdf_row));
+            let w_old_i = _mm256_cvtepu16_epi32(_mm_loadu_si128(weight_row));
+            let (t_now, w_now) = 'row: {
+                if _mm256_movemask_ps(inside) == 0 {
+                    break 'row (t_old_i, w_old_i);
+                }
+                // Inside lanes have u + 0.5 and v + 0.5 in [0, size): truncation is floor and
+                // the index is exact in f32 (below 2^24 pixels).
+                let pu = _mm256_round_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(_mm256_add_ps(u, half));
+                let pv = _mm256_round_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(_mm256_add_ps(v, half));
+                let pix_f = _mm256_and_ps(inside, _mm256_add_ps(_mm256_mul_ps(pv, width), pu));
+                let pix = _mm256_cvttps_epi32(pix_f);
+                let d = _mm256_i32gather_ps::<4>(depth_ptr, pix);
+                let sdf = _mm256_mul_ps(_mm256_sub_ps(d, pz), inv_trunc);
+                let mu = if DEPTH_BAND {
+                    let e = _mm256_sub_ps(d, noise_offset);
+                    _mm256_min_ps(
+                        _mm256_max_ps(_mm256_add_ps(band_c, _mm256_mul_ps(band_q, _mm256_mul_ps(e, e))), band_min),
+                        one,
+                    )
+                } else {
+                    one
+                };
+                let neg_mu = _mm256_sub_ps(zero, mu);
+                let valid = _mm256_and_ps(
+                    _mm256_and_ps(inside, _mm256_cmp_ps::<_CMP_GE_OQ>(d, min_d)),
+                    _mm256_and_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(d, max_d), _mm256_cmp_ps::<_CMP_GE_OQ>(sdf, neg_mu)),
+                );
+                // No branch on the outcome: which lanes are valid or near the surface is data
+                // dependent, known only after the gather, and a mispredicted branch there costs
+                // more than the arithmetic it would skip. Unchanged lanes are written back as
+                // they were.
+                let valid_bits = _mm256_movemask_ps(valid) as u32;
+                let t_old = _mm256_cvtepi32_ps(t_old_i);
+                let w_old_q = _mm256_cvtepi32_ps(w_old_i);
+                let obs = _mm256_min_ps(sdf, mu);
+                let w_obs = _mm256_and_ps(valid, _mm256_min_ps(_mm256_div_ps(one, _mm256_mul_ps(d, d)), four));
+                let w_old = _mm256_mul_ps(w_old_q, inv_wscale);
+                let w_sum = _mm256_add_ps(w_old, w_obs);
+                let inv = _mm256_div_ps(one, _mm256_max_ps(w_sum, tiny));
+                let a = _mm256_mul_ps(w_old, inv);
+                let b = _mm256_mul_ps(w_obs, inv);
+                let t = _mm256_add_ps(_mm256_mul_ps(t_old, a), _mm256_mul_ps(obs, _mm256_mul_ps(b, tscale)));
+                let t_new = _mm256_blendv_ps(t_old, round_half_away(t), valid);
+                let w_q = _mm256_min_ps(_mm256_max_ps(round_half_away(_mm256_mul_ps(w_sum, wscale)), one), cap);
+                let w_new = _mm256_blendv_ps(w_old_q, w_q, valid);
+                // Integral and in range: conversions and packs are exact.
+                let t_i = _mm256_cvttps_epi32(t_new);
+                let w_i = _mm256_cvttps_epi32(w_new);
+                _mm_storeu_si128(
+                    tsdf_row,
+                    _mm_packs_epi32(_mm256_castsi256_si128(t_i), _mm256_extracti128_si256::<1>(t_i)),
+                );
+                _mm_storeu_si128(
+                    weight_row,
+                    _mm_packus_epi32(_mm256_castsi256_si128(w_i), _mm256_extracti128_si256::<1>(w_i)),
+                );
+                updated += valid_bits.count_ones();
+                let near = _mm256_and_ps(valid, _mm256_cmp_ps::<_CMP_LT_OQ>(sdf, mu));
+                near_lanes = _mm256_or_ps(near_lanes, near);
+                if has_color {
+                    let near_i = _mm256_castps_si256(near);
+                    let row_ptr = color_rows.add(r * N * 4) as *mut __m256i;
+                    let cur = _mm256_loadu_si256(row_ptr);
+                    // The observed colours, `[r, g, b, x]` per lane.
+                    let offset = _mm256_mullo_epi32(pix, _mm256_set1_epi32(3));
+                    let clamped = _mm256_min_epi32(offset, last_color_offset);
+                    let shift = _mm256_slli_epi32::<3>(_mm256_sub_epi32(offset, clamped));
+                    let obs_c = _mm256_srlv_epi32(
+                        _mm256_mask_i32gather_epi32::<1>(
+                            _mm256_setzero_si256(),
+                            color_ptr as *const i32,
+                            clamped,
+                            near_i,
+                        ),
+                        shift,
+                    );
+                    let count = _mm256_srli_epi32::<24>(cur);
+                    let recip = _mm256_i32gather_epi32::<4>(RECIPROCAL_TABLE.as_ptr() as *const i32, count);
+                    let nr = blend_channel(
+                        _mm256_and_si256(cur, byte_mask),
+                        _mm256_and_si256(obs_c, byte_mask),
+                        count,
+                        recip,
+                    );
+                    let ng = blend_channel(
+                        _mm256_and_si256(_mm256_srli_epi32::<8>(cur), byte_mask),
+                        _mm256_and_si256(_mm256_srli_epi32::<8>(obs_c), byte_mask),
+                        count,
+                        recip,
+                    );
+                    let nb = blend_channel(
+                        _mm256_and_si256(_mm256_srli_epi32::<16>(cur), byte_mask),
+                        _mm256_and_si256(_mm256_srli_epi32::<16>(obs_c), byte_mask),
+                        count,
+                        recip,
+                    );
+                    let nc = _mm256_min_epi32(_mm256_add_epi32(count, int_one), count_max);
+                    let packed = _mm256_or_si256(
+                        _mm256_or_si256(nr, _mm256_slli_epi32::<8>(ng)),
+                        _mm256_or_si256(_mm256_slli_epi32::<16>(nb), _mm256_slli_epi32::<24>(nc)),
+                    );
+                    _mm256_storeu_si256(row_ptr, _mm256_blendv_epi8(cur, packed, near_i));
+                }
+                (t_i, w_i)
+            };
+            let observed = _mm256_cmpgt_epi32(w_now, _mm256_setzero_si256());
+            let negative = _mm256_cmpgt_epi32(_mm256_setzero_si256(), t_now);
+            let neg = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_and_si256(observed, negative))) as u32;
+            let pos = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_andnot_si256(negative, observed))) as u32;
+            signs.add_row(r, neg, pos);
+        }
+        _mm256_movemask_ps(near_lanes) != 0
+    };
+    chunk.signs = signs.bits();
+    ChunkOutcome { updated, near }
+}
