@@ -21,7 +21,6 @@
 //!
 //! Invalid depth (0, negative, NaN, infinite, outside the configured range) is skipped.
 
-use std::collections::HashSet;
 use std::sync::OnceLock;
 
 use glam::{Affine3A, Vec3A};
@@ -31,9 +30,10 @@ use wide::{f32x8, i16x8, i32x8, u16x8};
 
 use crate::error::{ReconError, Result};
 use crate::map::{
-    blend_color, key_order, BandModel, Chunk, ChunkHashBuilder, ChunkKey, SignSummary, TsdfMap, CHUNK_SIDE,
-    NOISE_OFFSET, TSDF_SCALE, WEIGHT_SCALE,
+    blend_color, key_order, BandModel, Chunk, ChunkKey, SignSummary, TsdfMap, CHUNK_SIDE, NOISE_OFFSET, TSDF_SCALE,
+    WEIGHT_SCALE,
 };
+use crate::TsdfConfig;
 
 /// Weight of one depth observation: `1 / z²` (z in metres) capped at 4.
 ///
@@ -133,74 +133,20 @@ impl TsdfMap {
     /// `world_from_camera`; sorted (z, y, x) and without duplicates.
     pub fn select_chunks(&self, frame: &Frame, world_from_camera: Affine3A) -> Result<Vec<ChunkKey>> {
         check_frame(frame, &world_from_camera)?;
-        let c = &self.config;
-        let k = frame.intrinsics;
-        let (w, h) = (k.width as usize, k.height as usize);
-        let stride = c.selection_stride;
-        let trunc = c.truncation();
-        let band = c.band_model();
-        // Samples along the band no further apart than two voxels, so that the walk cannot
-        // step over a chunk (8 voxels) except at a corner clipped by less than a voxel.
-        let max_steps = (trunc / c.voxel_size).ceil().max(1.0) as usize;
-        // Work in chunk units shifted so that chunk k spans [k, k + 1): voxel centres sit
-        // at multiples of the voxel size, so a chunk spans voxels [8k - 0.5, 8k + 7.5).
-        // `OFFSET` keeps coordinates positive so that truncation is floor (one instruction,
-        // where `floor` is a library call without SSE4.1). 2^14 chunks (655 m at 5 mm voxels)
-        // either side of the origin, at 1/64 voxel precision; points beyond are not selected.
-        const OFFSET: f32 = (1 << 14) as f32;
-        let inv_chunk = 1.0 / c.chunk_size();
-        let rot = world_from_camera.matrix3 * inv_chunk;
-        let origin =
-            (world_from_camera.translation + Vec3A::splat(0.5 * c.voxel_size)) * inv_chunk + Vec3A::splat(OFFSET);
-        let offset = ChunkKey::splat(OFFSET as i32);
-        let inv_voxel = 1.0 / c.voxel_size;
-        // `1 / steps` by table: a division and a `ceil` (a library call without SSE4.1) per
-        // pixel cost as much as the band itself.
-        let inv_steps: Vec<f32> = (0..=max_steps).map(|n| 1.0 / n.max(1) as f32).collect();
-        let rows: Vec<usize> = (0..h).step_by(stride).collect();
-        let (min_d, max_d) = (c.min_depth, c.max_depth);
-        let depth = &frame.depth;
-        let block_sets: Vec<Vec<ChunkKey>> = rows
+        let view = SelectionView::new(&self.config, frame, world_from_camera);
+        let kernel = kernel();
+        let rows: Vec<usize> = (0..view.height).step_by(view.stride).collect();
+        let blocks: Vec<Vec<ChunkKey>> = rows
             .par_chunks(16)
             .map(|rows| {
-                let mut set: HashSet<ChunkKey, ChunkHashBuilder> = HashSet::default();
-                let mut last = vec![ChunkKey::MAX; max_steps + 1];
+                let mut out = Candidates::new(view.max_steps);
                 for &v in rows {
-                    // Ray (camera z = 1) in chunk units: x part per pixel, y part per row.
-                    let row_ray = rot.y_axis * ((v as f32 - k.cy) / k.fy) + rot.z_axis;
-                    for u in (0..w).step_by(stride) {
-                        let d = depth[v * w + u];
-                        if !(d >= min_d && d <= max_d) {
-                            continue;
-                        }
-                        // This pixel's band, the one integration applies to its voxels.
-                        let mu = band.relative(d) * trunc;
-                        let x = mu * inv_voxel;
-                        let whole = x as usize;
-                        let steps = (whole + ((whole as f32) < x) as usize).clamp(1, max_steps);
-                        let ray = rot.x_axis * ((u as f32 - k.cx) / k.fx) + row_ray;
-                        let p_near = origin + ray * (d - mu);
-                        let step = ray * (2.0 * mu * inv_steps[steps]);
-                        for (s, last) in last[..=steps].iter_mut().enumerate() {
-                            let p = p_near + step * s as f32;
-                            if p.cmplt(Vec3A::ZERO).any() || p.cmpge(Vec3A::splat(2.0 * OFFSET)).any() {
-                                continue;
-                            }
-                            let key = p.as_ivec3() - offset;
-                            if key != *last {
-                                *last = key;
-                                set.insert(key);
-                            }
-                        }
-                    }
+                    select_row_with(kernel, &view, v, &mut out);
                 }
-                set.into_iter().collect()
+                out.keys
             })
             .collect();
-        let mut keys: Vec<ChunkKey> = block_sets.into_iter().flatten().collect();
-        keys.sort_unstable_by_key(|k| key_order(*k));
-        keys.dedup();
-        Ok(keys)
+        Ok(sorted_unique(blocks))
     }
 
     /// Fuses `frame` seen from `world_from_camera`: chunk selection, then integration.
@@ -325,6 +271,202 @@ fn image_tile(f: &FrameView, key: ChunkKey) -> u32 {
         return u32::MAX;
     }
     (v as u32) * cols as u32 + u as u32
+}
+
+/// Everything chunk selection reads, precomputed once per frame.
+///
+/// Coordinates are in chunk units shifted so that chunk k spans [k, k + 1): voxel centres
+/// sit at multiples of the voxel size, so a chunk spans voxels [8k - 0.5, 8k + 7.5).
+/// [`SELECTION_OFFSET`] keeps coordinates positive so that truncation is floor (one
+/// instruction, where `floor` is a library call without SSE4.1).
+struct SelectionView<'a> {
+    depth: &'a [f32],
+    k: Intrinsics,
+    width: usize,
+    height: usize,
+    stride: usize,
+    /// `world_from_camera`'s rotation in chunk units.
+    rot: glam::Mat3A,
+    /// The camera centre in shifted chunk units.
+    origin: Vec3A,
+    trunc: f32,
+    inv_voxel: f32,
+    band: BandModel,
+    min_depth: f32,
+    max_depth: f32,
+    /// Most band samples per pixel, minus one.
+    max_steps: usize,
+    /// `1 / max(n, 1)` for `n` in `0..=max_steps`.
+    inv_steps: Vec<f32>,
+}
+
+/// 2^14 chunks (655 m at 5 mm voxels) either side of the origin, at 1/64 voxel precision;
+/// points beyond are not selected.
+const SELECTION_OFFSET: f32 = (1 << 14) as f32;
+
+impl<'a> SelectionView<'a> {
+    fn new(c: &TsdfConfig, frame: &'a Frame, world_from_camera: Affine3A) -> Self {
+        let k = frame.intrinsics;
+        let trunc = c.truncation();
+        let inv_chunk = 1.0 / c.chunk_size();
+        // Samples along the band no further apart than two voxels, so that the walk cannot
+        // step over a chunk (8 voxels) except at a corner clipped by less than a voxel.
+        let max_steps = (trunc / c.voxel_size).ceil().max(1.0) as usize;
+        Self {
+            depth: &frame.depth,
+            k,
+            width: k.width as usize,
+            height: k.height as usize,
+            stride: c.selection_stride,
+            rot: world_from_camera.matrix3 * inv_chunk,
+            origin: (world_from_camera.translation + Vec3A::splat(0.5 * c.voxel_size)) * inv_chunk
+                + Vec3A::splat(SELECTION_OFFSET),
+            trunc,
+            inv_voxel: 1.0 / c.voxel_size,
+            band: c.band_model(),
+            min_depth: c.min_depth,
+            max_depth: c.max_depth,
+            max_steps,
+            // `1 / steps` by table: a division and a `ceil` (a library call without SSE4.1)
+            // per pixel cost as much as the band itself.
+            inv_steps: (0..=max_steps).map(|n| 1.0 / n.max(1) as f32).collect(),
+        }
+    }
+
+    /// The band walk of pixel `(u, v)` with valid depth `d`: the first sample, the step
+    /// between samples (shifted chunk units) and the number of steps.
+    #[inline(always)]
+    fn band_walk(&self, row_ray: Vec3A, u: usize, d: f32) -> (Vec3A, Vec3A, usize) {
+        // This pixel's band, the one integration applies to its voxels.
+        let mu = self.band.relative(d) * self.trunc;
+        let x = mu * self.inv_voxel;
+        let whole = x as usize;
+        let steps = (whole + ((whole as f32) < x) as usize).clamp(1, self.max_steps);
+        let ray = self.rot.x_axis * ((u as f32 - self.k.cx) / self.k.fx) + row_ray;
+        let p_near = self.origin + ray * (d - mu);
+        let step = ray * (2.0 * mu * self.inv_steps[steps]);
+        (p_near, step, steps)
+    }
+
+    /// Ray (camera z = 1) in chunk units without its x part, for image row `v`.
+    #[inline(always)]
+    fn row_ray(&self, v: usize) -> Vec3A {
+        self.rot.y_axis * ((v as f32 - self.k.cy) / self.k.fy) + self.rot.z_axis
+    }
+}
+
+/// Chunk keys collected by one task, most repeats filtered out on the way.
+///
+/// Neighbouring pixels cross the same chunks: `last[s]` holds the key sample `s` of the
+/// previous pixel saw, and a small direct-mapped table of recent keys catches most of the
+/// other repeats, so that the merge sees few duplicates (it removes the rest).
+struct Candidates {
+    last: Vec<ChunkKey>,
+    recent: Box<[ChunkKey; Self::RECENT]>,
+    keys: Vec<ChunkKey>,
+}
+
+impl Candidates {
+    const RECENT: usize = 512;
+
+    fn new(max_steps: usize) -> Self {
+        // Rounded up to whole 8-lane groups for the AVX2 walk.
+        let last = vec![ChunkKey::MAX; (max_steps + 1).div_ceil(8) * 8];
+        Self { last, recent: Box::new([ChunkKey::MAX; Self::RECENT]), keys: Vec::new() }
+    }
+
+    #[inline(always)]
+    fn push(&mut self, key: ChunkKey) {
+        let h = (key.x as u32).wrapping_mul(0x9e37_79b1)
+            ^ (key.y as u32).wrapping_mul(0x85eb_ca77)
+            ^ (key.z as u32).wrapping_mul(0xc2b2_ae3d);
+        let slot = &mut self.recent[(h >> 23) as usize % Self::RECENT];
+        if *slot != key {
+            *slot = key;
+            self.keys.push(key);
+        }
+    }
+}
+
+/// Selects the chunks of image row `v` with `kernel`.
+fn select_row_with(kernel: Kernel, view: &SelectionView, v: usize, out: &mut Candidates) {
+    match kernel {
+        Kernel::Portable => select_row(view, v, out),
+        // SAFETY: `Kernel::Avx2` is only chosen where the CPU has AVX2 and FMA.
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx2 => unsafe { avx2::select_row(view, v, out) },
+    }
+}
+
+/// Walks the band of every sampled valid pixel of image row `v` and collects the chunks
+/// its samples fall into.
+fn select_row(view: &SelectionView, v: usize, out: &mut Candidates) {
+    let offset = ChunkKey::splat(SELECTION_OFFSET as i32);
+    let row_ray = view.row_ray(v);
+    let depth = &view.depth[v * view.width..(v + 1) * view.width];
+    for u in (0..view.width).step_by(view.stride) {
+        let d = depth[u];
+        if !(d >= view.min_depth && d <= view.max_depth) {
+            continue;
+        }
+        let (p_near, step, steps) = view.band_walk(row_ray, u, d);
+        for s in 0..=steps {
+            let p = p_near + step * s as f32;
+            if p.cmplt(Vec3A::ZERO).any() || p.cmpge(Vec3A::splat(2.0 * SELECTION_OFFSET)).any() {
+                continue;
+            }
+            let key = p.as_ivec3() - offset;
+            if key != out.last[s] {
+                out.last[s] = key;
+                out.push(key);
+            }
+        }
+    }
+}
+
+/// The keys of all blocks, sorted (z, y, x) without duplicates: through a bitset over their
+/// bounding box when that is small (one bit per chunk, read back in order), by sorting
+/// otherwise.
+fn sorted_unique(blocks: Vec<Vec<ChunkKey>>) -> Vec<ChunkKey> {
+    const MAX_BITS: usize = 1 << 24;
+    let mut lo = ChunkKey::MAX;
+    let mut hi = ChunkKey::MIN;
+    for key in blocks.iter().flatten() {
+        lo = lo.min(*key);
+        hi = hi.max(*key);
+    }
+    if lo.cmpgt(hi).any() {
+        return Vec::new();
+    }
+    let size = (hi - lo).as_i64vec3() + 1;
+    let bits = size.x.saturating_mul(size.y).saturating_mul(size.z);
+    if bits > MAX_BITS as i64 {
+        let mut keys: Vec<ChunkKey> = blocks.into_iter().flatten().collect();
+        keys.sort_unstable_by_key(|k| key_order(*k));
+        keys.dedup();
+        return keys;
+    }
+    let (nx, ny) = (size.x as usize, size.y as usize);
+    let mut words = vec![0u64; (bits as usize).div_ceil(64)];
+    let mut count = 0;
+    for key in blocks.iter().flatten() {
+        let l = (*key - lo).as_uvec3();
+        let i = (l.z as usize * ny + l.y as usize) * nx + l.x as usize;
+        let bit = 1u64 << (i % 64);
+        count += (words[i / 64] & bit == 0) as usize;
+        words[i / 64] |= bit;
+    }
+    let mut keys = Vec::with_capacity(count);
+    for (w, &word) in words.iter().enumerate() {
+        let mut word = word;
+        while word != 0 {
+            let i = w * 64 + word.trailing_zeros() as usize;
+            word &= word - 1;
+            let (x, rest) = (i % nx, i / nx);
+            keys.push(lo + ChunkKey::new(x as i32, (rest % ny) as i32, (rest / ny) as i32));
+        }
+    }
+    keys
 }
 
 /// Rejects frames whose buffers do not match their camera and non-finite poses; depth values
@@ -601,6 +743,92 @@ mod tests {
         for chunk in map.chunks() {
             assert_eq!(chunk.signs, chunk.voxels.signs(), "{kernel:?}: sign summary of chunk {}", chunk.key);
         }
+    }
+
+    /// The plain band walk: every sample of every sampled pixel into an ordered set.
+    fn reference_selection(config: &TsdfConfig, frame: &Frame, pose: Affine3A) -> Vec<ChunkKey> {
+        let view = SelectionView::new(config, frame, pose);
+        let mut set = std::collections::BTreeSet::new();
+        for v in (0..view.height).step_by(view.stride) {
+            for u in (0..view.width).step_by(view.stride) {
+                let d = frame.depth[v * view.width + u];
+                if !(d >= config.min_depth && d <= config.max_depth) {
+                    continue;
+                }
+                let (p_near, step, steps) = view.band_walk(view.row_ray(v), u, d);
+                for s in 0..=steps {
+                    let p = p_near + step * s as f32;
+                    if p.cmpge(Vec3A::ZERO).all() && p.cmplt(Vec3A::splat(2.0 * SELECTION_OFFSET)).all() {
+                        let key = p.as_ivec3() - IVec3::splat(SELECTION_OFFSET as i32);
+                        set.insert(key_order(key));
+                    }
+                }
+            }
+        }
+        set.into_iter().map(|(z, y, x)| IVec3::new(x, y, z)).collect()
+    }
+
+    #[test]
+    fn every_selection_kernel_selects_the_reference_chunks() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        for (i, config) in [
+            TsdfConfig::default(),
+            TsdfConfig { selection_stride: 1, truncation_voxels: 10.0, ..TsdfConfig::default() },
+            TsdfConfig {
+                voxel_size: 0.002,
+                truncation_voxels: 12.0,
+                min_truncation_voxels: 2.0,
+                ..TsdfConfig::default()
+            },
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let frame = noisy_frame(i, &mut rng);
+            let pose = Affine3A::from_rotation_translation(
+                glam::Quat::from_euler(
+                    glam::EulerRot::XYZ,
+                    rng.random_range(-3.0..3.0),
+                    rng.random_range(-3.0..3.0),
+                    0.3,
+                ),
+                Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)),
+            );
+            let expected = reference_selection(&config, &frame, pose);
+            assert!(expected.len() > 20, "{} chunks", expected.len());
+            let map = TsdfMap::new(config).expect("valid");
+            for kernel in kernels() {
+                let view = SelectionView::new(&config, &frame, pose);
+                let blocks: Vec<Vec<ChunkKey>> = (0..view.height)
+                    .step_by(view.stride)
+                    .map(|v| {
+                        let mut out = Candidates::new(view.max_steps);
+                        select_row_with(kernel, &view, v, &mut out);
+                        out.keys
+                    })
+                    .collect();
+                assert_eq!(sorted_unique(blocks), expected, "{kernel:?}, config {i}");
+            }
+            assert_eq!(map.select_chunks(&frame, pose).expect("select"), expected);
+        }
+    }
+
+    #[test]
+    fn keys_far_apart_are_merged_by_sorting() {
+        let far = vec![IVec3::new(5000, 0, 0), IVec3::new(-5000, 3, 0)];
+        let near = vec![IVec3::new(1, 2, 3), IVec3::new(5000, 0, 0), IVec3::new(0, 0, 3), IVec3::new(0, 0, -7000)];
+        let expected = vec![
+            IVec3::new(0, 0, -7000),
+            IVec3::new(5000, 0, 0),
+            IVec3::new(-5000, 3, 0),
+            IVec3::new(0, 0, 3),
+            IVec3::new(1, 2, 3),
+        ];
+        assert_eq!(sorted_unique(vec![far, near]), expected);
+        let small =
+            vec![vec![IVec3::new(2, 1, 0), IVec3::new(-1, 1, 0)], vec![IVec3::new(-1, 1, 0), IVec3::new(0, 0, 1)]];
+        assert_eq!(sorted_unique(small), vec![IVec3::new(-1, 1, 0), IVec3::new(2, 1, 0), IVec3::new(0, 0, 1)]);
+        assert!(sorted_unique(vec![vec![], vec![]]).is_empty());
     }
 
     /// Colour pixels are 3 bytes and the AVX2 kernel gathers 4: the last pixel of the image

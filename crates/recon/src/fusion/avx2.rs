@@ -12,8 +12,8 @@
 
 use std::arch::x86_64::*;
 
-use super::{ChunkOutcome, FrameView};
-use crate::map::{Chunk, SignSummary, CHUNK_SIDE, NOISE_OFFSET, RECIPROCALS, TSDF_SCALE, WEIGHT_SCALE};
+use super::{Candidates, ChunkOutcome, FrameView, SelectionView, SELECTION_OFFSET};
+use crate::map::{Chunk, ChunkKey, SignSummary, CHUNK_SIDE, NOISE_OFFSET, RECIPROCALS, TSDF_SCALE, WEIGHT_SCALE};
 
 /// The colour running mean's reciprocals, in memory for the gather.
 static RECIPROCAL_TABLE: [u32; 256] = RECIPROCALS;
@@ -231,4 +231,83 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
     };
     chunk.signs = signs.bits();
     ChunkOutcome { updated, near }
+}
+
+/// `select_row` of the parent module with AVX2: the samples of one pixel's band walk, 8 at
+/// a time, each computed as in the portable walk (`p_near + step * s`, lane by lane, no
+/// fused multiply-add), so both select the same chunks.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[target_feature(enable = "avx2,fma")]
+pub(super) unsafe fn select_row(view: &SelectionView, v: usize, out: &mut Candidates) {
+    let row_ray = view.row_ray(v);
+    let depth = &view.depth[v * view.width..(v + 1) * view.width];
+    // SAFETY (whole body): AVX2/FMA are enabled by the caller's check; `out.last` holds
+    // whole groups of 8 covering `0..=max_steps`, and `steps <= max_steps`.
+    unsafe {
+        let lanes = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
+        let lane_index = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+        let zero = _mm256_setzero_ps();
+        let limit = _mm256_set1_ps(2.0 * SELECTION_OFFSET);
+        let offset = _mm256_set1_epi32(SELECTION_OFFSET as i32);
+        for u in (0..view.width).step_by(view.stride) {
+            let d = depth[u];
+            if !(d >= view.min_depth && d <= view.max_depth) {
+                continue;
+            }
+            let (p_near, step, steps) = view.band_walk(row_ray, u, d);
+            let mut s0 = 0;
+            while s0 <= steps {
+                let s = _mm256_add_ps(_mm256_set1_ps(s0 as f32), lanes);
+                let px = _mm256_add_ps(_mm256_set1_ps(p_near.x), _mm256_mul_ps(_mm256_set1_ps(step.x), s));
+                let py = _mm256_add_ps(_mm256_set1_ps(p_near.y), _mm256_mul_ps(_mm256_set1_ps(step.y), s));
+                let pz = _mm256_add_ps(_mm256_set1_ps(p_near.z), _mm256_mul_ps(_mm256_set1_ps(step.z), s));
+                // Samples `s0 + lane <= steps` and inside the representable range.
+                let in_walk = _mm256_cmpgt_epi32(_mm256_set1_epi32((steps - s0) as i32 + 1), lane_index);
+                let lo = _mm256_and_ps(
+                    _mm256_and_ps(_mm256_cmp_ps::<_CMP_GE_OQ>(px, zero), _mm256_cmp_ps::<_CMP_GE_OQ>(py, zero)),
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(pz, zero),
+                );
+                let hi = _mm256_and_ps(
+                    _mm256_and_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(px, limit), _mm256_cmp_ps::<_CMP_LT_OQ>(py, limit)),
+                    _mm256_cmp_ps::<_CMP_LT_OQ>(pz, limit),
+                );
+                let ok = _mm256_and_si256(in_walk, _mm256_castps_si256(_mm256_and_ps(lo, hi)));
+                let kx = _mm256_sub_epi32(_mm256_cvttps_epi32(px), offset);
+                let ky = _mm256_sub_epi32(_mm256_cvttps_epi32(py), offset);
+                let kz = _mm256_sub_epi32(_mm256_cvttps_epi32(pz), offset);
+                // `last` as three planes would be faster to load, but the groups are few.
+                let mut last = [[0i32; 8]; 3];
+                for l in 0..8 {
+                    let key = out.last[s0 + l];
+                    last[0][l] = key.x;
+                    last[1][l] = key.y;
+                    last[2][l] = key.z;
+                }
+                let same = _mm256_and_si256(
+                    _mm256_and_si256(
+                        _mm256_cmpeq_epi32(kx, _mm256_loadu_si256(last[0].as_ptr() as *const __m256i)),
+                        _mm256_cmpeq_epi32(ky, _mm256_loadu_si256(last[1].as_ptr() as *const __m256i)),
+                    ),
+                    _mm256_cmpeq_epi32(kz, _mm256_loadu_si256(last[2].as_ptr() as *const __m256i)),
+                );
+                let mut changed = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_andnot_si256(same, ok))) as u32;
+                if changed != 0 {
+                    let mut keys = [[0i32; 8]; 3];
+                    _mm256_storeu_si256(keys[0].as_mut_ptr() as *mut __m256i, kx);
+                    _mm256_storeu_si256(keys[1].as_mut_ptr() as *mut __m256i, ky);
+                    _mm256_storeu_si256(keys[2].as_mut_ptr() as *mut __m256i, kz);
+                    while changed != 0 {
+                        let l = changed.trailing_zeros() as usize;
+                        changed &= changed - 1;
+                        let key = ChunkKey::new(keys[0][l], keys[1][l], keys[2][l]);
+                        out.last[s0 + l] = key;
+                        out.push(key);
+                    }
+                }
+                s0 += 8;
+            }
+        }
+    }
 }
