@@ -99,6 +99,22 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
         let weight_ptr = block.weight.as_mut_ptr();
         let color_rows = block.color.as_mut_ptr() as *mut u8;
         let mut near_lanes = _mm256_setzero_ps();
+        // The block's rows are needed by the second pass: start fetching them now.
+        for line in (0..N * N * N).step_by(32) {
+            _mm_prefetch::<_MM_HINT_T0>(tsdf_ptr.add(line) as *const i8);
+            _mm_prefetch::<_MM_HINT_T0>(weight_ptr.add(line) as *const i8);
+        }
+        for line in (0..N * N * N * 4).step_by(64) {
+            _mm_prefetch::<_MM_HINT_T0>(color_rows.add(line) as *const i8);
+        }
+        // First pass: project every row and gather its depths. The rows are independent and
+        // short, so many gathers are in flight at once; the update pass then finds the
+        // depths ready instead of waiting for each row's gather in turn. Lanes off the image
+        // read NaN, which fails every validity test below as `inside` did.
+        let nan = splat(f32::NAN);
+        let mut row_pz = [zero; N * N];
+        let mut row_d = [zero; N * N];
+        let mut row_pix = [_mm256_setzero_si256(); N * N];
         for r in 0..N * N {
             let (y, z) = ((r % N) as f32, (r / N) as f32);
             let row = base + dy * y + dz * z;
@@ -113,21 +129,23 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 ),
                 _mm256_cmp_ps::<_CMP_LT_OQ>(v, hf),
             );
+            // Inside lanes have u + 0.5 and v + 0.5 in [0, size): truncation is floor and
+            // the index is exact in f32 (below 2^24 pixels).
+            let pu = _mm256_round_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(_mm256_add_ps(u, half));
+            let pv = _mm256_round_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(_mm256_add_ps(v, half));
+            let pix_f = _mm256_and_ps(inside, _mm256_add_ps(_mm256_mul_ps(pv, width), pu));
+            let pix = _mm256_cvttps_epi32(pix_f);
+            row_pz[r] = pz;
+            row_d[r] = _mm256_mask_i32gather_ps::<4>(nan, depth_ptr, pix, inside);
+            row_pix[r] = pix;
+        }
+        for r in 0..N * N {
             let tsdf_row = tsdf_ptr.add(r * N) as *mut __m128i;
             let weight_row = weight_ptr.add(r * N) as *mut __m128i;
             let t_old_i = _mm256_cvtepi16_epi32(_mm_loadu_si128(tsdf_row));
             let w_old_i = _mm256_cvtepu16_epi32(_mm_loadu_si128(weight_row));
-            let (t_now, w_now) = 'row: {
-                if _mm256_movemask_ps(inside) == 0 {
-                    break 'row (t_old_i, w_old_i);
-                }
-                // Inside lanes have u + 0.5 and v + 0.5 in [0, size): truncation is floor and
-                // the index is exact in f32 (below 2^24 pixels).
-                let pu = _mm256_round_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(_mm256_add_ps(u, half));
-                let pv = _mm256_round_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(_mm256_add_ps(v, half));
-                let pix_f = _mm256_and_ps(inside, _mm256_add_ps(_mm256_mul_ps(pv, width), pu));
-                let pix = _mm256_cvttps_epi32(pix_f);
-                let d = _mm256_i32gather_ps::<4>(depth_ptr, pix);
+            let (pz, d, pix) = (row_pz[r], row_d[r], row_pix[r]);
+            let (t_now, w_now) = {
                 let sdf = _mm256_mul_ps(_mm256_sub_ps(d, pz), inv_trunc);
                 let mu = if DEPTH_BAND {
                     let e = _mm256_sub_ps(d, noise_offset);
@@ -140,7 +158,7 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 };
                 let neg_mu = _mm256_sub_ps(zero, mu);
                 let valid = _mm256_and_ps(
-                    _mm256_and_ps(inside, _mm256_cmp_ps::<_CMP_GE_OQ>(d, min_d)),
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(d, min_d),
                     _mm256_and_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(d, max_d), _mm256_cmp_ps::<_CMP_GE_OQ>(sdf, neg_mu)),
                 );
                 // No branch on the outcome: which lanes are valid or near the surface is data
