@@ -204,34 +204,30 @@ impl TsdfMap {
         for &(s, _) in &slots {
             selected[s as usize] = true;
         }
-        // Chunks are integrated in image order (by the pixel tile their centre projects to,
-        // then slab order), so that the chunks one thread works through read neighbouring
-        // depth and colour pixels from cache; each chunk's update is independent of the
-        // order, so the result is too.
-        let mut targets: Vec<(u32, u32, &mut Chunk)> = self
-            .chunks
-            .iter_mut()
-            .zip(&selected)
-            .filter(|(_, &sel)| sel)
-            .enumerate()
-            .map(|(i, (c, _))| (image_tile(&view, c.key), i as u32, c))
-            .collect();
-        targets.sort_unstable_by_key(|t| (t.0, t.1));
+        let mut targets: Vec<&mut Chunk> =
+            self.chunks.iter_mut().zip(&selected).filter(|(_, &sel)| sel).map(|(c, _)| c).collect();
         // A fixed band (clamped to exactly 1 truncation) skips the band arithmetic.
         let fixed = view.band.min_relative >= 1.0;
-        let tiled: Vec<(u32, ChunkOutcome)> = targets
-            .par_iter_mut()
-            .map(|(_, i, chunk)| (*i, integrate_chunk_with(kernel, chunk, &view, fixed)))
-            .collect();
-        drop(targets);
-        let mut outcomes = vec![ChunkOutcome::default(); tiled.len()];
-        for (i, out) in tiled {
-            outcomes[i as usize] = out;
-        }
-        // `targets` and `outcomes` are in slab order, like the sorted `slots`.
         let revision = self.next_revision;
         self.next_revision += 1;
         let frame_id = frame.index.min(u32::MAX as usize) as u32;
+        // The per-chunk bookkeeping happens in the tasks too: done afterwards in one loop it
+        // would chase every chunk's record and frame list again, on one thread.
+        // `targets` and `outcomes` are in slab order, like the sorted `slots`.
+        let outcomes: Vec<ChunkOutcome> = targets
+            .par_iter_mut()
+            .zip(&slots)
+            .map(|(chunk, &(_, is_new))| {
+                let out = integrate_chunk_with(kernel, chunk, &view, fixed);
+                if out.updated > 0 && !(is_new && !out.near) {
+                    chunk.dirty = true;
+                    chunk.revision = revision;
+                    chunk.frames.push(frame_id);
+                }
+                out
+            })
+            .collect();
+        drop(targets);
         let mut to_free = Vec::new();
         for (&(slot, is_new), out) in slots.iter().zip(&outcomes) {
             if is_new && !out.near {
@@ -241,10 +237,6 @@ impl TsdfMap {
             stats.new_chunks += is_new as usize;
             stats.band_chunks += out.near as usize;
             if out.updated > 0 {
-                let chunk = &mut self.chunks[slot as usize];
-                chunk.dirty = true;
-                chunk.revision = revision;
-                chunk.frames.push(frame_id);
                 stats.updated_chunks += 1;
                 stats.updated_voxels += out.updated as usize;
             }
@@ -253,24 +245,6 @@ impl TsdfMap {
         self.free(to_free);
         Ok(stats)
     }
-}
-
-/// The 32x32-pixel image tile (row-major) that the centre of chunk `key` projects to;
-/// `u32::MAX` behind the camera or off the image.
-fn image_tile(f: &FrameView, key: ChunkKey) -> u32 {
-    const TILE: f32 = 32.0;
-    let centre = Vec3A::from((key * CHUNK_SIDE as i32).as_vec3() + 3.5) * f.voxel_size;
-    let p = f.rot[0] * centre.x + f.rot[1] * centre.y + f.rot[2] * centre.z + f.trans;
-    if !(p.z > 0.0) {
-        return u32::MAX;
-    }
-    let u = (f.k.fx * p.x / p.z + f.k.cx) / TILE;
-    let v = (f.k.fy * p.y / p.z + f.k.cy) / TILE;
-    let cols = (f.k.width as f32 / TILE).ceil();
-    if !(u >= 0.0 && v >= 0.0 && u < cols && v < f.k.height as f32) {
-        return u32::MAX;
-    }
-    (v as u32) * cols as u32 + u as u32
 }
 
 /// Everything chunk selection reads, precomputed once per frame.
