@@ -47,6 +47,8 @@ pub fn depth_weight(depth: f32) -> f32 {
 
 #[cfg(target_arch = "x86_64")]
 mod avx2;
+#[cfg(target_arch = "x86_64")]
+mod avx512;
 
 /// Which integration kernel runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -56,17 +58,24 @@ enum Kernel {
     /// AVX2 intrinsics with hardware gathers, chosen at run time.
     #[cfg(target_arch = "x86_64")]
     Avx2,
+    /// AVX-512 intrinsics, two voxel rows per register (chunk selection runs the AVX2 walk).
+    #[cfg(target_arch = "x86_64")]
+    Avx512,
 }
 
-/// The kernel for this machine, chosen once: AVX2 where the CPU has it, unless
-/// `SEMRECON_FUSION_SIMD=portable` forces the portable one (both give the same bits).
+/// The kernel for this machine, chosen once: the widest the CPU has, unless
+/// `SEMRECON_FUSION_SIMD=avx2|portable` forces a lower one (all give the same bits).
 fn kernel() -> Kernel {
     static KERNEL: OnceLock<Kernel> = OnceLock::new();
     *KERNEL.get_or_init(|| {
         #[cfg(target_arch = "x86_64")]
         {
             let forced = std::env::var("SEMRECON_FUSION_SIMD").unwrap_or_default();
-            if forced != "portable" && is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
+            let avx2 = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
+            if forced != "portable" && forced != "avx2" && avx2 && is_x86_feature_detected!("avx512f") {
+                return Kernel::Avx512;
+            }
+            if forced != "portable" && avx2 {
                 return Kernel::Avx2;
             }
         }
@@ -84,6 +93,11 @@ fn integrate_chunk_with(kernel: Kernel, chunk: &mut Chunk, view: &FrameView, fix
         (Kernel::Avx2, false) => unsafe { avx2::integrate_chunk::<true>(chunk, view) },
         #[cfg(target_arch = "x86_64")]
         (Kernel::Avx2, true) => unsafe { avx2::integrate_chunk::<false>(chunk, view) },
+        // SAFETY: `Kernel::Avx512` is only chosen where the CPU has AVX-512F.
+        #[cfg(target_arch = "x86_64")]
+        (Kernel::Avx512, false) => unsafe { avx512::integrate_chunk::<true>(chunk, view) },
+        #[cfg(target_arch = "x86_64")]
+        (Kernel::Avx512, true) => unsafe { avx512::integrate_chunk::<false>(chunk, view) },
     }
 }
 
@@ -366,9 +380,10 @@ impl Candidates {
 fn select_row_with(kernel: Kernel, view: &SelectionView, v: usize, out: &mut Candidates) {
     match kernel {
         Kernel::Portable => select_row(view, v, out),
-        // SAFETY: `Kernel::Avx2` is only chosen where the CPU has AVX2 and FMA.
+        // SAFETY: `Kernel::Avx2` and `Kernel::Avx512` are only chosen where the CPU has AVX2
+        // and FMA.
         #[cfg(target_arch = "x86_64")]
-        Kernel::Avx2 => unsafe { avx2::select_row(view, v, out) },
+        Kernel::Avx2 | Kernel::Avx512 => unsafe { avx2::select_row(view, v, out) },
     }
 }
 
@@ -648,6 +663,11 @@ mod tests {
         #[cfg(target_arch = "x86_64")]
         if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
             kernels.push(Kernel::Avx2);
+            if is_x86_feature_detected!("avx512f") {
+                kernels.push(Kernel::Avx512);
+            } else {
+                eprintln!("no AVX-512F on this machine: the AVX-512 kernel is not tested");
+            }
         } else {
             eprintln!("no AVX2/FMA on this machine: only the portable kernel is tested");
         }
