@@ -345,11 +345,14 @@ impl<'a> SelectionView<'a> {
 
 /// Chunk keys collected by one task, most repeats filtered out on the way.
 ///
-/// Neighbouring pixels cross the same chunks: `last[s]` holds the key sample `s` of the
-/// previous pixel saw, and a small direct-mapped table of recent keys catches most of the
-/// other repeats, so that the merge sees few duplicates (it removes the rest).
+/// Neighbouring pixels cross the same chunks: `last_*[s]` hold the key sample `s` of the
+/// previous pixel saw (as x, y and z planes, which the AVX2 walk loads as vectors), and a
+/// small direct-mapped table of recent keys catches most of the other repeats, so that the
+/// merge sees few duplicates (it removes the rest).
 struct Candidates {
-    last: Vec<ChunkKey>,
+    last_x: Vec<i32>,
+    last_y: Vec<i32>,
+    last_z: Vec<i32>,
     recent: Box<[ChunkKey; Self::RECENT]>,
     keys: Vec<ChunkKey>,
 }
@@ -359,8 +362,14 @@ impl Candidates {
 
     fn new(max_steps: usize) -> Self {
         // Rounded up to whole 8-lane groups for the AVX2 walk.
-        let last = vec![ChunkKey::MAX; (max_steps + 1).div_ceil(8) * 8];
-        Self { last, recent: Box::new([ChunkKey::MAX; Self::RECENT]), keys: Vec::new() }
+        let n = (max_steps + 1).div_ceil(8) * 8;
+        Self {
+            last_x: vec![i32::MAX; n],
+            last_y: vec![i32::MAX; n],
+            last_z: vec![i32::MAX; n],
+            recent: Box::new([ChunkKey::MAX; Self::RECENT]),
+            keys: Vec::new(),
+        }
     }
 
     #[inline(always)]
@@ -405,8 +414,8 @@ fn select_row(view: &SelectionView, v: usize, out: &mut Candidates) {
                 continue;
             }
             let key = p.as_ivec3() - offset;
-            if key != out.last[s] {
-                out.last[s] = key;
+            if key != ChunkKey::new(out.last_x[s], out.last_y[s], out.last_z[s]) {
+                (out.last_x[s], out.last_y[s], out.last_z[s]) = (key.x, key.y, key.z);
                 out.push(key);
             }
         }

@@ -261,7 +261,7 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
 pub(super) unsafe fn select_row(view: &SelectionView, v: usize, out: &mut Candidates) {
     let row_ray = view.row_ray(v);
     let depth = &view.depth[v * view.width..(v + 1) * view.width];
-    // SAFETY (whole body): AVX2/FMA are enabled by the caller's check; `out.last` holds
+    // SAFETY (whole body): AVX2/FMA are enabled by the caller's check; `out.last_*` hold
     // whole groups of 8 covering `0..=max_steps`, and `steps <= max_steps`.
     unsafe {
         let lanes = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
@@ -295,23 +295,21 @@ pub(super) unsafe fn select_row(view: &SelectionView, v: usize, out: &mut Candid
                 let kx = _mm256_sub_epi32(_mm256_cvttps_epi32(px), offset);
                 let ky = _mm256_sub_epi32(_mm256_cvttps_epi32(py), offset);
                 let kz = _mm256_sub_epi32(_mm256_cvttps_epi32(pz), offset);
-                // `last` as three planes would be faster to load, but the groups are few.
-                let mut last = [[0i32; 8]; 3];
-                for l in 0..8 {
-                    let key = out.last[s0 + l];
-                    last[0][l] = key.x;
-                    last[1][l] = key.y;
-                    last[2][l] = key.z;
-                }
+                let (lx, ly, lz) = (
+                    out.last_x.as_mut_ptr().add(s0) as *mut __m256i,
+                    out.last_y.as_mut_ptr().add(s0) as *mut __m256i,
+                    out.last_z.as_mut_ptr().add(s0) as *mut __m256i,
+                );
+                let (old_x, old_y, old_z) = (_mm256_loadu_si256(lx), _mm256_loadu_si256(ly), _mm256_loadu_si256(lz));
                 let same = _mm256_and_si256(
-                    _mm256_and_si256(
-                        _mm256_cmpeq_epi32(kx, _mm256_loadu_si256(last[0].as_ptr() as *const __m256i)),
-                        _mm256_cmpeq_epi32(ky, _mm256_loadu_si256(last[1].as_ptr() as *const __m256i)),
-                    ),
-                    _mm256_cmpeq_epi32(kz, _mm256_loadu_si256(last[2].as_ptr() as *const __m256i)),
+                    _mm256_and_si256(_mm256_cmpeq_epi32(kx, old_x), _mm256_cmpeq_epi32(ky, old_y)),
+                    _mm256_cmpeq_epi32(kz, old_z),
                 );
                 let mut changed = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_andnot_si256(same, ok))) as u32;
                 if changed != 0 {
+                    _mm256_storeu_si256(lx, _mm256_blendv_epi8(old_x, kx, ok));
+                    _mm256_storeu_si256(ly, _mm256_blendv_epi8(old_y, ky, ok));
+                    _mm256_storeu_si256(lz, _mm256_blendv_epi8(old_z, kz, ok));
                     let mut keys = [[0i32; 8]; 3];
                     _mm256_storeu_si256(keys[0].as_mut_ptr() as *mut __m256i, kx);
                     _mm256_storeu_si256(keys[1].as_mut_ptr() as *mut __m256i, ky);
@@ -319,9 +317,7 @@ pub(super) unsafe fn select_row(view: &SelectionView, v: usize, out: &mut Candid
                     while changed != 0 {
                         let l = changed.trailing_zeros() as usize;
                         changed &= changed - 1;
-                        let key = ChunkKey::new(keys[0][l], keys[1][l], keys[2][l]);
-                        out.last[s0 + l] = key;
-                        out.push(key);
+                        out.push(ChunkKey::new(keys[0][l], keys[1][l], keys[2][l]));
                     }
                 }
                 s0 += 8;
