@@ -251,9 +251,11 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
     ChunkOutcome { updated, near }
 }
 
-/// `select_row` of the parent module with AVX2: the samples of one pixel's band walk, 8 at
-/// a time, each computed as in the portable walk (`p_near + step * s`, lane by lane, no
-/// fused multiply-add), so both select the same chunks.
+/// `select_row` of the parent module with AVX2: 8 sampled pixels of the row at a time, one
+/// per lane, their band walks advanced together sample by sample. Every quantity is computed
+/// as the portable walk computes it (same operations in the same order, no fused
+/// multiply-add, `1 / steps` by division as the table holds it), so both select the same
+/// chunks; only which repeats are filtered before the merge differs.
 ///
 /// # Safety
 /// The CPU must support AVX2 and FMA.
@@ -261,66 +263,122 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
 pub(super) unsafe fn select_row(view: &SelectionView, v: usize, out: &mut Candidates) {
     let row_ray = view.row_ray(v);
     let depth = &view.depth[v * view.width..(v + 1) * view.width];
-    // SAFETY (whole body): AVX2/FMA are enabled by the caller's check; `out.last_*` hold
-    // whole groups of 8 covering `0..=max_steps`, and `steps <= max_steps`.
+    let stride = view.stride;
+    let sampled = view.width.div_ceil(stride);
+    // SAFETY (whole body): AVX2/FMA are enabled by the caller's check; depth gathers are
+    // masked to sampled pixels of this row; `out.last_*` hold at least `max_steps + 1`
+    // entries and `s <= max_steps`.
     unsafe {
-        let lanes = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
-        let lane_index = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+        let splat = _mm256_set1_ps;
+        let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+        let left = _mm256_setr_epi32(0, 0, 1, 2, 3, 4, 5, 6);
         let zero = _mm256_setzero_ps();
-        let limit = _mm256_set1_ps(2.0 * SELECTION_OFFSET);
+        let limit = splat(2.0 * SELECTION_OFFSET);
         let offset = _mm256_set1_epi32(SELECTION_OFFSET as i32);
-        for u in (0..view.width).step_by(view.stride) {
-            let d = depth[u];
-            if !(d >= view.min_depth && d <= view.max_depth) {
+        let (min_d, max_d) = (splat(view.min_depth), splat(view.max_depth));
+        let (band_c, band_q, band_min) =
+            (splat(view.band.constant), splat(view.band.quadratic), splat(view.band.min_relative));
+        let (noise_offset, one, two) = (splat(NOISE_OFFSET), splat(1.0), splat(2.0));
+        let (trunc, inv_voxel) = (splat(view.trunc), splat(view.inv_voxel));
+        let (cx, fx) = (splat(view.k.cx), splat(view.k.fx));
+        let (rx, ry, rz) = (splat(view.rot.x_axis.x), splat(view.rot.x_axis.y), splat(view.rot.x_axis.z));
+        let (row_x, row_y, row_z) = (splat(row_ray.x), splat(row_ray.y), splat(row_ray.z));
+        let (ox, oy, oz) = (splat(view.origin.x), splat(view.origin.y), splat(view.origin.z));
+        let (min_steps, max_steps) = (_mm256_set1_epi32(1), _mm256_set1_epi32(view.max_steps as i32));
+        let lane0 = _mm256_setr_epi32(-1, 0, 0, 0, 0, 0, 0, 0);
+        for g in (0..sampled).step_by(8) {
+            let in_row = _mm256_cmpgt_epi32(_mm256_set1_epi32((sampled - g) as i32), lane);
+            let u = _mm256_mullo_epi32(
+                _mm256_add_epi32(_mm256_set1_epi32(g as i32), lane),
+                _mm256_set1_epi32(stride as i32),
+            );
+            let d = _mm256_mask_i32gather_ps::<4>(splat(f32::NAN), depth.as_ptr(), u, _mm256_castsi256_ps(in_row));
+            let valid = _mm256_and_ps(_mm256_cmp_ps::<_CMP_GE_OQ>(d, min_d), _mm256_cmp_ps::<_CMP_LE_OQ>(d, max_d));
+            if _mm256_movemask_ps(valid) == 0 {
                 continue;
             }
-            let (p_near, step, steps) = view.band_walk(row_ray, u, d);
-            let mut s0 = 0;
-            while s0 <= steps {
-                let s = _mm256_add_ps(_mm256_set1_ps(s0 as f32), lanes);
-                let px = _mm256_add_ps(_mm256_set1_ps(p_near.x), _mm256_mul_ps(_mm256_set1_ps(step.x), s));
-                let py = _mm256_add_ps(_mm256_set1_ps(p_near.y), _mm256_mul_ps(_mm256_set1_ps(step.y), s));
-                let pz = _mm256_add_ps(_mm256_set1_ps(p_near.z), _mm256_mul_ps(_mm256_set1_ps(step.z), s));
-                // Samples `s0 + lane <= steps` and inside the representable range.
-                let in_walk = _mm256_cmpgt_epi32(_mm256_set1_epi32((steps - s0) as i32 + 1), lane_index);
-                let lo = _mm256_and_ps(
-                    _mm256_and_ps(_mm256_cmp_ps::<_CMP_GE_OQ>(px, zero), _mm256_cmp_ps::<_CMP_GE_OQ>(py, zero)),
-                    _mm256_cmp_ps::<_CMP_GE_OQ>(pz, zero),
+            // `SelectionView::band_walk`, lane by lane.
+            let e = _mm256_sub_ps(d, noise_offset);
+            let rel = _mm256_min_ps(
+                _mm256_max_ps(_mm256_add_ps(band_c, _mm256_mul_ps(band_q, _mm256_mul_ps(e, e))), band_min),
+                one,
+            );
+            let mu = _mm256_mul_ps(rel, trunc);
+            let x = _mm256_mul_ps(mu, inv_voxel);
+            let whole = _mm256_cvttps_epi32(x);
+            // `whole + (whole < x)`: the comparison mask is -1 where true.
+            let ceil =
+                _mm256_sub_epi32(whole, _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_cvtepi32_ps(whole), x)));
+            let steps = _mm256_min_epi32(_mm256_max_epi32(ceil, min_steps), max_steps);
+            let t = _mm256_div_ps(_mm256_sub_ps(_mm256_cvtepi32_ps(u), cx), fx);
+            let (ray_x, ray_y, ray_z) = (
+                _mm256_add_ps(_mm256_mul_ps(rx, t), row_x),
+                _mm256_add_ps(_mm256_mul_ps(ry, t), row_y),
+                _mm256_add_ps(_mm256_mul_ps(rz, t), row_z),
+            );
+            let near = _mm256_sub_ps(d, mu);
+            let (px0, py0, pz0) = (
+                _mm256_add_ps(ox, _mm256_mul_ps(ray_x, near)),
+                _mm256_add_ps(oy, _mm256_mul_ps(ray_y, near)),
+                _mm256_add_ps(oz, _mm256_mul_ps(ray_z, near)),
+            );
+            let len = _mm256_mul_ps(_mm256_mul_ps(two, mu), _mm256_div_ps(one, _mm256_cvtepi32_ps(steps)));
+            let (sx, sy, sz) = (_mm256_mul_ps(ray_x, len), _mm256_mul_ps(ray_y, len), _mm256_mul_ps(ray_z, len));
+            let mut lane_steps = [0i32; 8];
+            _mm256_storeu_si256(
+                lane_steps.as_mut_ptr() as *mut __m256i,
+                _mm256_and_si256(steps, _mm256_castps_si256(valid)),
+            );
+            let most = lane_steps.iter().copied().max().unwrap_or(0) as usize;
+            for s in 0..=most {
+                let sf = splat(s as f32);
+                let px = _mm256_add_ps(px0, _mm256_mul_ps(sx, sf));
+                let py = _mm256_add_ps(py0, _mm256_mul_ps(sy, sf));
+                let pz = _mm256_add_ps(pz0, _mm256_mul_ps(sz, sf));
+                let in_range = _mm256_and_ps(
+                    _mm256_and_ps(
+                        _mm256_and_ps(_mm256_cmp_ps::<_CMP_GE_OQ>(px, zero), _mm256_cmp_ps::<_CMP_GE_OQ>(py, zero)),
+                        _mm256_and_ps(_mm256_cmp_ps::<_CMP_GE_OQ>(pz, zero), _mm256_cmp_ps::<_CMP_LT_OQ>(px, limit)),
+                    ),
+                    _mm256_and_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(py, limit), _mm256_cmp_ps::<_CMP_LT_OQ>(pz, limit)),
                 );
-                let hi = _mm256_and_ps(
-                    _mm256_and_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(px, limit), _mm256_cmp_ps::<_CMP_LT_OQ>(py, limit)),
-                    _mm256_cmp_ps::<_CMP_LT_OQ>(pz, limit),
-                );
-                let ok = _mm256_and_si256(in_walk, _mm256_castps_si256(_mm256_and_ps(lo, hi)));
+                let in_walk = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+                    _mm256_add_epi32(steps, min_steps),
+                    _mm256_set1_epi32(s as i32),
+                ));
+                let ok = _mm256_castps_si256(_mm256_and_ps(_mm256_and_ps(valid, in_walk), in_range));
+                let ok_bits = _mm256_movemask_ps(_mm256_castsi256_ps(ok)) as u32;
+                if ok_bits == 0 {
+                    continue;
+                }
                 let kx = _mm256_sub_epi32(_mm256_cvttps_epi32(px), offset);
                 let ky = _mm256_sub_epi32(_mm256_cvttps_epi32(py), offset);
                 let kz = _mm256_sub_epi32(_mm256_cvttps_epi32(pz), offset);
-                let (lx, ly, lz) = (
-                    out.last_x.as_mut_ptr().add(s0) as *mut __m256i,
-                    out.last_y.as_mut_ptr().add(s0) as *mut __m256i,
-                    out.last_z.as_mut_ptr().add(s0) as *mut __m256i,
-                );
-                let (old_x, old_y, old_z) = (_mm256_loadu_si256(lx), _mm256_loadu_si256(ly), _mm256_loadu_si256(lz));
+                // A lane repeats the key of its left neighbour (when that one was in the walk)
+                // or, lane 0, the last key sample `s` gave in this row.
+                let prev = |k: __m256i, last: i32| {
+                    _mm256_blendv_epi8(_mm256_permutevar8x32_epi32(k, left), _mm256_set1_epi32(last), lane0)
+                };
+                let prev_ok = _mm256_or_si256(_mm256_permutevar8x32_epi32(ok, left), lane0);
                 let same = _mm256_and_si256(
-                    _mm256_and_si256(_mm256_cmpeq_epi32(kx, old_x), _mm256_cmpeq_epi32(ky, old_y)),
-                    _mm256_cmpeq_epi32(kz, old_z),
+                    _mm256_and_si256(
+                        _mm256_cmpeq_epi32(kx, prev(kx, out.last_x[s])),
+                        _mm256_cmpeq_epi32(ky, prev(ky, out.last_y[s])),
+                    ),
+                    _mm256_and_si256(_mm256_cmpeq_epi32(kz, prev(kz, out.last_z[s])), prev_ok),
                 );
                 let mut changed = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_andnot_si256(same, ok))) as u32;
-                if changed != 0 {
-                    _mm256_storeu_si256(lx, _mm256_blendv_epi8(old_x, kx, ok));
-                    _mm256_storeu_si256(ly, _mm256_blendv_epi8(old_y, ky, ok));
-                    _mm256_storeu_si256(lz, _mm256_blendv_epi8(old_z, kz, ok));
-                    let mut keys = [[0i32; 8]; 3];
-                    _mm256_storeu_si256(keys[0].as_mut_ptr() as *mut __m256i, kx);
-                    _mm256_storeu_si256(keys[1].as_mut_ptr() as *mut __m256i, ky);
-                    _mm256_storeu_si256(keys[2].as_mut_ptr() as *mut __m256i, kz);
-                    while changed != 0 {
-                        let l = changed.trailing_zeros() as usize;
-                        changed &= changed - 1;
-                        out.push(ChunkKey::new(keys[0][l], keys[1][l], keys[2][l]));
-                    }
+                let mut keys = [[0i32; 8]; 3];
+                _mm256_storeu_si256(keys[0].as_mut_ptr() as *mut __m256i, kx);
+                _mm256_storeu_si256(keys[1].as_mut_ptr() as *mut __m256i, ky);
+                _mm256_storeu_si256(keys[2].as_mut_ptr() as *mut __m256i, kz);
+                let l = 31 - ok_bits.leading_zeros() as usize;
+                (out.last_x[s], out.last_y[s], out.last_z[s]) = (keys[0][l], keys[1][l], keys[2][l]);
+                while changed != 0 {
+                    let l = changed.trailing_zeros() as usize;
+                    changed &= changed - 1;
+                    out.push(ChunkKey::new(keys[0][l], keys[1][l], keys[2][l]));
                 }
-                s0 += 8;
             }
         }
     }
