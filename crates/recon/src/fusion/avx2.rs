@@ -11,6 +11,7 @@
 //! same bits.
 
 use std::arch::x86_64::*;
+use std::mem::MaybeUninit;
 
 use super::{Candidates, ChunkOutcome, FrameView, SelectionView, SELECTION_OFFSET};
 use crate::map::{Chunk, ChunkKey, SignSummary, CHUNK_SIDE, NOISE_OFFSET, RECIPROCALS, TSDF_SCALE, WEIGHT_SCALE};
@@ -112,9 +113,11 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
         // depths ready instead of waiting for each row's gather in turn. Lanes off the image
         // read NaN, which fails every validity test below as `inside` did.
         let nan = splat(f32::NAN);
-        let mut row_pz = [zero; N * N];
-        let mut row_d = [zero; N * N];
-        let mut row_pix = [_mm256_setzero_si256(); N * N];
+        // Every entry is written by the first pass before the second reads it; left
+        // uninitialised, not zeroed (6 KiB per chunk).
+        let mut row_pz = [MaybeUninit::<__m256>::uninit(); N * N];
+        let mut row_d = [MaybeUninit::<__m256>::uninit(); N * N];
+        let mut row_pix = [MaybeUninit::<__m256i>::uninit(); N * N];
         for r in 0..N * N {
             let (y, z) = ((r % N) as f32, (r / N) as f32);
             let row = base + dy * y + dz * z;
@@ -135,16 +138,16 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
             let pv = _mm256_round_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(_mm256_add_ps(v, half));
             let pix_f = _mm256_and_ps(inside, _mm256_add_ps(_mm256_mul_ps(pv, width), pu));
             let pix = _mm256_cvttps_epi32(pix_f);
-            row_pz[r] = pz;
-            row_d[r] = _mm256_mask_i32gather_ps::<4>(nan, depth_ptr, pix, inside);
-            row_pix[r] = pix;
+            row_pz[r].write(pz);
+            row_d[r].write(_mm256_mask_i32gather_ps::<4>(nan, depth_ptr, pix, inside));
+            row_pix[r].write(pix);
         }
         for r in 0..N * N {
             let tsdf_row = tsdf_ptr.add(r * N) as *mut __m128i;
             let weight_row = weight_ptr.add(r * N) as *mut __m128i;
             let t_old_i = _mm256_cvtepi16_epi32(_mm_loadu_si128(tsdf_row));
             let w_old_i = _mm256_cvtepu16_epi32(_mm_loadu_si128(weight_row));
-            let (pz, d, pix) = (row_pz[r], row_d[r], row_pix[r]);
+            let (pz, d, pix) = (row_pz[r].assume_init(), row_d[r].assume_init(), row_pix[r].assume_init());
             let (t_now, w_now) = {
                 let sdf = _mm256_mul_ps(_mm256_sub_ps(d, pz), inv_trunc);
                 let mu = if DEPTH_BAND {

@@ -7,6 +7,7 @@
 //! and the scalar specification `Voxel::fuse` give the same bits.
 
 use std::arch::x86_64::*;
+use std::mem::MaybeUninit;
 
 use super::{ChunkOutcome, FrameView};
 use crate::map::{Chunk, SignSummary, CHUNK_SIDE, NOISE_OFFSET, RECIPROCALS, TSDF_SCALE, WEIGHT_SCALE};
@@ -115,9 +116,11 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
             _mm_prefetch::<_MM_HINT_T0>(color_rows.add(line) as *const i8);
         }
         // First pass: project every row pair and gather its depths (see the AVX2 kernel).
-        let mut pair_pz = [zero; P];
-        let mut pair_d = [zero; P];
-        let mut pair_pix = [_mm512_setzero_si512(); P];
+        // Every entry is written by the first pass before the second reads it; left
+        // uninitialised, not zeroed (6 KiB per chunk).
+        let mut pair_pz = [MaybeUninit::<__m512>::uninit(); P];
+        let mut pair_d = [MaybeUninit::<__m512>::uninit(); P];
+        let mut pair_pix = [MaybeUninit::<__m512i>::uninit(); P];
         for p in 0..P {
             let r = 2 * p;
             let (y, z) = ((r % N) as f32, (r / N) as f32);
@@ -139,10 +142,10 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
             let pv = _mm512_roundscale_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(_mm512_add_ps(v, half));
             let pix_f = _mm512_maskz_mov_ps(inside, _mm512_add_ps(_mm512_mul_ps(pv, width), pu));
             let pix = _mm512_cvttps_epi32(pix_f);
-            pair_pz[p] = pz;
+            pair_pz[p].write(pz);
             // Lanes off the image read NaN, which fails every validity test.
-            pair_d[p] = _mm512_mask_i32gather_ps::<4>(splat(f32::NAN), inside, pix, depth_ptr);
-            pair_pix[p] = pix;
+            pair_d[p].write(_mm512_mask_i32gather_ps::<4>(splat(f32::NAN), inside, pix, depth_ptr));
+            pair_pix[p].write(pix);
         }
         for p in 0..P {
             let r = 2 * p;
@@ -150,7 +153,7 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
             let weight_row = weight_ptr.add(r * N) as *mut __m256i;
             let t_old_i = _mm512_cvtepi16_epi32(_mm256_loadu_si256(tsdf_row));
             let w_old_i = _mm512_cvtepu16_epi32(_mm256_loadu_si256(weight_row));
-            let (pz, d, pix) = (pair_pz[p], pair_d[p], pair_pix[p]);
+            let (pz, d, pix) = (pair_pz[p].assume_init(), pair_d[p].assume_init(), pair_pix[p].assume_init());
             let sdf = _mm512_mul_ps(_mm512_sub_ps(d, pz), inv_trunc);
             let mu = if DEPTH_BAND {
                 let e = _mm512_sub_ps(d, noise_offset);
