@@ -12,7 +12,9 @@
 //! the reference poses. Thread count: `RAYON_NUM_THREADS`. `--out` writes the final mesh as
 //! binary PLY (a minimal writer local to this example). `--band-factor` is
 //! `TsdfConfig::truncation_noise_factor` (0: the fixed band of `--trunc` voxels), `--min-band`
-//! its `min_truncation_voxels`.
+//! its `min_truncation_voxels`. The fusion kernel is the widest the CPU has;
+//! `SEMRECON_FUSION_SIMD=avx2|portable` forces a lower one. The printed map fingerprint
+//! (every voxel and frame run) must not depend on the kernel or the thread count.
 
 #[path = "common/cpu_time.rs"]
 mod cpu_time;

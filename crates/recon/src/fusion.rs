@@ -19,6 +19,13 @@
 //! count. Chunks newly allocated for a frame that end up holding no voxel within the
 //! truncation band are freed again, so the map only keeps chunks near observed surfaces.
 //!
+//! Both steps have SIMD kernels chosen once at run time: AVX-512F or AVX2 intrinsics where
+//! the CPU has them (submodules `avx512`, `avx2`), the `wide::f32x8` kernel and a scalar band
+//! walk otherwise; `SEMRECON_FUSION_SIMD=avx2|portable` forces a lower level. The baseline
+//! build targets SSE2, where `wide` runs as pairs of SSE operations with lane-by-lane
+//! gathers. Every kernel performs the same float operations in the same order (no fused
+//! multiply-add), so all give the same bits, tested against the scalar `Voxel::fuse`.
+//!
 //! Invalid depth (0, negative, NaN, infinite, outside the configured range) is skipped.
 
 use std::sync::OnceLock;
@@ -233,7 +240,9 @@ impl TsdfMap {
             .zip(&slots)
             .map(|(chunk, &(_, is_new))| {
                 let out = integrate_chunk_with(kernel, chunk, &view, fixed);
-                if out.updated > 0 && !(is_new && !out.near) {
+                // A new chunk without a voxel in the band is freed below: no bookkeeping.
+                let kept = !is_new || out.near;
+                if out.updated > 0 && kept {
                     chunk.dirty = true;
                     chunk.revision = revision;
                     chunk.frames.push(frame_id);
