@@ -95,12 +95,14 @@ fn integrate_chunk_with(kernel: Kernel, chunk: &mut Chunk, view: &FrameView, fix
     match (kernel, fixed) {
         (Kernel::Portable, false) => integrate_chunk::<true>(chunk, view),
         (Kernel::Portable, true) => integrate_chunk::<false>(chunk, view),
-        // SAFETY: `Kernel::Avx2` is only chosen where the CPU has AVX2 and FMA.
+        // SAFETY: `Kernel::Avx2` is only chosen where the CPU has AVX2 and FMA, and
+        // `integrate_chunks_with` only for frames below 2^24 pixels.
         #[cfg(target_arch = "x86_64")]
         (Kernel::Avx2, false) => unsafe { avx2::integrate_chunk::<true>(chunk, view) },
         #[cfg(target_arch = "x86_64")]
         (Kernel::Avx2, true) => unsafe { avx2::integrate_chunk::<false>(chunk, view) },
-        // SAFETY: `Kernel::Avx512` is only chosen where the CPU has AVX-512F.
+        // SAFETY: `Kernel::Avx512` is only chosen where the CPU has AVX-512F, and
+        // `integrate_chunks_with` only for frames below 2^24 pixels.
         #[cfg(target_arch = "x86_64")]
         (Kernel::Avx512, false) => unsafe { avx512::integrate_chunk::<true>(chunk, view) },
         #[cfg(target_arch = "x86_64")]
@@ -197,6 +199,9 @@ impl TsdfMap {
         keys: &[ChunkKey],
     ) -> Result<IntegrationStats> {
         check_frame(frame, &world_from_camera)?;
+        // The intrinsics kernels form pixel indices in f32, exact below 2^24 pixels only, and
+        // gather without bounds checks: larger images take the portable kernel.
+        let kernel = if frame.intrinsics.pixel_count() >= 1 << 24 { Kernel::Portable } else { kernel };
         let mut stats = IntegrationStats::default();
         let mut slots: Vec<(u32, bool)> = keys.iter().map(|&key| self.allocate(key)).collect();
         slots.sort_unstable();

@@ -49,7 +49,8 @@ unsafe fn blend_channel(c: __m256i, o: __m256i, count: __m256i, recip: __m256i) 
 /// `integrate_chunk` of the parent module with AVX2.
 ///
 /// # Safety
-/// The CPU must support AVX2 and FMA.
+/// The CPU must support AVX2 and FMA, and the frame must have fewer than 2^24 pixels (pixel
+/// indices are formed in f32 and gathered without bounds checks).
 #[target_feature(enable = "avx2,fma")]
 pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
     const N: usize = CHUNK_SIDE;

@@ -54,7 +54,8 @@ unsafe fn pair(a: f32, b: f32) -> __m512 {
 /// `integrate_chunk` of the parent module with AVX-512.
 ///
 /// # Safety
-/// The CPU must support AVX-512F.
+/// The CPU must support AVX-512F, and the frame must have fewer than 2^24 pixels (pixel
+/// indices are formed in f32 and gathered without bounds checks).
 #[target_feature(enable = "avx512f")]
 pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
     const N: usize = CHUNK_SIDE;
