@@ -197,7 +197,8 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 updated += valid_bits.count_ones();
                 let near = _mm256_and_ps(valid, _mm256_cmp_ps::<_CMP_LT_OQ>(sdf, mu));
                 near_lanes = _mm256_or_ps(near_lanes, near);
-                if has_color {
+                // Half the rows have no voxel near the surface: their colours stay as they are.
+                if has_color && _mm256_movemask_ps(near) != 0 {
                     let near_i = _mm256_castps_si256(near);
                     let row_ptr = color_rows.add(r * N * 4) as *mut __m256i;
                     let cur = _mm256_loadu_si256(row_ptr);

@@ -190,7 +190,8 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
             updated += valid.count_ones();
             let near = valid & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(sdf, mu);
             near_any |= near;
-            if has_color {
+            // Half the row pairs have no voxel near the surface: their colours stay as they are.
+            if has_color && near != 0 {
                 let row_ptr = color_rows.add(r * N * 4) as *mut __m512i;
                 let cur = _mm512_loadu_si512(row_ptr as *const _);
                 let offset = _mm512_mullo_epi32(pix, _mm512_set1_epi32(3));
