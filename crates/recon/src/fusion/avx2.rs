@@ -149,7 +149,7 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
             let t_old_i = _mm256_cvtepi16_epi32(_mm_loadu_si128(tsdf_row));
             let w_old_i = _mm256_cvtepu16_epi32(_mm_loadu_si128(weight_row));
             let (pz, d, pix) = (row_pz[r].assume_init(), row_d[r].assume_init(), row_pix[r].assume_init());
-            let (t_now, w_now) = {
+            let (t_now, w_now) = 'row: {
                 let sdf = _mm256_mul_ps(_mm256_sub_ps(d, pz), inv_trunc);
                 let mu = if DEPTH_BAND {
                     let e = _mm256_sub_ps(d, noise_offset);
@@ -165,11 +165,12 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                     _mm256_cmp_ps::<_CMP_GE_OQ>(d, min_d),
                     _mm256_and_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(d, max_d), _mm256_cmp_ps::<_CMP_GE_OQ>(sdf, neg_mu)),
                 );
-                // No branch on the outcome: which lanes are valid or near the surface is data
-                // dependent, known only after the gather, and a mispredicted branch there costs
-                // more than the arithmetic it would skip. Unchanged lanes are written back as
-                // they were.
+                // With the gathers done in the first pass, branching on the outcome pays: a
+                // quarter of the rows see no valid observation and keep their voxels.
                 let valid_bits = _mm256_movemask_ps(valid) as u32;
+                if valid_bits == 0 {
+                    break 'row (t_old_i, w_old_i);
+                }
                 let t_old = _mm256_cvtepi32_ps(t_old_i);
                 let w_old_q = _mm256_cvtepi32_ps(w_old_i);
                 let obs = _mm256_min_ps(sdf, mu);

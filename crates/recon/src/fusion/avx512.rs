@@ -169,52 +169,64 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
             let valid = _mm512_cmp_ps_mask::<_CMP_GE_OQ>(d, min_d)
                 & _mm512_cmp_ps_mask::<_CMP_LE_OQ>(d, max_d)
                 & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(sdf, neg_mu);
-            let t_old = _mm512_cvtepi32_ps(t_old_i);
-            let w_old_q = _mm512_cvtepi32_ps(w_old_i);
-            let obs = _mm512_min_ps(sdf, mu);
-            let w_obs = _mm512_maskz_mov_ps(valid, _mm512_min_ps(_mm512_div_ps(one, _mm512_mul_ps(d, d)), four));
-            let w_old = _mm512_mul_ps(w_old_q, inv_wscale);
-            let w_sum = _mm512_add_ps(w_old, w_obs);
-            let inv = _mm512_div_ps(one, _mm512_max_ps(w_sum, tiny));
-            let a = _mm512_mul_ps(w_old, inv);
-            let b = _mm512_mul_ps(w_obs, inv);
-            let t = _mm512_add_ps(_mm512_mul_ps(t_old, a), _mm512_mul_ps(obs, _mm512_mul_ps(b, tscale)));
-            let t_new = _mm512_mask_mov_ps(t_old, valid, round_half_away(t));
-            let w_q = _mm512_min_ps(_mm512_max_ps(round_half_away(_mm512_mul_ps(w_sum, wscale)), one), cap);
-            let w_new = _mm512_mask_mov_ps(w_old_q, valid, w_q);
-            // Integral and in range: conversions and truncating packs are exact.
-            let t_i = _mm512_cvttps_epi32(t_new);
-            let w_i = _mm512_cvttps_epi32(w_new);
-            _mm256_storeu_si256(tsdf_row, _mm512_cvtepi32_epi16(t_i));
-            _mm256_storeu_si256(weight_row, _mm512_cvtepi32_epi16(w_i));
-            updated += valid.count_ones();
-            let near = valid & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(sdf, mu);
-            near_any |= near;
-            // Half the row pairs have no voxel near the surface: their colours stay as they are.
-            if has_color && near != 0 {
-                let row_ptr = color_rows.add(r * N * 4) as *mut __m512i;
-                let cur = _mm512_loadu_si512(row_ptr as *const _);
-                let offset = _mm512_mullo_epi32(pix, _mm512_set1_epi32(3));
-                let clamped = _mm512_min_epi32(offset, last_color_offset);
-                let shift = _mm512_slli_epi32::<3>(_mm512_sub_epi32(offset, clamped));
-                let obs_c = _mm512_srlv_epi32(
-                    _mm512_mask_i32gather_epi32::<1>(_mm512_setzero_si512(), near, clamped, color_ptr as *const i32),
-                    shift,
-                );
-                let count = _mm512_srli_epi32::<24>(cur);
-                let recip = _mm512_i32gather_epi32::<4>(count, RECIPROCAL_TABLE.as_ptr() as *const i32);
-                let channel =
-                    |x: __m512i, s: u32| _mm512_and_si512(_mm512_srl_epi32(x, _mm_cvtsi32_si128(s as i32)), byte_mask);
-                let nr = blend_channel(channel(cur, 0), channel(obs_c, 0), count, recip);
-                let ng = blend_channel(channel(cur, 8), channel(obs_c, 8), count, recip);
-                let nb = blend_channel(channel(cur, 16), channel(obs_c, 16), count, recip);
-                let nc = _mm512_min_epi32(_mm512_add_epi32(count, int_one), count_max);
-                let packed = _mm512_or_si512(
-                    _mm512_or_si512(nr, _mm512_slli_epi32::<8>(ng)),
-                    _mm512_or_si512(_mm512_slli_epi32::<16>(nb), _mm512_slli_epi32::<24>(nc)),
-                );
-                _mm512_storeu_si512(row_ptr as *mut _, _mm512_mask_blend_epi32(near, cur, packed));
-            }
+            // A quarter of the row pairs see no valid observation: they keep their voxels.
+            let (t_i, w_i) = if valid == 0 {
+                (t_old_i, w_old_i)
+            } else {
+                let t_old = _mm512_cvtepi32_ps(t_old_i);
+                let w_old_q = _mm512_cvtepi32_ps(w_old_i);
+                let obs = _mm512_min_ps(sdf, mu);
+                let w_obs = _mm512_maskz_mov_ps(valid, _mm512_min_ps(_mm512_div_ps(one, _mm512_mul_ps(d, d)), four));
+                let w_old = _mm512_mul_ps(w_old_q, inv_wscale);
+                let w_sum = _mm512_add_ps(w_old, w_obs);
+                let inv = _mm512_div_ps(one, _mm512_max_ps(w_sum, tiny));
+                let a = _mm512_mul_ps(w_old, inv);
+                let b = _mm512_mul_ps(w_obs, inv);
+                let t = _mm512_add_ps(_mm512_mul_ps(t_old, a), _mm512_mul_ps(obs, _mm512_mul_ps(b, tscale)));
+                let t_new = _mm512_mask_mov_ps(t_old, valid, round_half_away(t));
+                let w_q = _mm512_min_ps(_mm512_max_ps(round_half_away(_mm512_mul_ps(w_sum, wscale)), one), cap);
+                let w_new = _mm512_mask_mov_ps(w_old_q, valid, w_q);
+                // Integral and in range: conversions and truncating packs are exact.
+                let t_i = _mm512_cvttps_epi32(t_new);
+                let w_i = _mm512_cvttps_epi32(w_new);
+                _mm256_storeu_si256(tsdf_row, _mm512_cvtepi32_epi16(t_i));
+                _mm256_storeu_si256(weight_row, _mm512_cvtepi32_epi16(w_i));
+                updated += valid.count_ones();
+                let near = valid & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(sdf, mu);
+                near_any |= near;
+                // Half the row pairs have no voxel near the surface: their colours stay as they are.
+                if has_color && near != 0 {
+                    let row_ptr = color_rows.add(r * N * 4) as *mut __m512i;
+                    let cur = _mm512_loadu_si512(row_ptr as *const _);
+                    let offset = _mm512_mullo_epi32(pix, _mm512_set1_epi32(3));
+                    let clamped = _mm512_min_epi32(offset, last_color_offset);
+                    let shift = _mm512_slli_epi32::<3>(_mm512_sub_epi32(offset, clamped));
+                    let obs_c = _mm512_srlv_epi32(
+                        _mm512_mask_i32gather_epi32::<1>(
+                            _mm512_setzero_si512(),
+                            near,
+                            clamped,
+                            color_ptr as *const i32,
+                        ),
+                        shift,
+                    );
+                    let count = _mm512_srli_epi32::<24>(cur);
+                    let recip = _mm512_i32gather_epi32::<4>(count, RECIPROCAL_TABLE.as_ptr() as *const i32);
+                    let channel = |x: __m512i, s: u32| {
+                        _mm512_and_si512(_mm512_srl_epi32(x, _mm_cvtsi32_si128(s as i32)), byte_mask)
+                    };
+                    let nr = blend_channel(channel(cur, 0), channel(obs_c, 0), count, recip);
+                    let ng = blend_channel(channel(cur, 8), channel(obs_c, 8), count, recip);
+                    let nb = blend_channel(channel(cur, 16), channel(obs_c, 16), count, recip);
+                    let nc = _mm512_min_epi32(_mm512_add_epi32(count, int_one), count_max);
+                    let packed = _mm512_or_si512(
+                        _mm512_or_si512(nr, _mm512_slli_epi32::<8>(ng)),
+                        _mm512_or_si512(_mm512_slli_epi32::<16>(nb), _mm512_slli_epi32::<24>(nc)),
+                    );
+                    _mm512_storeu_si512(row_ptr as *mut _, _mm512_mask_blend_epi32(near, cur, packed));
+                }
+                (t_i, w_i)
+            };
             let observed = _mm512_cmpgt_epi32_mask(w_i, _mm512_setzero_si512());
             let negative = _mm512_cmplt_epi32_mask(t_i, _mm512_setzero_si512());
             let (neg, pos) = (observed & negative, observed & !negative);
