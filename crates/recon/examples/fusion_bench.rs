@@ -13,7 +13,9 @@
 //! binary PLY (a minimal writer local to this example). `--band-factor` is
 //! `TsdfConfig::truncation_noise_factor` (0: the fixed band of `--trunc` voxels), `--min-band`
 //! its `min_truncation_voxels`. `--remesh-tol` is the incremental mesher's
-//! `RemeshTolerance::distance_voxels` (default 0: exact).
+//! `RemeshTolerance::distance_voxels` (default 0: exact). The fusion kernel is the widest the
+//! CPU has; `SEMRECON_FUSION_SIMD=avx2|portable` forces a lower one. The printed map
+//! fingerprint (every voxel and frame run) must not depend on the kernel or the thread count.
 
 #[path = "common/cpu_time.rs"]
 mod cpu_time;
@@ -110,6 +112,34 @@ fn write_ply(path: &Path, mesh: &LabeledMesh) -> std::io::Result<()> {
         w.flush()?;
     }
     std::fs::rename(&tmp, path)
+}
+
+/// FNV-1a over the sorted chunk keys and every voxel (distance, weight, colour, count) and
+/// the chunks' frame runs: equal fingerprints mean bit-identical maps, so kernels and thread
+/// counts can be compared run against run.
+fn fingerprint(map: &TsdfMap) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    let mut eat = |bytes: &[u8]| {
+        for &b in bytes {
+            h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+        }
+    };
+    for key in map.sorted_keys() {
+        let Some(chunk) = map.chunk(key) else { continue };
+        for c in key.to_array() {
+            eat(&c.to_le_bytes());
+        }
+        for v in chunk.voxels() {
+            eat(&v.tsdf().to_le_bytes());
+            eat(&v.weight().to_le_bytes());
+            eat(&v.color());
+        }
+        for &(a, b) in chunk.frames().runs() {
+            eat(&a.to_le_bytes());
+            eat(&b.to_le_bytes());
+        }
+    }
+    h
 }
 
 fn stats(label: &str, ms: &mut [f64]) {
@@ -229,6 +259,7 @@ fn main() {
         }
     }
     let wall = t_all.elapsed().as_secs_f64();
+    println!("map fingerprint {:016x}", fingerprint(&map));
     let n = frames.len().max(1);
     println!(
         "chunks {} ({:.1} MB, {} bytes/chunk), visited {:.0} chunks/frame, {:.2} M voxel updates/frame",

@@ -19,9 +19,16 @@
 //! count. Chunks newly allocated for a frame that end up holding no voxel within the
 //! truncation band are freed again, so the map only keeps chunks near observed surfaces.
 //!
+//! Both steps have SIMD kernels chosen once at run time: AVX-512F or AVX2 intrinsics where
+//! the CPU has them (submodules `avx512`, `avx2`), the `wide::f32x8` kernel and a scalar band
+//! walk otherwise; `SEMRECON_FUSION_SIMD=avx2|portable` forces a lower level. The baseline
+//! build targets SSE2, where `wide` runs as pairs of SSE operations with lane-by-lane
+//! gathers. Every kernel performs the same float operations in the same order (no fused
+//! multiply-add), so all give the same bits, tested against the scalar `Voxel::fuse`.
+//!
 //! Invalid depth (0, negative, NaN, infinite, outside the configured range) is skipped.
 
-use std::collections::HashSet;
+use std::sync::OnceLock;
 
 use glam::{Affine3A, Vec3A};
 use rayon::prelude::*;
@@ -30,9 +37,10 @@ use wide::{f32x8, i16x8, i32x8, u16x8};
 
 use crate::error::{ReconError, Result};
 use crate::map::{
-    blend_color, key_order, BandModel, Chunk, ChunkHashBuilder, ChunkKey, SignSummary, TsdfMap, CHUNK_SIDE,
-    NOISE_OFFSET, TSDF_SCALE, WEIGHT_SCALE,
+    blend_color, key_order, BandModel, Chunk, ChunkKey, SignSummary, TsdfMap, CHUNK_SIDE, NOISE_OFFSET, TSDF_SCALE,
+    WEIGHT_SCALE,
 };
+use crate::TsdfConfig;
 
 /// Weight of one depth observation: `1 / z²` (z in metres) capped at 4.
 ///
@@ -42,6 +50,64 @@ use crate::map::{
 #[inline]
 pub fn depth_weight(depth: f32) -> f32 {
     (1.0 / (depth * depth)).min(4.0)
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2;
+#[cfg(target_arch = "x86_64")]
+mod avx512;
+
+/// Which integration kernel runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kernel {
+    /// `wide::f32x8` (whatever the build's target features make of it).
+    Portable,
+    /// AVX2 intrinsics with hardware gathers, chosen at run time.
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+    /// AVX-512 intrinsics, two voxel rows per register (chunk selection runs the AVX2 walk).
+    #[cfg(target_arch = "x86_64")]
+    Avx512,
+}
+
+/// The kernel for this machine, chosen once: the widest the CPU has, unless
+/// `SEMRECON_FUSION_SIMD=avx2|portable` forces a lower one (all give the same bits).
+fn kernel() -> Kernel {
+    static KERNEL: OnceLock<Kernel> = OnceLock::new();
+    *KERNEL.get_or_init(|| {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let forced = std::env::var("SEMRECON_FUSION_SIMD").unwrap_or_default();
+            let avx2 = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
+            if forced != "portable" && forced != "avx2" && avx2 && is_x86_feature_detected!("avx512f") {
+                return Kernel::Avx512;
+            }
+            if forced != "portable" && avx2 {
+                return Kernel::Avx2;
+            }
+        }
+        Kernel::Portable
+    })
+}
+
+/// Integrates one chunk with `kernel`; `fixed`: the band is the full truncation everywhere.
+fn integrate_chunk_with(kernel: Kernel, chunk: &mut Chunk, view: &FrameView, fixed: bool) -> ChunkOutcome {
+    match (kernel, fixed) {
+        (Kernel::Portable, false) => integrate_chunk::<true>(chunk, view),
+        (Kernel::Portable, true) => integrate_chunk::<false>(chunk, view),
+        // SAFETY: `Kernel::Avx2` is only chosen where the CPU has AVX2 and FMA, and
+        // `integrate_chunks_with` only for frames below 2^24 pixels.
+        #[cfg(target_arch = "x86_64")]
+        (Kernel::Avx2, false) => unsafe { avx2::integrate_chunk::<true>(chunk, view) },
+        #[cfg(target_arch = "x86_64")]
+        (Kernel::Avx2, true) => unsafe { avx2::integrate_chunk::<false>(chunk, view) },
+        // SAFETY: `Kernel::Avx512` is only chosen where the CPU has AVX-512F, and
+        // `integrate_chunks_with` only for frames below 2^24 pixels.
+        #[cfg(target_arch = "x86_64")]
+        (Kernel::Avx512, false) => unsafe { avx512::integrate_chunk::<true>(chunk, view) },
+        #[cfg(target_arch = "x86_64")]
+        (Kernel::Avx512, true) => unsafe { avx512::integrate_chunk::<false>(chunk, view) },
+    }
 }
 
 /// What one integration did.
@@ -90,74 +156,20 @@ impl TsdfMap {
     /// `world_from_camera`; sorted (z, y, x) and without duplicates.
     pub fn select_chunks(&self, frame: &Frame, world_from_camera: Affine3A) -> Result<Vec<ChunkKey>> {
         check_frame(frame, &world_from_camera)?;
-        let c = &self.config;
-        let k = frame.intrinsics;
-        let (w, h) = (k.width as usize, k.height as usize);
-        let stride = c.selection_stride;
-        let trunc = c.truncation();
-        let band = c.band_model();
-        // Samples along the band no further apart than two voxels, so that the walk cannot
-        // step over a chunk (8 voxels) except at a corner clipped by less than a voxel.
-        let max_steps = (trunc / c.voxel_size).ceil().max(1.0) as usize;
-        // Work in chunk units shifted so that chunk k spans [k, k + 1): voxel centres sit
-        // at multiples of the voxel size, so a chunk spans voxels [8k - 0.5, 8k + 7.5).
-        // `OFFSET` keeps coordinates positive so that truncation is floor (one instruction,
-        // where `floor` is a library call without SSE4.1). 2^14 chunks (655 m at 5 mm voxels)
-        // either side of the origin, at 1/64 voxel precision; points beyond are not selected.
-        const OFFSET: f32 = (1 << 14) as f32;
-        let inv_chunk = 1.0 / c.chunk_size();
-        let rot = world_from_camera.matrix3 * inv_chunk;
-        let origin =
-            (world_from_camera.translation + Vec3A::splat(0.5 * c.voxel_size)) * inv_chunk + Vec3A::splat(OFFSET);
-        let offset = ChunkKey::splat(OFFSET as i32);
-        let inv_voxel = 1.0 / c.voxel_size;
-        // `1 / steps` by table: a division and a `ceil` (a library call without SSE4.1) per
-        // pixel cost as much as the band itself.
-        let inv_steps: Vec<f32> = (0..=max_steps).map(|n| 1.0 / n.max(1) as f32).collect();
-        let rows: Vec<usize> = (0..h).step_by(stride).collect();
-        let (min_d, max_d) = (c.min_depth, c.max_depth);
-        let depth = &frame.depth;
-        let block_sets: Vec<Vec<ChunkKey>> = rows
+        let view = SelectionView::new(&self.config, frame, world_from_camera);
+        let kernel = kernel();
+        let rows: Vec<usize> = (0..view.height).step_by(view.stride).collect();
+        let blocks: Vec<Vec<ChunkKey>> = rows
             .par_chunks(16)
             .map(|rows| {
-                let mut set: HashSet<ChunkKey, ChunkHashBuilder> = HashSet::default();
-                let mut last = vec![ChunkKey::MAX; max_steps + 1];
+                let mut out = Candidates::new(view.max_steps);
                 for &v in rows {
-                    // Ray (camera z = 1) in chunk units: x part per pixel, y part per row.
-                    let row_ray = rot.y_axis * ((v as f32 - k.cy) / k.fy) + rot.z_axis;
-                    for u in (0..w).step_by(stride) {
-                        let d = depth[v * w + u];
-                        if !(d >= min_d && d <= max_d) {
-                            continue;
-                        }
-                        // This pixel's band, the one integration applies to its voxels.
-                        let mu = band.relative(d) * trunc;
-                        let x = mu * inv_voxel;
-                        let whole = x as usize;
-                        let steps = (whole + ((whole as f32) < x) as usize).clamp(1, max_steps);
-                        let ray = rot.x_axis * ((u as f32 - k.cx) / k.fx) + row_ray;
-                        let p_near = origin + ray * (d - mu);
-                        let step = ray * (2.0 * mu * inv_steps[steps]);
-                        for (s, last) in last[..=steps].iter_mut().enumerate() {
-                            let p = p_near + step * s as f32;
-                            if p.cmplt(Vec3A::ZERO).any() || p.cmpge(Vec3A::splat(2.0 * OFFSET)).any() {
-                                continue;
-                            }
-                            let key = p.as_ivec3() - offset;
-                            if key != *last {
-                                *last = key;
-                                set.insert(key);
-                            }
-                        }
-                    }
+                    select_row_with(kernel, &view, v, &mut out);
                 }
-                set.into_iter().collect()
+                out.keys
             })
             .collect();
-        let mut keys: Vec<ChunkKey> = block_sets.into_iter().flatten().collect();
-        keys.sort_unstable_by_key(|k| key_order(*k));
-        keys.dedup();
-        Ok(keys)
+        Ok(sorted_unique(blocks))
     }
 
     /// Fuses `frame` seen from `world_from_camera`: chunk selection, then integration.
@@ -175,7 +187,21 @@ impl TsdfMap {
         world_from_camera: Affine3A,
         keys: &[ChunkKey],
     ) -> Result<IntegrationStats> {
+        self.integrate_chunks_with(kernel(), frame, world_from_camera, keys)
+    }
+
+    /// [`TsdfMap::integrate_chunks`] with the given kernel (tests compare the kernels).
+    fn integrate_chunks_with(
+        &mut self,
+        kernel: Kernel,
+        frame: &Frame,
+        world_from_camera: Affine3A,
+        keys: &[ChunkKey],
+    ) -> Result<IntegrationStats> {
         check_frame(frame, &world_from_camera)?;
+        // The intrinsics kernels form pixel indices in f32, exact below 2^24 pixels only, and
+        // gather without bounds checks: larger images take the portable kernel.
+        let kernel = if frame.intrinsics.pixel_count() >= 1 << 24 { Kernel::Portable } else { kernel };
         let mut stats = IntegrationStats::default();
         let mut slots: Vec<(u32, bool)> = keys.iter().map(|&key| self.allocate(key)).collect();
         slots.sort_unstable();
@@ -208,23 +234,28 @@ impl TsdfMap {
             self.chunks.iter_mut().zip(&selected).filter(|(_, &sel)| sel).map(|(c, _)| c).collect();
         // A fixed band (clamped to exactly 1 truncation) skips the band arithmetic.
         let fixed = view.band.min_relative >= 1.0;
-        let outcomes: Vec<ChunkOutcome> = targets
-            .par_iter_mut()
-            .map(
-                |chunk| {
-                    if fixed {
-                        integrate_chunk::<false>(chunk, &view)
-                    } else {
-                        integrate_chunk::<true>(chunk, &view)
-                    }
-                },
-            )
-            .collect();
-        drop(targets);
-        // `targets` and `outcomes` are in slab order, like the sorted `slots`.
         let revision = self.next_revision;
         self.next_revision += 1;
         let frame_id = frame.index.min(u32::MAX as usize) as u32;
+        // The per-chunk bookkeeping happens in the tasks too: done afterwards in one loop it
+        // would chase every chunk's record and frame list again, on one thread.
+        // `targets` and `outcomes` are in slab order, like the sorted `slots`.
+        let outcomes: Vec<ChunkOutcome> = targets
+            .par_iter_mut()
+            .zip(&slots)
+            .map(|(chunk, &(_, is_new))| {
+                let out = integrate_chunk_with(kernel, chunk, &view, fixed);
+                // A new chunk without a voxel in the band is freed below: no bookkeeping.
+                let kept = !is_new || out.near;
+                if out.updated > 0 && kept {
+                    chunk.dirty = true;
+                    chunk.revision = revision;
+                    chunk.frames.push(frame_id);
+                }
+                out
+            })
+            .collect();
+        drop(targets);
         let mut to_free = Vec::new();
         for (&(slot, is_new), out) in slots.iter().zip(&outcomes) {
             if is_new && !out.near {
@@ -234,10 +265,6 @@ impl TsdfMap {
             stats.new_chunks += is_new as usize;
             stats.band_chunks += out.near as usize;
             if out.updated > 0 {
-                let chunk = &mut self.chunks[slot as usize];
-                chunk.dirty = true;
-                chunk.revision = revision;
-                chunk.frames.push(frame_id);
                 stats.updated_chunks += 1;
                 stats.updated_voxels += out.updated as usize;
             }
@@ -246,6 +273,212 @@ impl TsdfMap {
         self.free(to_free);
         Ok(stats)
     }
+}
+
+/// Everything chunk selection reads, precomputed once per frame.
+///
+/// Coordinates are in chunk units shifted so that chunk k spans [k, k + 1): voxel centres
+/// sit at multiples of the voxel size, so a chunk spans voxels [8k - 0.5, 8k + 7.5).
+/// [`SELECTION_OFFSET`] keeps coordinates positive so that truncation is floor (one
+/// instruction, where `floor` is a library call without SSE4.1).
+struct SelectionView<'a> {
+    depth: &'a [f32],
+    k: Intrinsics,
+    width: usize,
+    height: usize,
+    stride: usize,
+    /// `world_from_camera`'s rotation in chunk units.
+    rot: glam::Mat3A,
+    /// The camera centre in shifted chunk units.
+    origin: Vec3A,
+    trunc: f32,
+    inv_voxel: f32,
+    band: BandModel,
+    min_depth: f32,
+    max_depth: f32,
+    /// Most band samples per pixel, minus one.
+    max_steps: usize,
+    /// `1 / max(n, 1)` for `n` in `0..=max_steps`.
+    inv_steps: Vec<f32>,
+}
+
+/// 2^14 chunks (655 m at 5 mm voxels) either side of the origin, at 1/64 voxel precision;
+/// points beyond are not selected.
+const SELECTION_OFFSET: f32 = (1 << 14) as f32;
+
+impl<'a> SelectionView<'a> {
+    fn new(c: &TsdfConfig, frame: &'a Frame, world_from_camera: Affine3A) -> Self {
+        let k = frame.intrinsics;
+        let trunc = c.truncation();
+        let inv_chunk = 1.0 / c.chunk_size();
+        // Samples along the band no further apart than two voxels, so that the walk cannot
+        // step over a chunk (8 voxels) except at a corner clipped by less than a voxel.
+        let max_steps = (trunc / c.voxel_size).ceil().max(1.0) as usize;
+        Self {
+            depth: &frame.depth,
+            k,
+            width: k.width as usize,
+            height: k.height as usize,
+            stride: c.selection_stride,
+            rot: world_from_camera.matrix3 * inv_chunk,
+            origin: (world_from_camera.translation + Vec3A::splat(0.5 * c.voxel_size)) * inv_chunk
+                + Vec3A::splat(SELECTION_OFFSET),
+            trunc,
+            inv_voxel: 1.0 / c.voxel_size,
+            band: c.band_model(),
+            min_depth: c.min_depth,
+            max_depth: c.max_depth,
+            max_steps,
+            // `1 / steps` by table: a division and a `ceil` (a library call without SSE4.1)
+            // per pixel cost as much as the band itself.
+            inv_steps: (0..=max_steps).map(|n| 1.0 / n.max(1) as f32).collect(),
+        }
+    }
+
+    /// The band walk of pixel `(u, v)` with valid depth `d`: the first sample, the step
+    /// between samples (shifted chunk units) and the number of steps.
+    #[inline(always)]
+    fn band_walk(&self, row_ray: Vec3A, u: usize, d: f32) -> (Vec3A, Vec3A, usize) {
+        // This pixel's band, the one integration applies to its voxels.
+        let mu = self.band.relative(d) * self.trunc;
+        let x = mu * self.inv_voxel;
+        let whole = x as usize;
+        let steps = (whole + ((whole as f32) < x) as usize).clamp(1, self.max_steps);
+        let ray = self.rot.x_axis * ((u as f32 - self.k.cx) / self.k.fx) + row_ray;
+        let p_near = self.origin + ray * (d - mu);
+        let step = ray * (2.0 * mu * self.inv_steps[steps]);
+        (p_near, step, steps)
+    }
+
+    /// Ray (camera z = 1) in chunk units without its x part, for image row `v`.
+    #[inline(always)]
+    fn row_ray(&self, v: usize) -> Vec3A {
+        self.rot.y_axis * ((v as f32 - self.k.cy) / self.k.fy) + self.rot.z_axis
+    }
+}
+
+/// Chunk keys collected by one task, most repeats filtered out on the way.
+///
+/// Neighbouring pixels cross the same chunks: `last_*[s]` hold the key sample `s` of the
+/// previous pixel saw (as x, y and z planes, which the AVX2 walk loads as vectors), and a
+/// small direct-mapped table of recent keys catches most of the other repeats, so that the
+/// merge sees few duplicates (it removes the rest).
+struct Candidates {
+    last_x: Vec<i32>,
+    last_y: Vec<i32>,
+    last_z: Vec<i32>,
+    recent: Box<[ChunkKey; Self::RECENT]>,
+    keys: Vec<ChunkKey>,
+}
+
+impl Candidates {
+    const RECENT: usize = 512;
+
+    fn new(max_steps: usize) -> Self {
+        // Rounded up to whole 8-lane groups for the AVX2 walk.
+        let n = (max_steps + 1).div_ceil(8) * 8;
+        Self {
+            last_x: vec![i32::MAX; n],
+            last_y: vec![i32::MAX; n],
+            last_z: vec![i32::MAX; n],
+            recent: Box::new([ChunkKey::MAX; Self::RECENT]),
+            keys: Vec::new(),
+        }
+    }
+
+    #[inline(always)]
+    fn push(&mut self, key: ChunkKey) {
+        let h = (key.x as u32).wrapping_mul(0x9e37_79b1)
+            ^ (key.y as u32).wrapping_mul(0x85eb_ca77)
+            ^ (key.z as u32).wrapping_mul(0xc2b2_ae3d);
+        let slot = &mut self.recent[(h >> 23) as usize % Self::RECENT];
+        if *slot != key {
+            *slot = key;
+            self.keys.push(key);
+        }
+    }
+}
+
+/// Selects the chunks of image row `v` with `kernel`.
+fn select_row_with(kernel: Kernel, view: &SelectionView, v: usize, out: &mut Candidates) {
+    match kernel {
+        Kernel::Portable => select_row(view, v, out),
+        // SAFETY: `Kernel::Avx2` and `Kernel::Avx512` are only chosen where the CPU has AVX2
+        // and FMA.
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx2 | Kernel::Avx512 => unsafe { avx2::select_row(view, v, out) },
+    }
+}
+
+/// Walks the band of every sampled valid pixel of image row `v` and collects the chunks
+/// its samples fall into.
+fn select_row(view: &SelectionView, v: usize, out: &mut Candidates) {
+    let offset = ChunkKey::splat(SELECTION_OFFSET as i32);
+    let row_ray = view.row_ray(v);
+    let depth = &view.depth[v * view.width..(v + 1) * view.width];
+    for u in (0..view.width).step_by(view.stride) {
+        let d = depth[u];
+        if !(d >= view.min_depth && d <= view.max_depth) {
+            continue;
+        }
+        let (p_near, step, steps) = view.band_walk(row_ray, u, d);
+        for s in 0..=steps {
+            let p = p_near + step * s as f32;
+            if p.cmplt(Vec3A::ZERO).any() || p.cmpge(Vec3A::splat(2.0 * SELECTION_OFFSET)).any() {
+                continue;
+            }
+            let key = p.as_ivec3() - offset;
+            if key != ChunkKey::new(out.last_x[s], out.last_y[s], out.last_z[s]) {
+                (out.last_x[s], out.last_y[s], out.last_z[s]) = (key.x, key.y, key.z);
+                out.push(key);
+            }
+        }
+    }
+}
+
+/// The keys of all blocks, sorted (z, y, x) without duplicates: through a bitset over their
+/// bounding box when that is small (one bit per chunk, read back in order), by sorting
+/// otherwise.
+fn sorted_unique(blocks: Vec<Vec<ChunkKey>>) -> Vec<ChunkKey> {
+    const MAX_BITS: usize = 1 << 24;
+    let mut lo = ChunkKey::MAX;
+    let mut hi = ChunkKey::MIN;
+    for key in blocks.iter().flatten() {
+        lo = lo.min(*key);
+        hi = hi.max(*key);
+    }
+    if lo.cmpgt(hi).any() {
+        return Vec::new();
+    }
+    let size = (hi - lo).as_i64vec3() + 1;
+    let bits = size.x.saturating_mul(size.y).saturating_mul(size.z);
+    if bits > MAX_BITS as i64 {
+        let mut keys: Vec<ChunkKey> = blocks.into_iter().flatten().collect();
+        keys.sort_unstable_by_key(|k| key_order(*k));
+        keys.dedup();
+        return keys;
+    }
+    let (nx, ny) = (size.x as usize, size.y as usize);
+    let mut words = vec![0u64; (bits as usize).div_ceil(64)];
+    let mut count = 0;
+    for key in blocks.iter().flatten() {
+        let l = (*key - lo).as_uvec3();
+        let i = (l.z as usize * ny + l.y as usize) * nx + l.x as usize;
+        let bit = 1u64 << (i % 64);
+        count += (words[i / 64] & bit == 0) as usize;
+        words[i / 64] |= bit;
+    }
+    let mut keys = Vec::with_capacity(count);
+    for (w, &word) in words.iter().enumerate() {
+        let mut word = word;
+        while word != 0 {
+            let i = w * 64 + word.trailing_zeros() as usize;
+            word &= word - 1;
+            let (x, rest) = (i % nx, i / nx);
+            keys.push(lo + ChunkKey::new(x as i32, (rest % ny) as i32, (rest / ny) as i32));
+        }
+    }
+    keys
 }
 
 /// Rejects frames whose buffers do not match their camera and non-finite poses; depth values
@@ -447,7 +680,30 @@ mod tests {
         check_simd_against_scalar(config);
     }
 
+    /// The kernels this machine can run.
+    fn kernels() -> Vec<Kernel> {
+        let mut kernels = vec![Kernel::Portable];
+        #[cfg(target_arch = "x86_64")]
+        if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
+            kernels.push(Kernel::Avx2);
+            if is_x86_feature_detected!("avx512f") {
+                kernels.push(Kernel::Avx512);
+            } else {
+                eprintln!("no AVX-512F on this machine: the AVX-512 kernel is not tested");
+            }
+        } else {
+            eprintln!("no AVX2/FMA on this machine: only the portable kernel is tested");
+        }
+        kernels
+    }
+
     fn check_simd_against_scalar(config: TsdfConfig) {
+        for kernel in kernels() {
+            check_kernel_against_scalar(kernel, config);
+        }
+    }
+
+    fn check_kernel_against_scalar(kernel: Kernel, config: TsdfConfig) {
         let mut rng = ChaCha8Rng::seed_from_u64(7);
         let mut map = TsdfMap::new(config).expect("valid");
         let mut spec: Vec<(IVec3, Vec<Voxel>)> = Vec::new();
@@ -487,7 +743,7 @@ mod tests {
                 };
                 scalar_integrate(&mut spec[entry].1, key, &view);
             }
-            map.integrate_chunks(&frame, pose, &keys).expect("fusion");
+            map.integrate_chunks_with(kernel, &frame, pose, &keys).expect("fusion");
             // The map frees new chunks that got nothing within the band; so does the spec.
             spec.retain(|(k, _)| map.chunk(*k).is_some());
         }
@@ -496,10 +752,128 @@ mod tests {
         for (key, voxels) in &spec {
             let chunk = map.chunk(*key).expect("kept");
             for (i, v) in voxels.iter().enumerate() {
-                assert_eq!(chunk.voxel(i), *v, "chunk {key} voxel {i}");
+                assert_eq!(chunk.voxel(i), *v, "{kernel:?}: chunk {key} voxel {i}");
                 compared += v.is_observed() as usize;
             }
         }
         assert!(compared > 1000, "{compared} observed voxels compared");
+        for chunk in map.chunks() {
+            assert_eq!(chunk.signs, chunk.voxels.signs(), "{kernel:?}: sign summary of chunk {}", chunk.key);
+        }
+    }
+
+    /// The plain band walk: every sample of every sampled pixel into an ordered set.
+    fn reference_selection(config: &TsdfConfig, frame: &Frame, pose: Affine3A) -> Vec<ChunkKey> {
+        let view = SelectionView::new(config, frame, pose);
+        let mut set = std::collections::BTreeSet::new();
+        for v in (0..view.height).step_by(view.stride) {
+            for u in (0..view.width).step_by(view.stride) {
+                let d = frame.depth[v * view.width + u];
+                if !(d >= config.min_depth && d <= config.max_depth) {
+                    continue;
+                }
+                let (p_near, step, steps) = view.band_walk(view.row_ray(v), u, d);
+                for s in 0..=steps {
+                    let p = p_near + step * s as f32;
+                    if p.cmpge(Vec3A::ZERO).all() && p.cmplt(Vec3A::splat(2.0 * SELECTION_OFFSET)).all() {
+                        let key = p.as_ivec3() - IVec3::splat(SELECTION_OFFSET as i32);
+                        set.insert(key_order(key));
+                    }
+                }
+            }
+        }
+        set.into_iter().map(|(z, y, x)| IVec3::new(x, y, z)).collect()
+    }
+
+    #[test]
+    fn every_selection_kernel_selects_the_reference_chunks() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        for (i, config) in [
+            TsdfConfig::default(),
+            TsdfConfig { selection_stride: 1, truncation_voxels: 10.0, ..TsdfConfig::default() },
+            TsdfConfig {
+                voxel_size: 0.002,
+                truncation_voxels: 12.0,
+                min_truncation_voxels: 2.0,
+                ..TsdfConfig::default()
+            },
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let frame = noisy_frame(i, &mut rng);
+            let pose = Affine3A::from_rotation_translation(
+                glam::Quat::from_euler(
+                    glam::EulerRot::XYZ,
+                    rng.random_range(-3.0..3.0),
+                    rng.random_range(-3.0..3.0),
+                    0.3,
+                ),
+                Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)),
+            );
+            let expected = reference_selection(&config, &frame, pose);
+            assert!(expected.len() > 20, "{} chunks", expected.len());
+            let map = TsdfMap::new(config).expect("valid");
+            for kernel in kernels() {
+                let view = SelectionView::new(&config, &frame, pose);
+                let blocks: Vec<Vec<ChunkKey>> = (0..view.height)
+                    .step_by(view.stride)
+                    .map(|v| {
+                        let mut out = Candidates::new(view.max_steps);
+                        select_row_with(kernel, &view, v, &mut out);
+                        out.keys
+                    })
+                    .collect();
+                assert_eq!(sorted_unique(blocks), expected, "{kernel:?}, config {i}");
+            }
+            assert_eq!(map.select_chunks(&frame, pose).expect("select"), expected);
+        }
+    }
+
+    #[test]
+    fn keys_far_apart_are_merged_by_sorting() {
+        let far = vec![IVec3::new(5000, 0, 0), IVec3::new(-5000, 3, 0)];
+        let near = vec![IVec3::new(1, 2, 3), IVec3::new(5000, 0, 0), IVec3::new(0, 0, 3), IVec3::new(0, 0, -7000)];
+        let expected = vec![
+            IVec3::new(0, 0, -7000),
+            IVec3::new(5000, 0, 0),
+            IVec3::new(-5000, 3, 0),
+            IVec3::new(0, 0, 3),
+            IVec3::new(1, 2, 3),
+        ];
+        assert_eq!(sorted_unique(vec![far, near]), expected);
+        let small =
+            vec![vec![IVec3::new(2, 1, 0), IVec3::new(-1, 1, 0)], vec![IVec3::new(-1, 1, 0), IVec3::new(0, 0, 1)]];
+        assert_eq!(sorted_unique(small), vec![IVec3::new(-1, 1, 0), IVec3::new(2, 1, 0), IVec3::new(0, 0, 1)]);
+        assert!(sorted_unique(vec![vec![], vec![]]).is_empty());
+    }
+
+    /// Colour pixels are 3 bytes and the AVX2 kernel gathers 4: the last pixel of the image
+    /// must be read without passing the end, and give the same colour as the portable kernel.
+    #[test]
+    fn last_pixel_colour_is_fused_by_every_kernel() {
+        let k = Intrinsics::new(16, 12, 20.0, 20.0, 7.5, 5.5).expect("valid camera");
+        let n = k.pixel_count();
+        let mut depth = vec![0.0; n];
+        depth[n - 1] = 0.6;
+        let mut color = vec![[10, 20, 30]; n];
+        color[n - 1] = [200, 150, 100];
+        let frame =
+            Frame { index: 0, timestamp: 0.0, depth, color, intrinsics: k, world_from_camera: None, labels: None };
+        let mut colours = Vec::new();
+        for kernel in kernels() {
+            // Stride 1: the default stride of 2 would not sample the last (odd) pixel.
+            let mut map = TsdfMap::new(TsdfConfig { selection_stride: 1, ..TsdfConfig::default() }).expect("valid");
+            let keys = map.select_chunks(&frame, Affine3A::IDENTITY).expect("select");
+            map.integrate_chunks_with(kernel, &frame, Affine3A::IDENTITY, &keys).expect("fusion");
+            let mut seen: Vec<[u8; 3]> =
+                map.chunks().flat_map(|c| c.voxels()).filter(|v| v.color_count > 0).map(|v| v.color()).collect();
+            assert!(!seen.is_empty(), "{kernel:?}: no voxel took a colour");
+            seen.sort_unstable();
+            seen.dedup();
+            assert_eq!(seen, vec![[200, 150, 100]], "{kernel:?}");
+            colours.push(map.chunks().map(|c| (c.key, c.voxels().collect::<Vec<_>>())).collect::<Vec<_>>());
+        }
+        assert!(colours.windows(2).all(|w| w[0] == w[1]), "kernels disagree");
     }
 }

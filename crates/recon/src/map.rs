@@ -303,7 +303,7 @@ pub(crate) fn blend_color(c: &mut [u8; 4], obs: [u8; 3]) {
 }
 
 /// `RECIPROCALS[n] = round(2^16 / (n + 1))`: the running mean's divisor in 16-bit fixed point.
-const RECIPROCALS: [u32; 256] = {
+pub(crate) const RECIPROCALS: [u32; 256] = {
     let mut t = [0u32; 256];
     let mut n = 0;
     while n < 256 {

@@ -1,0 +1,239 @@
+//! The integration kernel in AVX-512 intrinsics, selected at run time where the CPU has
+//! AVX-512F: the AVX2 kernel with two voxel rows (16 lanes) per register, comparisons into
+//! mask registers instead of blends.
+//!
+//! Same two passes as the AVX2 kernel (project and gather every row pair, then update) and
+//! the same arithmetic lane for lane (no fused multiply-add, same rounding), so all kernels
+//! and the scalar specification `Voxel::fuse` give the same bits.
+
+use std::arch::x86_64::*;
+use std::mem::MaybeUninit;
+
+use super::{ChunkOutcome, FrameView};
+use crate::map::{Chunk, SignSummary, CHUNK_SIDE, NOISE_OFFSET, RECIPROCALS, TSDF_SCALE, WEIGHT_SCALE};
+
+/// The colour running mean's reciprocals, in memory for the gather.
+static RECIPROCAL_TABLE: [u32; 256] = RECIPROCALS;
+
+/// Rounds half away from zero like `map::round_half_away`: `trunc(|x| + 0.5)` with the sign
+/// restored, the largest float below 0.5 rounding to 0. Inputs are far below 2^23.
+#[inline(always)]
+unsafe fn round_half_away(x: __m512) -> __m512 {
+    // SAFETY: register-only intrinsics of the features the caller enables.
+    unsafe {
+        let sign = _mm512_set1_epi32(i32::MIN);
+        let xi = _mm512_castps_si512(x);
+        let abs = _mm512_castsi512_ps(_mm512_andnot_si512(sign, xi));
+        let r =
+            _mm512_roundscale_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(_mm512_add_ps(abs, _mm512_set1_ps(0.5)));
+        let halfish = _mm512_cmp_ps_mask::<_CMP_EQ_OQ>(abs, _mm512_set1_ps(0.5f32.next_down()));
+        let r = _mm512_mask_mov_ps(r, halfish, _mm512_setzero_ps());
+        _mm512_castsi512_ps(_mm512_or_si512(_mm512_castps_si512(r), _mm512_and_si512(sign, xi)))
+    }
+}
+
+/// One colour channel of `map::blend_color` in 32-bit lanes: `((c n + o) recip + 2^15) >> 16`
+/// (no overflow: at most `(255 * 255 + 255) * 65536 + 2^15 < 2^32`).
+#[inline(always)]
+unsafe fn blend_channel(c: __m512i, o: __m512i, count: __m512i, recip: __m512i) -> __m512i {
+    // SAFETY: register-only intrinsics of the features the caller enables.
+    unsafe {
+        let sum = _mm512_add_epi32(_mm512_mullo_epi32(c, count), o);
+        let c = _mm512_srli_epi32::<16>(_mm512_add_epi32(_mm512_mullo_epi32(sum, recip), _mm512_set1_epi32(1 << 15)));
+        _mm512_and_si512(c, _mm512_set1_epi32(0xff))
+    }
+}
+
+/// Lanes 0..8 `a`, lanes 8..16 `b`.
+#[inline(always)]
+unsafe fn pair(a: f32, b: f32) -> __m512 {
+    // SAFETY: register-only intrinsics of the features the caller enables.
+    unsafe { _mm512_mask_mov_ps(_mm512_set1_ps(a), 0xff00, _mm512_set1_ps(b)) }
+}
+
+/// `integrate_chunk` of the parent module with AVX-512.
+///
+/// # Safety
+/// The CPU must support AVX-512F, and the frame must have fewer than 2^24 pixels (pixel
+/// indices are formed in f32 and gathered without bounds checks).
+#[target_feature(enable = "avx512f")]
+pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
+    const N: usize = CHUNK_SIDE;
+    /// Row pairs per chunk.
+    const P: usize = N * N / 2;
+    let side = N as i32;
+    let origin = (chunk.key * side).as_vec3() * f.voxel_size;
+    let base = f.rot[0] * origin.x + f.rot[1] * origin.y + f.rot[2] * origin.z + f.trans;
+    let dx = f.rot[0] * f.voxel_size;
+    let dy = f.rot[1] * f.voxel_size;
+    let dz = f.rot[2] * f.voxel_size;
+    let n_pix = f.depth.len();
+    let has_color = !f.color.is_empty();
+    let block = &mut *chunk.voxels;
+    let mut updated = 0u32;
+    let mut near_any: u16 = 0;
+    let mut signs = SignSummary::default();
+    // SAFETY (whole body): AVX-512F is enabled by the caller's check; every gather index is
+    // a pixel index below `n_pix` (lanes off the image are masked off), colour gathers read
+    // 4 bytes at most at byte `3 n_pix - 4`, the table index is a count below 256, and row
+    // loads/stores stay within the chunk's 512-voxel arrays.
+    unsafe {
+        let splat = _mm512_set1_ps;
+        // Lane l: voxel x = l % 8 of row 2p + l / 8.
+        let xs = _mm512_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
+        let (step_x, step_y, step_z) =
+            (_mm512_mul_ps(xs, splat(dx.x)), _mm512_mul_ps(xs, splat(dx.y)), _mm512_mul_ps(xs, splat(dx.z)));
+        let (fx, fy, cx, cy) = (splat(f.k.fx), splat(f.k.fy), splat(f.k.cx), splat(f.k.cy));
+        let (wf, hf) = (splat(f.k.width as f32 - 0.5), splat(f.k.height as f32 - 0.5));
+        let width = splat(f.k.width as f32);
+        let (min_d, max_d) = (splat(f.min_depth), splat(f.max_depth));
+        let inv_trunc = splat(1.0 / f.truncation);
+        let (band_c, band_q, band_min) = (splat(f.band.constant), splat(f.band.quadratic), splat(f.band.min_relative));
+        let noise_offset = splat(NOISE_OFFSET);
+        let (zero, half, one) = (_mm512_setzero_ps(), splat(0.5), splat(1.0));
+        let neg_half = splat(-0.5);
+        let cap = splat(f.weight_cap as f32);
+        let four = splat(4.0);
+        let tiny = splat(1e-30);
+        let inv_wscale = splat(1.0 / WEIGHT_SCALE);
+        let wscale = splat(WEIGHT_SCALE);
+        let tscale = splat(TSDF_SCALE);
+        let depth_ptr = f.depth.as_ptr();
+        let color_ptr = f.color.as_ptr() as *const u8;
+        // Colour pixels are 3 bytes; a gather reads 4. The last pixel is read from one byte
+        // earlier and shifted, so no read passes the end of the image.
+        let last_color_offset = _mm512_set1_epi32((3 * n_pix).saturating_sub(4) as i32);
+        let byte_mask = _mm512_set1_epi32(0xff);
+        let count_max = _mm512_set1_epi32(255);
+        let int_one = _mm512_set1_epi32(1);
+        let tsdf_ptr = block.tsdf.as_mut_ptr();
+        let weight_ptr = block.weight.as_mut_ptr();
+        let color_rows = block.color.as_mut_ptr() as *mut u8;
+        for line in (0..N * N * N).step_by(32) {
+            _mm_prefetch::<_MM_HINT_T0>(tsdf_ptr.add(line) as *const i8);
+            _mm_prefetch::<_MM_HINT_T0>(weight_ptr.add(line) as *const i8);
+        }
+        for line in (0..N * N * N * 4).step_by(64) {
+            _mm_prefetch::<_MM_HINT_T0>(color_rows.add(line) as *const i8);
+        }
+        // First pass: project every row pair and gather its depths (see the AVX2 kernel).
+        // Every entry is written by the first pass before the second reads it; left
+        // uninitialised, not zeroed (6 KiB per chunk).
+        let mut pair_pz = [MaybeUninit::<__m512>::uninit(); P];
+        let mut pair_d = [MaybeUninit::<__m512>::uninit(); P];
+        let mut pair_pix = [MaybeUninit::<__m512i>::uninit(); P];
+        for p in 0..P {
+            let r = 2 * p;
+            let (y, z) = ((r % N) as f32, (r / N) as f32);
+            // Each row's start exactly as the other kernels compute it.
+            let row0 = base + dy * y + dz * z;
+            let row1 = base + dy * (y + 1.0) + dz * z;
+            let pz = _mm512_add_ps(pair(row0.z, row1.z), step_z);
+            let inv_z = _mm512_div_ps(one, pz);
+            let u =
+                _mm512_add_ps(_mm512_mul_ps(_mm512_mul_ps(fx, _mm512_add_ps(pair(row0.x, row1.x), step_x)), inv_z), cx);
+            let v =
+                _mm512_add_ps(_mm512_mul_ps(_mm512_mul_ps(fy, _mm512_add_ps(pair(row0.y, row1.y), step_y)), inv_z), cy);
+            let inside = _mm512_cmp_ps_mask::<_CMP_GT_OQ>(pz, zero)
+                & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(u, neg_half)
+                & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(u, wf)
+                & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(v, neg_half)
+                & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, hf);
+            let pu = _mm512_roundscale_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(_mm512_add_ps(u, half));
+            let pv = _mm512_roundscale_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(_mm512_add_ps(v, half));
+            let pix_f = _mm512_maskz_mov_ps(inside, _mm512_add_ps(_mm512_mul_ps(pv, width), pu));
+            let pix = _mm512_cvttps_epi32(pix_f);
+            pair_pz[p].write(pz);
+            // Lanes off the image read NaN, which fails every validity test.
+            pair_d[p].write(_mm512_mask_i32gather_ps::<4>(splat(f32::NAN), inside, pix, depth_ptr));
+            pair_pix[p].write(pix);
+        }
+        for p in 0..P {
+            let r = 2 * p;
+            let tsdf_row = tsdf_ptr.add(r * N) as *mut __m256i;
+            let weight_row = weight_ptr.add(r * N) as *mut __m256i;
+            let t_old_i = _mm512_cvtepi16_epi32(_mm256_loadu_si256(tsdf_row));
+            let w_old_i = _mm512_cvtepu16_epi32(_mm256_loadu_si256(weight_row));
+            let (pz, d, pix) = (pair_pz[p].assume_init(), pair_d[p].assume_init(), pair_pix[p].assume_init());
+            let sdf = _mm512_mul_ps(_mm512_sub_ps(d, pz), inv_trunc);
+            let mu = if DEPTH_BAND {
+                let e = _mm512_sub_ps(d, noise_offset);
+                _mm512_min_ps(
+                    _mm512_max_ps(_mm512_add_ps(band_c, _mm512_mul_ps(band_q, _mm512_mul_ps(e, e))), band_min),
+                    one,
+                )
+            } else {
+                one
+            };
+            let neg_mu = _mm512_sub_ps(zero, mu);
+            let valid = _mm512_cmp_ps_mask::<_CMP_GE_OQ>(d, min_d)
+                & _mm512_cmp_ps_mask::<_CMP_LE_OQ>(d, max_d)
+                & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(sdf, neg_mu);
+            // A quarter of the row pairs see no valid observation: they keep their voxels.
+            let (t_i, w_i) = if valid == 0 {
+                (t_old_i, w_old_i)
+            } else {
+                let t_old = _mm512_cvtepi32_ps(t_old_i);
+                let w_old_q = _mm512_cvtepi32_ps(w_old_i);
+                let obs = _mm512_min_ps(sdf, mu);
+                let w_obs = _mm512_maskz_mov_ps(valid, _mm512_min_ps(_mm512_div_ps(one, _mm512_mul_ps(d, d)), four));
+                let w_old = _mm512_mul_ps(w_old_q, inv_wscale);
+                let w_sum = _mm512_add_ps(w_old, w_obs);
+                let inv = _mm512_div_ps(one, _mm512_max_ps(w_sum, tiny));
+                let a = _mm512_mul_ps(w_old, inv);
+                let b = _mm512_mul_ps(w_obs, inv);
+                let t = _mm512_add_ps(_mm512_mul_ps(t_old, a), _mm512_mul_ps(obs, _mm512_mul_ps(b, tscale)));
+                let t_new = _mm512_mask_mov_ps(t_old, valid, round_half_away(t));
+                let w_q = _mm512_min_ps(_mm512_max_ps(round_half_away(_mm512_mul_ps(w_sum, wscale)), one), cap);
+                let w_new = _mm512_mask_mov_ps(w_old_q, valid, w_q);
+                // Integral and in range: conversions and truncating packs are exact.
+                let t_i = _mm512_cvttps_epi32(t_new);
+                let w_i = _mm512_cvttps_epi32(w_new);
+                _mm256_storeu_si256(tsdf_row, _mm512_cvtepi32_epi16(t_i));
+                _mm256_storeu_si256(weight_row, _mm512_cvtepi32_epi16(w_i));
+                updated += valid.count_ones();
+                let near = valid & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(sdf, mu);
+                near_any |= near;
+                // Half the row pairs have no voxel near the surface: their colours stay as they are.
+                if has_color && near != 0 {
+                    let row_ptr = color_rows.add(r * N * 4) as *mut __m512i;
+                    let cur = _mm512_loadu_si512(row_ptr as *const _);
+                    let offset = _mm512_mullo_epi32(pix, _mm512_set1_epi32(3));
+                    let clamped = _mm512_min_epi32(offset, last_color_offset);
+                    let shift = _mm512_slli_epi32::<3>(_mm512_sub_epi32(offset, clamped));
+                    let obs_c = _mm512_srlv_epi32(
+                        _mm512_mask_i32gather_epi32::<1>(
+                            _mm512_setzero_si512(),
+                            near,
+                            clamped,
+                            color_ptr as *const i32,
+                        ),
+                        shift,
+                    );
+                    let count = _mm512_srli_epi32::<24>(cur);
+                    let recip = _mm512_i32gather_epi32::<4>(count, RECIPROCAL_TABLE.as_ptr() as *const i32);
+                    let channel = |x: __m512i, s: u32| {
+                        _mm512_and_si512(_mm512_srl_epi32(x, _mm_cvtsi32_si128(s as i32)), byte_mask)
+                    };
+                    let nr = blend_channel(channel(cur, 0), channel(obs_c, 0), count, recip);
+                    let ng = blend_channel(channel(cur, 8), channel(obs_c, 8), count, recip);
+                    let nb = blend_channel(channel(cur, 16), channel(obs_c, 16), count, recip);
+                    let nc = _mm512_min_epi32(_mm512_add_epi32(count, int_one), count_max);
+                    let packed = _mm512_or_si512(
+                        _mm512_or_si512(nr, _mm512_slli_epi32::<8>(ng)),
+                        _mm512_or_si512(_mm512_slli_epi32::<16>(nb), _mm512_slli_epi32::<24>(nc)),
+                    );
+                    _mm512_storeu_si512(row_ptr as *mut _, _mm512_mask_blend_epi32(near, cur, packed));
+                }
+                (t_i, w_i)
+            };
+            let observed = _mm512_cmpgt_epi32_mask(w_i, _mm512_setzero_si512());
+            let negative = _mm512_cmplt_epi32_mask(t_i, _mm512_setzero_si512());
+            let (neg, pos) = (observed & negative, observed & !negative);
+            signs.add_row(r, (neg & 0xff) as u32, (pos & 0xff) as u32);
+            signs.add_row(r + 1, (neg >> 8) as u32, (pos >> 8) as u32);
+        }
+    }
+    chunk.signs = signs.bits();
+    ChunkOutcome { updated, near: near_any != 0 }
+}
