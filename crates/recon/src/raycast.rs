@@ -162,15 +162,20 @@ impl<'a> VoxelReader<'a> {
         let (key, i) = split_voxel(b);
         let local = b - key * CHUNK_SIDE as i32;
         if local.cmplt(IVec3::splat(CHUNK_SIDE as i32 - 1)).all() {
-            // All eight corners in one chunk.
+            // All eight corners in one chunk: read them all, then test (no branch per
+            // corner; the slices let the compiler drop the bounds checks).
             let ch = self.chunk(key)?;
             const S: usize = CHUNK_SIDE;
-            for (j, c) in c.iter_mut().enumerate() {
-                let k = i + (j & 1) + ((j >> 1) & 1) * S + (j >> 2) * S * S;
-                if ch.voxels.weight[k] == 0 {
-                    return None;
-                }
-                *c = ch.voxels.tsdf[k] as f32;
+            const SPAN: usize = S * S + S + 2;
+            const OFFSETS: [usize; 8] = [0, 1, S, S + 1, S * S, S * S + 1, S * S + S, S * S + S + 1];
+            let weight = &ch.voxels.weight[i..i + SPAN];
+            let tsdf = &ch.voxels.tsdf[i..i + SPAN];
+            let min_weight = OFFSETS.iter().fold(u16::MAX, |m, &o| m.min(weight[o]));
+            if min_weight == 0 {
+                return None;
+            }
+            for (c, &o) in c.iter_mut().zip(&OFFSETS) {
+                *c = tsdf[o] as f32;
             }
         } else {
             for (j, c) in c.iter_mut().enumerate() {
@@ -374,9 +379,14 @@ pub fn raycast(
 /// gradient of the trilinear cell around `p`.
 #[inline]
 fn gradient(reader: &mut VoxelReader, p: Vec3) -> Option<Vec3> {
-    let f0 = reader.trilinear(p);
+    // The value at `p` only serves one-sided differences: read on first need.
+    let mut f0: Option<Option<f32>> = None;
     let central = (|| {
-        Some(Vec3::new(diff(reader, p, Vec3::X, f0)?, diff(reader, p, Vec3::Y, f0)?, diff(reader, p, Vec3::Z, f0)?))
+        Some(Vec3::new(
+            diff(reader, p, Vec3::X, &mut f0)?,
+            diff(reader, p, Vec3::Y, &mut f0)?,
+            diff(reader, p, Vec3::Z, &mut f0)?,
+        ))
     })();
     if central.is_some() {
         return central;
@@ -392,14 +402,19 @@ fn gradient(reader: &mut VoxelReader, p: Vec3) -> Option<Vec3> {
 }
 
 /// Difference of the interpolated distance along `axis` at `p` (voxel units), per voxel:
-/// central where both neighbours are observed, one-sided against `f0` (the value at `p`)
-/// where only one is (dropouts leave unobserved voxels near surfaces).
+/// central where both neighbours are observed, one-sided against the value at `p` (read
+/// into `f0` on first use) where only one is (dropouts leave unobserved voxels near
+/// surfaces).
 #[inline]
-fn diff(reader: &mut VoxelReader, p: Vec3, axis: Vec3, f0: Option<f32>) -> Option<f32> {
-    match (reader.trilinear(p + axis), reader.trilinear(p - axis), f0) {
-        (Some(a), Some(b), _) => Some(0.5 * (a - b)),
-        (Some(a), None, Some(f)) => Some(a - f),
-        (None, Some(b), Some(f)) => Some(f - b),
+fn diff(reader: &mut VoxelReader, p: Vec3, axis: Vec3, f0: &mut Option<Option<f32>>) -> Option<f32> {
+    let (a, b) = (reader.trilinear(p + axis), reader.trilinear(p - axis));
+    if let (Some(a), Some(b)) = (a, b) {
+        return Some(0.5 * (a - b));
+    }
+    let f = (*f0.get_or_insert_with(|| reader.trilinear(p)))?;
+    match (a, b) {
+        (Some(a), None) => Some(a - f),
+        (None, Some(b)) => Some(f - b),
         _ => None,
     }
 }
