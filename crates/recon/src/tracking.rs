@@ -957,7 +957,8 @@ impl LevelPoints {
         let blocks: Vec<(PointBlock, u64)> = rows
             .par_chunks(ROWS_PER_BLOCK)
             .map(|rows| {
-                let mut coords: [Vec<f32>; 6] = Default::default();
+                let capacity = (rows.len() * w.div_ceil(stride)).next_multiple_of(LANES);
+                let mut coords: [Vec<f32>; 6] = std::array::from_fn(|_| Vec::with_capacity(capacity));
                 let mut sampled = 0u64;
                 for &y in rows {
                     for x in (0..w).step_by(stride) {
@@ -1092,10 +1093,12 @@ fn block_sums_lanes(b: &PointBlock, s: &StepParams) -> Normals {
     let [r0, r1, r2] = s.rot;
     let t = s.trans;
     let (mwf, mhf) = (s.mw as f32, s.mh as f32);
+    fn lanes(v: &[f32]) -> impl Iterator<Item = [f32; LANES]> + '_ {
+        v.chunks_exact(LANES).map(|c| std::array::from_fn(|l| c[l]))
+    }
     let [px, py, pz, nx, ny, nz] = &b.coords;
-    for g in (0..b.len).step_by(LANES) {
-        let lane = |v: &Vec<f32>| -> L { std::array::from_fn(|l| v[g + l]) };
-        let (px, py, pz, nx, ny, nz) = (lane(px), lane(py), lane(pz), lane(nx), lane(ny), lane(nz));
+    let points = lanes(px).zip(lanes(py)).zip(lanes(pz)).zip(lanes(nx)).zip(lanes(ny)).zip(lanes(nz));
+    for (g, (((((px, py), pz), nx), ny), nz)) in (0..b.len).step_by(LANES).zip(points) {
         let (mut qx, mut qy, mut qz) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
         let mut mi = [0usize; LANES];
         let mut ok = [false; LANES];
