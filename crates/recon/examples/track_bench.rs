@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release -p semrecon-recon --example track_bench -- SPEC [--frames N]
 //!     [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--iters F,M,C] [--photometric W] [--size WxH]
-//!     [--fine-stride S] [--model-interval N] [--max-depth M]
+//!     [--fine-stride S] [--model-interval N] [--max-depth M] [--repeat N]
 //! ```
 //!
 //! `SPEC` is a dataset spec (`7scenes:/work/shared/data/7scenes-redkitchen`, `synth:3`).
@@ -12,7 +12,9 @@
 //! position error after Horn alignment (rotation + translation, no scale) over the tracked
 //! frames; the error with only the first pose aligned is printed too. Tracking is timed in
 //! wall and CPU milliseconds (all threads; the machine may be shared). `--size` resamples
-//! frames (nearest pixel) before tracking. Thread count: `RAYON_NUM_THREADS`.
+//! frames (nearest pixel) before tracking. `--repeat N` then re-tracks the last frame N
+//! times on the final map and ray-casts its pose N times alone (steadier medians on a
+//! shared machine). Thread count: `RAYON_NUM_THREADS`.
 
 #[path = "common/cpu_time.rs"]
 mod cpu_time;
@@ -85,7 +87,7 @@ fn parse_args() -> Result<Args, String> {
         }
     }
     if a.spec.is_empty() {
-        return Err("usage: track_bench SPEC [--frames N] [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--iters F,M,C] [--photometric W] [--size WxH]".into());
+        return Err("usage: track_bench SPEC [--frames N] [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--iters F,M,C] [--photometric W] [--size WxH] [--repeat N]".into());
     }
     Ok(a)
 }
