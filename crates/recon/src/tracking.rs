@@ -770,14 +770,37 @@ fn sort4(v: &mut [f32; 4]) {
     cmp(1, 2);
 }
 
+/// `(u - cx) / fx` per column and `(v - cy) / fy` per row: [`Intrinsics::unproject`] is
+/// these times the depth, so the table gives its bits without its two divisions a pixel.
+struct RayTable {
+    x: Vec<f32>,
+    y: Vec<f32>,
+}
+
+impl RayTable {
+    fn new(k: Intrinsics) -> Self {
+        Self {
+            x: (0..k.width).map(|u| (u as f32 - k.cx) / k.fx).collect(),
+            y: (0..k.height).map(|v| (v as f32 - k.cy) / k.fy).collect(),
+        }
+    }
+
+    /// `k.unproject(x, y, d)`, bit for bit.
+    #[inline]
+    fn unproject(&self, x: usize, y: usize, d: f32) -> Vec3 {
+        Vec3::new(self.x[x] * d, self.y[y] * d, d)
+    }
+}
+
 /// Vertices and normals of one level.
 fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>, with_normals: bool) -> Level {
     let (w, h) = (k.width as usize, k.height as usize);
     let mut vertices = vec![Vec3::ZERO; w * h];
+    let rays = RayTable::new(k);
     vertices.par_chunks_mut(w).zip(depth.par_chunks(w)).enumerate().for_each(|(y, (row, drow))| {
         for (x, (p, &d)) in row.iter_mut().zip(drow).enumerate() {
             if d > 0.0 {
-                *p = k.unproject(x as f32, y as f32, d);
+                *p = rays.unproject(x, y, d);
             }
         }
     });
@@ -954,6 +977,7 @@ impl LevelPoints {
     fn new(data: &Level, coarse: Option<&Level>, stride: usize) -> Self {
         let (w, h) = (data.k.width as usize, data.k.height as usize);
         let rows: Vec<usize> = (0..h).step_by(stride).collect();
+        let rays = RayTable::new(data.k);
         let blocks: Vec<(PointBlock, u64)> = rows
             .par_chunks(ROWS_PER_BLOCK)
             .map(|rows| {
@@ -972,7 +996,7 @@ impl LevelPoints {
                             if !(d > 0.0 && (d - c.depth[ci]).abs() <= 0.05 * d) {
                                 continue;
                             }
-                            (data.k.unproject(x as f32, y as f32, d), c.own_normals[ci])
+                            (rays.unproject(x, y, d), c.own_normals[ci])
                         } else {
                             (data.vertices[i], data.normals[i])
                         };
@@ -1559,6 +1583,19 @@ mod tests {
                     // SAFETY: checked above.
                     let avx2 = unsafe { block_sums_avx2(b, &step) };
                     assert_eq!(normals_key(&portable), normals_key(&avx2));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn ray_table_unprojects_like_the_camera() {
+        let k = Intrinsics::new(640, 480, 525.0, 523.5, 319.5, 239.25).expect("camera");
+        let rays = RayTable::new(k);
+        for (i, d) in [0.31f32, 1.0, 2.718, 4.9].into_iter().enumerate() {
+            for y in (i..480).step_by(7) {
+                for x in (i..640).step_by(5) {
+                    assert_eq!(rays.unproject(x, y, d), k.unproject(x as f32, y as f32, d));
                 }
             }
         }
