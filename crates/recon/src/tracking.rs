@@ -10,9 +10,12 @@
 //! point-to-plane distances plus, where colour is registered to depth and the weight is
 //! non-zero, intensity differences, both under Huber weights.
 //!
-//! Normal equations are summed in f32 SIMD lanes per row of pixels, in f64 per fixed block
-//! of rows, and the blocks then added in order, so poses are bit-identical for any rayon
-//! thread count; a level stops iterating once the update is negligible. The model is
+//! Each level's visited pixels with a depth and a normal are gathered once per frame into
+//! structure-of-arrays blocks of rows; every iteration associates them eight at a time
+//! (AVX2 where the CPU has it, picked at run time, with the baseline's bits), sums the
+//! normal equations per lane in f32 and per fixed block in f64, and adds the blocks in
+//! order, so poses are bit-identical for any rayon thread count; a level stops iterating
+//! once the update is negligible. (The photometric term keeps a scalar per-pixel path.) The model is
 //! ray-cast at a reduced resolution (default a quarter) every `model_interval` tracked
 //! frames and serves every pyramid level; the last tracked frame's depth bounds where the
 //! march runs, which removes most of its cost.
