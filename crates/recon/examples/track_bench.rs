@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release -p semrecon-recon --example track_bench -- SPEC [--frames N]
 //!     [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--iters F,M,C] [--photometric W] [--size WxH]
-//!     [--fine-stride S] [--model-interval N] [--max-depth M]
+//!     [--fine-stride S] [--model-interval N] [--max-depth M] [--repeat N]
 //! ```
 //!
 //! `SPEC` is a dataset spec (`7scenes:/work/shared/data/7scenes-redkitchen`, `synth:3`).
@@ -12,7 +12,9 @@
 //! position error after Horn alignment (rotation + translation, no scale) over the tracked
 //! frames; the error with only the first pose aligned is printed too. Tracking is timed in
 //! wall and CPU milliseconds (all threads; the machine may be shared). `--size` resamples
-//! frames (nearest pixel) before tracking. Thread count: `RAYON_NUM_THREADS`.
+//! frames (nearest pixel) before tracking. `--repeat N` then re-tracks the last frame N
+//! times on the final map and ray-casts its pose N times alone (steadier medians on a
+//! shared machine). Thread count: `RAYON_NUM_THREADS`.
 
 #[path = "common/cpu_time.rs"]
 mod cpu_time;
@@ -23,7 +25,7 @@ use std::time::Instant;
 
 use glam::Vec3;
 use semrecon_data::{open_dataset, DatasetSpec, Frame};
-use semrecon_recon::{ate_rmse, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
+use semrecon_recon::{ate_rmse, raycast, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
 
 use cpu_time::timed;
 use flags::Flags;
@@ -40,6 +42,7 @@ struct Args {
     fine_stride: Option<usize>,
     model_interval: Option<usize>,
     max_depth: Option<f32>,
+    repeat: usize,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -56,6 +59,7 @@ fn parse_args() -> Result<Args, String> {
         fine_stride: None,
         model_interval: None,
         max_depth: None,
+        repeat: 0,
     };
     while let Some(arg) = flags.next_flag() {
         match arg.as_str() {
@@ -72,6 +76,7 @@ fn parse_args() -> Result<Args, String> {
                 a.iterations =
                     Some(parts.try_into().map_err(|_| format!("--iters {v}: expected three counts, fine to coarse"))?);
             }
+            "--repeat" => a.repeat = flags.value(&arg)?,
             "--max-depth" => a.max_depth = Some(flags.value(&arg)?),
             "--fine-stride" => a.fine_stride = Some(flags.value(&arg)?),
             "--model-interval" => a.model_interval = Some(flags.value(&arg)?),
@@ -82,7 +87,7 @@ fn parse_args() -> Result<Args, String> {
         }
     }
     if a.spec.is_empty() {
-        return Err("usage: track_bench SPEC [--frames N] [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--iters F,M,C] [--photometric W] [--size WxH]".into());
+        return Err("usage: track_bench SPEC [--frames N] [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--iters F,M,C] [--photometric W] [--size WxH] [--repeat N]".into());
     }
     Ok(a)
 }
@@ -148,6 +153,8 @@ fn run(a: Args) -> Result<(), String> {
         config.max_depth = d;
     }
     let mut tracker: Option<Tracker> = None;
+    // The tracker before the last frame and that frame, for `--repeat`.
+    let mut before_last: Option<(Tracker, Frame)> = None;
     let (mut track_ms, mut track_cpu_ms, mut cast_ms, mut fuse_ms) = (vec![], vec![], vec![], vec![]);
     let (mut est, mut gt) = (Vec::new(), Vec::new());
     let mut first_err = Vec::new();
@@ -168,6 +175,9 @@ fn run(a: Args) -> Result<(), String> {
                     .map_err(|e| e.to_string())?,
             ),
         };
+        if a.repeat > 0 && i + 1 == n {
+            before_last = Some((tracker.clone(), frame.clone()));
+        }
         let (r, _, cpu) = timed(|| tracker.track(&frame, &map));
         let r = r.map_err(|e| e.to_string())?;
         if r.status == TrackingStatus::Tracked {
@@ -225,6 +235,9 @@ fn run(a: Args) -> Result<(), String> {
     percentiles("  CPU, all threads", &mut track_cpu_ms);
     percentiles("  of which ray-cast", &mut cast_ms);
     percentiles("fusion (per frame)", &mut fuse_ms);
+    if let Some((tracker, frame)) = before_last {
+        repeat_last(&tracker, &frame, &map, a.repeat)?;
+    }
     println!(
         "chunks {}, {:.1} MB; {:.2} s without loading ({:.1} ms/frame)",
         map.chunk_count(),
@@ -232,6 +245,41 @@ fn run(a: Args) -> Result<(), String> {
         wall,
         wall * 1e3 / n.max(1) as f64
     );
+    Ok(())
+}
+
+/// Times the last frame's tracking `repeat` times on the final map, and the ray-cast at its
+/// pose alone: the same work each time, so the medians compare builds on a loaded machine
+/// better than the whole run does.
+fn repeat_last(tracker: &Tracker, frame: &Frame, map: &TsdfMap, repeat: usize) -> Result<(), String> {
+    let Some(pose) = tracker.pose() else { return Ok(()) };
+    let config = tracker.config();
+    let s = config.model_downscale;
+    let k = frame.intrinsics.scaled(frame.intrinsics.width / s, frame.intrinsics.height / s);
+    // Nearest-pixel march-start depth at the model resolution.
+    let hint: Vec<f32> = (0..k.pixel_count())
+        .map(|i| {
+            let (u, v) = (i % k.width as usize, i / k.width as usize);
+            frame.depth[v * s as usize * frame.intrinsics.width as usize + u * s as usize]
+        })
+        .collect();
+    let (mut cast_wall, mut cast_cpu, mut track_wall, mut track_cpu) = (vec![], vec![], vec![], vec![]);
+    let mut cast_in_track = false;
+    for _ in 0..repeat {
+        let (_, w, c) = timed(|| raycast(map, k, pose, config.min_depth, config.max_depth, Some(&hint)));
+        cast_wall.push(w);
+        cast_cpu.push(c);
+        let mut t = tracker.clone();
+        let (r, w, c) = timed(|| t.track(frame, map));
+        cast_in_track = r.map_err(|e| e.to_string())?.raycast_ms > 0.0;
+        track_wall.push(w);
+        track_cpu.push(c);
+    }
+    println!("last frame x{repeat} (tracking {} the ray-cast):", if cast_in_track { "with" } else { "without" });
+    percentiles("  ray-cast wall", &mut cast_wall);
+    percentiles("  ray-cast CPU", &mut cast_cpu);
+    percentiles("  track wall", &mut track_wall);
+    percentiles("  track CPU", &mut track_cpu);
     Ok(())
 }
 

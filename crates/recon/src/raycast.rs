@@ -24,7 +24,7 @@ use glam::{Affine3A, IVec3, Vec3};
 use rayon::prelude::*;
 use semrecon_data::Intrinsics;
 
-use crate::map::{split_voxel, Chunk, ChunkKey, TsdfMap, CHUNK_SIDE, TSDF_SCALE};
+use crate::map::{split_voxel, ChunkKey, TsdfMap, VoxelBlock, CHUNK_SIDE, TSDF_SCALE};
 
 /// A predicted view of the map from one camera pose.
 ///
@@ -65,9 +65,10 @@ impl ModelView {
 struct ChunkGrid<'a> {
     min: IVec3,
     dims: IVec3,
-    /// The chunk per cell (one pointer to follow, not slab record then voxel box); empty
-    /// when falling back.
-    slots: Vec<Option<&'a Chunk>>,
+    /// The voxels of the chunk per cell (one pointer to follow, not slab record, then
+    /// chunk record, then voxel box: each a likely cache miss on a large map); empty when
+    /// falling back.
+    slots: Vec<Option<&'a VoxelBlock>>,
     /// One bit per cell, set where a chunk is allocated: most lookups of a march are in
     /// empty space, and this 64x smaller array stays in cache where `slots` (megabytes)
     /// costs a memory access per lookup.
@@ -95,7 +96,7 @@ impl<'a> ChunkGrid<'a> {
         for c in &map.chunks {
             let l = c.key - min;
             let i = (l.x + dims.x * (l.y + dims.y * l.z)) as usize;
-            slots[i] = Some(c);
+            slots[i] = Some(&*c.voxels);
             occupied[i / 64] |= 1 << (i % 64);
         }
         Self { min, dims, slots, occupied }
@@ -108,7 +109,7 @@ struct VoxelReader<'a> {
     map: &'a TsdfMap,
     grid: &'a ChunkGrid<'a>,
     key: ChunkKey,
-    chunk: Option<&'a Chunk>,
+    chunk: Option<&'a VoxelBlock>,
 }
 
 impl<'a> VoxelReader<'a> {
@@ -117,7 +118,7 @@ impl<'a> VoxelReader<'a> {
     }
 
     #[inline]
-    fn chunk(&mut self, key: ChunkKey) -> Option<&'a Chunk> {
+    fn chunk(&mut self, key: ChunkKey) -> Option<&'a VoxelBlock> {
         if key != self.key {
             self.key = key;
             self.chunk = self.lookup(key);
@@ -127,9 +128,9 @@ impl<'a> VoxelReader<'a> {
 
     /// The chunk at `key`, without touching the one-chunk cache.
     #[inline]
-    fn lookup(&self, key: ChunkKey) -> Option<&'a Chunk> {
+    fn lookup(&self, key: ChunkKey) -> Option<&'a VoxelBlock> {
         if self.grid.slots.is_empty() {
-            return self.map.chunk(key);
+            return self.map.chunk(key).map(|c| &*c.voxels);
         }
         let l = key - self.grid.min;
         let d = self.grid.dims;
@@ -149,7 +150,7 @@ impl<'a> VoxelReader<'a> {
     fn tsdf(&mut self, v: IVec3) -> Option<i16> {
         let (key, i) = split_voxel(v);
         let c = self.chunk(key)?;
-        (c.voxels.weight[i] != 0).then(|| c.voxels.tsdf[i])
+        (c.weight[i] != 0).then(|| c.tsdf[i])
     }
 
     /// The eight voxels around `p` (voxel units), `c[x + 2 y + 4 z]` in truncation units,
@@ -162,15 +163,20 @@ impl<'a> VoxelReader<'a> {
         let (key, i) = split_voxel(b);
         let local = b - key * CHUNK_SIDE as i32;
         if local.cmplt(IVec3::splat(CHUNK_SIDE as i32 - 1)).all() {
-            // All eight corners in one chunk.
+            // All eight corners in one chunk: read them all, then test (no branch per
+            // corner; the slices let the compiler drop the bounds checks).
             let ch = self.chunk(key)?;
             const S: usize = CHUNK_SIDE;
-            for (j, c) in c.iter_mut().enumerate() {
-                let k = i + (j & 1) + ((j >> 1) & 1) * S + (j >> 2) * S * S;
-                if ch.voxels.weight[k] == 0 {
-                    return None;
-                }
-                *c = ch.voxels.tsdf[k] as f32;
+            const SPAN: usize = S * S + S + 2;
+            const OFFSETS: [usize; 8] = [0, 1, S, S + 1, S * S, S * S + 1, S * S + S, S * S + S + 1];
+            let weight = &ch.weight[i..i + SPAN];
+            let tsdf = &ch.tsdf[i..i + SPAN];
+            let min_weight = OFFSETS.iter().fold(u16::MAX, |m, &o| m.min(weight[o]));
+            if min_weight == 0 {
+                return None;
+            }
+            for (c, &o) in c.iter_mut().zip(&OFFSETS) {
+                *c = tsdf[o] as f32;
             }
         } else {
             for (j, c) in c.iter_mut().enumerate() {
@@ -201,7 +207,7 @@ impl<'a> VoxelReader<'a> {
         let (key, i) = split_voxel(round_i(p));
         match self.chunk(key) {
             Some(c) => {
-                let c = c.voxels.color[i];
+                let c = c.color[i];
                 [c[0], c[1], c[2]]
             }
             None => [0; 3],
@@ -374,9 +380,14 @@ pub fn raycast(
 /// gradient of the trilinear cell around `p`.
 #[inline]
 fn gradient(reader: &mut VoxelReader, p: Vec3) -> Option<Vec3> {
-    let f0 = reader.trilinear(p);
+    // The value at `p` only serves one-sided differences: read on first need.
+    let mut f0: Option<Option<f32>> = None;
     let central = (|| {
-        Some(Vec3::new(diff(reader, p, Vec3::X, f0)?, diff(reader, p, Vec3::Y, f0)?, diff(reader, p, Vec3::Z, f0)?))
+        Some(Vec3::new(
+            diff(reader, p, Vec3::X, &mut f0)?,
+            diff(reader, p, Vec3::Y, &mut f0)?,
+            diff(reader, p, Vec3::Z, &mut f0)?,
+        ))
     })();
     if central.is_some() {
         return central;
@@ -392,14 +403,19 @@ fn gradient(reader: &mut VoxelReader, p: Vec3) -> Option<Vec3> {
 }
 
 /// Difference of the interpolated distance along `axis` at `p` (voxel units), per voxel:
-/// central where both neighbours are observed, one-sided against `f0` (the value at `p`)
-/// where only one is (dropouts leave unobserved voxels near surfaces).
+/// central where both neighbours are observed, one-sided against the value at `p` (read
+/// into `f0` on first use) where only one is (dropouts leave unobserved voxels near
+/// surfaces).
 #[inline]
-fn diff(reader: &mut VoxelReader, p: Vec3, axis: Vec3, f0: Option<f32>) -> Option<f32> {
-    match (reader.trilinear(p + axis), reader.trilinear(p - axis), f0) {
-        (Some(a), Some(b), _) => Some(0.5 * (a - b)),
-        (Some(a), None, Some(f)) => Some(a - f),
-        (None, Some(b), Some(f)) => Some(f - b),
+fn diff(reader: &mut VoxelReader, p: Vec3, axis: Vec3, f0: &mut Option<Option<f32>>) -> Option<f32> {
+    let (a, b) = (reader.trilinear(p + axis), reader.trilinear(p - axis));
+    if let (Some(a), Some(b)) = (a, b) {
+        return Some(0.5 * (a - b));
+    }
+    let f = (*f0.get_or_insert_with(|| reader.trilinear(p)))?;
+    match (a, b) {
+        (Some(a), None) => Some(a - f),
+        (None, Some(b)) => Some(f - b),
         _ => None,
     }
 }
@@ -497,5 +513,68 @@ mod tests {
             }
         }
         assert!(straddling > 1000 && some > 1000 && none > 1000, "{straddling} {some} {none}");
+    }
+    #[test]
+    fn grid_cast_matches_rays_cast_through_the_hash_map() {
+        // A wall with a box in front (depth edges, rays that miss), fused from two poses.
+        let k = Intrinsics::new(96, 72, 80.0, 80.0, 47.5, 35.5).expect("camera");
+        let depth: Vec<f32> = (0..96 * 72)
+            .map(|i| {
+                let (x, y) = (i % 96, i / 96);
+                if (30..60).contains(&x) && (20..50).contains(&y) {
+                    0.8 + 0.002 * x as f32
+                } else if x < 5 {
+                    0.0
+                } else {
+                    1.5 + 0.003 * y as f32
+                }
+            })
+            .collect();
+        let frame = Frame::from_depth(k, depth.clone());
+        let mut map = TsdfMap::new(TsdfConfig::default()).expect("config");
+        let moved = Affine3A::from_rotation_translation(glam::Quat::from_rotation_y(0.05), Vec3::new(0.03, 0.0, 0.0));
+        map.integrate(&frame, Affine3A::IDENTITY).expect("fusion");
+        map.integrate(&frame, moved).expect("fusion");
+        let pose = Affine3A::from_translation(Vec3::new(0.01, -0.01, 0.0));
+        let start_depth: Vec<f32> = depth.iter().enumerate().map(|(i, &d)| if i % 7 == 0 { 0.0 } else { d }).collect();
+        let no_grid = ChunkGrid { min: IVec3::ZERO, dims: IVec3::ZERO, slots: Vec::new(), occupied: Vec::new() };
+        let c = map.config();
+        let (voxel_size, truncation) = (c.voxel_size, c.truncation());
+        for start in [None, Some(&start_depth[..])] {
+            let view = raycast(&map, k, pose, 0.1, 5.0, start);
+            let mut hits = 0;
+            for i in 0..96 * 72 {
+                let (u, v) = (i % 96, i / 96);
+                // One ray alone, every voxel read through the map's hash index.
+                let mut reader = VoxelReader::new(&map, &no_grid);
+                let ray_cam = k.unproject(u as f32, v as f32, 1.0);
+                let z_per_t = 1.0 / ray_cam.length();
+                let dir = glam::Mat3::from(pose.matrix3) * (ray_cam * z_per_t);
+                let (mut d0, mut d1) = (0.1f32, 5.0f32);
+                let mut want = (Vec3::ZERO, Vec3::ZERO);
+                let range = match start {
+                    Some(sd) => hint(sd, 96, 72, u, v),
+                    None => Some((d0, d1)),
+                };
+                if let Some((near, far)) = range {
+                    if start.is_some() {
+                        d0 = d0.max(near - 3.0 * truncation);
+                        d1 = d1.min(far + 3.0 * truncation);
+                    }
+                    let origin = Vec3::from(pose.translation);
+                    let found = march(&mut reader, origin, dir, d0 / z_per_t, d1 / z_per_t, voxel_size, truncation);
+                    if let Some((p, t)) = found {
+                        if let Some(g) = gradient(&mut reader, p).filter(|g| g.length() > 1e-6) {
+                            let n = glam::Mat3::from(pose.matrix3).transpose() * (g / g.length());
+                            let p_cam = ray_cam * (t * z_per_t);
+                            want = (p_cam, if n.dot(p_cam) > 0.0 { -n } else { n });
+                        }
+                    }
+                }
+                assert_eq!((view.vertices[i], view.normals[i]), want, "pixel {u}, {v}");
+                hits += (want.0.z > 0.0) as usize;
+            }
+            assert!(hits > 96 * 72 / 2, "{hits}");
+        }
     }
 }

@@ -10,9 +10,12 @@
 //! point-to-plane distances plus, where colour is registered to depth and the weight is
 //! non-zero, intensity differences, both under Huber weights.
 //!
-//! Normal equations are summed in f32 SIMD lanes per row of pixels, in f64 per fixed block
-//! of rows, and the blocks then added in order, so poses are bit-identical for any rayon
-//! thread count; a level stops iterating once the update is negligible. The model is
+//! Each level's visited pixels with a depth and a normal are gathered once per frame into
+//! structure-of-arrays blocks of rows; every iteration associates them eight at a time
+//! (AVX2 where the CPU has it, picked at run time, with the baseline's bits), sums the
+//! normal equations per lane in f32 and per fixed block in f64, and adds the blocks in
+//! order, so poses are bit-identical for any rayon thread count; a level stops iterating
+//! once the update is negligible. (The photometric term keeps a scalar per-pixel path.) The model is
 //! ray-cast at a reduced resolution (default a quarter) every `model_interval` tracked
 //! frames and serves every pyramid level; the last tracked frame's depth bounds where the
 //! march runs, which removes most of its cost.
@@ -518,9 +521,16 @@ impl Tracker {
             }
             let data = &pyramid[level];
             let max_distance = c.max_distance * (1u32 << level) as f32;
+            let stride = if level == 0 { c.fine_stride } else { 1 };
+            // Without the photometric term, the level's points are gathered once for all
+            // its iterations.
+            let photometric = c.photometric_weight > 0.0 && !data.intensity.is_empty() && !model.intensity.is_empty();
+            let points = (!photometric).then(|| LevelPoints::new(data, pyramid.get(level + 1), stride));
             for _ in 0..iters {
-                let stride = if level == 0 { c.fine_stride } else { 1 };
-                stats = normal_equations(data, pyramid.get(level + 1), &model, &estimate, max_distance, stride, &c);
+                stats = match &points {
+                    Some(p) => p.normal_equations(&model, &estimate, max_distance, &c),
+                    None => normal_equations(data, pyramid.get(level + 1), &model, &estimate, max_distance, stride, &c),
+                };
                 let h = stats.symmetric();
                 let neg_g = stats.g.map(|v| -v);
                 let Some(xi) = cholesky_solve(&h, &neg_g) else {
@@ -763,14 +773,37 @@ fn sort4(v: &mut [f32; 4]) {
     cmp(1, 2);
 }
 
+/// `(u - cx) / fx` per column and `(v - cy) / fy` per row: [`Intrinsics::unproject`] is
+/// these times the depth, so the table gives its bits without its two divisions a pixel.
+struct RayTable {
+    x: Vec<f32>,
+    y: Vec<f32>,
+}
+
+impl RayTable {
+    fn new(k: Intrinsics) -> Self {
+        Self {
+            x: (0..k.width).map(|u| (u as f32 - k.cx) / k.fx).collect(),
+            y: (0..k.height).map(|v| (v as f32 - k.cy) / k.fy).collect(),
+        }
+    }
+
+    /// `k.unproject(x, y, d)`, bit for bit.
+    #[inline]
+    fn unproject(&self, x: usize, y: usize, d: f32) -> Vec3 {
+        Vec3::new(self.x[x] * d, self.y[y] * d, d)
+    }
+}
+
 /// Vertices and normals of one level.
 fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>, with_normals: bool) -> Level {
     let (w, h) = (k.width as usize, k.height as usize);
     let mut vertices = vec![Vec3::ZERO; w * h];
+    let rays = RayTable::new(k);
     vertices.par_chunks_mut(w).zip(depth.par_chunks(w)).enumerate().for_each(|(y, (row, drow))| {
         for (x, (p, &d)) in row.iter_mut().zip(drow).enumerate() {
             if d > 0.0 {
-                *p = k.unproject(x as f32, y as f32, d);
+                *p = rays.unproject(x, y, d);
             }
         }
     });
@@ -914,6 +947,273 @@ fn normal_equations(
         total.merge(b);
     }
     total
+}
+
+/// Lanes of the vectorised association (one AVX register of f32).
+const LANES: usize = 8;
+
+/// The points of one pyramid level that association visits, gathered once per frame into
+/// structure-of-arrays blocks: every pixel on the visited grid with a depth and a normal
+/// (at the finest level formed from the depth and the next level, as [`normal_equations`]
+/// does), in row-major order. The iterations of a level then run over dense lanes instead
+/// of re-testing every pixel, and a block's eight lanes go through the same arithmetic
+/// together.
+struct LevelPoints {
+    blocks: Vec<PointBlock>,
+    /// Pixels with a valid depth among those visited (the overlap test's denominator).
+    sampled: u64,
+}
+
+/// The points of [`ROWS_PER_BLOCK`] visited rows.
+///
+/// # Shapes
+/// `coords[0..3]` are the vertex x, y, z and `coords[3..6]` the normal x, y, z, each `len`
+/// long, then zero-padded to a multiple of [`LANES`].
+struct PointBlock {
+    coords: [Vec<f32>; 6],
+    len: usize,
+}
+
+impl LevelPoints {
+    /// Gathers the points of `data` on every `stride`-th pixel of every `stride`-th row; a
+    /// level without vertices forms them from its depth and takes normals from `coarse`.
+    fn new(data: &Level, coarse: Option<&Level>, stride: usize) -> Self {
+        let (w, h) = (data.k.width as usize, data.k.height as usize);
+        let rows: Vec<usize> = (0..h).step_by(stride).collect();
+        let rays = RayTable::new(data.k);
+        let blocks: Vec<(PointBlock, u64)> = rows
+            .par_chunks(ROWS_PER_BLOCK)
+            .map(|rows| {
+                let capacity = (rows.len() * w.div_ceil(stride)).next_multiple_of(LANES);
+                let mut coords: [Vec<f32>; 6] = std::array::from_fn(|_| Vec::with_capacity(capacity));
+                let mut sampled = 0u64;
+                for &y in rows {
+                    for x in (0..w).step_by(stride) {
+                        let i = y * w + x;
+                        let d = data.depth[i];
+                        sampled += (d > 0.0) as u64;
+                        let (p, n) = if data.vertices.is_empty() {
+                            let Some(c) = coarse else { continue };
+                            let (cw, ch) = (c.k.width as usize, c.k.height as usize);
+                            let ci = (y / 2).min(ch - 1) * cw + (x / 2).min(cw - 1);
+                            if !(d > 0.0 && (d - c.depth[ci]).abs() <= 0.05 * d) {
+                                continue;
+                            }
+                            (rays.unproject(x, y, d), c.own_normals[ci])
+                        } else {
+                            (data.vertices[i], data.normals[i])
+                        };
+                        if n == Vec3::ZERO {
+                            continue;
+                        }
+                        for (v, x) in coords.iter_mut().zip([p.x, p.y, p.z, n.x, n.y, n.z]) {
+                            v.push(x);
+                        }
+                    }
+                }
+                let len = coords[0].len();
+                for v in &mut coords {
+                    v.resize(len.next_multiple_of(LANES), 0.0);
+                }
+                (PointBlock { coords, len }, sampled)
+            })
+            .collect();
+        let sampled = blocks.iter().map(|b| b.1).sum();
+        Self { blocks: blocks.into_iter().map(|b| b.0).collect(), sampled }
+    }
+
+    /// The normal equations of one Gauss-Newton step at `estimate`, as [`normal_equations`]
+    /// forms them without the photometric term: the same pairs, residuals and weights
+    /// (bit for bit), summed per lane in f32 within a block (as many terms per lane as a
+    /// row of the scalar path sums), then in f64.
+    fn normal_equations(&self, model: &Model, estimate: &Affine3A, max_distance: f32, c: &TrackerConfig) -> Normals {
+        let step = StepParams::new(model, estimate, max_distance, c);
+        let blocks: Vec<Normals> = self.blocks.par_iter().map(|b| block_sums(b, &step)).collect();
+        let mut total = Normals::ZERO;
+        for b in &blocks {
+            total.merge(b);
+        }
+        total.sampled = self.sampled;
+        total
+    }
+}
+
+/// What one association step needs, unpacked for the lanes.
+struct StepParams<'a> {
+    /// Rotation columns and translation of `reference_from_current`.
+    rot: [[f32; 3]; 3],
+    trans: [f32; 3],
+    fx: f32,
+    fy: f32,
+    cx: f32,
+    cy: f32,
+    mw: usize,
+    mh: usize,
+    vertices: &'a [Vec3],
+    normals: &'a [Vec3],
+    max_d2: f32,
+    min_cos: f32,
+    huber: f32,
+}
+
+impl<'a> StepParams<'a> {
+    fn new(model: &'a Model, estimate: &Affine3A, max_distance: f32, c: &TrackerConfig) -> Self {
+        let m = Mat3::from(estimate.matrix3);
+        let k = model.view.intrinsics;
+        Self {
+            rot: [m.x_axis.to_array(), m.y_axis.to_array(), m.z_axis.to_array()],
+            trans: Vec3::from(estimate.translation).to_array(),
+            fx: k.fx,
+            fy: k.fy,
+            cx: k.cx,
+            cy: k.cy,
+            mw: k.width as usize,
+            mh: k.height as usize,
+            vertices: &model.view.vertices,
+            normals: &model.view.normals,
+            max_d2: max_distance * max_distance,
+            min_cos: c.max_normal_angle.cos(),
+            huber: c.huber_geometric,
+        }
+    }
+}
+
+/// [`block_sums_lanes`] compiled for AVX2 where the CPU has it (the arithmetic is the same
+/// IEEE operations in the same order, so both give the same bits), else for the baseline.
+fn block_sums(b: &PointBlock, s: &StepParams) -> Normals {
+    #[cfg(target_arch = "x86_64")]
+    if avx2_available() {
+        // SAFETY: the CPU has AVX2 and FMA (checked at run time).
+        return unsafe { block_sums_avx2(b, s) };
+    }
+    block_sums_lanes(b, s)
+}
+
+/// Whether the CPU has AVX2 and FMA (`SEMRECON_TRACKING_SIMD=portable` says no).
+#[cfg(target_arch = "x86_64")]
+fn avx2_available() -> bool {
+    static AVX2: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *AVX2.get_or_init(|| {
+        std::env::var("SEMRECON_TRACKING_SIMD").map_or(true, |v| v != "portable")
+            && is_x86_feature_detected!("avx2")
+            && is_x86_feature_detected!("fma")
+    })
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn block_sums_avx2(b: &PointBlock, s: &StepParams) -> Normals {
+    block_sums_lanes(b, s)
+}
+
+/// The association and normal-equation sums of one block, [`LANES`] points at a time.
+/// Written as per-lane loops over fixed-size arrays, which the compiler turns into vector
+/// instructions of whatever width the enclosing function is compiled for; a rejected lane
+/// contributes exact zeros.
+#[inline(always)]
+fn block_sums_lanes(b: &PointBlock, s: &StepParams) -> Normals {
+    type L = [f32; LANES];
+    // Upper triangle of H (21, row by row) then g (6), per lane.
+    let mut sums = [[0.0f32; LANES]; 27];
+    let (mut sq_res, mut sq_norm) = ([0.0f64; LANES], [0.0f64; LANES]);
+    let (mut inliers, mut far, mut turned) = ([0u32; LANES], [0u32; LANES], [0u32; LANES]);
+    let [r0, r1, r2] = s.rot;
+    let t = s.trans;
+    let (mwf, mhf) = (s.mw as f32, s.mh as f32);
+    fn lanes(v: &[f32]) -> impl Iterator<Item = [f32; LANES]> + '_ {
+        v.chunks_exact(LANES).map(|c| std::array::from_fn(|l| c[l]))
+    }
+    let [px, py, pz, nx, ny, nz] = &b.coords;
+    let points = lanes(px).zip(lanes(py)).zip(lanes(pz)).zip(lanes(nx)).zip(lanes(ny)).zip(lanes(nz));
+    for (g, (((((px, py), pz), nx), ny), nz)) in (0..b.len).step_by(LANES).zip(points) {
+        let (mut qx, mut qy, mut qz) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+        let mut mi = [0usize; LANES];
+        let mut ok = [false; LANES];
+        for l in 0..LANES {
+            // glam's `rot * p + trans`, operation for operation.
+            qx[l] = ((r0[0] * px[l] + r1[0] * py[l]) + r2[0] * pz[l]) + t[0];
+            qy[l] = ((r0[1] * px[l] + r1[1] * py[l]) + r2[1] * pz[l]) + t[1];
+            qz[l] = ((r0[2] * px[l] + r1[2] * py[l]) + r2[2] * pz[l]) + t[2];
+            let fu = s.fx * qx[l] / qz[l] + s.cx + 0.5;
+            let fv = s.fy * qy[l] / qz[l] + s.cy + 0.5;
+            ok[l] = g + l < b.len && qz[l] > 0.0 && fu >= 0.0 && fv >= 0.0 && fu < mwf && fv < mhf;
+            mi[l] = if ok[l] { fv as i32 as usize * s.mw + fu as i32 as usize } else { 0 };
+        }
+        // The model pixels (a gather: scalar loads).
+        let (mut mx, mut my, mut mz, mut mnx, mut mny, mut mnz) =
+            ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+        for l in 0..LANES {
+            let (v, n) = (s.vertices[mi[l]], s.normals[mi[l]]);
+            (mx[l], my[l], mz[l], mnx[l], mny[l], mnz[l]) = (v.x, v.y, v.z, n.x, n.y, n.z);
+        }
+        let mut j: [L; 6] = [[0.0; LANES]; 6];
+        let (mut r, mut wgt) = ([0.0f32; LANES], [0.0f32; LANES]);
+        for l in 0..LANES {
+            let on_model = ok[l] && mz[l] > 0.0;
+            let (dx, dy, dz) = (qx[l] - mx[l], qy[l] - my[l], qz[l] - mz[l]);
+            let is_far = on_model && (dx * dx + dy * dy) + dz * dz > s.max_d2;
+            let near = on_model && !is_far;
+            let nrx = (r0[0] * nx[l] + r1[0] * ny[l]) + r2[0] * nz[l];
+            let nry = (r0[1] * nx[l] + r1[1] * ny[l]) + r2[1] * nz[l];
+            let nrz = (r0[2] * nx[l] + r1[2] * ny[l]) + r2[2] * nz[l];
+            let is_turned = near && (nrx * mnx[l] + nry * mny[l]) + nrz * mnz[l] < s.min_cos;
+            let inlier = near && !is_turned;
+            far[l] += is_far as u32;
+            turned[l] += is_turned as u32;
+            inliers[l] += inlier as u32;
+            let res = (mnx[l] * dx + mny[l] * dy) + mnz[l] * dz;
+            let z = mz[l].max(0.5);
+            let scale = z * z;
+            let a = (res / scale).abs();
+            let hub = if a <= s.huber { 1.0 } else { s.huber / a };
+            let w = hub / (scale * scale);
+            // The lever arm from the model point (see `normal_equations`).
+            let jac = [
+                my[l] * mnz[l] - mny[l] * mz[l],
+                mz[l] * mnx[l] - mnz[l] * mx[l],
+                mx[l] * mny[l] - mnx[l] * my[l],
+                mnx[l],
+                mny[l],
+                mnz[l],
+            ];
+            for (ja, v) in j.iter_mut().zip(jac) {
+                ja[l] = if inlier { v } else { 0.0 };
+            }
+            r[l] = if inlier { res } else { 0.0 };
+            wgt[l] = if inlier { w } else { 0.0 };
+            let (rd, sd) = (r[l] as f64, if inlier { scale as f64 } else { 1.0 });
+            sq_res[l] += rd * rd;
+            sq_norm[l] += (rd / sd) * (rd / sd);
+        }
+        let mut k = 0;
+        for a in 0..6 {
+            let wa: L = std::array::from_fn(|l| wgt[l] * j[a][l]);
+            for bb in a..6 {
+                for l in 0..LANES {
+                    sums[k][l] += wa[l] * j[bb][l];
+                }
+                k += 1;
+            }
+            for l in 0..LANES {
+                sums[21 + a][l] += wa[l] * r[l];
+            }
+        }
+    }
+    let mut n = Normals::ZERO;
+    let mut k = 0;
+    for a in 0..6 {
+        for bb in a..6 {
+            n.h[a][bb] = sums[k].iter().fold(0.0f64, |acc, &v| acc + v as f64);
+            k += 1;
+        }
+        n.g[a] = sums[21 + a].iter().fold(0.0f64, |acc, &v| acc + v as f64);
+    }
+    n.sq_residual = sq_res.iter().sum();
+    n.sq_normalised = sq_norm.iter().sum();
+    n.inliers = inliers.iter().map(|&v| v as u64).sum();
+    n.far = far.iter().map(|&v| v as u64).sum();
+    n.turned = turned.iter().map(|&v| v as u64).sum();
+    n
 }
 
 /// Intensity residual `I_model(π(q)) - I_frame` and its Jacobian with respect to a left
@@ -1208,6 +1508,99 @@ mod tests {
             let full = normal_equations(&eager, None, &model, &motion, 0.05, stride, &c);
             assert!(lazy.inliers > 100);
             assert_eq!((lazy.h, lazy.g, lazy.inliers, lazy.sampled), (full.h, full.g, full.inliers, full.sampled));
+        }
+    }
+
+    /// The level-1 model and pyramid of a tilted, bumpy plane (shared by the association
+    /// tests).
+    fn bumpy_plane(c: &TrackerConfig) -> (Vec<Level>, Model) {
+        let k = Intrinsics::new(64, 48, 60.0, 60.0, 31.5, 23.5).expect("camera");
+        let depth: Vec<f32> =
+            (0..64 * 48).map(|i| 1.0 + 0.004 * (i % 64) as f32 + 0.01 * ((i / 64) as f32 * 0.7).sin()).collect();
+        let pyramid = build_pyramid(&Frame::from_depth(k, depth), c);
+        let l1 = &pyramid[1];
+        let view = ModelView {
+            intrinsics: l1.k,
+            world_from_camera: Affine3A::IDENTITY,
+            vertices: l1.vertices.clone(),
+            normals: l1.normals.clone(),
+            colors: vec![[0; 3]; l1.vertices.len()],
+        };
+        (pyramid, Model { view, intensity: Vec::new(), gradient: Vec::new() })
+    }
+
+    fn normals_key(n: &Normals) -> ([[f64; 6]; 6], [f64; 6], f64, f64, [u64; 4]) {
+        (n.h, n.g, n.sq_residual, n.sq_normalised, [n.inliers, n.far, n.turned, n.sampled])
+    }
+
+    #[test]
+    fn lane_association_matches_the_scalar_path() {
+        // A tight distance and angle gate, so that both rejections occur.
+        let c = TrackerConfig { fine_stride: 1, max_normal_angle: 10f32.to_radians(), ..TrackerConfig::default() };
+        let (pyramid, model) = bumpy_plane(&c);
+        let motion = se3_exp([0.001, -0.002, 0.0005, 0.002, 0.001, -0.003]);
+        let mut totals = (0, 0, 0);
+        for (level, stride, max_distance) in
+            [(0, 1, 0.012), (0, 1, 0.03), (0, 2, 0.03), (0, 3, 0.03), (1, 1, 0.04), (2, 1, 0.08)]
+        {
+            let data = &pyramid[level];
+            let scalar = normal_equations(data, pyramid.get(level + 1), &model, &motion, max_distance, stride, &c);
+            let lanes = LevelPoints::new(data, pyramid.get(level + 1), stride).normal_equations(
+                &model,
+                &motion,
+                max_distance,
+                &c,
+            );
+            let counts = |n: &Normals| (n.inliers, n.far, n.turned, n.sampled);
+            assert_eq!(counts(&lanes), counts(&scalar), "level {level} stride {stride}");
+            totals.0 += scalar.inliers;
+            totals.1 += scalar.far;
+            totals.2 += scalar.turned;
+            for a in 0..6 {
+                let scale = scalar.h[a][a].max(1e-30);
+                for b in a..6 {
+                    let tol = 1e-5 * scalar.h[a][a].max(scalar.h[b][b]);
+                    assert!((lanes.h[a][b] - scalar.h[a][b]).abs() <= tol, "h[{a}][{b}] at level {level}");
+                }
+                let g_tol = 1e-4 * (scale * scalar.sq_residual).sqrt();
+                assert!((lanes.g[a] - scalar.g[a]).abs() <= g_tol, "g[{a}] at level {level}");
+            }
+            assert!((lanes.sq_residual - scalar.sq_residual).abs() <= 1e-12 * scalar.sq_residual);
+            assert!((lanes.sq_normalised - scalar.sq_normalised).abs() <= 1e-12 * scalar.sq_normalised);
+        }
+        assert!(totals.0 > 2000 && totals.1 > 100 && totals.2 > 100, "{totals:?}");
+    }
+
+    #[test]
+    fn avx2_lanes_give_the_portable_bits() {
+        #[cfg(target_arch = "x86_64")]
+        if avx2_available() {
+            let c = TrackerConfig { fine_stride: 1, ..TrackerConfig::default() };
+            let (pyramid, model) = bumpy_plane(&c);
+            let motion = se3_exp([0.001, -0.002, 0.0005, 0.002, 0.001, -0.003]);
+            let step = StepParams::new(&model, &motion, 0.01, &c);
+            for level in 0..2 {
+                let points = LevelPoints::new(&pyramid[level], pyramid.get(level + 1), 1);
+                for b in &points.blocks {
+                    let portable = block_sums_lanes(b, &step);
+                    // SAFETY: checked above.
+                    let avx2 = unsafe { block_sums_avx2(b, &step) };
+                    assert_eq!(normals_key(&portable), normals_key(&avx2));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn ray_table_unprojects_like_the_camera() {
+        let k = Intrinsics::new(640, 480, 525.0, 523.5, 319.5, 239.25).expect("camera");
+        let rays = RayTable::new(k);
+        for (i, d) in [0.31f32, 1.0, 2.75, 4.9].into_iter().enumerate() {
+            for y in (i..480).step_by(7) {
+                for x in (i..640).step_by(5) {
+                    assert_eq!(rays.unproject(x, y, d), k.unproject(x as f32, y as f32, d));
+                }
+            }
         }
     }
 }
