@@ -61,8 +61,9 @@ impl PoseMode {
 #[derive(clap::Args)]
 pub struct SemanticArgs {
     /// Network weights (safetensors written by training; the configuration stored in the file
-    /// is used, s20 when it has none). Without it an untrained s20 network with random
-    /// weights runs: timings are real, labels are not.
+    /// is used, s20 when it has none). Default: the shipped model (`SEMRECON_MODEL` or
+    /// crates/net/models/s20.safetensors); where that file is missing, an untrained s20
+    /// network with random weights runs and the run says so: timings are real, labels are not.
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// Semantic passes: incremental (changed tiles plus context), full (the whole map each
@@ -117,7 +118,7 @@ pub fn pipeline_config(
     Ok(config)
 }
 
-/// The network of `--model` (or an untrained s20), `None` with `--semantics off`; with a
+/// The network of `--model` (or the shipped model, or an untrained s20 when that is missing), `None` with `--semantics off`; with a
 /// sentence saying which.
 pub fn load_network(args: &SemanticArgs) -> anyhow::Result<(Option<Segmenter>, String)> {
     if args.semantics == SemanticsMode::Off {

@@ -332,6 +332,11 @@ pub struct Augment {
     pub crop_probability: f32,
     /// Horizontal edge range of the crop box (metres); the box spans all heights.
     pub crop_size: [f32; 2],
+    /// Probability of keeping only what a short walk would see
+    /// ([`crate::scan_imitation::visible_from_short_walk`]); the box crop is skipped then.
+    pub view_probability: f32,
+    /// Probability of painting rugs on the floor ([`crate::scan_imitation::paint_rugs`]).
+    pub rug_probability: f32,
     /// Fraction of points dropped at random (at most; uniform in `[0, max]`).
     pub dropout_max: f32,
     /// Standard deviation of the per-channel colour gain (around 1).
@@ -353,6 +358,8 @@ impl Augment {
             elastic_spacing: 1.0,
             crop_probability: 0.0,
             crop_size: [1.0, 1.0],
+            view_probability: 0.0,
+            rug_probability: 0.0,
             dropout_max: 0.0,
             color_gain: 0.0,
             brightness: 0.0,
@@ -372,11 +379,19 @@ impl Augment {
             elastic_spacing: 0.5,
             crop_probability: 0.5,
             crop_size: [3.0, 5.0],
+            view_probability: 0.0,
+            rug_probability: 0.0,
             dropout_max: 0.2,
             color_gain: 0.08,
             brightness: 20.0,
             color_noise: 6.0,
         }
+    }
+
+    /// [`Augment::training`] plus the live-map imitations: a short walk's view 40 % of the
+    /// time and rugs 30 % of the time (the fifth training leg of docs/model.md).
+    pub fn live_maps() -> Self {
+        Self { view_probability: 0.4, rug_probability: 0.3, ..Self::training() }
     }
 
     /// Applies the augmentation to `cloud` in place, seeded by `seed`.
@@ -386,6 +401,16 @@ impl Augment {
             return;
         }
         // Geometry about the cloud's horizontal centre, so that rotations keep it in place.
+        // The live-map imitations work in the room's own frame (floor down, eye height above
+        // it), so they come before any geometric change; they draw from their own stream so
+        // that switching them on leaves the other choices of a seed as they were.
+        let mut live_rng = ChaCha8Rng::seed_from_u64(seed ^ 0x11FE_5CA7);
+        if self.rug_probability > 0.0 && live_rng.random::<f32>() < self.rug_probability {
+            crate::scan_imitation::paint_rugs(cloud, &mut live_rng);
+        }
+        let view = (self.view_probability > 0.0 && live_rng.random::<f32>() < self.view_probability)
+            .then(|| crate::scan_imitation::visible_from_short_walk(cloud, &mut live_rng))
+            .flatten();
         let (lo, hi) = bounds(&cloud.positions);
         let centre = Vec3::new((lo.x + hi.x) * 0.5, (lo.y + hi.y) * 0.5, 0.0);
         let angle = if self.rotate_max > 0.0 { rng.random_range(-self.rotate_max..=self.rotate_max) } else { 0.0 };
@@ -405,8 +430,9 @@ impl Augment {
             *p = m * (q - centre);
         }
         // Crop a box around a random point, then drop points.
-        let mut keep: Vec<bool> = vec![true; cloud.len()];
-        if self.crop_probability > 0.0 && rng.random::<f32>() < self.crop_probability {
+        let viewed = view.is_some();
+        let mut keep: Vec<bool> = view.unwrap_or_else(|| vec![true; cloud.len()]);
+        if self.crop_probability > 0.0 && rng.random::<f32>() < self.crop_probability && !viewed {
             let (a, b) = (self.crop_size[0], self.crop_size[1].max(self.crop_size[0]));
             let sx = if b > a { rng.random_range(a..=b) } else { a };
             let sy = if b > a { rng.random_range(a..=b) } else { a };

@@ -38,6 +38,7 @@ pub mod metrics;
 pub mod model;
 pub mod reference;
 pub mod sample;
+pub mod scan_imitation;
 pub mod shipped;
 pub mod surface;
 #[cfg(feature = "train")]

@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release -p semrecon-recon --example accuracy_bench -- SOURCE [--frames N]
 //!     [--size WxH] [--voxel M] [--trunc VOXELS] [--band-factor K] [--min-band VOXELS]
-//!     [--ideal] [--skip-tracking]
+//!     [--max-depth M] [--ideal] [--skip-tracking]
 //! ```
 //!
 //! `SOURCE` is `synth:SEED` (a generated room along its generated handheld path) or
@@ -43,6 +43,7 @@ struct Args {
     min_band: f32,
     ideal: bool,
     skip_tracking: bool,
+    max_depth: f32,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -56,6 +57,7 @@ fn parse_args() -> Result<Args, String> {
         min_band: TsdfConfig::default().min_truncation_voxels,
         ideal: false,
         skip_tracking: false,
+        max_depth: TsdfConfig::default().max_depth,
     };
     let mut flags = Flags::from_env();
     while let Some(flag) = flags.next_flag() {
@@ -65,6 +67,7 @@ fn parse_args() -> Result<Args, String> {
             "--trunc" => a.truncation = flags.value(&flag)?,
             "--band-factor" => a.band_factor = flags.value(&flag)?,
             "--min-band" => a.min_band = flags.value(&flag)?,
+            "--max-depth" => a.max_depth = flags.value(&flag)?,
             "--ideal" => a.ideal = true,
             "--skip-tracking" => a.skip_tracking = true,
             "--size" => a.size = flags.size(&flag)?,
@@ -123,6 +126,7 @@ fn run(a: Args) -> Result<(), String> {
         truncation_voxels: a.truncation,
         truncation_noise_factor: a.band_factor,
         min_truncation_voxels: a.min_band,
+        max_depth: a.max_depth,
         ..TsdfConfig::with_voxel_size(a.voxel).map_err(|e| e.to_string())?
     };
     println!(

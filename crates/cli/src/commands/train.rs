@@ -52,6 +52,11 @@ pub struct TrainArgs {
     /// Seed of initialisation, room order and augmentation.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Augmentation recipe: `training` (rotations, flips, scaling, elastic distortion, box
+    /// crops, dropout, colour) or `live-maps` (the same plus a short walk's view and rugs on
+    /// the floor, to imitate the partial maps the live pipeline labels).
+    #[arg(long, default_value = "training", value_parser = ["training", "live-maps"])]
+    augment: String,
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -104,6 +109,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     opts.checkpoint_every_steps = args.checkpoint_every.max(1);
     opts.resume = args.resume;
     opts.seed = args.seed;
+    opts.augment = match args.augment.as_str() {
+        "live-maps" => semrecon_net::dataset::Augment::live_maps(),
+        _ => semrecon_net::dataset::Augment::training(),
+    };
     eprintln!(
         "training {} on {} rooms, validating on {} rooms, output {}",
         config.summary(),
