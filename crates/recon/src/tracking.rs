@@ -109,7 +109,10 @@ pub struct TrackerConfig {
     /// The model is ray-cast anew after this many tracked frames and reused in between
     /// (frames are aligned to the view cast at an earlier pose; 1 casts every frame). The
     /// ray-cast is the largest cost of tracking, and a model a frame or two old differs
-    /// from the current one only by what those frames added.
+    /// from the current one only by what those frames added. The default 3 casts a third of
+    /// the frames: on 7-Scenes (500 frames) the trajectory error is the same for 2, 3 and 4
+    /// (25.8 / 25.8 / 25.7 mm; rendered `synth:3` 2.84 / 2.82 / 2.81 mm), and the mean
+    /// tracking CPU per frame drops by about 15 % from 2 to 3.
     pub model_interval: usize,
 }
 
@@ -134,7 +137,7 @@ impl Default for TrackerConfig {
             min_valid_ratio: 0.05,
             keyframe_interval: 10,
             fine_stride: 2,
-            model_interval: 2,
+            model_interval: 3,
         }
     }
 }
