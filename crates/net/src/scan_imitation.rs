@@ -121,7 +121,8 @@ fn angle_between(a: f32, b: f32) -> f32 {
 }
 
 /// Repaints one to three random floor patches as rugs: a random base colour, a pattern
-/// (plain, stripes, checks or speckle) and a border, all of it still labelled floor.
+/// (plain, stripes, checks or speckle), a border and, on most, a bumpy pile up to 2.5 cm
+/// high; all of it still labelled floor.
 pub fn paint_rugs(cloud: &mut LabeledPointCloud, rng: &mut ChaCha8Rng) {
     let floor = SemanticClass::Floor.id();
     let floor_points: Vec<usize> = (0..cloud.len()).filter(|&i| cloud.labels[i] == floor).collect();
@@ -137,6 +138,15 @@ pub fn paint_rugs(cloud: &mut LabeledPointCloud, rng: &mut ChaCha8Rng) {
         let pattern = rng.random_range(0..4u8);
         let period = rng.random_range(0.04..0.3f32);
         let border = rng.random_range(0.0..0.15f32);
+        // Pile and wrinkles: real rugs are bumpy at the scale of centimetres, and a bumpy
+        // horizontal surface must not mean upholstery when it lies on the floor.
+        let bump = if rng.random_bool(0.6) { rng.random_range(0.0..0.025f32) } else { 0.0 };
+        let waves: [(Vec2, f32); 3] = std::array::from_fn(|_| {
+            (
+                Vec2::from_angle(rng.random_range(0.0..TAU)) * (TAU / rng.random_range(0.03..0.15f32)),
+                rng.random_range(0.0..TAU),
+            )
+        });
         for &i in &floor_points {
             let p = cloud.positions[i];
             let local = axis.rotate(p.truncate() - centre);
@@ -153,6 +163,10 @@ pub fn paint_rugs(cloud: &mut LabeledPointCloud, rng: &mut ChaCha8Rng) {
                     _ => false,
                 };
             let c = if use_accent { accent } else { base };
+            if bump > 0.0 {
+                let h: f32 = waves.iter().map(|(k, phase)| (k.dot(local) + phase).sin()).sum::<f32>() / 3.0;
+                cloud.positions[i].z += bump * (0.5 + 0.5 * h);
+            }
             // Fibre texture: a little per-point brightness noise.
             let shade = 1.0 + rng.random_range(-0.08..0.08f32);
             cloud.colors[i] = c.map(|v| (v * shade).round().clamp(0.0, 255.0) as u8);
@@ -236,9 +250,11 @@ mod tests {
         let mut painted = cloud.clone();
         paint_rugs(&mut painted, &mut ChaCha8Rng::seed_from_u64(3));
         assert_eq!(painted.labels, cloud.labels);
-        assert_eq!(painted.positions, cloud.positions);
         let mut changed = 0;
         for i in 0..cloud.len() {
+            let lift = painted.positions[i].z - cloud.positions[i].z;
+            assert!((0.0..=0.025).contains(&lift), "lifted by {lift}");
+            assert_eq!(painted.positions[i].truncate(), cloud.positions[i].truncate());
             if painted.colors[i] != cloud.colors[i] {
                 changed += 1;
                 assert_eq!(cloud.labels[i], SemanticClass::Floor.id());
