@@ -154,10 +154,23 @@ impl SurfaceCells {
         let all_parts: Vec<ChunkCells> = changed
             .par_iter()
             .map(|key| {
-                let mut parts: BTreeMap<(i32, i32, i32), CellSum> = BTreeMap::new();
+                // A chunk overlaps a handful of cells (at most 8 when cells are larger than
+                // chunks), so a short list searched linearly beats any map; consecutive
+                // voxels mostly fall in the same cell, hence the last-hit shortcut.
+                let mut parts: Vec<((i32, i32, i32), CellSum)> = Vec::new();
+                let mut last = usize::MAX;
                 for s in chunk_surface_voxels(map, *key, self.band_voxels) {
-                    let c = self.cell_of_voxel(s.voxel);
-                    let e = parts.entry(order(c)).or_default();
+                    let c = order(self.cell_of_voxel(s.voxel));
+                    if last >= parts.len() || parts[last].0 != c {
+                        last = match parts.iter().position(|(k, _)| *k == c) {
+                            Some(i) => i,
+                            None => {
+                                parts.push((c, CellSum::default()));
+                                parts.len() - 1
+                            }
+                        };
+                    }
+                    let e = &mut parts[last].1;
                     for k in 0..3 {
                         e.voxel[k] += i64::from(s.voxel[k]);
                         e.color[k] += u64::from(s.color[k]);
@@ -165,6 +178,7 @@ impl SurfaceCells {
                     }
                     e.count += 1;
                 }
+                parts.sort_unstable_by_key(|(k, _)| *k);
                 parts.into_iter().map(|((z, y, x), s)| (IVec3::new(x, y, z), s)).collect()
             })
             .collect();
