@@ -498,6 +498,16 @@ fn check_frame(frame: &Frame, world_from_camera: &Affine3A) -> Result<()> {
     Ok(())
 }
 
+impl FrameView<'_> {
+    /// The camera-frame centre of chunk `key`'s first voxel and the camera-frame steps of one
+    /// voxel along the map's x, y and z: every kernel walks a chunk's centres from these.
+    fn chunk_axes(&self, key: ChunkKey) -> [Vec3A; 4] {
+        let origin = (key * CHUNK_SIDE as i32).as_vec3() * self.voxel_size;
+        let base = self.rot[0] * origin.x + self.rot[1] * origin.y + self.rot[2] * origin.z + self.trans;
+        [base, self.rot[0] * self.voxel_size, self.rot[1] * self.voxel_size, self.rot[2] * self.voxel_size]
+    }
+}
+
 /// Updates every voxel of one chunk from the frame.
 ///
 /// One row of 8 voxels (along x) per step, as 8-lane SIMD (`wide::f32x8`: AVX where the
@@ -511,12 +521,7 @@ fn check_frame(frame: &Frame, world_from_camera: &Affine3A) -> Result<()> {
 /// clamps to exactly 1 then, so both forms give the same bits).
 fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
     const N: usize = CHUNK_SIDE;
-    let side = N as i32;
-    let origin = (chunk.key * side).as_vec3() * f.voxel_size;
-    let base = f.rot[0] * origin.x + f.rot[1] * origin.y + f.rot[2] * origin.z + f.trans;
-    let dx = f.rot[0] * f.voxel_size;
-    let dy = f.rot[1] * f.voxel_size;
-    let dz = f.rot[2] * f.voxel_size;
+    let [base, dx, dy, dz] = f.chunk_axes(chunk.key);
     let splat = f32x8::splat;
     let steps = f32x8::new([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]);
     let (step_x, step_y, step_z) = (steps * splat(dx.x), steps * splat(dx.y), steps * splat(dx.z));

@@ -1480,21 +1480,9 @@ mod tests {
     #[test]
     fn lazy_finest_level_equals_the_materialised_one() {
         // A tilted, bumpy plane; the model is the frame's own half-resolution level.
-        let k = Intrinsics::new(64, 48, 60.0, 60.0, 31.5, 23.5).expect("camera");
-        let depth: Vec<f32> =
-            (0..64 * 48).map(|i| 1.0 + 0.004 * (i % 64) as f32 + 0.01 * ((i / 64) as f32 * 0.7).sin()).collect();
-        let frame = Frame::from_depth(k, depth);
         let c = TrackerConfig { fine_stride: 1, ..TrackerConfig::default() };
-        let pyramid = build_pyramid(&frame, &c);
-        let l1 = &pyramid[1];
-        let view = ModelView {
-            intrinsics: l1.k,
-            world_from_camera: Affine3A::IDENTITY,
-            vertices: l1.vertices.clone(),
-            normals: l1.normals.clone(),
-            colors: vec![[0; 3]; l1.vertices.len()],
-        };
-        let model = Model { view, intensity: Vec::new(), gradient: Vec::new() };
+        let (pyramid, model) = bumpy_plane(&c);
+        let (k, l1) = (pyramid[0].k, &pyramid[1]);
         // The materialised level 0: its vertices, and level 1's own normals per 2x2 block.
         let mut eager = make_level(k, pyramid[0].depth.clone(), Vec::new(), false);
         for (i, n) in eager.normals.iter_mut().enumerate() {

@@ -54,12 +54,7 @@ unsafe fn blend_channel(c: __m256i, o: __m256i, count: __m256i, recip: __m256i) 
 #[target_feature(enable = "avx2,fma")]
 pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> ChunkOutcome {
     const N: usize = CHUNK_SIDE;
-    let side = N as i32;
-    let origin = (chunk.key * side).as_vec3() * f.voxel_size;
-    let base = f.rot[0] * origin.x + f.rot[1] * origin.y + f.rot[2] * origin.z + f.trans;
-    let dx = f.rot[0] * f.voxel_size;
-    let dy = f.rot[1] * f.voxel_size;
-    let dz = f.rot[2] * f.voxel_size;
+    let [base, dx, dy, dz] = f.chunk_axes(chunk.key);
     let n_pix = f.depth.len();
     let has_color = !f.color.is_empty();
     let block = &mut *chunk.voxels;
