@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release -p semrecon-recon --example track_bench -- SPEC [--frames N]
 //!     [--voxel M] [--trunc VOXELS] [--downscale 1|2|4] [--iters F,M,C] [--photometric W] [--size WxH]
-//!     [--fine-stride S] [--model-interval N] [--max-depth M] [--repeat N]
+//!     [--fine-stride S] [--model-interval N] [--min-constrained N] [--max-depth M] [--repeat N]
 //! ```
 //!
 //! `SPEC` is a dataset spec (`7scenes:/work/shared/data/7scenes-redkitchen`, `synth:3`).
@@ -41,6 +41,7 @@ struct Args {
     iterations: Option<[usize; 3]>,
     fine_stride: Option<usize>,
     model_interval: Option<usize>,
+    min_constrained: Option<usize>,
     max_depth: Option<f32>,
     repeat: usize,
 }
@@ -58,6 +59,7 @@ fn parse_args() -> Result<Args, String> {
         iterations: None,
         fine_stride: None,
         model_interval: None,
+        min_constrained: None,
         max_depth: None,
         repeat: 0,
     };
@@ -80,6 +82,7 @@ fn parse_args() -> Result<Args, String> {
             "--max-depth" => a.max_depth = Some(flags.value(&arg)?),
             "--fine-stride" => a.fine_stride = Some(flags.value(&arg)?),
             "--model-interval" => a.model_interval = Some(flags.value(&arg)?),
+            "--min-constrained" => a.min_constrained = Some(flags.value(&arg)?),
             "--downscale" => a.downscale = Some(flags.value(&arg)?),
             "--size" => a.size = Some(flags.size(&arg)?),
             s if !s.starts_with("--") && a.spec.is_empty() => a.spec = s.to_string(),
@@ -148,6 +151,9 @@ fn run(a: Args) -> Result<(), String> {
     }
     if let Some(m) = a.model_interval {
         config.model_interval = m;
+    }
+    if let Some(m) = a.min_constrained {
+        config.min_constrained = m;
     }
     if let Some(d) = a.max_depth {
         config.max_depth = d;

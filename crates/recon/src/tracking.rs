@@ -96,6 +96,16 @@ pub struct TrackerConfig {
     /// Lost when the smallest eigenvalue of the scale-normalised normal matrix is below this
     /// fraction of the largest (a plane or a corridor leaves motions unconstrained).
     pub min_condition: f64,
+    /// Fewest motion directions (of six) the alignment must constrain for the frame to
+    /// count as tracked. Directions whose scale-normalised eigenvalue is below
+    /// `min_condition` times the largest are left at the constant-velocity prediction and
+    /// the rest are aligned, instead of declaring the frame lost: a glance at a ceiling
+    /// corner or along a bare wall leaves a slide along it unconstrained, and a frame lost
+    /// there is never fused, so the map never grows into the new view and tracking stays
+    /// lost while the camera moves on (a 900-frame rendered scan lost its last 317 frames
+    /// that way). A sliding error along a plane barely changes what is fused of that plane.
+    /// 6 restores the strict check (any unconstrained direction: lost).
+    pub min_constrained: usize,
     /// Fewer valid depth pixels than this fraction of the image: lost (nothing to align).
     pub min_valid_ratio: f32,
     /// A keyframe every this many tracked frames (the first frame is one).
@@ -134,6 +144,7 @@ impl Default for TrackerConfig {
             max_translation_jump: 0.15,
             max_rotation_jump: 20f32.to_radians(),
             min_condition: 1e-3,
+            min_constrained: 3,
             min_valid_ratio: 0.05,
             keyframe_interval: 10,
             fine_stride: 2,
@@ -183,6 +194,9 @@ impl TrackerConfig {
         }
         if !(0.0..1.0).contains(&self.min_condition) {
             return bad(format!("min_condition {} is outside 0..1", self.min_condition));
+        }
+        if !(1..=6).contains(&self.min_constrained) {
+            return bad(format!("min_constrained {} is outside 1..=6", self.min_constrained));
         }
         if self.keyframe_interval == 0 {
             return bad("keyframe interval must be at least 1".into());
@@ -248,6 +262,10 @@ pub struct TrackingResult {
     pub residual_rms: f32,
     /// Smallest over largest eigenvalue of the scale-normalised normal matrix.
     pub condition: f64,
+    /// How many of the six motion directions the alignment constrained (6 normally; fewer
+    /// when some were kept at the motion prediction, see
+    /// [`TrackerConfig::min_constrained`]).
+    pub constrained: usize,
     /// Whether this frame became a keyframe.
     pub keyframe: bool,
     /// Wall time of the model ray-cast, milliseconds (0 when the cached view was reused).
@@ -482,6 +500,7 @@ impl Tracker {
             inlier_ratio: 0.0,
             residual_rms: 0.0,
             condition: 0.0,
+            constrained: 0,
             keyframe: false,
             raycast_ms: 0.0,
             total_ms: 0.0,
@@ -498,6 +517,7 @@ impl Tracker {
             result.status = TrackingStatus::Initialized;
             result.inlier_ratio = 1.0;
             result.condition = 1.0;
+            result.constrained = 6;
             self.accept(frame, &mut result, &pyramid[model_level]);
             return finish(result);
         };
@@ -536,7 +556,7 @@ impl Tracker {
                 };
                 let h = stats.symmetric();
                 let neg_g = stats.g.map(|v| -v);
-                let Some(xi) = cholesky_solve(&h, &neg_g) else {
+                let Some(xi) = gauss_newton_step(&h, &neg_g, &c) else {
                     singular = true;
                     break;
                 };
@@ -557,13 +577,15 @@ impl Tracker {
         result.inlier_ratio = stats.inliers as f32 / overlap.max(1) as f32;
         let overlap_ratio = overlap as f32 / stats.sampled.max(1) as f32;
         result.residual_rms = (stats.sq_residual / stats.inliers.max(1) as f64).sqrt() as f32;
-        result.condition = condition(&stats.symmetric());
+        let (cond, constrained) = conditioning(&stats.symmetric(), c.min_condition);
+        result.condition = cond;
+        result.constrained = constrained;
         let jump = prediction.inverse() * estimate;
         let jump_t = Vec3::from(jump.translation).length();
         let jump_r = Quat::from_mat3a(&jump.matrix3).to_axis_angle().1;
         let jump_r = jump_r.min(std::f32::consts::TAU - jump_r);
         result.world_from_camera = reference * estimate;
-        result.status = if singular || !(result.condition >= c.min_condition) {
+        result.status = if singular || constrained < c.min_constrained {
             TrackingStatus::Lost(LostReason::Degenerate)
         } else if result.inlier_ratio < c.min_inlier_ratio || overlap_ratio < c.min_overlap {
             TrackingStatus::Lost(LostReason::FewInliers)
@@ -1282,18 +1304,63 @@ fn orthonormalised(t: Affine3A) -> Affine3A {
 
 /// Smallest over largest eigenvalue of `h` after scaling it to a unit diagonal, so that
 /// rotation (m²) and translation (1) entries compare.
-fn condition(h: &[[f64; 6]; 6]) -> f64 {
-    let d: [f64; 6] = std::array::from_fn(|i| if h[i][i] > 0.0 { 1.0 / h[i][i].sqrt() } else { 0.0 });
-    if d.contains(&0.0) {
-        return 0.0;
-    }
+/// The Jacobi scaling of `h` (1 / sqrt of the diagonal; 0 where the diagonal is not
+/// positive) and the eigen-decomposition of the scaled matrix (ascending eigenvalues,
+/// eigenvectors as rows).
+type ScaledEigen = ([f64; 6], [f64; 6], [[f64; 6]; 6]);
+
+fn scaled_eigen(h: &[[f64; 6]; 6]) -> ScaledEigen {
+    // A diagonal that is rounding noise (a perfect plane leaves exact zeros that come out
+    // as 1e-20) would be scaled up into a direction that looks constrained.
+    let floor = 1e-12 * (0..6).map(|i| h[i][i]).fold(0.0, f64::max);
+    let d: [f64; 6] = std::array::from_fn(|i| if h[i][i] > floor { 1.0 / h[i][i].sqrt() } else { 0.0 });
     let s: [[f64; 6]; 6] = std::array::from_fn(|i| std::array::from_fn(|j| h[i][j] * d[i] * d[j]));
-    let (vals, _) = symmetric_eigen(&s);
-    if vals[5] > 0.0 {
-        (vals[0] / vals[5]).max(0.0)
-    } else {
-        0.0
+    let (vals, vecs) = symmetric_eigen(&s);
+    (d, vals, vecs)
+}
+
+/// Smallest over largest eigenvalue of the scale-normalised `h` (0 when a direction has
+/// no constraint at all), and how many eigenvalues are at least `min_condition` times the
+/// largest: the motion directions the alignment constrains.
+fn conditioning(h: &[[f64; 6]; 6], min_condition: f64) -> (f64, usize) {
+    let (d, vals, _) = scaled_eigen(h);
+    if !(vals[5] > 0.0) {
+        return (0.0, 0);
     }
+    let constrained = vals.iter().filter(|&&v| v >= min_condition * vals[5]).count();
+    let unconstrained_axes = d.iter().filter(|&&v| v == 0.0).count();
+    let cond = if unconstrained_axes > 0 { 0.0 } else { (vals[0] / vals[5]).max(0.0) };
+    (cond, constrained.min(6 - unconstrained_axes))
+}
+
+/// One Gauss-Newton step: solves `h xi = neg_g`. A well-conditioned system is solved
+/// as it is; otherwise, when `config.min_constrained` allows it, only along the scaled
+/// eigen-directions that are constrained (eigenvalue at least `min_condition` times the
+/// largest), so the unconstrained ones stay where the estimate started: at the motion
+/// prediction. `None` for a singular or non-finite system.
+fn gauss_newton_step(h: &[[f64; 6]; 6], neg_g: &[f64; 6], config: &TrackerConfig) -> Option<[f64; 6]> {
+    if config.min_constrained >= 6 {
+        return cholesky_solve(h, neg_g);
+    }
+    let (d, vals, vecs) = scaled_eigen(h);
+    let well_conditioned = d.iter().all(|&v| v > 0.0) && vals[0] >= config.min_condition * vals[5];
+    if well_conditioned || !(vals[5] > 0.0) {
+        // The first keeps the same bits as a plain solve wherever nothing is degenerate.
+        return cholesky_solve(h, neg_g);
+    }
+    // xi = D pinv(D h D) D neg_g, truncated to the constrained directions.
+    let b: [f64; 6] = std::array::from_fn(|i| d[i] * neg_g[i]);
+    let mut y = [0.0f64; 6];
+    for (val, vec) in vals.iter().zip(&vecs) {
+        if *val >= config.min_condition * vals[5] {
+            let along = vec.iter().zip(&b).map(|(v, b)| v * b).sum::<f64>() / val;
+            for (y, v) in y.iter_mut().zip(vec) {
+                *y += along * v;
+            }
+        }
+    }
+    let xi: [f64; 6] = std::array::from_fn(|i| d[i] * y[i]);
+    xi.iter().all(|v| v.is_finite()).then_some(xi)
 }
 
 /// Trajectory error after rigid alignment.

@@ -269,3 +269,35 @@ fn reused_model_and_subsampled_fine_level_track_like_the_full_pass() {
     // default stride 2 is meant for 640x480, see `config`): only the bound of the plain test.
     assert!(e_strided < 0.02, "strided {e_strided} m");
 }
+
+/// A camera backing away from a bare wall while sliding along it: the wall fixes the
+/// distance and the two tilts, nothing fixes the slide or the turn about the view axis.
+#[test]
+fn a_bare_wall_keeps_its_unconstrained_motion_at_the_prediction() {
+    let k = semrecon_data::Intrinsics::new(80, 60, 70.0, 70.0, 39.5, 29.5).expect("camera");
+    let wall_at = |i: usize| Frame::from_depth(k, vec![1.5 + 0.01 * i as f32; 80 * 60]);
+    let frames: Vec<Frame> = (0..6).map(wall_at).collect();
+    let mut map = TsdfMap::new(TsdfConfig { truncation_voxels: 10.0, ..TsdfConfig::default() }).expect("config");
+    map.integrate(&frames[0], Affine3A::IDENTITY).expect("fusion");
+
+    let strict = TrackerConfig { min_constrained: 6, ..config() };
+    let mut tracker = Tracker::with_initial_pose(strict, Affine3A::IDENTITY).expect("tracker");
+    tracker.track(&frames[0], &map).expect("first frame");
+    let r = tracker.track(&frames[1], &map).expect("valid frame");
+    assert_eq!(r.status, TrackingStatus::Lost(semrecon_recon::LostReason::Degenerate));
+
+    let mut tracker = Tracker::with_initial_pose(config(), Affine3A::IDENTITY).expect("tracker");
+    tracker.track(&frames[0], &map).expect("first frame");
+    for (i, f) in frames.iter().enumerate().skip(1) {
+        let r = tracker.track(f, &map).expect("valid frame");
+        assert_eq!(r.status, TrackingStatus::Tracked, "frame {i}: {r:?}");
+        assert_eq!(r.constrained, 3, "frame {i}");
+        let p = r.world_from_camera;
+        // The camera backed away by 1 cm a frame; the slide and the turn stay at the
+        // prediction, which starts at rest and carries on only what was measured.
+        assert!((p.translation.z + 0.01 * i as f32).abs() < 1e-3, "frame {i}: {p:?}");
+        assert!(p.translation.x.abs() < 1e-4 && p.translation.y.abs() < 1e-4, "frame {i}: {p:?}");
+        assert!(Vec3::from(p.matrix3.z_axis).dot(Vec3::Z) > 0.99999, "frame {i}: {p:?}");
+        map.integrate(f, p).expect("fusion");
+    }
+}
