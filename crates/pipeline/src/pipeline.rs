@@ -16,7 +16,7 @@ use std::time::Instant;
 use glam::{Affine3A, Vec3};
 use semrecon_data::{class::UNLABELED, Frame, Intrinsics, LabeledMesh, SemanticClass, Trajectory};
 use semrecon_net::Segmenter;
-use semrecon_recon::{IncrementalMesher, LostReason, Tracker, TrackerConfig, TrackingStatus, TsdfMap};
+use semrecon_recon::{IncrementalMesher, KeyframeIndex, LostReason, Tracker, TrackerConfig, TrackingStatus, TsdfMap};
 use serde::Serialize;
 
 use crate::backend::{Backend, Job, JobResult};
@@ -25,6 +25,9 @@ use crate::error::{PipelineError, Result};
 use crate::gravity::{camera_up_prior, estimate_up, given_up, UpEstimate};
 use crate::semantic_map::{LabelStore, SurfaceCells, CLASSES};
 use crate::timing::StageTimes;
+
+/// Keyframes tried per lost frame; each costs about one tracking call with a ray-cast.
+const RELOCALISATION_ATTEMPTS: usize = 3;
 
 /// Stages the front end runs (their sum is [`Pipeline::front_end_seconds`]).
 pub const FRONT_END_STAGES: [&str; 4] = ["tracking", "fusion", "meshing", "semantic snapshot"];
@@ -36,6 +39,9 @@ pub enum FrameStatus {
     Initialized,
     /// Tracked (or given a ground-truth pose) and fused.
     Fused,
+    /// Tracking from the last pose failed, and relocalisation from a keyframe that looks
+    /// like the frame recovered the pose; fused.
+    Relocalised,
     /// Tracking failed: the frame was not fused (the map is unchanged).
     Lost(LostReason),
     /// Ground-truth mode and the frame has no pose: not fused.
@@ -97,6 +103,9 @@ pub struct Pipeline {
     map: TsdfMap,
     mesher: IncrementalMesher,
     tracker: Option<Tracker>,
+    /// Keyframe thumbnails for relocalisation after a lost frame.
+    keyframe_index: KeyframeIndex,
+    relocalised: usize,
     trajectory: Trajectory,
     times: StageTimes,
     fused: usize,
@@ -159,6 +168,8 @@ impl Pipeline {
             map,
             mesher: IncrementalMesher::new(),
             tracker: None,
+            keyframe_index: KeyframeIndex::new(),
+            relocalised: 0,
             trajectory: Trajectory::default(),
             times: StageTimes::default(),
             fused: 0,
@@ -215,8 +226,23 @@ impl Pipeline {
                     }
                 };
                 let r = tracker.track(frame, &self.map)?;
+                if r.keyframe {
+                    self.keyframe_index.add(frame, r.world_from_camera);
+                }
                 match r.status {
-                    TrackingStatus::Lost(reason) => (FrameStatus::Lost(reason), None),
+                    TrackingStatus::Lost(LostReason::NoDepth) => (FrameStatus::Lost(LostReason::NoDepth), None),
+                    TrackingStatus::Lost(reason) => {
+                        match tracker.relocalise(frame, &self.map, &self.keyframe_index, RELOCALISATION_ATTEMPTS)? {
+                            Some(r) => {
+                                self.relocalised += 1;
+                                if r.keyframe {
+                                    self.keyframe_index.add(frame, r.world_from_camera);
+                                }
+                                (FrameStatus::Relocalised, Some(r.world_from_camera))
+                            }
+                            None => (FrameStatus::Lost(reason), None),
+                        }
+                    }
                     TrackingStatus::Initialized => (FrameStatus::Initialized, Some(r.world_from_camera)),
                     TrackingStatus::Tracked => (FrameStatus::Fused, Some(r.world_from_camera)),
                 }
@@ -435,6 +461,12 @@ impl Pipeline {
     /// Frames pushed (valid ones), fused, and not fused (lost or without pose).
     pub fn frame_counts(&self) -> (usize, usize, usize) {
         (self.frames, self.fused, self.lost)
+    }
+
+    /// Frames whose pose relocalisation recovered after tracking failed (they are fused and
+    /// counted in [`Pipeline::frame_counts`]'s fused frames).
+    pub fn relocalised_frames(&self) -> usize {
+        self.relocalised
     }
 
     /// Semantic passes applied so far, in order.

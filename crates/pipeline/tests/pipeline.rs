@@ -171,3 +171,26 @@ fn up_on_7scenes_matches_its_gravity_file() {
     eprintln!("7-Scenes up {:?}: {:.2} deg from the gravity file", up.up, up.angle_to_deg(up_true));
     assert!(up.angle_to_deg(up_true) < 4.0, "{:?} vs {up_true:?}", up.up);
 }
+
+#[test]
+fn a_jump_back_to_a_place_seen_before_is_relocalised_and_fused() {
+    let (frames, _) = scan_in_first_camera_frame(3, 120);
+    let mut c = config(SemanticMode::default());
+    c.poses = PoseMode::Track;
+    let mut p = Pipeline::new(c, frames[0].intrinsics, None).expect("pipeline");
+    for f in &frames[..60] {
+        let r = p.push_frame(f).expect("frame");
+        assert!(matches!(r.status, FrameStatus::Initialized | FrameStatus::Fused), "frame {}: {:?}", f.index, r.status);
+    }
+    let mut revisit = frames[3].clone();
+    revisit.index = 60;
+    let truth = revisit.world_from_camera.expect("pose");
+    let r = p.push_frame(&revisit).expect("frame");
+    assert_eq!(r.status, FrameStatus::Relocalised);
+    let pose = r.pose.expect("fused");
+    let error = (glam::Vec3::from(pose.translation) - glam::Vec3::from(truth.translation)).length();
+    assert!(error < 0.02, "relocalised {error} m from the truth");
+    assert_eq!(p.relocalised_frames(), 1);
+    assert_eq!(p.frame_counts(), (61, 61, 0));
+    p.finish().expect("finish").validate().expect("valid mesh");
+}

@@ -5,6 +5,7 @@
 //! ```text
 //! Frame + world_from_camera --TsdfMap::integrate--> TsdfMap --IncrementalMesher::update--> LabeledMesh
 //! Frame + TsdfMap --Tracker::track--> world_from_camera (or lost: do not fuse)
+//! lost Frame + TsdfMap + KeyframeIndex --Tracker::relocalise--> world_from_camera (or still lost)
 //! TsdfMap + pose --raycast--> ModelView (vertex, normal, colour maps)
 //! ```
 //!
@@ -26,6 +27,7 @@ mod linalg;
 pub mod map;
 pub mod marching_cubes;
 pub mod raycast;
+pub mod relocalisation;
 pub mod surface_voxels;
 pub mod tracking;
 
@@ -34,4 +36,5 @@ pub use fusion::{depth_weight, IntegrationStats};
 pub use map::{Chunk, ChunkKey, TsdfConfig, TsdfMap, Voxel, CHUNK_SIDE, CHUNK_VOXELS};
 pub use marching_cubes::{extract_mesh, mesh_chunk, ChunkMesh, IncrementalMesher, MeshingStats, RemeshTolerance};
 pub use raycast::{raycast, ModelView};
+pub use relocalisation::KeyframeIndex;
 pub use tracking::{ate_rmse, Keyframe, LostReason, Tracker, TrackerConfig, TrackingResult, TrackingStatus};

@@ -610,6 +610,15 @@ impl Tracker {
         finish(result)
     }
 
+    /// Continues from `world_from_camera` as if it were the last good pose, at rest, with no
+    /// cached model or march-start depth (both belong to the old pose): for relocalisation.
+    pub(crate) fn restart_at(&mut self, world_from_camera: Affine3A) {
+        self.last = Some(world_from_camera);
+        self.velocity = Affine3A::IDENTITY;
+        self.cache = None;
+        self.last_depth = None;
+    }
+
     /// Records an accepted frame: pose, keyframe, march-start depth.
     fn accept(&mut self, frame: &Frame, result: &mut TrackingResult, model_level: &Level) {
         self.last = Some(result.world_from_camera);

@@ -4,7 +4,7 @@
 use glam::{Affine3A, Vec3};
 use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
 use semrecon_data::{Frame, FrameSource, SensorModel};
-use semrecon_recon::{raycast, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
+use semrecon_recon::{raycast, KeyframeIndex, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
 
 /// `frames` frames of synthetic scan `seed` at 320x240.
 fn scan(seed: u64, frames: usize, ideal: bool) -> Vec<Frame> {
@@ -300,4 +300,40 @@ fn a_bare_wall_keeps_its_unconstrained_motion_at_the_prediction() {
         assert!(Vec3::from(p.matrix3.z_axis).dot(Vec3::Z) > 0.99999, "frame {i}: {p:?}");
         map.integrate(f, p).expect("fusion");
     }
+}
+
+/// After a jump to a place seen earlier, tracking from the last pose fails, and
+/// relocalisation from the keyframes finds the place again.
+#[test]
+fn a_lost_frame_of_a_place_seen_before_is_relocalised() {
+    let frames = scan(3, 120, true);
+    let mut map = TsdfMap::new(TsdfConfig::default()).expect("config");
+    let mut tracker = Tracker::with_initial_pose(config(), gt(&frames[0])).expect("tracker");
+    let mut index = KeyframeIndex::new();
+    for f in &frames[..60] {
+        let r = tracker.track(f, &map).expect("valid frame");
+        assert!(r.should_fuse(), "frame {}: {:?}", f.index, r.status);
+        map.integrate(f, r.world_from_camera).expect("fusion");
+        if r.keyframe {
+            index.add(f, r.world_from_camera);
+        }
+    }
+    let last = tracker.pose().expect("tracking");
+    let revisit = &frames[3];
+    let moved = (Vec3::from(gt(revisit).translation) - Vec3::from(last.translation)).length();
+    assert!(moved > 0.15, "the test needs a jump beyond the tracker's reach, got {moved} m");
+    let r = tracker.track(revisit, &map).expect("valid frame");
+    assert!(matches!(r.status, TrackingStatus::Lost(_)), "{r:?}");
+    let before = tracker.clone();
+    assert!(tracker.relocalise(revisit, &map, &KeyframeIndex::new(), 3).expect("valid").is_none());
+    assert_eq!(tracker.pose(), before.pose(), "a failed relocalisation leaves the tracker as it was");
+
+    let r = tracker.relocalise(revisit, &map, &index, 3).expect("valid frame").expect("relocalised");
+    assert_eq!(r.status, TrackingStatus::Tracked);
+    let error = (Vec3::from(r.world_from_camera.translation) - Vec3::from(gt(revisit).translation)).length();
+    assert!(error < 0.01, "relocalised {error} m from the truth");
+    assert_eq!(tracker.pose(), Some(r.world_from_camera));
+    // Tracking goes on from there.
+    let next = tracker.track(&frames[4], &map).expect("valid frame");
+    assert_eq!(next.status, TrackingStatus::Tracked);
 }

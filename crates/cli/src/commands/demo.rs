@@ -51,6 +51,8 @@ struct Report {
     voxel_size_m: f32,
     poses: &'static str,
     lost_frames: usize,
+    /// Fused frames whose pose relocalisation recovered after tracking failed.
+    relocalised_frames: usize,
     ate_rmse_m: Option<f64>,
     mesh_accuracy_mm: Option<f64>,
     mesh_completeness_mm: Option<f64>,
@@ -143,6 +145,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         voxel_size_m: args.recon.voxel,
         poses: args.recon.poses.describe(),
         lost_frames: lost,
+        relocalised_frames: pipeline.relocalised_frames(),
         ate_rmse_m,
         mesh_accuracy_mm: mesh_errors.as_ref().map(|e| e.accuracy_mean_m * 1e3),
         mesh_completeness_mm: mesh_errors.as_ref().map(|e| e.completeness_mean_m * 1e3),
@@ -177,7 +180,10 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         "front end (tracking + fusion + meshing + semantic snapshot): {:.2} s for {:.1} s of input, real-time factor {:.2}",
         front_s, input_s, report.realtime_factor
     );
-    println!("poses: {}; {} of {} frames lost", report.poses, report.lost_frames, report.frames);
+    println!(
+        "poses: {}; {} of {} frames lost, {} relocalised",
+        report.poses, report.lost_frames, report.frames, report.relocalised_frames
+    );
     let mm = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.1} mm"));
     println!(
         "against the ground truth: ATE {}, mesh accuracy {} (mean), {} of the room's surface seen (within 5 cm)",

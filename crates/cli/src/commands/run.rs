@@ -186,6 +186,8 @@ struct Report {
     frames: usize,
     fused_frames: usize,
     lost_frames: usize,
+    /// Fused frames whose pose relocalisation recovered after tracking failed.
+    relocalised_frames: usize,
     failed_loads: usize,
     /// The run stopped before the end of the frame range (the dataset ended early).
     stopped_early_at: Option<usize>,
@@ -316,6 +318,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                     warn(format!("frame {i} skipped: no ground-truth pose"));
                     lost += 1;
                 }
+                FrameStatus::Relocalised => warn(format!("frame {i}: tracking recovered by relocalisation")),
                 FrameStatus::Initialized | FrameStatus::Fused => {}
             },
             Err(e) => {
@@ -391,6 +394,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         frames: processed,
         fused_frames: fused,
         lost_frames: lost,
+        relocalised_frames: pipeline.relocalised_frames(),
         failed_loads,
         stopped_early_at,
         voxel_size_m: args.recon.voxel,
@@ -422,8 +426,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     print_table(&times);
     println!();
     println!(
-        "frames {} (fused {}, lost {}), poses: {}",
-        report.frames, report.fused_frames, report.lost_frames, report.poses
+        "frames {} (fused {}, lost {}, relocalised {}), poses: {}",
+        report.frames, report.fused_frames, report.lost_frames, report.relocalised_frames, report.poses
     );
     if let Some(at) = stopped_early_at {
         println!("the dataset ended early: stopped at frame {at} after {MAX_CONSECUTIVE_FAILED_LOADS} failed loads");
