@@ -26,8 +26,12 @@ use crate::gravity::{camera_up_prior, estimate_up, given_up, UpEstimate};
 use crate::semantic_map::{LabelStore, SurfaceCells, CLASSES};
 use crate::timing::StageTimes;
 
-/// Keyframes tried per lost frame; each costs about one tracking call with a ray-cast.
-const RELOCALISATION_ATTEMPTS: usize = 3;
+/// Keyframes tried per relocalisation; each costs about one tracking call with a ray-cast.
+const RELOCALISATION_ATTEMPTS: usize = 2;
+/// Relocalisation is tried on the first lost frame and then on every this many: a lost
+/// streak lasts until the camera returns near a keyframe, and trying on every frame would
+/// triple the cost of each lost frame for a recovery a frame or two earlier.
+const RELOCALISATION_EVERY: usize = 3;
 
 /// Stages the front end runs (their sum is [`Pipeline::front_end_seconds`]).
 pub const FRONT_END_STAGES: [&str; 4] = ["tracking", "fusion", "meshing", "semantic snapshot"];
@@ -106,6 +110,8 @@ pub struct Pipeline {
     /// Keyframe thumbnails for relocalisation after a lost frame.
     keyframe_index: KeyframeIndex,
     relocalised: usize,
+    /// Consecutive lost frames so far.
+    lost_streak: usize,
     trajectory: Trajectory,
     times: StageTimes,
     fused: usize,
@@ -170,6 +176,7 @@ impl Pipeline {
             tracker: None,
             keyframe_index: KeyframeIndex::new(),
             relocalised: 0,
+            lost_streak: 0,
             trajectory: Trajectory::default(),
             times: StageTimes::default(),
             fused: 0,
@@ -232,8 +239,16 @@ impl Pipeline {
                 match r.status {
                     TrackingStatus::Lost(LostReason::NoDepth) => (FrameStatus::Lost(LostReason::NoDepth), None),
                     TrackingStatus::Lost(reason) => {
-                        match tracker.relocalise(frame, &self.map, &self.keyframe_index, RELOCALISATION_ATTEMPTS)? {
+                        let attempt = self.lost_streak.is_multiple_of(RELOCALISATION_EVERY);
+                        self.lost_streak += 1;
+                        let recovered = if attempt {
+                            tracker.relocalise(frame, &self.map, &self.keyframe_index, RELOCALISATION_ATTEMPTS)?
+                        } else {
+                            None
+                        };
+                        match recovered {
                             Some(r) => {
+                                self.lost_streak = 0;
                                 self.relocalised += 1;
                                 if r.keyframe {
                                     self.keyframe_index.add(frame, r.world_from_camera);
@@ -244,7 +259,10 @@ impl Pipeline {
                         }
                     }
                     TrackingStatus::Initialized => (FrameStatus::Initialized, Some(r.world_from_camera)),
-                    TrackingStatus::Tracked => (FrameStatus::Fused, Some(r.world_from_camera)),
+                    TrackingStatus::Tracked => {
+                        self.lost_streak = 0;
+                        (FrameStatus::Fused, Some(r.world_from_camera))
+                    }
                 }
             }
         };

@@ -93,6 +93,21 @@ impl Thumbnail {
         Self { world_from_camera, depth, intensity }
     }
 
+    /// The block depths resampled (nearest block) to a `w` x `h` image, NaN where a block is
+    /// invalid: a march-start bound for a ray-cast from this thumbnail's pose.
+    fn depth_image(&self, w: usize, h: usize) -> Vec<f32> {
+        (0..w * h)
+            .map(|i| {
+                let d = self.depth[((i / w) * THUMB_H / h.max(1)) * THUMB_W + (i % w) * THUMB_W / w.max(1)];
+                if d > 0.0 {
+                    d
+                } else {
+                    f32::NAN
+                }
+            })
+            .collect()
+    }
+
     /// Dissimilarity to `other` (mean over the blocks both have of the depth difference in
     /// units of [`DEPTH_SCALE`] plus the intensity difference); `None` when they share too
     /// few blocks.
@@ -144,24 +159,30 @@ impl KeyframeIndex {
     /// poses within a few centimetres and degrees of a better one. Ties go to the earlier
     /// keyframe (deterministic).
     pub fn candidates(&self, frame: &Frame, max: usize) -> Vec<Affine3A> {
+        self.ranked(frame, max).into_iter().map(|i| self.thumbnails[i].world_from_camera).collect()
+    }
+
+    /// Indices of the thumbnails [`KeyframeIndex::candidates`] returns.
+    fn ranked(&self, frame: &Frame, max: usize) -> Vec<usize> {
         let query = Thumbnail::of(frame, Affine3A::IDENTITY);
         let mut scored: Vec<(f32, usize)> =
             self.thumbnails.iter().enumerate().filter_map(|(i, t)| query.distance(t).map(|d| (d, i))).collect();
         scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let mut chosen: Vec<Affine3A> = Vec::new();
+        let mut chosen: Vec<usize> = Vec::new();
         for (_, i) in scored {
             if chosen.len() >= max {
                 break;
             }
             let pose = self.thumbnails[i].world_from_camera;
-            let distinct = chosen.iter().all(|c| {
+            let distinct = chosen.iter().all(|&c| {
+                let c = self.thumbnails[c].world_from_camera;
                 let dt = (Vec3::from(c.translation) - Vec3::from(pose.translation)).length();
                 let dr = Quat::from_mat3a(&(c.matrix3.transpose() * pose.matrix3)).to_axis_angle().1;
                 let dr = dr.min(std::f32::consts::TAU - dr);
                 dt > DISTINCT_TRANSLATION || dr > DISTINCT_ROTATION
             });
             if distinct {
-                chosen.push(pose);
+                chosen.push(i);
             }
         }
         chosen
@@ -176,8 +197,9 @@ impl Tracker {
     /// pose and the result (status [`TrackingStatus::Tracked`]) says whether to fuse;
     /// otherwise the tracker is unchanged and `None` comes back.
     ///
-    /// Each attempt ray-casts the map at a keyframe's pose, so this costs a few tracking
-    /// calls: call it on lost frames only.
+    /// Each attempt ray-casts the map at a keyframe's pose (the march bounded by the
+    /// keyframe's thumbnail depth), so this costs about `attempts` tracking calls: call it on
+    /// lost frames only.
     ///
     /// # Errors
     /// As [`Tracker::track`]: a frame whose buffers do not match its camera.
@@ -188,9 +210,12 @@ impl Tracker {
         index: &KeyframeIndex,
         attempts: usize,
     ) -> Result<Option<TrackingResult>> {
-        for pose in index.candidates(frame, attempts) {
+        let downscale = self.config().model_downscale.max(1);
+        let (w, h) = ((frame.intrinsics.width / downscale) as usize, (frame.intrinsics.height / downscale) as usize);
+        for i in index.ranked(frame, attempts) {
+            let keyframe = &index.thumbnails[i];
             let mut attempt = self.clone();
-            attempt.restart_at(pose);
+            attempt.restart_at(keyframe.world_from_camera, Some(keyframe.depth_image(w, h)));
             let result = attempt.track(frame, map)?;
             if result.status == TrackingStatus::Tracked {
                 *self = attempt;

@@ -611,12 +611,14 @@ impl Tracker {
     }
 
     /// Continues from `world_from_camera` as if it were the last good pose, at rest, with no
-    /// cached model or march-start depth (both belong to the old pose): for relocalisation.
-    pub(crate) fn restart_at(&mut self, world_from_camera: Affine3A) {
+    /// cached model (it belongs to the old pose) and `start_depth` (depth seen from the new
+    /// pose, at the model's resolution) bounding the next ray-cast's march: for
+    /// relocalisation.
+    pub(crate) fn restart_at(&mut self, world_from_camera: Affine3A, start_depth: Option<Vec<f32>>) {
         self.last = Some(world_from_camera);
         self.velocity = Affine3A::IDENTITY;
         self.cache = None;
-        self.last_depth = None;
+        self.last_depth = start_depth;
     }
 
     /// Records an accepted frame: pose, keyframe, march-start depth.
