@@ -83,6 +83,26 @@ impl ConfusionMatrix {
         }
     }
 
+    /// Mean IoU over the classes present in the truth (0 when none is). On one scene, a
+    /// class the scene lacks scores 0 in [`ConfusionMatrix::miou`] as soon as a single vertex
+    /// is predicted as it; this mean leaves such classes out (their false positives still
+    /// lower the IoU of the true classes they were taken from).
+    pub fn miou_present(&self) -> f64 {
+        let k = self.classes;
+        let present: Vec<f64> = self
+            .iou()
+            .into_iter()
+            .enumerate()
+            .filter(|&(c, _)| (0..=k).any(|p| self.count(c, p) > 0))
+            .filter_map(|(_, iou)| iou)
+            .collect();
+        if present.is_empty() {
+            0.0
+        } else {
+            present.iter().sum::<f64>() / present.len() as f64
+        }
+    }
+
     /// Share of counted pairs predicted right (0 when nothing was counted).
     pub fn accuracy(&self) -> f64 {
         let total = self.total();
@@ -108,6 +128,8 @@ mod tests {
         assert_eq!(iou[2], Some(0.0));
         assert!((m.miou() - (2.0 / 3.0 + 1.0 / 3.0) / 3.0).abs() < 1e-12);
         assert!((m.accuracy() - 3.0 / 5.0).abs() < 1e-12);
+        // Class 2 is predicted but absent from the truth: left out of the present mean.
+        assert!((m.miou_present() - (2.0 / 3.0 + 1.0 / 3.0) / 2.0).abs() < 1e-12);
     }
 
     #[test]

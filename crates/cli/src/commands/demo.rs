@@ -61,6 +61,9 @@ struct Report {
     mesh_recall_5cm: Option<f64>,
     /// Mean IoU of the mesh vertices' classes against the nearest ground-truth surface's.
     miou: Option<f64>,
+    /// The same mean over the classes present in the scanned part of the room only (a class
+    /// out of view scores 0 in `miou` once a vertex is predicted as it).
+    miou_present_classes: Option<f64>,
     /// Per-class IoU (`null` for classes absent from both).
     class_iou: Option<Vec<Option<f64>>>,
     /// Vertex counts, `confusion[truth][predicted]`, in MISSION.md's class order.
@@ -153,6 +156,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             .as_ref()
             .and_then(|e| e.scores.iter().find(|t| (t.threshold_m - 0.05).abs() < 1e-6).map(|t| t.recall)),
         miou: score.as_ref().map(|s| s.0),
+        miou_present_classes: score.as_ref().map(|s| s.1.miou_present()),
         class_iou: score.as_ref().map(|s| s.1.iou()),
         confusion: score.as_ref().map(|s| {
             let cm = &s.1;
@@ -192,8 +196,9 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         report.mesh_recall_5cm.map_or("n/a".to_string(), |r| format!("{:.0}%", r * 100.0))
     );
     println!(
-        "semantics: mIoU {} over the mesh vertices, {} passes, {:.0}% of vertices labelled, up {} off",
+        "semantics: mIoU {} over the mesh vertices ({} over the classes in view), {} passes, {:.0}% of vertices labelled, up {} off",
         report.miou.map_or("n/a".to_string(), |m| format!("{:.1}%", m * 100.0)),
+        report.miou_present_classes.map_or("n/a".to_string(), |m| format!("{:.1}%", m * 100.0)),
         report.semantic_passes,
         report.labelled_vertices * 100.0,
         report.up_error_deg.map_or("n/a".to_string(), |d| format!("{d:.1} deg"))
