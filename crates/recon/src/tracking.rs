@@ -41,6 +41,9 @@ use crate::linalg::{cholesky_solve, symmetric_eigen};
 use crate::map::TsdfMap;
 use crate::raycast::{raycast, ModelView};
 
+#[cfg(target_arch = "x86_64")]
+mod avx2;
+
 /// Pyramid levels (0 = input resolution).
 pub const LEVELS: usize = 3;
 
@@ -1079,15 +1082,24 @@ impl<'a> StepParams<'a> {
             huber: c.huber_geometric,
         }
     }
+
+    /// Whether the model buffers cover every pixel index association can form, with
+    /// component offsets (`3 i + 2`) that fit an `i32` (what the AVX2 gathers rely on).
+    #[cfg(target_arch = "x86_64")]
+    fn gather_safe(&self) -> bool {
+        let pixels = self.mw * self.mh;
+        self.vertices.len() >= pixels && self.normals.len() >= pixels && pixels <= (i32::MAX as usize) / 4
+    }
 }
 
-/// [`block_sums_lanes`] compiled for AVX2 where the CPU has it (the arithmetic is the same
-/// IEEE operations in the same order, so both give the same bits), else for the baseline.
+/// [`block_sums_lanes`] in AVX2 intrinsics where the CPU has it (the same IEEE operations
+/// in the same order, so both give the same bits), else the portable lanes.
 fn block_sums(b: &PointBlock, s: &StepParams) -> Normals {
     #[cfg(target_arch = "x86_64")]
-    if avx2_available() {
-        // SAFETY: the CPU has AVX2 and FMA (checked at run time).
-        return unsafe { block_sums_avx2(b, s) };
+    if avx2_available() && s.gather_safe() {
+        // SAFETY: the CPU has AVX2 and FMA (checked at run time), the model buffers cover
+        // its pixels with i32 indices (checked above), and blocks are padded to whole lanes.
+        return unsafe { avx2::block_sums(b, s) };
     }
     block_sums_lanes(b, s)
 }
@@ -1103,10 +1115,44 @@ fn avx2_available() -> bool {
     })
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn block_sums_avx2(b: &PointBlock, s: &StepParams) -> Normals {
-    block_sums_lanes(b, s)
+/// Per-lane sums of one block: the upper triangle of H (21, row by row) then g (6), the
+/// squared residuals and the test counts, reduced to [`Normals`] in a fixed order.
+struct LaneSums {
+    sums: [[f32; LANES]; 27],
+    sq_res: [f64; LANES],
+    sq_norm: [f64; LANES],
+    inliers: [u32; LANES],
+    far: [u32; LANES],
+    turned: [u32; LANES],
+}
+
+impl LaneSums {
+    const ZERO: Self = Self {
+        sums: [[0.0; LANES]; 27],
+        sq_res: [0.0; LANES],
+        sq_norm: [0.0; LANES],
+        inliers: [0; LANES],
+        far: [0; LANES],
+        turned: [0; LANES],
+    };
+
+    fn into_normals(self) -> Normals {
+        let mut n = Normals::ZERO;
+        let mut k = 0;
+        for a in 0..6 {
+            for bb in a..6 {
+                n.h[a][bb] = self.sums[k].iter().fold(0.0f64, |acc, &v| acc + v as f64);
+                k += 1;
+            }
+            n.g[a] = self.sums[21 + a].iter().fold(0.0f64, |acc, &v| acc + v as f64);
+        }
+        n.sq_residual = self.sq_res.iter().sum();
+        n.sq_normalised = self.sq_norm.iter().sum();
+        n.inliers = self.inliers.iter().map(|&v| v as u64).sum();
+        n.far = self.far.iter().map(|&v| v as u64).sum();
+        n.turned = self.turned.iter().map(|&v| v as u64).sum();
+        n
+    }
 }
 
 /// The association and normal-equation sums of one block, [`LANES`] points at a time.
@@ -1116,10 +1162,8 @@ unsafe fn block_sums_avx2(b: &PointBlock, s: &StepParams) -> Normals {
 #[inline(always)]
 fn block_sums_lanes(b: &PointBlock, s: &StepParams) -> Normals {
     type L = [f32; LANES];
-    // Upper triangle of H (21, row by row) then g (6), per lane.
-    let mut sums = [[0.0f32; LANES]; 27];
-    let (mut sq_res, mut sq_norm) = ([0.0f64; LANES], [0.0f64; LANES]);
-    let (mut inliers, mut far, mut turned) = ([0u32; LANES], [0u32; LANES], [0u32; LANES]);
+    let mut out = LaneSums::ZERO;
+    let LaneSums { sums, sq_res, sq_norm, inliers, far, turned } = &mut out;
     let [r0, r1, r2] = s.rot;
     let t = s.trans;
     let (mwf, mhf) = (s.mw as f32, s.mh as f32);
@@ -1202,21 +1246,7 @@ fn block_sums_lanes(b: &PointBlock, s: &StepParams) -> Normals {
             }
         }
     }
-    let mut n = Normals::ZERO;
-    let mut k = 0;
-    for a in 0..6 {
-        for bb in a..6 {
-            n.h[a][bb] = sums[k].iter().fold(0.0f64, |acc, &v| acc + v as f64);
-            k += 1;
-        }
-        n.g[a] = sums[21 + a].iter().fold(0.0f64, |acc, &v| acc + v as f64);
-    }
-    n.sq_residual = sq_res.iter().sum();
-    n.sq_normalised = sq_norm.iter().sum();
-    n.inliers = inliers.iter().map(|&v| v as u64).sum();
-    n.far = far.iter().map(|&v| v as u64).sum();
-    n.turned = turned.iter().map(|&v| v as u64).sum();
-    n
+    out.into_normals()
 }
 
 /// Intensity residual `I_model(π(q)) - I_frame` and its Jacobian with respect to a left
@@ -1574,8 +1604,9 @@ mod tests {
                 let points = LevelPoints::new(&pyramid[level], pyramid.get(level + 1), 1);
                 for b in &points.blocks {
                     let portable = block_sums_lanes(b, &step);
-                    // SAFETY: checked above.
-                    let avx2 = unsafe { block_sums_avx2(b, &step) };
+                    assert!(step.gather_safe());
+                    // SAFETY: checked above; blocks are padded to whole lanes.
+                    let avx2 = unsafe { avx2::block_sums(b, &step) };
                     assert_eq!(normals_key(&portable), normals_key(&avx2));
                 }
             }
