@@ -304,6 +304,21 @@ pub fn raycast(
     max_depth: f32,
     start_depth: Option<&[f32]>,
 ) -> ModelView {
+    raycast_with(map, intrinsics, world_from_camera, min_depth, max_depth, start_depth, true)
+}
+
+/// [`raycast`], with the colours read only when `with_colors` (otherwise all black): the
+/// colour of a hit is one more memory access per ray (a separate array of the voxel
+/// block), which tracking without its photometric term does not use.
+pub(crate) fn raycast_with(
+    map: &TsdfMap,
+    intrinsics: Intrinsics,
+    world_from_camera: Affine3A,
+    min_depth: f32,
+    max_depth: f32,
+    start_depth: Option<&[f32]>,
+    with_colors: bool,
+) -> ModelView {
     let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
     let n = w * h;
     let c = map.config();
@@ -367,7 +382,9 @@ pub fn raycast(
                         let p_cam = ray_cam * (t * z_per_t);
                         vert_band[i] = p_cam;
                         norm_band[i] = if n_cam.dot(p_cam) > 0.0 { -n_cam } else { n_cam };
-                        color_band[i] = reader.color(hit);
+                        if with_colors {
+                            color_band[i] = reader.color(hit);
+                        }
                     }
                 }
             }

@@ -39,7 +39,7 @@ use wide::f32x8;
 use crate::error::{ReconError, Result};
 use crate::linalg::{cholesky_solve, symmetric_eigen};
 use crate::map::TsdfMap;
-use crate::raycast::{raycast, ModelView};
+use crate::raycast::{raycast_with, ModelView};
 
 #[cfg(target_arch = "x86_64")]
 mod avx2;
@@ -617,7 +617,15 @@ impl Tracker {
         let (view, reference, age, cast) = match cached {
             Some(m) => (m.view, m.pose, m.age, false),
             None => (
-                raycast(map, k, pose, self.config.min_depth, self.config.max_depth, self.last_depth.as_deref()),
+                raycast_with(
+                    map,
+                    k,
+                    pose,
+                    self.config.min_depth,
+                    self.config.max_depth,
+                    self.last_depth.as_deref(),
+                    self.config.photometric_weight > 0.0,
+                ),
                 pose,
                 0,
                 true,
@@ -659,11 +667,25 @@ fn model_intensity(view: &ModelView) -> (Vec<f32>, Vec<Vec2>) {
 /// The depth pyramid with vertices, normals and intensity per level.
 fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
     let k0 = frame.intrinsics;
-    let depth0: Vec<f32> = frame
-        .depth
-        .par_iter()
-        .map(|&d| if d.is_finite() && d >= c.min_depth && d <= c.max_depth { d } else { 0.0 })
-        .collect();
+    // Filtered and counted in one pass, bands of rows in parallel (a plain loop per band,
+    // which the compiler vectorises). A kept depth is positive: `-0.0` becomes `0.0`, which
+    // every later test reads as missing all the same.
+    let band = 16 * k0.width as usize;
+    let mut depth0 = vec![0.0f32; frame.depth.len()];
+    let valid0: usize = depth0
+        .par_chunks_mut(band)
+        .zip(frame.depth.par_chunks(band))
+        .map(|(out, src)| {
+            let mut valid = 0;
+            for (o, &d) in out.iter_mut().zip(src) {
+                // NaN fails every comparison, and the range is finite.
+                let keep = d > 0.0 && d >= c.min_depth && d <= c.max_depth;
+                *o = if keep { d } else { 0.0 };
+                valid += keep as usize;
+            }
+            valid
+        })
+        .sum();
     // Intensity only feeds the photometric term: empty at every level when it is off.
     let intensity0: Vec<f32> = if frame.color.is_empty() || c.photometric_weight <= 0.0 {
         Vec::new()
@@ -672,7 +694,6 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
     };
     // Level 0 takes its normals from level 1, and its vertices are one multiply-add away from
     // its depth: both are formed where association visits a pixel (a stride of them).
-    let valid0 = depth0.par_iter().filter(|&&d| d > 0.0).count();
     let mut levels = vec![Level {
         k: k0,
         depth: depth0,
@@ -693,11 +714,7 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
         depth.par_chunks_mut(w).enumerate().for_each(|(y, drow)| {
             // A row past the edge (odd heights) reads as invalid, as does a column.
             let src_row = |sy: usize| if sy < ph { &prev.depth[sy * pw..(sy + 1) * pw] } else { &[][..] };
-            let (r0, r1) = (src_row(2 * y), src_row(2 * y + 1));
-            let at = |r: &[f32], sx: usize| r.get(sx).copied().unwrap_or(0.0);
-            for (x, d) in drow.iter_mut().enumerate() {
-                *d = block_depth([at(r0, 2 * x), at(r0, 2 * x + 1), at(r1, 2 * x), at(r1, 2 * x + 1)]);
-            }
+            block_depth_row(src_row(2 * y), src_row(2 * y + 1), drow);
         });
         if has_intensity {
             intensity.par_chunks_mut(w).enumerate().for_each(|(y, irow)| {
@@ -761,6 +778,50 @@ fn block_depth(block: [f32; 4]) -> f32 {
         cnt += keep as u32;
     }
     sum / cnt as f32
+}
+
+/// One row of 2x2 block depths from two source rows (`out[x]` from columns `2x, 2x + 1`; a
+/// missing row or column reads as invalid): [`block_depth`] eight blocks at a time where
+/// all their columns exist, the same operations per lane (the same bits, tested), else
+/// block by block.
+fn block_depth_row(r0: &[f32], r1: &[f32], out: &mut [f32]) {
+    let full = if r0.len() == r1.len() { (r0.len() / 2).min(out.len()) / LANES * LANES } else { 0 };
+    for (x8, o) in out[..full].chunks_exact_mut(LANES).enumerate() {
+        let base = 2 * LANES * x8;
+        let col = |r: &[f32], odd: usize| f32x8::new(std::array::from_fn(|l| r[base + 2 * l + odd]));
+        o.copy_from_slice(&block_depth_lanes([col(r0, 0), col(r0, 1), col(r1, 0), col(r1, 1)]).to_array());
+    }
+    let at = |r: &[f32], sx: usize| r.get(sx).copied().unwrap_or(0.0);
+    for (x, d) in out.iter_mut().enumerate().skip(full) {
+        *d = block_depth([at(r0, 2 * x), at(r0, 2 * x + 1), at(r1, 2 * x), at(r1, 2 * x + 1)]);
+    }
+}
+
+/// [`block_depth`] of eight blocks, one per lane (the four depths of block `l` in lane `l`
+/// of `block[0..4]`): the same comparisons, selections and sums in the same order, without
+/// the branches.
+#[inline]
+fn block_depth_lanes(block: [f32x8; 4]) -> f32x8 {
+    let (zero, one) = (f32x8::ZERO, f32x8::ONE);
+    let valid = block.map(|d| d.simd_gt(zero));
+    let n = valid.iter().fold(zero, |n, &m| n + m.select(one, zero));
+    let mut v: [f32x8; 4] = std::array::from_fn(|k| valid[k].select(block[k], f32x8::splat(f32::INFINITY)));
+    // `sort4`'s network; depths are never NaN and never -0, so min and max need no care.
+    for (i, j) in [(0, 1), (2, 3), (0, 2), (1, 3), (1, 2)] {
+        let (a, b) = (v[i], v[j]);
+        v[i] = a.fast_min(b);
+        v[j] = a.fast_max(b);
+    }
+    // The lower median: the second value of three or four, else the first.
+    let median = n.simd_ge(f32x8::splat(3.0)).select(v[1], v[0]);
+    let tolerance = f32x8::splat(0.03) * median;
+    let (mut sum, mut count) = (zero, zero);
+    for (k, &d) in v.iter().enumerate() {
+        let keep = n.simd_gt(f32x8::splat(k as f32)) & (d - median).abs().simd_le(tolerance);
+        sum += keep.select(d, zero);
+        count += keep.select(one, zero);
+    }
+    n.simd_gt(zero).select(sum / count, zero)
 }
 
 /// Sorts four depths ascending with a five-comparison network (the pyramid's median of a
@@ -990,13 +1051,16 @@ impl LevelPoints {
         let blocks: Vec<(PointBlock, u64)> = rows
             .par_chunks(ROWS_PER_BLOCK)
             .map(|rows| {
+                // Written by index into zeroed buffers sized for every visited pixel (the
+                // padding is then already zero), not pushed: six capacity checks a point.
                 let capacity = (rows.len() * w.div_ceil(stride)).next_multiple_of(LANES);
-                let mut coords: [Vec<f32>; 6] = std::array::from_fn(|_| Vec::with_capacity(capacity));
-                let mut sampled = 0u64;
+                let mut coords: [Vec<f32>; 6] = std::array::from_fn(|_| vec![0.0; capacity]);
+                let [cx, cy, cz, cnx, cny, cnz] = &mut coords;
+                let (mut len, mut sampled) = (0usize, 0u64);
                 for &y in rows {
+                    let drow = &data.depth[y * w..(y + 1) * w];
                     for x in (0..w).step_by(stride) {
-                        let i = y * w + x;
-                        let d = data.depth[i];
+                        let d = drow[x];
                         sampled += (d > 0.0) as u64;
                         let (p, n) = if data.vertices.is_empty() {
                             let Some(c) = coarse else { continue };
@@ -1007,19 +1071,19 @@ impl LevelPoints {
                             }
                             (rays.unproject(x, y, d), c.own_normals[ci])
                         } else {
+                            let i = y * w + x;
                             (data.vertices[i], data.normals[i])
                         };
                         if n == Vec3::ZERO {
                             continue;
                         }
-                        for (v, x) in coords.iter_mut().zip([p.x, p.y, p.z, n.x, n.y, n.z]) {
-                            v.push(x);
-                        }
+                        (cx[len], cy[len], cz[len]) = (p.x, p.y, p.z);
+                        (cnx[len], cny[len], cnz[len]) = (n.x, n.y, n.z);
+                        len += 1;
                     }
                 }
-                let len = coords[0].len();
                 for v in &mut coords {
-                    v.resize(len.next_multiple_of(LANES), 0.0);
+                    v.truncate(len.next_multiple_of(LANES));
                 }
                 (PointBlock { coords, len }, sampled)
             })
@@ -1477,6 +1541,36 @@ mod tests {
                 kept.iter().fold(0.0f32, |s, d| s + d) / kept.len() as f32
             };
             assert_eq!(block_depth(block).to_bits(), want.to_bits(), "{block:?}");
+        }
+    }
+
+    #[test]
+    fn block_depth_rows_match_block_by_block() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        // Odd and even widths, rows past the edge, invalid, close and outlying depths.
+        for pw in [1usize, 7, 16, 33, 64, 161] {
+            let row = |rng: &mut rand_chacha::ChaCha8Rng| -> Vec<f32> {
+                (0..pw)
+                    .map(|_| match rng.random_range(0..4) {
+                        0 => 0.0,
+                        1 => 2.0,
+                        2 => 2.0 + rng.random_range(-0.05..0.05),
+                        _ => rng.random_range(0.5..4.0),
+                    })
+                    .collect()
+            };
+            for missing_row in [false, true] {
+                let (r0, r1) = (row(&mut rng), if missing_row { Vec::new() } else { row(&mut rng) });
+                let w = (pw / 2).max(1);
+                let mut got = vec![-1.0f32; w];
+                block_depth_row(&r0, &r1, &mut got);
+                let at = |r: &[f32], sx: usize| r.get(sx).copied().unwrap_or(0.0);
+                for (x, g) in got.iter().enumerate() {
+                    let want = block_depth([at(&r0, 2 * x), at(&r0, 2 * x + 1), at(&r1, 2 * x), at(&r1, 2 * x + 1)]);
+                    assert_eq!(g.to_bits(), want.to_bits(), "width {pw}, block {x}");
+                }
+            }
         }
     }
 
