@@ -123,7 +123,8 @@ fn percentiles(label: &str, ms: &mut [f64]) {
     let p95 = ms[(ms.len() * 95 / 100).min(ms.len() - 1)];
     let mean = ms.iter().sum::<f64>() / ms.len() as f64;
     println!(
-        "{label:<22} median {median:7.2}  mean {mean:7.2}  p95 {p95:7.2}  max {:7.2} ms  ({} samples)",
+        "{label:<22} median {median:7.2}  mean {mean:7.2}  p95 {p95:7.2}  min {:7.2}  max {:7.2} ms  ({} samples)",
+        ms[0],
         ms[ms.len() - 1],
         ms.len()
     );

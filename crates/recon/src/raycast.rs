@@ -24,7 +24,7 @@ use glam::{Affine3A, IVec3, Vec3};
 use rayon::prelude::*;
 use semrecon_data::Intrinsics;
 
-use crate::map::{split_voxel, ChunkKey, TsdfMap, VoxelBlock, CHUNK_SIDE, TSDF_SCALE};
+use crate::map::{split_voxel, BandModel, ChunkKey, TsdfMap, VoxelBlock, CHUNK_SIDE, TSDF_SCALE};
 
 /// A predicted view of the map from one camera pose.
 ///
@@ -331,6 +331,7 @@ pub(crate) fn raycast_with(
     let origin = Vec3::from(world_from_camera.translation);
     let camera_from_world_rot = rot.transpose();
     let valid_pose = world_from_camera.is_finite() && min_depth < max_depth;
+    let band_model = c.band_model();
     let grid = ChunkGrid::new(map);
     // Bands of TILE rows in parallel, each walked tile by tile (TILE x TILE pixels): rays
     // of a tile meet the same few chunks, so their voxels stay in cache (row order evicts
@@ -360,8 +361,7 @@ pub(crate) fn raycast_with(
                         if let Some(s) = start_depth {
                             match hint(s, w, h, u, v) {
                                 Some((near, far)) => {
-                                    d0 = d0.max(near - 3.0 * truncation);
-                                    d1 = d1.min(far + 3.0 * truncation);
+                                    (d0, d1) = hinted_range(d0, d1, near, far, band_model, truncation);
                                 }
                                 None => continue,
                             }
@@ -435,6 +435,18 @@ fn diff(reader: &mut VoxelReader, p: Vec3, axis: Vec3, f0: &mut Option<Option<f3
         (None, Some(b)) => Some(f - b),
         _ => None,
     }
+}
+
+/// The march range `d0..d1` (depths along the optical axis) narrowed to three truncation
+/// bands before `near` and after `far`, the nearest and farthest start depth around the
+/// pixel. The surface lies within the depth noise of a depth measured from this pose; the
+/// band is three times that noise where fusion makes it depth-dependent (a 10-voxel
+/// truncation has a 4-voxel band at 1 m), so three bands leave nine times the noise, and
+/// three full truncations would march through mostly unobserved space in front of a near
+/// surface. With a fixed band this is three truncations.
+#[inline]
+fn hinted_range(d0: f32, d1: f32, near: f32, far: f32, band: BandModel, truncation: f32) -> (f32, f32) {
+    (d0.max(near - 3.0 * (band.relative(near) * truncation)), d1.min(far + 3.0 * (band.relative(far) * truncation)))
 }
 
 /// The depth range to march for pixel `(u, v)` from the start-depth image: its own depth
@@ -548,50 +560,56 @@ mod tests {
             })
             .collect();
         let frame = Frame::from_depth(k, depth.clone());
-        let mut map = TsdfMap::new(TsdfConfig::default()).expect("config");
-        let moved = Affine3A::from_rotation_translation(glam::Quat::from_rotation_y(0.05), Vec3::new(0.03, 0.0, 0.0));
-        map.integrate(&frame, Affine3A::IDENTITY).expect("fusion");
-        map.integrate(&frame, moved).expect("fusion");
-        let pose = Affine3A::from_translation(Vec3::new(0.01, -0.01, 0.0));
-        let start_depth: Vec<f32> = depth.iter().enumerate().map(|(i, &d)| if i % 7 == 0 { 0.0 } else { d }).collect();
-        let no_grid = ChunkGrid { min: IVec3::ZERO, dims: IVec3::ZERO, slots: Vec::new(), occupied: Vec::new() };
-        let c = map.config();
-        let (voxel_size, truncation) = (c.voxel_size, c.truncation());
-        for start in [None, Some(&start_depth[..])] {
-            let view = raycast(&map, k, pose, 0.1, 5.0, start);
-            let mut hits = 0;
-            for i in 0..96 * 72 {
-                let (u, v) = (i % 96, i / 96);
-                // One ray alone, every voxel read through the map's hash index.
-                let mut reader = VoxelReader::new(&map, &no_grid);
-                let ray_cam = k.unproject(u as f32, v as f32, 1.0);
-                let z_per_t = 1.0 / ray_cam.length();
-                let dir = glam::Mat3::from(pose.matrix3) * (ray_cam * z_per_t);
-                let (mut d0, mut d1) = (0.1f32, 5.0f32);
-                let mut want = (Vec3::ZERO, Vec3::ZERO);
-                let range = match start {
-                    Some(sd) => hint(sd, 96, 72, u, v),
-                    None => Some((d0, d1)),
-                };
-                if let Some((near, far)) = range {
-                    if start.is_some() {
-                        d0 = d0.max(near - 3.0 * truncation);
-                        d1 = d1.min(far + 3.0 * truncation);
-                    }
-                    let origin = Vec3::from(pose.translation);
-                    let found = march(&mut reader, origin, dir, d0 / z_per_t, d1 / z_per_t, voxel_size, truncation);
-                    if let Some((p, t)) = found {
-                        if let Some(g) = gradient(&mut reader, p).filter(|g| g.length() > 1e-6) {
-                            let n = glam::Mat3::from(pose.matrix3).transpose() * (g / g.length());
-                            let p_cam = ray_cam * (t * z_per_t);
-                            want = (p_cam, if n.dot(p_cam) > 0.0 { -n } else { n });
+        // A fixed band and a depth-dependent one (a narrower march range).
+        let wide_truncation = TsdfConfig { truncation_voxels: 10.0, ..TsdfConfig::default() };
+        assert!(wide_truncation.band(0.8) < wide_truncation.truncation());
+        for config in [TsdfConfig::default(), wide_truncation] {
+            let mut map = TsdfMap::new(config).expect("config");
+            let moved =
+                Affine3A::from_rotation_translation(glam::Quat::from_rotation_y(0.05), Vec3::new(0.03, 0.0, 0.0));
+            map.integrate(&frame, Affine3A::IDENTITY).expect("fusion");
+            map.integrate(&frame, moved).expect("fusion");
+            let pose = Affine3A::from_translation(Vec3::new(0.01, -0.01, 0.0));
+            let start_depth: Vec<f32> =
+                depth.iter().enumerate().map(|(i, &d)| if i % 7 == 0 { 0.0 } else { d }).collect();
+            let no_grid = ChunkGrid { min: IVec3::ZERO, dims: IVec3::ZERO, slots: Vec::new(), occupied: Vec::new() };
+            let c = map.config();
+            let (voxel_size, truncation) = (c.voxel_size, c.truncation());
+            for start in [None, Some(&start_depth[..])] {
+                let view = raycast(&map, k, pose, 0.1, 5.0, start);
+                let mut hits = 0;
+                for i in 0..96 * 72 {
+                    let (u, v) = (i % 96, i / 96);
+                    // One ray alone, every voxel read through the map's hash index.
+                    let mut reader = VoxelReader::new(&map, &no_grid);
+                    let ray_cam = k.unproject(u as f32, v as f32, 1.0);
+                    let z_per_t = 1.0 / ray_cam.length();
+                    let dir = glam::Mat3::from(pose.matrix3) * (ray_cam * z_per_t);
+                    let (mut d0, mut d1) = (0.1f32, 5.0f32);
+                    let mut want = (Vec3::ZERO, Vec3::ZERO);
+                    let range = match start {
+                        Some(sd) => hint(sd, 96, 72, u, v),
+                        None => Some((d0, d1)),
+                    };
+                    if let Some((near, far)) = range {
+                        if start.is_some() {
+                            (d0, d1) = hinted_range(d0, d1, near, far, c.band_model(), truncation);
+                        }
+                        let origin = Vec3::from(pose.translation);
+                        let found = march(&mut reader, origin, dir, d0 / z_per_t, d1 / z_per_t, voxel_size, truncation);
+                        if let Some((p, t)) = found {
+                            if let Some(g) = gradient(&mut reader, p).filter(|g| g.length() > 1e-6) {
+                                let n = glam::Mat3::from(pose.matrix3).transpose() * (g / g.length());
+                                let p_cam = ray_cam * (t * z_per_t);
+                                want = (p_cam, if n.dot(p_cam) > 0.0 { -n } else { n });
+                            }
                         }
                     }
+                    assert_eq!((view.vertices[i], view.normals[i]), want, "pixel {u}, {v}");
+                    hits += (want.0.z > 0.0) as usize;
                 }
-                assert_eq!((view.vertices[i], view.normals[i]), want, "pixel {u}, {v}");
-                hits += (want.0.z > 0.0) as usize;
+                assert!(hits > 96 * 72 / 2, "{hits}");
             }
-            assert!(hits > 96 * 72 / 2, "{hits}");
         }
     }
 }
