@@ -48,7 +48,8 @@ pub(super) unsafe fn block_sums(b: &PointBlock, s: &StepParams) -> Normals {
         let nptr = s.normals.as_ptr() as *const f32;
         let mut acc = [_mm256_setzero_ps(); 27];
         let (mut sr, mut sn) = ([_mm256_setzero_pd(); 2], [_mm256_setzero_pd(); 2]);
-        let (mut c_in, mut c_far, mut c_turned) = (_mm256_setzero_si256(), _mm256_setzero_si256(), _mm256_setzero_si256());
+        let (mut c_in, mut c_far, mut c_turned) =
+            (_mm256_setzero_si256(), _mm256_setzero_si256(), _mm256_setzero_si256());
         let [px, py, pz, nx, ny, nz] = &b.coords;
         let mut g = 0;
         while g < b.len {
@@ -116,7 +117,9 @@ pub(super) unsafe fn block_sums(b: &PointBlock, s: &StepParams) -> Normals {
             let r = _mm256_and_ps(res, inlier);
             let wgt = _mm256_and_ps(w, inlier);
             let sd = _mm256_blendv_ps(one, scale, inlier);
-            let halves = |v: __m256| [_mm256_cvtps_pd(_mm256_castps256_ps128(v)), _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(v))];
+            let halves = |v: __m256| {
+                [_mm256_cvtps_pd(_mm256_castps256_ps128(v)), _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(v))]
+            };
             let (rd, sdd) = (halves(r), halves(sd));
             for h in 0..2 {
                 sr[h] = _mm256_add_pd(sr[h], _mm256_mul_pd(rd[h], rd[h]));
