@@ -29,6 +29,7 @@
 // the matrix formulas they implement.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{Affine3A, Mat3, Quat, Vec2, Vec3};
@@ -282,7 +283,8 @@ struct Level {
 
 /// The model view with its intensity image and gradients, ready for association.
 struct Model {
-    view: ModelView,
+    /// Shared with the tracker's cache (half a megabyte at 160x120: not copied a frame).
+    view: Arc<ModelView>,
     intensity: Vec<f32>,
     /// Intensity gradient per pixel, NaN where a neighbour has no surface (both empty when
     /// the photometric term is off).
@@ -417,7 +419,7 @@ struct CachedModel {
     age: usize,
     pose: Affine3A,
     stamp: (u64, usize),
-    view: ModelView,
+    view: Arc<ModelView>,
 }
 
 impl Tracker {
@@ -617,7 +619,7 @@ impl Tracker {
         let (view, reference, age, cast) = match cached {
             Some(m) => (m.view, m.pose, m.age, false),
             None => (
-                raycast_with(
+                Arc::new(raycast_with(
                     map,
                     k,
                     pose,
@@ -625,13 +627,13 @@ impl Tracker {
                     self.config.max_depth,
                     self.last_depth.as_deref(),
                     self.config.photometric_weight > 0.0,
-                ),
+                )),
                 pose,
                 0,
                 true,
             ),
         };
-        self.cache = Some(CachedModel { age, pose: reference, stamp, view: view.clone() });
+        self.cache = Some(CachedModel { age, pose: reference, stamp, view: Arc::clone(&view) });
         let (intensity, gradient) =
             if self.config.photometric_weight > 0.0 { model_intensity(&view) } else { (Vec::new(), Vec::new()) };
         (Model { view, intensity, gradient }, reference, cast)
@@ -679,7 +681,7 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
             let mut valid = 0;
             for (o, &d) in out.iter_mut().zip(src) {
                 // NaN fails every comparison, and the range is finite.
-                let keep = d > 0.0 && d >= c.min_depth && d <= c.max_depth;
+                let keep = (d > 0.0) & (d >= c.min_depth) & (d <= c.max_depth);
                 *o = if keep { d } else { 0.0 };
                 valid += keep as usize;
             }
@@ -1724,7 +1726,7 @@ mod tests {
             normals: l1.normals.clone(),
             colors: vec![[0; 3]; l1.vertices.len()],
         };
-        (pyramid, Model { view, intensity: Vec::new(), gradient: Vec::new() })
+        (pyramid, Model { view: Arc::new(view), intensity: Vec::new(), gradient: Vec::new() })
     }
 
     fn normals_key(n: &Normals) -> ([[f64; 6]; 6], [f64; 6], f64, f64, [u64; 4]) {
