@@ -113,10 +113,12 @@ pub struct TrackerConfig {
     /// The model is ray-cast anew after this many tracked frames and reused in between
     /// (frames are aligned to the view cast at an earlier pose; 1 casts every frame). The
     /// ray-cast is the largest cost of tracking, and a model a frame or two old differs
-    /// from the current one only by what those frames added. The default 3 casts a third of
-    /// the frames: on 7-Scenes (500 frames) the trajectory error is the same for 2, 3 and 4
-    /// (25.8 / 25.8 / 25.7 mm; rendered `synth:3` 2.84 / 2.82 / 2.81 mm), and the mean
-    /// tracking CPU per frame drops by about 15 % from 2 to 3.
+    /// from the current one only by what those frames added. The default 4 casts a quarter
+    /// of the frames: on 7-Scenes (500 frames) the trajectory error is the same for 2, 3 and
+    /// 4 (25.8 / 25.8 / 25.7 mm; rendered `synth:3` 2.84 / 2.82 / 2.81 mm), and with the
+    /// narrower march of session 5 4 is a little better than 3 everywhere measured
+    /// (7-Scenes 25.53 / 25.68 mm, at a 10-voxel truncation 26.57 / 26.64 mm, `synth:1`
+    /// 4.42 / 4.60 mm, `synth:3` 2.80 / 2.81 mm) for a fifth less mean tracking CPU.
     pub model_interval: usize,
 }
 
@@ -141,7 +143,7 @@ impl Default for TrackerConfig {
             min_valid_ratio: 0.05,
             keyframe_interval: 10,
             fine_stride: 2,
-            model_interval: 3,
+            model_interval: 4,
         }
     }
 }
