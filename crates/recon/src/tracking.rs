@@ -12,7 +12,8 @@
 //!
 //! Each level's visited pixels with a depth and a normal are gathered once per frame into
 //! structure-of-arrays blocks of rows; every iteration associates them eight at a time
-//! (AVX2 where the CPU has it, picked at run time, with the baseline's bits), sums the
+//! (AVX2 intrinsics in `avx2.rs` where the CPU has them, picked at run time, with the
+//! portable lanes' bits), sums the
 //! normal equations per lane in f32 and per fixed block in f64, and adds the blocks in
 //! order, so poses are bit-identical for any rayon thread count; a level stops iterating
 //! once the update is negligible. (The photometric term keeps a scalar per-pixel path.) The model is
@@ -940,7 +941,7 @@ fn normals_lanes(rays: &RayTable, depth: &[f32], w: usize, x: usize, y: usize) -
     // Depths are never NaN: `!(a > b)` is `a <= b`.
     let mut ok = dp.simd_gt(zero);
     for q in [dl, dr, du, dd] {
-        ok = ok & q.simd_gt(zero) & (q - dp).abs().simd_le(jump);
+        ok &= q.simd_gt(zero) & (q - dp).abs().simd_le(jump);
     }
     let p = [rx * dp, ry * dp, dp];
     let (l, r) = ([rxl * dl, ry * dl, dl], [rxr * dr, ry * dr, dr]);
@@ -950,7 +951,7 @@ fn normals_lanes(rays: &RayTable, depth: &[f32], w: usize, x: usize, y: usize) -
     // glam's `cross`, `length`, division and `dot`, operation for operation.
     let n = [a[1] * b[2] - b[1] * a[2], a[2] * b[0] - b[2] * a[0], a[0] * b[1] - b[0] * a[1]];
     let len = ((n[0] * n[0] + n[1] * n[1]) + n[2] * n[2]).sqrt();
-    ok = ok & len.simd_gt(zero);
+    ok &= len.simd_gt(zero);
     let n = n.map(|c| c / len);
     let flip = ((n[0] * p[0] + n[1] * p[1]) + n[2] * p[2]).simd_gt(zero);
     let n = n.map(|c| ok.select(flip.select(-c, c), zero).to_array());
