@@ -1778,20 +1778,36 @@ mod tests {
     fn avx2_lanes_give_the_portable_bits() {
         #[cfg(target_arch = "x86_64")]
         if avx2_available() {
-            let c = TrackerConfig { fine_stride: 1, ..TrackerConfig::default() };
-            let (pyramid, model) = bumpy_plane(&c);
-            let motion = se3_exp([0.001, -0.002, 0.0005, 0.002, 0.001, -0.003]);
-            let step = StepParams::new(&model, &motion, 0.01, &c);
-            for level in 0..2 {
-                let points = LevelPoints::new(&pyramid[level], pyramid.get(level + 1), 1);
-                for b in &points.blocks {
-                    let portable = block_sums_lanes(b, &step);
-                    assert!(step.gather_safe());
-                    // SAFETY: checked above; blocks are padded to whole lanes.
-                    let avx2 = unsafe { avx2::block_sums(b, &step) };
-                    assert_eq!(normals_key(&portable), normals_key(&avx2));
+            // Tight and loose gates (far and turned pairs), and a motion that moves part of
+            // the frame off the model's image.
+            let (mut far, mut turned, mut off) = (0, 0, 0);
+            for (angle, max_distance, xi) in [
+                (45f32, 0.01, [0.001, -0.002, 0.0005, 0.002, 0.001, -0.003]),
+                (10.0, 0.03, [0.001, -0.002, 0.0005, 0.002, 0.001, -0.003]),
+                (45.0, 0.05, [0.02, -0.1, 0.01, 0.3, 0.04, -0.02]),
+            ] {
+                let c = TrackerConfig {
+                    fine_stride: 1,
+                    max_normal_angle: angle.to_radians(),
+                    ..TrackerConfig::default()
+                };
+                let (pyramid, model) = bumpy_plane(&c);
+                let step = StepParams::new(&model, &se3_exp(xi), max_distance, &c);
+                assert!(step.gather_safe());
+                for level in 0..3 {
+                    let points = LevelPoints::new(&pyramid[level], pyramid.get(level + 1), 1);
+                    for b in &points.blocks {
+                        let portable = block_sums_lanes(b, &step);
+                        // SAFETY: checked above; blocks are padded to whole lanes.
+                        let avx2 = unsafe { avx2::block_sums(b, &step) };
+                        assert_eq!(normals_key(&portable), normals_key(&avx2));
+                        far += avx2.far;
+                        turned += avx2.turned;
+                        off += b.len as u64 - (avx2.inliers + avx2.far + avx2.turned);
+                    }
                 }
             }
+            assert!(far > 100 && turned > 100 && off > 100, "{far} {turned} {off}");
         }
     }
 
