@@ -1786,11 +1786,8 @@ mod tests {
                 (10.0, 0.03, [0.001, -0.002, 0.0005, 0.002, 0.001, -0.003]),
                 (45.0, 0.05, [0.02, -0.1, 0.01, 0.3, 0.04, -0.02]),
             ] {
-                let c = TrackerConfig {
-                    fine_stride: 1,
-                    max_normal_angle: angle.to_radians(),
-                    ..TrackerConfig::default()
-                };
+                let c =
+                    TrackerConfig { fine_stride: 1, max_normal_angle: angle.to_radians(), ..TrackerConfig::default() };
                 let (pyramid, model) = bumpy_plane(&c);
                 let step = StepParams::new(&model, &se3_exp(xi), max_distance, &c);
                 assert!(step.gather_safe());
