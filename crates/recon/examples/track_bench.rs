@@ -124,7 +124,13 @@ fn percentiles(label: &str, ms: &mut [f64]) {
     ms.sort_by(f64::total_cmp);
     let median = ms[ms.len() / 2];
     let p95 = ms[(ms.len() * 95 / 100).min(ms.len() - 1)];
-    println!("{label:<22} median {median:7.2}  p95 {p95:7.2}  max {:7.2} ms  ({} samples)", ms[ms.len() - 1], ms.len());
+    let mean = ms.iter().sum::<f64>() / ms.len() as f64;
+    println!(
+        "{label:<22} median {median:7.2}  mean {mean:7.2}  p95 {p95:7.2}  min {:7.2}  max {:7.2} ms  ({} samples)",
+        ms[0],
+        ms[ms.len() - 1],
+        ms.len()
+    );
 }
 
 fn run(a: Args) -> Result<(), String> {

@@ -151,6 +151,13 @@ const NOISE_CONSTANT: f32 = 0.0012;
 const NOISE_QUADRATIC: f32 = 0.0019;
 pub(crate) const NOISE_OFFSET: f32 = 0.4;
 
+/// The Kinect axial noise `sigma(z)` above, metres at depth `depth` metres.
+#[inline]
+pub(crate) fn depth_noise(depth: f32) -> f32 {
+    let e = depth - NOISE_OFFSET;
+    NOISE_CONSTANT + NOISE_QUADRATIC * (e * e)
+}
+
 /// The band of [`TsdfConfig::band`] in units of the truncation distance:
 /// `clamp(constant + quadratic (z - 0.4)^2, min_relative, 1)`. Fusion evaluates this exact
 /// expression in SIMD lanes, so selection, integration and tests agree bit for bit.

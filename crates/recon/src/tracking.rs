@@ -12,7 +12,8 @@
 //!
 //! Each level's visited pixels with a depth and a normal are gathered once per frame into
 //! structure-of-arrays blocks of rows; every iteration associates them eight at a time
-//! (AVX2 where the CPU has it, picked at run time, with the baseline's bits), sums the
+//! (AVX2 intrinsics in `avx2.rs` where the CPU has them, picked at run time, with the
+//! portable lanes' bits), sums the
 //! normal equations per lane in f32 and per fixed block in f64, and adds the blocks in
 //! order, so poses are bit-identical for any rayon thread count; a level stops iterating
 //! once the update is negligible. (The photometric term keeps a scalar per-pixel path.) The model is
@@ -29,6 +30,7 @@
 // the matrix formulas they implement.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{Affine3A, Mat3, Quat, Vec2, Vec3};
@@ -39,7 +41,10 @@ use wide::f32x8;
 use crate::error::{ReconError, Result};
 use crate::linalg::{cholesky_solve, symmetric_eigen};
 use crate::map::TsdfMap;
-use crate::raycast::{raycast, ModelView};
+use crate::raycast::{raycast_with, ModelView};
+
+#[cfg(target_arch = "x86_64")]
+mod avx2;
 
 /// Pyramid levels (0 = input resolution).
 pub const LEVELS: usize = 3;
@@ -119,10 +124,12 @@ pub struct TrackerConfig {
     /// The model is ray-cast anew after this many tracked frames and reused in between
     /// (frames are aligned to the view cast at an earlier pose; 1 casts every frame). The
     /// ray-cast is the largest cost of tracking, and a model a frame or two old differs
-    /// from the current one only by what those frames added. The default 3 casts a third of
-    /// the frames: on 7-Scenes (500 frames) the trajectory error is the same for 2, 3 and 4
-    /// (25.8 / 25.8 / 25.7 mm; rendered `synth:3` 2.84 / 2.82 / 2.81 mm), and the mean
-    /// tracking CPU per frame drops by about 15 % from 2 to 3.
+    /// from the current one only by what those frames added. The default 4 casts a quarter
+    /// of the frames: on 7-Scenes (500 frames) the trajectory error is the same for 2, 3 and
+    /// 4 (25.8 / 25.8 / 25.7 mm; rendered `synth:3` 2.84 / 2.82 / 2.81 mm), and with the
+    /// narrower march of session 5 4 is a little better than 3 everywhere measured
+    /// (7-Scenes 25.53 / 25.68 mm, at a 10-voxel truncation 26.57 / 26.64 mm, `synth:1`
+    /// 4.42 / 4.60 mm, `synth:3` 2.80 / 2.81 mm) for a fifth less mean tracking CPU.
     pub model_interval: usize,
 }
 
@@ -148,7 +155,7 @@ impl Default for TrackerConfig {
             min_valid_ratio: 0.05,
             keyframe_interval: 10,
             fine_stride: 2,
-            model_interval: 3,
+            model_interval: 4,
         }
     }
 }
@@ -297,7 +304,8 @@ struct Level {
 
 /// The model view with its intensity image and gradients, ready for association.
 struct Model {
-    view: ModelView,
+    /// Shared with the tracker's cache (half a megabyte at 160x120: not copied a frame).
+    view: Arc<ModelView>,
     intensity: Vec<f32>,
     /// Intensity gradient per pixel, NaN where a neighbour has no surface (both empty when
     /// the photometric term is off).
@@ -432,7 +440,7 @@ struct CachedModel {
     age: usize,
     pose: Affine3A,
     stamp: (u64, usize),
-    view: ModelView,
+    view: Arc<ModelView>,
 }
 
 impl Tracker {
@@ -647,13 +655,21 @@ impl Tracker {
         let (view, reference, age, cast) = match cached {
             Some(m) => (m.view, m.pose, m.age, false),
             None => (
-                raycast(map, k, pose, self.config.min_depth, self.config.max_depth, self.last_depth.as_deref()),
+                Arc::new(raycast_with(
+                    map,
+                    k,
+                    pose,
+                    self.config.min_depth,
+                    self.config.max_depth,
+                    self.last_depth.as_deref(),
+                    self.config.photometric_weight > 0.0,
+                )),
                 pose,
                 0,
                 true,
             ),
         };
-        self.cache = Some(CachedModel { age, pose: reference, stamp, view: view.clone() });
+        self.cache = Some(CachedModel { age, pose: reference, stamp, view: Arc::clone(&view) });
         let (intensity, gradient) =
             if self.config.photometric_weight > 0.0 { model_intensity(&view) } else { (Vec::new(), Vec::new()) };
         (Model { view, intensity, gradient }, reference, cast)
@@ -689,11 +705,25 @@ fn model_intensity(view: &ModelView) -> (Vec<f32>, Vec<Vec2>) {
 /// The depth pyramid with vertices, normals and intensity per level.
 fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
     let k0 = frame.intrinsics;
-    let depth0: Vec<f32> = frame
-        .depth
-        .par_iter()
-        .map(|&d| if d.is_finite() && d >= c.min_depth && d <= c.max_depth { d } else { 0.0 })
-        .collect();
+    // Filtered and counted in one pass, bands of rows in parallel (a plain loop per band,
+    // which the compiler vectorises). A kept depth is positive: `-0.0` becomes `0.0`, which
+    // every later test reads as missing all the same.
+    let band = 16 * k0.width as usize;
+    let mut depth0 = vec![0.0f32; frame.depth.len()];
+    let valid0: usize = depth0
+        .par_chunks_mut(band)
+        .zip(frame.depth.par_chunks(band))
+        .map(|(out, src)| {
+            let mut valid = 0;
+            for (o, &d) in out.iter_mut().zip(src) {
+                // NaN fails every comparison, and the range is finite.
+                let keep = (d > 0.0) & (d >= c.min_depth) & (d <= c.max_depth);
+                *o = if keep { d } else { 0.0 };
+                valid += keep as usize;
+            }
+            valid
+        })
+        .sum();
     // Intensity only feeds the photometric term: empty at every level when it is off.
     let intensity0: Vec<f32> = if frame.color.is_empty() || c.photometric_weight <= 0.0 {
         Vec::new()
@@ -702,7 +732,6 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
     };
     // Level 0 takes its normals from level 1, and its vertices are one multiply-add away from
     // its depth: both are formed where association visits a pixel (a stride of them).
-    let valid0 = depth0.par_iter().filter(|&&d| d > 0.0).count();
     let mut levels = vec![Level {
         k: k0,
         depth: depth0,
@@ -723,11 +752,7 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
         depth.par_chunks_mut(w).enumerate().for_each(|(y, drow)| {
             // A row past the edge (odd heights) reads as invalid, as does a column.
             let src_row = |sy: usize| if sy < ph { &prev.depth[sy * pw..(sy + 1) * pw] } else { &[][..] };
-            let (r0, r1) = (src_row(2 * y), src_row(2 * y + 1));
-            let at = |r: &[f32], sx: usize| r.get(sx).copied().unwrap_or(0.0);
-            for (x, d) in drow.iter_mut().enumerate() {
-                *d = block_depth([at(r0, 2 * x), at(r0, 2 * x + 1), at(r1, 2 * x), at(r1, 2 * x + 1)]);
-            }
+            block_depth_row(src_row(2 * y), src_row(2 * y + 1), drow);
         });
         if has_intensity {
             intensity.par_chunks_mut(w).enumerate().for_each(|(y, irow)| {
@@ -793,6 +818,50 @@ fn block_depth(block: [f32; 4]) -> f32 {
     sum / cnt as f32
 }
 
+/// One row of 2x2 block depths from two source rows (`out[x]` from columns `2x, 2x + 1`; a
+/// missing row or column reads as invalid): [`block_depth`] eight blocks at a time where
+/// all their columns exist, the same operations per lane (the same bits, tested), else
+/// block by block.
+fn block_depth_row(r0: &[f32], r1: &[f32], out: &mut [f32]) {
+    let full = if r0.len() == r1.len() { (r0.len() / 2).min(out.len()) / LANES * LANES } else { 0 };
+    for (x8, o) in out[..full].chunks_exact_mut(LANES).enumerate() {
+        let base = 2 * LANES * x8;
+        let col = |r: &[f32], odd: usize| f32x8::new(std::array::from_fn(|l| r[base + 2 * l + odd]));
+        o.copy_from_slice(&block_depth_lanes([col(r0, 0), col(r0, 1), col(r1, 0), col(r1, 1)]).to_array());
+    }
+    let at = |r: &[f32], sx: usize| r.get(sx).copied().unwrap_or(0.0);
+    for (x, d) in out.iter_mut().enumerate().skip(full) {
+        *d = block_depth([at(r0, 2 * x), at(r0, 2 * x + 1), at(r1, 2 * x), at(r1, 2 * x + 1)]);
+    }
+}
+
+/// [`block_depth`] of eight blocks, one per lane (the four depths of block `l` in lane `l`
+/// of `block[0..4]`): the same comparisons, selections and sums in the same order, without
+/// the branches.
+#[inline]
+fn block_depth_lanes(block: [f32x8; 4]) -> f32x8 {
+    let (zero, one) = (f32x8::ZERO, f32x8::ONE);
+    let valid = block.map(|d| d.simd_gt(zero));
+    let n = valid.iter().fold(zero, |n, &m| n + m.select(one, zero));
+    let mut v: [f32x8; 4] = std::array::from_fn(|k| valid[k].select(block[k], f32x8::splat(f32::INFINITY)));
+    // `sort4`'s network; depths are never NaN and never -0, so min and max need no care.
+    for (i, j) in [(0, 1), (2, 3), (0, 2), (1, 3), (1, 2)] {
+        let (a, b) = (v[i], v[j]);
+        v[i] = a.fast_min(b);
+        v[j] = a.fast_max(b);
+    }
+    // The lower median: the second value of three or four, else the first.
+    let median = n.simd_ge(f32x8::splat(3.0)).select(v[1], v[0]);
+    let tolerance = f32x8::splat(0.03) * median;
+    let (mut sum, mut count) = (zero, zero);
+    for (k, &d) in v.iter().enumerate() {
+        let keep = n.simd_gt(f32x8::splat(k as f32)) & (d - median).abs().simd_le(tolerance);
+        sum += keep.select(d, zero);
+        count += keep.select(one, zero);
+    }
+    n.simd_gt(zero).select(sum / count, zero)
+}
+
 /// Sorts four depths ascending with a five-comparison network (the pyramid's median of a
 /// 2x2 block; a library sort is an out-of-line call per block). Depths are never NaN.
 #[inline]
@@ -848,28 +917,78 @@ fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>, with_normals:
         if !with_normals || y == 0 || y + 1 >= h {
             return;
         }
-        for x in 1..w.saturating_sub(1) {
-            let i = y * w + x;
-            let p = vertices[i];
-            if p.z <= 0.0 {
-                continue;
-            }
-            let (l, r, u, d) = (vertices[i - 1], vertices[i + 1], vertices[i - w], vertices[i + w]);
-            let jump = 0.05 * p.z;
-            if [l, r, u, d].iter().any(|q| q.z <= 0.0 || (q.z - p.z).abs() > jump) {
-                continue;
-            }
-            let n = (d - u).cross(r - l);
-            let len = n.length();
-            if !(len > 0.0) {
-                continue;
-            }
-            let n = n / len;
-            row[x] = if n.dot(p) > 0.0 { -n } else { n };
+        let inner = w.saturating_sub(2);
+        let lanes_end = 1 + inner / LANES * LANES;
+        for x in (1..lanes_end).step_by(LANES) {
+            row[x..x + LANES].copy_from_slice(&normals_lanes(&rays, &depth, w, x, y));
+        }
+        for x in lanes_end..w.saturating_sub(1) {
+            row[x] = pixel_normal(&vertices, w, y * w + x);
         }
     });
     let valid = depth.iter().filter(|&&d| d > 0.0).count();
     Level { k, depth, vertices, normals, intensity, valid, own_normals: Vec::new() }
+}
+
+/// The normal of inner pixel `i` of a level from its four neighbours' vertices (zero where
+/// a neighbour is missing or more than 5% of the depth away: a depth edge), facing the
+/// camera.
+#[inline]
+fn pixel_normal(vertices: &[Vec3], w: usize, i: usize) -> Vec3 {
+    let p = vertices[i];
+    if p.z <= 0.0 {
+        return Vec3::ZERO;
+    }
+    let (l, r, u, d) = (vertices[i - 1], vertices[i + 1], vertices[i - w], vertices[i + w]);
+    let jump = 0.05 * p.z;
+    if [l, r, u, d].iter().any(|q| q.z <= 0.0 || (q.z - p.z).abs() > jump) {
+        return Vec3::ZERO;
+    }
+    let n = (d - u).cross(r - l);
+    let len = n.length();
+    if !(len > 0.0) {
+        return Vec3::ZERO;
+    }
+    let n = n / len;
+    if n.dot(p) > 0.0 {
+        -n
+    } else {
+        n
+    }
+}
+
+/// [`pixel_normal`] of the eight inner pixels `x..x + 8` of row `y`, one per lane, with the
+/// vertices formed from the depths as [`RayTable::unproject`] forms them (contiguous loads
+/// instead of interleaved vectors): the same operations in the same order, so the same
+/// bits (tested).
+#[inline]
+fn normals_lanes(rays: &RayTable, depth: &[f32], w: usize, x: usize, y: usize) -> [Vec3; LANES] {
+    let load = |s: &[f32], at: usize| f32x8::new(std::array::from_fn(|l| s[at + l]));
+    let i = y * w + x;
+    let (dp, dl, dr, du, dd) =
+        (load(depth, i), load(depth, i - 1), load(depth, i + 1), load(depth, i - w), load(depth, i + w));
+    let (rx, rxl, rxr) = (load(&rays.x, x), load(&rays.x, x - 1), load(&rays.x, x + 1));
+    let (ry, ryu, ryd) = (f32x8::splat(rays.y[y]), f32x8::splat(rays.y[y - 1]), f32x8::splat(rays.y[y + 1]));
+    let zero = f32x8::ZERO;
+    let jump = f32x8::splat(0.05) * dp;
+    // Depths are never NaN: `!(a > b)` is `a <= b`.
+    let mut ok = dp.simd_gt(zero);
+    for q in [dl, dr, du, dd] {
+        ok &= q.simd_gt(zero) & (q - dp).abs().simd_le(jump);
+    }
+    let p = [rx * dp, ry * dp, dp];
+    let (l, r) = ([rxl * dl, ry * dl, dl], [rxr * dr, ry * dr, dr]);
+    let (u, d) = ([rx * du, ryu * du, du], [rx * dd, ryd * dd, dd]);
+    let a = [d[0] - u[0], d[1] - u[1], d[2] - u[2]];
+    let b = [r[0] - l[0], r[1] - l[1], r[2] - l[2]];
+    // glam's `cross`, `length`, division and `dot`, operation for operation.
+    let n = [a[1] * b[2] - b[1] * a[2], a[2] * b[0] - b[2] * a[0], a[0] * b[1] - b[0] * a[1]];
+    let len = ((n[0] * n[0] + n[1] * n[1]) + n[2] * n[2]).sqrt();
+    ok &= len.simd_gt(zero);
+    let n = n.map(|c| c / len);
+    let flip = ((n[0] * p[0] + n[1] * p[1]) + n[2] * p[2]).simd_gt(zero);
+    let n = n.map(|c| ok.select(flip.select(-c, c), zero).to_array());
+    std::array::from_fn(|l| Vec3::new(n[0][l], n[1][l], n[2][l]))
 }
 
 /// Normal equations of one Gauss-Newton step at `estimate` (`reference_from_current`: the model view's camera from the frame's).
@@ -1020,13 +1139,16 @@ impl LevelPoints {
         let blocks: Vec<(PointBlock, u64)> = rows
             .par_chunks(ROWS_PER_BLOCK)
             .map(|rows| {
+                // Written by index into zeroed buffers sized for every visited pixel (the
+                // padding is then already zero), not pushed: six capacity checks a point.
                 let capacity = (rows.len() * w.div_ceil(stride)).next_multiple_of(LANES);
-                let mut coords: [Vec<f32>; 6] = std::array::from_fn(|_| Vec::with_capacity(capacity));
-                let mut sampled = 0u64;
+                let mut coords: [Vec<f32>; 6] = std::array::from_fn(|_| vec![0.0; capacity]);
+                let [cx, cy, cz, cnx, cny, cnz] = &mut coords;
+                let (mut len, mut sampled) = (0usize, 0u64);
                 for &y in rows {
+                    let drow = &data.depth[y * w..(y + 1) * w];
                     for x in (0..w).step_by(stride) {
-                        let i = y * w + x;
-                        let d = data.depth[i];
+                        let d = drow[x];
                         sampled += (d > 0.0) as u64;
                         let (p, n) = if data.vertices.is_empty() {
                             let Some(c) = coarse else { continue };
@@ -1037,19 +1159,19 @@ impl LevelPoints {
                             }
                             (rays.unproject(x, y, d), c.own_normals[ci])
                         } else {
+                            let i = y * w + x;
                             (data.vertices[i], data.normals[i])
                         };
                         if n == Vec3::ZERO {
                             continue;
                         }
-                        for (v, x) in coords.iter_mut().zip([p.x, p.y, p.z, n.x, n.y, n.z]) {
-                            v.push(x);
-                        }
+                        (cx[len], cy[len], cz[len]) = (p.x, p.y, p.z);
+                        (cnx[len], cny[len], cnz[len]) = (n.x, n.y, n.z);
+                        len += 1;
                     }
                 }
-                let len = coords[0].len();
                 for v in &mut coords {
-                    v.resize(len.next_multiple_of(LANES), 0.0);
+                    v.truncate(len.next_multiple_of(LANES));
                 }
                 (PointBlock { coords, len }, sampled)
             })
@@ -1112,15 +1234,24 @@ impl<'a> StepParams<'a> {
             huber: c.huber_geometric,
         }
     }
+
+    /// Whether the model buffers cover every pixel index association can form, with
+    /// component offsets (`3 i + 2`) that fit an `i32` (what the AVX2 gathers rely on).
+    #[cfg(target_arch = "x86_64")]
+    fn gather_safe(&self) -> bool {
+        let pixels = self.mw * self.mh;
+        self.vertices.len() >= pixels && self.normals.len() >= pixels && pixels <= (i32::MAX as usize) / 4
+    }
 }
 
-/// [`block_sums_lanes`] compiled for AVX2 where the CPU has it (the arithmetic is the same
-/// IEEE operations in the same order, so both give the same bits), else for the baseline.
+/// [`block_sums_lanes`] in AVX2 intrinsics where the CPU has it (the same IEEE operations
+/// in the same order, so both give the same bits), else the portable lanes.
 fn block_sums(b: &PointBlock, s: &StepParams) -> Normals {
     #[cfg(target_arch = "x86_64")]
-    if avx2_available() {
-        // SAFETY: the CPU has AVX2 and FMA (checked at run time).
-        return unsafe { block_sums_avx2(b, s) };
+    if avx2_available() && s.gather_safe() {
+        // SAFETY: the CPU has AVX2 and FMA (checked at run time), the model buffers cover
+        // its pixels with i32 indices (checked above), and blocks are padded to whole lanes.
+        return unsafe { avx2::block_sums(b, s) };
     }
     block_sums_lanes(b, s)
 }
@@ -1136,10 +1267,44 @@ fn avx2_available() -> bool {
     })
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn block_sums_avx2(b: &PointBlock, s: &StepParams) -> Normals {
-    block_sums_lanes(b, s)
+/// Per-lane sums of one block: the upper triangle of H (21, row by row) then g (6), the
+/// squared residuals and the test counts, reduced to [`Normals`] in a fixed order.
+struct LaneSums {
+    sums: [[f32; LANES]; 27],
+    sq_res: [f64; LANES],
+    sq_norm: [f64; LANES],
+    inliers: [u32; LANES],
+    far: [u32; LANES],
+    turned: [u32; LANES],
+}
+
+impl LaneSums {
+    const ZERO: Self = Self {
+        sums: [[0.0; LANES]; 27],
+        sq_res: [0.0; LANES],
+        sq_norm: [0.0; LANES],
+        inliers: [0; LANES],
+        far: [0; LANES],
+        turned: [0; LANES],
+    };
+
+    fn into_normals(self) -> Normals {
+        let mut n = Normals::ZERO;
+        let mut k = 0;
+        for a in 0..6 {
+            for bb in a..6 {
+                n.h[a][bb] = self.sums[k].iter().fold(0.0f64, |acc, &v| acc + v as f64);
+                k += 1;
+            }
+            n.g[a] = self.sums[21 + a].iter().fold(0.0f64, |acc, &v| acc + v as f64);
+        }
+        n.sq_residual = self.sq_res.iter().sum();
+        n.sq_normalised = self.sq_norm.iter().sum();
+        n.inliers = self.inliers.iter().map(|&v| v as u64).sum();
+        n.far = self.far.iter().map(|&v| v as u64).sum();
+        n.turned = self.turned.iter().map(|&v| v as u64).sum();
+        n
+    }
 }
 
 /// The association and normal-equation sums of one block, [`LANES`] points at a time.
@@ -1149,10 +1314,8 @@ unsafe fn block_sums_avx2(b: &PointBlock, s: &StepParams) -> Normals {
 #[inline(always)]
 fn block_sums_lanes(b: &PointBlock, s: &StepParams) -> Normals {
     type L = [f32; LANES];
-    // Upper triangle of H (21, row by row) then g (6), per lane.
-    let mut sums = [[0.0f32; LANES]; 27];
-    let (mut sq_res, mut sq_norm) = ([0.0f64; LANES], [0.0f64; LANES]);
-    let (mut inliers, mut far, mut turned) = ([0u32; LANES], [0u32; LANES], [0u32; LANES]);
+    let mut out = LaneSums::ZERO;
+    let LaneSums { sums, sq_res, sq_norm, inliers, far, turned } = &mut out;
     let [r0, r1, r2] = s.rot;
     let t = s.trans;
     let (mwf, mhf) = (s.mw as f32, s.mh as f32);
@@ -1235,21 +1398,7 @@ fn block_sums_lanes(b: &PointBlock, s: &StepParams) -> Normals {
             }
         }
     }
-    let mut n = Normals::ZERO;
-    let mut k = 0;
-    for a in 0..6 {
-        for bb in a..6 {
-            n.h[a][bb] = sums[k].iter().fold(0.0f64, |acc, &v| acc + v as f64);
-            k += 1;
-        }
-        n.g[a] = sums[21 + a].iter().fold(0.0f64, |acc, &v| acc + v as f64);
-    }
-    n.sq_residual = sq_res.iter().sum();
-    n.sq_normalised = sq_norm.iter().sum();
-    n.inliers = inliers.iter().map(|&v| v as u64).sum();
-    n.far = far.iter().map(|&v| v as u64).sum();
-    n.turned = turned.iter().map(|&v| v as u64).sum();
-    n
+    out.into_normals()
 }
 
 /// Intensity residual `I_model(π(q)) - I_frame` and its Jacobian with respect to a left
@@ -1529,6 +1678,69 @@ mod tests {
     }
 
     #[test]
+    fn block_depth_rows_match_block_by_block() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        // Odd and even widths, rows past the edge, invalid, close and outlying depths.
+        for pw in [1usize, 7, 16, 33, 64, 161] {
+            let row = |rng: &mut rand_chacha::ChaCha8Rng| -> Vec<f32> {
+                (0..pw)
+                    .map(|_| match rng.random_range(0..4) {
+                        0 => 0.0,
+                        1 => 2.0,
+                        2 => 2.0 + rng.random_range(-0.05..0.05),
+                        _ => rng.random_range(0.5..4.0),
+                    })
+                    .collect()
+            };
+            for missing_row in [false, true] {
+                let (r0, r1) = (row(&mut rng), if missing_row { Vec::new() } else { row(&mut rng) });
+                let w = (pw / 2).max(1);
+                let mut got = vec![-1.0f32; w];
+                block_depth_row(&r0, &r1, &mut got);
+                let at = |r: &[f32], sx: usize| r.get(sx).copied().unwrap_or(0.0);
+                for (x, g) in got.iter().enumerate() {
+                    let want = block_depth([at(&r0, 2 * x), at(&r0, 2 * x + 1), at(&r1, 2 * x), at(&r1, 2 * x + 1)]);
+                    assert_eq!(g.to_bits(), want.to_bits(), "width {pw}, block {x}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn lane_normals_match_the_pixel_rule() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(13);
+        // Widths with and without a scalar tail; bumps, holes and depth edges.
+        for w in [3usize, 10, 37, 64] {
+            let h = 9;
+            let k = Intrinsics::new(w as u32, h as u32, 30.0, 31.0, w as f32 / 2.0, 4.0).expect("camera");
+            let depth: Vec<f32> = (0..w * h)
+                .map(|i| match rng.random_range(0..10) {
+                    0 => 0.0,
+                    1 => rng.random_range(0.5..4.0),
+                    _ => 1.5 + 0.01 * (i % w) as f32 + rng.random_range(-0.004..0.004),
+                })
+                .collect();
+            let level = make_level(k, depth, Vec::new(), true);
+            let (mut set, mut zero) = (0, 0);
+            for y in 1..h - 1 {
+                for x in 1..w - 1 {
+                    let want = pixel_normal(&level.vertices, w, y * w + x);
+                    let got = level.normals[y * w + x];
+                    assert_eq!(got.to_array().map(f32::to_bits), want.to_array().map(f32::to_bits), "{x}, {y}");
+                    if want == Vec3::ZERO {
+                        zero += 1;
+                    } else {
+                        set += 1;
+                    }
+                }
+            }
+            assert!(w < 10 || (set > 0 && zero > 0), "{set} {zero}");
+        }
+    }
+
+    #[test]
     fn sort4_sorts_like_the_library() {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
@@ -1595,7 +1807,7 @@ mod tests {
             normals: l1.normals.clone(),
             colors: vec![[0; 3]; l1.vertices.len()],
         };
-        (pyramid, Model { view, intensity: Vec::new(), gradient: Vec::new() })
+        (pyramid, Model { view: Arc::new(view), intensity: Vec::new(), gradient: Vec::new() })
     }
 
     fn normals_key(n: &Normals) -> ([[f64; 6]; 6], [f64; 6], f64, f64, [u64; 4]) {
@@ -1644,19 +1856,33 @@ mod tests {
     fn avx2_lanes_give_the_portable_bits() {
         #[cfg(target_arch = "x86_64")]
         if avx2_available() {
-            let c = TrackerConfig { fine_stride: 1, ..TrackerConfig::default() };
-            let (pyramid, model) = bumpy_plane(&c);
-            let motion = se3_exp([0.001, -0.002, 0.0005, 0.002, 0.001, -0.003]);
-            let step = StepParams::new(&model, &motion, 0.01, &c);
-            for level in 0..2 {
-                let points = LevelPoints::new(&pyramid[level], pyramid.get(level + 1), 1);
-                for b in &points.blocks {
-                    let portable = block_sums_lanes(b, &step);
-                    // SAFETY: checked above.
-                    let avx2 = unsafe { block_sums_avx2(b, &step) };
-                    assert_eq!(normals_key(&portable), normals_key(&avx2));
+            // Tight and loose gates (far and turned pairs), and a motion that moves part of
+            // the frame off the model's image.
+            let (mut far, mut turned, mut off) = (0, 0, 0);
+            for (angle, max_distance, xi) in [
+                (45f32, 0.01, [0.001, -0.002, 0.0005, 0.002, 0.001, -0.003]),
+                (10.0, 0.03, [0.001, -0.002, 0.0005, 0.002, 0.001, -0.003]),
+                (45.0, 0.05, [0.02, -0.1, 0.01, 0.3, 0.04, -0.02]),
+            ] {
+                let c =
+                    TrackerConfig { fine_stride: 1, max_normal_angle: angle.to_radians(), ..TrackerConfig::default() };
+                let (pyramid, model) = bumpy_plane(&c);
+                let step = StepParams::new(&model, &se3_exp(xi), max_distance, &c);
+                assert!(step.gather_safe());
+                for level in 0..3 {
+                    let points = LevelPoints::new(&pyramid[level], pyramid.get(level + 1), 1);
+                    for b in &points.blocks {
+                        let portable = block_sums_lanes(b, &step);
+                        // SAFETY: checked above; blocks are padded to whole lanes.
+                        let avx2 = unsafe { avx2::block_sums(b, &step) };
+                        assert_eq!(normals_key(&portable), normals_key(&avx2));
+                        far += avx2.far;
+                        turned += avx2.turned;
+                        off += b.len as u64 - (avx2.inliers + avx2.far + avx2.turned);
+                    }
                 }
             }
+            assert!(far > 100 && turned > 100 && off > 100, "{far} {turned} {off}");
         }
     }
 

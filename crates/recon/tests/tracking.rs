@@ -38,6 +38,8 @@ fn raycast_reproduces_the_fused_depth() {
     // The previous depth as march-start hint gives the same surface.
     let hinted = raycast(&map, f.intrinsics, gt(f), 0.1, 5.0, Some(&f.depth));
     let (mut n, mut close, mut both, mut same) = (0, 0, 0, 0);
+    // Absolute depth errors (the ideal sensor's depth is exact) of the two casts where both hit.
+    let (mut err_plain, mut err_hinted) = (0.0f64, 0.0f64);
     for ((d, v), h) in f.depth.iter().zip(&view.vertices).zip(&hinted.vertices) {
         if *d > 0.0 {
             n += 1;
@@ -47,14 +49,22 @@ fn raycast_reproduces_the_fused_depth() {
             if (d - v.z).abs() < 0.005 {
                 close += 1;
             }
-            if (h.z - v.z).abs() < 1e-4 {
+            // The hinted march starts closer to the surface, so its samples (and the
+            // interpolated crossing) fall elsewhere: the same surface within a millimetre.
+            if (h.z - v.z).abs() < 1e-3 {
                 same += 1;
+            }
+            if h.z > 0.0 {
+                err_plain += (d - v.z).abs() as f64;
+                err_hinted += (d - h.z).abs() as f64;
             }
         }
     }
     assert!(both as f32 > 0.95 * n as f32, "{both} of {n} pixels hit");
     assert!(close as f32 > 0.99 * both as f32, "{close} of {both} within 5 mm");
     assert!(same as f32 > 0.99 * both as f32, "{same} of {both} equal with the hint");
+    assert!(err_hinted <= 1.05 * err_plain, "hinted cast less accurate: {err_hinted} against {err_plain}");
+    assert!(err_plain / (both as f64) < 3e-4, "mean error {} m", err_plain / both as f64);
     // Normals face the camera and are unit length.
     for (v, nrm) in view.vertices.iter().zip(&view.normals) {
         if v.z > 0.0 {
