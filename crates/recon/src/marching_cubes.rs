@@ -928,10 +928,22 @@ impl IncrementalMesher {
                 remesh[entry_of[slot as usize] as usize] = true;
             }
         }
-        let remeshed = remesh.iter().filter(|&&r| r).count();
-        self.entries.par_iter_mut().zip(&remesh).filter(|(_, &r)| r).for_each_init(Scratch::new, |s, (e, _)| {
-            remesh_into(map, e.key, s, &mut e.mesh);
-        });
+        // Re-meshed in key order, each worker over a run of neighbouring chunks: a chunk's
+        // upper neighbours, whose voxels it reads, are the next ones meshed, so their blocks
+        // are still cached (the slab's creation order scattered them).
+        let mut jobs: Vec<(ChunkKey, u32, ChunkMesh)> = self
+            .entries
+            .iter_mut()
+            .enumerate()
+            .filter(|(i, _)| remesh[*i])
+            .map(|(i, e)| (e.key, i as u32, std::mem::take(&mut e.mesh)))
+            .collect();
+        jobs.par_sort_unstable_by_key(|j| key_order(j.0));
+        let remeshed = jobs.len();
+        jobs.par_iter_mut().for_each_init(Scratch::new, |s, (key, _, mesh)| remesh_into(map, *key, s, mesh));
+        for (_, i, mesh) in jobs {
+            self.entries[i as usize].mesh = mesh;
+        }
         MeshingStats {
             changed_chunks: changed_count + freed.len(),
             remeshed_chunks: remeshed,
