@@ -129,24 +129,6 @@ fn edge_color(ca: [u8; 4], cb: [u8; 4], s: f32) -> [u8; 3] {
     [c.x as u8, c.y as u8, c.z as u8]
 }
 
-/// Per case, bit `e` set when edge `e` joins corners of different signs (crosses the surface).
-const CROSSED: [u16; 256] = {
-    let mut t = [0u16; 256];
-    let mut case = 0;
-    while case < 256 {
-        let mut e = 0;
-        while e < 12 {
-            let (a, b) = EDGES[e];
-            if ((case >> a) ^ (case >> b)) & 1 != 0 {
-                t[case] |= 1 << e;
-            }
-            e += 1;
-        }
-        case += 1;
-    }
-    t
-};
-
 /// Per edge, the offset of its key in the cell-edge grid from its cell's first key
 /// (`((z ES + y) ES + x) 3`): its low corner's offset and its axis.
 const EDGE_KEY: [usize; 12] = {
@@ -403,6 +385,10 @@ struct Scratch {
     used: Vec<u32>,
     /// Crossed cells of the current chunk: local cell index and case.
     cells: Vec<(u16, u8)>,
+    /// Per padded row of corners, the seam edges toward +x, +y and +z (see [`build`]).
+    seam_x: Box<[u16; PAD2]>,
+    seam_y: Box<[u16; PAD2]>,
+    seam_z: Box<[u16; PAD2]>,
     /// Gradient per padded voxel, valid where `grad_stamp` equals `stamp` (a voxel serves
     /// up to six vertices; stamps avoid clearing the cache per chunk).
     grad: Vec<Vec3>,
@@ -420,6 +406,9 @@ impl Scratch {
             edge_vertex: vec![u32::MAX; ES * ES * ES * 3],
             used: Vec::new(),
             cells: Vec::new(),
+            seam_x: Box::new([0; PAD2]),
+            seam_y: Box::new([0; PAD2]),
+            seam_z: Box::new([0; PAD2]),
             grad: vec![Vec3::ZERO; PAD * PAD2],
             grad_stamp: vec![0; PAD * PAD2],
             stamp: 0,
@@ -521,6 +510,45 @@ fn build(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> bool {
         (MAX_EDGE_JUMP_BANDS * map.config().narrowest_band_voxels() / map.config().truncation_voxels).min(1.0);
     let key_voxel = key * CHUNK_SIDE as i32;
     let corner_offset: [usize; 8] = std::array::from_fn(|c| (c & 1) + PAD * ((c >> 1) & 1) + PAD2 * ((c >> 2) & 1));
+    // Seams, per padded row of corners (`py + 11 pz`, bit `px`): crossed edges (both ends
+    // observed, signs differ) from that corner toward +x, +y, +z whose distance jumps by
+    // more than `max_jump`. Tested once per edge, where each cell used to test its own
+    // (every edge four times, for a branch per cell).
+    let (jx, jy, jz) = (&mut scratch.seam_x, &mut scratch.seam_y, &mut scratch.seam_z);
+    let jump = |i: usize, j: usize| (block.tsdf(i) - block.tsdf(j)).abs() > max_jump;
+    for pz in 1..PAD - 1 {
+        for py in 1..PAD - 1 {
+            let r = py + PAD * pz;
+            let row = PAD * r;
+            let (neg, obs) = masks[r];
+            let (mut sx, mut sy, mut sz) = (0u16, 0u16, 0u16);
+            let mut crossed = (neg ^ (neg >> 1)) & obs & (obs >> 1) & 0x1fe;
+            while crossed != 0 {
+                let px = crossed.trailing_zeros() as usize;
+                crossed &= crossed - 1;
+                sx |= (jump(row + px, row + px + 1) as u16) << px;
+            }
+            if py < PAD - 2 {
+                let (n, o) = masks[r + 1];
+                let mut crossed = (neg ^ n) & obs & o & 0x3fe;
+                while crossed != 0 {
+                    let px = crossed.trailing_zeros() as usize;
+                    crossed &= crossed - 1;
+                    sy |= (jump(row + px, row + px + PAD) as u16) << px;
+                }
+            }
+            if pz < PAD - 2 {
+                let (n, o) = masks[r + PAD];
+                let mut crossed = (neg ^ n) & obs & o & 0x3fe;
+                while crossed != 0 {
+                    let px = crossed.trailing_zeros() as usize;
+                    crossed &= crossed - 1;
+                    sz |= (jump(row + px, row + px + PAD2) as u16) << px;
+                }
+            }
+            (jx[r], jy[r], jz[r]) = (sx, sy, sz);
+        }
+    }
     // Pass 1: the cells the surface crosses, and how many triangles they make, so that the
     // mesh buffers are allocated once.
     let cells = &mut scratch.cells;
@@ -539,7 +567,13 @@ fn build(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> bool {
                 any_neg |= (neg >> 1) | (neg >> 2);
                 all_neg &= (neg >> 1) & (neg >> 2);
             }
-            let mut crossed = all_obs & any_neg & !all_neg;
+            // A cell is a seam when one of its 12 edges is: x edges on its four rows (bit
+            // x + 1), y edges on its two lower-y rows and z edges on its two lower-z rows
+            // (bits x + 1 and x + 2).
+            let [r00, r10, r01, r11] = rows;
+            let (sy, sz) = (jy[r00] | jy[r01], jz[r00] | jz[r10]);
+            let seam = ((jx[r00] | jx[r10] | jx[r01] | jx[r11]) >> 1) | (sy >> 1) | (sy >> 2) | (sz >> 1) | (sz >> 2);
+            let mut crossed = all_obs & any_neg & !all_neg & !seam;
             while crossed != 0 {
                 let x = crossed.trailing_zeros() as usize;
                 crossed &= crossed - 1;
@@ -569,19 +603,6 @@ fn build(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> bool {
         {
             {
                 let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
-                let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + corner_offset[c]));
-                // Only crossed edges can be seams (all corners are observed here, so the case
-                // bits are the signs).
-                let mut crossed = CROSSED[case as usize];
-                let mut jump = false;
-                while crossed != 0 {
-                    let (a, b) = EDGES[crossed.trailing_zeros() as usize];
-                    crossed &= crossed - 1;
-                    jump |= (f[a as usize] - f[b as usize]).abs() > max_jump;
-                }
-                if jump {
-                    continue;
-                }
                 let cell_key = ((z * ES + y) * ES + x) * 3;
                 for tri in table.triangles(case) {
                     let mut t = [0u32; 3];
@@ -594,7 +615,7 @@ fn build(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> bool {
                             edge_vertex[ek] = mesh.positions.len() as u32;
                             used.push(ek as u32);
                             let (ia, ib) = (base + corner_offset[a as usize], base + corner_offset[b as usize]);
-                            let (fa, fb) = (f[a as usize], f[b as usize]);
+                            let (fa, fb) = (block.tsdf(ia), block.tsdf(ib));
                             let s = fa / (fa - fb);
                             let low_global = key_voxel + IVec3::new(low[0] as i32, low[1] as i32, low[2] as i32);
                             let mut p = low_global.as_vec3();
@@ -1193,6 +1214,81 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// The cells of chunk `key` that meshing keeps, by the plain definition (every corner
+    /// observed, both signs, no crossed edge jumping by more than the seam limit), with
+    /// their cases, in cell order.
+    fn kept_cells_plain(map: &TsdfMap, key: ChunkKey, seams: &mut usize) -> Vec<(u16, u8)> {
+        let config = map.config();
+        let max_jump = (MAX_EDGE_JUMP_BANDS * config.narrowest_band_voxels() / config.truncation_voxels).min(1.0);
+        let voxel = |v: IVec3| {
+            let (k, i) = split_voxel(v);
+            map.chunk(k).map(|c| c.voxel(i)).filter(|v| v.weight() > 0.0)
+        };
+        let mut out = Vec::new();
+        for i in 0..CHUNK_VOXELS {
+            let cell = key * CHUNK_SIDE as i32 + IVec3::new((i % 8) as i32, (i / 8 % 8) as i32, (i / 64) as i32);
+            let corners: Vec<Option<Voxel>> =
+                (0..8).map(|c| voxel(cell + IVec3::new(c & 1, (c >> 1) & 1, (c >> 2) & 1))).collect();
+            let Some(f) = corners.iter().map(|c| c.map(|v| v.tsdf())).collect::<Option<Vec<f32>>>() else { continue };
+            let case = (0..8).fold(0u8, |m, c| m | ((f[c] < 0.0) as u8) << c);
+            let seam = EDGES.iter().any(|&(a, b)| {
+                let (a, b) = (f[a as usize], f[b as usize]);
+                (a < 0.0) != (b < 0.0) && (a - b).abs() > max_jump
+            });
+            if case != 0 && case != 255 {
+                if seam {
+                    *seams += 1;
+                } else {
+                    out.push((i as u16, case));
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn kept_cells_match_the_plain_definition_on_random_maps() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        for round in 0..4 {
+            let mut map = TsdfMap::new(TsdfConfig::default()).expect("valid");
+            let trunc = map.config().truncation_voxels;
+            // A wavy surface through 3x3x3 chunks, with noise, jumps and unobserved voxels.
+            for z in -12..12 {
+                for y in -12..12 {
+                    for x in -12..12 {
+                        let v = IVec3::new(x, y, z);
+                        if rng.random_range(0..100) < 3 + 4 * round {
+                            continue;
+                        }
+                        let surface = 2.0 * (0.3 * x as f32).sin() + (0.2 * y as f32).cos();
+                        let mut t = (z as f32 - surface) / trunc + rng.random_range(-0.05..0.05);
+                        if rng.random_range(0..100) < 5 {
+                            t = rng.random_range(-1.0..1.0);
+                        }
+                        let (key, local) = split_voxel(v);
+                        let (slot, _) = map.allocate(key);
+                        let mut vox = Voxel::default();
+                        vox.fuse(t.clamp(-1.0, 1.0), 1.0, Some([90, 60, 30]), 256);
+                        map.chunks[slot as usize].voxels.set(local, vox);
+                    }
+                }
+            }
+            for c in &mut map.chunks {
+                c.signs = c.voxels.signs();
+            }
+            let mut scratch = Scratch::new();
+            let (mut kept, mut seams) = (0, 0);
+            for key in map.sorted_keys() {
+                let want = kept_cells_plain(&map, key, &mut seams);
+                let got = if build(&map, key, &mut scratch) { scratch.cells.clone() } else { Vec::new() };
+                assert_eq!(got, want, "chunk {key}, round {round}");
+                kept += want.len();
+            }
+            assert!(kept > 150 && seams > 30, "{kept} cells kept, {seams} seams");
         }
     }
 
