@@ -129,6 +129,24 @@ fn edge_color(ca: [u8; 4], cb: [u8; 4], s: f32) -> [u8; 3] {
     [c.x as u8, c.y as u8, c.z as u8]
 }
 
+/// Per case, bit `e` set when edge `e` joins corners of different signs (crosses the surface).
+const CROSSED: [u16; 256] = {
+    let mut t = [0u16; 256];
+    let mut case = 0;
+    while case < 256 {
+        let mut e = 0;
+        while e < 12 {
+            let (a, b) = EDGES[e];
+            if ((case >> a) ^ (case >> b)) & 1 != 0 {
+                t[case] |= 1 << e;
+            }
+            e += 1;
+        }
+        case += 1;
+    }
+    t
+};
+
 /// Per edge, the offset of its key in the cell-edge grid from its cell's first key
 /// (`((z ES + y) ES + x) 3`): its low corner's offset and its axis.
 const EDGE_KEY: [usize; 12] = {
@@ -385,10 +403,6 @@ struct Scratch {
     used: Vec<u32>,
     /// Crossed cells of the current chunk: local cell index and case.
     cells: Vec<(u16, u8)>,
-    /// Per padded row of corners, the seam edges toward +x, +y and +z (see [`build`]).
-    seam_x: Box<[u16; PAD2]>,
-    seam_y: Box<[u16; PAD2]>,
-    seam_z: Box<[u16; PAD2]>,
     /// Gradient per padded voxel, valid where `grad_stamp` equals `stamp` (a voxel serves
     /// up to six vertices; stamps avoid clearing the cache per chunk).
     grad: Vec<Vec3>,
@@ -406,26 +420,11 @@ impl Scratch {
             edge_vertex: vec![u32::MAX; ES * ES * ES * 3],
             used: Vec::new(),
             cells: Vec::new(),
-            seam_x: Box::new([0; PAD2]),
-            seam_y: Box::new([0; PAD2]),
-            seam_z: Box::new([0; PAD2]),
             grad: vec![Vec3::ZERO; PAD * PAD2],
             grad_stamp: vec![0; PAD * PAD2],
             stamp: 0,
         }
     }
-}
-
-thread_local! {
-    /// Each thread's [`Scratch`], kept between calls: rayon's `for_each_init` made one per
-    /// split job, about 40 KB to allocate and clear each time, hundreds of times per update.
-    static SCRATCH: std::cell::RefCell<Option<Scratch>> = const { std::cell::RefCell::new(None) };
-}
-
-/// Runs `f` with this thread's scratch buffers (`f` must not re-enter: it runs no parallel
-/// work of its own).
-fn with_scratch<R>(f: impl FnOnce(&mut Scratch) -> R) -> R {
-    SCRATCH.with(|s| f(s.borrow_mut().get_or_insert_with(Scratch::new)))
 }
 
 /// Marching cubes over the cells owned by chunk `key` (empty when it is not allocated).
@@ -510,45 +509,6 @@ fn build(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> bool {
         (MAX_EDGE_JUMP_BANDS * map.config().narrowest_band_voxels() / map.config().truncation_voxels).min(1.0);
     let key_voxel = key * CHUNK_SIDE as i32;
     let corner_offset: [usize; 8] = std::array::from_fn(|c| (c & 1) + PAD * ((c >> 1) & 1) + PAD2 * ((c >> 2) & 1));
-    // Seams, per padded row of corners (`py + 11 pz`, bit `px`): crossed edges (both ends
-    // observed, signs differ) from that corner toward +x, +y, +z whose distance jumps by
-    // more than `max_jump`. Tested once per edge, where each cell used to test its own
-    // (every edge four times, for a branch per cell).
-    let (jx, jy, jz) = (&mut scratch.seam_x, &mut scratch.seam_y, &mut scratch.seam_z);
-    let jump = |i: usize, j: usize| (block.tsdf(i) - block.tsdf(j)).abs() > max_jump;
-    for pz in 1..PAD - 1 {
-        for py in 1..PAD - 1 {
-            let r = py + PAD * pz;
-            let row = PAD * r;
-            let (neg, obs) = masks[r];
-            let (mut sx, mut sy, mut sz) = (0u16, 0u16, 0u16);
-            let mut crossed = (neg ^ (neg >> 1)) & obs & (obs >> 1) & 0x1fe;
-            while crossed != 0 {
-                let px = crossed.trailing_zeros() as usize;
-                crossed &= crossed - 1;
-                sx |= (jump(row + px, row + px + 1) as u16) << px;
-            }
-            if py < PAD - 2 {
-                let (n, o) = masks[r + 1];
-                let mut crossed = (neg ^ n) & obs & o & 0x3fe;
-                while crossed != 0 {
-                    let px = crossed.trailing_zeros() as usize;
-                    crossed &= crossed - 1;
-                    sy |= (jump(row + px, row + px + PAD) as u16) << px;
-                }
-            }
-            if pz < PAD - 2 {
-                let (n, o) = masks[r + PAD];
-                let mut crossed = (neg ^ n) & obs & o & 0x3fe;
-                while crossed != 0 {
-                    let px = crossed.trailing_zeros() as usize;
-                    crossed &= crossed - 1;
-                    sz |= (jump(row + px, row + px + PAD2) as u16) << px;
-                }
-            }
-            (jx[r], jy[r], jz[r]) = (sx, sy, sz);
-        }
-    }
     // Pass 1: the cells the surface crosses, and how many triangles they make, so that the
     // mesh buffers are allocated once.
     let cells = &mut scratch.cells;
@@ -567,13 +527,7 @@ fn build(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> bool {
                 any_neg |= (neg >> 1) | (neg >> 2);
                 all_neg &= (neg >> 1) & (neg >> 2);
             }
-            // A cell is a seam when one of its 12 edges is: x edges on its four rows (bit
-            // x + 1), y edges on its two lower-y rows and z edges on its two lower-z rows
-            // (bits x + 1 and x + 2).
-            let [r00, r10, r01, r11] = rows;
-            let (sy, sz) = (jy[r00] | jy[r01], jz[r00] | jz[r10]);
-            let seam = ((jx[r00] | jx[r10] | jx[r01] | jx[r11]) >> 1) | (sy >> 1) | (sy >> 2) | (sz >> 1) | (sz >> 2);
-            let mut crossed = all_obs & any_neg & !all_neg & !seam;
+            let mut crossed = all_obs & any_neg & !all_neg;
             while crossed != 0 {
                 let x = crossed.trailing_zeros() as usize;
                 crossed &= crossed - 1;
@@ -603,6 +557,19 @@ fn build(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> bool {
         {
             {
                 let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
+                let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + corner_offset[c]));
+                // Only crossed edges can be seams (all corners are observed here, so the case
+                // bits are the signs).
+                let mut crossed = CROSSED[case as usize];
+                let mut jump = false;
+                while crossed != 0 {
+                    let (a, b) = EDGES[crossed.trailing_zeros() as usize];
+                    crossed &= crossed - 1;
+                    jump |= (f[a as usize] - f[b as usize]).abs() > max_jump;
+                }
+                if jump {
+                    continue;
+                }
                 let cell_key = ((z * ES + y) * ES + x) * 3;
                 for tri in table.triangles(case) {
                     let mut t = [0u32; 3];
@@ -615,7 +582,7 @@ fn build(map: &TsdfMap, key: ChunkKey, scratch: &mut Scratch) -> bool {
                             edge_vertex[ek] = mesh.positions.len() as u32;
                             used.push(ek as u32);
                             let (ia, ib) = (base + corner_offset[a as usize], base + corner_offset[b as usize]);
-                            let (fa, fb) = (block.tsdf(ia), block.tsdf(ib));
+                            let (fa, fb) = (f[a as usize], f[b as usize]);
                             let s = fa / (fa - fb);
                             let low_global = key_voxel + IVec3::new(low[0] as i32, low[1] as i32, low[2] as i32);
                             let mut p = low_global.as_vec3();
@@ -1019,7 +986,7 @@ impl IncrementalMesher {
             .collect();
         jobs.par_sort_unstable_by_key(|j| key_order(j.0));
         let remeshed = jobs.len();
-        jobs.par_iter_mut().for_each(|(key, _, mesh)| with_scratch(|s| remesh_into(map, *key, s, mesh)));
+        jobs.par_iter_mut().for_each_init(Scratch::new, |s, (key, _, mesh)| remesh_into(map, *key, s, mesh));
         for (_, i, mesh) in jobs {
             self.entries[i as usize].mesh = mesh;
         }
@@ -1052,7 +1019,7 @@ impl IncrementalMesher {
 /// Meshes the whole map from scratch (parallel over chunks).
 pub fn extract_mesh(map: &TsdfMap) -> LabeledMesh {
     let keys = map.sorted_keys();
-    let meshes: Vec<ChunkMesh> = keys.par_iter().map(|&k| with_scratch(|s| mesh_chunk_with(map, k, s))).collect();
+    let meshes: Vec<ChunkMesh> = keys.par_iter().map_init(Scratch::new, |s, &k| mesh_chunk_with(map, k, s)).collect();
     assemble(&meshes.iter().collect::<Vec<_>>())
 }
 
@@ -1280,12 +1247,11 @@ mod tests {
             for c in &mut map.chunks {
                 c.signs = c.voxels.signs();
             }
-            let mut scratch = Scratch::new();
             let (mut kept, mut seams) = (0, 0);
             for key in map.sorted_keys() {
                 let want = kept_cells_plain(&map, key, &mut seams);
-                let got = if build(&map, key, &mut scratch) { scratch.cells.clone() } else { Vec::new() };
-                assert_eq!(got, want, "chunk {key}, round {round}");
+                let want_triangles: usize = want.iter().map(|&(_, case)| case_table().triangles(case).len()).sum();
+                assert_eq!(mesh_chunk(&map, key).triangles.len(), want_triangles, "chunk {key}, round {round}");
                 kept += want.len();
             }
             assert!(kept > 150 && seams > 30, "{kept} cells kept, {seams} seams");
