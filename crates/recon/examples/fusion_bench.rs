@@ -14,8 +14,9 @@
 //! `TsdfConfig::truncation_noise_factor` (0: the fixed band of `--trunc` voxels), `--min-band`
 //! its `min_truncation_voxels`. `--remesh-tol` is the incremental mesher's
 //! `RemeshTolerance::distance_voxels` (default 0: exact). `--mesh-repeat N` re-meshes the
-//! final map N more times from an empty cache (the incremental path over every chunk) and
-//! prints the best and median CPU and wall time: a meshing-only load for profilers. The fusion kernel is the widest the
+//! final map N more times, alternately from an empty cache (the incremental path over every
+//! chunk) and with `extract_mesh`, and prints the best and median CPU and wall time of each:
+//! a meshing-only load for profilers. The fusion kernel is the widest the
 //! CPU has; `SEMRECON_FUSION_SIMD=avx2|portable` forces a lower one. The printed map
 //! fingerprint (every voxel and frame run) must not depend on the kernel or the thread count.
 
@@ -304,25 +305,33 @@ fn main() {
         full.vertex_count()
     );
     if args.mesh_repeat > 0 {
-        let (mut wall_ms, mut cpu_ms) = (vec![], vec![]);
+        // Alternately: a fresh incremental mesher over every chunk, and `extract_mesh`.
+        let mut times = [(vec![], vec![]), (vec![], vec![])];
         for _ in 0..args.mesh_repeat {
-            let mut fresh = IncrementalMesher::new();
-            let c = cpu_ns();
-            let t = Instant::now();
-            fresh.update(&map);
-            wall_ms.push(t.elapsed().as_secs_f64() * 1e3);
-            cpu_ms.push((cpu_ns() - c) as f64 * 1e-6);
+            for (k, (wall_ms, cpu_ms)) in times.iter_mut().enumerate() {
+                let c = cpu_ns();
+                let t = Instant::now();
+                if k == 0 {
+                    IncrementalMesher::new().update(&map);
+                } else {
+                    semrecon_recon::extract_mesh(&map);
+                }
+                wall_ms.push(t.elapsed().as_secs_f64() * 1e3);
+                cpu_ms.push((cpu_ns() - c) as f64 * 1e-6);
+            }
         }
-        wall_ms.sort_by(f64::total_cmp);
-        cpu_ms.sort_by(f64::total_cmp);
-        println!(
-            "whole-map re-mesh x{}: CPU best {:.1} median {:.1} ms, wall best {:.1} median {:.1} ms",
-            args.mesh_repeat,
-            cpu_ms[0],
-            cpu_ms[cpu_ms.len() / 2],
-            wall_ms[0],
-            wall_ms[wall_ms.len() / 2]
-        );
+        for (label, (wall_ms, cpu_ms)) in ["whole-map re-mesh", "extract_mesh"].iter().zip(&mut times) {
+            wall_ms.sort_by(f64::total_cmp);
+            cpu_ms.sort_by(f64::total_cmp);
+            println!(
+                "{label} x{}: CPU best {:.1} median {:.1} ms, wall best {:.1} median {:.1} ms",
+                args.mesh_repeat,
+                cpu_ms[0],
+                cpu_ms[cpu_ms.len() / 2],
+                wall_ms[0],
+                wall_ms[wall_ms.len() / 2]
+            );
+        }
     }
     println!("whole run {:.2} s ({:.1} ms/frame with meshing)", wall, wall * 1e3 / n as f64);
     if let Some(out) = &args.out {
