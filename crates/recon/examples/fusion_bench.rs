@@ -3,7 +3,7 @@
 //! ```text
 //! cargo run --release -p semrecon-recon --example fusion_bench -- [--frames N] [--voxel M]
 //!     [--7scenes DIR] [--out mesh.ply] [--keyframe K] [--trunc VOXELS]
-//!     [--band-factor K] [--min-band VOXELS] [--remesh-tol VOXELS]
+//!     [--band-factor K] [--min-band VOXELS] [--remesh-tol VOXELS] [--mesh-repeat N]
 //! ```
 //!
 //! Without `--7scenes` the frames are ray-cast from an analytic scene (floor, wall, sphere).
@@ -13,7 +13,10 @@
 //! binary PLY (a minimal writer local to this example). `--band-factor` is
 //! `TsdfConfig::truncation_noise_factor` (0: the fixed band of `--trunc` voxels), `--min-band`
 //! its `min_truncation_voxels`. `--remesh-tol` is the incremental mesher's
-//! `RemeshTolerance::distance_voxels` (default 0: exact). The fusion kernel is the widest the
+//! `RemeshTolerance::distance_voxels` (default 0: exact). `--mesh-repeat N` re-meshes the
+//! final map N more times, alternately from an empty cache (the incremental path over every
+//! chunk) and with `extract_mesh`, and prints the best and median CPU and wall time of each:
+//! a meshing-only load for profilers. The fusion kernel is the widest the
 //! CPU has; `SEMRECON_FUSION_SIMD=avx2|portable` forces a lower one. The printed map
 //! fingerprint (every voxel and frame run) must not depend on the kernel or the thread count.
 
@@ -47,6 +50,7 @@ struct Args {
     band_factor: f32,
     min_band: f32,
     remesh_tol: f32,
+    mesh_repeat: usize,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -60,6 +64,7 @@ fn parse_args() -> Result<Args, String> {
         band_factor: TsdfConfig::default().truncation_noise_factor,
         min_band: TsdfConfig::default().min_truncation_voxels,
         remesh_tol: 0.0,
+        mesh_repeat: 0,
     };
     let mut flags = Flags::from_env();
     while let Some(flag) = flags.next_flag() {
@@ -70,6 +75,7 @@ fn parse_args() -> Result<Args, String> {
             "--band-factor" => a.band_factor = flags.value(&flag)?,
             "--min-band" => a.min_band = flags.value(&flag)?,
             "--remesh-tol" => a.remesh_tol = flags.value(&flag)?,
+            "--mesh-repeat" => a.mesh_repeat = flags.value(&flag)?,
             "--keyframe" => a.keyframe = flags.value(&flag)?,
             "--7scenes" => a.seven_scenes = Some(flags.value(&flag)?),
             "--out" => a.out = Some(flags.value(&flag)?),
@@ -298,6 +304,35 @@ fn main() {
         full.triangle_count(),
         full.vertex_count()
     );
+    if args.mesh_repeat > 0 {
+        // Alternately: a fresh incremental mesher over every chunk, and `extract_mesh`.
+        let mut times = [(vec![], vec![]), (vec![], vec![])];
+        for _ in 0..args.mesh_repeat {
+            for (k, (wall_ms, cpu_ms)) in times.iter_mut().enumerate() {
+                let c = cpu_ns();
+                let t = Instant::now();
+                if k == 0 {
+                    IncrementalMesher::new().update(&map);
+                } else {
+                    semrecon_recon::extract_mesh(&map);
+                }
+                wall_ms.push(t.elapsed().as_secs_f64() * 1e3);
+                cpu_ms.push((cpu_ns() - c) as f64 * 1e-6);
+            }
+        }
+        for (label, (wall_ms, cpu_ms)) in ["whole-map re-mesh", "extract_mesh"].iter().zip(&mut times) {
+            wall_ms.sort_by(f64::total_cmp);
+            cpu_ms.sort_by(f64::total_cmp);
+            println!(
+                "{label} x{}: CPU best {:.1} median {:.1} ms, wall best {:.1} median {:.1} ms",
+                args.mesh_repeat,
+                cpu_ms[0],
+                cpu_ms[cpu_ms.len() / 2],
+                wall_ms[0],
+                wall_ms[wall_ms.len() / 2]
+            );
+        }
+    }
     println!("whole run {:.2} s ({:.1} ms/frame with meshing)", wall, wall * 1e3 / n as f64);
     if let Some(out) = &args.out {
         match write_ply(out, &assembled) {
