@@ -337,6 +337,9 @@ pub struct Augment {
     pub view_probability: f32,
     /// Probability of painting rugs on the floor ([`crate::scan_imitation::paint_rugs`]).
     pub rug_probability: f32,
+    /// Probability of covering most of the floor with one carpet or a plain pale floor
+    /// ([`crate::scan_imitation::cover_floor`]), before any rugs.
+    pub floor_cover_probability: f32,
     /// Fraction of points dropped at random (at most; uniform in `[0, max]`).
     pub dropout_max: f32,
     /// Standard deviation of the per-channel colour gain (around 1).
@@ -360,6 +363,7 @@ impl Augment {
             crop_size: [1.0, 1.0],
             view_probability: 0.0,
             rug_probability: 0.0,
+            floor_cover_probability: 0.0,
             dropout_max: 0.0,
             color_gain: 0.0,
             brightness: 0.0,
@@ -381,6 +385,7 @@ impl Augment {
             crop_size: [3.0, 5.0],
             view_probability: 0.0,
             rug_probability: 0.0,
+            floor_cover_probability: 0.0,
             dropout_max: 0.2,
             color_gain: 0.08,
             brightness: 20.0,
@@ -389,9 +394,10 @@ impl Augment {
     }
 
     /// [`Augment::training`] plus the live-map imitations: a short walk's view 40 % of the
-    /// time and rugs 30 % of the time (the fifth training leg of docs/model.md).
+    /// time, a wall-to-wall carpet or pale floor 25 % of the time and rugs 30 % of the time
+    /// (the fifth and sixth training legs of docs/model.md).
     pub fn live_maps() -> Self {
-        Self { view_probability: 0.4, rug_probability: 0.3, ..Self::training() }
+        Self { view_probability: 0.4, rug_probability: 0.3, floor_cover_probability: 0.25, ..Self::training() }
     }
 
     /// Applies the augmentation to `cloud` in place, seeded by `seed`.
@@ -405,6 +411,11 @@ impl Augment {
         // it), so they come before any geometric change; they draw from their own stream so
         // that switching them on leaves the other choices of a seed as they were.
         let mut live_rng = ChaCha8Rng::seed_from_u64(seed ^ 0x11FE_5CA7);
+        // Own stream too, so that the view and rugs of a seed stay those of the fifth leg.
+        let mut cover_rng = ChaCha8Rng::seed_from_u64(seed ^ 0xCA4B_E7F1);
+        if self.floor_cover_probability > 0.0 && cover_rng.random::<f32>() < self.floor_cover_probability {
+            crate::scan_imitation::cover_floor(cloud, &mut cover_rng);
+        }
         if self.rug_probability > 0.0 && live_rng.random::<f32>() < self.rug_probability {
             crate::scan_imitation::paint_rugs(cloud, &mut live_rng);
         }
