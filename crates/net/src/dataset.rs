@@ -348,6 +348,13 @@ pub struct Augment {
     pub brightness: f32,
     /// Per-point colour noise amplitude on 0..255 values.
     pub color_noise: f32,
+    /// Random translation, uniform in `[-t, t]` per axis (metres), after everything else.
+    /// The strided levels of the network group voxels by their absolute coordinates (four
+    /// halvings: a period of 16 voxels, 0.8 m for s20), and generated floors all lie at
+    /// z = 0: without a shift the network learns where the floor is from that phase and loses
+    /// the floor of a mesh whose floor is elsewhere (Replica office0, floor at z = -1.12 m,
+    /// phase 9.5 voxels: 0.1 % floor; the same mesh moved to z = 0 or 0.8: 87 %).
+    pub translate: [f32; 3],
 }
 
 impl Augment {
@@ -368,6 +375,7 @@ impl Augment {
             color_gain: 0.0,
             brightness: 0.0,
             color_noise: 0.0,
+            translate: [0.0; 3],
         }
     }
 
@@ -390,14 +398,22 @@ impl Augment {
             color_gain: 0.08,
             brightness: 20.0,
             color_noise: 6.0,
+            translate: [0.0; 3],
         }
     }
 
     /// [`Augment::training`] plus the live-map imitations: a short walk's view 40 % of the
     /// time, a wall-to-wall carpet or pale floor 25 % of the time and rugs 30 % of the time
     /// (the fifth and sixth training legs of docs/model.md).
+    /// It also shifts samples by up to 0.8 m on each axis (any phase of the coarsest grid).
     pub fn live_maps() -> Self {
-        Self { view_probability: 0.4, rug_probability: 0.3, floor_cover_probability: 0.25, ..Self::training() }
+        Self {
+            view_probability: 0.4,
+            rug_probability: 0.3,
+            floor_cover_probability: 0.25,
+            translate: [0.8; 3],
+            ..Self::training()
+        }
     }
 
     /// Applies the augmentation to `cloud` in place, seeded by `seed`.
@@ -488,6 +504,14 @@ impl Augment {
                         if self.color_noise > 0.0 { (rng.random::<f32>() * 2.0 - 1.0) * self.color_noise } else { 0.0 };
                     *v = (f32::from(*v) * gain[k] + bright + noise).round().clamp(0.0, 255.0) as u8;
                 }
+            }
+        }
+        if self.translate.iter().any(|&t| t > 0.0) {
+            // Own stream: the other choices of a seed stay as they were.
+            let mut shift_rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7A45_11F7);
+            let shift = Vec3::from_array(self.translate.map(|t| if t > 0.0 { shift_rng.random_range(-t..=t) } else { 0.0 }));
+            for p in &mut cloud.positions {
+                *p += shift;
             }
         }
     }
@@ -605,6 +629,28 @@ mod tests {
         assert_eq!(cloud.positions.len(), before.positions.len());
         assert_eq!(cloud.colors, before.colors);
         assert_eq!(VoxelSample::from_cloud(&LabeledPointCloud::default(), 0.1).unwrap().len(), 0);
+    }
+
+    #[test]
+    fn translation_moves_the_floor_off_z_zero_and_only_shifts() {
+        let room = &DataSource::parse("synth:11..12").unwrap().rooms().unwrap()[0];
+        let cloud = load_cloud(room, 0.1, 1).unwrap();
+        let shift_only = Augment { translate: [0.0, 0.0, 0.8], ..Augment::none() };
+        let mut floors = Vec::new();
+        for seed in 0..8 {
+            let mut moved = cloud.clone();
+            shift_only.apply(&mut moved, seed);
+            assert_eq!(moved.colors, cloud.colors);
+            assert_eq!(moved.labels, cloud.labels);
+            let dz = moved.positions[0].z - cloud.positions[0].z;
+            assert!(dz.abs() <= 0.8);
+            for (a, b) in moved.positions.iter().zip(&cloud.positions) {
+                assert!((a.z - b.z - dz).abs() < 1e-4 && a.truncate() == b.truncate());
+            }
+            floors.push(dz);
+        }
+        // Different seeds, different heights.
+        assert!(floors.iter().any(|&z| (z - floors[0]).abs() > 0.1), "{floors:?}");
     }
 
     #[test]
