@@ -509,7 +509,8 @@ impl Augment {
         if self.translate.iter().any(|&t| t > 0.0) {
             // Own stream: the other choices of a seed stay as they were.
             let mut shift_rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7A45_11F7);
-            let shift = Vec3::from_array(self.translate.map(|t| if t > 0.0 { shift_rng.random_range(-t..=t) } else { 0.0 }));
+            let shift =
+                Vec3::from_array(self.translate.map(|t| if t > 0.0 { shift_rng.random_range(-t..=t) } else { 0.0 }));
             for p in &mut cloud.positions {
                 *p += shift;
             }

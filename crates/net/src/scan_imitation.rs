@@ -216,7 +216,10 @@ pub fn cover_floor(cloud: &mut LabeledPointCloud, rng: &mut ChaCha8Rng) {
     let pile = if carpet && rng.random_bool(0.75) { rng.random_range(0.005..0.03f32) } else { 0.0 };
     let fibre_noise = if carpet { rng.random_range(0.03..0.15f32) } else { rng.random_range(0.0..0.03f32) };
     let waves: [(Vec2, f32); 3] = std::array::from_fn(|_| {
-        (Vec2::from_angle(rng.random_range(0.0..TAU)) * (TAU / rng.random_range(0.03..0.2f32)), rng.random_range(0.0..TAU))
+        (
+            Vec2::from_angle(rng.random_range(0.0..TAU)) * (TAU / rng.random_range(0.03..0.2f32)),
+            rng.random_range(0.0..TAU),
+        )
     });
     // Lighting: brightness varies by up to 15 % across the room.
     let light_dir = Vec2::from_angle(rng.random_range(0.0..TAU));
@@ -252,7 +255,8 @@ fn pale_colour(rng: &mut ChaCha8Rng) -> [f32; 3] {
     let value = rng.random_range(165.0..250.0f32);
     // Warm hues (red to yellow) with little saturation give cream and beige; none gives grey.
     let hue = rng.random_range(0.0..1.2f32);
-    let saturation = if rng.random_bool(0.3) { rng.random_range(0.0..0.04f32) } else { rng.random_range(0.03..0.25f32) };
+    let saturation =
+        if rng.random_bool(0.3) { rng.random_range(0.0..0.04f32) } else { rng.random_range(0.03..0.25f32) };
     let f = |n: f32| {
         let k = (n + hue) % 6.0;
         value * (1.0 - saturation * (k.min(4.0 - k).clamp(0.0, 1.0)))
