@@ -337,6 +337,9 @@ pub struct Augment {
     pub view_probability: f32,
     /// Probability of painting rugs on the floor ([`crate::scan_imitation::paint_rugs`]).
     pub rug_probability: f32,
+    /// Probability of covering most of the floor with one carpet or a plain pale floor
+    /// ([`crate::scan_imitation::cover_floor`]), before any rugs.
+    pub floor_cover_probability: f32,
     /// Fraction of points dropped at random (at most; uniform in `[0, max]`).
     pub dropout_max: f32,
     /// Standard deviation of the per-channel colour gain (around 1).
@@ -345,6 +348,13 @@ pub struct Augment {
     pub brightness: f32,
     /// Per-point colour noise amplitude on 0..255 values.
     pub color_noise: f32,
+    /// Random translation, uniform in `[-t, t]` per axis (metres), after everything else.
+    /// The strided levels of the network group voxels by their absolute coordinates (four
+    /// halvings: a period of 16 voxels, 0.8 m for s20), and generated floors all lie at
+    /// z = 0: without a shift the network learns where the floor is from that phase and loses
+    /// the floor of a mesh whose floor is elsewhere (Replica office0, floor at z = -1.12 m,
+    /// phase 9.5 voxels: 0.1 % floor; the same mesh moved to z = 0 or 0.8: 87 %).
+    pub translate: [f32; 3],
 }
 
 impl Augment {
@@ -360,10 +370,12 @@ impl Augment {
             crop_size: [1.0, 1.0],
             view_probability: 0.0,
             rug_probability: 0.0,
+            floor_cover_probability: 0.0,
             dropout_max: 0.0,
             color_gain: 0.0,
             brightness: 0.0,
             color_noise: 0.0,
+            translate: [0.0; 3],
         }
     }
 
@@ -381,17 +393,27 @@ impl Augment {
             crop_size: [3.0, 5.0],
             view_probability: 0.0,
             rug_probability: 0.0,
+            floor_cover_probability: 0.0,
             dropout_max: 0.2,
             color_gain: 0.08,
             brightness: 20.0,
             color_noise: 6.0,
+            translate: [0.0; 3],
         }
     }
 
     /// [`Augment::training`] plus the live-map imitations: a short walk's view 40 % of the
-    /// time and rugs 30 % of the time (the fifth training leg of docs/model.md).
+    /// time, a wall-to-wall carpet or pale floor 25 % of the time and rugs 30 % of the time
+    /// (the fifth and sixth training legs of docs/model.md).
+    /// It also shifts samples by up to 0.8 m on each axis (any phase of the coarsest grid).
     pub fn live_maps() -> Self {
-        Self { view_probability: 0.4, rug_probability: 0.3, ..Self::training() }
+        Self {
+            view_probability: 0.4,
+            rug_probability: 0.3,
+            floor_cover_probability: 0.25,
+            translate: [0.8; 3],
+            ..Self::training()
+        }
     }
 
     /// Applies the augmentation to `cloud` in place, seeded by `seed`.
@@ -405,6 +427,11 @@ impl Augment {
         // it), so they come before any geometric change; they draw from their own stream so
         // that switching them on leaves the other choices of a seed as they were.
         let mut live_rng = ChaCha8Rng::seed_from_u64(seed ^ 0x11FE_5CA7);
+        // Own stream too, so that the view and rugs of a seed stay those of the fifth leg.
+        let mut cover_rng = ChaCha8Rng::seed_from_u64(seed ^ 0xCA4B_E7F1);
+        if self.floor_cover_probability > 0.0 && cover_rng.random::<f32>() < self.floor_cover_probability {
+            crate::scan_imitation::cover_floor(cloud, &mut cover_rng);
+        }
         if self.rug_probability > 0.0 && live_rng.random::<f32>() < self.rug_probability {
             crate::scan_imitation::paint_rugs(cloud, &mut live_rng);
         }
@@ -477,6 +504,15 @@ impl Augment {
                         if self.color_noise > 0.0 { (rng.random::<f32>() * 2.0 - 1.0) * self.color_noise } else { 0.0 };
                     *v = (f32::from(*v) * gain[k] + bright + noise).round().clamp(0.0, 255.0) as u8;
                 }
+            }
+        }
+        if self.translate.iter().any(|&t| t > 0.0) {
+            // Own stream: the other choices of a seed stay as they were.
+            let mut shift_rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7A45_11F7);
+            let shift =
+                Vec3::from_array(self.translate.map(|t| if t > 0.0 { shift_rng.random_range(-t..=t) } else { 0.0 }));
+            for p in &mut cloud.positions {
+                *p += shift;
             }
         }
     }
@@ -594,6 +630,30 @@ mod tests {
         assert_eq!(cloud.positions.len(), before.positions.len());
         assert_eq!(cloud.colors, before.colors);
         assert_eq!(VoxelSample::from_cloud(&LabeledPointCloud::default(), 0.1).unwrap().len(), 0);
+    }
+
+    #[test]
+    fn translation_moves_the_floor_off_z_zero_and_only_shifts() {
+        let room = &DataSource::parse("synth:11..12").unwrap().rooms().unwrap()[0];
+        // `none` still centres the room horizontally: compare with that.
+        let mut cloud = load_cloud(room, 0.1, 1).unwrap();
+        Augment::none().apply(&mut cloud, 0);
+        let shift_only = Augment { translate: [0.0, 0.0, 0.8], ..Augment::none() };
+        let mut floors = Vec::new();
+        for seed in 0..8 {
+            let mut moved = load_cloud(room, 0.1, 1).unwrap();
+            shift_only.apply(&mut moved, seed);
+            assert_eq!(moved.colors, cloud.colors);
+            assert_eq!(moved.labels, cloud.labels);
+            let dz = moved.positions[0].z - cloud.positions[0].z;
+            assert!(dz.abs() <= 0.8);
+            for (a, b) in moved.positions.iter().zip(&cloud.positions) {
+                assert!((a.z - b.z - dz).abs() < 1e-4 && a.truncate() == b.truncate());
+            }
+            floors.push(dz);
+        }
+        // Different seeds, different heights.
+        assert!(floors.iter().any(|&z| (z - floors[0]).abs() > 0.1), "{floors:?}");
     }
 
     #[test]

@@ -14,6 +14,10 @@
 //! Rugs: real floors carry rugs and mats, and generated floors do not; a network that never
 //! saw a patterned floor labels a rug-covered floor as sofa (seen on Replica office0). Rugs
 //! repaint random floor patches with a random colour and pattern, keeping the label floor.
+//! Rugs covering a patch were not enough: Replica office0's floor is one pale shag carpet
+//! from wall to wall, and a network trained with patches still called it sofa and ceiling.
+//! `cover_floor` repaints most or all of the floor as one carpet (mostly pale, often a shag
+//! pile) or as a plain pale floor, again keeping the label floor.
 
 use std::f32::consts::{PI, TAU};
 
@@ -174,6 +178,92 @@ pub fn paint_rugs(cloud: &mut LabeledPointCloud, rng: &mut ChaCha8Rng) {
     }
 }
 
+/// Repaints 70-100 % of the floor (a rectangle of the floor's extent, trimmed on random
+/// sides) as one wall-to-wall covering, keeping the label floor. Two kinds:
+/// - a carpet (80 %): pale (white, cream, light grey, beige) two times in three, else any
+///   colour; plain or a subtle pattern (stripes, checks, mottling only a few percent apart in
+///   brightness); most with a shag pile (smooth bumps plus per-fibre jitter, up to 3 cm) and
+///   fibre brightness noise;
+/// - a plain pale floor (20 %): flat, one colour, little noise.
+///
+/// Both get a slow brightness gradient across the room, as real lighting gives.
+pub fn cover_floor(cloud: &mut LabeledPointCloud, rng: &mut ChaCha8Rng) {
+    let floor = SemanticClass::Floor.id();
+    let floor_points: Vec<usize> = (0..cloud.len()).filter(|&i| cloud.labels[i] == floor).collect();
+    if floor_points.is_empty() {
+        return;
+    }
+    let (lo, hi) = floor_points.iter().fold((Vec2::splat(f32::MAX), Vec2::splat(f32::MIN)), |(lo, hi), &i| {
+        let p = cloud.positions[i].truncate();
+        (lo.min(p), hi.max(p))
+    });
+    // Area share of the covered rectangle, split between the two axes, the uncovered strip
+    // placed at random on each axis (none at all, wall to wall, a third of the time).
+    let share = if rng.random_bool(0.33) { 1.0 } else { rng.random_range(0.7..1.0f32) };
+    let share_x = rng.random_range(share..=1.0f32);
+    let share_y = (share / share_x).min(1.0);
+    let size = hi - lo;
+    let (free_x, free_y) = (size.x * (1.0 - share_x), size.y * (1.0 - share_y));
+    let start = lo + Vec2::new(free_x * rng.random::<f32>(), free_y * rng.random::<f32>());
+    let end = start + Vec2::new(size.x * share_x, size.y * share_y);
+
+    let carpet = rng.random_bool(0.8);
+    let base = if !carpet || rng.random_bool(0.67) { pale_colour(rng) } else { random_colour(rng) };
+    // Subtle patterns only: a carpet's weave, not a rug's print.
+    let pattern = if carpet { rng.random_range(0..5u8) } else { 0 };
+    let contrast = rng.random_range(0.03..0.12f32);
+    let period = rng.random_range(0.05..0.4f32);
+    let pile = if carpet && rng.random_bool(0.75) { rng.random_range(0.005..0.03f32) } else { 0.0 };
+    let fibre_noise = if carpet { rng.random_range(0.03..0.15f32) } else { rng.random_range(0.0..0.03f32) };
+    let waves: [(Vec2, f32); 3] = std::array::from_fn(|_| {
+        (
+            Vec2::from_angle(rng.random_range(0.0..TAU)) * (TAU / rng.random_range(0.03..0.2f32)),
+            rng.random_range(0.0..TAU),
+        )
+    });
+    // Lighting: brightness varies by up to 15 % across the room.
+    let light_dir = Vec2::from_angle(rng.random_range(0.0..TAU));
+    let light = rng.random_range(0.0..0.15f32);
+    let extent = size.length().max(1e-3);
+    let mottle = rng.random_range(0.0..TAU);
+    for &i in &floor_points {
+        let p = cloud.positions[i].truncate();
+        if p.x < start.x || p.x > end.x || p.y < start.y || p.y > end.y {
+            continue;
+        }
+        let local = p - lo;
+        let stripe = |x: f32| ((x / period).floor() as i32).rem_euclid(2) == 1;
+        let pattern_shade = match pattern {
+            1 if stripe(local.x) => contrast,
+            2 if stripe(local.x) ^ stripe(local.y) => contrast,
+            3 => contrast * ((local.x / period + mottle).sin() * (local.y / period * 1.3 - mottle).sin()),
+            _ => 0.0,
+        };
+        let lighting = light * (light_dir.dot(local) / extent - 0.5);
+        let shade = 1.0 + pattern_shade + lighting + rng.random_range(-fibre_noise..=fibre_noise);
+        cloud.colors[i] = base.map(|v| (v * shade).round().clamp(0.0, 255.0) as u8);
+        if pile > 0.0 {
+            let h: f32 = waves.iter().map(|(k, phase)| (k.dot(local) + phase).sin()).sum::<f32>() / 3.0;
+            let fibre = rng.random::<f32>();
+            cloud.positions[i].z += pile * (0.35 * (0.5 + 0.5 * h) + 0.65 * fibre);
+        }
+    }
+}
+
+/// A pale floor colour: white, cream, light grey or beige.
+fn pale_colour(rng: &mut ChaCha8Rng) -> [f32; 3] {
+    let value = rng.random_range(165.0..250.0f32);
+    // Warm hues (red to yellow) with little saturation give cream and beige; none gives grey.
+    let hue = rng.random_range(0.0..1.2f32);
+    let saturation =
+        if rng.random_bool(0.3) { rng.random_range(0.0..0.04f32) } else { rng.random_range(0.03..0.25f32) };
+    let f = |n: f32| {
+        let k = (n + hue) % 6.0;
+        value * (1.0 - saturation * (k.min(4.0 - k).clamp(0.0, 1.0)))
+    };
+    [f(5.0), f(3.0), f(1.0)]
+}
+
 /// A rug colour: any hue, muted to vivid, dark to light.
 fn random_colour(rng: &mut ChaCha8Rng) -> [f32; 3] {
     let hue = rng.random_range(0.0..6.0f32);
@@ -261,5 +351,45 @@ mod tests {
             }
         }
         assert!(changed > 0);
+    }
+
+    #[test]
+    fn floor_cover_repaints_most_of_the_floor_only_and_is_deterministic() {
+        let cloud = corridor();
+        let floor = SemanticClass::Floor.id();
+        let floor_count = cloud.labels.iter().filter(|&&l| l == floor).count();
+        let mut pale = 0;
+        for seed in 0..16 {
+            let mut covered = cloud.clone();
+            cover_floor(&mut covered, &mut ChaCha8Rng::seed_from_u64(seed));
+            assert_eq!(covered.labels, cloud.labels);
+            let mut changed = 0;
+            let mut mean = [0.0f64; 3];
+            for i in 0..cloud.len() {
+                let lift = covered.positions[i].z - cloud.positions[i].z;
+                assert!((0.0..=0.03).contains(&lift), "seed {seed}: lifted by {lift}");
+                assert_eq!(covered.positions[i].truncate(), cloud.positions[i].truncate());
+                if cloud.labels[i] != floor {
+                    assert_eq!(covered.colors[i], cloud.colors[i], "seed {seed}: repainted a wall");
+                    assert_eq!(covered.positions[i], cloud.positions[i]);
+                } else if covered.colors[i] != cloud.colors[i] || lift > 0.0 {
+                    changed += 1;
+                    for (m, c) in mean.iter_mut().zip(covered.colors[i]) {
+                        *m += f64::from(c);
+                    }
+                }
+            }
+            // 70-100 % of the area; a point or two may keep its colour by chance.
+            let share = changed as f64 / floor_count as f64;
+            assert!((0.68..=1.0).contains(&share), "seed {seed}: covered {share}");
+            if mean.iter().all(|m| m / changed as f64 > 150.0) {
+                pale += 1;
+            }
+            let mut again = cloud.clone();
+            cover_floor(&mut again, &mut ChaCha8Rng::seed_from_u64(seed));
+            assert_eq!(again, covered, "seed {seed}: not deterministic");
+        }
+        // Most coverings are pale.
+        assert!(pale >= 6, "only {pale} of 16 pale");
     }
 }
