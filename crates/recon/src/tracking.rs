@@ -1580,6 +1580,64 @@ pub fn ate_rmse(estimated: &[Vec3], reference: &[Vec3]) -> Option<f64> {
 mod tests {
     use super::*;
 
+    /// `J^T J` and `J^T r` of `rows` random Jacobian rows, each with its component along
+    /// `null` removed when given (so that motion along `null` is unconstrained).
+    fn normal_system(seed: u64, rows: usize, null: Option<[f64; 6]>) -> ([[f64; 6]; 6], [f64; 6]) {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let (mut h, mut g) = ([[0.0f64; 6]; 6], [0.0f64; 6]);
+        for _ in 0..rows {
+            let mut j: [f64; 6] = std::array::from_fn(|k| rng.random_range(-1.0..1.0) * if k < 3 { 0.5 } else { 2.0 });
+            if let Some(u) = null {
+                let along: f64 = j.iter().zip(&u).map(|(a, b)| a * b).sum();
+                j.iter_mut().zip(&u).for_each(|(a, b)| *a -= along * b);
+            }
+            let r: f64 = rng.random_range(-0.01..0.01);
+            for a in 0..6 {
+                for b in 0..6 {
+                    h[a][b] += j[a] * j[b];
+                }
+                g[a] += j[a] * r;
+            }
+        }
+        (h, g)
+    }
+
+    #[test]
+    fn a_well_conditioned_step_is_the_plain_solve() {
+        let c = TrackerConfig::default();
+        for seed in 0..20 {
+            let (h, g) = normal_system(seed, 50, None);
+            assert_eq!(gauss_newton_step(&h, &g, &c), cholesky_solve(&h, &g), "seed {seed}");
+        }
+    }
+
+    #[test]
+    fn a_degenerate_step_solves_the_constrained_part_and_leaves_the_rest() {
+        let c = TrackerConfig::default();
+        for seed in 0..20u64 {
+            // A unit direction mixing rotation and translation, unconstrained by every row.
+            let raw: [f64; 6] = std::array::from_fn(|k| ((seed as f64 + 1.0) * (k as f64 + 0.7)).sin());
+            let norm = raw.iter().map(|v| v * v).sum::<f64>().sqrt();
+            let u = raw.map(|v| v / norm);
+            let (h, g) = normal_system(seed, 50, Some(u));
+            assert_eq!(conditioning(&h, c.min_condition).1, 5, "seed {seed}");
+            let xi = gauss_newton_step(&h, &g, &c).expect("a step");
+            // The system is consistent (g lies in the range of h): the step solves it...
+            let hx: [f64; 6] = std::array::from_fn(|a| (0..6).map(|b| h[a][b] * xi[b]).sum());
+            let scale = g.iter().map(|v| v.abs()).fold(0.0, f64::max);
+            for a in 0..6 {
+                assert!((hx[a] - g[a]).abs() < 1e-6 * scale, "seed {seed}: {hx:?} against {g:?}");
+            }
+            // ...with nothing along the unconstrained direction in the scaled metric
+            // (`D^-1 xi` orthogonal to the null vector `D^-1 u` of `D h D`).
+            let d: [f64; 6] = std::array::from_fn(|i| 1.0 / h[i][i].sqrt());
+            let along: f64 = (0..6).map(|i| (xi[i] / d[i]) * (u[i] / d[i])).sum();
+            let size: f64 = (0..6).map(|i| (xi[i] / d[i]).powi(2)).sum::<f64>().sqrt();
+            assert!(along.abs() <= 1e-6 * size.max(1e-12), "seed {seed}: {along} of {size}");
+        }
+    }
+
     #[test]
     fn horn_alignment_removes_a_rigid_motion() {
         let pts: Vec<Vec3> = (0..20)
