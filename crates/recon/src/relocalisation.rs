@@ -252,7 +252,7 @@ mod tests {
     #[test]
     fn the_most_similar_keyframe_comes_first_and_near_duplicates_are_skipped() {
         let ramp = |shift: f32| move |u: usize, v: usize| 1.0 + 0.02 * u as f32 + shift + 0.001 * v as f32;
-        let stripes = |period: usize| move |u: usize, _v: usize| if (u / period) % 2 == 0 { 40 } else { 200 };
+        let stripes = |period: usize| move |u: usize, _v: usize| if (u / period).is_multiple_of(2) { 40 } else { 200 };
         let at = |x: f32| Affine3A::from_translation(Vec3::new(x, 0.0, 0.0));
         let mut index = KeyframeIndex::new();
         index.add(&frame_with(ramp(0.5), stripes(4)), at(0.0));
