@@ -232,36 +232,31 @@ impl Pipeline {
                         self.tracker.insert(Tracker::with_initial_pose(config, start)?)
                     }
                 };
-                let r = tracker.track(frame, &self.map)?;
+                let mut r = tracker.track(frame, &self.map)?;
+                let mut relocalised = false;
+                if matches!(r.status, TrackingStatus::Lost(reason) if reason != LostReason::NoDepth) {
+                    let attempt = self.lost_streak.is_multiple_of(RELOCALISATION_EVERY);
+                    self.lost_streak += 1;
+                    if attempt {
+                        if let Some(recovered) =
+                            tracker.relocalise(frame, &self.map, &self.keyframe_index, RELOCALISATION_ATTEMPTS)?
+                        {
+                            r = recovered;
+                            relocalised = true;
+                            self.relocalised += 1;
+                        }
+                    }
+                }
                 if r.keyframe {
                     self.keyframe_index.add(frame, r.world_from_camera);
                 }
                 match r.status {
-                    TrackingStatus::Lost(LostReason::NoDepth) => (FrameStatus::Lost(LostReason::NoDepth), None),
-                    TrackingStatus::Lost(reason) => {
-                        let attempt = self.lost_streak.is_multiple_of(RELOCALISATION_EVERY);
-                        self.lost_streak += 1;
-                        let recovered = if attempt {
-                            tracker.relocalise(frame, &self.map, &self.keyframe_index, RELOCALISATION_ATTEMPTS)?
-                        } else {
-                            None
-                        };
-                        match recovered {
-                            Some(r) => {
-                                self.lost_streak = 0;
-                                self.relocalised += 1;
-                                if r.keyframe {
-                                    self.keyframe_index.add(frame, r.world_from_camera);
-                                }
-                                (FrameStatus::Relocalised, Some(r.world_from_camera))
-                            }
-                            None => (FrameStatus::Lost(reason), None),
-                        }
-                    }
+                    TrackingStatus::Lost(reason) => (FrameStatus::Lost(reason), None),
                     TrackingStatus::Initialized => (FrameStatus::Initialized, Some(r.world_from_camera)),
                     TrackingStatus::Tracked => {
                         self.lost_streak = 0;
-                        (FrameStatus::Fused, Some(r.world_from_camera))
+                        let status = if relocalised { FrameStatus::Relocalised } else { FrameStatus::Fused };
+                        (status, Some(r.world_from_camera))
                     }
                 }
             }
