@@ -302,6 +302,17 @@ struct Level {
     own_normals: Vec<Vec3>,
 }
 
+impl Level {
+    /// The normal pixel `(x, y)` of depth `d` on the next finer level takes from this level:
+    /// `normals` of the 2x2 block it lies in, when their depths agree within 5 % (pixels at
+    /// depth edges get none).
+    fn normal_for_finer(&self, normals: &[Vec3], x: usize, y: usize, d: f32) -> Option<Vec3> {
+        let (cw, ch) = (self.k.width as usize, self.k.height as usize);
+        let ci = (y / 2).min(ch - 1) * cw + (x / 2).min(cw - 1);
+        (d > 0.0 && (d - self.depth[ci]).abs() <= 0.05 * d).then(|| normals[ci])
+    }
+}
+
 /// The model view with its intensity image and gradients, ready for association.
 struct Model {
     /// Shared with the tracker's cache (half a megabyte at 160x120: not copied a frame).
@@ -780,16 +791,12 @@ fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
     for l in 1..LEVELS - 1 {
         let (fine, coarse) = levels.split_at_mut(l + 1);
         let (fine, coarse) = (&mut fine[l], &coarse[0]);
-        let (w, cw, ch) = (fine.k.width as usize, coarse.k.width as usize, coarse.k.height as usize);
+        let w = fine.k.width as usize;
         let fine_depth = &fine.depth;
         fine.own_normals = fine.normals.clone();
         fine.normals.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             for (x, n) in row.iter_mut().enumerate() {
-                let d = fine_depth[y * w + x];
-                let (cx, cy) = ((x / 2).min(cw - 1), (y / 2).min(ch - 1));
-                let ci = cy * cw + cx;
-                let dc = coarse.depth[ci];
-                *n = if d > 0.0 && (d - dc).abs() <= 0.05 * d { coarse.normals[ci] } else { Vec3::ZERO };
+                *n = coarse.normal_for_finer(&coarse.normals, x, y, fine_depth[y * w + x]).unwrap_or(Vec3::ZERO);
             }
         });
     }
@@ -1028,13 +1035,10 @@ fn normal_equations(
                     acc.sampled += (d > 0.0) as u64;
                     let (p_cur, n_cur) = if data.vertices.is_empty() {
                         // As `build_pyramid` does for level 1 from level 2.
-                        let Some(c) = coarse else { continue };
-                        let (cw, ch) = (c.k.width as usize, c.k.height as usize);
-                        let ci = (y / 2).min(ch - 1) * cw + (x / 2).min(cw - 1);
-                        if !(d > 0.0 && (d - c.depth[ci]).abs() <= 0.05 * d) {
+                        let Some(n) = coarse.and_then(|c| c.normal_for_finer(&c.own_normals, x, y, d)) else {
                             continue;
-                        }
-                        (data.k.unproject(x as f32, y as f32, d), c.own_normals[ci])
+                        };
+                        (data.k.unproject(x as f32, y as f32, d), n)
                     } else {
                         (data.vertices[i], data.normals[i])
                     };
@@ -1151,13 +1155,10 @@ impl LevelPoints {
                         let d = drow[x];
                         sampled += (d > 0.0) as u64;
                         let (p, n) = if data.vertices.is_empty() {
-                            let Some(c) = coarse else { continue };
-                            let (cw, ch) = (c.k.width as usize, c.k.height as usize);
-                            let ci = (y / 2).min(ch - 1) * cw + (x / 2).min(cw - 1);
-                            if !(d > 0.0 && (d - c.depth[ci]).abs() <= 0.05 * d) {
+                            let Some(n) = coarse.and_then(|c| c.normal_for_finer(&c.own_normals, x, y, d)) else {
                                 continue;
-                            }
-                            (rays.unproject(x, y, d), c.own_normals[ci])
+                            };
+                            (rays.unproject(x, y, d), n)
                         } else {
                             let i = y * w + x;
                             (data.vertices[i], data.normals[i])
