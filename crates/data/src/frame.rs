@@ -54,8 +54,15 @@ impl Frame {
                 return Err(format!("labels have {} pixels, expected {n}", l.len()));
             }
         }
-        if let Some(i) = self.depth.iter().position(|d| !d.is_finite() || *d < 0.0) {
-            return Err(format!("depth pixel {i} is {} (not a distance)", self.depth[i]));
+        // A branch-free scan per block (vectorised) before the exact search: `position` alone
+        // does not vectorise and cost a millisecond a frame at 640x480.
+        let is_distance = |d: &f32| (0.0..f32::INFINITY).contains(d);
+        const BLOCK: usize = 1024;
+        for (b, block) in self.depth.chunks(BLOCK).enumerate() {
+            if !block.iter().fold(true, |ok, d| ok & is_distance(d)) {
+                let i = b * BLOCK + block.iter().position(|d| !is_distance(d)).unwrap_or(0);
+                return Err(format!("depth pixel {i} is {} (not a distance)", self.depth[i]));
+            }
         }
         if let Some(pose) = &self.world_from_camera {
             if !pose.is_finite() {
@@ -97,4 +104,38 @@ pub trait FrameSource: Send + Sync {
     }
     /// Loads frame `index`; errors name the file and what is wrong with it.
     fn frame(&self, index: usize) -> crate::Result<Frame>;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(depth: Vec<f32>, width: u32, height: u32) -> Frame {
+        let k = Intrinsics { width, height, fx: 100.0, fy: 100.0, cx: 50.0, cy: 40.0 };
+        let n = depth.len();
+        Frame { color: vec![[0; 3]; n], ..Frame::from_depth(k, depth) }
+    }
+
+    /// The blockwise scan reports the same first bad pixel as a plain search.
+    #[test]
+    fn validate_names_the_first_pixel_that_is_not_a_distance() {
+        let (w, h) = (100u32, 80u32);
+        let n = (w * h) as usize;
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -0.5, -1e-30] {
+            for at in [0, 1023, 1024, 5000, n - 1] {
+                let mut depth: Vec<f32> = (0..n).map(|i| (i % 7) as f32 * 0.5).collect();
+                depth[at] = bad;
+                if at + 3 < n {
+                    depth[at + 3] = f32::NAN;
+                }
+                let err = frame(depth, w, h).validate().expect_err("bad depth");
+                assert!(err.starts_with(&format!("depth pixel {at} is ")), "{err}");
+            }
+        }
+        let ok: Vec<f32> = (0..n).map(|i| if i % 3 == 0 { 0.0 } else { i as f32 }).collect();
+        assert_eq!(frame(ok, w, h).validate(), Ok(()));
+        let mut neg_zero = vec![1.0f32; n];
+        neg_zero[17] = -0.0;
+        assert_eq!(frame(neg_zero, w, h).validate(), Ok(()), "-0 is 0: a missing measurement");
+    }
 }
