@@ -3,9 +3,10 @@
 //! `label` property, `semantic.ply` in class colours, `trajectory.txt`) and the semantic score
 //! against a labelled ground truth.
 //!
-//! The pipeline time (what the real-time factor divides by) counts only the front end's
-//! stages (tracking, fusion, meshing, the semantic snapshot); the network runs in the back
-//! end thread beside it and is reported on its own line. Producing the input (decoding files,
+//! The pipeline time (what the real-time factor divides by) counts the front end's stages
+//! (tracking, fusion, meshing, the semantic snapshot) and its waits for a semantic pass still
+//! running at the next keyframe; the network runs in the back end thread beside it and is
+//! reported on its own line. Producing the input (decoding files,
 //! simulating the sensor) is timed but left out, as a camera delivers it.
 
 use std::path::{Path, PathBuf};

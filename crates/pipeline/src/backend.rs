@@ -6,6 +6,13 @@
 //! and colours, and the gravity-aligned frame), so the result depends only on the job: the
 //! front end decides when jobs are made and when results are applied, and with that the
 //! pipeline's determinism.
+//!
+//! The back end has its own rayon pool, and on Linux its threads run at a lower scheduling
+//! priority: on the global pool, the front end's parallel stages queued behind the network's
+//! tasks (a worker drains its own deque before it takes injected work), and with two cores
+//! the front end, which must keep up with the camera, should get the CPU first while the
+//! network fills the gaps. Results do not change: the pool has as many threads as the
+//! global one, and the network's output does not depend on the thread count anyway.
 
 use std::sync::mpsc::{channel, Receiver, Sender, TryRecvError};
 use std::thread::JoinHandle;
@@ -94,15 +101,22 @@ pub(crate) struct Backend {
 }
 
 impl Backend {
-    /// Starts the thread, which owns `net`.
+    /// Starts the thread, which owns `net`, and its pool.
     pub fn start(mut net: Segmenter) -> Result<Self> {
         let (job_tx, job_rx) = channel::<Job>();
         let (res_tx, res_rx) = channel::<Result<JobResult>>();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(rayon::current_num_threads())
+            .thread_name(|i| format!("semantic worker {i}"))
+            .start_handler(|_| lower_priority())
+            .build()
+            .map_err(|e| PipelineError::Backend(format!("cannot start the worker pool: {e}")))?;
         let handle = std::thread::Builder::new()
             .name("semantic back end".into())
             .spawn(move || {
+                lower_priority();
                 for job in job_rx {
-                    if res_tx.send(run_job(&mut net, job)).is_err() {
+                    if res_tx.send(pool.install(|| run_job(&mut net, job))).is_err() {
                         break;
                     }
                 }
@@ -131,6 +145,26 @@ impl Backend {
             Ok(r) => Some(r),
             Err(TryRecvError::Empty) => None,
             Err(TryRecvError::Disconnected) => Some(Err(PipelineError::Backend("the thread has exited".into()))),
+        }
+    }
+}
+
+/// Niceness of the back end's threads (0 is the front end's; 19 the lowest priority). Not
+/// the lowest: on a loaded machine the network must still make progress.
+#[cfg(target_os = "linux")]
+const BACKEND_NICENESS: i32 = 10;
+
+/// Lowers the calling thread's scheduling priority (Linux gives each thread its own nice
+/// value); elsewhere, and where the call fails, the thread keeps its priority, which changes
+/// timings only.
+fn lower_priority() {
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: `gettid` has no preconditions; `setpriority` on a thread id only reads its
+        // arguments.
+        unsafe {
+            let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+            libc::setpriority(libc::PRIO_PROCESS, tid, BACKEND_NICENESS);
         }
     }
 }

@@ -45,10 +45,8 @@ pub struct SemanticConfig {
     /// Side of the tiles that changes are tracked in, metres (a multiple of the network's voxel
     /// is used: 0.5 m at 5 cm voxels).
     pub tile_m: f32,
-    /// Surface voxels are those within this many TSDF voxels of the zero crossing.
-    pub surface_band_voxels: f32,
     /// Incremental passes re-label a tile when one of its cells is new, lost its surface, or
-    /// its number of surface voxels moved by more than this fraction since it was last
+    /// its number of surface points moved by more than this fraction since it was last
     /// labelled (0.25: re-observing a surface leaves its cells alone, filling a hole does not).
     pub min_cell_change: f32,
     /// Real-time mode: the front end never waits for the back end; a keyframe that finds the
@@ -63,14 +61,7 @@ pub struct SemanticConfig {
 
 impl Default for SemanticConfig {
     fn default() -> Self {
-        Self {
-            mode: SemanticMode::default(),
-            tile_m: 0.5,
-            surface_band_voxels: 1.0,
-            min_cell_change: 0.25,
-            realtime: false,
-            up: None,
-        }
+        Self { mode: SemanticMode::default(), tile_m: 0.5, min_cell_change: 0.25, realtime: false, up: None }
     }
 }
 
@@ -123,9 +114,6 @@ impl PipelineConfig {
         let s = &self.semantics;
         if !(s.tile_m.is_finite() && (0.05..=10.0).contains(&s.tile_m)) {
             return bad(format!("semantic tile {} m is outside 0.05..10 m", s.tile_m));
-        }
-        if !(s.surface_band_voxels.is_finite() && (0.1..=16.0).contains(&s.surface_band_voxels)) {
-            return bad(format!("surface band {} voxels is outside 0.1..16", s.surface_band_voxels));
         }
         if !(s.min_cell_change.is_finite() && (0.0..=10.0).contains(&s.min_cell_change)) {
             return bad(format!("minimum cell change {} is outside 0..10", s.min_cell_change));

@@ -33,8 +33,9 @@ const RELOCALISATION_ATTEMPTS: usize = 2;
 /// triple the cost of each lost frame for a recovery a frame or two earlier.
 const RELOCALISATION_EVERY: usize = 3;
 
-/// Stages the front end runs (their sum is [`Pipeline::front_end_seconds`]).
-pub const FRONT_END_STAGES: [&str; 4] = ["tracking", "fusion", "meshing", "semantic snapshot"];
+/// Stages the front end runs, and its waits for the back end (their sum is
+/// [`Pipeline::front_end_seconds`]).
+pub const FRONT_END_STAGES: [&str; 5] = ["tracking", "fusion", "meshing", "semantic snapshot", "semantic wait"];
 
 /// What happened to one frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -154,8 +155,7 @@ impl Pipeline {
                         c.name, c.in_channels
                     )));
                 }
-                let cells =
-                    SurfaceCells::new(c.voxel_size, config.tsdf.voxel_size, config.semantics.surface_band_voxels);
+                let cells = SurfaceCells::new(c.voxel_size, config.tsdf.voxel_size);
                 Some(Semantics {
                     cells,
                     labels: LabelStore::default(),
@@ -316,7 +316,8 @@ impl Pipeline {
             return Ok(false);
         }
         let t = Instant::now();
-        let changed = s.cells.update(&self.map);
+        // The mesh is up to date: keyframes re-mesh before they snapshot, and so does `finish`.
+        let changed = s.cells.update(&self.mesher);
         s.stale = false;
         if changed.is_empty() || s.cells.is_empty() {
             return Ok(false);
@@ -407,6 +408,9 @@ impl Pipeline {
     /// None at present (failures of the back end are [`Pipeline::warnings`]); the `Result`
     /// leaves room for outputs that can fail.
     pub fn finish(&mut self) -> Result<LabeledMesh> {
+        if self.meshed_at != self.fused {
+            self.remesh();
+        }
         for _ in 0..2 {
             if let Some(s) = &self.semantics {
                 if s.in_flight.is_some() {
@@ -420,9 +424,6 @@ impl Pipeline {
             if !self.start_pass(frame)? {
                 break;
             }
-        }
-        if self.meshed_at != self.fused {
-            self.remesh();
         }
         Ok(self.mesh())
     }
@@ -461,7 +462,9 @@ impl Pipeline {
         &self.times
     }
 
-    /// Seconds the front end spent in [`FRONT_END_STAGES`] (what a real-time factor divides).
+    /// Seconds the front end spent in [`FRONT_END_STAGES`] (what a real-time factor divides):
+    /// its own work and, without `realtime`, its waits for a semantic pass still running at
+    /// the next keyframe, so that the factor also says whether semantics keep up.
     pub fn front_end_seconds(&self) -> f64 {
         FRONT_END_STAGES.iter().filter_map(|s| self.times.summary(s)).map(|s| s.total_ms).sum::<f64>() / 1e3
     }

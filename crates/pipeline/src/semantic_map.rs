@@ -2,9 +2,15 @@
 //! size (5 cm), kept up to date chunk by chunk, and the class probabilities accumulated per
 //! cell over the semantic passes.
 //!
+//! The surface is the incremental mesh's vertices. At a keyframe the front end has just
+//! re-meshed every chunk that changed, so the cells are brought up to date from those chunk
+//! meshes alone: no second pass over the voxels (which cost as much as meshing itself), and
+//! the network sees the same kind of input it was trained on (reconstructions of rendered
+//! scans are meshes too, see `semrecon make-scans`).
+//!
 //! Cells live on the map frame's grid, not the gravity-aligned one: the up estimate may change
 //! from pass to pass, the stored labels must not move with it. Each cell is summarised by
-//! integer sums (fine voxel coordinates, colours, quantised normals, counts), so that a chunk's
+//! integer sums (fixed-point positions, colours, quantised normals, counts), so that a chunk's
 //! old contribution can be subtracted exactly when it changes and the result never depends on
 //! the order of updates.
 //!
@@ -12,14 +18,13 @@
 //! settles as evidence accumulates instead of flickering with each pass, and later passes, made
 //! on more complete geometry, still outvote early ones once they agree with each other.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeSet, HashMap};
 
 use glam::{IVec3, Vec3};
 use rayon::prelude::*;
 use semrecon_data::class::UNLABELED;
 use semrecon_recon::map::ChunkHashBuilder;
-use semrecon_recon::surface_voxels::chunk_surface_voxels;
-use semrecon_recon::{ChunkKey, TsdfMap};
+use semrecon_recon::{ChunkKey, ChunkMesh, IncrementalMesher};
 
 use crate::gravity::SurfaceSample;
 
@@ -32,10 +37,13 @@ pub type CellKey = IVec3;
 /// Fixed-point scale of the normal sums.
 const NORMAL_SCALE: f32 = 1024.0;
 
-/// Exact sums over the surface voxels of one cell (or of one chunk's part of it).
+/// Fixed-point steps of the position sums per map voxel (0.02 mm at 5 mm voxels).
+const POSITION_STEPS_PER_VOXEL: f32 = 256.0;
+
+/// Exact sums over the surface points of one cell (or of one chunk's part of it).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 struct CellSum {
-    voxel: [i64; 3],
+    position: [i64; 3],
     color: [u64; 3],
     normal: [i64; 3],
     count: u64,
@@ -44,7 +52,7 @@ struct CellSum {
 impl CellSum {
     fn add(&mut self, o: &CellSum) {
         for k in 0..3 {
-            self.voxel[k] += o.voxel[k];
+            self.position[k] += o.position[k];
             self.color[k] += o.color[k];
             self.normal[k] += o.normal[k];
         }
@@ -53,7 +61,7 @@ impl CellSum {
 
     fn sub(&mut self, o: &CellSum) {
         for k in 0..3 {
-            self.voxel[k] -= o.voxel[k];
+            self.position[k] -= o.position[k];
             self.color[k] -= o.color[k];
             self.normal[k] -= o.normal[k];
         }
@@ -66,14 +74,14 @@ impl CellSum {
 pub struct Cell {
     /// The cell.
     pub key: CellKey,
-    /// Mean position of its surface voxels, metres, map frame.
+    /// Mean position of its surface points (mesh vertices), metres, map frame.
     pub position: Vec3,
     /// Mean colour.
     pub color: [u8; 3],
     /// Mean normal (unit, or zero).
     pub normal: Vec3,
-    /// Number of surface voxels.
-    pub voxels: u64,
+    /// Number of surface points.
+    pub points: u64,
 }
 
 /// A chunk's contribution to the cells it overlaps.
@@ -88,25 +96,31 @@ fn order(k: IVec3) -> (i32, i32, i32) {
 #[derive(Debug, Clone)]
 pub struct SurfaceCells {
     cell_size: f32,
-    voxel_size: f32,
-    band_voxels: f32,
-    /// Chunk -> (revision seen, its contribution per cell).
-    chunks: HashMap<ChunkKey, (u64, ChunkCells), ChunkHashBuilder>,
-    cells: BTreeMap<(i32, i32, i32), CellSum>,
-    /// Surface voxels of each cell when it was last reported changed.
+    /// Fixed-point position steps per metre.
+    position_scale: f32,
+    /// The mesher generation the cells are up to date with.
+    generation: u64,
+    /// Chunk -> its contribution per cell (chunks whose mesh has vertices only).
+    chunks: HashMap<ChunkKey, ChunkCells, ChunkHashBuilder>,
+    /// Hashed: a keyframe adds and subtracts a few parts for each of some 10^4 re-meshed
+    /// chunks, where a B-tree's lookups cost more than all the summing.
+    cells: HashMap<CellKey, CellSum, ChunkHashBuilder>,
+    /// The keys of `cells` in (z, y, x) order, for every ordered read.
+    ordered: Vec<CellKey>,
+    /// Surface points of each cell when it was last reported changed.
     seen: HashMap<CellKey, u64, ChunkHashBuilder>,
 }
 
 impl SurfaceCells {
-    /// Empty; cells of `cell_size` metres over a map of `voxel_size`, surface voxels within
-    /// `band_voxels` of the zero crossing.
-    pub fn new(cell_size: f32, voxel_size: f32, band_voxels: f32) -> Self {
+    /// Empty; cells of `cell_size` metres over a map of `voxel_size` metres.
+    pub fn new(cell_size: f32, voxel_size: f32) -> Self {
         Self {
             cell_size,
-            voxel_size,
-            band_voxels,
+            position_scale: POSITION_STEPS_PER_VOXEL / voxel_size,
+            generation: 0,
             chunks: HashMap::default(),
-            cells: BTreeMap::new(),
+            cells: HashMap::default(),
+            ordered: Vec::new(),
             seen: HashMap::default(),
         }
     }
@@ -118,16 +132,18 @@ impl SurfaceCells {
 
     /// The cell holding map point `p`.
     pub fn cell_of_point(&self, p: Vec3) -> CellKey {
-        (p / self.cell_size).floor().as_ivec3()
+        let q = p / self.cell_size;
+        IVec3::new(floor_i32(q.x), floor_i32(q.y), floor_i32(q.z))
     }
 
-    fn cell_of_voxel(&self, v: IVec3) -> CellKey {
-        self.cell_of_point(v.as_vec3() * self.voxel_size)
+    /// The cells with their sums, in (z, y, x) order.
+    fn ordered_cells(&self) -> impl Iterator<Item = (CellKey, &CellSum)> + '_ {
+        self.ordered.iter().filter_map(|k| self.cells.get(k).map(|s| (*k, s)))
     }
 
     /// Whether cell `key` has surface.
     pub fn contains(&self, key: CellKey) -> bool {
-        self.cells.contains_key(&order(key))
+        self.cells.contains_key(&key)
     }
 
     /// Number of cells with surface.
@@ -140,112 +156,114 @@ impl SurfaceCells {
         self.cells.is_empty()
     }
 
-    /// Re-extracts the chunks whose revision changed since the last call (and forgets freed
-    /// ones); returns their keys, sorted.
-    pub fn update(&mut self, map: &TsdfMap) -> Vec<ChunkKey> {
-        let mut changed: Vec<ChunkKey> = map
-            .chunks()
-            .filter(|c| self.chunks.get(&c.key()).map(|e| e.0) != Some(c.revision()))
-            .map(|c| c.key())
-            .collect();
-        let freed: Vec<ChunkKey> = self.chunks.keys().filter(|k| map.chunk(**k).is_none()).copied().collect();
-        changed.sort_unstable_by_key(|k| order(*k));
-        // Extraction and the per-chunk sums in parallel; only merging the sums is serial.
-        let all_parts: Vec<ChunkCells> = changed
-            .par_iter()
-            .map(|key| {
-                // A chunk overlaps a handful of cells (at most 8 when cells are larger than
-                // chunks), so a short list searched linearly beats any map; consecutive
-                // voxels mostly fall in the same cell, hence the last-hit shortcut.
-                let mut parts: Vec<((i32, i32, i32), CellSum)> = Vec::new();
-                let mut last = usize::MAX;
-                for s in chunk_surface_voxels(map, *key, self.band_voxels) {
-                    let c = order(self.cell_of_voxel(s.voxel));
-                    if last >= parts.len() || parts[last].0 != c {
-                        last = match parts.iter().position(|(k, _)| *k == c) {
-                            Some(i) => i,
-                            None => {
-                                parts.push((c, CellSum::default()));
-                                parts.len() - 1
-                            }
-                        };
-                    }
-                    let e = &mut parts[last].1;
-                    for k in 0..3 {
-                        e.voxel[k] += i64::from(s.voxel[k]);
-                        e.color[k] += u64::from(s.color[k]);
-                        e.normal[k] += (s.normal[k] * NORMAL_SCALE).round() as i64;
-                    }
-                    e.count += 1;
-                }
-                parts.sort_unstable_by_key(|(k, _)| *k);
-                parts.into_iter().map(|((z, y, x), s)| (IVec3::new(x, y, z), s)).collect()
-            })
-            .collect();
-        for (key, parts) in changed.iter().zip(all_parts) {
+    /// Brings the cells up to date with the chunk meshes `mesher` re-made since the last call
+    /// (and forgets the chunks it dropped); returns the keys of the chunks whose contribution
+    /// changed, sorted. Call it after [`IncrementalMesher::update`].
+    pub fn update(&mut self, mesher: &IncrementalMesher) -> Vec<ChunkKey> {
+        let mut remeshed: Vec<(ChunkKey, &ChunkMesh)> = mesher.remeshed_since(self.generation).collect();
+        self.generation = mesher.generation();
+        remeshed.sort_unstable_by_key(|(k, _)| order(*k));
+        let freed: Vec<ChunkKey> = self.chunks.keys().filter(|k| mesher.chunk_mesh(**k).is_none()).copied().collect();
+        // The per-chunk sums in parallel; only merging them is serial.
+        let all_parts: Vec<ChunkCells> = remeshed.par_iter().map(|(_, mesh)| self.chunk_cells(mesh)).collect();
+        let mut changed = Vec::with_capacity(remeshed.len() + freed.len());
+        for ((key, _), parts) in remeshed.iter().zip(all_parts) {
             for (c, s) in &parts {
-                self.cells.entry(order(*c)).or_default().add(s);
+                self.cells.entry(*c).or_default().add(s);
             }
-            let revision = map.chunk(*key).map_or(0, |c| c.revision());
-            if let Some((_, old)) = self.chunks.insert(*key, (revision, parts)) {
+            let old = if parts.is_empty() { self.chunks.remove(key) } else { self.chunks.insert(*key, parts) };
+            if let Some(old) = old {
                 self.remove_parts(&old);
             }
+            changed.push(*key);
         }
         for key in &freed {
-            if let Some((_, old)) = self.chunks.remove(key) {
+            if let Some(old) = self.chunks.remove(key) {
                 self.remove_parts(&old);
             }
         }
         changed.extend(freed);
         changed.sort_unstable_by_key(|k| order(*k));
+        self.ordered = self.cells.keys().copied().collect();
+        self.ordered.sort_unstable_by_key(|k| order(*k));
         changed
+    }
+
+    /// A chunk mesh's vertices summed per cell, in (z, y, x) cell order.
+    fn chunk_cells(&self, mesh: &ChunkMesh) -> ChunkCells {
+        // A chunk overlaps a handful of cells (at most 8 when cells are larger than chunks),
+        // so a short list searched linearly beats any map; consecutive vertices mostly fall
+        // in the same cell, hence the last-hit shortcut.
+        let mut parts: Vec<((i32, i32, i32), CellSum)> = Vec::new();
+        let mut last = usize::MAX;
+        for (i, p) in mesh.positions.iter().enumerate() {
+            let c = order(self.cell_of_point(*p));
+            if last >= parts.len() || parts[last].0 != c {
+                last = match parts.iter().position(|(k, _)| *k == c) {
+                    Some(i) => i,
+                    None => {
+                        parts.push((c, CellSum::default()));
+                        parts.len() - 1
+                    }
+                };
+            }
+            let color = mesh.colors.get(i).copied().unwrap_or_default();
+            let normal = mesh.normals.get(i).copied().unwrap_or_default();
+            let e = &mut parts[last].1;
+            for k in 0..3 {
+                e.position[k] += round_i64(p[k] * self.position_scale);
+                e.color[k] += u64::from(color[k]);
+                e.normal[k] += round_i64(normal[k] * NORMAL_SCALE);
+            }
+            e.count += 1;
+        }
+        parts.sort_unstable_by_key(|(k, _)| *k);
+        parts.into_iter().map(|((z, y, x), s)| (IVec3::new(x, y, z), s)).collect()
     }
 
     fn remove_parts(&mut self, parts: &[(CellKey, CellSum)]) {
         for (c, s) in parts {
-            if let Some(e) = self.cells.get_mut(&order(*c)) {
+            if let Some(e) = self.cells.get_mut(c) {
                 e.sub(s);
                 if e.count == 0 {
-                    self.cells.remove(&order(*c));
+                    self.cells.remove(c);
                 }
             }
         }
     }
 
-    fn cell(&self, key: (i32, i32, i32), s: &CellSum) -> Cell {
+    fn cell(&self, key: CellKey, s: &CellSum) -> Cell {
         let n = s.count.max(1) as f64;
-        let mean = |v: i64| (v as f64 / n) as f32;
-        let position = Vec3::new(mean(s.voxel[0]), mean(s.voxel[1]), mean(s.voxel[2])) * self.voxel_size;
+        let mean = |v: i64| (v as f64 / n / f64::from(self.position_scale)) as f32;
+        let position = Vec3::new(mean(s.position[0]), mean(s.position[1]), mean(s.position[2]));
         let color = [0, 1, 2].map(|k| ((s.color[k] as f64 / n).round() as u64).min(255) as u8);
         let normal = Vec3::new(s.normal[0] as f32, s.normal[1] as f32, s.normal[2] as f32).normalize_or_zero();
-        Cell { key: IVec3::new(key.2, key.1, key.0), position, color, normal, voxels: s.count }
+        Cell { key, position, color, normal, points: s.count }
     }
 
     /// Every cell, in (z, y, x) order.
     pub fn cells(&self) -> Vec<Cell> {
-        self.cells.iter().map(|(k, s)| self.cell(*k, s)).collect()
+        self.ordered_cells().map(|(k, s)| self.cell(k, s)).collect()
     }
 
-    /// The cells as samples for the up estimate (weight: surface voxels), in (z, y, x) order.
+    /// The cells as samples for the up estimate (weight: surface points), in (z, y, x) order.
     pub fn samples(&self) -> Vec<SurfaceSample> {
-        self.cells
-            .iter()
+        self.ordered_cells()
             .map(|(k, s)| {
-                let c = self.cell(*k, s);
-                SurfaceSample { position: c.position, normal: c.normal, weight: c.voxels as f32 }
+                let c = self.cell(k, s);
+                SurfaceSample { position: c.position, normal: c.normal, weight: c.points as f32 }
             })
             .collect()
     }
 
     /// Cells whose surface changed noticeably since they were last reported: new cells, cells
-    /// that lost their surface, and cells whose surface voxel count moved by more than
+    /// that lost their surface, and cells whose surface point count moved by more than
     /// `min_change` (a fraction) from the count they were last reported with. Re-observing a
     /// surface changes its chunks' revisions at every frame but hardly its cells, so this is
     /// what decides where the network runs again. Cells in (z, y, x) order.
     pub fn take_changed_cells(&mut self, min_change: f32) -> Vec<CellKey> {
         let mut changed = Vec::new();
-        for (k, s) in &self.cells {
-            let key = IVec3::new(k.2, k.1, k.0);
+        for (key, s) in self.ordered_cells() {
             let moved = match self.seen.get(&key) {
                 None => true,
                 Some(&old) => (s.count as f64 - old as f64).abs() > f64::from(min_change) * old as f64,
@@ -255,12 +273,11 @@ impl SurfaceCells {
             }
         }
         for key in &changed {
-            if let Some(s) = self.cells.get(&order(*key)) {
+            if let Some(s) = self.cells.get(key) {
                 self.seen.insert(*key, s.count);
             }
         }
-        let mut gone: Vec<CellKey> =
-            self.seen.keys().filter(|k| !self.cells.contains_key(&order(**k))).copied().collect();
+        let mut gone: Vec<CellKey> = self.seen.keys().filter(|k| !self.cells.contains_key(*k)).copied().collect();
         gone.sort_unstable_by_key(|k| order(*k));
         for k in &gone {
             self.seen.remove(k);
@@ -291,7 +308,7 @@ impl SurfaceCells {
         context_tiles: i32,
     ) -> Vec<(Cell, bool)> {
         let Some(update) = update else {
-            return self.cells.iter().map(|(k, s)| (self.cell(*k, s), true)).collect();
+            return self.ordered_cells().map(|(k, s)| (self.cell(k, s), true)).collect();
         };
         let mut context = BTreeSet::new();
         for &(z, y, x) in update {
@@ -303,12 +320,11 @@ impl SurfaceCells {
                 }
             }
         }
-        self.cells
-            .iter()
+        self.ordered_cells()
             .filter_map(|(k, s)| {
-                let t = IVec3::new(k.2, k.1, k.0).div_euclid(IVec3::splat(tile_cells));
+                let t = k.div_euclid(IVec3::splat(tile_cells));
                 let t = (t.z, t.y, t.x);
-                context.contains(&t).then(|| (self.cell(*k, s), update.contains(&t)))
+                context.contains(&t).then(|| (self.cell(k, s), update.contains(&t)))
             })
             .collect()
     }
@@ -354,7 +370,7 @@ impl LabelStore {
     }
 
     /// The class of cell `key`, else of the neighbouring cell (26-neighbourhood) with the most
-    /// evidence (a mesh vertex can sit just outside the cells that hold surface voxels).
+    /// evidence (a vertex can lie in a cell no pass has labelled yet: meshed after the last pass).
     pub fn label_near(&self, key: CellKey) -> u8 {
         if let Some(p) = self.probs.get(&key) {
             return argmax(p) as u8;
@@ -383,6 +399,20 @@ impl LabelStore {
     }
 }
 
+/// `x.floor() as i32` without the library call `floor` is on x86-64 before SSE4.1 (this runs
+/// per mesh vertex at every keyframe); NaN gives 0 and out-of-range values saturate.
+fn floor_i32(x: f32) -> i32 {
+    let t = x as i32;
+    t.saturating_sub(((t as f32) > x) as i32)
+}
+
+/// `x.round() as i64` (half away from zero) without the library call, for the fixed-point sums
+/// (below 2^23 in magnitude: 160 m of positions at 5 mm voxels); exact except at the float just
+/// below one half, which is of no consequence there.
+fn round_i64(x: f32) -> i64 {
+    (x + 0.5f32.copysign(x)) as i64
+}
+
 fn argmax(p: &[f32]) -> usize {
     let mut best = 0;
     for (i, &v) in p.iter().enumerate() {
@@ -396,6 +426,22 @@ fn argmax(p: &[f32]) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn integer_floor_and_round_match_the_library() {
+        let mut x = -3.0f32;
+        while x < 3.0 {
+            assert_eq!(floor_i32(x), x.floor() as i32, "{x}");
+            x += 0.0625;
+        }
+        for x in [-2.5f32, -0.5, -0.3, 0.0, 0.3, 0.5, 1.5, 1e6 + 0.5, -1e6 - 0.5, 12345.678] {
+            assert_eq!(floor_i32(x), x.floor() as i32, "{x}");
+            assert_eq!(round_i64(x), x.round() as i64, "{x}");
+        }
+        assert_eq!(floor_i32(f32::NAN), 0);
+        assert_eq!(floor_i32(-1e20), i32::MIN);
+        assert_eq!(floor_i32(1e20), i32::MAX);
+    }
 
     #[test]
     fn labels_settle_on_the_accumulated_evidence() {

@@ -28,7 +28,6 @@ pub mod map;
 pub mod marching_cubes;
 pub mod raycast;
 pub mod relocalisation;
-pub mod surface_voxels;
 pub mod tracking;
 
 pub use error::{ReconError, Result};

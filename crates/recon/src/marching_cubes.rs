@@ -823,6 +823,8 @@ fn readers(changed: &[u64; CHUNK_VOXELS / 64]) -> u32 {
 struct CacheEntry {
     key: ChunkKey,
     revision: u64,
+    /// The [`IncrementalMesher::generation`] of the update that last re-meshed it.
+    meshed_at: u64,
     mesh: ChunkMesh,
     snapshot: Option<Box<Snapshot>>,
 }
@@ -839,6 +841,8 @@ pub struct IncrementalMesher {
     /// Entries in a slab, so that re-meshing can write into them in parallel.
     entries: Vec<CacheEntry>,
     tolerance: RemeshTolerance,
+    /// Updates so far.
+    generation: u64,
 }
 
 impl Default for IncrementalMesher {
@@ -850,7 +854,7 @@ impl Default for IncrementalMesher {
 impl IncrementalMesher {
     /// An empty cache in exact mode: the mesh always equals a full re-mesh.
     pub fn new() -> Self {
-        Self { index: HashMap::default(), entries: Vec::new(), tolerance: RemeshTolerance::EXACT }
+        Self { index: HashMap::default(), entries: Vec::new(), tolerance: RemeshTolerance::EXACT, generation: 0 }
     }
 
     /// An empty cache with the given tolerance; fails outside its documented range.
@@ -874,6 +878,7 @@ impl IncrementalMesher {
     /// [`RemeshTolerance`]), and their neighbours that read the changed voxels; drops meshes
     /// of freed chunks. Parallel over chunks, deterministic.
     pub fn update(&mut self, map: &TsdfMap) -> MeshingStats {
+        self.generation += 1;
         // Freed chunks: drop their entries, highest position first (swap_remove moves only
         // entries that stay).
         let freed_entries: Vec<u32> = self
@@ -903,6 +908,7 @@ impl IncrementalMesher {
                     self.entries.push(CacheEntry {
                         key: c.key,
                         revision: UNSEEN,
+                        meshed_at: 0,
                         mesh: ChunkMesh::default(),
                         snapshot: None,
                     });
@@ -988,7 +994,9 @@ impl IncrementalMesher {
         let remeshed = jobs.len();
         jobs.par_iter_mut().for_each_init(Scratch::new, |s, (key, _, mesh)| remesh_into(map, *key, s, mesh));
         for (_, i, mesh) in jobs {
-            self.entries[i as usize].mesh = mesh;
+            let e = &mut self.entries[i as usize];
+            e.mesh = mesh;
+            e.meshed_at = self.generation;
         }
         MeshingStats {
             changed_chunks: changed_count + freed.len(),
@@ -1000,6 +1008,19 @@ impl IncrementalMesher {
     /// The cached mesh of chunk `key`.
     pub fn chunk_mesh(&self, key: ChunkKey) -> Option<&ChunkMesh> {
         self.index.get(&key).map(|&i| &self.entries[i as usize].mesh)
+    }
+
+    /// The number of [`IncrementalMesher::update`] calls so far: a consumer that remembers it
+    /// can ask [`IncrementalMesher::remeshed_since`] for what changed after.
+    pub fn generation(&self) -> u64 {
+        self.generation
+    }
+
+    /// The chunks re-meshed by the updates after `generation`, with their meshes (in cache
+    /// order, which depends on the history of the map: sort the keys where order matters).
+    /// Chunks freed since are simply absent from the cache ([`IncrementalMesher::chunk_mesh`]).
+    pub fn remeshed_since(&self, generation: u64) -> impl Iterator<Item = (ChunkKey, &ChunkMesh)> + '_ {
+        self.entries.iter().filter(move |e| e.meshed_at > generation).map(|e| (e.key, &e.mesh))
     }
 
     /// Number of cached chunk meshes.

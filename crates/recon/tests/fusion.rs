@@ -271,13 +271,21 @@ fn incremental_meshing_equals_full_meshing() {
             assert_eq!(mesher.mesh(), extract_mesh(&map), "after frame {i}");
         }
     }
+    assert_eq!(mesher.remeshed_since(0).count(), mesher.chunk_count());
     // Nothing changed: nothing re-meshed.
+    let seen = mesher.generation();
     assert_eq!(mesher.update(&map).remeshed_chunks, 0);
-    // A frame that sees only part of the scene re-meshes only part of it.
+    assert_eq!(mesher.remeshed_since(seen).count(), 0);
+    // A frame that sees only part of the scene re-meshes only part of it, and
+    // `remeshed_since` names exactly those chunks with their new meshes.
     let close = scene::camera_pose(Vec3::new(0.1, 0.8, 0.6), 0.0);
     map.integrate(&scene::render(k, close, 10), close).expect("fusion");
     let stats = mesher.update(&map);
     assert!(stats.remeshed_chunks < map.chunk_count(), "{stats:?}");
+    assert_eq!(mesher.remeshed_since(seen).count(), stats.remeshed_chunks);
+    for (key, mesh) in mesher.remeshed_since(seen) {
+        assert_eq!(Some(mesh), mesher.chunk_mesh(key));
+    }
     let mesh = mesher.mesh();
     assert_eq!(mesh, extract_mesh(&map));
     mesh.validate().expect("valid mesh");
