@@ -427,6 +427,46 @@ fn argmax(p: &[f32]) -> usize {
 mod tests {
     use super::*;
 
+    /// Cells kept up to date from the re-meshed chunks at every keyframe equal the cells of
+    /// the final mesh summed in one go, and account for every chunk-mesh vertex.
+    #[test]
+    fn incremental_cells_equal_the_cells_of_the_final_mesh() {
+        use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
+        use semrecon_data::FrameSource;
+        use semrecon_recon::{TsdfConfig, TsdfMap};
+
+        let mut config = SyntheticScanConfig::new(3);
+        config.frames = 12;
+        config.intrinsics = config.intrinsics.scaled(160, 120);
+        let (_room, scan) = synthetic_scan(&config).expect("scan");
+        let tsdf = TsdfConfig { voxel_size: 0.02, truncation_voxels: 4.0, ..TsdfConfig::default() };
+        let mut map = TsdfMap::new(tsdf).expect("map");
+        let mut mesher = IncrementalMesher::new();
+        let mut cells = SurfaceCells::new(0.05, 0.02);
+        let mut reported = 0;
+        for i in 0..scan.len() {
+            let frame = scan.frame(i).expect("frame");
+            map.integrate(&frame, frame.world_from_camera.expect("pose")).expect("fusion");
+            if i % 3 == 2 {
+                mesher.update(&map);
+                reported += cells.update(&mesher).len();
+                // A second call with nothing re-meshed changes nothing.
+                assert!(cells.update(&mesher).is_empty());
+            }
+        }
+        assert!(reported > 0);
+        let mut full_mesher = IncrementalMesher::new();
+        full_mesher.update(&map);
+        let mut full = SurfaceCells::new(0.05, 0.02);
+        full.update(&full_mesher);
+        assert!(full.len() > 50, "{} cells", full.len());
+        assert_eq!(cells.cells(), full.cells());
+        let vertices: usize = mesher.remeshed_since(0).map(|(_, m)| m.positions.len()).sum();
+        assert_eq!(cells.cells().iter().map(|c| c.points as usize).sum::<usize>(), vertices);
+        let ordered = cells.cells();
+        assert!(ordered.windows(2).all(|w| order(w[0].key) < order(w[1].key)), "(z, y, x) order");
+    }
+
     #[test]
     fn integer_floor_and_round_match_the_library() {
         let mut x = -3.0f32;
