@@ -104,13 +104,6 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
         let tsdf_ptr = block.tsdf.as_mut_ptr();
         let weight_ptr = block.weight.as_mut_ptr();
         let color_rows = block.color.as_mut_ptr() as *mut u8;
-        for line in (0..N * N * N).step_by(32) {
-            _mm_prefetch::<_MM_HINT_T0>(tsdf_ptr.add(line) as *const i8);
-            _mm_prefetch::<_MM_HINT_T0>(weight_ptr.add(line) as *const i8);
-        }
-        for line in (0..N * N * N * 4).step_by(64) {
-            _mm_prefetch::<_MM_HINT_T0>(color_rows.add(line) as *const i8);
-        }
         // First pass: project every row pair and gather its depths (see the AVX2 kernel).
         // Every entry is written by the first pass before the second reads it; left
         // uninitialised, not zeroed (6 KiB per chunk).
@@ -119,6 +112,14 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
         let mut pair_pix = [MaybeUninit::<__m512i>::uninit(); P];
         for p in 0..P {
             let r = 2 * p;
+            // The block's cache lines are requested along the way, a line or two per row
+            // pair, so that the gathers below are not queued behind 96 block requests.
+            if p % 2 == 0 {
+                _mm_prefetch::<_MM_HINT_T0>(tsdf_ptr.add(r * N) as *const i8);
+            } else {
+                _mm_prefetch::<_MM_HINT_T0>(weight_ptr.add((r - 2) * N) as *const i8);
+            }
+            _mm_prefetch::<_MM_HINT_T0>(color_rows.add(r * N * 4) as *const i8);
             let (y, z) = ((r % N) as f32, (r / N) as f32);
             // Each row's start exactly as the other kernels compute it.
             let row0 = base + dy * y + dz * z;
