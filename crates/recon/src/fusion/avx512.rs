@@ -180,7 +180,19 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 let b = _mm512_mul_ps(w_obs, inv);
                 let t = _mm512_add_ps(_mm512_mul_ps(t_old, a), _mm512_mul_ps(obs, _mm512_mul_ps(b, tscale)));
                 let t_new = _mm512_mask_mov_ps(t_old, valid, round_half_away(t));
-                let w_q = _mm512_min_ps(_mm512_max_ps(round_half_away(_mm512_mul_ps(w_sum, wscale)), one), cap);
+                // `round_half_away` of a non-negative sum needs no sign, and its one special
+                // case (the float below 0.5, rounded to 0 instead of 1) is raised to 1 by the
+                // floor anyway: `trunc(x + 0.5)` gives the same weights in two operations.
+                let w_q = _mm512_min_ps(
+                    _mm512_max_ps(
+                        _mm512_roundscale_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(_mm512_add_ps(
+                            _mm512_mul_ps(w_sum, wscale),
+                            half,
+                        )),
+                        one,
+                    ),
+                    cap,
+                );
                 let w_new = _mm512_mask_mov_ps(w_old_q, valid, w_q);
                 // Integral and in range: conversions and truncating packs are exact.
                 let t_i = _mm512_cvttps_epi32(t_new);
