@@ -65,7 +65,7 @@ enum Kernel {
     /// AVX2 intrinsics with hardware gathers, chosen at run time.
     #[cfg(target_arch = "x86_64")]
     Avx2,
-    /// AVX-512 intrinsics, two voxel rows per register (chunk selection runs the AVX2 walk).
+    /// AVX-512 intrinsics, two voxel rows per register (and 16 pixels' band walks at once).
     #[cfg(target_arch = "x86_64")]
     Avx512,
 }
@@ -438,10 +438,12 @@ impl Candidates {
 fn select_row_with(kernel: Kernel, view: &SelectionView, v: usize, out: &mut Candidates) {
     match kernel {
         Kernel::Portable => select_row(view, v, out),
-        // SAFETY: `Kernel::Avx2` and `Kernel::Avx512` are only chosen where the CPU has AVX2
-        // and FMA.
+        // SAFETY: `Kernel::Avx2` is only chosen where the CPU has AVX2 and FMA.
         #[cfg(target_arch = "x86_64")]
-        Kernel::Avx2 | Kernel::Avx512 => unsafe { avx2::select_row(view, v, out) },
+        Kernel::Avx2 => unsafe { avx2::select_row(view, v, out) },
+        // SAFETY: `Kernel::Avx512` is only chosen where the CPU has AVX-512F.
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx512 => unsafe { avx512::select_row(view, v, out) },
     }
 }
 
