@@ -307,6 +307,7 @@ fn select_mut<'a>(chunks: &'a mut [Chunk], slots: &[u32]) -> Vec<&'a mut Chunk> 
         rest = tail;
         start = slot as usize + 1;
     }
+    debug_assert_eq!(targets.len(), slots.len(), "slots sorted, unique and in the slab");
     targets
 }
 
