@@ -227,6 +227,7 @@ fn main() {
     let (mut sel_ms, mut int_ms, mut tot_ms, mut mesh_ms) = (vec![], vec![], vec![], vec![]);
     let (mut sel_cpu, mut int_cpu, mut mesh_cpu) = (vec![], vec![], vec![]);
     let (mut visited, mut updated, mut remeshed, mut changed) = (0usize, 0usize, 0usize, 0usize);
+    let (mut upd_chunks, mut band_chunks, mut new_chunks, mut freed_chunks) = (0usize, 0usize, 0usize, 0usize);
     let t_all = Instant::now();
     for (i, (frame, pose)) in frames.iter().enumerate() {
         let c0 = cpu_ns();
@@ -244,6 +245,10 @@ fn main() {
             Ok(s) => {
                 visited += s.visited_chunks;
                 updated += s.updated_voxels;
+                upd_chunks += s.updated_chunks;
+                band_chunks += s.band_chunks;
+                new_chunks += s.new_chunks;
+                freed_chunks += s.freed_chunks;
             }
             Err(e) => eprintln!("fusion_bench: {e}"),
         }
@@ -274,6 +279,13 @@ fn main() {
         TsdfMap::bytes_per_chunk(),
         visited as f64 / n as f64,
         updated as f64 / n as f64 / 1e6
+    );
+    println!(
+        "per frame: {:.0} chunks updated, {:.0} with a voxel in the band, {:.0} new, {:.0} freed",
+        upd_chunks as f64 / n as f64,
+        band_chunks as f64 / n as f64,
+        new_chunks as f64 / n as f64,
+        freed_chunks as f64 / n as f64
     );
     stats("chunk selection", &mut sel_ms);
     stats("integration", &mut int_ms);

@@ -65,7 +65,7 @@ enum Kernel {
     /// AVX2 intrinsics with hardware gathers, chosen at run time.
     #[cfg(target_arch = "x86_64")]
     Avx2,
-    /// AVX-512 intrinsics, two voxel rows per register (chunk selection runs the AVX2 walk).
+    /// AVX-512 intrinsics, two voxel rows per register (and 16 pixels' band walks at once).
     #[cfg(target_arch = "x86_64")]
     Avx512,
 }
@@ -203,9 +203,10 @@ impl TsdfMap {
         // gather without bounds checks: larger images take the portable kernel.
         let kernel = if frame.intrinsics.pixel_count() >= 1 << 24 { Kernel::Portable } else { kernel };
         let mut stats = IntegrationStats::default();
-        let mut slots: Vec<(u32, bool)> = keys.iter().map(|&key| self.allocate(key)).collect();
-        slots.sort_unstable();
-        slots.dedup_by_key(|s| s.0);
+        let old_len = self.chunks.len();
+        let unsorted = self.allocate_all(keys);
+        // Chunks allocated above are the new ones.
+        let slots = sorted_unique_slots(&unsorted, self.chunks.len());
         stats.visited_chunks = slots.len();
         if slots.is_empty() {
             return Ok(stats);
@@ -225,13 +226,7 @@ impl TsdfMap {
             max_depth: c.max_depth,
             weight_cap: (c.max_weight * WEIGHT_SCALE).round().clamp(1.0, u16::MAX as f32) as u16,
         };
-        // Hand out `&mut` to exactly the selected chunks: one pass over the slab with a mask.
-        let mut selected = vec![false; self.chunks.len()];
-        for &(s, _) in &slots {
-            selected[s as usize] = true;
-        }
-        let mut targets: Vec<&mut Chunk> =
-            self.chunks.iter_mut().zip(&selected).filter(|(_, &sel)| sel).map(|(c, _)| c).collect();
+        let mut targets = select_mut(&mut self.chunks, &slots);
         // A fixed band (clamped to exactly 1 truncation) skips the band arithmetic.
         let fixed = view.band.min_relative >= 1.0;
         let revision = self.next_revision;
@@ -243,7 +238,8 @@ impl TsdfMap {
         let outcomes: Vec<ChunkOutcome> = targets
             .par_iter_mut()
             .zip(&slots)
-            .map(|(chunk, &(_, is_new))| {
+            .map(|(chunk, &slot)| {
+                let is_new = slot as usize >= old_len;
                 let out = integrate_chunk_with(kernel, chunk, &view, fixed);
                 // A new chunk without a voxel in the band is freed below: no bookkeeping.
                 let kept = !is_new || out.near;
@@ -257,7 +253,8 @@ impl TsdfMap {
             .collect();
         drop(targets);
         let mut to_free = Vec::new();
-        for (&(slot, is_new), out) in slots.iter().zip(&outcomes) {
+        for (&slot, out) in slots.iter().zip(&outcomes) {
+            let is_new = slot as usize >= old_len;
             if is_new && !out.near {
                 to_free.push(slot);
                 continue;
@@ -273,6 +270,45 @@ impl TsdfMap {
         self.free(to_free);
         Ok(stats)
     }
+}
+
+/// `slots` (positions in a slab of `len` chunks, any order, repeats allowed) sorted and
+/// without repeats, through a bitset over the slab: a bit per chunk is a few kilobytes to
+/// clear, less than sorting thousands of slots.
+fn sorted_unique_slots(slots: &[u32], len: usize) -> Vec<u32> {
+    let mut words = vec![0u64; len.div_ceil(64)];
+    for &s in slots {
+        words[s as usize / 64] |= 1 << (s % 64);
+    }
+    let mut sorted = Vec::with_capacity(slots.len());
+    for (w, &word) in words.iter().enumerate() {
+        let mut word = word;
+        while word != 0 {
+            sorted.push((w * 64) as u32 + word.trailing_zeros());
+            word &= word - 1;
+        }
+    }
+    sorted
+}
+
+/// `&mut` to the chunks at the sorted, unique positions `slots`, in that order: the slab is
+/// split at each of them, so the cost follows the selection, not the map.
+fn select_mut<'a>(chunks: &'a mut [Chunk], slots: &[u32]) -> Vec<&'a mut Chunk> {
+    let mut targets = Vec::with_capacity(slots.len());
+    let mut rest = chunks;
+    let mut start = 0;
+    for &slot in slots {
+        let Some((chunk, tail)) =
+            std::mem::take(&mut rest).get_mut(slot as usize - start..).and_then(<[Chunk]>::split_first_mut)
+        else {
+            break;
+        };
+        targets.push(chunk);
+        rest = tail;
+        start = slot as usize + 1;
+    }
+    debug_assert_eq!(targets.len(), slots.len(), "slots sorted, unique and in the slab");
+    targets
 }
 
 /// Everything chunk selection reads, precomputed once per frame.
@@ -403,10 +439,12 @@ impl Candidates {
 fn select_row_with(kernel: Kernel, view: &SelectionView, v: usize, out: &mut Candidates) {
     match kernel {
         Kernel::Portable => select_row(view, v, out),
-        // SAFETY: `Kernel::Avx2` and `Kernel::Avx512` are only chosen where the CPU has AVX2
-        // and FMA.
+        // SAFETY: `Kernel::Avx2` is only chosen where the CPU has AVX2 and FMA.
         #[cfg(target_arch = "x86_64")]
-        Kernel::Avx2 | Kernel::Avx512 => unsafe { avx2::select_row(view, v, out) },
+        Kernel::Avx2 => unsafe { avx2::select_row(view, v, out) },
+        // SAFETY: `Kernel::Avx512` is only chosen where the CPU has AVX-512F.
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx512 => unsafe { avx512::select_row(view, v, out) },
     }
 }
 
@@ -833,6 +871,19 @@ mod tests {
             }
             assert_eq!(map.select_chunks(&frame, pose).expect("select"), expected);
         }
+    }
+
+    #[test]
+    fn selected_slots_are_handed_out_sorted_once_each() {
+        let sorted = sorted_unique_slots(&[70, 3, 64, 3, 0, 129, 70], 130);
+        assert_eq!(sorted, vec![0, 3, 64, 70, 129]);
+        assert!(sorted_unique_slots(&[], 0).is_empty());
+        let mut map = TsdfMap::new(TsdfConfig::default()).expect("valid");
+        for x in 0..130 {
+            map.allocate(IVec3::new(x, 0, 0));
+        }
+        let keys: Vec<i32> = select_mut(&mut map.chunks, &sorted).iter().map(|c| c.key.x).collect();
+        assert_eq!(keys, vec![0, 3, 64, 70, 129]);
     }
 
     #[test]

@@ -17,6 +17,7 @@ use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
 use glam::{IVec3, Vec3};
+use rayon::prelude::*;
 
 use crate::error::{ReconError, Result};
 
@@ -327,50 +328,66 @@ pub(crate) const RECIPROCALS: [u32; 256] = {
 /// frame count instead of with the surface. Beyond the cap the two runs with the smallest
 /// gap between them merge, so the runs become a superset of the frames (re-integrating a
 /// frame that did not touch the chunk only adds its observations).
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
+///
+/// The runs live inline (65 bytes), not on the heap: fusion records a frame in every chunk
+/// it changes, and a heap list cost a cache miss per chunk and frame, on the critical path
+/// of every integration task.
+#[derive(Debug, Clone, Default)]
 pub struct FrameRuns {
-    runs: Vec<(u32, u32)>,
+    /// `runs[..len]` are the runs; entries beyond are unused.
+    runs: [(u32, u32); Self::MAX_RUNS],
+    len: u8,
 }
+
+impl PartialEq for FrameRuns {
+    fn eq(&self, other: &Self) -> bool {
+        self.runs() == other.runs()
+    }
+}
+
+impl Eq for FrameRuns {}
 
 impl FrameRuns {
     /// Most runs kept per chunk (8 bytes each).
     pub const MAX_RUNS: usize = 8;
 
     /// Records `frame` (inclusive runs; repeated or consecutive indices extend the last run).
+    #[inline]
     pub fn push(&mut self, frame: u32) {
-        if let Some(last) = self.runs.last_mut() {
+        let mut n = self.len as usize;
+        if let Some(last) = self.runs[..n].last_mut() {
             if frame >= last.0 && frame <= last.1.saturating_add(1) {
                 last.1 = last.1.max(frame);
                 return;
             }
         }
-        if self.runs.len() == Self::MAX_RUNS {
+        if n == Self::MAX_RUNS {
             // Merge the closest neighbours (first such pair on ties: deterministic).
-            let gap = |i: usize| self.runs[i + 1].0.abs_diff(self.runs[i].1);
-            let i = (0..self.runs.len() - 1).min_by_key(|&i| gap(i)).unwrap_or(0);
-            let (a, b) = (self.runs[i], self.runs[i + 1]);
-            self.runs[i] = (a.0.min(b.0), a.1.max(b.1));
-            self.runs.remove(i + 1);
+            let runs = &mut self.runs;
+            let gap = |i: usize| runs[i + 1].0.abs_diff(runs[i].1);
+            let i = (0..n - 1).min_by_key(|&i| gap(i)).unwrap_or(0);
+            let (a, b) = (runs[i], runs[i + 1]);
+            runs[i] = (a.0.min(b.0), a.1.max(b.1));
+            runs.copy_within(i + 2..n, i + 1);
+            n -= 1;
         }
-        if self.runs.capacity() == 0 {
-            self.runs.reserve_exact(2);
-        }
-        self.runs.push((frame, frame));
+        self.runs[n] = (frame, frame);
+        self.len = (n + 1) as u8;
     }
 
     /// Whether `frame` was recorded (or lies in a gap merged away, see the type).
     pub fn contains(&self, frame: u32) -> bool {
-        self.runs.iter().any(|&(a, b)| (a..=b).contains(&frame))
+        self.runs().iter().any(|&(a, b)| (a..=b).contains(&frame))
     }
 
     /// The runs as inclusive `(first, last)` pairs in recording order.
     pub fn runs(&self) -> &[(u32, u32)] {
-        &self.runs
+        &self.runs[..self.len as usize]
     }
 
     /// Every recorded frame index, in recording order (a superset once runs merged).
     pub fn frames(&self) -> impl Iterator<Item = u32> + '_ {
-        self.runs.iter().flat_map(|&(a, b)| a..=b)
+        self.runs().iter().flat_map(|&(a, b)| a..=b)
     }
 }
 
@@ -542,19 +559,19 @@ impl TsdfMap {
         self.chunks.len()
     }
 
-    /// Bytes one allocated chunk costs: the 4 KiB voxel block, the chunk record and its hash
-    /// entry (frame runs come on top: 8 bytes a run, at most [`FrameRuns::MAX_RUNS`]).
+    /// Bytes one allocated chunk costs: the 4 KiB voxel block, the chunk record (its frame
+    /// runs included: they are inline) and its hash entry.
     pub const fn bytes_per_chunk() -> usize {
         std::mem::size_of::<VoxelBlock>() + std::mem::size_of::<Chunk>() + std::mem::size_of::<(ChunkKey, u32)>() + 1
     }
 
-    /// Approximate heap bytes held by the map (voxels, chunk records, hash table, frame runs).
+    /// Approximate heap bytes held by the map (voxels, chunk records with their frame runs,
+    /// hash table).
     pub fn memory_bytes(&self) -> usize {
         let voxels = self.chunks.len() * std::mem::size_of::<VoxelBlock>();
         let records = self.chunks.capacity() * std::mem::size_of::<Chunk>();
         let table = self.index.capacity() * (std::mem::size_of::<(ChunkKey, u32)>() + 1);
-        let runs: usize = self.chunks.iter().map(|c| c.frames.runs.capacity() * 8).sum();
-        voxels + records + table + runs
+        voxels + records + table
     }
 
     /// The chunk at `key`, if allocated.
@@ -618,7 +635,8 @@ impl TsdfMap {
     }
 
     /// Allocates the chunk at `key` when absent; returns its slab position and whether it is
-    /// new.
+    /// new (tests build maps with it; fusion allocates through [`TsdfMap::allocate_all`]).
+    #[cfg(test)]
     pub(crate) fn allocate(&mut self, key: ChunkKey) -> (u32, bool) {
         if let Some(&i) = self.index.get(&key) {
             return (i, false);
@@ -627,6 +645,37 @@ impl TsdfMap {
         self.chunks.push(Chunk::new(key));
         self.index.insert(key, i);
         (i, true)
+    }
+
+    /// Slab positions of `keys` (in `keys` order, repeats allowed), allocating the missing
+    /// chunks; positions from `chunk_count()` before the call on are the new chunks.
+    ///
+    /// Present chunks are looked up in parallel (a probe costs a cache miss or two) and new
+    /// blocks are made in parallel (a new 4 KiB block costs a page fault); positions are
+    /// handed out serially in order of first appearance, so they never depend on threads.
+    pub(crate) fn allocate_all(&mut self, keys: &[ChunkKey]) -> Vec<u32> {
+        const BATCH: usize = 512;
+        let found: Vec<Option<u32>> =
+            keys.par_iter().with_min_len(BATCH).map(|key| self.index.get(key).copied()).collect();
+        let mut fresh = Vec::new();
+        let mut next = self.chunks.len() as u32;
+        let slots = keys
+            .iter()
+            .zip(found)
+            .map(|(&key, slot)| {
+                slot.unwrap_or_else(|| {
+                    *self.index.entry(key).or_insert_with(|| {
+                        fresh.push(key);
+                        next += 1;
+                        next - 1
+                    })
+                })
+            })
+            .collect();
+        let mut new_chunks = Vec::new();
+        fresh.par_iter().with_min_len(BATCH / 16).map(|&key| Chunk::new(key)).collect_into_vec(&mut new_chunks);
+        self.chunks.append(&mut new_chunks);
+        slots
     }
 
     /// Frees the chunks at the given slab positions (any order, no duplicates).
@@ -713,6 +762,40 @@ mod tests {
         }
         let runs = r.runs();
         assert!(runs.windows(2).all(|w| w[0].1 < w[1].0), "ordered, disjoint: {runs:?}");
+    }
+
+    #[test]
+    fn allocate_all_hands_out_positions_in_order_of_first_appearance() {
+        let mut m = TsdfMap::new(TsdfConfig::default()).expect("valid");
+        for x in 0..3 {
+            m.allocate(IVec3::new(x, 0, 0));
+        }
+        let key = |x: i32| IVec3::new(x, 0, 0);
+        let slots = m.allocate_all(&[key(7), key(1), key(5), key(7), key(0), key(5)]);
+        assert_eq!(slots, vec![3, 1, 4, 3, 0, 4]);
+        assert_eq!(m.chunk_count(), 5);
+        for (k, &i) in &m.index {
+            assert_eq!(m.chunks[i as usize].key, *k);
+        }
+        assert!(m.allocate_all(&[]).is_empty());
+    }
+
+    #[test]
+    fn frame_runs_compare_by_their_runs() {
+        let mut a = FrameRuns::default();
+        let mut b = FrameRuns::default();
+        // Nine runs, the first two merged; and the same eight runs recorded directly.
+        for f in [8, 10, 20, 30, 40, 50, 60, 70, 80] {
+            a.push(f);
+        }
+        for f in [8, 9, 10, 20, 30, 40, 50, 60, 70, 80] {
+            b.push(f);
+        }
+        assert_eq!(a.runs(), &[(8, 10), (20, 20), (30, 30), (40, 40), (50, 50), (60, 60), (70, 70), (80, 80)]);
+        assert_eq!(a, b);
+        let mut c = b.clone();
+        c.push(81);
+        assert_ne!(b, c);
     }
 
     #[test]

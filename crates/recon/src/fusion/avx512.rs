@@ -5,12 +5,15 @@
 //! Same two passes as the AVX2 kernel (project and gather every row pair, then update) and
 //! the same arithmetic lane for lane (no fused multiply-add, same rounding), so all kernels
 //! and the scalar specification `Voxel::fuse` give the same bits.
+//!
+//! Chunk selection's band walk is here too: the AVX2 walk with 16 sampled pixels per
+//! register, so half as many walk steps per image row.
 
 use std::arch::x86_64::*;
 use std::mem::MaybeUninit;
 
-use super::{ChunkOutcome, FrameView};
-use crate::map::{Chunk, SignSummary, CHUNK_SIDE, NOISE_OFFSET, RECIPROCALS, TSDF_SCALE, WEIGHT_SCALE};
+use super::{Candidates, ChunkOutcome, FrameView, SelectionView, SELECTION_OFFSET};
+use crate::map::{Chunk, ChunkKey, SignSummary, CHUNK_SIDE, NOISE_OFFSET, RECIPROCALS, TSDF_SCALE, WEIGHT_SCALE};
 
 /// The colour running mean's reciprocals, in memory for the gather.
 static RECIPROCAL_TABLE: [u32; 256] = RECIPROCALS;
@@ -104,13 +107,6 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
         let tsdf_ptr = block.tsdf.as_mut_ptr();
         let weight_ptr = block.weight.as_mut_ptr();
         let color_rows = block.color.as_mut_ptr() as *mut u8;
-        for line in (0..N * N * N).step_by(32) {
-            _mm_prefetch::<_MM_HINT_T0>(tsdf_ptr.add(line) as *const i8);
-            _mm_prefetch::<_MM_HINT_T0>(weight_ptr.add(line) as *const i8);
-        }
-        for line in (0..N * N * N * 4).step_by(64) {
-            _mm_prefetch::<_MM_HINT_T0>(color_rows.add(line) as *const i8);
-        }
         // First pass: project every row pair and gather its depths (see the AVX2 kernel).
         // Every entry is written by the first pass before the second reads it; left
         // uninitialised, not zeroed (6 KiB per chunk).
@@ -119,6 +115,14 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
         let mut pair_pix = [MaybeUninit::<__m512i>::uninit(); P];
         for p in 0..P {
             let r = 2 * p;
+            // The block's cache lines are requested along the way, a line or two per row
+            // pair, so that the gathers below are not queued behind 96 block requests.
+            if p % 2 == 0 {
+                _mm_prefetch::<_MM_HINT_T0>(tsdf_ptr.add(r * N) as *const i8);
+            } else {
+                _mm_prefetch::<_MM_HINT_T0>(weight_ptr.add((r - 2) * N) as *const i8);
+            }
+            _mm_prefetch::<_MM_HINT_T0>(color_rows.add(r * N * 4) as *const i8);
             let (y, z) = ((r % N) as f32, (r / N) as f32);
             // Each row's start exactly as the other kernels compute it.
             let row0 = base + dy * y + dz * z;
@@ -179,7 +183,19 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 let b = _mm512_mul_ps(w_obs, inv);
                 let t = _mm512_add_ps(_mm512_mul_ps(t_old, a), _mm512_mul_ps(obs, _mm512_mul_ps(b, tscale)));
                 let t_new = _mm512_mask_mov_ps(t_old, valid, round_half_away(t));
-                let w_q = _mm512_min_ps(_mm512_max_ps(round_half_away(_mm512_mul_ps(w_sum, wscale)), one), cap);
+                // `round_half_away` of a non-negative sum needs no sign, and its one special
+                // case (the float below 0.5, rounded to 0 instead of 1) is raised to 1 by the
+                // floor anyway: `trunc(x + 0.5)` gives the same weights in two operations.
+                let w_q = _mm512_min_ps(
+                    _mm512_max_ps(
+                        _mm512_roundscale_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(_mm512_add_ps(
+                            _mm512_mul_ps(w_sum, wscale),
+                            half,
+                        )),
+                        one,
+                    ),
+                    cap,
+                );
                 let w_new = _mm512_mask_mov_ps(w_old_q, valid, w_q);
                 // Integral and in range: conversions and truncating packs are exact.
                 let t_i = _mm512_cvttps_epi32(t_new);
@@ -231,4 +247,132 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
     }
     chunk.signs = signs.bits();
     ChunkOutcome { updated, near: near_any != 0 }
+}
+
+/// `select_row` of the parent module with AVX-512: the AVX2 walk (`avx2::select_row`) with 16
+/// sampled pixels of the row at a time, one per lane, their band walks advanced together
+/// sample by sample. Every quantity is computed as the portable walk computes it (same
+/// operations in the same order, no fused multiply-add, `1 / steps` by division as the table
+/// holds it), so all walks select the same chunks; only which repeats are filtered before the
+/// merge differs.
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[target_feature(enable = "avx512f")]
+pub(super) unsafe fn select_row(view: &SelectionView, v: usize, out: &mut Candidates) {
+    let row_ray = view.row_ray(v);
+    let depth = &view.depth[v * view.width..(v + 1) * view.width];
+    let stride = view.stride;
+    let sampled = view.width.div_ceil(stride);
+    // SAFETY (whole body): AVX-512F is enabled by the caller's check; depth gathers are
+    // masked to sampled pixels of this row; `out.last_*` hold at least `max_steps + 1`
+    // entries and `s <= max_steps`.
+    unsafe {
+        let splat = _mm512_set1_ps;
+        let lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+        let left = _mm512_setr_epi32(0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14);
+        let zero = _mm512_setzero_ps();
+        let limit = splat(2.0 * SELECTION_OFFSET);
+        let offset = _mm512_set1_epi32(SELECTION_OFFSET as i32);
+        let (min_d, max_d) = (splat(view.min_depth), splat(view.max_depth));
+        let (band_c, band_q, band_min) =
+            (splat(view.band.constant), splat(view.band.quadratic), splat(view.band.min_relative));
+        let (noise_offset, one, two) = (splat(NOISE_OFFSET), splat(1.0), splat(2.0));
+        let (trunc, inv_voxel) = (splat(view.trunc), splat(view.inv_voxel));
+        let (cx, fx) = (splat(view.k.cx), splat(view.k.fx));
+        let (rx, ry, rz) = (splat(view.rot.x_axis.x), splat(view.rot.x_axis.y), splat(view.rot.x_axis.z));
+        let (row_x, row_y, row_z) = (splat(row_ray.x), splat(row_ray.y), splat(row_ray.z));
+        let (ox, oy, oz) = (splat(view.origin.x), splat(view.origin.y), splat(view.origin.z));
+        let int_one = _mm512_set1_epi32(1);
+        let max_steps = _mm512_set1_epi32(view.max_steps as i32);
+        for g in (0..sampled).step_by(16) {
+            let in_row = _mm512_cmpgt_epi32_mask(_mm512_set1_epi32((sampled - g) as i32), lane);
+            let u = _mm512_mullo_epi32(
+                _mm512_add_epi32(_mm512_set1_epi32(g as i32), lane),
+                _mm512_set1_epi32(stride as i32),
+            );
+            let d = _mm512_mask_i32gather_ps::<4>(splat(f32::NAN), in_row, u, depth.as_ptr());
+            let valid = _mm512_cmp_ps_mask::<_CMP_GE_OQ>(d, min_d) & _mm512_cmp_ps_mask::<_CMP_LE_OQ>(d, max_d);
+            if valid == 0 {
+                continue;
+            }
+            // `SelectionView::band_walk`, lane by lane.
+            let e = _mm512_sub_ps(d, noise_offset);
+            let rel = _mm512_min_ps(
+                _mm512_max_ps(_mm512_add_ps(band_c, _mm512_mul_ps(band_q, _mm512_mul_ps(e, e))), band_min),
+                one,
+            );
+            let mu = _mm512_mul_ps(rel, trunc);
+            let x = _mm512_mul_ps(mu, inv_voxel);
+            let whole = _mm512_cvttps_epi32(x);
+            // `whole + (whole < x)`.
+            let ceil = _mm512_mask_add_epi32(
+                whole,
+                _mm512_cmp_ps_mask::<_CMP_LT_OQ>(_mm512_cvtepi32_ps(whole), x),
+                whole,
+                int_one,
+            );
+            let steps = _mm512_min_epi32(_mm512_max_epi32(ceil, int_one), max_steps);
+            let t = _mm512_div_ps(_mm512_sub_ps(_mm512_cvtepi32_ps(u), cx), fx);
+            let (ray_x, ray_y, ray_z) = (
+                _mm512_add_ps(_mm512_mul_ps(rx, t), row_x),
+                _mm512_add_ps(_mm512_mul_ps(ry, t), row_y),
+                _mm512_add_ps(_mm512_mul_ps(rz, t), row_z),
+            );
+            let near = _mm512_sub_ps(d, mu);
+            let (px0, py0, pz0) = (
+                _mm512_add_ps(ox, _mm512_mul_ps(ray_x, near)),
+                _mm512_add_ps(oy, _mm512_mul_ps(ray_y, near)),
+                _mm512_add_ps(oz, _mm512_mul_ps(ray_z, near)),
+            );
+            let len = _mm512_mul_ps(_mm512_mul_ps(two, mu), _mm512_div_ps(one, _mm512_cvtepi32_ps(steps)));
+            let (sx, sy, sz) = (_mm512_mul_ps(ray_x, len), _mm512_mul_ps(ray_y, len), _mm512_mul_ps(ray_z, len));
+            let mut lane_steps = [0i32; 16];
+            _mm512_storeu_si512(lane_steps.as_mut_ptr() as *mut _, _mm512_maskz_mov_epi32(valid, steps));
+            let most = lane_steps.iter().copied().max().unwrap_or(0) as usize;
+            let walk_end = _mm512_add_epi32(steps, int_one);
+            for s in 0..=most {
+                let sf = splat(s as f32);
+                let px = _mm512_add_ps(px0, _mm512_mul_ps(sx, sf));
+                let py = _mm512_add_ps(py0, _mm512_mul_ps(sy, sf));
+                let pz = _mm512_add_ps(pz0, _mm512_mul_ps(sz, sf));
+                let in_range = _mm512_cmp_ps_mask::<_CMP_GE_OQ>(px, zero)
+                    & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(py, zero)
+                    & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(pz, zero)
+                    & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(px, limit)
+                    & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(py, limit)
+                    & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(pz, limit);
+                let in_walk = _mm512_cmpgt_epi32_mask(walk_end, _mm512_set1_epi32(s as i32));
+                let ok = valid & in_walk & in_range;
+                if ok == 0 {
+                    continue;
+                }
+                let kx = _mm512_sub_epi32(_mm512_cvttps_epi32(px), offset);
+                let ky = _mm512_sub_epi32(_mm512_cvttps_epi32(py), offset);
+                let kz = _mm512_sub_epi32(_mm512_cvttps_epi32(pz), offset);
+                // A lane repeats the key of its left neighbour (when that one was in the walk)
+                // or, lane 0, the last key sample `s` gave in this row.
+                let prev = |k: __m512i, last: i32| {
+                    _mm512_mask_mov_epi32(_mm512_permutexvar_epi32(left, k), 1, _mm512_set1_epi32(last))
+                };
+                let prev_ok = (ok << 1) | 1;
+                let same = _mm512_cmpeq_epi32_mask(kx, prev(kx, out.last_x[s]))
+                    & _mm512_cmpeq_epi32_mask(ky, prev(ky, out.last_y[s]))
+                    & _mm512_cmpeq_epi32_mask(kz, prev(kz, out.last_z[s]))
+                    & prev_ok;
+                let mut changed = (ok & !same) as u32;
+                let mut keys = [[0i32; 16]; 3];
+                _mm512_storeu_si512(keys[0].as_mut_ptr() as *mut _, kx);
+                _mm512_storeu_si512(keys[1].as_mut_ptr() as *mut _, ky);
+                _mm512_storeu_si512(keys[2].as_mut_ptr() as *mut _, kz);
+                let l = 31 - (ok as u32).leading_zeros() as usize;
+                (out.last_x[s], out.last_y[s], out.last_z[s]) = (keys[0][l], keys[1][l], keys[2][l]);
+                while changed != 0 {
+                    let l = changed.trailing_zeros() as usize;
+                    changed &= changed - 1;
+                    out.push(ChunkKey::new(keys[0][l], keys[1][l], keys[2][l]));
+                }
+            }
+        }
+    }
 }
