@@ -66,7 +66,7 @@ fn run(a: Args) -> Result<(), String> {
     let mut map = TsdfMap::new(map_config).map_err(|e| e.to_string())?;
     println!(
         "synth:{} at {}x{}, {} poses fused {} times (forward, backward, ...), voxel {} mm, truncation {} voxels; \
-         {} bytes per chunk + 8 per frame run (at most 8 runs)",
+         {} bytes per chunk (its frame runs included)",
         a.seed,
         a.size.0,
         a.size.1,

@@ -15,8 +15,8 @@
 //! `target-cpu` may change the last bits).
 //!
 //! Memory: a chunk costs [`TsdfMap::bytes_per_chunk`] bytes (4096 for its 512 voxels of 8
-//! bytes, the rest for its record and hash entry), plus 8 bytes per run of consecutive frames
-//! that touched it. Revisiting a surface adds no chunks. An [`IncrementalMesher`] with a
+//! bytes, the rest for its record, with up to 8 runs of the frames that touched it inline,
+//! and its hash entry). Revisiting a surface adds no chunks and no bytes. An [`IncrementalMesher`] with a
 //! non-zero [`RemeshTolerance`] adds a 2112-byte snapshot per chunk with both signs.
 #![warn(missing_docs)]
 
