@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release -p semrecon-recon --example accuracy_bench -- SOURCE [--frames N]
 //!     [--size WxH] [--voxel M] [--trunc VOXELS] [--band-factor K] [--min-band VOXELS]
-//!     [--max-depth M] [--ideal] [--skip-tracking]
+//!     [--max-depth M] [--min-weight W[,W...]] [--ideal] [--skip-tracking]
 //! ```
 //!
 //! `SOURCE` is `synth:SEED` (a generated room along its generated handheld path) or
@@ -15,7 +15,8 @@
 //! Mesh metrics (semrecon-eval, 5 mm sampling of the ground truth): accuracy = mean distance
 //! of our vertices to the true surface; completeness = share of the true surface within
 //! 1 cm of ours, and within 5 cm (about the share the path saw at all: surfaces the camera
-//! never faced cannot be reconstructed).
+//! never faced cannot be reconstructed). `--min-weight` meshes the same map once per listed
+//! threshold ([`MeshConfig::min_weight`]: lighter voxels count as unobserved; default 0).
 
 #[path = "common/flags.rs"]
 mod flags;
@@ -28,7 +29,7 @@ use glam::{Affine3A, Mat4};
 use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
 use semrecon_data::{read_ply, FrameSource, Intrinsics, LabeledMesh, RenderedScan, SensorModel};
 use semrecon_eval::{evaluate_mesh, MeshEvalConfig};
-use semrecon_recon::{extract_mesh, Tracker, TrackerConfig, TsdfConfig, TsdfMap};
+use semrecon_recon::{extract_mesh_with, MeshConfig, Tracker, TrackerConfig, TsdfConfig, TsdfMap};
 
 use flags::Flags;
 use tracked_path::track_and_fuse;
@@ -44,6 +45,7 @@ struct Args {
     ideal: bool,
     skip_tracking: bool,
     max_depth: f32,
+    min_weights: Vec<f32>,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -58,6 +60,7 @@ fn parse_args() -> Result<Args, String> {
         ideal: false,
         skip_tracking: false,
         max_depth: TsdfConfig::default().max_depth,
+        min_weights: vec![0.0],
     };
     let mut flags = Flags::from_env();
     while let Some(flag) = flags.next_flag() {
@@ -68,6 +71,13 @@ fn parse_args() -> Result<Args, String> {
             "--band-factor" => a.band_factor = flags.value(&flag)?,
             "--min-band" => a.min_band = flags.value(&flag)?,
             "--max-depth" => a.max_depth = flags.value(&flag)?,
+            "--min-weight" => {
+                let list: String = flags.value(&flag)?;
+                a.min_weights = list
+                    .split(',')
+                    .map(|w| w.trim().parse::<f32>().map_err(|e| format!("--min-weight {w}: {e}")))
+                    .collect::<Result<_, _>>()?;
+            }
             "--ideal" => a.ideal = true,
             "--skip-tracking" => a.skip_tracking = true,
             "--size" => a.size = flags.size(&flag)?,
@@ -146,23 +156,25 @@ fn run(a: Args) -> Result<(), String> {
     for f in &frames {
         map.integrate(f, f.world_from_camera.ok_or("rendered frames have poses")?).map_err(|e| e.to_string())?;
     }
-    let mesh = extract_mesh(&map);
     let eval =
         MeshEvalConfig { sample_spacing_m: 0.005, thresholds_m: vec![0.005, 0.01, 0.05], ..MeshEvalConfig::default() };
-    let e = evaluate_mesh(&gt_mesh, &mesh, &eval).map_err(|e| e.to_string())?;
-    let recall = |i: usize| e.scores[i].recall * 100.0;
-    println!(
-        "ground-truth poses: {} triangles; accuracy mean {:.2} mm, median {:.2} mm; \
-         completeness {:.1}% within 5 mm, {:.1}% within 1 cm, {:.1}% within 5 cm \
-         (1 cm over 5 cm: {:.1}% of the surface seen)",
-        mesh.triangle_count(),
-        e.accuracy_mean_m * 1e3,
-        e.accuracy_median_m * 1e3,
-        recall(0),
-        recall(1),
-        recall(2),
-        100.0 * recall(1) / recall(2).max(1e-9)
-    );
+    for &min_weight in &a.min_weights {
+        let mesh = extract_mesh_with(&map, MeshConfig { min_weight }).map_err(|e| e.to_string())?;
+        let e = evaluate_mesh(&gt_mesh, &mesh, &eval).map_err(|e| e.to_string())?;
+        let recall = |i: usize| e.scores[i].recall * 100.0;
+        println!(
+            "ground-truth poses, min weight {min_weight}: {} triangles; accuracy mean {:.2} mm, median {:.2} mm; \
+             completeness {:.1}% within 5 mm, {:.1}% within 1 cm, {:.1}% within 5 cm \
+             (1 cm over 5 cm: {:.1}% of the surface seen)",
+            mesh.triangle_count(),
+            e.accuracy_mean_m * 1e3,
+            e.accuracy_median_m * 1e3,
+            recall(0),
+            recall(1),
+            recall(2),
+            100.0 * recall(1) / recall(2).max(1e-9)
+        );
+    }
 
     if !a.skip_tracking {
         let config = if a.size.0 < 640 {
