@@ -1387,7 +1387,7 @@ mod tests {
                     }
                     kept += want.len();
                 }
-                let least = if min_weight < 0.2 { 150 } else { 20 };
+                let least = if min_weight < 0.01 { 150 } else { 20 };
                 assert!(kept > least && seams > least / 5, "{kept} cells kept, {seams} seams at {min_weight}");
             }
         }
