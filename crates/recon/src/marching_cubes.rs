@@ -456,6 +456,8 @@ pub struct MeshConfig {
 impl MeshConfig {
     /// Every observed voxel counts (what [`extract_mesh`] and [`IncrementalMesher::new`] do).
     pub const ALL_OBSERVED: Self = Self { min_weight: 0.0 };
+    /// What the live pipeline uses: XXX.
+    pub const RECOMMENDED: Self = Self { min_weight: 0.5 };
 
     /// Checks the documented range.
     pub fn validate(&self) -> crate::Result<()> {
