@@ -40,6 +40,10 @@ pub struct ReconArgs {
     /// observed voxel.
     #[arg(long, default_value_t = MeshConfig::RECOMMENDED.min_weight)]
     pub min_mesh_weight: f32,
+    /// Connected pieces of the output mesh with fewer triangles than this are dropped (specks
+    /// of noise floating in free space); 0 keeps everything.
+    #[arg(long, default_value_t = MeshConfig::RECOMMENDED.min_component_triangles)]
+    pub min_mesh_piece: usize,
     /// Where poses come from: tracking, or the dataset's ground truth.
     #[arg(long, value_enum, default_value_t = PoseMode::Track)]
     pub poses: PoseMode,
@@ -106,7 +110,7 @@ pub fn pipeline_config(
     tsdf.validate().with_context(|| format!("truncation of {} voxels", recon.truncation))?;
     let mut config = PipelineConfig {
         tsdf,
-        mesh: MeshConfig { min_weight: recon.min_mesh_weight },
+        mesh: MeshConfig { min_weight: recon.min_mesh_weight, min_component_triangles: recon.min_mesh_piece },
         tracker: TrackerConfig { keyframe_interval: recon.keyframe_every, ..TrackerConfig::default() },
         poses: match recon.poses {
             PoseMode::Track => semrecon_pipeline::PoseMode::Track,

@@ -4,7 +4,8 @@
 //! ```text
 //! cargo run --release -p semrecon-recon --example accuracy_bench -- SOURCE [--frames N]
 //!     [--size WxH] [--voxel M] [--trunc VOXELS] [--band-factor K] [--min-band VOXELS]
-//!     [--max-depth M] [--min-weight W[,W...]] [--ideal] [--skip-tracking]
+//!     [--max-depth M] [--min-weight W[,W...]] [--min-component N[,N...]] [--ideal]
+//!     [--skip-tracking]
 //! ```
 //!
 //! `SOURCE` is `synth:SEED` (a generated room along its generated handheld path) or
@@ -20,7 +21,8 @@
 //! given over the ground-truth samples some frame saw (rendered without noise from the same
 //! poses: the sample projects inside the image, within the fused depth range, within 2 cm of
 //! the rendered depth there). `--min-weight` meshes the same map once per listed
-//! threshold ([`MeshConfig::min_weight`]: lighter voxels count as unobserved; default 0).
+//! threshold ([`MeshConfig::min_weight`]: lighter voxels count as unobserved; default 0),
+//! and `--min-component` per smallest piece kept (`MeshConfig::min_component_triangles`).
 
 #[path = "common/flags.rs"]
 mod flags;
@@ -160,55 +162,6 @@ fn seen_samples(
     Ok((points.into_iter().zip(seen).filter(|(_, s)| *s).map(|(p, _)| p).collect(), total))
 }
 
-/// `mesh` without its connected components (through shared vertices) of fewer than
-/// `min_triangles` triangles, and without the vertices only they used (vertices count in
-/// the accuracy).
-fn drop_small_components(mesh: &LabeledMesh, min_triangles: usize) -> LabeledMesh {
-    if min_triangles == 0 {
-        return mesh.clone();
-    }
-    let n = mesh.positions.len();
-    let mut parent: Vec<u32> = (0..n as u32).collect();
-    fn root(parent: &mut [u32], mut i: u32) -> u32 {
-        while parent[i as usize] != i {
-            parent[i as usize] = parent[parent[i as usize] as usize];
-            i = parent[i as usize];
-        }
-        i
-    }
-    for t in &mesh.triangles {
-        let a = root(&mut parent, t[0]);
-        for &v in &t[1..] {
-            let b = root(&mut parent, v);
-            if a != b {
-                parent[b as usize] = a;
-            }
-        }
-    }
-    let mut size = vec![0usize; n];
-    for t in &mesh.triangles {
-        size[root(&mut parent, t[0]) as usize] += 1;
-    }
-    let mut out = LabeledMesh::default();
-    let mut remap = vec![u32::MAX; n];
-    for t in &mesh.triangles {
-        if size[root(&mut parent, t[0]) as usize] < min_triangles {
-            continue;
-        }
-        let t2 = t.map(|v| {
-            if remap[v as usize] == u32::MAX {
-                remap[v as usize] = out.positions.len() as u32;
-                out.positions.push(mesh.positions[v as usize]);
-                out.colors.push(mesh.colors[v as usize]);
-                out.normals.push(mesh.normals[v as usize]);
-            }
-            remap[v as usize]
-        });
-        out.triangles.push(t2);
-    }
-    out
-}
-
 fn run(a: Args) -> Result<(), String> {
     let sensor = |seed: u64| if a.ideal { SensorModel::ideal() } else { SensorModel::kinect().with_seed(seed) };
     let k =
@@ -269,8 +222,8 @@ fn run(a: Args) -> Result<(), String> {
     let settings: Vec<(f32, usize)> =
         a.min_weights.iter().flat_map(|&w| a.min_components.iter().map(move |&c| (w, c))).collect();
     for (min_weight, min_component) in settings {
-        let mesh = extract_mesh_with(&map, MeshConfig { min_weight }).map_err(|e| e.to_string())?;
-        let mesh = drop_small_components(&mesh, min_component);
+        let config = MeshConfig { min_weight, min_component_triangles: min_component };
+        let mesh = extract_mesh_with(&map, config).map_err(|e| e.to_string())?;
         let e = evaluate_mesh(&gt_mesh, &mesh, &eval).map_err(|e| e.to_string())?;
         let recall = |i: usize| e.scores[i].recall * 100.0;
         println!(

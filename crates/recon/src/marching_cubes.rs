@@ -451,16 +451,23 @@ pub struct MeshConfig {
     /// better left as a hole until more observations come. 0 meshes every observed voxel
     /// (0 to 255).
     pub min_weight: f32,
+    /// Connected pieces of the assembled mesh (triangles joined through shared vertices,
+    /// across chunks) with fewer triangles than this are dropped, with their vertices: specks
+    /// of noise floating in free space, a few voxels across. Only the assembled mesh
+    /// ([`IncrementalMesher::mesh`], [`extract_mesh_with`]) is filtered; chunk meshes
+    /// ([`IncrementalMesher::chunk_mesh`], [`mesh_chunk_with`]) keep them, since whether a
+    /// piece is small depends on its neighbours. 0 keeps everything.
+    pub min_component_triangles: usize,
 }
 
 impl MeshConfig {
     /// Every observed voxel counts (what [`extract_mesh`] and [`IncrementalMesher::new`] do).
-    pub const ALL_OBSERVED: Self = Self { min_weight: 0.0 };
+    pub const ALL_OBSERVED: Self = Self { min_weight: 0.0, min_component_triangles: 0 };
     /// What the live pipeline uses: 0.5, two observations at 2 m or eight at 4 m. On rendered
     /// 300-frame scans with Kinect-like noise (docs/benchmarks.md, "Mesh accuracy, session 6")
     /// it cuts the mean distance of the vertices to the true surface by 14-20 % (the tail of
     /// far, rarely seen surface and grazed depth edges) for 1-2 % of the surface within 1 cm.
-    pub const RECOMMENDED: Self = Self { min_weight: 0.5 };
+    pub const RECOMMENDED: Self = Self { min_weight: 0.5, min_component_triangles: 50 };
 
     /// Checks the documented range.
     pub fn validate(&self) -> crate::Result<()> {
@@ -1129,7 +1136,9 @@ impl IncrementalMesher {
         let mut entries: Vec<&CacheEntry> = self.entries.iter().collect();
         entries.sort_unstable_by_key(|e| key_order(e.key));
         let meshes: Vec<&ChunkMesh> = entries.iter().map(|e| &e.mesh).collect();
-        assemble(&meshes)
+        let mut mesh = assemble(&meshes);
+        drop_small_components(&mut mesh, self.config.min_component_triangles);
+        mesh
     }
 }
 
@@ -1144,7 +1153,9 @@ pub fn extract_mesh(map: &TsdfMap) -> LabeledMesh {
 /// [`crate::ReconError::InvalidConfig`] when the config is out of range.
 pub fn extract_mesh_with(map: &TsdfMap, config: MeshConfig) -> crate::Result<LabeledMesh> {
     config.validate()?;
-    Ok(extract_mesh_configured(map, config.stored_min_weight()))
+    let mut mesh = extract_mesh_configured(map, config.stored_min_weight());
+    drop_small_components(&mut mesh, config.min_component_triangles);
+    Ok(mesh)
 }
 
 fn extract_mesh_configured(map: &TsdfMap, min_weight: u16) -> LabeledMesh {
@@ -1152,6 +1163,82 @@ fn extract_mesh_configured(map: &TsdfMap, min_weight: u16) -> LabeledMesh {
     let meshes: Vec<ChunkMesh> =
         keys.par_iter().map_init(Scratch::new, |s, &k| mesh_chunk_configured(map, k, min_weight, s)).collect();
     assemble(&meshes.iter().collect::<Vec<_>>())
+}
+
+/// Drops the connected pieces of `mesh` (triangles joined through shared vertices) with
+/// fewer than `min_triangles` triangles, and the vertices only they use; the rest keeps its
+/// order. 0 or 1 changes nothing.
+fn drop_small_components(mesh: &mut LabeledMesh, min_triangles: usize) {
+    if min_triangles <= 1 || mesh.triangles.is_empty() {
+        return;
+    }
+    // Union-find over vertices, with path halving.
+    let mut parent: Vec<u32> = (0..mesh.positions.len() as u32).collect();
+    fn root(parent: &mut [u32], mut i: u32) -> u32 {
+        while parent[i as usize] != i {
+            let grand = parent[parent[i as usize] as usize];
+            parent[i as usize] = grand;
+            i = grand;
+        }
+        i
+    }
+    for t in &mesh.triangles {
+        let a = root(&mut parent, t[0]);
+        for &v in &t[1..] {
+            let b = root(&mut parent, v);
+            if a != b {
+                parent[b as usize] = a;
+            }
+        }
+    }
+    let roots: Vec<u32> = mesh.triangles.iter().map(|t| root(&mut parent, t[0])).collect();
+    let mut size = vec![0u32; mesh.positions.len()];
+    for &r in &roots {
+        size[r as usize] = size[r as usize].saturating_add(1);
+    }
+    let keep = |r: u32| size[r as usize] as usize >= min_triangles;
+    if roots.iter().all(|&r| keep(r)) {
+        return;
+    }
+    let mut used = vec![false; mesh.positions.len()];
+    for (t, &r) in mesh.triangles.iter().zip(&roots) {
+        if keep(r) {
+            for &v in t {
+                used[v as usize] = true;
+            }
+        }
+    }
+    let mut remap = vec![u32::MAX; mesh.positions.len()];
+    let mut next = 0u32;
+    for (m, &u) in remap.iter_mut().zip(&used) {
+        if u {
+            *m = next;
+            next += 1;
+        }
+    }
+    fn retain<T: Copy>(v: &mut Vec<T>, used: &[bool]) {
+        if v.len() == used.len() {
+            let mut i = 0;
+            v.retain(|_| {
+                i += 1;
+                used[i - 1]
+            });
+        }
+    }
+    retain(&mut mesh.positions, &used);
+    retain(&mut mesh.colors, &used);
+    retain(&mut mesh.normals, &used);
+    retain(&mut mesh.vertex_labels, &used);
+    let kept: Vec<bool> = roots.iter().map(|&r| keep(r)).collect();
+    retain(&mut mesh.triangle_labels, &kept);
+    let mut i = 0;
+    mesh.triangles.retain(|_| {
+        i += 1;
+        kept[i - 1]
+    });
+    for t in &mut mesh.triangles {
+        *t = t.map(|v| remap[v as usize]);
+    }
 }
 
 /// Concatenates chunk meshes, welding vertices on shared cell edges.
@@ -1385,7 +1472,8 @@ mod tests {
                 for key in map.sorted_keys() {
                     let want = kept_cells_plain(&map, key, min_weight, &mut seams);
                     let want_triangles: usize = want.iter().map(|&(_, case)| case_table().triangles(case).len()).sum();
-                    let mesh = mesh_chunk_with(&map, key, MeshConfig { min_weight }).expect("valid");
+                    let config = MeshConfig { min_weight, ..MeshConfig::default() };
+                    let mesh = mesh_chunk_with(&map, key, config).expect("valid");
                     assert_eq!(mesh.triangles.len(), want_triangles, "chunk {key}, round {round}, {min_weight}");
                     if min_weight == 0.0 {
                         assert_eq!(mesh, mesh_chunk(&map, key));
@@ -1396,6 +1484,33 @@ mod tests {
                 assert!(kept > least && seams > least / 5, "{kept} cells kept, {seams} seams at {min_weight}");
             }
         }
+    }
+
+    #[test]
+    fn small_pieces_are_dropped_with_their_vertices() {
+        // A strip of 3 triangles (vertices 0, 1, 2, 4, 5), a lone triangle (3, 6, 7), and an
+        // unused vertex 8.
+        let p = |i: usize| Vec3::new(i as f32, (i * i) as f32, 0.0);
+        let mut mesh = LabeledMesh {
+            positions: (0..9).map(p).collect(),
+            colors: (0..9).map(|i| [i as u8; 3]).collect(),
+            normals: vec![Vec3::Z; 9],
+            triangles: vec![[0, 1, 2], [3, 6, 7], [1, 2, 4], [2, 4, 5]],
+            ..LabeledMesh::default()
+        };
+        let original = mesh.clone();
+        for min in [0, 1] {
+            drop_small_components(&mut mesh, min);
+            assert_eq!(mesh, original);
+        }
+        drop_small_components(&mut mesh, 2);
+        let want = [0, 1, 2, 4, 5];
+        assert_eq!(mesh.positions, want.map(p).to_vec());
+        assert_eq!(mesh.colors, want.map(|i| [i as u8; 3]).to_vec());
+        assert_eq!(mesh.triangles, vec![[0, 1, 2], [1, 2, 3], [2, 3, 4]]);
+        mesh.validate().expect("valid");
+        drop_small_components(&mut mesh, 4);
+        assert!(mesh.triangles.is_empty() && mesh.positions.is_empty());
     }
 
     #[test]
@@ -1413,14 +1528,19 @@ mod tests {
                 }
             }
         }
-        let half = extract_mesh_with(&map, MeshConfig { min_weight: 0.75 }).expect("valid");
+        let half = extract_mesh_with(&map, MeshConfig { min_weight: 0.75, ..MeshConfig::default() }).expect("valid");
         assert!(half.triangle_count() > full.triangle_count() / 3);
         assert!(half.triangle_count() < full.triangle_count() * 2 / 3);
         assert!(half.positions.iter().all(|p| p.x <= 1e-6), "no vertex beyond the heavy half");
-        assert_eq!(extract_mesh_with(&map, MeshConfig { min_weight: 0.5 }).expect("valid"), full);
+        assert_eq!(extract_mesh_with(&map, MeshConfig { min_weight: 0.5, ..MeshConfig::default() }).expect("valid"), full);
+        // The closed sphere is one piece: a size limit up to its triangle count keeps it.
+        let pieces = |n| MeshConfig { min_weight: 0.5, min_component_triangles: n };
+        assert_eq!(extract_mesh_with(&map, pieces(full.triangle_count())).expect("valid"), full);
+        assert!(extract_mesh_with(&map, pieces(full.triangle_count() + 1)).expect("valid").positions.is_empty());
         for bad in [-0.1, f32::NAN, 256.0] {
-            assert!(MeshConfig { min_weight: bad }.validate().is_err());
-            assert!(IncrementalMesher::with_config(MeshConfig { min_weight: bad }, RemeshTolerance::EXACT).is_err());
+            let config = MeshConfig { min_weight: bad, ..MeshConfig::default() };
+            assert!(config.validate().is_err());
+            assert!(IncrementalMesher::with_config(config, RemeshTolerance::EXACT).is_err());
         }
     }
 

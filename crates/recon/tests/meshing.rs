@@ -111,8 +111,8 @@ fn tolerant_incremental_mesh_stays_within_its_bound_of_a_full_remesh() {
     let mut tolerant = IncrementalMesher::with_tolerance(tolerance).expect("valid");
     let mut exact = IncrementalMesher::new();
     // With a threshold that hides the voxels seen only a few times (depths 1-2.5 m: one
-    // observation weighs 0.16-1).
-    let heavy = MeshConfig { min_weight: 1.0 };
+    // observation weighs 0.16-1), and without small pieces.
+    let heavy = MeshConfig { min_weight: 1.0, min_component_triangles: 20 };
     let mut heavy_exact = IncrementalMesher::with_config(heavy, RemeshTolerance::EXACT).expect("valid");
     let mut heavy_tolerant = IncrementalMesher::with_config(heavy, tolerance).expect("valid");
     let (mut heavy_fewer, mut heavy_worst) = (0, 0.0f32);
