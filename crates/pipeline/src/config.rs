@@ -70,7 +70,8 @@ impl Default for SemanticConfig {
 pub struct PipelineConfig {
     /// The TSDF map.
     pub tsdf: TsdfConfig,
-    /// Meshing ([`MeshConfig::RECOMMENDED`] by default: voxels seen too little stay holes).
+    /// Meshing ([`MeshConfig::RECOMMENDED`] by default: voxels seen too little stay holes and
+    /// specks of noise are dropped).
     pub mesh: MeshConfig,
     /// The tracker (its keyframe interval is overridden by `keyframe_every`).
     pub tracker: TrackerConfig,
