@@ -34,8 +34,8 @@ pub use error::{ReconError, Result};
 pub use fusion::{depth_weight, IntegrationStats};
 pub use map::{Chunk, ChunkKey, TsdfConfig, TsdfMap, Voxel, CHUNK_SIDE, CHUNK_VOXELS};
 pub use marching_cubes::{
-    extract_mesh, extract_mesh_with, mesh_chunk, mesh_chunk_with, ChunkMesh, IncrementalMesher, MeshConfig, MeshingStats,
-    RemeshTolerance,
+    extract_mesh, extract_mesh_with, mesh_chunk, mesh_chunk_with, ChunkMesh, IncrementalMesher, MeshConfig,
+    MeshingStats, RemeshTolerance,
 };
 pub use raycast::{raycast, ModelView};
 pub use relocalisation::KeyframeIndex;

@@ -1534,7 +1534,10 @@ mod tests {
         assert!(half.triangle_count() > full.triangle_count() / 3);
         assert!(half.triangle_count() < full.triangle_count() * 2 / 3);
         assert!(half.positions.iter().all(|p| p.x <= 1e-6), "no vertex beyond the heavy half");
-        assert_eq!(extract_mesh_with(&map, MeshConfig { min_weight: 0.5, ..MeshConfig::default() }).expect("valid"), full);
+        assert_eq!(
+            extract_mesh_with(&map, MeshConfig { min_weight: 0.5, ..MeshConfig::default() }).expect("valid"),
+            full
+        );
         // The closed sphere is one piece: a size limit up to its triangle count keeps it.
         let pieces = |n| MeshConfig { min_weight: 0.5, min_component_triangles: n };
         assert_eq!(extract_mesh_with(&map, pieces(full.triangle_count())).expect("valid"), full);

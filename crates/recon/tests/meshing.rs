@@ -14,7 +14,8 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use semrecon_data::{Frame, Intrinsics};
 use semrecon_recon::{
-    extract_mesh, extract_mesh_with, mesh_chunk_with, IncrementalMesher, MeshConfig, RemeshTolerance, TsdfConfig, TsdfMap,
+    extract_mesh, extract_mesh_with, mesh_chunk_with, IncrementalMesher, MeshConfig, RemeshTolerance, TsdfConfig,
+    TsdfMap,
 };
 
 /// Whether chunk `key`'s cells have a crossed edge whose jump is within twice `tolerance`
