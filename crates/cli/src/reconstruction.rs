@@ -19,7 +19,7 @@ use semrecon_data::{write_ply, LabeledMesh, PlyEncoding, SemanticClass, Trajecto
 use semrecon_eval::{MeshEvalConfig, SurfaceIndex, SurfaceLabeler};
 use semrecon_net::{shipped, ConfusionMatrix, NetConfig, Segmenter, Weights};
 use semrecon_pipeline::{PipelineConfig, SemanticMode};
-use semrecon_recon::{TrackerConfig, TsdfConfig};
+use semrecon_recon::{MeshConfig, TrackerConfig, TsdfConfig};
 
 /// Options of the dense-geometry loop, shared by `run` and `demo`.
 #[derive(clap::Args)]
@@ -34,6 +34,16 @@ pub struct ReconArgs {
     /// voxels); nearer surfaces get a narrower band that follows the sensor noise, down to 4.
     #[arg(long, default_value_t = 10.0)]
     pub truncation: f32,
+    /// Smallest fusion weight of a voxel that meshing counts as observed (one observation at
+    /// depth d weighs 1/d^2, at most 4): lighter voxels, seen once or twice from far away or
+    /// grazed at depth edges, stay holes instead of surfaces centimetres off; 0 meshes every
+    /// observed voxel.
+    #[arg(long, default_value_t = MeshConfig::RECOMMENDED.min_weight)]
+    pub min_mesh_weight: f32,
+    /// Connected pieces of the output mesh with fewer triangles than this are dropped (specks
+    /// of noise floating in free space); 0 keeps everything.
+    #[arg(long, default_value_t = MeshConfig::RECOMMENDED.min_component_triangles)]
+    pub min_mesh_piece: usize,
     /// Where poses come from: tracking, or the dataset's ground truth.
     #[arg(long, value_enum, default_value_t = PoseMode::Track)]
     pub poses: PoseMode,
@@ -100,6 +110,7 @@ pub fn pipeline_config(
     tsdf.validate().with_context(|| format!("truncation of {} voxels", recon.truncation))?;
     let mut config = PipelineConfig {
         tsdf,
+        mesh: MeshConfig { min_weight: recon.min_mesh_weight, min_component_triangles: recon.min_mesh_piece },
         tracker: TrackerConfig { keyframe_interval: recon.keyframe_every, ..TrackerConfig::default() },
         poses: match recon.poses {
             PoseMode::Track => semrecon_pipeline::PoseMode::Track,

@@ -1,7 +1,7 @@
 //! Configuration of the live pipeline: the map, tracking, keyframes, and how semantics run.
 
 use glam::{Affine3A, Vec3};
-use semrecon_recon::{TrackerConfig, TsdfConfig};
+use semrecon_recon::{MeshConfig, TrackerConfig, TsdfConfig};
 
 use crate::error::{PipelineError, Result};
 
@@ -70,6 +70,9 @@ impl Default for SemanticConfig {
 pub struct PipelineConfig {
     /// The TSDF map.
     pub tsdf: TsdfConfig,
+    /// Meshing ([`MeshConfig::RECOMMENDED`] by default: voxels seen too little stay holes and
+    /// specks of noise are dropped).
+    pub mesh: MeshConfig,
     /// The tracker (its keyframe interval is overridden by `keyframe_every`).
     pub tracker: TrackerConfig,
     /// Where poses come from.
@@ -89,6 +92,7 @@ impl Default for PipelineConfig {
     fn default() -> Self {
         Self {
             tsdf: TsdfConfig { truncation_voxels: 10.0, ..TsdfConfig::default() },
+            mesh: MeshConfig::RECOMMENDED,
             tracker: TrackerConfig::default(),
             poses: PoseMode::Track,
             initial_pose: None,
@@ -106,6 +110,7 @@ impl PipelineConfig {
     /// checks.
     pub fn validate(&self) -> Result<()> {
         self.tsdf.validate()?;
+        self.mesh.validate()?;
         self.tracker.validate()?;
         let bad = |m: String| Err(PipelineError::InvalidConfig(m));
         if self.keyframe_every == 0 {

@@ -16,7 +16,9 @@ use std::time::Instant;
 use glam::{Affine3A, Vec3};
 use semrecon_data::{class::UNLABELED, Frame, Intrinsics, LabeledMesh, SemanticClass, Trajectory};
 use semrecon_net::Segmenter;
-use semrecon_recon::{IncrementalMesher, KeyframeIndex, LostReason, Tracker, TrackerConfig, TrackingStatus, TsdfMap};
+use semrecon_recon::{
+    IncrementalMesher, KeyframeIndex, LostReason, RemeshTolerance, Tracker, TrackerConfig, TrackingStatus, TsdfMap,
+};
 use serde::Serialize;
 
 use crate::backend::{Backend, Job, JobResult};
@@ -168,11 +170,12 @@ impl Pipeline {
                 })
             }
         };
+        let mesher = IncrementalMesher::with_config(config.mesh, RemeshTolerance::EXACT)?;
         Ok(Self {
             config,
             intrinsics,
             map,
-            mesher: IncrementalMesher::new(),
+            mesher,
             tracker: None,
             keyframe_index: KeyframeIndex::new(),
             relocalised: 0,

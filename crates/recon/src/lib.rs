@@ -33,7 +33,10 @@ pub mod tracking;
 pub use error::{ReconError, Result};
 pub use fusion::{depth_weight, IntegrationStats};
 pub use map::{Chunk, ChunkKey, TsdfConfig, TsdfMap, Voxel, CHUNK_SIDE, CHUNK_VOXELS};
-pub use marching_cubes::{extract_mesh, mesh_chunk, ChunkMesh, IncrementalMesher, MeshingStats, RemeshTolerance};
+pub use marching_cubes::{
+    extract_mesh, extract_mesh_with, mesh_chunk, mesh_chunk_with, ChunkMesh, IncrementalMesher, MeshConfig,
+    MeshingStats, RemeshTolerance,
+};
 pub use raycast::{raycast, ModelView};
 pub use relocalisation::KeyframeIndex;
 pub use tracking::{ate_rmse, Keyframe, LostReason, Tracker, TrackerConfig, TrackingResult, TrackingStatus};

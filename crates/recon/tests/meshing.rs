@@ -1,6 +1,8 @@
 //! Incremental meshing with a remesh tolerance against a full re-mesh: the bound that
 //! `RemeshTolerance` documents (same triangles chunk by chunk, every vertex on the same cell
-//! edge within `tolerance / |d_a - d_b|` voxels of the full re-mesh's, at most one voxel).
+//! edge within `tolerance / |d_a - d_b|` voxels of the full re-mesh's, at most one voxel),
+//! also with a minimum meshing weight (`MeshConfig`), where exact mode equals
+//! `extract_mesh_with`.
 
 #[path = "common/scene.rs"]
 mod scene;
@@ -11,12 +13,15 @@ use glam::{IVec3, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use semrecon_data::{Frame, Intrinsics};
-use semrecon_recon::{extract_mesh, mesh_chunk, IncrementalMesher, RemeshTolerance, TsdfConfig, TsdfMap};
+use semrecon_recon::{
+    extract_mesh, extract_mesh_with, mesh_chunk_with, IncrementalMesher, MeshConfig, RemeshTolerance, TsdfConfig,
+    TsdfMap,
+};
 
 /// Whether chunk `key`'s cells have a crossed edge whose jump is within twice `tolerance`
 /// voxels of the seam limit (1.5 narrowest bands, at most one truncation; each end may be
-/// `tolerance` off): the documented exception.
-fn has_seam_edge(map: &TsdfMap, key: IVec3, tolerance: f32) -> bool {
+/// `tolerance` off): the documented exception. Voxels lighter than `min_weight` are unobserved.
+fn has_seam_edge(map: &TsdfMap, key: IVec3, tolerance: f32, min_weight: f32) -> bool {
     let c = map.config();
     let tv = c.truncation_voxels;
     let limit = (1.5 * c.narrowest_band_voxels()).min(tv);
@@ -28,7 +33,10 @@ fn has_seam_edge(map: &TsdfMap, key: IVec3, tolerance: f32) -> bool {
             let mut w = v;
             w[axis] += 1;
             match (map.voxel(v), map.voxel(w)) {
-                (Some(a), Some(b)) if a.is_observed() && b.is_observed() && (a.tsdf() < 0.0) != (b.tsdf() < 0.0) => {
+                (Some(a), Some(b))
+                    if [a, b].iter().all(|v| v.is_observed() && v.weight() >= min_weight)
+                        && (a.tsdf() < 0.0) != (b.tsdf() < 0.0) =>
+                {
                     ((a.tsdf() - b.tsdf()).abs() * tv - limit).abs() <= 2.0 * tolerance + 1e-3
                 }
                 _ => false,
@@ -41,15 +49,19 @@ fn has_seam_edge(map: &TsdfMap, key: IVec3, tolerance: f32) -> bool {
 /// and the number of chunks whose topology differs by the seam exception.
 fn check_bound(map: &TsdfMap, mesher: &IncrementalMesher, context: &str) -> (f32, usize) {
     let tolerance = mesher.tolerance().distance_voxels;
+    let config = mesher.config();
     let vs = map.config().voxel_size;
     let tv = map.config().truncation_voxels;
     let distance = |v: IVec3| map.voxel(v).map(|x| x.tsdf() * tv).expect("edge ends are allocated");
     let (mut worst, mut seams) = (0.0f32, 0);
     for key in map.sorted_keys() {
-        let full = mesh_chunk(map, key);
+        let full = mesh_chunk_with(map, key, config).expect("valid config");
         let cached = mesher.chunk_mesh(key).expect("every chunk is cached");
         if cached.triangles != full.triangles {
-            assert!(has_seam_edge(map, key, tolerance), "{context}: chunk {key} topology differs off the seams");
+            assert!(
+                has_seam_edge(map, key, tolerance, config.min_weight),
+                "{context}: chunk {key} topology differs off the seams"
+            );
             seams += 1;
             continue;
         }
@@ -99,6 +111,12 @@ fn tolerant_incremental_mesh_stays_within_its_bound_of_a_full_remesh() {
     let tolerance = RemeshTolerance { distance_voxels: 0.25 };
     let mut tolerant = IncrementalMesher::with_tolerance(tolerance).expect("valid");
     let mut exact = IncrementalMesher::new();
+    // With a threshold that hides the voxels seen only a few times (depths 1-2.5 m: one
+    // observation weighs 0.16-1), and without small pieces.
+    let heavy = MeshConfig { min_weight: 1.0, min_component_triangles: 20 };
+    let mut heavy_exact = IncrementalMesher::with_config(heavy, RemeshTolerance::EXACT).expect("valid");
+    let mut heavy_tolerant = IncrementalMesher::with_config(heavy, tolerance).expect("valid");
+    let (mut heavy_fewer, mut heavy_worst) = (0, 0.0f32);
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     // A camera dwelling on three views: the weights saturate, as on a long scan. Noisy
     // frames first, then nearly clean ones, which move converged voxels by little.
@@ -114,6 +132,13 @@ fn tolerant_incremental_mesh_stays_within_its_bound_of_a_full_remesh() {
             let (w, s) = check_bound(&map, &tolerant, &format!("after frame {i}"));
             (worst, seams, checked) = (worst.max(w), seams + s, checked + map.chunk_count());
             assert_eq!(exact.mesh(), extract_mesh(&map), "exact mode after frame {i}");
+            heavy_exact.update(&map);
+            heavy_tolerant.update(&map);
+            let heavy_mesh = heavy_exact.mesh();
+            assert_eq!(heavy_mesh, extract_mesh_with(&map, heavy).expect("valid"), "thresholded, frame {i}");
+            heavy_fewer += (heavy_mesh.triangle_count() < exact.mesh().triangle_count()) as usize;
+            let (w, s) = check_bound(&map, &heavy_tolerant, &format!("thresholded, after frame {i}"));
+            (heavy_worst, seams, checked) = (heavy_worst.max(w), seams + s, checked + map.chunk_count());
         }
     }
     println!(
@@ -122,7 +147,8 @@ fn tolerant_incremental_mesh_stays_within_its_bound_of_a_full_remesh() {
     );
     assert!(seams * 100 < checked, "seam differences are rare");
     assert!(tolerant_work < exact_work, "the tolerance saves work: {tolerant_work} vs {exact_work}");
-    assert!(worst > 0.0, "stale meshes were kept and checked");
+    assert!(worst > 0.0 && heavy_worst > 0.0, "stale meshes were kept and checked");
+    assert_eq!(heavy_fewer, 12, "the threshold hides voxels after every update");
     assert!(tolerant.snapshot_bytes() > 0);
     assert!(RemeshTolerance { distance_voxels: 1.5 }.validate().is_err());
     assert!(IncrementalMesher::with_tolerance(RemeshTolerance { distance_voxels: f32::NAN }).is_err());
