@@ -80,20 +80,8 @@ fn parse_args() -> Result<Args, String> {
             "--band-factor" => a.band_factor = flags.value(&flag)?,
             "--min-band" => a.min_band = flags.value(&flag)?,
             "--max-depth" => a.max_depth = flags.value(&flag)?,
-            "--min-weight" => {
-                let list: String = flags.value(&flag)?;
-                a.min_weights = list
-                    .split(',')
-                    .map(|w| w.trim().parse::<f32>().map_err(|e| format!("--min-weight {w}: {e}")))
-                    .collect::<Result<_, _>>()?;
-            }
-            "--min-component" => {
-                let list: String = flags.value(&flag)?;
-                a.min_components = list
-                    .split(',')
-                    .map(|w| w.trim().parse::<usize>().map_err(|e| format!("--min-component {w}: {e}")))
-                    .collect::<Result<_, _>>()?;
-            }
+            "--min-weight" => a.min_weights = comma_list(&flag, &flags.value::<String>(&flag)?)?,
+            "--min-component" => a.min_components = comma_list(&flag, &flags.value::<String>(&flag)?)?,
             "--ideal" => a.ideal = true,
             "--skip-tracking" => a.skip_tracking = true,
             "--size" => a.size = flags.size(&flag)?,
@@ -269,4 +257,12 @@ fn main() {
         eprintln!("accuracy_bench: {e}");
         std::process::exit(1);
     }
+}
+
+/// The values of a comma-separated flag value such as `--min-weight 0,0.25,0.5`.
+fn comma_list<T: std::str::FromStr>(flag: &str, list: &str) -> Result<Vec<T>, String>
+where
+    T::Err: std::fmt::Display,
+{
+    list.split(',').map(|v| v.trim().parse::<T>().map_err(|e| format!("{flag} {v}: {e}"))).collect()
 }
