@@ -635,16 +635,12 @@ impl TsdfMap {
     }
 
     /// Allocates the chunk at `key` when absent; returns its slab position and whether it is
-    /// new (tests build maps with it; fusion allocates through [`TsdfMap::allocate_all`]).
+    /// new ([`TsdfMap::allocate_all`] for one key, which is what tests build maps with).
     #[cfg(test)]
     pub(crate) fn allocate(&mut self, key: ChunkKey) -> (u32, bool) {
-        if let Some(&i) = self.index.get(&key) {
-            return (i, false);
-        }
-        let i = self.chunks.len() as u32;
-        self.chunks.push(Chunk::new(key));
-        self.index.insert(key, i);
-        (i, true)
+        let before = self.chunks.len() as u32;
+        let slot = self.allocate_all(&[key])[0];
+        (slot, slot >= before)
     }
 
     /// Slab positions of `keys` (in `keys` order, repeats allowed), allocating the missing

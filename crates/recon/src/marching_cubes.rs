@@ -498,7 +498,7 @@ impl Default for MeshConfig {
 
 /// Marching cubes over the cells owned by chunk `key` (empty when it is not allocated).
 pub fn mesh_chunk(map: &TsdfMap, key: ChunkKey) -> ChunkMesh {
-    mesh_chunk_configured(map, key, 1, &mut Scratch::new())
+    mesh_chunk_configured(map, key, MeshConfig::ALL_OBSERVED.stored_min_weight(), &mut Scratch::new())
 }
 
 /// [`mesh_chunk`] counting only voxels of at least `config.min_weight` as observed.
@@ -1146,7 +1146,7 @@ impl IncrementalMesher {
 
 /// Meshes the whole map from scratch (parallel over chunks), every observed voxel counting.
 pub fn extract_mesh(map: &TsdfMap) -> LabeledMesh {
-    extract_mesh_configured(map, 1)
+    extract_mesh_configured(map, MeshConfig::ALL_OBSERVED.stored_min_weight())
 }
 
 /// [`extract_mesh`] with options (see [`MeshConfig`]).
