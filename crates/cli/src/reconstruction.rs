@@ -84,6 +84,10 @@ pub struct SemanticArgs {
     /// Context around the changed tiles in incremental passes, metres.
     #[arg(long, default_value_t = 1.0)]
     pub context: f32,
+    /// Connected pieces of one class smaller than this many square metres take the class
+    /// around them (specks of a wrong class at boundaries and in clutter); 0 keeps them.
+    #[arg(long, default_value_t = 0.06)]
+    pub min_label_island: f32,
 }
 
 /// `--semantics`.
@@ -126,6 +130,7 @@ pub fn pipeline_config(
     };
     config.semantics.realtime = realtime;
     config.semantics.up = up;
+    config.semantics.min_island_m2 = semantics.min_label_island;
     config.validate().context("pipeline options")?;
     Ok(config)
 }

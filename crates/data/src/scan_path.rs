@@ -56,12 +56,20 @@ pub struct ScanPlan {
     pub max_turn_rate_deg: f32,
     /// Scale of the hand jitter (1 = a steady hand, 0 = none).
     pub jitter: f32,
+    /// Amplitude of a slow nod added to the gaze's pitch, degrees (0 = none): the camera
+    /// tilts up by this much and down by half of it about every 8 s, as someone mapping a
+    /// room sweeps the walls from floor to ceiling. Casual scans (the default) look level or down and rarely
+    /// see the top third of a wall, where doors and boards end.
+    pub vertical_sweep_deg: f32,
 }
 
 /// Steepest gaze below the horizon, radians (50 degrees).
 const MAX_PITCH_DOWN: f32 = 50.0 * std::f32::consts::PI / 180.0;
 /// Steepest gaze above the horizon, radians (20 degrees).
 const MAX_PITCH_UP: f32 = 20.0 * std::f32::consts::PI / 180.0;
+
+/// Steepest gaze above the horizon with a vertical sweep, radians (55 degrees).
+const MAX_SWEPT_PITCH_UP: f32 = 55.0 * std::f32::consts::PI / 180.0;
 
 /// Floor grid resolution of the planner, metres.
 const CELL: f32 = 0.05;
@@ -79,6 +87,7 @@ impl ScanPlan {
             clearance: 0.4,
             max_turn_rate_deg: 22.0,
             jitter: 1.0,
+            vertical_sweep_deg: 0.0,
         }
     }
 
@@ -128,6 +137,9 @@ impl ScanPlan {
         }
         if !(self.frame_rate > 0.0 && self.walking_speed > 0.0 && self.max_turn_rate_deg > 0.0) {
             return bad("frame rate, walking speed and turn rate must be positive".into());
+        }
+        if !(0.0..=60.0).contains(&self.vertical_sweep_deg) {
+            return bad(format!("vertical sweep {} degrees is outside 0..=60", self.vertical_sweep_deg));
         }
         if n == 0 {
             return Ok(Vec::new());
@@ -193,13 +205,25 @@ impl ScanPlan {
         let targets = self.gaze_targets(&mut rng, &eye, &heading, duration);
         let mut yaw_pitch: Vec<Vec2> = Vec::with_capacity(n);
         let max_step = self.max_turn_rate_deg.to_radians() * dt;
+        let nod_height = self.vertical_sweep_deg.to_radians();
+        let nod_periods = (duration / 8.0).round().max(1.0);
         for i in 0..n {
             let t = i as f32 * dt;
             let dir = (gaze_target_at(&targets, t) - eye[i]).try_normalize().unwrap_or(heading[i].extend(0.0));
             // Level or down far more than up, as people scan (see `gaze_targets`), also while
             // walking up to a high target.
-            let want =
+            let mut want =
                 Vec2::new(dir.y.atan2(dir.x), dir.z.clamp(-1.0, 1.0).asin().clamp(-MAX_PITCH_DOWN, MAX_PITCH_UP));
+            // The nod: whole sine periods over the scan, so it starts and ends on the gaze and
+            // the loop stays closed; added before the turn-rate limit, which bounds both.
+            if nod_height > 0.0 {
+                let u = if n > 1 { times[i] } else { 0.0 };
+                let wave = (TAU * nod_periods * u).sin();
+                // Half as far down: the casual gaze already looks down a lot, and views of
+                // bare floor alone leave tracking little to hold on to.
+                let nod = nod_height * if wave > 0.0 { wave } else { 0.5 * wave };
+                want.y = (want.y + nod).clamp(-MAX_PITCH_DOWN, MAX_SWEPT_PITCH_UP);
+            }
             let next = match yaw_pitch.last() {
                 None => want,
                 Some(&prev) => {
@@ -220,7 +244,6 @@ impl ScanPlan {
             let u = (j + 1) as f32 / fix_frames as f32;
             *yp -= error * smoothstep(u);
         }
-
         // Hand jitter: sums of sinusoids with a whole number of periods over the scan, so
         // the jitter ends where it started.
         let jitter_t = PeriodicNoise::new(&mut rng, duration, 0.004 * self.jitter);
@@ -664,6 +687,31 @@ mod tests {
         assert!(pitches.iter().all(|&p| p < 45.0));
         assert_eq!(poses, plan.poses(1800).expect("plan"), "not deterministic");
         assert_ne!(poses, ScanPlan::new(office(), 2).poses(1800).expect("plan"));
+    }
+
+    #[test]
+    fn a_vertical_sweep_nods_up_within_handheld_speeds_and_keeps_the_loop_closed() {
+        let pitch = |p: &Affine3A| p.matrix3.z_axis.z.asin().to_degrees();
+        for frames in [300, 1800] {
+            let casual = ScanPlan::new(office(), 1);
+            let mut mapping = casual.clone();
+            mapping.vertical_sweep_deg = 30.0;
+            let (a, b) = (casual.poses(frames).expect("plan"), mapping.poses(frames).expect("plan"));
+            check_plausible(&mapping, &b);
+            // Same walk, the gaze tilted by at most 30 degrees, the same at both ends.
+            for (p, q) in a.iter().zip(&b) {
+                assert!((p.translation - q.translation).length() < 1e-5);
+                let lift = pitch(q) - pitch(p);
+                assert!((-35.0..=35.0).contains(&lift), "lift {lift}");
+                assert!((-51.0..56.0).contains(&pitch(q)));
+            }
+            // The nod reaches well up and well down of the casual gaze.
+            let lifts: Vec<f32> = a.iter().zip(&b).map(|(p, q)| pitch(q) - pitch(p)).collect();
+            assert!(lifts.iter().any(|&l| l > 20.0) && lifts.iter().any(|&l| l < -5.0));
+        }
+        let mut bad = ScanPlan::new(office(), 1);
+        bad.vertical_sweep_deg = f32::NAN;
+        assert!(bad.poses(10).is_err());
     }
 
     #[test]

@@ -57,11 +57,22 @@ pub struct SemanticConfig {
     /// Up direction in the map frame when known (gravity sensor, a dataset's gravity file);
     /// estimated from the map otherwise.
     pub up: Option<Vec3>,
+    /// Connected pieces of one class smaller than this, square metres of cells (0.06: about
+    /// 25 cm square, 24 cells of 5 cm), take the class of the cells around them: specks of
+    /// a class at boundaries and in clutter (see [`crate::label_islands`]). 0 keeps them.
+    pub min_island_m2: f32,
 }
 
 impl Default for SemanticConfig {
     fn default() -> Self {
-        Self { mode: SemanticMode::default(), tile_m: 0.5, min_cell_change: 0.25, realtime: false, up: None }
+        Self {
+            mode: SemanticMode::default(),
+            tile_m: 0.5,
+            min_cell_change: 0.25,
+            realtime: false,
+            up: None,
+            min_island_m2: 0.06,
+        }
     }
 }
 
@@ -119,6 +130,9 @@ impl PipelineConfig {
         let s = &self.semantics;
         if !(s.tile_m.is_finite() && (0.05..=10.0).contains(&s.tile_m)) {
             return bad(format!("semantic tile {} m is outside 0.05..10 m", s.tile_m));
+        }
+        if !(s.min_island_m2.is_finite() && (0.0..=100.0).contains(&s.min_island_m2)) {
+            return bad(format!("smallest label island {} m^2 is outside 0..100 m^2", s.min_island_m2));
         }
         if !(s.min_cell_change.is_finite() && (0.0..=10.0).contains(&s.min_cell_change)) {
             return bad(format!("minimum cell change {} is outside 0..10", s.min_cell_change));

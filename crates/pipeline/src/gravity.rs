@@ -71,11 +71,37 @@ impl UpEstimate {
     }
 }
 
-/// The cameras' average up direction (-y of every camera) in the map frame; `None` when
-/// there is no pose or they cancel out.
+/// The up direction the cameras suggest (map frame); `None` when there is no pose or they
+/// cancel out.
+///
+/// A handheld camera barely rolls, so its x axis stays (nearly) horizontal however it is
+/// pitched: once the cameras have panned, up is the direction most orthogonal to all their
+/// x axes (the smallest eigenvector of their scatter), signed like the cameras' average -y.
+/// The average -y alone leans towards wherever the cameras looked: a scan spent looking
+/// 40 degrees down at tables tilts it 40 degrees, beyond the horizontal-plane search's
+/// first cone. Without panning (x axes spread over less than about 10 degrees) the x axes
+/// leave up undetermined and the average -y is the prior.
 pub fn camera_up_prior(poses: &[Affine3A]) -> Option<Vec3> {
-    let sum: Vec3 = poses.iter().map(|p| -p.transform_vector3(Vec3::Y)).sum();
-    sum.try_normalize()
+    let minus_y = poses.iter().map(|p| -p.transform_vector3(Vec3::Y)).sum::<Vec3>().try_normalize()?;
+    let mut scatter = nalgebra::Matrix3::<f64>::zeros();
+    for p in poses {
+        let x = p.transform_vector3(Vec3::X).as_dvec3();
+        let x = nalgebra::Vector3::new(x.x, x.y, x.z);
+        scatter += x * x.transpose();
+    }
+    let eigen = scatter.symmetric_eigen();
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&a, &b| eigen.eigenvalues[a].total_cmp(&eigen.eigenvalues[b]));
+    let (smallest, middle) = (eigen.eigenvalues[order[0]], eigen.eigenvalues[order[1]]);
+    // The middle eigenvalue is the x axes' spread across their mean: sin^2 of about 10
+    // degrees per pose at least, and clearly more than the roll left in the smallest.
+    let panned = middle > 0.03 * poses.len() as f64 && smallest < 0.2 * middle;
+    if !panned {
+        return Some(minus_y);
+    }
+    let v = eigen.eigenvectors.column(order[0]);
+    let up = Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32).try_normalize()?;
+    Some(if up.dot(minus_y) < 0.0 { -up } else { up })
 }
 
 /// Usual height of a handheld camera above the floor, metres.
@@ -257,5 +283,33 @@ mod tests {
         let pose = Affine3A::from_mat3(Mat3::from_cols(-Vec3::Y, -Vec3::Z, Vec3::X));
         assert!((camera_up_prior(&[pose]).expect("one pose") - Vec3::Z).length() < 1e-6);
         assert_eq!(camera_up_prior(&[]), None);
+    }
+
+    /// World z up; a camera at yaw `yaw`, pitched `pitch` below the horizon, rolled `roll`
+    /// (radians), all in a map frame rotated by `map_from_world`.
+    fn handheld(map_from_world: glam::Quat, yaw: f32, pitch: f32, roll: f32) -> Affine3A {
+        let level = Mat3::from_cols(-Vec3::Y, -Vec3::Z, Vec3::X); // looking along +x
+        let r = glam::Quat::from_rotation_z(yaw) * glam::Quat::from_rotation_y(pitch);
+        let r = Mat3::from_quat(map_from_world * r) * level * Mat3::from_rotation_z(roll);
+        Affine3A::from_mat3(r)
+    }
+
+    #[test]
+    fn panning_cameras_give_up_however_far_down_they_look() {
+        let map_from_world = glam::Quat::from_rotation_x(-1.9) * glam::Quat::from_rotation_z(0.4);
+        let true_up = map_from_world * Vec3::Z;
+        // Looking 40 degrees down while panning over 70 degrees, with a little roll.
+        let poses: Vec<Affine3A> = (0..60)
+            .map(|i| {
+                let u = i as f32 / 59.0;
+                handheld(map_from_world, (u * 70.0).to_radians(), 40f32.to_radians(), 0.03 * (u * 9.0).sin())
+            })
+            .collect();
+        let prior = camera_up_prior(&poses).expect("poses");
+        assert!(prior.angle_between(true_up).to_degrees() < 2.0, "{prior} against {true_up}");
+        // The average -y alone would lean 40 degrees; without panning it is all there is.
+        let still: Vec<Affine3A> = (0..60).map(|_| handheld(map_from_world, 0.2, 40f32.to_radians(), 0.0)).collect();
+        let prior = camera_up_prior(&still).expect("poses");
+        assert!((prior.angle_between(true_up).to_degrees() - 40.0).abs() < 0.5);
     }
 }

@@ -16,6 +16,7 @@
 //! - [`config`]: [`PipelineConfig`], [`SemanticConfig`], full or incremental semantics;
 //! - [`gravity`]: the up direction from the map's horizontal planes and the cameras;
 //! - [`semantic_map`]: surface cells and accumulated labels;
+//! - [`label_islands`]: specks of a class merged into their surroundings;
 //! - [`timing`]: per-stage statistics.
 //!
 //! ```
@@ -47,6 +48,7 @@ mod backend;
 pub mod config;
 pub mod error;
 pub mod gravity;
+pub mod label_islands;
 mod pipeline;
 pub mod semantic_map;
 pub mod timing;

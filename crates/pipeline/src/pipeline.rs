@@ -160,7 +160,7 @@ impl Pipeline {
                 let cells = SurfaceCells::new(c.voxel_size, config.tsdf.voxel_size);
                 Some(Semantics {
                     cells,
-                    labels: LabelStore::default(),
+                    labels: LabelStore::new(island_cells(config.semantics.min_island_m2, c.voxel_size)),
                     backend: Backend::start(net)?,
                     in_flight: None,
                     passes: Vec::new(),
@@ -522,4 +522,9 @@ impl Pipeline {
     pub fn config(&self) -> &PipelineConfig {
         &self.config
     }
+}
+
+/// Cells of side `cell_m` in `area_m2` (rounded to nearest; 0 for no area).
+fn island_cells(area_m2: f32, cell_m: f32) -> usize {
+    (area_m2 / (cell_m * cell_m)).round() as usize
 }

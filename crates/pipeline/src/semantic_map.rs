@@ -19,6 +19,7 @@
 //! on more complete geometry, still outvote early ones once they agree with each other.
 
 use std::collections::{BTreeSet, HashMap};
+use std::sync::OnceLock;
 
 use glam::{IVec3, Vec3};
 use rayon::prelude::*;
@@ -27,6 +28,7 @@ use semrecon_recon::map::ChunkHashBuilder;
 use semrecon_recon::{ChunkKey, ChunkMesh, IncrementalMesher};
 
 use crate::gravity::SurfaceSample;
+use crate::label_islands::merge_small_islands;
 
 /// Number of classes of the labels kept here (the S3DIS set).
 pub const CLASSES: usize = semrecon_data::SemanticClass::COUNT;
@@ -330,15 +332,28 @@ impl SurfaceCells {
     }
 }
 
-/// Class probabilities summed per cell over the passes.
+/// Class probabilities summed per cell over the passes, and the classes read from them.
+///
+/// A cell's class is the arg-max of its sums, after islands of a class smaller than
+/// `min_island_cells` have taken their surroundings' class ([`crate::label_islands`]); the
+/// cleaned classes are worked out when first asked for after a change.
 #[derive(Debug, Clone, Default)]
 pub struct LabelStore {
     probs: HashMap<CellKey, [f32; CLASSES], ChunkHashBuilder>,
+    min_island_cells: usize,
+    classes: OnceLock<HashMap<CellKey, u8, ChunkHashBuilder>>,
 }
 
 impl LabelStore {
+    /// An empty store whose islands of fewer than `min_island_cells` cells are merged into
+    /// their surroundings (0: none are).
+    pub fn new(min_island_cells: usize) -> Self {
+        Self { min_island_cells, ..Self::default() }
+    }
+
     /// Adds one pass's probabilities (rows of `CLASSES`, summing to 1) for `keys`.
     pub fn accumulate(&mut self, keys: &[CellKey], probs: &[[f32; CLASSES]]) {
+        self.classes.take();
         for (k, p) in keys.iter().zip(probs) {
             let e = self.probs.entry(*k).or_insert([0.0; CLASSES]);
             for (a, b) in e.iter_mut().zip(p) {
@@ -350,6 +365,7 @@ impl LabelStore {
     /// Forgets the labels of the cells for which `keep` is false (cells that lost their
     /// surface: early noise that later observations carved away).
     pub fn retain(&mut self, mut keep: impl FnMut(CellKey) -> bool) {
+        self.classes.take();
         self.probs.retain(|k, _| keep(*k));
     }
 
@@ -363,37 +379,52 @@ impl LabelStore {
         self.probs.is_empty()
     }
 
-    /// The class of cell `key` (arg-max of its summed probabilities; the lowest id on ties),
-    /// [`UNLABELED`] when no pass labelled it.
+    fn classes(&self) -> &HashMap<CellKey, u8, ChunkHashBuilder> {
+        self.classes
+            .get_or_init(|| merge_small_islands(&self.raw_labels(), self.min_island_cells).into_iter().collect())
+    }
+
+    /// The arg-max classes, in (z, y, x) order.
+    fn raw_labels(&self) -> Vec<(CellKey, u8)> {
+        let mut v: Vec<(CellKey, u8)> = self.probs.iter().map(|(k, p)| (*k, argmax(p) as u8)).collect();
+        v.sort_unstable_by_key(|(k, _)| order(*k));
+        v
+    }
+
+    /// The class of cell `key` (arg-max of its summed probabilities, the lowest id on ties,
+    /// unless its island was merged), [`UNLABELED`] when no pass labelled it.
     pub fn label(&self, key: CellKey) -> u8 {
-        self.probs.get(&key).map_or(UNLABELED, |p| argmax(p) as u8)
+        self.classes().get(&key).copied().unwrap_or(UNLABELED)
     }
 
     /// The class of cell `key`, else of the neighbouring cell (26-neighbourhood) with the most
     /// evidence (a vertex can lie in a cell no pass has labelled yet: meshed after the last pass).
     pub fn label_near(&self, key: CellKey) -> u8 {
-        if let Some(p) = self.probs.get(&key) {
-            return argmax(p) as u8;
+        let classes = self.classes();
+        if let Some(&c) = classes.get(&key) {
+            return c;
         }
-        let mut best: Option<(f32, u8)> = None;
+        let mut best: Option<(f32, CellKey)> = None;
         for dz in -1..=1 {
             for dy in -1..=1 {
                 for dx in -1..=1 {
-                    if let Some(p) = self.probs.get(&(key + IVec3::new(dx, dy, dz))) {
+                    let n = key + IVec3::new(dx, dy, dz);
+                    if let Some(p) = self.probs.get(&n) {
                         let w: f32 = p.iter().sum();
                         if best.is_none_or(|b| w > b.0) {
-                            best = Some((w, argmax(p) as u8));
+                            best = Some((w, n));
                         }
                     }
                 }
             }
         }
-        best.map_or(UNLABELED, |b| b.1)
+        best.and_then(|b| classes.get(&b.1).copied()).unwrap_or(UNLABELED)
     }
 
     /// The labelled cells and their classes, in (z, y, x) order.
     pub fn labels(&self) -> Vec<(CellKey, u8)> {
-        let mut v: Vec<(CellKey, u8)> = self.probs.iter().map(|(k, p)| (*k, argmax(p) as u8)).collect();
+        let classes = self.classes();
+        let mut v: Vec<(CellKey, u8)> = classes.iter().map(|(k, c)| (*k, *c)).collect();
         v.sort_unstable_by_key(|(k, _)| order(*k));
         v
     }

@@ -35,6 +35,11 @@ pub struct DemoArgs {
     /// Number of frames of the scan (30 per second).
     #[arg(long, default_value_t = 300)]
     frames: usize,
+    /// Nod of the camera, degrees: the scan tilts up by this much and down by half of it
+    /// about every 8 s, sweeping the walls from floor to ceiling as someone mapping a room
+    /// does (0: a casual scan that looks level or down)
+    #[arg(long, default_value_t = 0.0)]
+    sweep: f32,
     #[command(flatten)]
     recon: ReconArgs,
     #[command(flatten)]
@@ -88,6 +93,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let config = pipeline_config(&args.recon, &args.semantics, false, None)?;
     let mut scan_config = SyntheticScanConfig::new(args.seed);
     scan_config.frames = args.frames;
+    scan_config.vertical_sweep_deg = args.sweep;
     let (room, scan) = synthetic_scan(&scan_config)?;
     let scene = format!("synthetic {} room, seed {}", room.style, args.seed);
     println!(

@@ -27,6 +27,8 @@ pub struct SyntheticScanConfig {
     pub sensor: SensorModel,
     /// Frame rate of the trajectory, Hz.
     pub frame_rate: f64,
+    /// Nod of the gaze, degrees (see [`ScanPlan::vertical_sweep_deg`]; 0 = none).
+    pub vertical_sweep_deg: f32,
 }
 
 impl SyntheticScanConfig {
@@ -42,6 +44,7 @@ impl SyntheticScanConfig {
             intrinsics: Intrinsics { width: 640, height: 480, fx: 525.0, fy: 525.0, cx: 319.5, cy: 239.5 },
             sensor: SensorModel::kinect().with_seed(seed),
             frame_rate: 30.0,
+            vertical_sweep_deg: 0.0,
         }
     }
 }
@@ -68,7 +71,10 @@ pub fn room_scan_poses(room: &SyntheticRoom, seed: u64, frames: usize, frame_rat
 /// Generates the room and the scan of `config`; the room is returned too (ground-truth mesh).
 pub fn synthetic_scan(config: &SyntheticScanConfig) -> Result<(SyntheticRoom, RenderedScan)> {
     let room = generate_room(&RoomConfig { seed: config.seed, style: config.style });
-    let poses = room_scan_poses(&room, config.seed, config.frames, config.frame_rate)?;
+    let mut plan = ScanPlan::new(room_layout(&room), config.seed);
+    plan.frame_rate = config.frame_rate as f32;
+    plan.vertical_sweep_deg = config.vertical_sweep_deg;
+    let poses = plan.poses(config.frames)?;
     let scan = RenderedScan::new(
         format!("synth:{}", config.seed),
         &room.mesh,
