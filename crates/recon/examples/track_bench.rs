@@ -14,7 +14,10 @@
 //! wall and CPU milliseconds (all threads; the machine may be shared). `--size` resamples
 //! frames (nearest pixel) before tracking. `--repeat N` then re-tracks the last frame N
 //! times on the final map and ray-casts its pose N times alone (steadier medians on a
-//! shared machine). Thread count: `RAYON_NUM_THREADS`.
+//! shared machine). Thread count: `RAYON_NUM_THREADS`. `TRACK_BENCH_TRAJECTORY=FILE` writes
+//! the poses of the fused frames in the TUM format (`timestamp tx ty tz qx qy qz qw`, as
+//! `semrecon run` writes `trajectory.txt`); `TRACK_BENCH_POSITIONS=FILE` the estimated and
+//! reference positions, a pair per line.
 
 #[path = "common/cpu_time.rs"]
 mod cpu_time;
@@ -170,6 +173,7 @@ fn run(a: Args) -> Result<(), String> {
     let (mut track_ms, mut track_cpu_ms, mut cast_ms, mut fuse_ms) = (vec![], vec![], vec![], vec![]);
     let (mut est, mut gt) = (Vec::new(), Vec::new());
     let mut first_err = Vec::new();
+    let mut traj_text = String::from("# timestamp tx ty tz qx qy qz qw\n");
     let mut lost = Vec::new();
     let mut load_s = 0.0;
     let t_all = Instant::now();
@@ -206,6 +210,13 @@ fn run(a: Args) -> Result<(), String> {
         let t = Instant::now();
         map.integrate(&frame, r.world_from_camera).map_err(|e| e.to_string())?;
         fuse_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        // TUM lines (`timestamp tx ty tz qx qy qz qw`, world_from_camera) of the fused frames,
+        // which `semrecon eval traj` and offline analyses read like `semrecon run`'s output.
+        {
+            let q = glam::Quat::from_mat3a(&r.world_from_camera.matrix3);
+            let t = r.world_from_camera.translation;
+            traj_text += &format!("{} {} {} {} {} {} {} {}\n", i as f64 / 30.0, t.x, t.y, t.z, q.x, q.y, q.z, q.w);
+        }
         if let Some(g) = frame.world_from_camera {
             let p = Vec3::from(r.world_from_camera.translation);
             let q = Vec3::from(g.translation);
@@ -228,6 +239,9 @@ fn run(a: Args) -> Result<(), String> {
         a.photometric
     );
     println!("lost frames: {} {:?}", lost.len(), &lost[..lost.len().min(10)]);
+    if let Ok(path) = std::env::var("TRACK_BENCH_TRAJECTORY") {
+        std::fs::write(&path, &traj_text).map_err(|e| format!("{path}: {e}"))?;
+    }
     if let Ok(path) = std::env::var("TRACK_BENCH_POSITIONS") {
         // Estimated and reference positions, one pair per line (for offline analysis).
         let text: String =
