@@ -44,6 +44,11 @@ pub struct ReconArgs {
     /// of noise floating in free space); 0 keeps everything.
     #[arg(long, default_value_t = MeshConfig::RECOMMENDED.min_component_triangles)]
     pub min_mesh_piece: usize,
+    /// Weight of the tracker's photometric term (colour intensity 0..1 against metres of
+    /// point-to-plane distance); 0 tracks on depth alone. Only for colour registered to depth
+    /// (synthetic scans, Replica), not 7-Scenes.
+    #[arg(long, default_value_t = 0.0)]
+    pub photometric_weight: f32,
     /// Where poses come from: tracking, or the dataset's ground truth.
     #[arg(long, value_enum, default_value_t = PoseMode::Track)]
     pub poses: PoseMode,
@@ -115,7 +120,11 @@ pub fn pipeline_config(
     let mut config = PipelineConfig {
         tsdf,
         mesh: MeshConfig { min_weight: recon.min_mesh_weight, min_component_triangles: recon.min_mesh_piece },
-        tracker: TrackerConfig { keyframe_interval: recon.keyframe_every, ..TrackerConfig::default() },
+        tracker: TrackerConfig {
+            keyframe_interval: recon.keyframe_every,
+            photometric_weight: recon.photometric_weight,
+            ..TrackerConfig::default()
+        },
         poses: match recon.poses {
             PoseMode::Track => semrecon_pipeline::PoseMode::Track,
             PoseMode::GroundTruth => semrecon_pipeline::PoseMode::GroundTruth,
