@@ -101,6 +101,13 @@ struct PaddedBlock {
     min_weight: u16,
 }
 
+/// A voxel as [`PaddedBlock`]'s `packed` holds it: `tsdf << 16 | flags`.
+#[inline(always)]
+fn packed_voxel(tsdf: i16, weight: u16, min_weight: u16) -> i32 {
+    let observed = (weight >= min_weight) as i32;
+    (tsdf as i32) << 16 | ((tsdf < 0) as i32 & observed) | observed << 1
+}
+
 /// Padded coordinate `p` (local `p - 1`, -1 ..= 9) -> (chunk offset + 1, local coordinate
 /// in that chunk).
 const SPLIT: [(u8, u8); PAD] = {
@@ -146,7 +153,9 @@ fn edge_color(ca: [u8; 4], cb: [u8; 4], s: f32) -> [u8; 3] {
     [c.x as u8, c.y as u8, c.z as u8]
 }
 
-/// Per case, bit `e` set when edge `e` joins corners of different signs (crosses the surface).
+/// Per case, bit `e` set when edge `e` joins corners of different signs (crosses the surface):
+/// the reference for [`first_uses`].
+#[cfg(test)]
 const CROSSED: [u16; 256] = {
     let mut t = [0u16; 256];
     let mut case = 0;
@@ -262,6 +271,7 @@ impl PaddedBlock {
     /// Distances and weights are copied first, row piece by row piece (fixed lengths the
     /// compiler turns into a few moves), then flags and masks come from one pass over the
     /// copy: per-element branching on the neighbour cost more than the marching.
+    #[inline(never)]
     fn gather(
         &mut self,
         nb: &[Option<&Chunk>; 27],
@@ -346,13 +356,10 @@ impl PaddedBlock {
     /// Run only for chunks with crossed cells (after the classification), since it reads
     /// the 19 other neighbours too. Row pieces are copied as in [`PaddedBlock::gather`]; only
     /// the x faces are read voxel by voxel.
+    #[inline(never)]
     fn gather_shell(&mut self, nb: &[Option<&Chunk>; 27]) {
         const N: usize = CHUNK_SIDE;
         let min_weight = self.min_weight;
-        let pack = |t: i16, w: u16| {
-            let observed = (w >= min_weight) as i32;
-            (t as i32) << 16 | ((t < 0) as i32 & observed) | observed << 1
-        };
         // The gathered slabs, whole rows: the x faces (padded 0 and 10) are overwritten below,
         // the rest of padded y or z 0 and 10 in these ranges is never read.
         for pz in 1..PAD - 1 {
@@ -362,43 +369,52 @@ impl PaddedBlock {
                 *p = (t as i32) << 16 | f as i32;
             }
         }
-        for pz in 0..PAD {
+        let one = |c: Option<&Chunk>, j: usize| match c {
+            Some(c) => packed_voxel(c.voxels.tsdf[j], c.voxels.weight[j], min_weight),
+            None => 0,
+        };
+        // Rows of corners: their x faces (local -1 and 9) and their colours.
+        for pz in 1..PAD - 1 {
             let (oz, iz) = SPLIT[pz];
-            for py in 0..PAD {
+            for py in 1..PAD - 1 {
                 let (oy, iy) = SPLIT[py];
-                let (inner_y, inner_z) = ((1..PAD - 1).contains(&py), (1..PAD - 1).contains(&pz));
-                if !inner_y && !inner_z {
-                    continue;
-                }
                 let dst = PAD * py + PAD2 * pz;
                 let src = N * (iy as usize + N * iz as usize);
                 let nb_row = 3 * oy as usize + 9 * oz as usize;
-                let at = |c: &Chunk, j: usize| pack(c.voxels.tsdf[j], c.voxels.weight[j]);
-                if inner_y && inner_z {
-                    // A row of corners: its x faces (local -1 and 9) and its colours.
-                    self.packed[dst] = nb[nb_row].map_or(0, |c| at(c, src + N - 1));
-                    let last = &nb[nb_row + 2];
-                    self.packed[dst + PAD - 1] = last.map_or(0, |c| at(c, src + 1));
-                    self.color[dst + PAD - 2] = last.map_or([0; 4], |c| c.voxels.color[src]);
-                    let row = &mut self.color[dst + 1..dst + 1 + N];
-                    match nb[nb_row + 1] {
-                        Some(c) => row.copy_from_slice(&c.voxels.color[src..src + N]),
-                        None => row.fill([0; 4]),
-                    }
-                    continue;
-                }
-                // A row of a y or z face: padded x 1 ..= 9.
-                let row = &mut self.packed[dst + 1..dst + 1 + N];
+                self.packed[dst] = one(nb[nb_row], src + N - 1);
+                self.packed[dst + PAD - 1] = one(nb[nb_row + 2], src + 1);
+                self.color[dst + PAD - 2] = nb[nb_row + 2].map_or([0; 4], |c| c.voxels.color[src]);
+                let row = &mut self.color[dst + 1..dst + 1 + N];
                 match nb[nb_row + 1] {
-                    Some(c) => {
-                        let (t, w) = (&c.voxels.tsdf[src..src + N], &c.voxels.weight[src..src + N]);
-                        for ((p, &t), &w) in row.iter_mut().zip(t).zip(w) {
-                            *p = pack(t, w);
-                        }
-                    }
-                    None => row.fill(0),
+                    Some(c) => row.copy_from_slice(&c.voxels.color[src..src + N]),
+                    None => row.fill([0; 4]),
                 }
-                self.packed[dst + 1 + N] = nb[nb_row + 2].map_or(0, |c| at(c, src));
+            }
+        }
+        // The y and z faces: rows of padded x 1 ..= 9.
+        for p in 1..PAD - 1 {
+            for q in [0, PAD - 1] {
+                for (py, pz) in [(q, p), (p, q)] {
+                    let ((oy, iy), (oz, iz)) = (SPLIT[py], SPLIT[pz]);
+                    let dst = PAD * py + PAD2 * pz;
+                    let row = (iy as usize + N * iz as usize) * N;
+                    let nb_row = 3 * oy as usize + 9 * oz as usize;
+                    let out = &mut self.packed[dst + 1..dst + 1 + N];
+                    match nb[nb_row + 1] {
+                        Some(c) => {
+                            // Whole rows of the chunk as arrays: the loop vectorises.
+                            let t = &c.voxels.tsdf.as_chunks::<N>().0[row / N];
+                            let w = &c.voxels.weight.as_chunks::<N>().0[row / N];
+                            let mut packed = [0i32; N];
+                            for k in 0..N {
+                                packed[k] = packed_voxel(t[k], w[k], min_weight);
+                            }
+                            out.copy_from_slice(&packed);
+                        }
+                        None => out.fill(0),
+                    }
+                    self.packed[dst + 1 + N] = one(nb[nb_row + 2], row);
+                }
             }
         }
     }
@@ -499,9 +515,8 @@ struct Scratch {
     masks: Box<[(u16, u16); PAD2]>,
     /// The mesh being built (copied out at its exact size when the chunk is done).
     mesh: ChunkMesh,
-    /// Local cell-edge index -> vertex, `u32::MAX` when none; reset through `used`.
-    edge_vertex: Vec<u32>,
-    used: Vec<u32>,
+    /// Cell edge -> vertex of the chunk being meshed.
+    edges: EdgeSlots,
     /// Crossed cells of the current chunk: local cell index and case.
     cells: Vec<(u16, u8)>,
     /// The vertices to make, one [`VertexJob`] each, in vertex order (padded to whole
@@ -519,8 +534,7 @@ impl Scratch {
             weight: Box::new([0; PAD * PAD2]),
             masks: Box::new([(0, 0); PAD2]),
             mesh: ChunkMesh::default(),
-            edge_vertex: vec![u32::MAX; ES * ES * ES * 3],
-            used: Vec::new(),
+            edges: EdgeSlots::new(),
             cells: Vec::new(),
             jobs: Vec::new(),
             kernel: VertexKernel::detect(),
@@ -620,6 +634,7 @@ fn vertices_scalar(block: &PaddedBlock, jobs: &[u32; LANES], key_voxel: IVec3, v
 
 /// Makes the vertices of `jobs` (padded to whole batches by repeating the first) with
 /// `kernel` and appends them to `mesh`.
+#[inline(never)]
 fn make_vertices(
     block: &PaddedBlock,
     jobs: &mut Vec<u32>,
@@ -773,115 +788,225 @@ fn build(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scratch) -
     // voxels observed here, so the early exit stays valid for any threshold.
     let Some(nb) = neighbours_if_surface(map, key) else { return false };
     scratch.block.gather(&nb, min_weight, &mut scratch.weight, &mut scratch.masks);
-    let masks = &*scratch.masks;
-    let table = case_table();
-    let vs = map.config().voxel_size;
-    let max_jump =
-        (MAX_EDGE_JUMP_BANDS * map.config().narrowest_band_voxels() / map.config().truncation_voxels).min(1.0);
-    let key_voxel = key * CHUNK_SIDE as i32;
-    let corner_offset: [usize; 8] = std::array::from_fn(|c| (c & 1) + PAD * ((c >> 1) & 1) + PAD2 * ((c >> 2) & 1));
-    // Pass 1: the cells the surface crosses, and how many triangles they make, so that the
-    // mesh buffers are allocated once.
-    let cells = &mut scratch.cells;
-    cells.clear();
-    let mut triangle_count = 0;
-    {
-        let block = &*scratch.block;
-        for z in 0..CHUNK_SIDE {
-            for y in 0..CHUNK_SIDE {
-                // The four padded rows holding the corners of this row of 8 cells; bit x of
-                // `m >> 1 | m >> 2`-style shifts is cell x's pair of corners along x.
-                let rows = [
-                    (y + 1) + PAD * (z + 1),
-                    (y + 2) + PAD * (z + 1),
-                    (y + 1) + PAD * (z + 2),
-                    (y + 2) + PAD * (z + 2),
-                ];
-                let (mut all_obs, mut any_neg, mut all_neg) = (0xffu16, 0u16, 0xffu16);
-                for r in rows {
-                    let (neg, obs) = masks[r];
-                    all_obs &= (obs >> 1) & (obs >> 2);
-                    any_neg |= (neg >> 1) | (neg >> 2);
-                    all_neg &= (neg >> 1) & (neg >> 2);
-                }
-                let mut crossed = all_obs & any_neg & !all_neg;
-                while crossed != 0 {
-                    let x = crossed.trailing_zeros() as usize;
-                    crossed &= crossed - 1;
-                    let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
-                    let mut case = 0u8;
-                    for (c, off) in corner_offset.iter().enumerate() {
-                        case |= (block.flags[base + off] & NEGATIVE) << c;
-                    }
-                    cells.push(((x + CHUNK_SIDE * (y + CHUNK_SIDE * z)) as u16, case));
-                    triangle_count += table.triangles(case).len();
-                }
-            }
-        }
-    }
-    if cells.is_empty() {
+    let triangle_count = classify(&scratch.block, &scratch.masks, &mut scratch.cells);
+    if scratch.cells.is_empty() {
         return false;
     }
     scratch.block.gather_shell(&nb);
-    let block = &*scratch.block;
     // Built in the worker's buffers and copied out at their exact size: growing five vectors
     // per chunk (and freeing the cached mesh it replaces) cost a sixth of meshing in the
     // allocator, and exact sizes keep the cache compact.
     let mut mesh = std::mem::take(&mut scratch.mesh);
     mesh.clear();
     mesh.triangles.reserve(triangle_count);
-    let (edge_vertex, used, jobs) = (&mut scratch.edge_vertex, &mut scratch.used, &mut scratch.jobs);
+    let config = map.config();
+    let max_jump = (MAX_EDGE_JUMP_BANDS * config.narrowest_band_voxels() / config.truncation_voxels).min(1.0);
+    let key_voxel = key * CHUNK_SIDE as i32;
+    triangles(&scratch.block, &scratch.cells, max_jump, key_voxel, &mut scratch.edges, &mut scratch.jobs, &mut mesh);
+    make_vertices(
+        &scratch.block,
+        &mut scratch.jobs,
+        key_voxel,
+        config.voxel_size,
+        scratch.kernel,
+        &mut scratch.lanes,
+        &mut mesh,
+    );
+    scratch.mesh = mesh;
+    true
+}
+
+/// Padded offset of cell corner `c` from the cell's lowest corner.
+const CORNER_OFFSET: [usize; 8] = {
+    let mut t = [0usize; 8];
+    let mut c = 0;
+    while c < 8 {
+        t[c] = (c & 1) + PAD * ((c >> 1) & 1) + PAD2 * ((c >> 2) & 1);
+        c += 1;
+    }
+    t
+};
+
+/// Pass 1: the cells the surface crosses (every corner observed, both signs), with their
+/// cases, into `cells` in cell order; returns how many triangles they make at most, so that
+/// the mesh buffers are allocated once.
+#[inline(never)]
+fn classify(block: &PaddedBlock, masks: &[(u16, u16); PAD2], cells: &mut Vec<(u16, u8)>) -> usize {
+    let table = case_table();
+    cells.clear();
+    let mut triangle_count = 0;
+    for z in 0..CHUNK_SIDE {
+        for y in 0..CHUNK_SIDE {
+            // The four padded rows holding the corners of this row of 8 cells; bit x of
+            // `m >> 1 | m >> 2`-style shifts is cell x's pair of corners along x.
+            let rows =
+                [(y + 1) + PAD * (z + 1), (y + 2) + PAD * (z + 1), (y + 1) + PAD * (z + 2), (y + 2) + PAD * (z + 2)];
+            let (mut all_obs, mut any_neg, mut all_neg) = (0xffu16, 0u16, 0xffu16);
+            for r in rows {
+                let (neg, obs) = masks[r];
+                all_obs &= (obs >> 1) & (obs >> 2);
+                any_neg |= (neg >> 1) | (neg >> 2);
+                all_neg &= (neg >> 1) & (neg >> 2);
+            }
+            let mut crossed = all_obs & any_neg & !all_neg;
+            while crossed != 0 {
+                let x = crossed.trailing_zeros() as usize;
+                crossed &= crossed - 1;
+                let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
+                let mut case = 0u8;
+                for (c, off) in CORNER_OFFSET.iter().enumerate() {
+                    case |= (block.flags[base + off] & NEGATIVE) << c;
+                }
+                cells.push(((x + CHUNK_SIDE * (y + CHUNK_SIDE * z)) as u16, case));
+                triangle_count += table.triangles(case).len();
+            }
+        }
+    }
+    triangle_count
+}
+
+/// Per-chunk cell-edge bookkeeping of [`triangles`].
+struct EdgeSlots {
+    /// Local cell-edge index -> `stamp << 12 | vertex` (vertices of a chunk are fewer than
+    /// its 2187 cell edges, below 2^12): a slot holds a vertex of the current chunk only when
+    /// its stamp is `stamp`, so nothing is cleared between chunks.
+    vertex: Vec<u32>,
+    stamp: u32,
+}
+
+impl EdgeSlots {
+    fn new() -> Self {
+        Self { vertex: vec![0; ES * ES * ES * 3], stamp: 0 }
+    }
+
+    /// Forgets every vertex (a new stamp; the slots are cleared when stamps run out).
+    fn next_chunk(&mut self) {
+        self.stamp += 1;
+        if self.stamp == 1 << 20 {
+            self.vertex.fill(0);
+            self.stamp = 1;
+        }
+    }
+}
+
+/// Per case, its crossed edges in the order its triangles first use them (and how many):
+/// the order in which a cell of that case numbers its new vertices.
+fn first_uses() -> &'static [([u8; 12], u8); 256] {
+    static ORDER: std::sync::OnceLock<[([u8; 12], u8); 256]> = std::sync::OnceLock::new();
+    ORDER.get_or_init(|| {
+        std::array::from_fn(|case| {
+            let mut order = ([0u8; 12], 0u8);
+            for &e in case_table().triangles(case as u8).iter().flatten() {
+                if !order.0[..order.1 as usize].contains(&e) {
+                    order.0[order.1 as usize] = e;
+                    order.1 += 1;
+                }
+            }
+            order
+        })
+    })
+}
+
+/// Per edge, its [`VertexJob`] relative to its cell's (`VertexJob::pack(base, 0, [x, y, z])`:
+/// the fields add without carries).
+const EDGE_JOB: [u32; 12] = {
+    let mut t = [0u32; 12];
+    let mut e = 0;
+    while e < 12 {
+        let a = EDGES[e].0 as usize;
+        let low = [a & 1, (a >> 1) & 1, (a >> 2) & 1];
+        t[e] = (CORNER_OFFSET[a] | (e / 4) << 11 | low[0] << 13 | low[1] << 17 | low[2] << 21) as u32;
+        e += 1;
+    }
+    t
+};
+
+/// Per cell position class (per axis 0: first cell, 1: inner, 2: last; `x + 3 y + 9 z`), the
+/// edges whose vertex neighbouring chunks share: a coordinate across the edge's axis on the
+/// chunk boundary (0 or `CHUNK_SIDE`).
+const SHARED_EDGES: [u16; 27] = {
+    let mut t = [0u16; 27];
+    let mut class = 0;
+    while class < 27 {
+        let c = [class % 3, class / 3 % 3, class / 9];
+        let mut e = 0;
+        while e < 12 {
+            let a = EDGES[e].0 as usize;
+            let mut q = 0;
+            while q < 3 {
+                let bit = (a >> q) & 1;
+                if q != e / 4 && ((c[q] == 0 && bit == 0) || (c[q] == 2 && bit == 1)) {
+                    t[class] |= 1 << e;
+                }
+                q += 1;
+            }
+            e += 1;
+        }
+        class += 1;
+    }
+    t
+};
+
+/// Pass 2: the triangles of the crossed cells without a seam edge (an edge jumping by more
+/// than `max_jump` truncation units), numbering each cell edge's vertex when first used and
+/// recording its [`VertexJob`] (vertices are made afterwards, in batches) and, for edges
+/// neighbouring chunks share, its global key.
+#[inline(never)]
+fn triangles(
+    block: &PaddedBlock,
+    cells: &[(u16, u8)],
+    max_jump: f32,
+    key_voxel: IVec3,
+    edges: &mut EdgeSlots,
+    jobs: &mut Vec<u32>,
+    mesh: &mut ChunkMesh,
+) {
+    let table = case_table();
+    let order = first_uses();
+    edges.next_chunk();
+    let stamp = edges.stamp << 12;
+    let edge_vertex = &mut edges.vertex[..ES * ES * ES * 3];
     jobs.clear();
-    // Pass 2: the triangles, numbering each cell edge's vertex when first used; the vertices
-    // themselves are made afterwards, in batches.
-    for &(cell, case) in cells.iter() {
+    let class = |c: usize| (c != 0) as usize + (c == CHUNK_SIDE - 1) as usize;
+    for &(cell, case) in cells {
         let cell = cell as usize;
         let (x, y, z) = (cell % CHUNK_SIDE, (cell / CHUNK_SIDE) % CHUNK_SIDE, cell / (CHUNK_SIDE * CHUNK_SIDE));
         let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
-        let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + corner_offset[c]));
+        let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + CORNER_OFFSET[c]));
+        let (used, n_used) = &order[case as usize];
+        let used = &used[..*n_used as usize];
         // Only crossed edges can be seams (all corners are observed here, so the case bits
-        // are the signs).
-        let mut crossed = CROSSED[case as usize];
+        // are the signs), and the crossed edges are the used ones.
         let mut jump = false;
-        while crossed != 0 {
-            let (a, b) = EDGES[crossed.trailing_zeros() as usize];
-            crossed &= crossed - 1;
+        for &e in used {
+            let (a, b) = EDGES[e as usize];
             jump |= (f[a as usize] - f[b as usize]).abs() > max_jump;
         }
         if jump {
             continue;
         }
         let cell_key = ((z * ES + y) * ES + x) * 3;
-        for tri in table.triangles(case) {
-            let mut t = [0u32; 3];
-            for (slot, &e) in t.iter_mut().zip(tri) {
-                let ek = cell_key + EDGE_KEY[e as usize];
-                if edge_vertex[ek] == u32::MAX {
-                    let a = EDGES[e as usize].0;
-                    let axis = (e / 4) as usize;
-                    let low = [x + (a & 1) as usize, y + ((a >> 1) & 1) as usize, z + ((a >> 2) & 1) as usize];
-                    let v = jobs.len() as u32;
-                    edge_vertex[ek] = v;
-                    used.push(ek as u32);
-                    jobs.push(VertexJob::pack(base + corner_offset[a as usize], axis, low));
-                    let shared = (0..3).any(|q| q != axis && (low[q] == 0 || low[q] == CHUNK_SIDE));
-                    if shared {
-                        let low_global = key_voxel + IVec3::new(low[0] as i32, low[1] as i32, low[2] as i32);
-                        mesh.shared.push((v, (low_global, axis as u8)));
-                    }
+        let cell_job = VertexJob::pack(base, 0, [x, y, z]);
+        let shared = SHARED_EDGES[class(x) + 3 * class(y) + 9 * class(z)];
+        let mut local = [0u32; 12];
+        for &e in used {
+            let slot = &mut edge_vertex[cell_key + EDGE_KEY[e as usize]];
+            if *slot & !0xfff != stamp {
+                let v = jobs.len() as u32;
+                *slot = stamp | v;
+                let job = cell_job + EDGE_JOB[e as usize];
+                jobs.push(job);
+                if shared >> e & 1 != 0 {
+                    let (_, axis, low) = VertexJob::unpack(job);
+                    mesh.shared.push((v, (key_voxel + IVec3::from(low), axis as u8)));
                 }
-                *slot = edge_vertex[ek];
             }
-            mesh.triangles.push(t);
+            local[e as usize] = *slot & 0xfff;
+        }
+        for tri in table.triangles(case) {
+            mesh.triangles.push(tri.map(|e| local[e as usize]));
         }
     }
-    for &ek in used.iter() {
-        edge_vertex[ek as usize] = u32::MAX;
-    }
-    used.clear();
-    make_vertices(block, jobs, key_voxel, vs, scratch.kernel, &mut scratch.lanes, &mut mesh);
-    scratch.mesh = mesh;
-    true
 }
 
 /// What one incremental update did.
@@ -1702,6 +1827,32 @@ mod tests {
             }
             for m in &made[1..] {
                 assert_eq!(m, &made[0], "round {round}");
+            }
+        }
+    }
+
+    #[test]
+    fn edge_tables_match_their_definitions() {
+        // Every crossed edge is used, once, by the case's triangles.
+        for case in 0..=255u8 {
+            let (edges, n) = first_uses()[case as usize];
+            let mask = edges[..n as usize].iter().fold(0u16, |m, &e| m | 1 << e);
+            assert_eq!((mask, mask.count_ones()), (CROSSED[case as usize], n as u32), "case {case}");
+        }
+        for cell in 0..CHUNK_VOXELS {
+            let c = [cell % CHUNK_SIDE, cell / CHUNK_SIDE % CHUNK_SIDE, cell / (CHUNK_SIDE * CHUNK_SIDE)];
+            let class = |c: usize| (c != 0) as usize + (c == CHUNK_SIDE - 1) as usize;
+            let base = (c[0] + 1) + PAD * (c[1] + 1) + PAD2 * (c[2] + 1);
+            for e in 0..12 {
+                let a = EDGES[e].0 as usize;
+                let axis = e / 4;
+                let low: [usize; 3] = std::array::from_fn(|q| c[q] + ((a >> q) & 1));
+                let shared = (0..3).any(|q| q != axis && (low[q] == 0 || low[q] == CHUNK_SIDE));
+                assert_eq!(SHARED_EDGES[class(c[0]) + 3 * class(c[1]) + 9 * class(c[2])] >> e & 1 != 0, shared);
+                let job = VertexJob::pack(base, 0, c) + EDGE_JOB[e];
+                assert_eq!(job, VertexJob::pack(base + CORNER_OFFSET[a], axis, low));
+                let low = low.map(|l| l as i32);
+                assert_eq!(VertexJob::unpack(job), (base + CORNER_OFFSET[a], axis, low));
             }
         }
     }
