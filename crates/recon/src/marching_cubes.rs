@@ -798,11 +798,19 @@ fn build(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scratch) -
     // allocator, and exact sizes keep the cache compact.
     let mut mesh = std::mem::take(&mut scratch.mesh);
     mesh.clear();
-    mesh.triangles.reserve(triangle_count);
     let config = map.config();
     let max_jump = (MAX_EDGE_JUMP_BANDS * config.narrowest_band_voxels() / config.truncation_voxels).min(1.0);
     let key_voxel = key * CHUNK_SIDE as i32;
-    triangles(&scratch.block, &scratch.cells, max_jump, key_voxel, &mut scratch.edges, &mut scratch.jobs, &mut mesh);
+    triangles(
+        &scratch.block,
+        &scratch.cells,
+        triangle_count,
+        max_jump,
+        key_voxel,
+        &mut scratch.edges,
+        &mut scratch.jobs,
+        &mut mesh,
+    );
     make_vertices(
         &scratch.block,
         &mut scratch.jobs,
@@ -950,11 +958,14 @@ const SHARED_EDGES: [u16; 27] = {
 /// Pass 2: the triangles of the crossed cells without a seam edge (an edge jumping by more
 /// than `max_jump` truncation units), numbering each cell edge's vertex when first used and
 /// recording its [`VertexJob`] (vertices are made afterwards, in batches) and, for edges
-/// neighbouring chunks share, its global key.
+/// neighbouring chunks share, its global key. `triangle_count`: how many triangles `cells`
+/// make before the seam test ([`classify`]).
 #[inline(never)]
+#[allow(clippy::too_many_arguments)]
 fn triangles(
     block: &PaddedBlock,
     cells: &[(u16, u8)],
+    triangle_count: usize,
     max_jump: f32,
     key_voxel: IVec3,
     edges: &mut EdgeSlots,
@@ -967,11 +978,13 @@ fn triangles(
     let stamp = edges.stamp << 12;
     let edge_vertex = &mut edges.vertex[..ES * ES * ES * 3];
     jobs.clear();
-    let class = |c: usize| (c != 0) as usize + (c == CHUNK_SIDE - 1) as usize;
+    // Written in place into the reserved length (`triangle_count` counts seam cells too) and
+    // cut to size at the end: a push per triangle cost a fifth of this pass.
+    let mut written = mesh.triangles.len();
+    mesh.triangles.resize(written + triangle_count, [0; 3]);
     for &(cell, case) in cells {
         let cell = cell as usize;
-        let (x, y, z) = (cell % CHUNK_SIDE, (cell / CHUNK_SIDE) % CHUNK_SIDE, cell / (CHUNK_SIDE * CHUNK_SIDE));
-        let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
+        let base = CELL_BASE[cell] as usize;
         let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + CORNER_OFFSET[c]));
         let (used, n_used) = &order[case as usize];
         let used = &used[..*n_used as usize];
@@ -985,9 +998,10 @@ fn triangles(
         if jump {
             continue;
         }
+        let (x, y, z) = (cell % CHUNK_SIDE, (cell / CHUNK_SIDE) % CHUNK_SIDE, cell / (CHUNK_SIDE * CHUNK_SIDE));
         let cell_key = ((z * ES + y) * ES + x) * 3;
         let cell_job = VertexJob::pack(base, 0, [x, y, z]);
-        let shared = SHARED_EDGES[class(x) + 3 * class(y) + 9 * class(z)];
+        let shared = SHARED_EDGES[CELL_CLASS[cell] as usize];
         let mut local = [0u32; 12];
         for &e in used {
             let slot = &mut edge_vertex[cell_key + EDGE_KEY[e as usize]];
@@ -1003,11 +1017,47 @@ fn triangles(
             }
             local[e as usize] = *slot & 0xfff;
         }
-        for tri in table.triangles(case) {
-            mesh.triangles.push(tri.map(|e| local[e as usize]));
+        let tris = table.triangles(case);
+        for (dst, tri) in mesh.triangles[written..written + tris.len()].iter_mut().zip(tris) {
+            *dst = tri.map(|e| local[e as usize]);
         }
+        written += tris.len();
     }
+    mesh.triangles.truncate(written);
 }
+
+/// Per cell (`x + 8 y + 64 z`), the padded index of its lowest corner.
+const CELL_BASE: [u16; CHUNK_VOXELS] = {
+    let mut t = [0u16; CHUNK_VOXELS];
+    let mut c = 0;
+    while c < CHUNK_VOXELS {
+        let (x, y, z) = (c % CHUNK_SIDE, c / CHUNK_SIDE % CHUNK_SIDE, c / (CHUNK_SIDE * CHUNK_SIDE));
+        t[c] = ((x + 1) + PAD * (y + 1) + PAD2 * (z + 1)) as u16;
+        c += 1;
+    }
+    t
+};
+
+/// Per cell, its position class for [`SHARED_EDGES`].
+const CELL_CLASS: [u8; CHUNK_VOXELS] = {
+    let mut t = [0u8; CHUNK_VOXELS];
+    let mut c = 0;
+    while c < CHUNK_VOXELS {
+        let p = [c % CHUNK_SIDE, c / CHUNK_SIDE % CHUNK_SIDE, c / (CHUNK_SIDE * CHUNK_SIDE)];
+        let mut class = 0;
+        let mut q = 2;
+        loop {
+            class = 3 * class + (p[q] != 0) as usize + (p[q] == CHUNK_SIDE - 1) as usize;
+            if q == 0 {
+                break;
+            }
+            q -= 1;
+        }
+        t[c] = class as u8;
+        c += 1;
+    }
+    t
+};
 
 /// What one incremental update did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -1849,6 +1899,8 @@ mod tests {
                 let low: [usize; 3] = std::array::from_fn(|q| c[q] + ((a >> q) & 1));
                 let shared = (0..3).any(|q| q != axis && (low[q] == 0 || low[q] == CHUNK_SIDE));
                 assert_eq!(SHARED_EDGES[class(c[0]) + 3 * class(c[1]) + 9 * class(c[2])] >> e & 1 != 0, shared);
+                assert_eq!(SHARED_EDGES[CELL_CLASS[cell] as usize] >> e & 1 != 0, shared);
+                assert_eq!(CELL_BASE[cell] as usize, base);
                 let job = VertexJob::pack(base, 0, c) + EDGE_JOB[e];
                 assert_eq!(job, VertexJob::pack(base + CORNER_OFFSET[a], axis, low));
                 let low = low.map(|l| l as i32);
