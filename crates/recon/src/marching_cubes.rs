@@ -843,19 +843,23 @@ fn classify(block: &PaddedBlock, masks: &[(u16, u16); PAD2], cells: &mut Vec<(u1
     let table = case_table();
     cells.clear();
     let mut triangle_count = 0;
+    // Per padded row, bit x: cell x's two corners along x are both observed, one is negative,
+    // both are negative; a row of cells combines four padded rows (each used by up to four).
+    let mut pairs = [(0u16, 0u16, 0u16); PAD2];
+    for pz in 1..PAD - 1 {
+        for py in 1..PAD - 1 {
+            let r = py + PAD * pz;
+            let (neg, obs) = masks[r];
+            pairs[r] = ((obs >> 1) & (obs >> 2), (neg >> 1) | (neg >> 2), (neg >> 1) & (neg >> 2));
+        }
+    }
     for z in 0..CHUNK_SIDE {
         for y in 0..CHUNK_SIDE {
-            // The four padded rows holding the corners of this row of 8 cells; bit x of
-            // `m >> 1 | m >> 2`-style shifts is cell x's pair of corners along x.
-            let rows =
-                [(y + 1) + PAD * (z + 1), (y + 2) + PAD * (z + 1), (y + 1) + PAD * (z + 2), (y + 2) + PAD * (z + 2)];
-            let (mut all_obs, mut any_neg, mut all_neg) = (0xffu16, 0u16, 0xffu16);
-            for r in rows {
-                let (neg, obs) = masks[r];
-                all_obs &= (obs >> 1) & (obs >> 2);
-                any_neg |= (neg >> 1) | (neg >> 2);
-                all_neg &= (neg >> 1) & (neg >> 2);
-            }
+            let r = (y + 1) + PAD * (z + 1);
+            let [a, b, c, d] = [pairs[r], pairs[r + 1], pairs[r + PAD], pairs[r + PAD + 1]];
+            let all_obs = a.0 & b.0 & c.0 & d.0 & 0xff;
+            let any_neg = a.1 | b.1 | c.1 | d.1;
+            let all_neg = a.2 & b.2 & c.2 & d.2;
             let mut crossed = all_obs & any_neg & !all_neg;
             while crossed != 0 {
                 let x = crossed.trailing_zeros() as usize;
