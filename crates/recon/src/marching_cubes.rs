@@ -27,6 +27,8 @@ use semrecon_data::LabeledMesh;
 use crate::cube_cases::{case_table, EDGES};
 
 #[cfg(target_arch = "x86_64")]
+mod avx2;
+#[cfg(target_arch = "x86_64")]
 mod avx512;
 use crate::map::{
     key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE, CHUNK_VOXELS, TSDF_SCALE, WEIGHT_SCALE,
@@ -582,21 +584,29 @@ struct VertexLanes {
 enum VertexKernel {
     /// [`vertices_scalar`], the definition.
     Scalar,
+    /// AVX2 intrinsics, eight lanes twice, chosen at run time without AVX-512F; the same bits.
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
     /// AVX-512F intrinsics, chosen at run time; the same bits.
     #[cfg(target_arch = "x86_64")]
     Avx512,
 }
 
 impl VertexKernel {
-    /// The widest kernel the CPU has, unless `SEMRECON_MESH_SIMD=scalar` asks for the scalar one.
+    /// The widest kernel the CPU has, unless `SEMRECON_MESH_SIMD=avx2|scalar` asks for a
+    /// narrower one (all give the same bits).
     fn detect() -> Self {
         static KERNEL: std::sync::OnceLock<VertexKernel> = std::sync::OnceLock::new();
         *KERNEL.get_or_init(|| {
             #[cfg(target_arch = "x86_64")]
-            if std::env::var("SEMRECON_MESH_SIMD").unwrap_or_default() != "scalar"
-                && is_x86_feature_detected!("avx512f")
             {
-                return VertexKernel::Avx512;
+                let forced = std::env::var("SEMRECON_MESH_SIMD").unwrap_or_default();
+                if forced != "scalar" && forced != "avx2" && is_x86_feature_detected!("avx512f") {
+                    return VertexKernel::Avx512;
+                }
+                if forced != "scalar" && is_x86_feature_detected!("avx2") {
+                    return VertexKernel::Avx2;
+                }
             }
             VertexKernel::Scalar
         })
@@ -654,8 +664,10 @@ fn make_vertices(
     for (b, batch) in batches.iter().enumerate() {
         match kernel {
             VertexKernel::Scalar => vertices_scalar(block, batch, key_voxel, voxel_size, lanes),
-            // SAFETY: `VertexKernel::Avx512` is only chosen where the CPU has AVX-512F, and
-            // every job comes from a crossed edge of the block's cells.
+            // SAFETY: `VertexKernel::Avx2` and `Avx512` are only chosen where the CPU has AVX2,
+            // AVX-512F, and every job comes from a crossed edge of the block's cells.
+            #[cfg(target_arch = "x86_64")]
+            VertexKernel::Avx2 => unsafe { avx2::vertices(block, batch, key_voxel, voxel_size, lanes) },
             #[cfg(target_arch = "x86_64")]
             VertexKernel::Avx512 => unsafe { avx512::vertices(block, batch, key_voxel, voxel_size, lanes) },
         }
@@ -1822,17 +1834,30 @@ mod tests {
         assert!(checked > 10_000);
     }
 
+    /// The vertex kernels this CPU can run, the scalar one first.
+    fn available_kernels() -> Vec<VertexKernel> {
+        let mut kernels = vec![VertexKernel::Scalar];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if is_x86_feature_detected!("avx2") {
+                kernels.push(VertexKernel::Avx2);
+            } else {
+                eprintln!("no AVX2 on this machine: the AVX2 vertex kernel is not tested");
+            }
+            if is_x86_feature_detected!("avx512f") {
+                kernels.push(VertexKernel::Avx512);
+            } else {
+                eprintln!("no AVX-512F on this machine: the AVX-512 vertex kernel is not tested");
+            }
+        }
+        kernels
+    }
+
     #[test]
     fn vertex_kernels_agree_bit_for_bit() {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(13);
-        let mut kernels = vec![VertexKernel::Scalar];
-        #[cfg(target_arch = "x86_64")]
-        if is_x86_feature_detected!("avx512f") {
-            kernels.push(VertexKernel::Avx512);
-        } else {
-            eprintln!("no AVX-512F on this machine: the AVX-512 vertex kernel is not tested");
-        }
+        let kernels = available_kernels();
         let mut block = PaddedBlock::new();
         let mut made = Vec::new();
         for round in 0..200 {
@@ -1872,7 +1897,10 @@ mod tests {
                 let mut lanes = VertexLanes::default();
                 match kernel {
                     VertexKernel::Scalar => vertices_scalar(&block, &jobs, key_voxel, voxel_size, &mut lanes),
-                    // SAFETY: AVX-512F was detected above; the jobs are crossed edges in the block.
+                    // SAFETY: AVX2 and AVX-512F were detected above; the jobs are crossed edges in
+                    // the block.
+                    #[cfg(target_arch = "x86_64")]
+                    VertexKernel::Avx2 => unsafe { avx2::vertices(&block, &jobs, key_voxel, voxel_size, &mut lanes) },
                     #[cfg(target_arch = "x86_64")]
                     VertexKernel::Avx512 => unsafe { avx512::vertices(&block, &jobs, key_voxel, voxel_size, &mut lanes) },
                 }
@@ -1918,20 +1946,24 @@ mod tests {
         use rand::SeedableRng;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
         let map = noisy_map(&mut rng, 5);
-        let mut scalar = Scratch::new();
-        scalar.kernel = VertexKernel::Scalar;
-        let mut detected = Scratch::new();
+        let mut scratches: Vec<Scratch> = available_kernels()
+            .into_iter()
+            .map(|kernel| Scratch { kernel, ..Scratch::new() })
+            .collect();
         let mut vertices = 0;
         for key in map.sorted_keys() {
             for min_weight in [1, 40] {
-                let a = mesh_chunk_configured(&map, key, min_weight, &mut scalar);
-                let b = mesh_chunk_configured(&map, key, min_weight, &mut detected);
-                assert_eq!(a.positions.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>(),
-                    b.positions.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>());
-                assert_eq!(a.normals.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>(),
-                    b.normals.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>());
-                assert_eq!(a, b);
-                vertices += a.positions.len();
+                let bits = |m: &ChunkMesh| {
+                    let b = |v: &[Vec3]| v.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>();
+                    (b(&m.positions), b(&m.normals))
+                };
+                let meshes: Vec<ChunkMesh> =
+                    scratches.iter_mut().map(|s| mesh_chunk_configured(&map, key, min_weight, s)).collect();
+                for m in &meshes[1..] {
+                    assert_eq!(bits(m), bits(&meshes[0]));
+                    assert_eq!(m, &meshes[0]);
+                }
+                vertices += meshes[0].positions.len();
             }
         }
         assert!(vertices > 1000, "{vertices} vertices");
