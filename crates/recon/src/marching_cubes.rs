@@ -10,9 +10,12 @@
 //! to the positive (free-space, camera) side; triangles wind counter-clockwise seen from it.
 //!
 //! Each chunk is meshed from a padded copy of its cells' corners (its voxels and its upper
-//! neighbours' boundary voxels); the gradients at vertices on the chunk's boundary also read
-//! the one-voxel shell beyond, straight from the neighbouring chunks. So a chunk's mesh
-//! depends on its 26 neighbours: when a chunk changes, it and its allocated neighbours are
+//! neighbours' boundary voxels), in three passes: classify the cells, make the triangles
+//! (numbering each crossed cell edge's vertex when first used), then make the vertices in
+//! batches of 16 (AVX-512 or AVX2 where the CPU has them, the same bits as the scalar
+//! definition), reading only the padded block, which for that is completed with the
+//! one-voxel shell beyond (the central differences at the corners) and the colours. So a
+//! chunk's mesh depends on its 26 neighbours: when a chunk changes, it and its allocated neighbours are
 //! re-meshed (with a [`RemeshTolerance`], only when it changed materially, and only the
 //! neighbours that read the changed voxels). Chunk meshes are welded into one mesh by the
 //! global key of the cell edge each vertex sits on, so the result is watertight where the
