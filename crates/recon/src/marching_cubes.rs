@@ -379,10 +379,8 @@ impl PaddedBlock {
             None => 0,
         };
         // Rows of corners: their x faces (local -1 and 9) and their colours.
-        for pz in 1..PAD - 1 {
-            let (oz, iz) = SPLIT[pz];
-            for py in 1..PAD - 1 {
-                let (oy, iy) = SPLIT[py];
+        for (pz, &(oz, iz)) in SPLIT.iter().enumerate().take(PAD - 1).skip(1) {
+            for (py, &(oy, iy)) in SPLIT.iter().enumerate().take(PAD - 1).skip(1) {
                 let dst = PAD * py + PAD2 * pz;
                 let src = N * (iy as usize + N * iz as usize);
                 let nb_row = 3 * oy as usize + 9 * oz as usize;
