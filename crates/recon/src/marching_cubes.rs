@@ -341,17 +341,16 @@ impl PaddedBlock {
             w.copy_from_slice(&b.flags[i..i + 8]);
             u64::from_le_bytes(w)
         };
-        for (r, m) in masks.iter_mut().enumerate() {
-            let (py, pz) = (r % PAD, r / PAD);
-            if !(1..PAD - 1).contains(&py) || !(1..PAD - 1).contains(&pz) {
-                continue;
+        for pz in 1..PAD - 1 {
+            for py in 1..PAD - 1 {
+                let r = py + PAD * pz;
+                let lo = word(r * PAD);
+                // Padded x 8 ..= 10: three bytes (the rest is the next row).
+                let hi = word(r * PAD + 8) & 0x00ff_ffff;
+                let neg = pack(lo) | pack(hi) << 8;
+                let obs = pack(lo >> 1) | pack(hi >> 1) << 8;
+                masks[r] = (neg, obs);
             }
-            let lo = word(r * PAD);
-            // Padded x 8 ..= 10: three bytes (the rest is the next row).
-            let hi = word(r * PAD + 8) & 0x00ff_ffff;
-            let neg = pack(lo) | pack(hi) << 8;
-            let obs = pack(lo >> 1) | pack(hi >> 1) << 8;
-            *m = (neg, obs);
         }
     }
 
