@@ -19,6 +19,8 @@
 //! a meshing-only load for profilers. The fusion kernel is the widest the
 //! CPU has; `SEMRECON_FUSION_SIMD=avx2|portable` forces a lower one. The printed map
 //! fingerprint (every voxel and frame run) must not depend on the kernel or the thread count.
+//! Meshing's vertex kernel is chosen the same way (`SEMRECON_MESH_SIMD=avx2|scalar`); the
+//! mesh written by `--out` is the same file with any of them.
 
 #[path = "common/cpu_time.rs"]
 mod cpu_time;

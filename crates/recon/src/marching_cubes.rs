@@ -10,9 +10,12 @@
 //! to the positive (free-space, camera) side; triangles wind counter-clockwise seen from it.
 //!
 //! Each chunk is meshed from a padded copy of its cells' corners (its voxels and its upper
-//! neighbours' boundary voxels); the gradients at vertices on the chunk's boundary also read
-//! the one-voxel shell beyond, straight from the neighbouring chunks. So a chunk's mesh
-//! depends on its 26 neighbours: when a chunk changes, it and its allocated neighbours are
+//! neighbours' boundary voxels), in three passes: classify the cells, make the triangles
+//! (numbering each crossed cell edge's vertex when first used), then make the vertices in
+//! batches of 16 (AVX-512 or AVX2 where the CPU has them, the same bits as the scalar
+//! definition), reading only the padded block, which for that is completed with the
+//! one-voxel shell beyond (the central differences at the corners) and the colours. So a
+//! chunk's mesh depends on its 26 neighbours: when a chunk changes, it and its allocated neighbours are
 //! re-meshed (with a [`RemeshTolerance`], only when it changed materially, and only the
 //! neighbours that read the changed voxels). Chunk meshes are welded into one mesh by the
 //! global key of the cell edge each vertex sits on, so the result is watertight where the
@@ -25,6 +28,11 @@ use rayon::prelude::*;
 use semrecon_data::LabeledMesh;
 
 use crate::cube_cases::{case_table, EDGES};
+
+#[cfg(target_arch = "x86_64")]
+mod avx2;
+#[cfg(target_arch = "x86_64")]
+mod avx512;
 use crate::map::{
     key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE, CHUNK_VOXELS, TSDF_SCALE, WEIGHT_SCALE,
 };
@@ -74,19 +82,35 @@ impl ChunkMesh {
     }
 }
 
-/// A padded copy of one chunk with room for the one-voxel shell around it (laid out over
-/// padded coordinates 0 ..= 10; [`PaddedBlock::gather`] fills 1 ..= 9, the cells' corners).
+/// A padded copy of one chunk with its one-voxel shell (laid out over padded coordinates
+/// 0 ..= 10): [`PaddedBlock::gather`] fills 1 ..= 9, the cells' corners, which is all that
+/// classifying cells needs; [`PaddedBlock::gather_shell`], run only for chunks with crossed
+/// cells, adds the six faces of the shell (padded 0 or 10 on one axis, 1 ..= 9 on the
+/// others: the central differences of the corners read nothing else) and the corners'
+/// colours, so that making a vertex reads only this block.
 ///
 /// Distances stay quantised (`i16`) until a vertex needs them; `flags` holds bit 0 for a
 /// negative distance and bit 1 for an observed voxel (stored weight at least `min_weight`,
-/// see [`MeshConfig`]), so a cell's case and mask come from 8 byte loads. Colours are not copied: only vertices need them, a few per cell crossed,
-/// so they are read from the chunks when a vertex is made ([`voxel_color`]).
+/// see [`MeshConfig`]), so a cell's case and mask come from 8 byte loads.
 struct PaddedBlock {
     tsdf: [i16; PAD * PAD2],
     /// Eight spare zero bytes at the end: row masks read 16 bytes from an 11-byte row.
     flags: [u8; PAD * PAD2 + 8],
+    /// Per voxel `tsdf << 16 | flags` over padded 1 ..= 9 and the shell's faces (from
+    /// [`PaddedBlock::gather_shell`]): one load (or gather) reads a neighbour's distance and
+    /// whether it is observed.
+    packed: [i32; PAD * PAD2],
+    /// Colours `[r, g, b, count]` of padded 1 ..= 9; unallocated voxels 0.
+    color: [[u8; 4]; PAD * PAD2],
     /// Smallest stored weight of an observed voxel (at least 1), set by the gather.
     min_weight: u16,
+}
+
+/// A voxel as [`PaddedBlock`]'s `packed` holds it: `tsdf << 16 | flags`.
+#[inline(always)]
+fn packed_voxel(tsdf: i16, weight: u16, min_weight: u16) -> i32 {
+    let observed = (weight >= min_weight) as i32;
+    (tsdf as i32) << 16 | ((tsdf < 0) as i32 & observed) | observed << 1
 }
 
 /// Padded coordinate `p` (local `p - 1`, -1 ..= 9) -> (chunk offset + 1, local coordinate
@@ -104,8 +128,9 @@ const SPLIT: [(u8, u8); PAD] = {
 };
 
 /// Colour `[r, g, b, count]` of the voxel at padded coordinates `p` (`-1 ..= 9` local plus
-/// one), read from the chunk that holds it; unobserved black when it is not allocated.
-#[inline]
+/// one), read from the chunk that holds it; unobserved black when it is not allocated (the
+/// reference for [`PaddedBlock::color`]).
+#[cfg(test)]
 fn voxel_color(nb: &[Option<&Chunk>; 27], p: [usize; 3]) -> [u8; 4] {
     let ((ox, ix), (oy, iy), (oz, iz)) = (SPLIT[p[0]], SPLIT[p[1]], SPLIT[p[2]]);
     match nb[ox as usize + 3 * oy as usize + 9 * oz as usize] {
@@ -133,7 +158,9 @@ fn edge_color(ca: [u8; 4], cb: [u8; 4], s: f32) -> [u8; 3] {
     [c.x as u8, c.y as u8, c.z as u8]
 }
 
-/// Per case, bit `e` set when edge `e` joins corners of different signs (crosses the surface).
+/// Per case, bit `e` set when edge `e` joins corners of different signs (crosses the surface):
+/// the reference for [`first_uses`].
+#[cfg(test)]
 const CROSSED: [u16; 256] = {
     let mut t = [0u16; 256];
     let mut case = 0;
@@ -231,7 +258,13 @@ impl PaddedBlock {
     }
 
     fn new() -> Box<Self> {
-        Box::new(PaddedBlock { tsdf: [0; PAD * PAD2], flags: [0; PAD * PAD2 + 8], min_weight: 1 })
+        Box::new(PaddedBlock {
+            tsdf: [0; PAD * PAD2],
+            flags: [0; PAD * PAD2 + 8],
+            packed: [0; PAD * PAD2],
+            color: [[0; 4]; PAD * PAD2],
+            min_weight: 1,
+        })
     }
 
     /// Copies the voxels of local coordinates `0 ..= 8` (padded 1 ..= 9: the corners of the
@@ -243,6 +276,7 @@ impl PaddedBlock {
     /// Distances and weights are copied first, row piece by row piece (fixed lengths the
     /// compiler turns into a few moves), then flags and masks come from one pass over the
     /// copy: per-element branching on the neighbour cost more than the marching.
+    #[inline(never)]
     fn gather(
         &mut self,
         nb: &[Option<&Chunk>; 27],
@@ -307,24 +341,101 @@ impl PaddedBlock {
             w.copy_from_slice(&b.flags[i..i + 8]);
             u64::from_le_bytes(w)
         };
-        for (r, m) in masks.iter_mut().enumerate() {
-            let (py, pz) = (r % PAD, r / PAD);
-            if !(1..PAD - 1).contains(&py) || !(1..PAD - 1).contains(&pz) {
-                continue;
+        for pz in 1..PAD - 1 {
+            for py in 1..PAD - 1 {
+                let r = py + PAD * pz;
+                let lo = word(r * PAD);
+                // Padded x 8 ..= 10: three bytes (the rest is the next row).
+                let hi = word(r * PAD + 8) & 0x00ff_ffff;
+                let neg = pack(lo) | pack(hi) << 8;
+                let obs = pack(lo >> 1) | pack(hi >> 1) << 8;
+                masks[r] = (neg, obs);
             }
-            let lo = word(r * PAD);
-            // Padded x 8 ..= 10: three bytes (the rest is the next row).
-            let hi = word(r * PAD + 8) & 0x00ff_ffff;
-            let neg = pack(lo) | pack(hi) << 8;
-            let obs = pack(lo >> 1) | pack(hi >> 1) << 8;
-            *m = (neg, obs);
         }
     }
 
-    /// Central-difference TSDF gradient at padded index `i`, coordinates `p` in 1 ..= 9
-    /// (one-sided where a neighbour is unobserved). Neighbours at padded 0 and 10 are not
-    /// gathered ([`PaddedBlock::gather`]): they are read from the chunks.
+    /// Completes the block for making vertices: `packed` over padded 1 ..= 9 and the six
+    /// faces of the shell (unallocated voxels unobserved), and the colours of padded 1 ..= 9.
+    ///
+    /// Run only for chunks with crossed cells (after the classification), since it reads
+    /// the 19 other neighbours too. Row pieces are copied as in [`PaddedBlock::gather`]; only
+    /// the x faces are read voxel by voxel.
+    #[inline(never)]
+    fn gather_shell(&mut self, nb: &[Option<&Chunk>; 27]) {
+        const N: usize = CHUNK_SIDE;
+        let min_weight = self.min_weight;
+        // The gathered slabs, whole rows: the x faces (padded 0 and 10) are overwritten below,
+        // the rest of padded y or z 0 and 10 in these ranges is never read.
+        for pz in 1..PAD - 1 {
+            let rows = PAD * (1 + PAD * pz)..PAD * (PAD - 1 + PAD * pz);
+            let (p, t, f) = (&mut self.packed[rows.clone()], &self.tsdf[rows.clone()], &self.flags[rows]);
+            for ((p, &t), &f) in p.iter_mut().zip(t).zip(f) {
+                *p = (t as i32) << 16 | f as i32;
+            }
+        }
+        let one = |c: Option<&Chunk>, j: usize| match c {
+            Some(c) => packed_voxel(c.voxels.tsdf[j], c.voxels.weight[j], min_weight),
+            None => 0,
+        };
+        // Rows of corners: their x faces (local -1 and 9) and their colours.
+        // Index loops: the iterator form clippy suggests cost a tenth more here.
+        #[allow(clippy::needless_range_loop)]
+        for pz in 1..PAD - 1 {
+            let (oz, iz) = SPLIT[pz];
+            for py in 1..PAD - 1 {
+                let (oy, iy) = SPLIT[py];
+                let dst = PAD * py + PAD2 * pz;
+                let src = N * (iy as usize + N * iz as usize);
+                let nb_row = 3 * oy as usize + 9 * oz as usize;
+                self.packed[dst] = one(nb[nb_row], src + N - 1);
+                self.packed[dst + PAD - 1] = one(nb[nb_row + 2], src + 1);
+                self.color[dst + PAD - 2] = nb[nb_row + 2].map_or([0; 4], |c| c.voxels.color[src]);
+                let row = &mut self.color[dst + 1..dst + 1 + N];
+                match nb[nb_row + 1] {
+                    Some(c) => row.copy_from_slice(&c.voxels.color[src..src + N]),
+                    None => row.fill([0; 4]),
+                }
+            }
+        }
+        // The y and z faces: rows of padded x 1 ..= 9.
+        for p in 1..PAD - 1 {
+            for q in [0, PAD - 1] {
+                for (py, pz) in [(q, p), (p, q)] {
+                    let ((oy, iy), (oz, iz)) = (SPLIT[py], SPLIT[pz]);
+                    let dst = PAD * py + PAD2 * pz;
+                    let row = (iy as usize + N * iz as usize) * N;
+                    let nb_row = 3 * oy as usize + 9 * oz as usize;
+                    let out = &mut self.packed[dst + 1..dst + 1 + N];
+                    match nb[nb_row + 1] {
+                        Some(c) => {
+                            // Whole rows of the chunk as arrays: the loop vectorises.
+                            let t = &c.voxels.tsdf.as_chunks::<N>().0[row / N];
+                            let w = &c.voxels.weight.as_chunks::<N>().0[row / N];
+                            let mut packed = [0i32; N];
+                            for k in 0..N {
+                                packed[k] = packed_voxel(t[k], w[k], min_weight);
+                            }
+                            out.copy_from_slice(&packed);
+                        }
+                        None => out.fill(0),
+                    }
+                    self.packed[dst + 1 + N] = one(nb[nb_row + 2], row);
+                }
+            }
+        }
+    }
+
+    /// Colour `[r, g, b, count]` at padded index `i` (coordinates 1 ..= 9).
     #[inline]
+    fn color(&self, i: usize) -> [u8; 4] {
+        self.color[i]
+    }
+
+    /// Central-difference TSDF gradient at padded index `i`, coordinates `p` in 1 ..= 9
+    /// (one-sided where a neighbour is unobserved), reading neighbours at padded 0 and 10 from
+    /// the chunks: the reference for [`PaddedBlock::inner_gradient`] after
+    /// [`PaddedBlock::gather_shell`].
+    #[cfg(test)]
     fn gradient(&self, nb: &[Option<&Chunk>; 27], i: usize, p: [usize; 3]) -> Vec3 {
         let strides = [1, PAD, PAD2];
         let outer = |q: [usize; 3]| -> Option<f32> {
@@ -374,16 +485,16 @@ impl PaddedBlock {
         Vec3::from(g)
     }
 
-    /// [`PaddedBlock::gradient`] at a voxel whose six neighbours are all gathered (padded
-    /// coordinates 2 ..= 8 on every axis, about half the vertex ends): the same arithmetic
-    /// without the outer shell's lookups, inlined into the vertex loop.
+    /// Central-difference TSDF gradient at padded index `i` (coordinates 1 ..= 9, after
+    /// [`PaddedBlock::gather_shell`]), one-sided where a neighbour is unobserved, in raw
+    /// distance units per voxel.
     #[inline(always)]
     fn inner_gradient(&self, i: usize) -> Vec3 {
-        let t = self.tsdf[i] as f32;
+        let t = (self.packed[i] >> 16) as f32;
         let axis = |s: usize| {
-            let (lo, hi) = (self.flags[i - s] & OBSERVED != 0, self.flags[i + s] & OBSERVED != 0);
-            let (l, h) = (self.tsdf[i - s] as f32, self.tsdf[i + s] as f32);
-            match (lo, hi) {
+            let (lo, hi) = (self.packed[i - s], self.packed[i + s]);
+            let (l, h) = ((lo >> 16) as f32, (hi >> 16) as f32);
+            match (lo & OBSERVED as i32 != 0, hi & OBSERVED as i32 != 0) {
                 (true, true) => 0.5 * (h - l),
                 (false, true) => h - t,
                 (true, false) => t - l,
@@ -410,16 +521,16 @@ struct Scratch {
     masks: Box<[(u16, u16); PAD2]>,
     /// The mesh being built (copied out at its exact size when the chunk is done).
     mesh: ChunkMesh,
-    /// Local cell-edge index -> vertex, `u32::MAX` when none; reset through `used`.
-    edge_vertex: Vec<u32>,
-    used: Vec<u32>,
+    /// Cell edge -> vertex of the chunk being meshed.
+    edges: EdgeSlots,
     /// Crossed cells of the current chunk: local cell index and case.
     cells: Vec<(u16, u8)>,
-    /// Gradient per padded voxel, valid where `grad_stamp` equals `stamp` (a voxel serves
-    /// up to six vertices; stamps avoid clearing the cache per chunk).
-    grad: Vec<Vec3>,
-    grad_stamp: Vec<u32>,
-    stamp: u32,
+    /// The vertices to make, one [`VertexJob`] each, in vertex order (padded to whole
+    /// batches).
+    jobs: Vec<u32>,
+    /// Where vertex batches are made.
+    kernel: VertexKernel,
+    lanes: VertexLanes,
 }
 
 impl Scratch {
@@ -429,14 +540,157 @@ impl Scratch {
             weight: Box::new([0; PAD * PAD2]),
             masks: Box::new([(0, 0); PAD2]),
             mesh: ChunkMesh::default(),
-            edge_vertex: vec![u32::MAX; ES * ES * ES * 3],
-            used: Vec::new(),
+            edges: EdgeSlots::new(),
             cells: Vec::new(),
-            grad: vec![Vec3::ZERO; PAD * PAD2],
-            grad_stamp: vec![0; PAD * PAD2],
-            stamp: 0,
+            jobs: Vec::new(),
+            kernel: VertexKernel::detect(),
+            lanes: VertexLanes::default(),
         }
     }
+}
+
+/// Vertices made at once.
+const LANES: usize = 16;
+
+/// One vertex to make, packed into a `u32`: bits 0..11 the padded index of the edge's lower
+/// end, 11..13 the edge's axis, then 4 bits per axis of the lower end's local coordinates
+/// (0 ..= 8).
+struct VertexJob;
+
+impl VertexJob {
+    #[inline]
+    fn pack(lower: usize, axis: usize, low: [usize; 3]) -> u32 {
+        (lower | axis << 11 | low[0] << 13 | low[1] << 17 | low[2] << 21) as u32
+    }
+
+    /// (padded index of the lower end, axis, local coordinates of the lower end).
+    #[inline]
+    fn unpack(job: u32) -> (usize, usize, [i32; 3]) {
+        let j = job as usize;
+        (j & 0x7ff, (j >> 11) & 3, [(j >> 13) as i32 & 15, (j >> 17) as i32 & 15, (j >> 21) as i32 & 15])
+    }
+}
+
+/// Padded index step per axis.
+const STRIDES: [usize; 3] = [1, PAD, PAD2];
+
+/// A batch of made vertices, lane `k` for job `k`: positions and normals by axis, colours
+/// as `r | g << 8 | b << 16`.
+#[derive(Debug, Default, Clone, PartialEq)]
+struct VertexLanes {
+    position: [[f32; LANES]; 3],
+    normal: [[f32; LANES]; 3],
+    color: [u32; LANES],
+}
+
+/// Which code makes vertex batches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum VertexKernel {
+    /// [`vertices_scalar`], the definition.
+    Scalar,
+    /// AVX2 intrinsics, eight lanes twice, chosen at run time without AVX-512F; the same bits.
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+    /// AVX-512F intrinsics, chosen at run time; the same bits.
+    #[cfg(target_arch = "x86_64")]
+    Avx512,
+}
+
+impl VertexKernel {
+    /// The widest kernel the CPU has, unless `SEMRECON_MESH_SIMD=avx2|scalar` asks for a
+    /// narrower one (all give the same bits).
+    fn detect() -> Self {
+        static KERNEL: std::sync::OnceLock<VertexKernel> = std::sync::OnceLock::new();
+        *KERNEL.get_or_init(|| {
+            #[cfg(target_arch = "x86_64")]
+            {
+                let forced = std::env::var("SEMRECON_MESH_SIMD").unwrap_or_default();
+                if forced != "scalar" && forced != "avx2" && is_x86_feature_detected!("avx512f") {
+                    return VertexKernel::Avx512;
+                }
+                if forced != "scalar" && is_x86_feature_detected!("avx2") {
+                    return VertexKernel::Avx2;
+                }
+            }
+            VertexKernel::Scalar
+        })
+    }
+}
+
+/// The vertex of one [`VertexJob`] in chunk `key_voxel` (its lowest voxel) with voxels of
+/// `voxel_size` metres: position on the crossed edge (linear in the distances), colour
+/// interpolated from the ends' ([`edge_color`]), unit normal the interpolated gradient
+/// ([`PaddedBlock::inner_gradient`]; zero where it vanishes).
+#[inline]
+fn vertex(block: &PaddedBlock, job: u32, key_voxel: IVec3, voxel_size: f32) -> (Vec3, [u8; 3], Vec3) {
+    let (ia, axis, low) = VertexJob::unpack(job);
+    let ib = ia + STRIDES[axis];
+    let (fa, fb) = (block.tsdf(ia), block.tsdf(ib));
+    let s = fa / (fa - fb);
+    let mut p = (key_voxel + IVec3::from(low)).as_vec3();
+    p[axis] += s;
+    let color = edge_color(block.color(ia), block.color(ib), s);
+    let g = block.inner_gradient(ia).lerp(block.inner_gradient(ib), s);
+    (p * voxel_size, color, g.normalize_or_zero())
+}
+
+/// [`vertex`] for each of a batch of jobs.
+fn vertices_scalar(block: &PaddedBlock, jobs: &[u32; LANES], key_voxel: IVec3, voxel_size: f32, out: &mut VertexLanes) {
+    for (k, &job) in jobs.iter().enumerate() {
+        let (p, c, n) = vertex(block, job, key_voxel, voxel_size);
+        for a in 0..3 {
+            out.position[a][k] = p[a];
+            out.normal[a][k] = n[a];
+        }
+        out.color[k] = u32::from_le_bytes([c[0], c[1], c[2], 0]);
+    }
+}
+
+/// Makes the vertices of `jobs` (padded to whole batches by repeating the first) with
+/// `kernel` and appends them to `mesh`.
+#[inline(never)]
+fn make_vertices(
+    block: &PaddedBlock,
+    jobs: &mut Vec<u32>,
+    key_voxel: IVec3,
+    voxel_size: f32,
+    kernel: VertexKernel,
+    lanes: &mut VertexLanes,
+    mesh: &mut ChunkMesh,
+) {
+    let n = jobs.len();
+    let Some(&first) = jobs.first() else { return };
+    jobs.resize(n.div_ceil(LANES) * LANES, first);
+    mesh.positions.reserve(n);
+    mesh.normals.reserve(n);
+    mesh.colors.reserve(n);
+    let (batches, _) = jobs.as_chunks::<LANES>();
+    for (b, batch) in batches.iter().enumerate() {
+        match kernel {
+            VertexKernel::Scalar => vertices_scalar(block, batch, key_voxel, voxel_size, lanes),
+            // SAFETY: `VertexKernel::Avx2` and `Avx512` are only chosen where the CPU has AVX2,
+            // AVX-512F, and every job comes from a crossed edge of the block's cells.
+            #[cfg(target_arch = "x86_64")]
+            VertexKernel::Avx2 => unsafe { avx2::vertices(block, batch, key_voxel, voxel_size, lanes) },
+            #[cfg(target_arch = "x86_64")]
+            VertexKernel::Avx512 => unsafe { avx512::vertices(block, batch, key_voxel, voxel_size, lanes) },
+        }
+        // Interleaved on the stack and appended at once: three pushes a vertex, with their
+        // capacity checks, cost more than making the vertex.
+        let [px, py, pz] = &lanes.position;
+        let [nx, ny, nz] = &lanes.normal;
+        let positions: [Vec3; LANES] = std::array::from_fn(|k| Vec3::new(px[k], py[k], pz[k]));
+        let normals: [Vec3; LANES] = std::array::from_fn(|k| Vec3::new(nx[k], ny[k], nz[k]));
+        let colors: [[u8; 3]; LANES] = std::array::from_fn(|k| {
+            let c = lanes.color[k].to_le_bytes();
+            [c[0], c[1], c[2]]
+        });
+        let count = (n - b * LANES).min(LANES);
+        mesh.positions.extend_from_slice(&positions[..count]);
+        mesh.normals.extend_from_slice(&normals[..count]);
+        mesh.colors.extend_from_slice(&colors[..count]);
+    }
+    jobs.truncate(n);
 }
 
 /// Options of surface extraction (the map's own parameters are in [`crate::TsdfConfig`]).
@@ -550,71 +804,85 @@ fn build(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scratch) -
     // voxels observed here, so the early exit stays valid for any threshold.
     let Some(nb) = neighbours_if_surface(map, key) else { return false };
     scratch.block.gather(&nb, min_weight, &mut scratch.weight, &mut scratch.masks);
-    let block = &*scratch.block;
-    let masks = &*scratch.masks;
-    let edge_vertex = &mut scratch.edge_vertex;
-    let used = &mut scratch.used;
-    scratch.stamp = scratch.stamp.wrapping_add(1);
-    if scratch.stamp == 0 {
-        scratch.grad_stamp.fill(0);
-        scratch.stamp = 1;
+    let triangle_count = classify(&scratch.block, &scratch.masks, &mut scratch.cells);
+    if scratch.cells.is_empty() {
+        return false;
     }
-    let stamp = scratch.stamp;
-    let (grad, grad_stamp) = (&mut scratch.grad, &mut scratch.grad_stamp);
-    // A function, not a closure: inlined at both call sites (a closure call per vertex end
-    // was not, and cost a tenth of meshing in call overhead).
-    #[inline(always)]
-    fn cached(
-        block: &PaddedBlock,
-        nb: &[Option<&Chunk>; 27],
-        grad: &mut [Vec3],
-        grad_stamp: &mut [u32],
-        stamp: u32,
-        i: usize,
-        p: [usize; 3],
-    ) -> Vec3 {
-        if grad_stamp[i] != stamp {
-            grad_stamp[i] = stamp;
-            let inside = |q: usize| (2..PAD - 2).contains(&q);
-            grad[i] = if inside(p[0]) && inside(p[1]) && inside(p[2]) {
-                block.inner_gradient(i)
-            } else {
-                block.gradient(nb, i, p)
-            };
-        }
-        grad[i]
-    }
-    let table = case_table();
-    let vs = map.config().voxel_size;
-    let max_jump =
-        (MAX_EDGE_JUMP_BANDS * map.config().narrowest_band_voxels() / map.config().truncation_voxels).min(1.0);
+    scratch.block.gather_shell(&nb);
+    // Built in the worker's buffers and copied out at their exact size: growing five vectors
+    // per chunk (and freeing the cached mesh it replaces) cost a sixth of meshing in the
+    // allocator, and exact sizes keep the cache compact.
+    let mut mesh = std::mem::take(&mut scratch.mesh);
+    mesh.clear();
+    let config = map.config();
+    let max_jump = (MAX_EDGE_JUMP_BANDS * config.narrowest_band_voxels() / config.truncation_voxels).min(1.0);
     let key_voxel = key * CHUNK_SIDE as i32;
-    let corner_offset: [usize; 8] = std::array::from_fn(|c| (c & 1) + PAD * ((c >> 1) & 1) + PAD2 * ((c >> 2) & 1));
-    // Pass 1: the cells the surface crosses, and how many triangles they make, so that the
-    // mesh buffers are allocated once.
-    let cells = &mut scratch.cells;
+    triangles(
+        &scratch.block,
+        &scratch.cells,
+        triangle_count,
+        max_jump,
+        key_voxel,
+        &mut scratch.edges,
+        &mut scratch.jobs,
+        &mut mesh,
+    );
+    make_vertices(
+        &scratch.block,
+        &mut scratch.jobs,
+        key_voxel,
+        config.voxel_size,
+        scratch.kernel,
+        &mut scratch.lanes,
+        &mut mesh,
+    );
+    scratch.mesh = mesh;
+    true
+}
+
+/// Padded offset of cell corner `c` from the cell's lowest corner.
+const CORNER_OFFSET: [usize; 8] = {
+    let mut t = [0usize; 8];
+    let mut c = 0;
+    while c < 8 {
+        t[c] = (c & 1) + PAD * ((c >> 1) & 1) + PAD2 * ((c >> 2) & 1);
+        c += 1;
+    }
+    t
+};
+
+/// Pass 1: the cells the surface crosses (every corner observed, both signs), with their
+/// cases, into `cells` in cell order; returns how many triangles they make at most, so that
+/// the mesh buffers are allocated once.
+#[inline(never)]
+fn classify(block: &PaddedBlock, masks: &[(u16, u16); PAD2], cells: &mut Vec<(u16, u8)>) -> usize {
+    let table = case_table();
     cells.clear();
     let mut triangle_count = 0;
+    // Per padded row, bit x: cell x's two corners along x are both observed, one is negative,
+    // both are negative; a row of cells combines four padded rows (each used by up to four).
+    let mut pairs = [(0u16, 0u16, 0u16); PAD2];
+    for pz in 1..PAD - 1 {
+        for py in 1..PAD - 1 {
+            let r = py + PAD * pz;
+            let (neg, obs) = masks[r];
+            pairs[r] = ((obs >> 1) & (obs >> 2), (neg >> 1) | (neg >> 2), (neg >> 1) & (neg >> 2));
+        }
+    }
     for z in 0..CHUNK_SIDE {
         for y in 0..CHUNK_SIDE {
-            // The four padded rows holding the corners of this row of 8 cells; bit x of
-            // `m >> 1 | m >> 2`-style shifts is cell x's pair of corners along x.
-            let rows =
-                [(y + 1) + PAD * (z + 1), (y + 2) + PAD * (z + 1), (y + 1) + PAD * (z + 2), (y + 2) + PAD * (z + 2)];
-            let (mut all_obs, mut any_neg, mut all_neg) = (0xffu16, 0u16, 0xffu16);
-            for r in rows {
-                let (neg, obs) = masks[r];
-                all_obs &= (obs >> 1) & (obs >> 2);
-                any_neg |= (neg >> 1) | (neg >> 2);
-                all_neg &= (neg >> 1) & (neg >> 2);
-            }
+            let r = (y + 1) + PAD * (z + 1);
+            let [a, b, c, d] = [pairs[r], pairs[r + 1], pairs[r + PAD], pairs[r + PAD + 1]];
+            let all_obs = a.0 & b.0 & c.0 & d.0 & 0xff;
+            let any_neg = a.1 | b.1 | c.1 | d.1;
+            let all_neg = a.2 & b.2 & c.2 & d.2;
             let mut crossed = all_obs & any_neg & !all_neg;
             while crossed != 0 {
                 let x = crossed.trailing_zeros() as usize;
                 crossed &= crossed - 1;
                 let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
                 let mut case = 0u8;
-                for (c, off) in corner_offset.iter().enumerate() {
+                for (c, off) in CORNER_OFFSET.iter().enumerate() {
                     case |= (block.flags[base + off] & NEGATIVE) << c;
                 }
                 cells.push(((x + CHUNK_SIDE * (y + CHUNK_SIDE * z)) as u16, case));
@@ -622,80 +890,209 @@ fn build(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scratch) -
             }
         }
     }
-    if cells.is_empty() {
-        return false;
+    triangle_count
+}
+
+/// Per-chunk cell-edge bookkeeping of [`triangles`].
+struct EdgeSlots {
+    /// Local cell-edge index -> `stamp << 12 | vertex` (vertices of a chunk are fewer than
+    /// its 2187 cell edges, below 2^12): a slot holds a vertex of the current chunk only when
+    /// its stamp is `stamp`, so nothing is cleared between chunks.
+    vertex: Vec<u32>,
+    stamp: u32,
+}
+
+impl EdgeSlots {
+    fn new() -> Self {
+        Self { vertex: vec![0; ES * ES * ES * 3], stamp: 0 }
     }
-    // Built in the worker's buffers and copied out at their exact size: growing five vectors
-    // per chunk (and freeing the cached mesh it replaces) cost a sixth of meshing in the
-    // allocator, and exact sizes keep the cache compact.
-    let mut mesh = std::mem::take(&mut scratch.mesh);
-    mesh.clear();
-    mesh.triangles.reserve(triangle_count);
-    // Pass 2: the triangles.
-    for &(cell, case) in cells.iter() {
-        let cell = cell as usize;
-        let (x, y, z) = (cell % CHUNK_SIDE, (cell / CHUNK_SIDE) % CHUNK_SIDE, cell / (CHUNK_SIDE * CHUNK_SIDE));
-        {
-            {
-                let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
-                let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + corner_offset[c]));
-                // Only crossed edges can be seams (all corners are observed here, so the case
-                // bits are the signs).
-                let mut crossed = CROSSED[case as usize];
-                let mut jump = false;
-                while crossed != 0 {
-                    let (a, b) = EDGES[crossed.trailing_zeros() as usize];
-                    crossed &= crossed - 1;
-                    jump |= (f[a as usize] - f[b as usize]).abs() > max_jump;
-                }
-                if jump {
-                    continue;
-                }
-                let cell_key = ((z * ES + y) * ES + x) * 3;
-                for tri in table.triangles(case) {
-                    let mut t = [0u32; 3];
-                    for (slot, &e) in t.iter_mut().zip(tri) {
-                        let ek = cell_key + EDGE_KEY[e as usize];
-                        if edge_vertex[ek] == u32::MAX {
-                            let (a, b) = EDGES[e as usize];
-                            let axis = (e / 4) as usize;
-                            let low = [x + (a & 1) as usize, y + ((a >> 1) & 1) as usize, z + ((a >> 2) & 1) as usize];
-                            edge_vertex[ek] = mesh.positions.len() as u32;
-                            used.push(ek as u32);
-                            let (ia, ib) = (base + corner_offset[a as usize], base + corner_offset[b as usize]);
-                            let (fa, fb) = (f[a as usize], f[b as usize]);
-                            let s = fa / (fa - fb);
-                            let low_global = key_voxel + IVec3::new(low[0] as i32, low[1] as i32, low[2] as i32);
-                            let mut p = low_global.as_vec3();
-                            p[axis] += s;
-                            mesh.positions.push(p * vs);
-                            let pa = [low[0] + 1, low[1] + 1, low[2] + 1];
-                            let mut pb = pa;
-                            pb[axis] += 1;
-                            mesh.colors.push(edge_color(voxel_color(&nb, pa), voxel_color(&nb, pb), s));
-                            let ga = cached(block, &nb, grad, grad_stamp, stamp, ia, pa);
-                            let gb = cached(block, &nb, grad, grad_stamp, stamp, ib, pb);
-                            let g = ga.lerp(gb, s);
-                            mesh.normals.push(g.normalize_or_zero());
-                            let shared = (0..3).any(|q| q != axis && (low[q] == 0 || low[q] == CHUNK_SIDE));
-                            if shared {
-                                mesh.shared.push((edge_vertex[ek], (low_global, axis as u8)));
-                            }
-                        }
-                        *slot = edge_vertex[ek];
-                    }
-                    mesh.triangles.push(t);
-                }
-            }
+
+    /// Forgets every vertex (a new stamp; the slots are cleared when stamps run out).
+    fn next_chunk(&mut self) {
+        self.stamp += 1;
+        if self.stamp == 1 << 20 {
+            self.vertex.fill(0);
+            self.stamp = 1;
         }
     }
-    for &ek in used.iter() {
-        edge_vertex[ek as usize] = u32::MAX;
-    }
-    used.clear();
-    scratch.mesh = mesh;
-    true
 }
+
+/// Per case, its crossed edges in the order its triangles first use them (and how many):
+/// the order in which a cell of that case numbers its new vertices.
+fn first_uses() -> &'static [([u8; 12], u8); 256] {
+    static ORDER: std::sync::OnceLock<[([u8; 12], u8); 256]> = std::sync::OnceLock::new();
+    ORDER.get_or_init(|| {
+        std::array::from_fn(|case| {
+            let mut order = ([0u8; 12], 0u8);
+            for &e in case_table().triangles(case as u8).iter().flatten() {
+                if !order.0[..order.1 as usize].contains(&e) {
+                    order.0[order.1 as usize] = e;
+                    order.1 += 1;
+                }
+            }
+            order
+        })
+    })
+}
+
+/// Per edge, its [`VertexJob`] relative to its cell's (`VertexJob::pack(base, 0, [x, y, z])`:
+/// the fields add without carries).
+const EDGE_JOB: [u32; 12] = {
+    let mut t = [0u32; 12];
+    let mut e = 0;
+    while e < 12 {
+        let a = EDGES[e].0 as usize;
+        let low = [a & 1, (a >> 1) & 1, (a >> 2) & 1];
+        t[e] = (CORNER_OFFSET[a] | (e / 4) << 11 | low[0] << 13 | low[1] << 17 | low[2] << 21) as u32;
+        e += 1;
+    }
+    t
+};
+
+/// Per cell position class (per axis 0: first cell, 1: inner, 2: last; `x + 3 y + 9 z`), the
+/// edges whose vertex neighbouring chunks share: a coordinate across the edge's axis on the
+/// chunk boundary (0 or `CHUNK_SIDE`).
+const SHARED_EDGES: [u16; 27] = {
+    let mut t = [0u16; 27];
+    let mut class = 0;
+    while class < 27 {
+        let c = [class % 3, class / 3 % 3, class / 9];
+        let mut e = 0;
+        while e < 12 {
+            let a = EDGES[e].0 as usize;
+            let mut q = 0;
+            while q < 3 {
+                let bit = (a >> q) & 1;
+                if q != e / 4 && ((c[q] == 0 && bit == 0) || (c[q] == 2 && bit == 1)) {
+                    t[class] |= 1 << e;
+                }
+                q += 1;
+            }
+            e += 1;
+        }
+        class += 1;
+    }
+    t
+};
+
+/// Pass 2: the triangles of the crossed cells without a seam edge (an edge jumping by more
+/// than `max_jump` truncation units), numbering each cell edge's vertex when first used and
+/// recording its [`VertexJob`] (vertices are made afterwards, in batches) and, for edges
+/// neighbouring chunks share, its global key. `triangle_count`: how many triangles `cells`
+/// make before the seam test ([`classify`]).
+#[inline(never)]
+#[allow(clippy::too_many_arguments)]
+fn triangles(
+    block: &PaddedBlock,
+    cells: &[(u16, u8)],
+    triangle_count: usize,
+    max_jump: f32,
+    key_voxel: IVec3,
+    edges: &mut EdgeSlots,
+    jobs: &mut Vec<u32>,
+    mesh: &mut ChunkMesh,
+) {
+    let table = case_table();
+    let order = first_uses();
+    edges.next_chunk();
+    let stamp = edges.stamp << 12;
+    let edge_vertex = &mut edges.vertex[..ES * ES * ES * 3];
+    jobs.clear();
+    // Written in place into the reserved length (`triangle_count` counts seam cells too) and
+    // cut to size at the end: a push per triangle cost a fifth of this pass.
+    let mut written = mesh.triangles.len();
+    mesh.triangles.resize(written + triangle_count, [0; 3]);
+    // The per-edge tables padded to 16 and indexed with `e & 15` (`f` with `& 7`): edge
+    // numbers come from tables, so the bounds checks were not elided.
+    const fn pad<T: Copy>(t: [T; 12], fill: T) -> [T; 16] {
+        let mut out = [fill; 16];
+        let mut e = 0;
+        while e < 12 {
+            out[e] = t[e];
+            e += 1;
+        }
+        out
+    }
+    const ENDS: [(u8, u8); 16] = pad(EDGES, (0, 0));
+    const KEY: [usize; 16] = pad(EDGE_KEY, 0);
+    const JOB: [u32; 16] = pad(EDGE_JOB, 0);
+    for &(cell, case) in cells {
+        let cell = cell as usize;
+        let base = CELL_BASE[cell] as usize;
+        let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + CORNER_OFFSET[c]));
+        let (used, n_used) = &order[case as usize];
+        let used = &used[..*n_used as usize];
+        // Only crossed edges can be seams (all corners are observed here, so the case bits
+        // are the signs), and the crossed edges are the used ones.
+        let mut jump = false;
+        for &e in used {
+            let (a, b) = ENDS[e as usize & 15];
+            jump |= (f[a as usize & 7] - f[b as usize & 7]).abs() > max_jump;
+        }
+        if jump {
+            continue;
+        }
+        let (x, y, z) = (cell % CHUNK_SIDE, (cell / CHUNK_SIDE) % CHUNK_SIDE, cell / (CHUNK_SIDE * CHUNK_SIDE));
+        let cell_key = ((z * ES + y) * ES + x) * 3;
+        let cell_job = VertexJob::pack(base, 0, [x, y, z]);
+        let shared = SHARED_EDGES[CELL_CLASS[cell] as usize];
+        let mut local = [0u32; 16];
+        for &e in used {
+            let e = e as usize & 15;
+            let slot = &mut edge_vertex[cell_key + KEY[e]];
+            if *slot & !0xfff != stamp {
+                let v = jobs.len() as u32;
+                *slot = stamp | v;
+                let job = cell_job + JOB[e];
+                jobs.push(job);
+                if shared >> e & 1 != 0 {
+                    let (_, axis, low) = VertexJob::unpack(job);
+                    mesh.shared.push((v, (key_voxel + IVec3::from(low), axis as u8)));
+                }
+            }
+            local[e] = *slot & 0xfff;
+        }
+        let tris = table.triangles(case);
+        for (dst, tri) in mesh.triangles[written..written + tris.len()].iter_mut().zip(tris) {
+            *dst = tri.map(|e| local[e as usize & 15]);
+        }
+        written += tris.len();
+    }
+    mesh.triangles.truncate(written);
+}
+
+/// Per cell (`x + 8 y + 64 z`), the padded index of its lowest corner.
+const CELL_BASE: [u16; CHUNK_VOXELS] = {
+    let mut t = [0u16; CHUNK_VOXELS];
+    let mut c = 0;
+    while c < CHUNK_VOXELS {
+        let (x, y, z) = (c % CHUNK_SIDE, c / CHUNK_SIDE % CHUNK_SIDE, c / (CHUNK_SIDE * CHUNK_SIDE));
+        t[c] = ((x + 1) + PAD * (y + 1) + PAD2 * (z + 1)) as u16;
+        c += 1;
+    }
+    t
+};
+
+/// Per cell, its position class for [`SHARED_EDGES`].
+const CELL_CLASS: [u8; CHUNK_VOXELS] = {
+    let mut t = [0u8; CHUNK_VOXELS];
+    let mut c = 0;
+    while c < CHUNK_VOXELS {
+        let p = [c % CHUNK_SIDE, c / CHUNK_SIDE % CHUNK_SIDE, c / (CHUNK_SIDE * CHUNK_SIDE)];
+        let mut class = 0;
+        let mut q = 2;
+        loop {
+            class = 3 * class + (p[q] != 0) as usize + (p[q] == CHUNK_SIDE - 1) as usize;
+            if q == 0 {
+                break;
+            }
+            q -= 1;
+        }
+        t[c] = class as u8;
+        c += 1;
+    }
+    t
+};
 
 /// What one incremental update did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -1382,26 +1779,213 @@ mod tests {
             };
             assert_eq!(edge_color(ca, cb, s), plain(ca, cb, s), "{ca:?} {cb:?} {s}");
         }
-        // Gradients inside the gathered block: the general path, bit for bit.
-        let mut block = PaddedBlock::new();
-        let nb: [Option<&Chunk>; 27] = [None; 27];
-        for round in 0..20 {
-            for (t, f) in block.tsdf.iter_mut().zip(block.flags.iter_mut()) {
-                *t = rng.random();
-                // Mostly observed, and every pattern of unobserved neighbours now and then.
-                let observed = rng.random_range(0..10) < 10 - round % 5;
-                *f = ((*t < 0) as u8 & observed as u8) | (observed as u8) << 1;
+    }
+
+    /// A wavy surface through 3x3x3 chunks around the origin, with noise, jumps, unobserved
+    /// voxels (`holes` percent) and weights of 1/256 ..= 2, and its chunks' sign summaries.
+    fn noisy_map(rng: &mut rand_chacha::ChaCha8Rng, holes: u32) -> TsdfMap {
+        use rand::Rng;
+        let mut map = TsdfMap::new(TsdfConfig::default()).expect("valid");
+        let trunc = map.config().truncation_voxels;
+        for z in -12..12 {
+            for y in -12..12 {
+                for x in -12..12 {
+                    let v = IVec3::new(x, y, z);
+                    if rng.random_range(0..100) < holes {
+                        continue;
+                    }
+                    let surface = 2.0 * (0.3 * x as f32).sin() + (0.2 * y as f32).cos();
+                    let mut t = (z as f32 - surface) / trunc + rng.random_range(-0.05..0.05);
+                    if rng.random_range(0..100) < 5 {
+                        t = rng.random_range(-1.0..1.0);
+                    }
+                    let (key, local) = split_voxel(v);
+                    let (slot, _) = map.allocate(key);
+                    let mut vox = Voxel::default();
+                    let weight = rng.random_range(1..=512) as f32 / WEIGHT_SCALE;
+                    let color = [rng.random(), rng.random(), rng.random()];
+                    vox.fuse(t.clamp(-1.0, 1.0), weight, Some(color), u16::MAX);
+                    if rng.random_range(0..100) < 10 {
+                        // Observed without a colour now and then.
+                        vox = Voxel::default();
+                        vox.fuse(t.clamp(-1.0, 1.0), weight, None, u16::MAX);
+                    }
+                    map.chunks[slot as usize].voxels.set(local, vox);
+                }
             }
-            for z in 2..PAD - 2 {
-                for y in 2..PAD - 2 {
-                    for x in 2..PAD - 2 {
-                        let i = x + PAD * y + PAD2 * z;
-                        let (fast, general) = (block.inner_gradient(i), block.gradient(&nb, i, [x, y, z]));
-                        assert_eq!(fast.to_array().map(f32::to_bits), general.to_array().map(f32::to_bits));
+        }
+        for c in &mut map.chunks {
+            c.signs = c.voxels.signs();
+        }
+        map
+    }
+
+    #[test]
+    fn the_completed_block_matches_the_chunks() {
+        use rand::SeedableRng;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut scratch = Scratch::new();
+        let mut checked = 0;
+        for holes in [3, 30] {
+            let map = noisy_map(&mut rng, holes);
+            // The outer chunks miss neighbours on some sides.
+            for key in map.sorted_keys() {
+                let Some(nb) = neighbours_if_surface(&map, key) else { continue };
+                for min_weight in [1, 40] {
+                    let block = &mut scratch.block;
+                    block.gather(&nb, min_weight, &mut scratch.weight, &mut scratch.masks);
+                    block.gather_shell(&nb);
+                    for z in 1..PAD - 1 {
+                        for y in 1..PAD - 1 {
+                            for x in 1..PAD - 1 {
+                                let i = x + PAD * y + PAD2 * z;
+                                let (fast, reference) = (block.inner_gradient(i), block.gradient(&nb, i, [x, y, z]));
+                                assert_eq!(fast.to_array().map(f32::to_bits), reference.to_array().map(f32::to_bits));
+                                assert_eq!(block.color(i), voxel_color(&nb, [x, y, z]));
+                                assert_eq!(block.packed[i] >> 16, block.tsdf[i] as i32);
+                                checked += 1;
+                            }
+                        }
                     }
                 }
             }
         }
+        assert!(checked > 10_000);
+    }
+
+    /// The vertex kernels this CPU can run, the scalar one first.
+    fn available_kernels() -> Vec<VertexKernel> {
+        let mut kernels = vec![VertexKernel::Scalar];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if is_x86_feature_detected!("avx2") {
+                kernels.push(VertexKernel::Avx2);
+            } else {
+                eprintln!("no AVX2 on this machine: the AVX2 vertex kernel is not tested");
+            }
+            if is_x86_feature_detected!("avx512f") {
+                kernels.push(VertexKernel::Avx512);
+            } else {
+                eprintln!("no AVX-512F on this machine: the AVX-512 vertex kernel is not tested");
+            }
+        }
+        kernels
+    }
+
+    #[test]
+    fn vertex_kernels_agree_bit_for_bit() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(13);
+        let kernels = available_kernels();
+        let mut block = PaddedBlock::new();
+        let mut made = Vec::new();
+        for round in 0..200 {
+            for (p, c) in block.packed.iter_mut().zip(block.color.iter_mut()) {
+                let t: i16 = match rng.random_range(0..4) {
+                    0 => i16::MIN + rng.random_range(0..3),
+                    1 => i16::MAX - rng.random_range(0..3),
+                    _ => rng.random(),
+                };
+                // Mostly observed, and every pattern of unobserved neighbours now and then.
+                let observed = (rng.random_range(0..10) < 10 - round % 5) as i32;
+                *p = (t as i32) << 16 | ((t < 0) as i32 & observed) | observed << 1;
+                *c = [rng.random(), rng.random(), rng.random(), rng.random_range(0..3)];
+            }
+            for (t, &p) in block.tsdf.iter_mut().zip(&block.packed) {
+                *t = (p >> 16) as i16;
+            }
+            // Crossed edges between padded 1 ..= 9, as meshing makes them: ends of both signs
+            // (zero counts as positive), a zero lower end among them.
+            let jobs: [u32; LANES] = std::array::from_fn(|_| loop {
+                let axis = rng.random_range(0..3);
+                let low: [usize; 3] = std::array::from_fn(|a| rng.random_range(0..if a == axis { 8 } else { 9 }));
+                let ia = (low[0] + 1) + PAD * (low[1] + 1) + PAD2 * (low[2] + 1);
+                if rng.random_range(0..8) == 0 {
+                    block.tsdf[ia] = 0;
+                    block.packed[ia] &= 0xffff;
+                }
+                let (a, b) = (block.tsdf[ia], block.tsdf[ia + STRIDES[axis]]);
+                if (a < 0) != (b < 0) {
+                    break VertexJob::pack(ia, axis, low);
+                }
+            });
+            let key_voxel = IVec3::new(rng.random_range(-4000..4000), rng.random_range(-4000..4000), -8);
+            let voxel_size = rng.random_range(0.001..0.05);
+            made.clear();
+            for &kernel in &kernels {
+                let mut lanes = VertexLanes::default();
+                match kernel {
+                    VertexKernel::Scalar => vertices_scalar(&block, &jobs, key_voxel, voxel_size, &mut lanes),
+                    // SAFETY: AVX2 and AVX-512F were detected above; the jobs are crossed edges in
+                    // the block.
+                    #[cfg(target_arch = "x86_64")]
+                    VertexKernel::Avx2 => unsafe { avx2::vertices(&block, &jobs, key_voxel, voxel_size, &mut lanes) },
+                    #[cfg(target_arch = "x86_64")]
+                    VertexKernel::Avx512 => unsafe { avx512::vertices(&block, &jobs, key_voxel, voxel_size, &mut lanes) },
+                }
+                let bits = |v: &[[f32; LANES]; 3]| v.map(|a| a.map(f32::to_bits));
+                made.push((bits(&lanes.position), bits(&lanes.normal), lanes.color));
+            }
+            for m in &made[1..] {
+                assert_eq!(m, &made[0], "round {round}");
+            }
+        }
+    }
+
+    #[test]
+    fn edge_tables_match_their_definitions() {
+        // Every crossed edge is used, once, by the case's triangles.
+        for case in 0..=255u8 {
+            let (edges, n) = first_uses()[case as usize];
+            let mask = edges[..n as usize].iter().fold(0u16, |m, &e| m | 1 << e);
+            assert_eq!((mask, mask.count_ones()), (CROSSED[case as usize], n as u32), "case {case}");
+        }
+        for cell in 0..CHUNK_VOXELS {
+            let c = [cell % CHUNK_SIDE, cell / CHUNK_SIDE % CHUNK_SIDE, cell / (CHUNK_SIDE * CHUNK_SIDE)];
+            let class = |c: usize| (c != 0) as usize + (c == CHUNK_SIDE - 1) as usize;
+            let base = (c[0] + 1) + PAD * (c[1] + 1) + PAD2 * (c[2] + 1);
+            for e in 0..12 {
+                let a = EDGES[e].0 as usize;
+                let axis = e / 4;
+                let low: [usize; 3] = std::array::from_fn(|q| c[q] + ((a >> q) & 1));
+                let shared = (0..3).any(|q| q != axis && (low[q] == 0 || low[q] == CHUNK_SIDE));
+                assert_eq!(SHARED_EDGES[class(c[0]) + 3 * class(c[1]) + 9 * class(c[2])] >> e & 1 != 0, shared);
+                assert_eq!(SHARED_EDGES[CELL_CLASS[cell] as usize] >> e & 1 != 0, shared);
+                assert_eq!(CELL_BASE[cell] as usize, base);
+                let job = VertexJob::pack(base, 0, c) + EDGE_JOB[e];
+                assert_eq!(job, VertexJob::pack(base + CORNER_OFFSET[a], axis, low));
+                let low = low.map(|l| l as i32);
+                assert_eq!(VertexJob::unpack(job), (base + CORNER_OFFSET[a], axis, low));
+            }
+        }
+    }
+
+    #[test]
+    fn chunk_meshes_do_not_depend_on_the_vertex_kernel() {
+        use rand::SeedableRng;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
+        let map = noisy_map(&mut rng, 5);
+        let mut scratches: Vec<Scratch> = available_kernels()
+            .into_iter()
+            .map(|kernel| Scratch { kernel, ..Scratch::new() })
+            .collect();
+        let mut vertices = 0;
+        for key in map.sorted_keys() {
+            for min_weight in [1, 40] {
+                let bits = |m: &ChunkMesh| {
+                    let b = |v: &[Vec3]| v.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>();
+                    (b(&m.positions), b(&m.normals))
+                };
+                let meshes: Vec<ChunkMesh> =
+                    scratches.iter_mut().map(|s| mesh_chunk_configured(&map, key, min_weight, s)).collect();
+                for m in &meshes[1..] {
+                    assert_eq!(bits(m), bits(&meshes[0]));
+                    assert_eq!(m, &meshes[0]);
+                }
+                vertices += meshes[0].positions.len();
+            }
+        }
+        assert!(vertices > 1000, "{vertices} vertices");
     }
 
     /// The cells of chunk `key` that meshing keeps, by the plain definition (every corner
