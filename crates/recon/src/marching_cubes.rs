@@ -1921,7 +1921,9 @@ mod tests {
                     #[cfg(target_arch = "x86_64")]
                     VertexKernel::Avx2 => unsafe { avx2::vertices(&block, &jobs, key_voxel, voxel_size, &mut lanes) },
                     #[cfg(target_arch = "x86_64")]
-                    VertexKernel::Avx512 => unsafe { avx512::vertices(&block, &jobs, key_voxel, voxel_size, &mut lanes) },
+                    VertexKernel::Avx512 => unsafe {
+                        avx512::vertices(&block, &jobs, key_voxel, voxel_size, &mut lanes)
+                    },
                 }
                 let bits = |v: &[[f32; LANES]; 3]| v.map(|a| a.map(f32::to_bits));
                 made.push((bits(&lanes.position), bits(&lanes.normal), lanes.color));
@@ -1965,10 +1967,8 @@ mod tests {
         use rand::SeedableRng;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
         let map = noisy_map(&mut rng, 5);
-        let mut scratches: Vec<Scratch> = available_kernels()
-            .into_iter()
-            .map(|kernel| Scratch { kernel, ..Scratch::new() })
-            .collect();
+        let mut scratches: Vec<Scratch> =
+            available_kernels().into_iter().map(|kernel| Scratch { kernel, ..Scratch::new() }).collect();
         let mut vertices = 0;
         for key in map.sorted_keys() {
             for min_weight in [1, 40] {

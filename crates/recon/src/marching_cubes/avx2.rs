@@ -53,8 +53,7 @@ unsafe fn half_batch(
         let ia = _mm256_and_si256(j, _mm256_set1_epi32(0x7ff));
         let axis = _mm256_and_si256(_mm256_srli_epi32::<11>(j), _mm256_set1_epi32(3));
         let strides = [1, PAD as i32, PAD2 as i32];
-        let stride =
-            _mm256_permutevar8x32_epi32(_mm256_setr_epi32(1, PAD as i32, PAD2 as i32, 0, 0, 0, 0, 0), axis);
+        let stride = _mm256_permutevar8x32_epi32(_mm256_setr_epi32(1, PAD as i32, PAD2 as i32, 0, 0, 0, 0, 0), axis);
         let ib = _mm256_add_epi32(ia, stride);
         let raw = |v: __m256i| _mm256_cvtepi32_ps(_mm256_srai_epi32::<16>(v));
         let (pa, pb) = (_mm256_i32gather_epi32::<4>(packed, ia), _mm256_i32gather_epi32::<4>(packed, ib));

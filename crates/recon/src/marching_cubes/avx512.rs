@@ -38,7 +38,10 @@ pub(super) unsafe fn vertices(
         let ia = _mm512_and_si512(j, _mm512_set1_epi32(0x7ff));
         let axis = _mm512_and_si512(_mm512_srli_epi32::<11>(j), _mm512_set1_epi32(3));
         let strides = [1, PAD as i32, PAD2 as i32];
-        let stride = _mm512_permutexvar_epi32(axis, _mm512_setr_epi32(1, PAD as i32, PAD2 as i32, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0));
+        let stride = _mm512_permutexvar_epi32(
+            axis,
+            _mm512_setr_epi32(1, PAD as i32, PAD2 as i32, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0),
+        );
         let ib = _mm512_add_epi32(ia, stride);
         // Raw distance (the high half of a packed entry) as f32.
         let raw = |v: __m512i| _mm512_cvtepi32_ps(_mm512_srai_epi32::<16>(v));
@@ -52,10 +55,8 @@ pub(super) unsafe fn vertices(
         let key = key_voxel.to_array();
         let vs = _mm512_set1_ps(voxel_size);
         for (a, dst) in out.position.iter_mut().enumerate() {
-            let low = _mm512_and_si512(
-                _mm512_srlv_epi32(j, _mm512_set1_epi32(13 + 4 * a as i32)),
-                _mm512_set1_epi32(15),
-            );
+            let low =
+                _mm512_and_si512(_mm512_srlv_epi32(j, _mm512_set1_epi32(13 + 4 * a as i32)), _mm512_set1_epi32(15));
             let p = _mm512_cvtepi32_ps(_mm512_add_epi32(low, _mm512_set1_epi32(key[a])));
             let on_axis = _mm512_cmpeq_epi32_mask(axis, _mm512_set1_epi32(a as i32));
             let p = _mm512_mask_add_ps(p, on_axis, p, s);
