@@ -2022,37 +2022,11 @@ mod tests {
 
     #[test]
     fn kept_cells_match_the_plain_definition_on_random_maps() {
-        use rand::{Rng, SeedableRng};
+        use rand::SeedableRng;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
         for round in 0..4 {
-            let mut map = TsdfMap::new(TsdfConfig::default()).expect("valid");
-            let trunc = map.config().truncation_voxels;
             // A wavy surface through 3x3x3 chunks, with noise, jumps and unobserved voxels.
-            for z in -12..12 {
-                for y in -12..12 {
-                    for x in -12..12 {
-                        let v = IVec3::new(x, y, z);
-                        if rng.random_range(0..100) < 3 + 4 * round {
-                            continue;
-                        }
-                        let surface = 2.0 * (0.3 * x as f32).sin() + (0.2 * y as f32).cos();
-                        let mut t = (z as f32 - surface) / trunc + rng.random_range(-0.05..0.05);
-                        if rng.random_range(0..100) < 5 {
-                            t = rng.random_range(-1.0..1.0);
-                        }
-                        let (key, local) = split_voxel(v);
-                        let (slot, _) = map.allocate(key);
-                        let mut vox = Voxel::default();
-                        // Weights of 1/256 ..= 2, the smallest right at the thresholds below.
-                        let weight = rng.random_range(1..=512) as f32 / WEIGHT_SCALE;
-                        vox.fuse(t.clamp(-1.0, 1.0), weight, Some([90, 60, 30]), u16::MAX);
-                        map.chunks[slot as usize].voxels.set(local, vox);
-                    }
-                }
-            }
-            for c in &mut map.chunks {
-                c.signs = c.voxels.signs();
-            }
+            let map = noisy_map(&mut rng, 3 + 4 * round);
             for min_weight in [0.0, 1.0 / WEIGHT_SCALE, 0.1, 0.25] {
                 let (mut kept, mut seams) = (0, 0);
                 for key in map.sorted_keys() {
