@@ -23,7 +23,7 @@ use crate::semantic_map::CellKey;
 fn neighbours(k: CellKey) -> impl Iterator<Item = CellKey> {
     (-1..=1).flat_map(move |dz| {
         (-1..=1).flat_map(move |dy| {
-            (-1..=1).filter_map(move |dx| (dx, dy, dz).ne(&(0, 0, 0)).then(|| k + IVec3::new(dx, dy, dz)))
+            (-1..=1).filter(move |&dx| (dx, dy, dz) != (0, 0, 0)).map(move |dx| k + IVec3::new(dx, dy, dz))
         })
     })
 }
