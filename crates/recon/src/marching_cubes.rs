@@ -89,12 +89,12 @@ impl ChunkMesh {
 /// others: the central differences of the corners read nothing else) and the corners'
 /// colours, so that making a vertex reads only this block.
 ///
-/// Distances stay quantised (`i16`) until a vertex needs them; `flags` holds bit 0 for a
-/// negative distance and bit 1 for an observed voxel (stored weight at least `min_weight`,
-/// see [`MeshConfig`]), so a cell's case and mask come from 8 byte loads.
+/// Distances stay quantised (`i16`) until a vertex needs them; `flags` (from
+/// [`PaddedBlock::gather_shell`]) holds bit 0 for a negative distance and bit 1 for an
+/// observed voxel (stored weight at least `min_weight`, see [`MeshConfig`]).
 struct PaddedBlock {
     tsdf: [i16; PAD * PAD2],
-    /// Eight spare zero bytes at the end: row masks read 16 bytes from an 11-byte row.
+    /// Eight spare bytes at the end (unused).
     flags: [u8; PAD * PAD2 + 8],
     /// Per voxel `tsdf << 16 | flags` over padded 1 ..= 9 and the shell's faces (from
     /// [`PaddedBlock::gather_shell`]): one load (or gather) reads a neighbour's distance and
@@ -191,7 +191,7 @@ const EDGE_KEY: [usize; 12] = {
     t
 };
 
-const NEGATIVE: u8 = 1;
+/// Bit of an observed voxel in [`PaddedBlock`]'s flags (bit 0: negative and observed).
 const OBSERVED: u8 = 2;
 
 /// The chunk and its 26 neighbours at `(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`, or None when
@@ -225,6 +225,64 @@ const NEIGHBOUR_OFFSET: [IVec3; 27] = {
 /// The chunk and its 7 upper neighbours (offsets 0 or +1 on every axis), then the rest.
 const UPPER: [usize; 8] = [13, 14, 16, 17, 22, 23, 25, 26];
 const OTHERS: [usize; 19] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 15, 18, 19, 20, 21, 24];
+
+/// Bit masks (bit `px`, only padded x 1 ..= 9 set) of the negative observed and of the
+/// observed voxels of the padded row starting at `start` (padded x 0), from the distances
+/// and weights of padded x 0 ..= 15 (beyond 10: the next row, masked off).
+///
+/// # Shapes
+/// `tsdf` and `weight`: at least `start + 16` long.
+#[inline(always)]
+fn row_masks(tsdf: &[i16], weight: &[u16], start: usize, min_weight: u16) -> (u16, u16) {
+    let (t, w) = (&tsdf[start..start + 16], &weight[start..start + 16]);
+    #[cfg(target_arch = "x86_64")]
+    {
+        row_masks_sse2(t.try_into().unwrap_or(&[0; 16]), w.try_into().unwrap_or(&[0; 16]), min_weight)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        row_masks_scalar(t, w, min_weight)
+    }
+}
+
+/// [`row_masks`] voxel by voxel: the reference (and the path off x86-64).
+#[cfg_attr(target_arch = "x86_64", allow(dead_code))]
+fn row_masks_scalar(t: &[i16], w: &[u16], min_weight: u16) -> (u16, u16) {
+    let (mut neg, mut obs) = (0u16, 0u16);
+    for px in 1..PAD - 1 {
+        let observed = (w[px] >= min_weight) as u16;
+        obs |= observed << px;
+        neg |= ((t[px] < 0) as u16 & observed) << px;
+    }
+    (neg, obs)
+}
+
+/// [`row_masks`] with SSE2 (part of x86-64): two compares per eight voxels and one
+/// `movemask` per mask, where the byte-flag pass and the bit packing cost about 40
+/// instructions per row.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn row_masks_sse2(t: &[i16; 16], w: &[u16; 16], min_weight: u16) -> (u16, u16) {
+    use std::arch::x86_64::*;
+    // SAFETY: SSE2 is part of x86-64; the loads read the two 16-element arrays.
+    unsafe {
+        let load = |p: *const i16| _mm_loadu_si128(p.cast::<__m128i>());
+        let (t0, t1) = (load(t.as_ptr()), load(t.as_ptr().add(8)));
+        let (w0, w1) = (load(w.as_ptr().cast()), load(w.as_ptr().add(8).cast()));
+        // Unsigned `w < min_weight` as a signed compare with both sides' top bits flipped.
+        let flip = _mm_set1_epi16(i16::MIN);
+        let min = _mm_set1_epi16((min_weight ^ 0x8000) as i16);
+        let unobserved0 = _mm_cmpgt_epi16(min, _mm_xor_si128(w0, flip));
+        let unobserved1 = _mm_cmpgt_epi16(min, _mm_xor_si128(w1, flip));
+        let zero = _mm_setzero_si128();
+        let neg0 = _mm_andnot_si128(unobserved0, _mm_cmpgt_epi16(zero, t0));
+        let neg1 = _mm_andnot_si128(unobserved1, _mm_cmpgt_epi16(zero, t1));
+        let unobserved = _mm_movemask_epi8(_mm_packs_epi16(unobserved0, unobserved1)) as u16;
+        let neg = _mm_movemask_epi8(_mm_packs_epi16(neg0, neg1)) as u16;
+        const INNER: u16 = ((1 << (PAD - 1)) - 1) & !1;
+        (neg & INNER, !unobserved & INNER)
+    }
+}
 
 impl PaddedBlock {
     /// Whether the cells owned by the chunk (corners in it and its 7 upper neighbours) can
@@ -274,8 +332,9 @@ impl PaddedBlock {
     /// (stored weight at least `min_weight`, which is at least 1).
     ///
     /// Distances and weights are copied first, row piece by row piece (fixed lengths the
-    /// compiler turns into a few moves), then flags and masks come from one pass over the
-    /// copy: per-element branching on the neighbour cost more than the marching.
+    /// compiler turns into a few moves), then the masks come from one pass over the copy
+    /// ([`row_masks`]): per-element branching on the neighbour cost more than the marching.
+    /// The weights stay in `weight` for [`PaddedBlock::gather_shell`].
     #[inline(never)]
     fn gather(
         &mut self,
@@ -323,33 +382,14 @@ impl PaddedBlock {
                 }
             }
         }
-        // Flags of the gathered rows (whole rows: 0 and 10 are stale and never read).
-        for pz in 1..PAD - 1 {
-            let rows = PAD * (1 + PAD * pz)..PAD * (PAD - 1 + PAD * pz);
-            let (f, t, w) = (&mut b.flags[rows.clone()], &b.tsdf[rows.clone()], &weight[rows]);
-            for ((f, &t), &w) in f.iter_mut().zip(t).zip(w) {
-                let observed = (w >= min_weight) as u8;
-                *f = ((t < 0) as u8 & observed) | observed << 1;
-            }
-        }
-        // Bit 0 of each of 8 bytes into bits 0..8: multiplying by this constant moves byte
-        // k's bit to bit 56 + k, with no carries between them.
-        const LSB: u64 = 0x0101_0101_0101_0101;
-        let pack = |x: u64| ((x & LSB).wrapping_mul(0x0102_0408_1020_4080) >> 56) as u16;
-        let word = |i: usize| {
-            let mut w = [0u8; 8];
-            w.copy_from_slice(&b.flags[i..i + 8]);
-            u64::from_le_bytes(w)
-        };
+        // Masks straight from the copied distances and weights, 16 voxels (padded x 0 ..= 15)
+        // per row: the flag bytes of padded 1 ..= 9 wait for [`PaddedBlock::gather_shell`],
+        // which only chunks with crossed cells run. A separate pass: reading a row right after
+        // its piecewise stores would stall on store forwarding.
         for pz in 1..PAD - 1 {
             for py in 1..PAD - 1 {
                 let r = py + PAD * pz;
-                let lo = word(r * PAD);
-                // Padded x 8 ..= 10: three bytes (the rest is the next row).
-                let hi = word(r * PAD + 8) & 0x00ff_ffff;
-                let neg = pack(lo) | pack(hi) << 8;
-                let obs = pack(lo >> 1) | pack(hi >> 1) << 8;
-                masks[r] = (neg, obs);
+                masks[r] = row_masks(&b.tsdf, &weight[..], r * PAD, min_weight);
             }
         }
     }
@@ -361,16 +401,19 @@ impl PaddedBlock {
     /// the 19 other neighbours too. Row pieces are copied as in [`PaddedBlock::gather`]; only
     /// the x faces are read voxel by voxel.
     #[inline(never)]
-    fn gather_shell(&mut self, nb: &[Option<&Chunk>; 27]) {
+    fn gather_shell(&mut self, nb: &[Option<&Chunk>; 27], weight: &[u16; PAD * PAD2]) {
         const N: usize = CHUNK_SIDE;
         let min_weight = self.min_weight;
         // The gathered slabs, whole rows: the x faces (padded 0 and 10) are overwritten below,
         // the rest of padded y or z 0 and 10 in these ranges is never read.
         for pz in 1..PAD - 1 {
             let rows = PAD * (1 + PAD * pz)..PAD * (PAD - 1 + PAD * pz);
-            let (p, t, f) = (&mut self.packed[rows.clone()], &self.tsdf[rows.clone()], &self.flags[rows]);
-            for ((p, &t), &f) in p.iter_mut().zip(t).zip(f) {
-                *p = (t as i32) << 16 | f as i32;
+            let (p, f) = (&mut self.packed[rows.clone()], &mut self.flags[rows.clone()]);
+            let (t, w) = (&self.tsdf[rows.clone()], &weight[rows]);
+            for (((p, f), &t), &w) in p.iter_mut().zip(f).zip(t).zip(w) {
+                let observed = (w >= min_weight) as u8;
+                *f = ((t < 0) as u8 & observed) | observed << 1;
+                *p = (t as i32) << 16 | *f as i32;
             }
         }
         let one = |c: Option<&Chunk>, j: usize| match c {
@@ -804,11 +847,11 @@ fn build(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scratch) -
     // voxels observed here, so the early exit stays valid for any threshold.
     let Some(nb) = neighbours_if_surface(map, key) else { return false };
     scratch.block.gather(&nb, min_weight, &mut scratch.weight, &mut scratch.masks);
-    let triangle_count = classify(&scratch.block, &scratch.masks, &mut scratch.cells);
+    let triangle_count = classify(&scratch.masks, &mut scratch.cells);
     if scratch.cells.is_empty() {
         return false;
     }
-    scratch.block.gather_shell(&nb);
+    scratch.block.gather_shell(&nb, &scratch.weight);
     // Built in the worker's buffers and copied out at their exact size: growing five vectors
     // per chunk (and freeing the cached mesh it replaces) cost a sixth of meshing in the
     // allocator, and exact sizes keep the cache compact.
@@ -855,7 +898,7 @@ const CORNER_OFFSET: [usize; 8] = {
 /// cases, into `cells` in cell order; returns how many triangles they make at most, so that
 /// the mesh buffers are allocated once.
 #[inline(never)]
-fn classify(block: &PaddedBlock, masks: &[(u16, u16); PAD2], cells: &mut Vec<(u16, u8)>) -> usize {
+fn classify(masks: &[(u16, u16); PAD2], cells: &mut Vec<(u16, u8)>) -> usize {
     let table = case_table();
     cells.clear();
     let mut triangle_count = 0;
@@ -877,14 +920,16 @@ fn classify(block: &PaddedBlock, masks: &[(u16, u16); PAD2], cells: &mut Vec<(u1
             let any_neg = a.1 | b.1 | c.1 | d.1;
             let all_neg = a.2 & b.2 & c.2 & d.2;
             let mut crossed = all_obs & any_neg & !all_neg;
+            // Every corner of a crossed cell is observed, so its negative bits are its case's
+            // (corner bit 1: y + 1, the next row; bit 2: z + 1, the next slab).
+            let neg = [masks[r].0, masks[r + 1].0, masks[r + PAD].0, masks[r + PAD + 1].0].map(u32::from);
             while crossed != 0 {
                 let x = crossed.trailing_zeros() as usize;
                 crossed &= crossed - 1;
-                let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
-                let mut case = 0u8;
-                for (c, off) in CORNER_OFFSET.iter().enumerate() {
-                    case |= (block.flags[base + off] & NEGATIVE) << c;
-                }
+                let case = ((neg[0] >> (x + 1)) & 3
+                    | ((neg[1] >> (x + 1)) & 3) << 2
+                    | ((neg[2] >> (x + 1)) & 3) << 4
+                    | ((neg[3] >> (x + 1)) & 3) << 6) as u8;
                 cells.push(((x + CHUNK_SIDE * (y + CHUNK_SIDE * z)) as u16, case));
                 triangle_count += table.triangles(case).len();
             }
@@ -1834,7 +1879,7 @@ mod tests {
                 for min_weight in [1, 40] {
                     let block = &mut scratch.block;
                     block.gather(&nb, min_weight, &mut scratch.weight, &mut scratch.masks);
-                    block.gather_shell(&nb);
+                    block.gather_shell(&nb, &scratch.weight);
                     for z in 1..PAD - 1 {
                         for y in 1..PAD - 1 {
                             for x in 1..PAD - 1 {
@@ -1851,6 +1896,26 @@ mod tests {
             }
         }
         assert!(checked > 10_000);
+    }
+
+    #[test]
+    fn row_masks_match_the_scalar_reference() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
+        for _ in 0..20_000 {
+            let t: [i16; 16] = std::array::from_fn(|_| if rng.random_bool(0.1) { 0 } else { rng.random() });
+            let w: [u16; 16] = std::array::from_fn(|_| match rng.random_range(0..4) {
+                0 => 0,
+                1 => rng.random_range(0..80),
+                2 => u16::MAX - rng.random_range(0..3),
+                _ => rng.random(),
+            });
+            let min_weight = [1, 2, 40, 0x8000, u16::MAX][rng.random_range(0..5)];
+            let reference = row_masks_scalar(&t, &w, min_weight);
+            assert_eq!(row_masks(&t, &w, 0, min_weight), reference);
+            #[cfg(target_arch = "x86_64")]
+            assert_eq!(row_masks_sse2(&t, &w, min_weight), reference);
+        }
     }
 
     /// The vertex kernels this CPU can run, the scalar one first.
