@@ -89,15 +89,13 @@ impl ChunkMesh {
 /// others: the central differences of the corners read nothing else) and the corners'
 /// colours, so that making a vertex reads only this block.
 ///
-/// Distances stay quantised (`i16`) until a vertex needs them; `flags` (from
-/// [`PaddedBlock::gather_shell`]) holds bit 0 for a negative distance and bit 1 for an
-/// observed voxel (stored weight at least `min_weight`, see [`MeshConfig`]).
+/// Distances stay quantised (`i16`) until a vertex needs them; which voxels are observed
+/// (stored weight at least `min_weight`, see [`MeshConfig`]) and negative is kept as row bit
+/// masks (from the gather) and as flag bits in `packed` (from the shell gather).
 struct PaddedBlock {
     tsdf: [i16; PAD * PAD2],
-    /// Eight spare bytes at the end (unused).
-    flags: [u8; PAD * PAD2 + 8],
-    /// Per voxel `tsdf << 16 | flags` over padded 1 ..= 9 and the shell's faces (from
-    /// [`PaddedBlock::gather_shell`]): one load (or gather) reads a neighbour's distance and
+    /// Per voxel `tsdf << 16 | flags` (bit 0 negative and observed, bit 1 observed) over
+    /// padded 1 ..= 9 and the shell's faces (from [`PaddedBlock::gather_shell`]): one load (or gather) reads a neighbour's distance and
     /// whether it is observed.
     packed: [i32; PAD * PAD2],
     /// Colours `[r, g, b, count]` of padded 1 ..= 9; unallocated voxels 0.
@@ -191,7 +189,7 @@ const EDGE_KEY: [usize; 12] = {
     t
 };
 
-/// Bit of an observed voxel in [`PaddedBlock`]'s flags (bit 0: negative and observed).
+/// Bit of an observed voxel in [`PaddedBlock`]'s packed flags (bit 0: negative and observed).
 const OBSERVED: u8 = 2;
 
 /// The chunk and its 26 neighbours at `(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`, or None when
@@ -318,7 +316,6 @@ impl PaddedBlock {
     fn new() -> Box<Self> {
         Box::new(PaddedBlock {
             tsdf: [0; PAD * PAD2],
-            flags: [0; PAD * PAD2 + 8],
             packed: [0; PAD * PAD2],
             color: [[0; 4]; PAD * PAD2],
             min_weight: 1,
@@ -408,12 +405,9 @@ impl PaddedBlock {
         // the rest of padded y or z 0 and 10 in these ranges is never read.
         for pz in 1..PAD - 1 {
             let rows = PAD * (1 + PAD * pz)..PAD * (PAD - 1 + PAD * pz);
-            let (p, f) = (&mut self.packed[rows.clone()], &mut self.flags[rows.clone()]);
-            let (t, w) = (&self.tsdf[rows.clone()], &weight[rows]);
-            for (((p, f), &t), &w) in p.iter_mut().zip(f).zip(t).zip(w) {
-                let observed = (w >= min_weight) as u8;
-                *f = ((t < 0) as u8 & observed) | observed << 1;
-                *p = (t as i32) << 16 | *f as i32;
+            let (p, t, w) = (&mut self.packed[rows.clone()], &self.tsdf[rows.clone()], &weight[rows]);
+            for ((p, &t), &w) in p.iter_mut().zip(t).zip(w) {
+                *p = packed_voxel(t, w, min_weight);
             }
         }
         let one = |c: Option<&Chunk>, j: usize| match c {
@@ -475,50 +469,24 @@ impl PaddedBlock {
     }
 
     /// Central-difference TSDF gradient at padded index `i`, coordinates `p` in 1 ..= 9
-    /// (one-sided where a neighbour is unobserved), reading neighbours at padded 0 and 10 from
-    /// the chunks: the reference for [`PaddedBlock::inner_gradient`] after
+    /// (one-sided where a neighbour is unobserved), reading the neighbours from the chunks:
+    /// the reference for [`PaddedBlock::inner_gradient`] after
     /// [`PaddedBlock::gather_shell`].
     #[cfg(test)]
     fn gradient(&self, nb: &[Option<&Chunk>; 27], i: usize, p: [usize; 3]) -> Vec3 {
-        let strides = [1, PAD, PAD2];
         let outer = |q: [usize; 3]| -> Option<f32> {
             let ((ox, ix), (oy, iy), (oz, iz)) = (SPLIT[q[0]], SPLIT[q[1]], SPLIT[q[2]]);
             let c = nb[ox as usize + 3 * oy as usize + 9 * oz as usize]?;
             let j = ix as usize + CHUNK_SIDE * (iy as usize + CHUNK_SIDE * iz as usize);
             (c.voxels.weight[j] >= self.min_weight).then_some(c.voxels.tsdf[j] as f32)
         };
-        let inner = |j: usize| (self.flags[j] & OBSERVED != 0).then_some(self.tsdf[j] as f32);
         let t = self.tsdf[i] as f32;
         let mut g = [0.0f32; 3];
         for a in 0..3 {
-            let s = strides[a];
-            if p[a] > 1 && p[a] < PAD - 2 {
-                // Inside the gathered block (most vertices): no options, one select.
-                let (lo, hi) = (self.flags[i - s] & OBSERVED != 0, self.flags[i + s] & OBSERVED != 0);
-                let (l, h) = (self.tsdf[i - s] as f32, self.tsdf[i + s] as f32);
-                g[a] = match (lo, hi) {
-                    (true, true) => 0.5 * (h - l),
-                    (false, true) => h - t,
-                    (true, false) => t - l,
-                    (false, false) => 0.0,
-                };
-                continue;
-            }
-            let lo = if p[a] > 1 {
-                inner(i - s)
-            } else {
-                let mut q = p;
-                q[a] -= 1;
-                outer(q)
-            };
-            let hi = if p[a] < PAD - 2 {
-                inner(i + s)
-            } else {
-                let mut q = p;
-                q[a] += 1;
-                outer(q)
-            };
-            g[a] = match (lo, hi) {
+            let (mut below, mut above) = (p, p);
+            below[a] -= 1;
+            above[a] += 1;
+            g[a] = match (outer(below), outer(above)) {
                 (Some(l), Some(h)) => 0.5 * (h - l),
                 (None, Some(h)) => h - t,
                 (Some(l), None) => t - l,
