@@ -198,8 +198,9 @@ fn edge_color(ca: [u8; 4], cb: [u8; 4], s: f32) -> [u8; 3] {
 }
 
 /// Per case, bit `e` set when edge `e` joins corners of different signs (crosses the surface):
-/// the reference for [`first_uses`].
-#[cfg(test)]
+/// the reference for [`first_uses`] (a test finds them the used edges) and the mask of
+/// [`seam_avx2`].
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 const CROSSED: [u16; 256] = {
     let mut t = [0u16; 256];
     let mut case = 0;
@@ -880,6 +881,7 @@ fn build(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scratch) -
         &mut scratch.edges,
         &mut scratch.jobs,
         &mut mesh,
+        scratch.kernel,
     );
     make_vertices(
         &scratch.block,
@@ -1036,6 +1038,9 @@ const SHARED_EDGES: [u16; 27] = {
 /// recording its [`VertexJob`] (vertices are made afterwards, in batches) and, for edges
 /// neighbouring chunks share, its global key. `triangle_count`: how many triangles `cells`
 /// make before the seam test ([`classify`]).
+///
+/// The seam test runs with AVX2 where the CPU has it and `kernel` is not the scalar one
+/// ([`seam_avx2`]), else edge by edge ([`seam_scalar`]): the same decisions.
 #[inline(never)]
 #[allow(clippy::too_many_arguments)]
 fn triangles(
@@ -1047,7 +1052,123 @@ fn triangles(
     edges: &mut EdgeSlots,
     jobs: &mut Vec<u32>,
     mesh: &mut ChunkMesh,
+    kernel: VertexKernel,
 ) {
+    #[cfg(target_arch = "x86_64")]
+    if kernel != VertexKernel::Scalar && is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2.
+        unsafe { triangles_avx2(block, cells, triangle_count, max_jump, key_voxel, edges, jobs, mesh) };
+        return;
+    }
+    let _ = kernel;
+    triangles_with(block, cells, triangle_count, key_voxel, edges, jobs, mesh, |base, case| {
+        seam_scalar(block, base, case, max_jump)
+    });
+}
+
+/// [`triangles`] compiled for AVX2, with [`seam_avx2`] inlined.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn triangles_avx2(
+    block: &PaddedBlock,
+    cells: &[(u16, u8)],
+    triangle_count: usize,
+    max_jump: f32,
+    key_voxel: IVec3,
+    edges: &mut EdgeSlots,
+    jobs: &mut Vec<u32>,
+    mesh: &mut ChunkMesh,
+) {
+    triangles_with(block, cells, triangle_count, key_voxel, edges, jobs, mesh, |base, case| {
+        seam_avx2(&block.tsdf, base, case, max_jump)
+    });
+}
+
+/// Whether a crossed edge of the cell with lowest corner at padded index `base` and case
+/// `case` jumps by more than `max_jump` truncation units: edge by edge, the definition.
+#[inline(always)]
+fn seam_scalar(block: &PaddedBlock, base: usize, case: u8, max_jump: f32) -> bool {
+    const ENDS: [(u8, u8); 16] = {
+        let mut out = [(0, 0); 16];
+        let mut e = 0;
+        while e < 12 {
+            out[e] = EDGES[e];
+            e += 1;
+        }
+        out
+    };
+    let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + CORNER_OFFSET[c]));
+    let (used, n_used) = &first_uses()[case as usize];
+    // Only crossed edges can be seams (all corners are observed here, so the case bits
+    // are the signs), and the crossed edges are the used ones.
+    let mut jump = false;
+    for &e in &used[..*n_used as usize] {
+        let (a, b) = ENDS[e as usize & 15];
+        jump |= (f[a as usize & 7] - f[b as usize & 7]).abs() > max_jump;
+    }
+    jump
+}
+
+/// [`seam_scalar`] with AVX2: the eight corners converted at once, all twelve edges'
+/// differences in two permutes, subtractions and compares, masked with the case's crossed
+/// edges (the used ones: tested). The same arithmetic, so the same decisions.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn seam_avx2(tsdf: &[i16; PAD * PAD2], base: usize, case: u8, max_jump: f32) -> bool {
+    use std::arch::x86_64::*;
+    /// Per edge (lane), its first (`.0`) or second end; lanes 12 ..= 15 compare corner 0
+    /// with itself.
+    const fn ends(second: bool) -> [i32; 16] {
+        let mut out = [0; 16];
+        let mut e = 0;
+        while e < 12 {
+            out[e] = if second { EDGES[e].1 } else { EDGES[e].0 } as i32;
+            e += 1;
+        }
+        out
+    }
+    const FIRST: [i32; 16] = ends(false);
+    const SECOND: [i32; 16] = ends(true);
+    // Corners 2k and 2k + 1 are neighbours along x: one 32-bit lane each.
+    let pair = |o: usize| (tsdf[base + o] as u16 as u32 | (tsdf[base + o + 1] as u16 as u32) << 16) as i32;
+    let corners = _mm_set_epi32(pair(PAD + PAD2), pair(PAD2), pair(PAD), pair(0));
+    let f = _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_cvtepi16_epi32(corners)), _mm256_set1_ps(1.0 / TSDF_SCALE));
+    let limit = _mm256_set1_ps(max_jump);
+    let mut jumps = 0;
+    for half in 0..2 {
+        // SAFETY: reads lanes 8 half .. 8 half + 8 of the 16-lane tables.
+        let (a, b) = unsafe {
+            (
+                _mm256_loadu_si256(FIRST.as_ptr().add(8 * half).cast()),
+                _mm256_loadu_si256(SECOND.as_ptr().add(8 * half).cast()),
+            )
+        };
+        let d = _mm256_sub_ps(_mm256_permutevar8x32_ps(f, a), _mm256_permutevar8x32_ps(f, b));
+        let d = _mm256_andnot_ps(_mm256_set1_ps(-0.0), d);
+        jumps |= (_mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(d, limit)) as u16) << (8 * half);
+    }
+    jumps & CROSSED[case as usize] != 0
+}
+
+/// The body of [`triangles`] with the seam test `seam(base, case)` (true: skip the cell).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn triangles_with(
+    block: &PaddedBlock,
+    cells: &[(u16, u8)],
+    triangle_count: usize,
+    key_voxel: IVec3,
+    edges: &mut EdgeSlots,
+    jobs: &mut Vec<u32>,
+    mesh: &mut ChunkMesh,
+    seam: impl Fn(usize, u8) -> bool,
+) {
+    let _ = block;
     let table = case_table();
     let order = first_uses();
     edges.next_chunk();
@@ -1069,25 +1190,16 @@ fn triangles(
         }
         out
     }
-    const ENDS: [(u8, u8); 16] = pad(EDGES, (0, 0));
     const KEY: [usize; 16] = pad(EDGE_KEY, 0);
     const JOB: [u32; 16] = pad(EDGE_JOB, 0);
     for &(cell, case) in cells {
         let cell = cell as usize;
         let base = CELL_BASE[cell] as usize;
-        let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + CORNER_OFFSET[c]));
-        let (used, n_used) = &order[case as usize];
-        let used = &used[..*n_used as usize];
-        // Only crossed edges can be seams (all corners are observed here, so the case bits
-        // are the signs), and the crossed edges are the used ones.
-        let mut jump = false;
-        for &e in used {
-            let (a, b) = ENDS[e as usize & 15];
-            jump |= (f[a as usize & 7] - f[b as usize & 7]).abs() > max_jump;
-        }
-        if jump {
+        if seam(base, case) {
             continue;
         }
+        let (used, n_used) = &order[case as usize];
+        let used = &used[..*n_used as usize];
         let (x, y, z) = (cell % CHUNK_SIDE, (cell / CHUNK_SIDE) % CHUNK_SIDE, cell / (CHUNK_SIDE * CHUNK_SIDE));
         let cell_key = ((z * ES + y) * ES + x) * 3;
         let cell_job = VertexJob::pack(base, 0, [x, y, z]);
@@ -1929,6 +2041,35 @@ mod tests {
             #[cfg(target_arch = "x86_64")]
             assert_eq!(row_masks_sse2(&t, &w, min_weight), reference);
         }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn the_avx2_seam_test_matches_the_scalar_one() {
+        use rand::{Rng, SeedableRng};
+        if !is_x86_feature_detected!("avx2") {
+            return;
+        }
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
+        let mut block = PaddedBlock::new();
+        let mut seams = 0;
+        for round in 0..50 {
+            // Smooth and rough blocks, so that both answers are common.
+            let spread = [300, 3000, 30000][round % 3];
+            for t in block.tsdf.iter_mut() {
+                *t = rng.random_range(-spread..=spread) as i16;
+            }
+            for _ in 0..2000 {
+                let base = CELL_BASE[rng.random_range(0..CHUNK_VOXELS)] as usize;
+                let case = rng.random_range(1..255) as u8;
+                let max_jump = [0.01, 0.05, 0.2, 0.5, 1.0][rng.random_range(0..5)];
+                let reference = seam_scalar(&block, base, case, max_jump);
+                // SAFETY: the CPU has AVX2 (checked above).
+                assert_eq!(unsafe { seam_avx2(&block.tsdf, base, case, max_jump) }, reference);
+                seams += reference as usize;
+            }
+        }
+        assert!(seams > 10_000 && seams < 90_000, "{seams}");
     }
 
     /// The vertex kernels this CPU can run, the scalar one first.
