@@ -917,22 +917,32 @@ fn classify(masks: &[(u16, u16); PAD2], cells: &mut Vec<(u16, u8)>) -> usize {
     let mut triangle_count = 0;
     // Per padded row, bit x: cell x's two corners along x are both observed, one is negative,
     // both are negative; a row of cells combines four padded rows (each used by up to four).
-    let mut pairs = [(0u16, 0u16, 0u16); PAD2];
-    for pz in 1..PAD - 1 {
-        for py in 1..PAD - 1 {
-            let r = py + PAD * pz;
-            let (neg, obs) = masks[r];
-            pairs[r] = ((obs >> 1) & (obs >> 2), (neg >> 1) | (neg >> 2), (neg >> 1) & (neg >> 2));
-        }
+    // Separate arrays of the three (all rows at once; rows outside 1 ..= 9 are never read),
+    // so that both loops run eight rows per instruction.
+    let (mut both_obs, mut one_neg, mut both_neg) = ([0u16; PAD2], [0u16; PAD2], [0u16; PAD2]);
+    for r in 0..PAD2 {
+        let (neg, obs) = masks[r];
+        both_obs[r] = (obs >> 1) & (obs >> 2);
+        one_neg[r] = (neg >> 1) | (neg >> 2);
+        both_neg[r] = (neg >> 1) & (neg >> 2);
     }
+    let eight = |a: &[u16; PAD2], r: usize| -> [u16; 8] { a[r..r + 8].try_into().unwrap_or([0; 8]) };
     for z in 0..CHUNK_SIDE {
+        // Rows y = 0 .. 8 of this slab of cells.
+        let r0 = 1 + PAD * (z + 1);
+        let mut crossed_rows = [0u16; CHUNK_SIDE];
+        let [o0, o1, o2, o3] = [0, 1, PAD, PAD + 1].map(|o| eight(&both_obs, r0 + o));
+        let [a0, a1, a2, a3] = [0, 1, PAD, PAD + 1].map(|o| eight(&one_neg, r0 + o));
+        let [n0, n1, n2, n3] = [0, 1, PAD, PAD + 1].map(|o| eight(&both_neg, r0 + o));
         for y in 0..CHUNK_SIDE {
-            let r = (y + 1) + PAD * (z + 1);
-            let [a, b, c, d] = [pairs[r], pairs[r + 1], pairs[r + PAD], pairs[r + PAD + 1]];
-            let all_obs = a.0 & b.0 & c.0 & d.0 & 0xff;
-            let any_neg = a.1 | b.1 | c.1 | d.1;
-            let all_neg = a.2 & b.2 & c.2 & d.2;
-            let mut crossed = all_obs & any_neg & !all_neg;
+            let all_obs = o0[y] & o1[y] & o2[y] & o3[y] & 0xff;
+            let any_neg = a0[y] | a1[y] | a2[y] | a3[y];
+            let all_neg = n0[y] & n1[y] & n2[y] & n3[y];
+            crossed_rows[y] = all_obs & any_neg & !all_neg;
+        }
+        for (y, &crossed) in crossed_rows.iter().enumerate() {
+            let r = r0 + y;
+            let mut crossed = crossed;
             // Every corner of a crossed cell is observed, so its negative bits are its case's
             // (corner bit 1: y + 1, the next row; bit 2: z + 1, the next slab).
             let neg = [masks[r].0, masks[r + 1].0, masks[r + PAD].0, masks[r + PAD + 1].0].map(u32::from);
