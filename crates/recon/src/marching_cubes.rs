@@ -1071,7 +1071,7 @@ fn triangles(
         return;
     }
     let _ = kernel;
-    triangles_with(block, cells, triangle_count, key_voxel, edges, jobs, mesh, |base, case| {
+    triangles_with(cells, triangle_count, key_voxel, edges, jobs, mesh, |base, case| {
         seam_scalar(block, base, case, max_jump)
     });
 }
@@ -1093,7 +1093,7 @@ unsafe fn triangles_avx2(
     jobs: &mut Vec<u32>,
     mesh: &mut ChunkMesh,
 ) {
-    triangles_with(block, cells, triangle_count, key_voxel, edges, jobs, mesh, |base, case| {
+    triangles_with(cells, triangle_count, key_voxel, edges, jobs, mesh, |base, case| {
         seam_avx2(&block.tsdf, base, case, max_jump)
     });
 }
@@ -1169,7 +1169,6 @@ fn seam_avx2(tsdf: &[i16; PAD * PAD2], base: usize, case: u8, max_jump: f32) -> 
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn triangles_with(
-    block: &PaddedBlock,
     cells: &[(u16, u8)],
     triangle_count: usize,
     key_voxel: IVec3,
@@ -1178,7 +1177,6 @@ fn triangles_with(
     mesh: &mut ChunkMesh,
     seam: impl Fn(usize, u8) -> bool,
 ) {
-    let _ = block;
     let table = case_table();
     let order = first_uses();
     edges.next_chunk();
