@@ -89,15 +89,13 @@ impl ChunkMesh {
 /// others: the central differences of the corners read nothing else) and the corners'
 /// colours, so that making a vertex reads only this block.
 ///
-/// Distances stay quantised (`i16`) until a vertex needs them; `flags` holds bit 0 for a
-/// negative distance and bit 1 for an observed voxel (stored weight at least `min_weight`,
-/// see [`MeshConfig`]), so a cell's case and mask come from 8 byte loads.
+/// Distances stay quantised (`i16`) until a vertex needs them; which voxels are observed
+/// (stored weight at least `min_weight`, see [`MeshConfig`]) and negative is kept as row bit
+/// masks (from the gather) and as flag bits in `packed` (from the shell gather).
 struct PaddedBlock {
     tsdf: [i16; PAD * PAD2],
-    /// Eight spare zero bytes at the end: row masks read 16 bytes from an 11-byte row.
-    flags: [u8; PAD * PAD2 + 8],
-    /// Per voxel `tsdf << 16 | flags` over padded 1 ..= 9 and the shell's faces (from
-    /// [`PaddedBlock::gather_shell`]): one load (or gather) reads a neighbour's distance and
+    /// Per voxel `tsdf << 16 | flags` (bit 0 negative and observed, bit 1 observed) over
+    /// padded 1 ..= 9 and the shell's faces (from [`PaddedBlock::gather_shell`]): one load (or gather) reads a neighbour's distance and
     /// whether it is observed.
     packed: [i32; PAD * PAD2],
     /// Colours `[r, g, b, count]` of padded 1 ..= 9; unallocated voxels 0.
@@ -111,6 +109,47 @@ struct PaddedBlock {
 fn packed_voxel(tsdf: i16, weight: u16, min_weight: u16) -> i32 {
     let observed = (weight >= min_weight) as i32;
     (tsdf as i32) << 16 | ((tsdf < 0) as i32 & observed) | observed << 1
+}
+
+/// [`packed_voxel`] of eight voxels.
+///
+/// # Shapes
+/// `tsdf`, `weight`: 8 long (fewer: zeros).
+#[inline(always)]
+fn packed_lanes(tsdf: &[i16], weight: &[u16], min_weight: u16) -> [i32; 8] {
+    let (t, w) = (tsdf.try_into().unwrap_or(&[0; 8]), weight.try_into().unwrap_or(&[0; 8]));
+    #[cfg(target_arch = "x86_64")]
+    {
+        packed_lanes_sse2(t, w, min_weight)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        std::array::from_fn(|k| packed_voxel(t[k], w[k], min_weight))
+    }
+}
+
+/// [`packed_lanes`] with SSE2 (part of x86-64): the flags as 16-bit lanes, interleaved
+/// below the distances.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn packed_lanes_sse2(t: &[i16; 8], w: &[u16; 8], min_weight: u16) -> [i32; 8] {
+    use std::arch::x86_64::*;
+    let mut out = [0i32; 8];
+    // SAFETY: SSE2 is part of x86-64; the loads read the two 8-element arrays, the stores
+    // write the 8-element `out`.
+    unsafe {
+        let t = _mm_loadu_si128(t.as_ptr().cast::<__m128i>());
+        let w = _mm_loadu_si128(w.as_ptr().cast::<__m128i>());
+        // Unsigned `w < min_weight` as a signed compare with both sides' top bits flipped.
+        let flip = _mm_set1_epi16(i16::MIN);
+        let unobserved = _mm_cmpgt_epi16(_mm_set1_epi16((min_weight ^ 0x8000) as i16), _mm_xor_si128(w, flip));
+        let negative = _mm_and_si128(_mm_cmpgt_epi16(_mm_setzero_si128(), t), _mm_set1_epi16(1));
+        let flags = _mm_andnot_si128(unobserved, _mm_or_si128(negative, _mm_set1_epi16(OBSERVED as i16)));
+        // Little-endian lanes: each i32 is (flags, distance) = distance << 16 | flags.
+        _mm_storeu_si128(out.as_mut_ptr().cast::<__m128i>(), _mm_unpacklo_epi16(flags, t));
+        _mm_storeu_si128(out.as_mut_ptr().add(4).cast::<__m128i>(), _mm_unpackhi_epi16(flags, t));
+    }
+    out
 }
 
 /// Padded coordinate `p` (local `p - 1`, -1 ..= 9) -> (chunk offset + 1, local coordinate
@@ -159,8 +198,9 @@ fn edge_color(ca: [u8; 4], cb: [u8; 4], s: f32) -> [u8; 3] {
 }
 
 /// Per case, bit `e` set when edge `e` joins corners of different signs (crosses the surface):
-/// the reference for [`first_uses`].
-#[cfg(test)]
+/// the reference for [`first_uses`] (a test finds them the used edges) and the mask of
+/// [`seam_avx2`].
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 const CROSSED: [u16; 256] = {
     let mut t = [0u16; 256];
     let mut case = 0;
@@ -191,7 +231,7 @@ const EDGE_KEY: [usize; 12] = {
     t
 };
 
-const NEGATIVE: u8 = 1;
+/// Bit of an observed voxel in [`PaddedBlock`]'s packed flags (bit 0: negative and observed).
 const OBSERVED: u8 = 2;
 
 /// The chunk and its 26 neighbours at `(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`, or None when
@@ -225,6 +265,64 @@ const NEIGHBOUR_OFFSET: [IVec3; 27] = {
 /// The chunk and its 7 upper neighbours (offsets 0 or +1 on every axis), then the rest.
 const UPPER: [usize; 8] = [13, 14, 16, 17, 22, 23, 25, 26];
 const OTHERS: [usize; 19] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 15, 18, 19, 20, 21, 24];
+
+/// Bit masks (bit `px`, only padded x 1 ..= 9 set) of the negative observed and of the
+/// observed voxels of the padded row starting at `start` (padded x 0), from the distances
+/// and weights of padded x 0 ..= 15 (beyond 10: the next row, masked off).
+///
+/// # Shapes
+/// `tsdf` and `weight`: at least `start + 16` long.
+#[inline(always)]
+fn row_masks(tsdf: &[i16], weight: &[u16], start: usize, min_weight: u16) -> (u16, u16) {
+    let (t, w) = (&tsdf[start..start + 16], &weight[start..start + 16]);
+    #[cfg(target_arch = "x86_64")]
+    {
+        row_masks_sse2(t.try_into().unwrap_or(&[0; 16]), w.try_into().unwrap_or(&[0; 16]), min_weight)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        row_masks_scalar(t, w, min_weight)
+    }
+}
+
+/// [`row_masks`] voxel by voxel: the reference (and the path off x86-64).
+#[cfg_attr(target_arch = "x86_64", allow(dead_code))]
+fn row_masks_scalar(t: &[i16], w: &[u16], min_weight: u16) -> (u16, u16) {
+    let (mut neg, mut obs) = (0u16, 0u16);
+    for px in 1..PAD - 1 {
+        let observed = (w[px] >= min_weight) as u16;
+        obs |= observed << px;
+        neg |= ((t[px] < 0) as u16 & observed) << px;
+    }
+    (neg, obs)
+}
+
+/// [`row_masks`] with SSE2 (part of x86-64): two compares per eight voxels and one
+/// `movemask` per mask, where the byte-flag pass and the bit packing cost about 40
+/// instructions per row.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn row_masks_sse2(t: &[i16; 16], w: &[u16; 16], min_weight: u16) -> (u16, u16) {
+    use std::arch::x86_64::*;
+    // SAFETY: SSE2 is part of x86-64; the loads read the two 16-element arrays.
+    unsafe {
+        let load = |p: *const i16| _mm_loadu_si128(p.cast::<__m128i>());
+        let (t0, t1) = (load(t.as_ptr()), load(t.as_ptr().add(8)));
+        let (w0, w1) = (load(w.as_ptr().cast()), load(w.as_ptr().add(8).cast()));
+        // Unsigned `w < min_weight` as a signed compare with both sides' top bits flipped.
+        let flip = _mm_set1_epi16(i16::MIN);
+        let min = _mm_set1_epi16((min_weight ^ 0x8000) as i16);
+        let unobserved0 = _mm_cmpgt_epi16(min, _mm_xor_si128(w0, flip));
+        let unobserved1 = _mm_cmpgt_epi16(min, _mm_xor_si128(w1, flip));
+        let zero = _mm_setzero_si128();
+        let neg0 = _mm_andnot_si128(unobserved0, _mm_cmpgt_epi16(zero, t0));
+        let neg1 = _mm_andnot_si128(unobserved1, _mm_cmpgt_epi16(zero, t1));
+        let unobserved = _mm_movemask_epi8(_mm_packs_epi16(unobserved0, unobserved1)) as u16;
+        let neg = _mm_movemask_epi8(_mm_packs_epi16(neg0, neg1)) as u16;
+        const INNER: u16 = ((1 << (PAD - 1)) - 1) & !1;
+        (neg & INNER, !unobserved & INNER)
+    }
+}
 
 impl PaddedBlock {
     /// Whether the cells owned by the chunk (corners in it and its 7 upper neighbours) can
@@ -260,7 +358,6 @@ impl PaddedBlock {
     fn new() -> Box<Self> {
         Box::new(PaddedBlock {
             tsdf: [0; PAD * PAD2],
-            flags: [0; PAD * PAD2 + 8],
             packed: [0; PAD * PAD2],
             color: [[0; 4]; PAD * PAD2],
             min_weight: 1,
@@ -274,8 +371,9 @@ impl PaddedBlock {
     /// (stored weight at least `min_weight`, which is at least 1).
     ///
     /// Distances and weights are copied first, row piece by row piece (fixed lengths the
-    /// compiler turns into a few moves), then flags and masks come from one pass over the
-    /// copy: per-element branching on the neighbour cost more than the marching.
+    /// compiler turns into a few moves), then the masks come from one pass over the copy
+    /// ([`row_masks`]): per-element branching on the neighbour cost more than the marching.
+    /// The weights stay in `weight` for [`PaddedBlock::gather_shell`].
     #[inline(never)]
     fn gather(
         &mut self,
@@ -323,33 +421,14 @@ impl PaddedBlock {
                 }
             }
         }
-        // Flags of the gathered rows (whole rows: 0 and 10 are stale and never read).
-        for pz in 1..PAD - 1 {
-            let rows = PAD * (1 + PAD * pz)..PAD * (PAD - 1 + PAD * pz);
-            let (f, t, w) = (&mut b.flags[rows.clone()], &b.tsdf[rows.clone()], &weight[rows]);
-            for ((f, &t), &w) in f.iter_mut().zip(t).zip(w) {
-                let observed = (w >= min_weight) as u8;
-                *f = ((t < 0) as u8 & observed) | observed << 1;
-            }
-        }
-        // Bit 0 of each of 8 bytes into bits 0..8: multiplying by this constant moves byte
-        // k's bit to bit 56 + k, with no carries between them.
-        const LSB: u64 = 0x0101_0101_0101_0101;
-        let pack = |x: u64| ((x & LSB).wrapping_mul(0x0102_0408_1020_4080) >> 56) as u16;
-        let word = |i: usize| {
-            let mut w = [0u8; 8];
-            w.copy_from_slice(&b.flags[i..i + 8]);
-            u64::from_le_bytes(w)
-        };
+        // Masks straight from the copied distances and weights, 16 voxels (padded x 0 ..= 15)
+        // per row: the flag bytes of padded 1 ..= 9 wait for [`PaddedBlock::gather_shell`],
+        // which only chunks with crossed cells run. A separate pass: reading a row right after
+        // its piecewise stores would stall on store forwarding.
         for pz in 1..PAD - 1 {
             for py in 1..PAD - 1 {
                 let r = py + PAD * pz;
-                let lo = word(r * PAD);
-                // Padded x 8 ..= 10: three bytes (the rest is the next row).
-                let hi = word(r * PAD + 8) & 0x00ff_ffff;
-                let neg = pack(lo) | pack(hi) << 8;
-                let obs = pack(lo >> 1) | pack(hi >> 1) << 8;
-                masks[r] = (neg, obs);
+                masks[r] = row_masks(&b.tsdf, &weight[..], r * PAD, min_weight);
             }
         }
     }
@@ -361,16 +440,18 @@ impl PaddedBlock {
     /// the 19 other neighbours too. Row pieces are copied as in [`PaddedBlock::gather`]; only
     /// the x faces are read voxel by voxel.
     #[inline(never)]
-    fn gather_shell(&mut self, nb: &[Option<&Chunk>; 27]) {
+    fn gather_shell(&mut self, nb: &[Option<&Chunk>; 27], weight: &[u16; PAD * PAD2]) {
         const N: usize = CHUNK_SIDE;
         let min_weight = self.min_weight;
-        // The gathered slabs, whole rows: the x faces (padded 0 and 10) are overwritten below,
-        // the rest of padded y or z 0 and 10 in these ranges is never read.
+        // The gathered rows, padded x 1 ..= 8 and 2 ..= 9 (eight lanes twice, overlapping):
+        // voxel by voxel this loop did not vectorise and cost half the shell.
         for pz in 1..PAD - 1 {
-            let rows = PAD * (1 + PAD * pz)..PAD * (PAD - 1 + PAD * pz);
-            let (p, t, f) = (&mut self.packed[rows.clone()], &self.tsdf[rows.clone()], &self.flags[rows]);
-            for ((p, &t), &f) in p.iter_mut().zip(t).zip(f) {
-                *p = (t as i32) << 16 | f as i32;
+            for py in 1..PAD - 1 {
+                let row = PAD * py + PAD2 * pz;
+                for start in [row + 1, row + 2] {
+                    let lanes = packed_lanes(&self.tsdf[start..start + 8], &weight[start..start + 8], min_weight);
+                    self.packed[start..start + 8].copy_from_slice(&lanes);
+                }
             }
         }
         let one = |c: Option<&Chunk>, j: usize| match c {
@@ -432,50 +513,24 @@ impl PaddedBlock {
     }
 
     /// Central-difference TSDF gradient at padded index `i`, coordinates `p` in 1 ..= 9
-    /// (one-sided where a neighbour is unobserved), reading neighbours at padded 0 and 10 from
-    /// the chunks: the reference for [`PaddedBlock::inner_gradient`] after
+    /// (one-sided where a neighbour is unobserved), reading the neighbours from the chunks:
+    /// the reference for [`PaddedBlock::inner_gradient`] after
     /// [`PaddedBlock::gather_shell`].
     #[cfg(test)]
     fn gradient(&self, nb: &[Option<&Chunk>; 27], i: usize, p: [usize; 3]) -> Vec3 {
-        let strides = [1, PAD, PAD2];
         let outer = |q: [usize; 3]| -> Option<f32> {
             let ((ox, ix), (oy, iy), (oz, iz)) = (SPLIT[q[0]], SPLIT[q[1]], SPLIT[q[2]]);
             let c = nb[ox as usize + 3 * oy as usize + 9 * oz as usize]?;
             let j = ix as usize + CHUNK_SIDE * (iy as usize + CHUNK_SIDE * iz as usize);
             (c.voxels.weight[j] >= self.min_weight).then_some(c.voxels.tsdf[j] as f32)
         };
-        let inner = |j: usize| (self.flags[j] & OBSERVED != 0).then_some(self.tsdf[j] as f32);
         let t = self.tsdf[i] as f32;
         let mut g = [0.0f32; 3];
         for a in 0..3 {
-            let s = strides[a];
-            if p[a] > 1 && p[a] < PAD - 2 {
-                // Inside the gathered block (most vertices): no options, one select.
-                let (lo, hi) = (self.flags[i - s] & OBSERVED != 0, self.flags[i + s] & OBSERVED != 0);
-                let (l, h) = (self.tsdf[i - s] as f32, self.tsdf[i + s] as f32);
-                g[a] = match (lo, hi) {
-                    (true, true) => 0.5 * (h - l),
-                    (false, true) => h - t,
-                    (true, false) => t - l,
-                    (false, false) => 0.0,
-                };
-                continue;
-            }
-            let lo = if p[a] > 1 {
-                inner(i - s)
-            } else {
-                let mut q = p;
-                q[a] -= 1;
-                outer(q)
-            };
-            let hi = if p[a] < PAD - 2 {
-                inner(i + s)
-            } else {
-                let mut q = p;
-                q[a] += 1;
-                outer(q)
-            };
-            g[a] = match (lo, hi) {
+            let (mut below, mut above) = (p, p);
+            below[a] -= 1;
+            above[a] += 1;
+            g[a] = match (outer(below), outer(above)) {
                 (Some(l), Some(h)) => 0.5 * (h - l),
                 (None, Some(h)) => h - t,
                 (Some(l), None) => t - l,
@@ -804,11 +859,11 @@ fn build(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scratch) -
     // voxels observed here, so the early exit stays valid for any threshold.
     let Some(nb) = neighbours_if_surface(map, key) else { return false };
     scratch.block.gather(&nb, min_weight, &mut scratch.weight, &mut scratch.masks);
-    let triangle_count = classify(&scratch.block, &scratch.masks, &mut scratch.cells);
+    let triangle_count = classify(&scratch.masks, &mut scratch.cells);
     if scratch.cells.is_empty() {
         return false;
     }
-    scratch.block.gather_shell(&nb);
+    scratch.block.gather_shell(&nb, &scratch.weight);
     // Built in the worker's buffers and copied out at their exact size: growing five vectors
     // per chunk (and freeing the cached mesh it replaces) cost a sixth of meshing in the
     // allocator, and exact sizes keep the cache compact.
@@ -826,6 +881,7 @@ fn build(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scratch) -
         &mut scratch.edges,
         &mut scratch.jobs,
         &mut mesh,
+        scratch.kernel,
     );
     make_vertices(
         &scratch.block,
@@ -855,36 +911,48 @@ const CORNER_OFFSET: [usize; 8] = {
 /// cases, into `cells` in cell order; returns how many triangles they make at most, so that
 /// the mesh buffers are allocated once.
 #[inline(never)]
-fn classify(block: &PaddedBlock, masks: &[(u16, u16); PAD2], cells: &mut Vec<(u16, u8)>) -> usize {
+fn classify(masks: &[(u16, u16); PAD2], cells: &mut Vec<(u16, u8)>) -> usize {
     let table = case_table();
     cells.clear();
     let mut triangle_count = 0;
     // Per padded row, bit x: cell x's two corners along x are both observed, one is negative,
     // both are negative; a row of cells combines four padded rows (each used by up to four).
-    let mut pairs = [(0u16, 0u16, 0u16); PAD2];
-    for pz in 1..PAD - 1 {
-        for py in 1..PAD - 1 {
-            let r = py + PAD * pz;
-            let (neg, obs) = masks[r];
-            pairs[r] = ((obs >> 1) & (obs >> 2), (neg >> 1) | (neg >> 2), (neg >> 1) & (neg >> 2));
-        }
+    // Separate arrays of the three (all rows at once; rows outside 1 ..= 9 are never read),
+    // so that both loops run eight rows per instruction.
+    let (mut both_obs, mut one_neg, mut both_neg) = ([0u16; PAD2], [0u16; PAD2], [0u16; PAD2]);
+    for r in 0..PAD2 {
+        let (neg, obs) = masks[r];
+        both_obs[r] = (obs >> 1) & (obs >> 2);
+        one_neg[r] = (neg >> 1) | (neg >> 2);
+        both_neg[r] = (neg >> 1) & (neg >> 2);
     }
+    let eight = |a: &[u16; PAD2], r: usize| -> [u16; 8] { a[r..r + 8].try_into().unwrap_or([0; 8]) };
     for z in 0..CHUNK_SIDE {
+        // Rows y = 0 .. 8 of this slab of cells.
+        let r0 = 1 + PAD * (z + 1);
+        let mut crossed_rows = [0u16; CHUNK_SIDE];
+        let [o0, o1, o2, o3] = [0, 1, PAD, PAD + 1].map(|o| eight(&both_obs, r0 + o));
+        let [a0, a1, a2, a3] = [0, 1, PAD, PAD + 1].map(|o| eight(&one_neg, r0 + o));
+        let [n0, n1, n2, n3] = [0, 1, PAD, PAD + 1].map(|o| eight(&both_neg, r0 + o));
         for y in 0..CHUNK_SIDE {
-            let r = (y + 1) + PAD * (z + 1);
-            let [a, b, c, d] = [pairs[r], pairs[r + 1], pairs[r + PAD], pairs[r + PAD + 1]];
-            let all_obs = a.0 & b.0 & c.0 & d.0 & 0xff;
-            let any_neg = a.1 | b.1 | c.1 | d.1;
-            let all_neg = a.2 & b.2 & c.2 & d.2;
-            let mut crossed = all_obs & any_neg & !all_neg;
+            let all_obs = o0[y] & o1[y] & o2[y] & o3[y] & 0xff;
+            let any_neg = a0[y] | a1[y] | a2[y] | a3[y];
+            let all_neg = n0[y] & n1[y] & n2[y] & n3[y];
+            crossed_rows[y] = all_obs & any_neg & !all_neg;
+        }
+        for (y, &crossed) in crossed_rows.iter().enumerate() {
+            let r = r0 + y;
+            let mut crossed = crossed;
+            // Every corner of a crossed cell is observed, so its negative bits are its case's
+            // (corner bit 1: y + 1, the next row; bit 2: z + 1, the next slab).
+            let neg = [masks[r].0, masks[r + 1].0, masks[r + PAD].0, masks[r + PAD + 1].0].map(u32::from);
             while crossed != 0 {
                 let x = crossed.trailing_zeros() as usize;
                 crossed &= crossed - 1;
-                let base = (x + 1) + PAD * (y + 1) + PAD2 * (z + 1);
-                let mut case = 0u8;
-                for (c, off) in CORNER_OFFSET.iter().enumerate() {
-                    case |= (block.flags[base + off] & NEGATIVE) << c;
-                }
+                let case = ((neg[0] >> (x + 1)) & 3
+                    | ((neg[1] >> (x + 1)) & 3) << 2
+                    | ((neg[2] >> (x + 1)) & 3) << 4
+                    | ((neg[3] >> (x + 1)) & 3) << 6) as u8;
                 cells.push(((x + CHUNK_SIDE * (y + CHUNK_SIDE * z)) as u16, case));
                 triangle_count += table.triangles(case).len();
             }
@@ -980,6 +1048,9 @@ const SHARED_EDGES: [u16; 27] = {
 /// recording its [`VertexJob`] (vertices are made afterwards, in batches) and, for edges
 /// neighbouring chunks share, its global key. `triangle_count`: how many triangles `cells`
 /// make before the seam test ([`classify`]).
+///
+/// The seam test runs with AVX2 where the CPU has it and `kernel` is not the scalar one
+/// ([`seam_avx2`]), else edge by edge ([`seam_scalar`]): the same decisions.
 #[inline(never)]
 #[allow(clippy::too_many_arguments)]
 fn triangles(
@@ -991,6 +1062,120 @@ fn triangles(
     edges: &mut EdgeSlots,
     jobs: &mut Vec<u32>,
     mesh: &mut ChunkMesh,
+    kernel: VertexKernel,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if kernel != VertexKernel::Scalar && is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2.
+        unsafe { triangles_avx2(block, cells, triangle_count, max_jump, key_voxel, edges, jobs, mesh) };
+        return;
+    }
+    let _ = kernel;
+    triangles_with(cells, triangle_count, key_voxel, edges, jobs, mesh, |base, case| {
+        seam_scalar(block, base, case, max_jump)
+    });
+}
+
+/// [`triangles`] compiled for AVX2, with [`seam_avx2`] inlined.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn triangles_avx2(
+    block: &PaddedBlock,
+    cells: &[(u16, u8)],
+    triangle_count: usize,
+    max_jump: f32,
+    key_voxel: IVec3,
+    edges: &mut EdgeSlots,
+    jobs: &mut Vec<u32>,
+    mesh: &mut ChunkMesh,
+) {
+    triangles_with(cells, triangle_count, key_voxel, edges, jobs, mesh, |base, case| {
+        seam_avx2(&block.tsdf, base, case, max_jump)
+    });
+}
+
+/// Whether a crossed edge of the cell with lowest corner at padded index `base` and case
+/// `case` jumps by more than `max_jump` truncation units: edge by edge, the definition.
+#[inline(always)]
+fn seam_scalar(block: &PaddedBlock, base: usize, case: u8, max_jump: f32) -> bool {
+    const ENDS: [(u8, u8); 16] = {
+        let mut out = [(0, 0); 16];
+        let mut e = 0;
+        while e < 12 {
+            out[e] = EDGES[e];
+            e += 1;
+        }
+        out
+    };
+    let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + CORNER_OFFSET[c]));
+    let (used, n_used) = &first_uses()[case as usize];
+    // Only crossed edges can be seams (all corners are observed here, so the case bits
+    // are the signs), and the crossed edges are the used ones.
+    let mut jump = false;
+    for &e in &used[..*n_used as usize] {
+        let (a, b) = ENDS[e as usize & 15];
+        jump |= (f[a as usize & 7] - f[b as usize & 7]).abs() > max_jump;
+    }
+    jump
+}
+
+/// [`seam_scalar`] with AVX2: the eight corners converted at once, all twelve edges'
+/// differences in two permutes, subtractions and compares, masked with the case's crossed
+/// edges (the used ones: tested). The same arithmetic, so the same decisions.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn seam_avx2(tsdf: &[i16; PAD * PAD2], base: usize, case: u8, max_jump: f32) -> bool {
+    use std::arch::x86_64::*;
+    /// Per edge (lane), its first (`.0`) or second end; lanes 12 ..= 15 compare corner 0
+    /// with itself.
+    const fn ends(second: bool) -> [i32; 16] {
+        let mut out = [0; 16];
+        let mut e = 0;
+        while e < 12 {
+            out[e] = if second { EDGES[e].1 } else { EDGES[e].0 } as i32;
+            e += 1;
+        }
+        out
+    }
+    const FIRST: [i32; 16] = ends(false);
+    const SECOND: [i32; 16] = ends(true);
+    // Corners 2k and 2k + 1 are neighbours along x: one 32-bit lane each.
+    let pair = |o: usize| (tsdf[base + o] as u16 as u32 | (tsdf[base + o + 1] as u16 as u32) << 16) as i32;
+    let corners = _mm_set_epi32(pair(PAD + PAD2), pair(PAD2), pair(PAD), pair(0));
+    let f = _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_cvtepi16_epi32(corners)), _mm256_set1_ps(1.0 / TSDF_SCALE));
+    let limit = _mm256_set1_ps(max_jump);
+    let mut jumps = 0;
+    for half in 0..2 {
+        // SAFETY: reads lanes 8 half .. 8 half + 8 of the 16-lane tables.
+        let (a, b) = unsafe {
+            (
+                _mm256_loadu_si256(FIRST.as_ptr().add(8 * half).cast()),
+                _mm256_loadu_si256(SECOND.as_ptr().add(8 * half).cast()),
+            )
+        };
+        let d = _mm256_sub_ps(_mm256_permutevar8x32_ps(f, a), _mm256_permutevar8x32_ps(f, b));
+        let d = _mm256_andnot_ps(_mm256_set1_ps(-0.0), d);
+        jumps |= (_mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(d, limit)) as u16) << (8 * half);
+    }
+    jumps & CROSSED[case as usize] != 0
+}
+
+/// The body of [`triangles`] with the seam test `seam(base, case)` (true: skip the cell).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn triangles_with(
+    cells: &[(u16, u8)],
+    triangle_count: usize,
+    key_voxel: IVec3,
+    edges: &mut EdgeSlots,
+    jobs: &mut Vec<u32>,
+    mesh: &mut ChunkMesh,
+    seam: impl Fn(usize, u8) -> bool,
 ) {
     let table = case_table();
     let order = first_uses();
@@ -1013,25 +1198,16 @@ fn triangles(
         }
         out
     }
-    const ENDS: [(u8, u8); 16] = pad(EDGES, (0, 0));
     const KEY: [usize; 16] = pad(EDGE_KEY, 0);
     const JOB: [u32; 16] = pad(EDGE_JOB, 0);
     for &(cell, case) in cells {
         let cell = cell as usize;
         let base = CELL_BASE[cell] as usize;
-        let f: [f32; 8] = std::array::from_fn(|c| block.tsdf(base + CORNER_OFFSET[c]));
-        let (used, n_used) = &order[case as usize];
-        let used = &used[..*n_used as usize];
-        // Only crossed edges can be seams (all corners are observed here, so the case bits
-        // are the signs), and the crossed edges are the used ones.
-        let mut jump = false;
-        for &e in used {
-            let (a, b) = ENDS[e as usize & 15];
-            jump |= (f[a as usize & 7] - f[b as usize & 7]).abs() > max_jump;
-        }
-        if jump {
+        if seam(base, case) {
             continue;
         }
+        let (used, n_used) = &order[case as usize];
+        let used = &used[..*n_used as usize];
         let (x, y, z) = (cell % CHUNK_SIDE, (cell / CHUNK_SIDE) % CHUNK_SIDE, cell / (CHUNK_SIDE * CHUNK_SIDE));
         let cell_key = ((z * ES + y) * ES + x) * 3;
         let cell_job = VertexJob::pack(base, 0, [x, y, z]);
@@ -1834,7 +2010,7 @@ mod tests {
                 for min_weight in [1, 40] {
                     let block = &mut scratch.block;
                     block.gather(&nb, min_weight, &mut scratch.weight, &mut scratch.masks);
-                    block.gather_shell(&nb);
+                    block.gather_shell(&nb, &scratch.weight);
                     for z in 1..PAD - 1 {
                         for y in 1..PAD - 1 {
                             for x in 1..PAD - 1 {
@@ -1851,6 +2027,57 @@ mod tests {
             }
         }
         assert!(checked > 10_000);
+    }
+
+    #[test]
+    fn row_masks_and_packed_lanes_match_the_scalar_reference() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
+        for _ in 0..20_000 {
+            let t: [i16; 16] = std::array::from_fn(|_| if rng.random_bool(0.1) { 0 } else { rng.random() });
+            let w: [u16; 16] = std::array::from_fn(|_| match rng.random_range(0..4) {
+                0 => 0,
+                1 => rng.random_range(0..80),
+                2 => u16::MAX - rng.random_range(0..3),
+                _ => rng.random(),
+            });
+            let min_weight = [1, 2, 40, 0x8000, u16::MAX][rng.random_range(0..5)];
+            let reference = row_masks_scalar(&t, &w, min_weight);
+            let packed: [i32; 8] = std::array::from_fn(|k| packed_voxel(t[k], w[k], min_weight));
+            assert_eq!(packed_lanes(&t[..8], &w[..8], min_weight), packed);
+            assert_eq!(row_masks(&t, &w, 0, min_weight), reference);
+            #[cfg(target_arch = "x86_64")]
+            assert_eq!(row_masks_sse2(&t, &w, min_weight), reference);
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn the_avx2_seam_test_matches_the_scalar_one() {
+        use rand::{Rng, SeedableRng};
+        if !is_x86_feature_detected!("avx2") {
+            return;
+        }
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
+        let mut block = PaddedBlock::new();
+        let mut seams = 0;
+        for round in 0..50 {
+            // Smooth and rough blocks, so that both answers are common.
+            let spread = [300, 3000, 30000][round % 3];
+            for t in block.tsdf.iter_mut() {
+                *t = rng.random_range(-spread..=spread) as i16;
+            }
+            for _ in 0..2000 {
+                let base = CELL_BASE[rng.random_range(0..CHUNK_VOXELS)] as usize;
+                let case = rng.random_range(1..255) as u8;
+                let max_jump = [0.01, 0.05, 0.2, 0.5, 1.0][rng.random_range(0..5)];
+                let reference = seam_scalar(&block, base, case, max_jump);
+                // SAFETY: the CPU has AVX2 (checked above).
+                assert_eq!(unsafe { seam_avx2(&block.tsdf, base, case, max_jump) }, reference);
+                seams += reference as usize;
+            }
+        }
+        assert!(seams > 10_000 && seams < 90_000, "{seams}");
     }
 
     /// The vertex kernels this CPU can run, the scalar one first.
