@@ -40,13 +40,12 @@ pub fn merge_small_islands(labels: &[(CellKey, u8)], min_cells: usize) -> Vec<(C
     let index: HashMap<CellKey, usize> = labels.iter().enumerate().map(|(i, (k, _))| (*k, i)).collect();
     // Connected components of same-class cells.
     let mut component = vec![usize::MAX; labels.len()];
-    let mut sizes: Vec<usize> = Vec::new();
     let mut members: Vec<Vec<usize>> = Vec::new();
     for start in 0..labels.len() {
         if component[start] != usize::MAX {
             continue;
         }
-        let id = sizes.len();
+        let id = members.len();
         let class = labels[start].1;
         component[start] = id;
         let mut stack = vec![start];
@@ -62,19 +61,18 @@ pub fn merge_small_islands(labels: &[(CellKey, u8)], min_cells: usize) -> Vec<(C
                 }
             }
         }
-        sizes.push(cells.len());
         members.push(cells);
     }
     let mut out = labels.to_vec();
     for (id, cells) in members.iter().enumerate() {
-        if sizes[id] >= min_cells {
+        if cells.len() >= min_cells {
             continue;
         }
         let mut votes = [0usize; 256];
         for &i in cells {
             for n in neighbours(labels[i].0) {
                 if let Some(&j) = index.get(&n) {
-                    if component[j] != id && sizes[component[j]] >= min_cells {
+                    if component[j] != id && members[component[j]].len() >= min_cells {
                         votes[labels[j].1 as usize] += 1;
                     }
                 }

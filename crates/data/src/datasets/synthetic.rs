@@ -61,18 +61,22 @@ pub fn room_layout(room: &SyntheticRoom) -> RoomLayout {
     }
 }
 
-/// A handheld-like trajectory of `frames` poses through `room` at `frame_rate`.
-pub fn room_scan_poses(room: &SyntheticRoom, seed: u64, frames: usize, frame_rate: f64) -> Result<Vec<Affine3A>> {
+/// The scan planner's defaults for `room` at `frame_rate`.
+fn room_scan_plan(room: &SyntheticRoom, seed: u64, frame_rate: f64) -> ScanPlan {
     let mut plan = ScanPlan::new(room_layout(room), seed);
     plan.frame_rate = frame_rate as f32;
-    plan.poses(frames)
+    plan
+}
+
+/// A handheld-like trajectory of `frames` poses through `room` at `frame_rate`.
+pub fn room_scan_poses(room: &SyntheticRoom, seed: u64, frames: usize, frame_rate: f64) -> Result<Vec<Affine3A>> {
+    room_scan_plan(room, seed, frame_rate).poses(frames)
 }
 
 /// Generates the room and the scan of `config`; the room is returned too (ground-truth mesh).
 pub fn synthetic_scan(config: &SyntheticScanConfig) -> Result<(SyntheticRoom, RenderedScan)> {
     let room = generate_room(&RoomConfig { seed: config.seed, style: config.style });
-    let mut plan = ScanPlan::new(room_layout(&room), config.seed);
-    plan.frame_rate = config.frame_rate as f32;
+    let mut plan = room_scan_plan(&room, config.seed, config.frame_rate);
     plan.vertical_sweep_deg = config.vertical_sweep_deg;
     let poses = plan.poses(config.frames)?;
     let scan = RenderedScan::new(
