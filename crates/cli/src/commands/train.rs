@@ -53,9 +53,10 @@ pub struct TrainArgs {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Augmentation recipe: `training` (rotations, flips, scaling, elastic distortion, box
-    /// crops, dropout, colour) or `live-maps` (the same plus a short walk's view and rugs on
-    /// the floor, to imitate the partial maps the live pipeline labels).
-    #[arg(long, default_value = "training", value_parser = ["training", "live-maps"])]
+    /// crops, dropout, colour), `live-maps` (the same plus a short walk's view and rugs on
+    /// the floor, to imitate the partial maps the live pipeline labels) or `casual-scans`
+    /// (`live-maps` plus cuts above 1.0-2.2 m, as a scan that rarely looks up).
+    #[arg(long, default_value = "training", value_parser = ["training", "live-maps", "casual-scans"])]
     augment: String,
     /// Worker threads (default: all cores).
     #[arg(long)]
@@ -111,6 +112,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     opts.seed = args.seed;
     opts.augment = match args.augment.as_str() {
         "live-maps" => semrecon_net::dataset::Augment::live_maps(),
+        "casual-scans" => semrecon_net::dataset::Augment::casual_scans(),
         _ => semrecon_net::dataset::Augment::training(),
     };
     eprintln!(
