@@ -229,7 +229,7 @@ fn run(a: Args) -> Result<(), String> {
         let d = SurfaceIndex::new(&mesh, &eval, "estimated").map_err(|e| e.to_string())?.distances(&seen);
         let within = |t: f32| 100.0 * d.iter().filter(|&&x| x < t).count() as f64 / d.len().max(1) as f64;
         println!(
-            "  of the seen samples: {:.1}% within 5 mm, {:.1}% within 1 cm, {:.1}% within 5 cm",
+            "  of the seen samples: {:.1}% within 5 mm, {:.2}% within 1 cm, {:.1}% within 5 cm",
             within(0.005),
             within(0.01),
             within(0.05)
