@@ -459,14 +459,16 @@ impl Augment {
             .flatten();
         // Own stream: the other choices of a seed stay those of the sixth leg.
         let mut cut_rng = ChaCha8Rng::seed_from_u64(seed ^ 0xC07_4E16);
-        let cut_height = (self.height_cut_probability > 0.0
-            && cut_rng.random::<f32>() < self.height_cut_probability)
+        let cut_height = (self.height_cut_probability > 0.0 && cut_rng.random::<f32>() < self.height_cut_probability)
             .then(|| {
                 let (a, b) = (self.height_cut[0], self.height_cut[1].max(self.height_cut[0]));
-                if b > a { cut_rng.random_range(a..=b) } else { a }
+                if b > a {
+                    cut_rng.random_range(a..=b)
+                } else {
+                    a
+                }
             });
-        let below_cut: Option<Vec<bool>> =
-            cut_height.map(|h| cloud.positions.iter().map(|p| p.z <= h).collect());
+        let below_cut: Option<Vec<bool>> = cut_height.map(|h| cloud.positions.iter().map(|p| p.z <= h).collect());
         let (lo, hi) = bounds(&cloud.positions);
         let centre = Vec3::new((lo.x + hi.x) * 0.5, (lo.y + hi.y) * 0.5, 0.0);
         let angle = if self.rotate_max > 0.0 { rng.random_range(-self.rotate_max..=self.rotate_max) } else { 0.0 };
