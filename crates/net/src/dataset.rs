@@ -356,7 +356,8 @@ pub struct Augment {
     /// phase 9.5 voxels: 0.1 % floor; the same mesh moved to z = 0 or 0.8: 87 %).
     pub translate: [f32; 3],
     /// Probability of dropping everything above a random height (see
-    /// [`height_cut`](Self::height_cut)), in the room's own frame (floor at z = 0).
+    /// [`height_cut`](Self::height_cut)), in the room's own frame (floor at z = 0). Samples
+    /// that get the box crop keep all heights.
     pub height_cut_probability: f32,
     /// Range of the cut height above the floor (metres). A handheld scan at eye height
     /// rarely looks up: it sees the lower 1-2 m of the walls, so a door is a recessed panel
@@ -428,9 +429,9 @@ impl Augment {
         }
     }
 
-    /// [`Augment::live_maps`] plus height cuts: 35 % of samples lose everything above a
-    /// height drawn from 1.0-2.2 m, as a casual scan at eye height does (the seventh
-    /// training leg of docs/model.md).
+    /// [`Augment::live_maps`] plus height cuts: 35 % of the samples without a box crop (about
+    /// a quarter of all) lose everything above a height drawn from 1.0-2.2 m, as a casual
+    /// scan at eye height does (the seventh training leg of docs/model.md).
     pub fn casual_scans() -> Self {
         Self { height_cut_probability: 0.35, height_cut: [1.0, 2.2], ..Self::live_maps() }
     }
@@ -490,12 +491,15 @@ impl Augment {
         // Crop a box around a random point, then drop points.
         let viewed = view.is_some();
         let mut keep: Vec<bool> = view.unwrap_or_else(|| vec![true; cloud.len()]);
-        if let Some(below) = &below_cut {
+        let cropped = self.crop_probability > 0.0 && rng.random::<f32>() < self.crop_probability && !viewed;
+        // A box-cropped sample keeps all heights (as leg 7 was trained): the crop is a
+        // partial scan of its own.
+        if let (Some(below), false) = (&below_cut, cropped) {
             for (k, &b) in keep.iter_mut().zip(below) {
                 *k &= b;
             }
         }
-        if self.crop_probability > 0.0 && rng.random::<f32>() < self.crop_probability && !viewed {
+        if cropped {
             let (a, b) = (self.crop_size[0], self.crop_size[1].max(self.crop_size[0]));
             let sx = if b > a { rng.random_range(a..=b) } else { a };
             let sy = if b > a { rng.random_range(a..=b) } else { a };
@@ -718,6 +722,11 @@ mod tests {
             })
             .collect();
         assert!(sizes.contains(&original.len()) && sizes.iter().any(|&n| n < original.len()), "{sizes:?}");
+        // A box crop keeps all heights.
+        let crop = Augment { crop_probability: 1.0, crop_size: [4.0, 4.0], ..cut };
+        let mut cropped = original.clone();
+        crop.apply(&mut cropped, 3);
+        assert!(cropped.positions.iter().any(|p| p.z > 2.0));
     }
 
     #[test]
