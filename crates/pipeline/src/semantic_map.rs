@@ -26,6 +26,7 @@ use rayon::prelude::*;
 use semrecon_data::class::UNLABELED;
 use semrecon_recon::map::ChunkHashBuilder;
 use semrecon_recon::{ChunkKey, ChunkMesh, IncrementalMesher};
+use wide::{f32x8, i32x8};
 
 use crate::gravity::SurfaceSample;
 use crate::label_islands::merge_small_islands;
@@ -160,7 +161,8 @@ impl SurfaceCells {
 
     /// Brings the cells up to date with the chunk meshes `mesher` re-made since the last call
     /// (and forgets the chunks it dropped); returns the keys of the chunks whose contribution
-    /// changed, sorted. Call it after [`IncrementalMesher::update`].
+    /// changed, sorted (a re-meshed chunk whose sums came out the same is not among them).
+    /// Call it after [`IncrementalMesher::update`].
     pub fn update(&mut self, mesher: &IncrementalMesher) -> Vec<ChunkKey> {
         let mut remeshed: Vec<(ChunkKey, &ChunkMesh)> = mesher.remeshed_since(self.generation).collect();
         self.generation = mesher.generation();
@@ -170,6 +172,10 @@ impl SurfaceCells {
         let all_parts: Vec<ChunkCells> = remeshed.par_iter().map(|(_, mesh)| self.chunk_cells(mesh)).collect();
         let mut changed = Vec::with_capacity(remeshed.len() + freed.len());
         for ((key, _), parts) in remeshed.iter().zip(all_parts) {
+            // A chunk re-meshed for its neighbour's sake often keeps its sums exactly.
+            if self.chunks.get(key).map_or(parts.is_empty(), |old| *old == parts) {
+                continue;
+            }
             for (c, s) in &parts {
                 self.cells.entry(*c).or_default().add(s);
             }
@@ -192,7 +198,84 @@ impl SurfaceCells {
     }
 
     /// A chunk mesh's vertices summed per cell, in (z, y, x) cell order.
+    ///
+    /// The per-vertex conversions (cell, fixed-point position and normal) run 8 vertices at a
+    /// time; they were most of the semantic snapshot's time one by one. The integer results,
+    /// and so the sums, are exactly those of [`SurfaceCells::chunk_cells_reference`], which a
+    /// chunk falls back to if it holds a value the 32-bit lanes cannot carry (a vertex
+    /// further than about 40 km from the origin) or its attribute arrays differ in length.
     fn chunk_cells(&self, mesh: &ChunkMesh) -> ChunkCells {
+        let n = mesh.positions.len();
+        if mesh.colors.len() != n || mesh.normals.len() != n {
+            return self.chunk_cells_reference(mesh);
+        }
+        let cell_size = f32x8::splat(self.cell_size);
+        let position_scale = f32x8::splat(self.position_scale);
+        let normal_scale = f32x8::splat(NORMAL_SCALE);
+        // Up to 8 cells on the stack (a 4 cm chunk meets at most 8 cells of 5 cm): growing a
+        // list per chunk cost as much as the sums.
+        let mut parts = [((0, 0, 0), CellSum::default()); 8];
+        let mut len = 0;
+        let mut last = 0;
+        for ((ps, ns), cs) in mesh.positions.chunks(8).zip(mesh.normals.chunks(8)).zip(mesh.colors.chunks(8)) {
+            let axis = |v: &[Vec3], k: usize| {
+                let mut a = [0.0f32; 8];
+                for (x, p) in a.iter_mut().zip(v) {
+                    *x = p[k];
+                }
+                f32x8::from(a)
+            };
+            let (px, py, pz) = (axis(ps, 0), axis(ps, 1), axis(ps, 2));
+            let (nx, ny, nz) = (axis(ns, 0), axis(ns, 1), axis(ns, 2));
+            let (qx, qy, qz) = (px / cell_size, py / cell_size, pz / cell_size);
+            let (sx, sy, sz) = (px * position_scale, py * position_scale, pz * position_scale);
+            let (mx, my, mz) = (nx * normal_scale, ny * normal_scale, nz * normal_scale);
+            // Every lane must convert exactly: finite and inside i32 (NaN fails the test).
+            let limit = f32x8::splat(LANE_LIMIT);
+            let fits = [qx, qy, qz, sx, sy, sz, mx, my, mz]
+                .iter()
+                .fold(f32x8::splat(0.0).simd_lt(limit), |ok, v| ok & v.abs().simd_lt(limit));
+            if !fits.all() {
+                return self.chunk_cells_reference(mesh);
+            }
+            let (cx, cy, cz) = (floor_lanes(qx), floor_lanes(qy), floor_lanes(qz));
+            let (rx, ry, rz) = (round_lanes(sx), round_lanes(sy), round_lanes(sz));
+            let (ox, oy, oz) = (round_lanes(mx), round_lanes(my), round_lanes(mz));
+            for (j, color) in cs.iter().enumerate() {
+                let c = (cz[j], cy[j], cx[j]);
+                if last >= len || parts[last].0 != c {
+                    last = match parts[..len].iter().position(|(k, _)| *k == c) {
+                        Some(i) => i,
+                        None if len < parts.len() => {
+                            parts[len] = (c, CellSum::default());
+                            len += 1;
+                            len - 1
+                        }
+                        // More cells than a chunk of the usual size meets (cells smaller than
+                        // chunks): the reference handles any number.
+                        None => return self.chunk_cells_reference(mesh),
+                    };
+                }
+                let e = &mut parts[last].1;
+                e.position[0] += i64::from(rx[j]);
+                e.position[1] += i64::from(ry[j]);
+                e.position[2] += i64::from(rz[j]);
+                e.normal[0] += i64::from(ox[j]);
+                e.normal[1] += i64::from(oy[j]);
+                e.normal[2] += i64::from(oz[j]);
+                for (sum, &c) in e.color.iter_mut().zip(color) {
+                    *sum += u64::from(c);
+                }
+                e.count += 1;
+            }
+        }
+        let parts = &mut parts[..len];
+        parts.sort_unstable_by_key(|(k, _)| *k);
+        parts.iter().map(|&((z, y, x), s)| (IVec3::new(x, y, z), s)).collect()
+    }
+
+    /// [`SurfaceCells::chunk_cells`] one vertex at a time: the specification.
+    fn chunk_cells_reference(&self, mesh: &ChunkMesh) -> ChunkCells {
         // A chunk overlaps a handful of cells (at most 8 when cells are larger than chunks),
         // so a short list searched linearly beats any map; consecutive vertices mostly fall
         // in the same cell, hence the last-hit shortcut.
@@ -437,6 +520,24 @@ fn floor_i32(x: f32) -> i32 {
     t.saturating_sub(((t as f32) > x) as i32)
 }
 
+/// Magnitude below which 8-lane conversions to `i32` are exact (the largest float below 2^31).
+const LANE_LIMIT: f32 = 2_147_483_520.0;
+
+/// [`floor_i32`] of 8 lanes, each finite and below [`LANE_LIMIT`] in magnitude.
+fn floor_lanes(x: f32x8) -> [i32; 8] {
+    let t = x.trunc_int();
+    // `t - (t > x)`: the mask is all ones (-1) where truncation rounded up.
+    let up: i32x8 = wide::bytemuck::cast(t.round_float().simd_gt(x));
+    (t + up).to_array()
+}
+
+/// [`round_i64`] of 8 lanes, each finite and below [`LANE_LIMIT`] in magnitude: the same
+/// addition of a half with the value's sign, then truncation.
+fn round_lanes(x: f32x8) -> [i32; 8] {
+    let half = f32x8::splat(0.5) | (x & f32x8::splat(-0.0));
+    (x + half).trunc_int().to_array()
+}
+
 /// `x.round() as i64` (half away from zero) without the library call, for the fixed-point sums
 /// (below 2^23 in magnitude: 160 m of positions at 5 mm voxels); exact except at the float just
 /// below one half, which is of no consequence there.
@@ -496,6 +597,46 @@ mod tests {
         assert_eq!(cells.cells().iter().map(|c| c.points as usize).sum::<usize>(), vertices);
         let ordered = cells.cells();
         assert!(ordered.windows(2).all(|w| order(w[0].key) < order(w[1].key)), "(z, y, x) order");
+    }
+
+    /// A chunk mesh of `n` random vertices in a 4 cm box at `origin`, some on exact cell
+    /// boundaries and fixed-point half steps.
+    fn random_chunk_mesh(rng: &mut rand_chacha::ChaCha8Rng, origin: Vec3, n: usize) -> ChunkMesh {
+        use rand::Rng;
+        let mut mesh = ChunkMesh::default();
+        for i in 0..n {
+            let mut p = origin + Vec3::new(rng.random(), rng.random(), rng.random()) * 0.04;
+            match i % 7 {
+                0 => p.x = (p.x / 0.05).round() * 0.05,
+                1 => p.y = ((p.y * 51200.0).floor() + 0.5) / 51200.0,
+                _ => {}
+            }
+            mesh.positions.push(p);
+            let n = Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+            mesh.normals.push(if i % 11 == 0 { Vec3::ZERO } else { n.normalize_or_zero() });
+            mesh.colors.push([rng.random(), rng.random(), rng.random()]);
+        }
+        mesh
+    }
+
+    #[test]
+    fn eight_lane_chunk_sums_equal_the_reference() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let cells = SurfaceCells::new(0.05, 0.005);
+        for case in 0..300 {
+            let origin =
+                Vec3::new(rng.random_range(-20.0..20.0), rng.random_range(-20.0..20.0), rng.random_range(-3.0..3.0));
+            let n = [0, 1, 7, 8, 9, 40, 123][case % 7];
+            let mesh = random_chunk_mesh(&mut rng, origin, n);
+            assert_eq!(cells.chunk_cells(&mesh), cells.chunk_cells_reference(&mesh), "case {case}");
+        }
+        // Vertices whose fixed-point values do not fit 32-bit lanes, and ragged attributes,
+        // take the reference path and still agree.
+        let mut far = random_chunk_mesh(&mut rng, Vec3::new(5.0e4, 0.0, 0.0), 20);
+        assert_eq!(cells.chunk_cells(&far), cells.chunk_cells_reference(&far));
+        far.colors.pop();
+        assert_eq!(cells.chunk_cells(&far), cells.chunk_cells_reference(&far));
     }
 
     #[test]
