@@ -229,23 +229,32 @@ fn closest_point_on_segment(p: Vec3, a: Vec3, b: Vec3) -> Vec3 {
     a + ab * ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
 }
 
-/// Samples in a coarse tree, at most this many: queries far from the surface are answered
-/// from it, because a k-d tree search from far away visits a large part of a dense tree.
+/// Samples in the finest coarse tree, at most this many; each further level holds a tenth of
+/// the one before, down to [`COARSEST_SAMPLES`]. Queries far from the surface are answered
+/// from them, because a k-d tree search from far away visits a large part of a dense tree
+/// (its ball around the query crosses every cell near the surface): with a single coarse tree
+/// of 100k samples the completeness of a partly scanned room, most of whose ground truth is
+/// metres from the estimate, took 5 µs a sample and 9 of the demo's 14 s of evaluation.
 const COARSE_SAMPLES: usize = 100_000;
+
+/// The fewest samples of a coarse level.
+const COARSEST_SAMPLES: usize = 1_000;
 
 /// A surface prepared for nearest-distance queries: dense samples in a k-d tree, each
 /// remembering its triangle for the exact point-to-triangle distance.
 ///
-/// Queries further than [`SurfaceIndex::far_m`] from the surface are answered from a coarser
-/// sampling of the same triangles (the triangles of the nearest coarse samples, measured
-/// exactly): still exact when the nearest triangle owns one of those samples, otherwise over
-/// by less than the coarse spacing, which is small next to the distance itself. Distances
-/// below the far limit (and so every precision and recall) always use the dense samples.
+/// Queries further than [`SurfaceIndex::far_m`] from the surface are answered from coarser
+/// samplings of the same triangles (the triangles of the nearest coarse samples, measured
+/// exactly), the coarsest level that can: a level answers beyond its own far limit, at least
+/// 20 of its sample spacings (and 4 times the largest threshold, and 10 cm). Such an answer
+/// is exact when the nearest triangle owns one of those samples, otherwise over by less than
+/// the level's spacing: under 5 % of the distance. Distances below [`SurfaceIndex::far_m`]
+/// (and so every precision and recall) always use the dense samples.
 pub struct SurfaceIndex<'a> {
     mesh: &'a LabeledMesh,
     fine: SampleTree,
-    coarse: Option<SampleTree>,
-    far_m: f32,
+    /// Coarse levels, coarsest first, each with its far limit (decreasing).
+    coarse: Vec<(SampleTree, f32)>,
     candidates: NonZeroUsize,
 }
 
@@ -313,33 +322,35 @@ impl<'a> SurfaceIndex<'a> {
         let largest_threshold = config.thresholds_m.iter().fold(0.0f32, |m, t| m.max(*t));
         if samples.points.is_empty() {
             let fine = SampleTree::new(&mesh.positions, Vec::new(), which)?;
-            return Ok(Self { mesh, fine, coarse: None, far_m: f32::INFINITY, candidates });
+            return Ok(Self { mesh, fine, coarse: Vec::new(), candidates });
         }
         let fine_count = samples.points.len();
         let fine = SampleTree::new(&samples.points, samples.triangles, which)?;
-        let (coarse, far_m) = if fine_count > COARSE_SAMPLES {
-            let coarse = sample_surface(mesh, config.sample_spacing_m, COARSE_SAMPLES, config.seed ^ 0x5eed)?;
-            // Mean spacing of the coarse samples: the total area is fine_count spacings².
-            let spacing = config.sample_spacing_m * (fine_count as f32 / coarse.points.len().max(1) as f32).sqrt();
+        let mut coarse = Vec::new();
+        let mut wanted = COARSE_SAMPLES;
+        while wanted >= COARSEST_SAMPLES && fine_count > wanted {
+            let level = sample_surface(mesh, config.sample_spacing_m, wanted, config.seed ^ 0x5eed ^ wanted as u64)?;
+            // Mean spacing of the level's samples: the total area is fine_count spacings².
+            let spacing = config.sample_spacing_m * (fine_count as f32 / level.points.len().max(1) as f32).sqrt();
             let far = (4.0 * largest_threshold).max(20.0 * spacing).max(0.1);
-            (Some(SampleTree::new(&coarse.points, coarse.triangles, which)?), far)
-        } else {
-            (None, f32::INFINITY)
-        };
-        Ok(Self { mesh, fine, coarse, far_m, candidates })
+            coarse.push((SampleTree::new(&level.points, level.triangles, which)?, far));
+            wanted /= 10;
+        }
+        coarse.reverse();
+        Ok(Self { mesh, fine, coarse, candidates })
     }
 
-    /// Distance beyond which queries are answered from the coarse samples, metres
-    /// (infinite when the surface is small enough to need none).
+    /// Distance beyond which queries are answered from coarse samples, metres (infinite
+    /// when the surface is small enough to need none).
     pub fn far_m(&self) -> f32 {
-        self.far_m
+        self.coarse.last().map_or(f32::INFINITY, |(_, far)| *far)
     }
 
     /// Distance from `p` to the indexed surface, metres.
     pub fn distance(&self, p: Vec3) -> f32 {
-        if let Some(coarse) = &self.coarse {
-            let d = coarse.distance(self.mesh, p, self.candidates);
-            if d > self.far_m {
+        for (level, far) in &self.coarse {
+            let d = level.distance(self.mesh, p, self.candidates);
+            if d > *far {
                 return d;
             }
         }
@@ -538,6 +549,19 @@ mod tests {
         for p in [Vec3::new(0.3, 0.7, 2.0), Vec3::new(-1.0, 2.0, 0.5), Vec3::new(0.5, 0.5, 0.01)] {
             let (fast, slow) = (index.distance(p), brute_force_distance(&gt, p));
             assert!((fast - slow).abs() < 1e-4, "{p}: {fast} vs {slow}");
+        }
+        // Every level: never under the true distance, over by less than 5 % of it (the
+        // bound the coarse levels promise), exact near the surface.
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        for _ in 0..400 {
+            let r = 10f32.powf(rng.random_range(-3.0..1.0));
+            let dir = Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+            let p = Vec3::new(0.5, 0.5, 0.0) + dir.normalize_or(Vec3::Z) * r;
+            let (fast, slow) = (index.distance(p), brute_force_distance(&gt, p));
+            assert!(fast >= slow - 1e-4 && fast <= slow * 1.05 + 1e-4, "{p}: {fast} vs {slow}");
+            if slow < 0.95 * index.far_m() {
+                assert!((fast - slow).abs() < 1e-4, "{p}: {fast} vs {slow}");
+            }
         }
     }
 
