@@ -192,10 +192,17 @@ pub fn class_colored(mesh: &LabeledMesh) -> LabeledMesh {
     m
 }
 
+/// Creates the output folder `dir` before any work starts, so that a wrong path fails at once
+/// instead of after a whole run.
+pub fn prepare_output_dir(dir: &Path) -> anyhow::Result<()> {
+    anyhow::ensure!(!dir.exists() || dir.is_dir(), "output folder {}: exists and is not a folder", dir.display());
+    std::fs::create_dir_all(dir).with_context(|| format!("creating the output folder {}", dir.display()))
+}
+
 /// Writes `dir/mesh.ply` (observed colours and a vertex `label`), `dir/semantic.ply` (class
 /// colours) and `dir/trajectory.txt` (TUM), creating `dir`.
 pub fn write_outputs(dir: &Path, mesh: &LabeledMesh, trajectory: &Trajectory) -> anyhow::Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    prepare_output_dir(dir)?;
     write_ply(dir.join("mesh.ply"), mesh, PlyEncoding::BinaryLittleEndian)?;
     write_ply(dir.join("semantic.ply"), &class_colored(mesh), PlyEncoding::BinaryLittleEndian)?;
     trajectory.write_tum(dir.join("trajectory.txt"))?;

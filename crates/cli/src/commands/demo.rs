@@ -19,7 +19,8 @@ use serde::Serialize;
 
 use crate::progress::{progress_bar, spinner};
 use crate::reconstruction::{
-    labelled_share, load_network, pipeline_config, semantic_score, write_outputs, ReconArgs, SemanticArgs,
+    labelled_share, load_network, pipeline_config, prepare_output_dir, semantic_score, write_outputs, ReconArgs,
+    SemanticArgs,
 };
 use crate::timing::{print_table, stages_json};
 
@@ -91,6 +92,7 @@ struct Report {
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let command_start = Instant::now();
     anyhow::ensure!(args.frames > 0, "--frames must be at least 1");
+    prepare_output_dir(&args.out)?;
     let config = pipeline_config(&args.recon, &args.semantics, false, None)?;
     let mut scan_config = SyntheticScanConfig::new(args.seed);
     scan_config.frames = args.frames;

@@ -40,8 +40,8 @@ use serde::Serialize;
 
 use crate::progress::progress_bar;
 use crate::reconstruction::{
-    dataset_up, labelled_share, load_network, pipeline_config, semantic_score, vertex_accuracy_mm, write_outputs,
-    ReconArgs, SemanticArgs,
+    dataset_up, labelled_share, load_network, pipeline_config, prepare_output_dir, semantic_score, vertex_accuracy_mm,
+    write_outputs, ReconArgs, SemanticArgs,
 };
 use crate::timing::{print_table, stages_json};
 
@@ -222,6 +222,7 @@ struct Report {
 
 /// Runs the command.
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
+    prepare_output_dir(&args.out)?;
     let source = open_dataset(&args.dataset).with_context(|| format!("opening {}", args.dataset))?;
     anyhow::ensure!(!source.is_empty(), "{} has no frames", source.name());
     let range = args.frames.unwrap_or(FrameRange { start: 0, end: None }).resolve(source.len())?;
