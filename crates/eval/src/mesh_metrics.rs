@@ -329,7 +329,9 @@ impl<'a> SurfaceIndex<'a> {
         let mut coarse = Vec::new();
         let mut wanted = COARSE_SAMPLES;
         while wanted >= COARSEST_SAMPLES && fine_count > wanted {
-            let level = sample_surface(mesh, config.sample_spacing_m, wanted, config.seed ^ 0x5eed ^ wanted as u64)?;
+            // The finest level keeps the seed the single coarse tree had.
+            let seed = config.seed ^ 0x5eed ^ (coarse.len() as u64);
+            let level = sample_surface(mesh, config.sample_spacing_m, wanted, seed)?;
             // Mean spacing of the level's samples: the total area is fine_count spacings².
             let spacing = config.sample_spacing_m * (fine_count as f32 / level.points.len().max(1) as f32).sqrt();
             let far = (4.0 * largest_threshold).max(20.0 * spacing).max(0.1);
