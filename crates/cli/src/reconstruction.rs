@@ -34,6 +34,11 @@ pub struct ReconArgs {
     /// voxels); nearer surfaces get a narrower band that follows the sensor noise, down to 4.
     #[arg(long, default_value_t = 10.0)]
     pub truncation: f32,
+    /// Farthest depth fused into the map, metres: beyond it a pixel only helps tracking.
+    /// Fusion's work grows with the square of the range (the surface a frame sees), while a
+    /// Kinect-like sensor's noise at 4-5 m is 3-4 cm.
+    #[arg(long, default_value_t = TsdfConfig::default().max_depth)]
+    pub max_depth: f32,
     /// Smallest fusion weight of a voxel that meshing counts as observed (one observation at
     /// depth d weighs 1/d^2, at most 4): lighter voxels, seen once or twice from far away or
     /// grazed at depth edges, stay holes instead of surfaces centimetres off; 0 meshes every
@@ -116,7 +121,10 @@ pub fn pipeline_config(
     anyhow::ensure!(recon.keyframe_every > 0, "--keyframe-every must be at least 1");
     let mut tsdf = TsdfConfig::with_voxel_size(recon.voxel).with_context(|| format!("voxel size {} m", recon.voxel))?;
     tsdf.truncation_voxels = recon.truncation;
-    tsdf.validate().with_context(|| format!("truncation of {} voxels", recon.truncation))?;
+    tsdf.max_depth = recon.max_depth;
+    tsdf.validate().with_context(|| {
+        format!("truncation of {} voxels, fused depth up to {} m", recon.truncation, recon.max_depth)
+    })?;
     let mut config = PipelineConfig {
         tsdf,
         mesh: MeshConfig { min_weight: recon.min_mesh_weight, min_component_triangles: recon.min_mesh_piece },

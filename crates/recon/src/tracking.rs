@@ -86,8 +86,9 @@ pub struct TrackerConfig {
     pub photometric_weight: f32,
     /// Huber threshold of the intensity residual (intensity in 0..1).
     pub huber_photometric: f32,
-    /// Lost when fewer than this fraction of the frame pixels that land on the model agree
-    /// with it (distance and normal tests).
+    /// Lost when fewer than this fraction of the frame pixels that land on the model lie
+    /// within `max_distance` of it (the normal test is left out here, see
+    /// [`TrackingResult::inlier_ratio`]).
     pub min_inlier_ratio: f32,
     /// Lost when fewer than this fraction of the valid pixels land on the model.
     pub min_overlap: f32,
@@ -262,8 +263,9 @@ pub struct TrackingResult {
     pub status: TrackingStatus,
     /// The frame's pose when tracked or initialised; the last good pose when lost.
     pub world_from_camera: Affine3A,
-    /// Fraction of the frame pixels landing on the model that agree with it (finest level
-    /// used).
+    /// Fraction of the frame pixels landing on the model that lie within `max_distance` of
+    /// it (finest level used). Pairs whose normals disagree count: far from the sensor, depth
+    /// noise alone turns many normals past the angle test.
     pub inlier_ratio: f32,
     /// RMS point-to-plane residual of the inliers, metres.
     pub residual_rms: f32,
@@ -593,7 +595,11 @@ impl Tracker {
         // Quality from the last iteration's sums (at the pose before its small final
         // step): a separate pass at the finest level would cost as much as an iteration.
         let overlap = stats.inliers + stats.far + stats.turned;
-        result.inlier_ratio = stats.inliers as f32 / overlap.max(1) as f32;
+        // Agreement in position only: the normal test stays in the alignment, but at a few
+        // metres a Kinect-like sensor's depth noise (2 cm at 3.5 m) turns half the frame's
+        // normals past it while the pose is right, and a rendered scan that began facing a
+        // room's far side was lost from its second frame to its last.
+        result.inlier_ratio = (stats.inliers + stats.turned) as f32 / overlap.max(1) as f32;
         let overlap_ratio = overlap as f32 / stats.sampled.max(1) as f32;
         result.residual_rms = (stats.sq_residual / stats.inliers.max(1) as f64).sqrt() as f32;
         let (cond, constrained) = conditioning(&stats.symmetric(), c.min_condition);
