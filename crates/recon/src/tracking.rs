@@ -103,8 +103,9 @@ pub struct TrackerConfig {
     /// count as unconstrained (a plane or a corridor leaves motions unconstrained; see
     /// `min_constrained`). The default 1e-4 lets a floor with a few chair legs on it hold
     /// the slide along the floor: at 1e-3 a rendered scan drifted 63 mm over 40 frames of
-    /// such a view (0.55 mm at 1e-4), and a 900-frame one 27 mm (6.3 mm); one generated
-    /// scan of twenty did worse (32 -> 49 mm), the rest and 7-Scenes are unchanged.
+    /// such a view (0.55 mm at 1e-4), and a 900-frame one 27 mm (6.3 mm). One generated
+    /// scan of twenty did worse (a bare wall with a thin door-frame strip, whose weak
+    /// constraint misleads: 32 -> 49 mm); the rest and 7-Scenes are unchanged.
     pub min_condition: f64,
     /// Fewest motion directions (of six) the alignment must constrain for the frame to
     /// count as tracked. Directions whose scale-normalised eigenvalue is below
