@@ -208,9 +208,9 @@ pub fn prepare_output_dir(dir: &Path) -> anyhow::Result<()> {
 }
 
 /// Writes `dir/mesh.ply` (observed colours and a vertex `label`), `dir/semantic.ply` (class
-/// colours) and `dir/trajectory.txt` (TUM), creating `dir`.
+/// colours) and `dir/trajectory.txt` (TUM) into `dir`, which [`prepare_output_dir`] made
+/// before the run.
 pub fn write_outputs(dir: &Path, mesh: &LabeledMesh, trajectory: &Trajectory) -> anyhow::Result<()> {
-    prepare_output_dir(dir)?;
     write_ply(dir.join("mesh.ply"), mesh, PlyEncoding::BinaryLittleEndian)?;
     write_ply(dir.join("semantic.ply"), &class_colored(mesh), PlyEncoding::BinaryLittleEndian)?;
     trajectory.write_tum(dir.join("trajectory.txt"))?;

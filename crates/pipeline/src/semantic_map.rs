@@ -53,6 +53,16 @@ struct CellSum {
 }
 
 impl CellSum {
+    /// Adds one surface point, already in fixed point.
+    fn add_point(&mut self, position: [i64; 3], color: [u8; 3], normal: [i64; 3]) {
+        for k in 0..3 {
+            self.position[k] += position[k];
+            self.color[k] += u64::from(color[k]);
+            self.normal[k] += normal[k];
+        }
+        self.count += 1;
+    }
+
     fn add(&mut self, o: &CellSum) {
         for k in 0..3 {
             self.position[k] += o.position[k];
@@ -232,10 +242,7 @@ impl SurfaceCells {
             let (mx, my, mz) = (nx * normal_scale, ny * normal_scale, nz * normal_scale);
             // Every lane must convert exactly: finite and inside i32 (NaN fails the test).
             let limit = f32x8::splat(LANE_LIMIT);
-            let fits = [qx, qy, qz, sx, sy, sz, mx, my, mz]
-                .iter()
-                .fold(f32x8::splat(0.0).simd_lt(limit), |ok, v| ok & v.abs().simd_lt(limit));
-            if !fits.all() {
+            if ![qx, qy, qz, sx, sy, sz, mx, my, mz].iter().all(|v| v.abs().simd_lt(limit).all()) {
                 return self.chunk_cells_reference(mesh);
             }
             let (cx, cy, cz) = (floor_lanes(qx), floor_lanes(qy), floor_lanes(qz));
@@ -256,17 +263,11 @@ impl SurfaceCells {
                         None => return self.chunk_cells_reference(mesh),
                     };
                 }
-                let e = &mut parts[last].1;
-                e.position[0] += i64::from(rx[j]);
-                e.position[1] += i64::from(ry[j]);
-                e.position[2] += i64::from(rz[j]);
-                e.normal[0] += i64::from(ox[j]);
-                e.normal[1] += i64::from(oy[j]);
-                e.normal[2] += i64::from(oz[j]);
-                for (sum, &c) in e.color.iter_mut().zip(color) {
-                    *sum += u64::from(c);
-                }
-                e.count += 1;
+                parts[last].1.add_point(
+                    [rx[j], ry[j], rz[j]].map(i64::from),
+                    *color,
+                    [ox[j], oy[j], oz[j]].map(i64::from),
+                );
             }
         }
         let parts = &mut parts[..len];
@@ -294,13 +295,11 @@ impl SurfaceCells {
             }
             let color = mesh.colors.get(i).copied().unwrap_or_default();
             let normal = mesh.normals.get(i).copied().unwrap_or_default();
-            let e = &mut parts[last].1;
-            for k in 0..3 {
-                e.position[k] += round_i64(p[k] * self.position_scale);
-                e.color[k] += u64::from(color[k]);
-                e.normal[k] += round_i64(normal[k] * NORMAL_SCALE);
-            }
-            e.count += 1;
+            parts[last].1.add_point(
+                [0, 1, 2].map(|k| round_i64(p[k] * self.position_scale)),
+                color,
+                [0, 1, 2].map(|k| round_i64(normal[k] * NORMAL_SCALE)),
+            );
         }
         parts.sort_unstable_by_key(|(k, _)| *k);
         parts.into_iter().map(|((z, y, x), s)| (IVec3::new(x, y, z), s)).collect()
