@@ -18,7 +18,7 @@ use semrecon_data::class::UNLABELED;
 use semrecon_data::{write_ply, LabeledMesh, PlyEncoding, SemanticClass, Trajectory};
 use semrecon_eval::{MeshEvalConfig, SurfaceIndex, SurfaceLabeler};
 use semrecon_net::{shipped, ConfusionMatrix, NetConfig, Segmenter, Weights};
-use semrecon_pipeline::{PipelineConfig, SemanticMode};
+use semrecon_pipeline::{PipelineConfig, SemanticMode, DEFAULT_MESH_BUDGET};
 use semrecon_recon::{MeshConfig, TrackerConfig, TsdfConfig};
 
 /// Options of the dense-geometry loop, shared by `run` and `demo`.
@@ -49,6 +49,11 @@ pub struct ReconArgs {
     /// of noise floating in free space); 0 keeps everything.
     #[arg(long, default_value_t = MeshConfig::RECOMMENDED.min_component_triangles)]
     pub min_mesh_piece: usize,
+    /// Most 8x8x8-voxel chunks a keyframe re-meshes: newly seen surface first, then the chunks
+    /// waiting longest, the rest at the next keyframes (the written mesh is always complete);
+    /// 0 re-meshes every changed chunk at every keyframe.
+    #[arg(long, default_value_t = DEFAULT_MESH_BUDGET)]
+    pub mesh_budget: usize,
     /// Weight of the tracker's photometric term (colour intensity 0..1 against metres of
     /// point-to-plane distance); 0 tracks on depth alone. Only for colour registered to depth
     /// (synthetic scans, Replica), not 7-Scenes.
@@ -128,6 +133,7 @@ pub fn pipeline_config(
     let mut config = PipelineConfig {
         tsdf,
         mesh: MeshConfig { min_weight: recon.min_mesh_weight, min_component_triangles: recon.min_mesh_piece },
+        mesh_budget: std::num::NonZeroUsize::new(recon.mesh_budget),
         tracker: TrackerConfig {
             keyframe_interval: recon.keyframe_every,
             photometric_weight: recon.photometric_weight,

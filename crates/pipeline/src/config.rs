@@ -1,9 +1,15 @@
 //! Configuration of the live pipeline: the map, tracking, keyframes, and how semantics run.
 
+use std::num::NonZeroUsize;
+
 use glam::{Affine3A, Vec3};
 use semrecon_recon::{MeshConfig, TrackerConfig, TsdfConfig};
 
 use crate::error::{PipelineError, Result};
+
+/// [`PipelineConfig::mesh_budget`] by default, in chunks: about 20 ms of meshing on two cores
+/// at 5 mm (docs/benchmarks.md, "Meshing within a budget, session 10").
+pub const DEFAULT_MESH_BUDGET: usize = 4096;
 
 /// Where the pose of each frame comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -84,6 +90,12 @@ pub struct PipelineConfig {
     /// Meshing ([`MeshConfig::RECOMMENDED`] by default: voxels seen too little stay holes and
     /// specks of noise are dropped).
     pub mesh: MeshConfig,
+    /// Most chunks a keyframe re-meshes ([`IncrementalMesher::with_budget`]: newly seen
+    /// surface first, then the chunks due the longest); `None` re-meshes every changed chunk
+    /// at every keyframe. [`crate::Pipeline::finish`] brings every chunk up to date.
+    ///
+    /// [`IncrementalMesher::with_budget`]: semrecon_recon::IncrementalMesher::with_budget
+    pub mesh_budget: Option<NonZeroUsize>,
     /// The tracker (its keyframe interval is overridden by `keyframe_every`).
     pub tracker: TrackerConfig,
     /// Where poses come from.
@@ -104,6 +116,7 @@ impl Default for PipelineConfig {
         Self {
             tsdf: TsdfConfig { truncation_voxels: 10.0, ..TsdfConfig::default() },
             mesh: MeshConfig::RECOMMENDED,
+            mesh_budget: NonZeroUsize::new(DEFAULT_MESH_BUDGET),
             tracker: TrackerConfig::default(),
             poses: PoseMode::Track,
             initial_pose: None,

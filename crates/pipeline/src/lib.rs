@@ -53,7 +53,7 @@ mod pipeline;
 pub mod semantic_map;
 pub mod timing;
 
-pub use config::{PipelineConfig, PoseMode, SemanticConfig, SemanticMode};
+pub use config::{PipelineConfig, PoseMode, SemanticConfig, SemanticMode, DEFAULT_MESH_BUDGET};
 pub use error::{PipelineError, Result};
 pub use gravity::{UpEstimate, UpSource};
 pub use pipeline::{FrameResult, FrameStatus, Pipeline, SemanticPass, FRONT_END_STAGES};

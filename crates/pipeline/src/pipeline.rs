@@ -37,7 +37,8 @@ const RELOCALISATION_EVERY: usize = 3;
 
 /// Stages the front end runs, and its waits for the back end (their sum is
 /// [`Pipeline::front_end_seconds`]).
-pub const FRONT_END_STAGES: [&str; 5] = ["tracking", "fusion", "meshing", "semantic snapshot", "semantic wait"];
+pub const FRONT_END_STAGES: [&str; 6] =
+    ["tracking", "fusion", "meshing", "final meshing", "semantic snapshot", "semantic wait"];
 
 /// What happened to one frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -170,7 +171,7 @@ impl Pipeline {
                 })
             }
         };
-        let mesher = IncrementalMesher::with_config(config.mesh, RemeshTolerance::EXACT)?;
+        let mesher = IncrementalMesher::with_config(config.mesh, RemeshTolerance::EXACT)?.with_budget(config.mesh_budget);
         Ok(Self {
             config,
             intrinsics,
@@ -411,8 +412,17 @@ impl Pipeline {
     /// None at present (failures of the back end are [`Pipeline::warnings`]); the `Result`
     /// leaves room for outputs that can fail.
     pub fn finish(&mut self) -> Result<LabeledMesh> {
-        if self.meshed_at != self.fused {
-            self.remesh();
+        if self.meshed_at != self.fused || self.mesher.pending_chunks() > 0 {
+            let t = Instant::now();
+            let stats = self.mesher.update_all(&self.map);
+            // Apart from the keyframes' "meshing": a one-off catch-up without the budget.
+            self.times.record("final meshing", t.elapsed());
+            if stats.remeshed_chunks > 0 {
+                if let Some(s) = &mut self.semantics {
+                    s.stale = true;
+                }
+            }
+            self.meshed_at = self.fused;
         }
         for _ in 0..2 {
             if let Some(s) = &self.semantics {

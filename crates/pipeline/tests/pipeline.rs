@@ -102,6 +102,31 @@ fn incremental_labels_agree_with_full_passes() {
 }
 
 #[test]
+fn a_mesh_budget_delays_keyframe_meshes_but_not_the_final_one() {
+    let (frames, _) = scan_in_first_camera_frame(8, 20);
+    let unbudgeted = PipelineConfig { mesh_budget: None, ..config(SemanticMode::default()) };
+    let (_, whole) = run(&frames, unbudgeted, None);
+    let budgeted = PipelineConfig { mesh_budget: std::num::NonZeroUsize::new(8), ..config(SemanticMode::default()) };
+    let mut p = Pipeline::new(budgeted, frames[0].intrinsics, None).expect("pipeline");
+    for f in &frames[..10] {
+        p.push_frame(f).expect("frame");
+    }
+    let partial = p.mesh();
+    assert!(partial.triangle_count() > 0 && partial.triangle_count() < whole.triangle_count() / 2);
+    for f in &frames[10..] {
+        p.push_frame(f).expect("frame");
+    }
+    let mesh = p.finish().expect("finish");
+    assert_eq!(mesh, whole, "the final mesh is complete");
+    assert_eq!(p.timings().summary("final meshing").map(|s| s.count), Some(1));
+    // With semantics the complete mesh is labelled too.
+    let budgeted = PipelineConfig { mesh_budget: std::num::NonZeroUsize::new(8), ..config(SemanticMode::default()) };
+    let (_, mesh) = run(&frames, budgeted, Some(tiny_net(6)));
+    let labelled = mesh.vertex_labels.iter().filter(|&&l| l != UNLABELED).count();
+    assert!(labelled * 100 >= mesh.vertex_count() * 99, "{labelled} of {} vertices labelled", mesh.vertex_count());
+}
+
+#[test]
 fn bad_frames_and_lost_tracking_leave_a_valid_result() {
     let (mut frames, _) = scan_in_first_camera_frame(6, 16);
     // Frame 6 has no depth at all (tracking must call it lost), frame 9 the wrong size.

@@ -4,6 +4,7 @@
 //! cargo run --release -p semrecon-recon --example fusion_bench -- [--frames N] [--voxel M]
 //!     [--7scenes DIR] [--out mesh.ply] [--keyframe K] [--trunc VOXELS]
 //!     [--band-factor K] [--min-band VOXELS] [--remesh-tol VOXELS] [--mesh-repeat N]
+//!     [--mesh-budget CHUNKS]
 //! ```
 //!
 //! Without `--7scenes` the frames are ray-cast from an analytic scene (floor, wall, sphere).
@@ -13,7 +14,9 @@
 //! binary PLY (a minimal writer local to this example). `--band-factor` is
 //! `TsdfConfig::truncation_noise_factor` (0: the fixed band of `--trunc` voxels), `--min-band`
 //! its `min_truncation_voxels`. `--remesh-tol` is the incremental mesher's
-//! `RemeshTolerance::distance_voxels` (default 0: exact). `--mesh-repeat N` re-meshes the
+//! `RemeshTolerance::distance_voxels` (default 0: exact). `--mesh-budget` caps the chunks
+//! one keyframe re-meshes (`IncrementalMesher::with_budget`; 0, the default: no cap); the
+//! final mesh is then brought up to date without it. `--mesh-repeat N` re-meshes the
 //! final map N more times, alternately from an empty cache (the incremental path over every
 //! chunk) and with `extract_mesh`, and prints the best and median CPU and wall time of each:
 //! a meshing-only load for profilers. The fusion kernel is the widest the
@@ -53,6 +56,7 @@ struct Args {
     min_band: f32,
     remesh_tol: f32,
     mesh_repeat: usize,
+    mesh_budget: usize,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -67,6 +71,7 @@ fn parse_args() -> Result<Args, String> {
         min_band: TsdfConfig::default().min_truncation_voxels,
         remesh_tol: 0.0,
         mesh_repeat: 0,
+        mesh_budget: 0,
     };
     let mut flags = Flags::from_env();
     while let Some(flag) = flags.next_flag() {
@@ -78,6 +83,7 @@ fn parse_args() -> Result<Args, String> {
             "--min-band" => a.min_band = flags.value(&flag)?,
             "--remesh-tol" => a.remesh_tol = flags.value(&flag)?,
             "--mesh-repeat" => a.mesh_repeat = flags.value(&flag)?,
+            "--mesh-budget" => a.mesh_budget = flags.value(&flag)?,
             "--keyframe" => a.keyframe = flags.value(&flag)?,
             "--7scenes" => a.seven_scenes = Some(flags.value(&flag)?),
             "--out" => a.out = Some(flags.value(&flag)?),
@@ -220,7 +226,7 @@ fn main() {
         }
     };
     let mut mesher = match IncrementalMesher::with_tolerance(RemeshTolerance { distance_voxels: args.remesh_tol }) {
-        Ok(m) => m,
+        Ok(m) => m.with_budget(std::num::NonZeroUsize::new(args.mesh_budget)),
         Err(e) => {
             eprintln!("fusion_bench: {e}");
             std::process::exit(2);
@@ -229,6 +235,7 @@ fn main() {
     let (mut sel_ms, mut int_ms, mut tot_ms, mut mesh_ms) = (vec![], vec![], vec![], vec![]);
     let (mut sel_cpu, mut int_cpu, mut mesh_cpu) = (vec![], vec![], vec![]);
     let (mut visited, mut updated, mut remeshed, mut changed) = (0usize, 0usize, 0usize, 0usize);
+    let (mut pending, mut max_pending) = (0usize, 0usize);
     let (mut upd_chunks, mut band_chunks, mut new_chunks, mut freed_chunks) = (0usize, 0usize, 0usize, 0usize);
     let t_all = Instant::now();
     for (i, (frame, pose)) in frames.iter().enumerate() {
@@ -267,6 +274,8 @@ fn main() {
             let st = mesher.update(&map);
             remeshed += st.remeshed_chunks;
             changed += st.changed_chunks;
+            pending += st.pending_chunks;
+            max_pending = max_pending.max(st.pending_chunks);
             mesh_ms.push(t.elapsed().as_secs_f64() * 1e3);
             mesh_cpu.push((cpu_ns() - c) as f64 * 1e-6);
         }
@@ -301,6 +310,14 @@ fn main() {
         args.remesh_tol,
         mesher.snapshot_bytes() as f64 / 1e6
     );
+    if args.mesh_budget > 0 {
+        println!(
+            "budget {} chunks per keyframe: {:.0} left pending per keyframe on average, at most {}",
+            args.mesh_budget,
+            pending as f64 / keyframes,
+            max_pending
+        );
+    }
     println!("CPU time (all threads):");
     stats("chunk selection", &mut sel_cpu);
     stats("integration", &mut int_cpu);
@@ -310,6 +327,15 @@ fn main() {
     let full = semrecon_recon::extract_mesh(&map);
     let full_ms = t.elapsed().as_secs_f64() * 1e3;
     let full_cpu = (cpu_ns() - c) as f64 * 1e-6;
+    if args.mesh_budget > 0 {
+        let t = Instant::now();
+        let st = mesher.update_all(&map);
+        println!(
+            "final update without the budget: {} chunks re-meshed in {:.1} ms",
+            st.remeshed_chunks,
+            t.elapsed().as_secs_f64() * 1e3
+        );
+    }
     let t = Instant::now();
     let assembled = mesher.mesh();
     let assemble_ms = t.elapsed().as_secs_f64() * 1e3;

@@ -1280,6 +1280,9 @@ pub struct MeshingStats {
     pub remeshed_chunks: usize,
     /// Triangles over all cached chunk meshes after the update.
     pub triangles: usize,
+    /// Chunks due for re-meshing that a [budget](IncrementalMesher::with_budget) left for
+    /// later updates (0 without one).
+    pub pending_chunks: usize,
 }
 
 /// How far the cached meshes of an [`IncrementalMesher`] may lag behind the map.
@@ -1478,8 +1481,11 @@ fn readers(changed: &[u64; CHUNK_VOXELS / 64]) -> u32 {
 struct CacheEntry {
     key: ChunkKey,
     revision: u64,
-    /// The [`IncrementalMesher::generation`] of the update that last re-meshed it.
+    /// The [`IncrementalMesher::generation`] of the update that last re-meshed it (0: never).
     meshed_at: u64,
+    /// The generation of the update that first found it due and left it for later (under a
+    /// budget); [`NOT_PENDING`] when its mesh is up to date.
+    pending_since: u64,
     mesh: ChunkMesh,
     snapshot: Option<Box<Snapshot>>,
 }
@@ -1487,8 +1493,22 @@ struct CacheEntry {
 /// Revision of an entry not meshed yet (map revisions count up from 0 and never reach it).
 const UNSEEN: u64 = u64::MAX;
 
+/// [`CacheEntry::pending_since`] of an entry with nothing left to re-mesh.
+const NOT_PENDING: u64 = u64::MAX;
+
 /// Per-chunk mesh cache that re-meshes only what changed in the map (materially, with a
-/// [`RemeshTolerance`]).
+/// [`RemeshTolerance`]), optionally at most a budget of chunks per update.
+///
+/// # Budget
+/// On a hand-held scan nearly every chunk in view changes between two keyframes (about
+/// 12,500 at 5 mm on 7-Scenes, see docs/benchmarks.md), so re-meshing them all costs the
+/// same at every keyframe however the surface moved. With a budget of `B` chunks
+/// ([`IncrementalMesher::with_budget`]) an update re-meshes at most `B` of the chunks due:
+/// first those never meshed (newly seen surface appears at once), then the ones due the
+/// longest, then in key order (deterministic). The rest stay due, however often they change
+/// again, so no chunk waits more than `ceil(due / B)` updates, and a chunk's mesh lags the
+/// map by at most that many updates. [`IncrementalMesher::update_all`] ignores the budget
+/// (the end of a scan, an export).
 #[derive(Debug, Clone)]
 pub struct IncrementalMesher {
     /// Chunk key -> position in `entries`.
@@ -1497,6 +1517,8 @@ pub struct IncrementalMesher {
     entries: Vec<CacheEntry>,
     tolerance: RemeshTolerance,
     config: MeshConfig,
+    /// Most chunks one [`IncrementalMesher::update`] re-meshes (`None`: all that are due).
+    budget: Option<std::num::NonZeroUsize>,
     /// Updates so far.
     generation: u64,
 }
@@ -1516,8 +1538,25 @@ impl IncrementalMesher {
             entries: Vec::new(),
             tolerance: RemeshTolerance::EXACT,
             config: MeshConfig::ALL_OBSERVED,
+            budget: None,
             generation: 0,
         }
+    }
+
+    /// The same cache re-meshing at most `budget` chunks per [`IncrementalMesher::update`]
+    /// (see [Budget](IncrementalMesher#budget)); `None` re-meshes everything due.
+    pub fn with_budget(self, budget: Option<std::num::NonZeroUsize>) -> Self {
+        Self { budget, ..self }
+    }
+
+    /// Most chunks one update re-meshes (`None`: no limit).
+    pub fn budget(&self) -> Option<std::num::NonZeroUsize> {
+        self.budget
+    }
+
+    /// Chunks due for re-meshing that the budget left for later updates.
+    pub fn pending_chunks(&self) -> usize {
+        self.entries.iter().filter(|e| e.pending_since != NOT_PENDING).count()
     }
 
     /// An empty cache with the given tolerance; fails outside its documented range.
@@ -1551,9 +1590,20 @@ impl IncrementalMesher {
     }
 
     /// Re-meshes the chunks that changed since the last update (materially, see
-    /// [`RemeshTolerance`]), and their neighbours that read the changed voxels; drops meshes
-    /// of freed chunks. Parallel over chunks, deterministic.
+    /// [`RemeshTolerance`]), and their neighbours that read the changed voxels, at most the
+    /// [budget](IncrementalMesher#budget) of them (those left over first at the next update);
+    /// drops meshes of freed chunks. Parallel over chunks, deterministic.
     pub fn update(&mut self, map: &TsdfMap) -> MeshingStats {
+        self.update_within(map, self.budget.map(|b| b.get()))
+    }
+
+    /// [`IncrementalMesher::update`] without the budget: afterwards every chunk mesh is up to
+    /// date (in exact mode the mesh equals [`extract_mesh_with`]).
+    pub fn update_all(&mut self, map: &TsdfMap) -> MeshingStats {
+        self.update_within(map, None)
+    }
+
+    fn update_within(&mut self, map: &TsdfMap, budget: Option<usize>) -> MeshingStats {
         self.generation += 1;
         // Freed chunks: drop their entries, highest position first (swap_remove moves only
         // entries that stay).
@@ -1585,6 +1635,7 @@ impl IncrementalMesher {
                         key: c.key,
                         revision: UNSEEN,
                         meshed_at: 0,
+                        pending_since: NOT_PENDING,
                         mesh: ChunkMesh::default(),
                         snapshot: None,
                     });
@@ -1648,7 +1699,7 @@ impl IncrementalMesher {
             out
         };
         let slots: Vec<u32> = readers_of.par_iter().flat_map_iter(reader_slots).collect();
-        let mut remesh = vec![false; self.entries.len()];
+        let mut remesh: Vec<bool> = self.entries.iter().map(|e| e.pending_since != NOT_PENDING).collect();
         for slot in slots {
             remesh[entry_of[slot as usize] as usize] = true;
         }
@@ -1669,6 +1720,15 @@ impl IncrementalMesher {
             .filter(|(i, _)| remesh[*i])
             .map(|(i, e)| (key_order(e.key), i as u32))
             .collect();
+        let pending = match budget {
+            Some(budget) if order.len() > budget => self.defer_over_budget(&mut order, budget),
+            _ => {
+                for &(_, i) in &order {
+                    self.entries[i as usize].pending_since = NOT_PENDING;
+                }
+                0
+            }
+        };
         order.par_sort_unstable();
         let mut jobs: Vec<(ChunkKey, u32, ChunkMesh)> = order
             .iter()
@@ -1689,7 +1749,30 @@ impl IncrementalMesher {
             changed_chunks: changed_count + freed.len(),
             remeshed_chunks: remeshed,
             triangles: self.entries.iter().map(|e| e.mesh.triangles.len()).sum(),
+            pending_chunks: pending,
         }
+    }
+
+    /// Keeps in `order` the `budget` due chunks that go first (never meshed, then due the
+    /// longest, then by key) and marks the others pending; returns how many those are.
+    fn defer_over_budget(&mut self, order: &mut Vec<((i32, i32, i32), u32)>, budget: usize) -> usize {
+        let generation = self.generation;
+        let entries = &mut self.entries;
+        let rank = |&(key, i): &((i32, i32, i32), u32)| {
+            let e = &entries[i as usize];
+            (e.meshed_at != 0, e.pending_since.min(generation), key)
+        };
+        let mut ranked: Vec<_> = order.iter().map(|o| (rank(o), o.1)).collect();
+        ranked.select_nth_unstable(budget);
+        for &(_, i) in &ranked[..budget] {
+            entries[i as usize].pending_since = NOT_PENDING;
+        }
+        for &(_, i) in &ranked[budget..] {
+            let e = &mut entries[i as usize];
+            e.pending_since = e.pending_since.min(generation);
+        }
+        *order = ranked[..budget].iter().map(|&((_, _, key), i)| (key, i)).collect();
+        ranked.len() - budget
     }
 
     /// The cached mesh of chunk `key`.
@@ -2341,6 +2424,57 @@ mod tests {
             assert!(config.validate().is_err());
             assert!(IncrementalMesher::with_config(config, RemeshTolerance::EXACT).is_err());
         }
+    }
+
+    #[test]
+    fn a_budgeted_mesher_meshes_new_surface_first_and_catches_up() {
+        use std::collections::HashSet;
+        use std::num::NonZeroUsize;
+        let center = Vec3::new(0.011, 0.003, -0.02);
+        let small = sphere_map(center, 0.07, None);
+        let mut big = sphere_map(center, 0.08, None);
+        for c in &mut big.chunks {
+            c.revision = 1;
+        }
+        let new_keys: HashSet<ChunkKey> =
+            big.chunks.iter().map(|c| c.key).filter(|k| !small.index.contains_key(k)).collect();
+        assert!(!new_keys.is_empty() && new_keys.len() < small.chunk_count());
+        let budget = new_keys.len() + 3;
+        let mut mesher = IncrementalMesher::new().with_budget(NonZeroUsize::new(budget));
+        // Everything is due at first: it takes ceil(chunks / budget) updates.
+        let mut updates = 0;
+        loop {
+            let st = mesher.update(&small);
+            updates += 1;
+            assert!(st.remeshed_chunks <= budget);
+            assert_eq!(st.pending_chunks, mesher.pending_chunks());
+            if st.pending_chunks == 0 {
+                break;
+            }
+        }
+        assert_eq!(updates, small.chunk_count().div_ceil(budget));
+        assert_eq!(mesher.mesh(), extract_mesh(&small));
+        // Every chunk changes and new ones appear: the new ones are meshed first.
+        let g = mesher.generation();
+        let st = mesher.update(&big);
+        assert_eq!((st.remeshed_chunks, st.pending_chunks), (budget, big.chunk_count() - budget));
+        let first: HashSet<ChunkKey> = mesher.remeshed_since(g).map(|(k, _)| k).collect();
+        assert!(new_keys.is_subset(&first));
+        let left: HashSet<ChunkKey> = big.chunks.iter().map(|c| c.key).filter(|k| !first.contains(k)).collect();
+        assert!(left.len() > budget, "the test needs more left over than one budget");
+        // Everything changes again: what was left over goes before what is due anew.
+        for c in &mut big.chunks {
+            c.revision = 2;
+        }
+        let g = mesher.generation();
+        mesher.update(&big);
+        assert!(mesher.remeshed_since(g).all(|(k, _)| left.contains(&k)));
+        // Without the budget, everything is brought up to date.
+        let st = mesher.update_all(&big);
+        assert_eq!(st.pending_chunks, 0);
+        assert_eq!(st.remeshed_chunks, big.chunk_count() - budget);
+        assert_eq!(mesher.mesh(), extract_mesh(&big));
+        assert_eq!(mesher.update(&big).remeshed_chunks, 0);
     }
 
     #[test]
