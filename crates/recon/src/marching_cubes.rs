@@ -33,6 +33,7 @@ use crate::cube_cases::{case_table, EDGES};
 mod avx2;
 #[cfg(target_arch = "x86_64")]
 mod avx512;
+mod reader_marks;
 use crate::map::{
     key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE, CHUNK_VOXELS, TSDF_SCALE, WEIGHT_SCALE,
 };
@@ -1684,29 +1685,13 @@ impl IncrementalMesher {
                 (chunk.key, mask)
             })
             .collect();
-        // The map slots to re-mesh (a set: the order of marking does not matter).
-        let reader_slots = |&(key, mask): &(ChunkKey, u32)| {
-            let mut out = Vec::with_capacity(mask.count_ones() as usize);
-            let mut bits = mask;
-            while bits != 0 {
-                let b = bits.trailing_zeros() as i32;
-                bits &= bits - 1;
-                let o = IVec3::new(b % 3, (b / 3) % 3, b / 9) - IVec3::ONE;
-                if let Some(&slot) = map.index.get(&(key + o)) {
-                    out.push(slot);
-                }
-            }
-            out
-        };
-        let slots: Vec<u32> = readers_of.par_iter().flat_map_iter(reader_slots).collect();
+        // The map slots to re-mesh: the changed chunks' readers, and all neighbours of the
+        // freed ones.
+        let mut marks = readers_of;
+        marks.extend(freed.iter().map(|&k| (k, all_readers)));
         let mut remesh: Vec<bool> = self.entries.iter().map(|e| e.pending_since != NOT_PENDING).collect();
-        for slot in slots {
+        for slot in reader_marks::marked_slots(map, &marks) {
             remesh[entry_of[slot as usize] as usize] = true;
-        }
-        for &k in &freed {
-            for slot in reader_slots(&(k, all_readers)) {
-                remesh[entry_of[slot as usize] as usize] = true;
-            }
         }
         // Re-meshed in key order, each worker over a run of neighbouring chunks: a chunk's
         // upper neighbours, whose voxels it reads, are the next ones meshed, so their blocks
