@@ -7,9 +7,13 @@ use semrecon_recon::{MeshConfig, TrackerConfig, TsdfConfig};
 
 use crate::error::{PipelineError, Result};
 
-/// [`PipelineConfig::mesh_budget`] by default, in chunks: about 20 ms of meshing on two cores
-/// at 5 mm (docs/benchmarks.md, "Meshing within a budget, session 10").
-pub const DEFAULT_MESH_BUDGET: usize = 4096;
+/// A [`PipelineConfig::mesh_budget`] for reconstruction without semantics, in chunks (what
+/// `semrecon run --semantics off` uses): 16-17 ms of meshing a keyframe on two cores at 5 mm
+/// on 7-Scenes, where a chunk in view then waits about five keyframes for its refresh
+/// (docs/benchmarks.md, "Meshing within a budget, session 10"). With semantics the default
+/// is no budget: the network reads the mesh, and a mesh refreshed keyframes late cost live
+/// labels in the measurements.
+pub const DEFAULT_MESH_BUDGET: usize = 3072;
 
 /// Where the pose of each frame comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -91,8 +95,9 @@ pub struct PipelineConfig {
     /// specks of noise are dropped).
     pub mesh: MeshConfig,
     /// Most chunks a keyframe re-meshes ([`IncrementalMesher::with_budget`]: newly seen
-    /// surface first, then the chunks due the longest); `None` re-meshes every changed chunk
-    /// at every keyframe. [`crate::Pipeline::finish`] brings every chunk up to date.
+    /// surface first, then the chunks due the longest); `None`, the default, re-meshes every
+    /// changed chunk at every keyframe (see [`DEFAULT_MESH_BUDGET`]).
+    /// [`crate::Pipeline::finish`] brings every chunk up to date either way.
     ///
     /// [`IncrementalMesher::with_budget`]: semrecon_recon::IncrementalMesher::with_budget
     pub mesh_budget: Option<NonZeroUsize>,
@@ -116,7 +121,7 @@ impl Default for PipelineConfig {
         Self {
             tsdf: TsdfConfig { truncation_voxels: 10.0, ..TsdfConfig::default() },
             mesh: MeshConfig::RECOMMENDED,
-            mesh_budget: NonZeroUsize::new(DEFAULT_MESH_BUDGET),
+            mesh_budget: None,
             tracker: TrackerConfig::default(),
             poses: PoseMode::Track,
             initial_pose: None,

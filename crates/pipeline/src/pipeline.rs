@@ -171,7 +171,8 @@ impl Pipeline {
                 })
             }
         };
-        let mesher = IncrementalMesher::with_config(config.mesh, RemeshTolerance::EXACT)?.with_budget(config.mesh_budget);
+        let mesher =
+            IncrementalMesher::with_config(config.mesh, RemeshTolerance::EXACT)?.with_budget(config.mesh_budget);
         Ok(Self {
             config,
             intrinsics,

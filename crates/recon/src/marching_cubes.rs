@@ -1505,11 +1505,12 @@ const NOT_PENDING: u64 = u64::MAX;
 /// 12,500 at 5 mm on 7-Scenes, see docs/benchmarks.md), so re-meshing them all costs the
 /// same at every keyframe however the surface moved. With a budget of `B` chunks
 /// ([`IncrementalMesher::with_budget`]) an update re-meshes at most `B` of the chunks due:
-/// first those never meshed (newly seen surface appears at once), then the ones due the
-/// longest, then in key order (deterministic). The rest stay due, however often they change
-/// again, so no chunk waits more than `ceil(due / B)` updates, and a chunk's mesh lags the
-/// map by at most that many updates. [`IncrementalMesher::update_all`] ignores the budget
-/// (the end of a scan, an export).
+/// first those never meshed and the due chunks whose cells read their voxels (newly seen
+/// surface appears at once, with no open seam along its chunks' edges), then the ones due
+/// the longest, then in key order (deterministic). The rest stay due, keeping their place
+/// however often they change again: while new surface takes a small part of the budget, a
+/// chunk waits about `due / B` updates, so its mesh lags the map by that many updates.
+/// [`IncrementalMesher::update_all`] ignores the budget (the end of a scan, an export).
 #[derive(Debug, Clone)]
 pub struct IncrementalMesher {
     /// Chunk key -> position in `entries`.
@@ -1706,7 +1707,21 @@ impl IncrementalMesher {
             .map(|(i, e)| (key_order(e.key), i as u32))
             .collect();
         let pending = match budget {
-            Some(budget) if order.len() > budget => self.defer_over_budget(&mut order, budget),
+            Some(budget) if order.len() > budget => {
+                // Chunks never meshed, and the due chunks whose cells read their voxels: meshed
+                // apart, a new chunk would leave an open seam one cell wide along its edges.
+                let new: Vec<(ChunkKey, u32)> = order
+                    .iter()
+                    .map(|&(_, i)| &self.entries[i as usize])
+                    .filter(|e| e.meshed_at == 0)
+                    .map(|e| (e.key, all_readers))
+                    .collect();
+                let mut urgent = vec![false; self.entries.len()];
+                for slot in reader_marks::marked_slots(map, &new) {
+                    urgent[entry_of[slot as usize] as usize] = true;
+                }
+                self.defer_over_budget(&mut order, &urgent, budget)
+            }
             _ => {
                 for &(_, i) in &order {
                     self.entries[i as usize].pending_since = NOT_PENDING;
@@ -1738,14 +1753,14 @@ impl IncrementalMesher {
         }
     }
 
-    /// Keeps in `order` the `budget` due chunks that go first (never meshed, then due the
-    /// longest, then by key) and marks the others pending; returns how many those are.
-    fn defer_over_budget(&mut self, order: &mut Vec<((i32, i32, i32), u32)>, budget: usize) -> usize {
+    /// Keeps in `order` the `budget` due chunks that go first (`urgent` ones, then those due
+    /// the longest, then by key) and marks the others pending; returns how many those are.
+    fn defer_over_budget(&mut self, order: &mut Vec<((i32, i32, i32), u32)>, urgent: &[bool], budget: usize) -> usize {
         let generation = self.generation;
         let entries = &mut self.entries;
         let rank = |&(key, i): &((i32, i32, i32), u32)| {
             let e = &entries[i as usize];
-            (e.meshed_at != 0, e.pending_since.min(generation), key)
+            (!urgent[i as usize], e.pending_since.min(generation), key)
         };
         let mut ranked: Vec<_> = order.iter().map(|o| (rank(o), o.1)).collect();
         ranked.select_nth_unstable(budget);
@@ -2423,8 +2438,19 @@ mod tests {
         }
         let new_keys: HashSet<ChunkKey> =
             big.chunks.iter().map(|c| c.key).filter(|k| !small.index.contains_key(k)).collect();
-        assert!(!new_keys.is_empty() && new_keys.len() < small.chunk_count());
-        let budget = new_keys.len() + 3;
+        // New chunks and their neighbours (all due: every chunk changed) go first.
+        let urgent: HashSet<ChunkKey> = new_keys
+            .iter()
+            .flat_map(|&k| (0..27).map(move |b| k + IVec3::new(b % 3, (b / 3) % 3, b / 9) - IVec3::ONE))
+            .filter(|k| big.index.contains_key(k))
+            .collect();
+        assert!(
+            !new_keys.is_empty() && 2 * urgent.len() < big.chunk_count(),
+            "{} of {}",
+            urgent.len(),
+            big.chunk_count()
+        );
+        let budget = urgent.len() + 3;
         let mut mesher = IncrementalMesher::new().with_budget(NonZeroUsize::new(budget));
         // Everything is due at first: it takes ceil(chunks / budget) updates.
         let mut updates = 0;
@@ -2444,7 +2470,7 @@ mod tests {
         let st = mesher.update(&big);
         assert_eq!((st.remeshed_chunks, st.pending_chunks), (budget, big.chunk_count() - budget));
         let first: HashSet<ChunkKey> = mesher.remeshed_since(g).map(|(k, _)| k).collect();
-        assert!(new_keys.is_subset(&first));
+        assert!(urgent.is_subset(&first));
         let left: HashSet<ChunkKey> = big.chunks.iter().map(|c| c.key).filter(|k| !first.contains(k)).collect();
         assert!(left.len() > budget, "the test needs more left over than one budget");
         // Everything changes again: what was left over goes before what is due anew.

@@ -193,6 +193,8 @@ struct Report {
     stopped_early_at: Option<usize>,
     voxel_size_m: f32,
     keyframe_every: usize,
+    /// Most chunks a keyframe re-meshed (`null`: every changed chunk).
+    mesh_budget: Option<usize>,
     poses: &'static str,
     realtime: bool,
     /// Real-time mode: the largest delay between a frame's capture time and the end of its
@@ -400,6 +402,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         stopped_early_at,
         voxel_size_m: args.recon.voxel,
         keyframe_every: args.recon.keyframe_every,
+        mesh_budget: pipeline.config().mesh_budget.map(|b| b.get()),
         poses: args.recon.poses.describe(),
         realtime: args.realtime,
         max_lag_s,

@@ -131,7 +131,11 @@ mod tests {
             let mut map = TsdfMap::new(TsdfConfig::default()).expect("valid");
             let spread = [3, 6, 20][round % 3];
             let random_key = |rng: &mut ChaCha8Rng| {
-                IVec3::new(rng.random_range(-spread..spread), rng.random_range(-spread..spread), rng.random_range(-2..3))
+                IVec3::new(
+                    rng.random_range(-spread..spread),
+                    rng.random_range(-spread..spread),
+                    rng.random_range(-2..3),
+                )
             };
             for _ in 0..rng.random_range(0..400) {
                 let key = random_key(&mut rng);
