@@ -192,7 +192,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     print_table(&times);
     println!();
     println!(
-        "front end (tracking + fusion + meshing + semantic snapshot + waits for semantics): {:.2} s for {:.1} s of input, real-time factor {:.2}",
+        "front end (tracking + fusion + meshing, final included + semantic snapshot + waits for semantics): {:.2} s for {:.1} s of input, real-time factor {:.2}",
         front_s, input_s, report.realtime_factor
     );
     println!(

@@ -437,7 +437,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         println!("the dataset ended early: stopped at frame {at} after {MAX_CONSECUTIVE_FAILED_LOADS} failed loads");
     }
     println!(
-        "front end (tracking + fusion + meshing + semantic snapshot + waits for semantics): {:.2} s for {:.2} s of input, real-time factor {:.2} (wall {:.1} s with loading)",
+        "front end (tracking + fusion + meshing, final included + semantic snapshot + waits for semantics): {:.2} s for {:.2} s of input, real-time factor {:.2} (wall {:.1} s with loading)",
         report.pipeline_s, input_s, report.realtime_factor, wall_s
     );
     if let Some(lag) = max_lag_s {
