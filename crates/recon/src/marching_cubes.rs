@@ -19,7 +19,9 @@
 //! re-meshed (with a [`RemeshTolerance`], only when it changed materially, and only the
 //! neighbours that read the changed voxels). Chunk meshes are welded into one mesh by the
 //! global key of the cell edge each vertex sits on, so the result is watertight where the
-//! surface is closed.
+//! surface is closed. An [`IncrementalMesher`] may be given a budget of chunks per update,
+//! which bounds a keyframe's meshing time at the price of refreshes arriving keyframes late
+//! (see its "Budget" section).
 
 use std::collections::HashMap;
 
@@ -1501,8 +1503,8 @@ const NOT_PENDING: u64 = u64::MAX;
 /// [`RemeshTolerance`]), optionally at most a budget of chunks per update.
 ///
 /// # Budget
-/// On a hand-held scan nearly every chunk in view changes between two keyframes (about
-/// 12,500 at 5 mm on 7-Scenes, see docs/benchmarks.md), so re-meshing them all costs the
+/// On a hand-held scan nearly every chunk in view changes between two keyframes (with their
+/// neighbours about 13,600 at 5 mm on 7-Scenes, see docs/benchmarks.md), so re-meshing them all costs the
 /// same at every keyframe however the surface moved. With a budget of `B` chunks
 /// ([`IncrementalMesher::with_budget`]) an update re-meshes at most `B` of the chunks due:
 /// first those never meshed and the due chunks whose cells read their voxels (newly seen
