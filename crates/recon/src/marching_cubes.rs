@@ -1478,8 +1478,10 @@ fn readers(changed: &[u64; CHUNK_VOXELS / 64]) -> u32 {
     out
 }
 
-/// One cached chunk: its key, the map revision last seen, the mesh, and with a tolerance
-/// the snapshot its readers' meshes were made from.
+/// One cached chunk: its key, the map revision last seen, when it was meshed, and with a
+/// tolerance the snapshot its readers' meshes were made from. The mesh itself is kept apart
+/// (`IncrementalMesher::meshes`): every update scans all entries a few times, and with
+/// the meshes inline those scans read four times the memory.
 #[derive(Debug, Clone)]
 struct CacheEntry {
     key: ChunkKey,
@@ -1489,7 +1491,6 @@ struct CacheEntry {
     /// The generation of the update that first found it due and left it for later (under a
     /// budget); [`NOT_PENDING`] when its mesh is up to date.
     pending_since: u64,
-    mesh: ChunkMesh,
     snapshot: Option<Box<Snapshot>>,
 }
 
@@ -1519,10 +1520,16 @@ pub struct IncrementalMesher {
     index: HashMap<ChunkKey, u32, ChunkHashBuilder>,
     /// Entries in a slab, so that re-meshing can write into them in parallel.
     entries: Vec<CacheEntry>,
+    /// The chunk meshes, in the same positions as `entries`.
+    meshes: Vec<ChunkMesh>,
+    /// Triangles over all of `meshes`.
+    triangles: usize,
     tolerance: RemeshTolerance,
     config: MeshConfig,
     /// Most chunks one [`IncrementalMesher::update`] re-meshes (`None`: all that are due).
     budget: Option<std::num::NonZeroUsize>,
+    /// Map slot -> entry at the last update: where to look first for a chunk's entry.
+    slot_entry: Vec<u32>,
     /// Updates so far.
     generation: u64,
 }
@@ -1540,9 +1547,12 @@ impl IncrementalMesher {
         Self {
             index: HashMap::default(),
             entries: Vec::new(),
+            meshes: Vec::new(),
+            triangles: 0,
             tolerance: RemeshTolerance::EXACT,
             config: MeshConfig::ALL_OBSERVED,
             budget: None,
+            slot_entry: Vec::new(),
             generation: 0,
         }
     }
@@ -1609,43 +1619,61 @@ impl IncrementalMesher {
 
     fn update_within(&mut self, map: &TsdfMap, budget: Option<usize>) -> MeshingStats {
         self.generation += 1;
-        // Freed chunks: drop their entries, highest position first (swap_remove moves only
-        // entries that stay).
-        let freed_entries: Vec<u32> = self
-            .entries
+        // The entry of each map chunk: where the last update found it, when that entry still
+        // holds its key (chunks move only when the map frees others), else from the index.
+        // The index is asked only for moved and new chunks, not for every chunk of the map.
+        let cached = std::mem::take(&mut self.slot_entry);
+        let found: Vec<Option<u32>> = map
+            .chunks
             .par_iter()
             .enumerate()
-            .filter(|(_, e)| !map.index.contains_key(&e.key))
-            .map(|(i, _)| i as u32)
+            .map(|(slot, c)| match cached.get(slot) {
+                Some(&e) if self.entries.get(e as usize).is_some_and(|entry| entry.key == c.key) => Some(e),
+                _ => self.index.get(&c.key).copied(),
+            })
             .collect();
+        // Entries no map chunk claims belong to freed chunks: dropped highest position first
+        // (swap_remove moves only entries that stay); `moved_to` says where each entry went.
+        let mut claimed = vec![false; self.entries.len()];
+        for &e in found.iter().flatten() {
+            claimed[e as usize] = true;
+        }
+        let freed_entries: Vec<u32> = (0..self.entries.len() as u32).filter(|&e| !claimed[e as usize]).collect();
         let freed: Vec<ChunkKey> = freed_entries.iter().map(|&i| self.entries[i as usize].key).collect();
+        let mut original: Vec<u32> = (0..self.entries.len() as u32).collect();
         for &i in freed_entries.iter().rev() {
             let removed = self.entries.swap_remove(i as usize);
+            self.triangles -= self.meshes.swap_remove(i as usize).triangles.len();
+            original.swap_remove(i as usize);
             self.index.remove(&removed.key);
             if let Some(moved) = self.entries.get(i as usize) {
                 self.index.insert(moved.key, i);
             }
         }
-        // The entry of every map chunk, new chunks getting one (in slab order: deterministic).
-        let found: Vec<Option<u32>> = map.chunks.par_iter().map(|c| self.index.get(&c.key).copied()).collect();
+        let mut moved_to = vec![u32::MAX; claimed.len()];
+        for (now, &was) in original.iter().enumerate() {
+            moved_to[was as usize] = now as u32;
+        }
+        // New chunks get an entry, in slab order (deterministic).
         let entry_of: Vec<u32> = map
             .chunks
             .iter()
             .zip(found)
-            .map(|(c, f)| {
-                f.unwrap_or_else(|| {
+            .map(|(c, f)| match f {
+                Some(e) => moved_to[e as usize],
+                None => {
                     let i = self.entries.len() as u32;
                     self.entries.push(CacheEntry {
                         key: c.key,
                         revision: UNSEEN,
                         meshed_at: 0,
                         pending_since: NOT_PENDING,
-                        mesh: ChunkMesh::default(),
                         snapshot: None,
                     });
+                    self.meshes.push(ChunkMesh::default());
                     self.index.insert(c.key, i);
                     i
-                })
+                }
             })
             .collect();
         // Per entry, the map slot of its chunk when that changed.
@@ -1735,22 +1763,24 @@ impl IncrementalMesher {
         let mut jobs: Vec<(ChunkKey, u32, ChunkMesh)> = order
             .iter()
             .map(|&(_, i)| {
-                let e = &mut self.entries[i as usize];
-                (e.key, i, std::mem::take(&mut e.mesh))
+                let mesh = std::mem::take(&mut self.meshes[i as usize]);
+                self.triangles -= mesh.triangles.len();
+                (self.entries[i as usize].key, i, mesh)
             })
             .collect();
         let remeshed = jobs.len();
         jobs.par_iter_mut()
             .for_each_init(Scratch::new, |s, (key, _, mesh)| remesh_into(map, *key, min_weight, s, mesh));
         for (_, i, mesh) in jobs {
-            let e = &mut self.entries[i as usize];
-            e.mesh = mesh;
-            e.meshed_at = self.generation;
+            self.triangles += mesh.triangles.len();
+            self.meshes[i as usize] = mesh;
+            self.entries[i as usize].meshed_at = self.generation;
         }
+        self.slot_entry = entry_of;
         MeshingStats {
             changed_chunks: changed_count + freed.len(),
             remeshed_chunks: remeshed,
-            triangles: self.entries.iter().map(|e| e.mesh.triangles.len()).sum(),
+            triangles: self.triangles,
             pending_chunks: pending,
         }
     }
@@ -1779,7 +1809,7 @@ impl IncrementalMesher {
 
     /// The cached mesh of chunk `key`.
     pub fn chunk_mesh(&self, key: ChunkKey) -> Option<&ChunkMesh> {
-        self.index.get(&key).map(|&i| &self.entries[i as usize].mesh)
+        self.index.get(&key).map(|&i| &self.meshes[i as usize])
     }
 
     /// The number of [`IncrementalMesher::update`] calls so far: a consumer that remembers it
@@ -1792,7 +1822,7 @@ impl IncrementalMesher {
     /// order, which depends on the history of the map: sort the keys where order matters).
     /// Chunks freed since are simply absent from the cache ([`IncrementalMesher::chunk_mesh`]).
     pub fn remeshed_since(&self, generation: u64) -> impl Iterator<Item = (ChunkKey, &ChunkMesh)> + '_ {
-        self.entries.iter().filter(move |e| e.meshed_at > generation).map(|e| (e.key, &e.mesh))
+        self.entries.iter().zip(&self.meshes).filter(move |(e, _)| e.meshed_at > generation).map(|(e, m)| (e.key, m))
     }
 
     /// Number of cached chunk meshes.
@@ -1802,9 +1832,10 @@ impl IncrementalMesher {
 
     /// The whole surface as one welded mesh (chunks in (z, y, x) key order; no labels).
     pub fn mesh(&self) -> LabeledMesh {
-        let mut entries: Vec<&CacheEntry> = self.entries.iter().collect();
-        entries.sort_unstable_by_key(|e| key_order(e.key));
-        let meshes: Vec<&ChunkMesh> = entries.iter().map(|e| &e.mesh).collect();
+        let mut order: Vec<((i32, i32, i32), &ChunkMesh)> =
+            self.entries.iter().zip(&self.meshes).map(|(e, m)| (key_order(e.key), m)).collect();
+        order.sort_unstable_by_key(|(k, _)| *k);
+        let meshes: Vec<&ChunkMesh> = order.into_iter().map(|(_, m)| m).collect();
         let mut mesh = assemble(&meshes);
         drop_small_components(&mut mesh, self.config.min_component_triangles);
         mesh
@@ -2488,6 +2519,39 @@ mod tests {
         assert_eq!(st.remeshed_chunks, big.chunk_count() - budget);
         assert_eq!(mesher.mesh(), extract_mesh(&big));
         assert_eq!(mesher.update(&big).remeshed_chunks, 0);
+    }
+
+    #[test]
+    fn the_cache_follows_chunks_that_the_map_frees_and_moves() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let center = Vec3::new(0.011, 0.003, -0.02);
+        let mut map = sphere_map(center, 0.08, None);
+        let donor = sphere_map(center + Vec3::new(0.05, -0.02, 0.0), 0.08, None);
+        for budget in [None, std::num::NonZeroUsize::new(40)] {
+            let mut mesher = IncrementalMesher::new().with_budget(budget);
+            mesher.update_all(&map);
+            for round in 0..6u64 {
+                // Free about a tenth of the chunks: the map moves its last ones into their places.
+                let slots: Vec<u32> = (0..map.chunk_count() as u32).filter(|_| rng.random_range(0..10) == 0).collect();
+                assert!(!slots.is_empty());
+                map.free(slots);
+                // Chunks (re)appear with other voxels.
+                for c in donor.chunks.iter().filter(|_| rng.random_range(0..8) == 0) {
+                    let (slot, _) = map.allocate(c.key);
+                    let chunk = &mut map.chunks[slot as usize];
+                    chunk.voxels = c.voxels.clone();
+                    chunk.signs = c.signs;
+                    chunk.revision = 100 + round;
+                }
+                mesher.update(&map);
+                assert_eq!(mesher.chunk_count(), map.chunk_count());
+                let stats = mesher.update_all(&map);
+                assert_eq!(mesher.mesh(), extract_mesh(&map), "round {round}, budget {budget:?}");
+                let triangles: usize = mesher.remeshed_since(0).map(|(_, m)| m.triangles.len()).sum();
+                assert_eq!(stats.triangles, triangles, "the running count");
+            }
+        }
     }
 
     #[test]
