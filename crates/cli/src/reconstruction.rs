@@ -51,7 +51,7 @@ pub struct ReconArgs {
     pub min_mesh_piece: usize,
     /// Most 8x8x8-voxel chunks a keyframe re-meshes: newly seen surface first, then the chunks
     /// waiting longest, the rest at later keyframes (the written mesh is always complete); 0
-    /// re-meshes every changed chunk at every keyframe. Default: 3072 (16-17 ms at 5 mm on two
+    /// re-meshes every changed chunk at every keyframe. Default: 3072 (16-20 ms at 5 mm on two
     /// cores) with `--semantics off`, 0 with semantics (the network reads the mesh, and live
     /// labels suffer when it lags).
     #[arg(long)]
