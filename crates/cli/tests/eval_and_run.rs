@@ -71,6 +71,7 @@ fn run_reconstructs_a_few_synthetic_frames() {
     assert_eq!(report["stages"]["meshing"]["count"], 2);
     assert_eq!(report["stages"]["final meshing"]["count"], 1);
     assert!(report["mesh_budget"].is_null(), "with semantics every changed chunk is re-meshed");
+    assert!(report["mesh_pending_chunks"].is_null());
     // Tracked poses (started at the first ground-truth pose) stay within millimetres.
     let ate = report["ate_rmse_m"].as_f64().expect("synthetic data has ground truth");
     assert!(ate < 0.005, "ATE {ate} m");
@@ -117,12 +118,17 @@ fn run_model_and_semantics_options() {
     std::fs::write(&bad, b"not weights").expect("write");
     let out = semrecon(&["run", "--dataset", "synth:1", "--frames", "0..2", "--model", s(&bad), "--out", s(&out_dir)]);
     assert_clean_failure(&out, "weights.safetensors");
-    run_ok("synth:1", &["--frames", "0..3", "--voxel", "0.02", "--semantics", "off"], &out_dir);
+    run_ok(
+        "synth:1",
+        &["--frames", "0..3", "--voxel", "0.02", "--semantics", "off", "--keyframe-every", "1"],
+        &out_dir,
+    );
     let report = read_report(&out_dir);
     assert_eq!(report["semantic_passes"], 0);
     assert_eq!(report["stages"]["semantic"]["count"], 0);
     // Without semantics keyframes re-mesh within a budget, unless told otherwise.
     assert_eq!(report["mesh_budget"], semrecon_pipeline::DEFAULT_MESH_BUDGET);
+    assert!(report["mesh_pending_chunks"]["max"].is_u64(), "{report}");
     run_ok("synth:1", &["--frames", "0..3", "--voxel", "0.02", "--semantics", "off", "--mesh-budget", "0"], &out_dir);
     assert!(read_report(&out_dir)["mesh_budget"].is_null());
 }

@@ -120,6 +120,8 @@ pub struct Pipeline {
     times: StageTimes,
     fused: usize,
     meshed_at: usize,
+    /// Chunks the mesh budget left waiting after each keyframe's meshing.
+    pending_after_keyframes: Vec<usize>,
     frames: usize,
     lost: usize,
     last_pose: Option<Affine3A>,
@@ -186,6 +188,7 @@ impl Pipeline {
             times: StageTimes::default(),
             fused: 0,
             meshed_at: 0,
+            pending_after_keyframes: Vec::new(),
             frames: 0,
             lost: 0,
             last_pose: None,
@@ -292,8 +295,9 @@ impl Pipeline {
 
     fn remesh(&mut self) {
         let t = Instant::now();
-        self.mesher.update(&self.map);
+        let stats = self.mesher.update(&self.map);
         self.times.record("meshing", t.elapsed());
+        self.pending_after_keyframes.push(stats.pending_chunks);
         self.meshed_at = self.fused;
     }
 
@@ -486,6 +490,15 @@ impl Pipeline {
     /// The TSDF map.
     pub fn map(&self) -> &TsdfMap {
         &self.map
+    }
+
+    /// How far the live mesh lagged under [`crate::PipelineConfig::mesh_budget`]: the chunks
+    /// left waiting after each keyframe's meshing, as (mean, largest); `None` before the first
+    /// keyframe. Always (0, 0) without a budget.
+    pub fn mesh_lag(&self) -> Option<(f64, usize)> {
+        let n = self.pending_after_keyframes.len();
+        let max = *self.pending_after_keyframes.iter().max()?;
+        Some((self.pending_after_keyframes.iter().sum::<usize>() as f64 / n as f64, max))
     }
 
     /// Frames pushed (valid ones), fused, and not fused (lost or without pose).

@@ -112,6 +112,8 @@ fn a_mesh_budget_delays_keyframe_meshes_but_not_the_final_one() {
         p.push_frame(f).expect("frame");
     }
     let partial = p.mesh();
+    let (mean, max) = p.mesh_lag().expect("two keyframes");
+    assert!(max > 0 && mean > 0.0, "the budget left chunks waiting");
     assert!(partial.triangle_count() > 0 && partial.triangle_count() < whole.triangle_count() / 2);
     for f in &frames[10..] {
         p.push_frame(f).expect("frame");

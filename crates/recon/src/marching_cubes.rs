@@ -1500,6 +1500,11 @@ const UNSEEN: u64 = u64::MAX;
 /// [`CacheEntry::pending_since`] of an entry with nothing left to re-mesh.
 const NOT_PENDING: u64 = u64::MAX;
 
+/// Reader bits (`ox + 3 oy + 9 oz` for offset `(ox, oy, oz) - 1`) of a chunk and the
+/// neighbours whose cells take corners from it: offsets -1 and 0 on every axis, since a
+/// chunk owns the cells whose lowest corner is one of its voxels.
+const CELL_READERS: u32 = 1 << 0 | 1 << 1 | 1 << 3 | 1 << 4 | 1 << 9 | 1 << 10 | 1 << 12 | 1 << 13;
+
 /// Per-chunk mesh cache that re-meshes only what changed in the map (materially, with a
 /// [`RemeshTolerance`]), optionally at most a budget of chunks per update.
 ///
@@ -1738,13 +1743,14 @@ impl IncrementalMesher {
             .collect();
         let pending = match budget {
             Some(budget) if order.len() > budget => {
-                // Chunks never meshed, and the due chunks whose cells read their voxels: meshed
-                // apart, a new chunk would leave an open seam one cell wide along its edges.
+                // Chunks never meshed, and the due chunks whose cells reach into them (the lower
+                // neighbours): meshed apart, a new chunk would leave an open seam one cell wide
+                // along its edges. The upper neighbours read it only for their normals.
                 let new: Vec<(ChunkKey, u32)> = order
                     .iter()
                     .map(|&(_, i)| &self.entries[i as usize])
                     .filter(|e| e.meshed_at == 0)
-                    .map(|e| (e.key, all_readers))
+                    .map(|e| (e.key, CELL_READERS))
                     .collect();
                 let mut urgent = vec![false; self.entries.len()];
                 for slot in reader_marks::marked_slots(map, &new) {
@@ -2471,10 +2477,14 @@ mod tests {
         }
         let new_keys: HashSet<ChunkKey> =
             big.chunks.iter().map(|c| c.key).filter(|k| !small.index.contains_key(k)).collect();
-        // New chunks and their neighbours (all due: every chunk changed) go first.
+        // New chunks and their lower neighbours, whose cells reach into them (all due: every
+        // chunk changed), go first.
+        let offset = |b: i32| IVec3::new(b % 3, (b / 3) % 3, b / 9) - IVec3::ONE;
+        let cell_readers: u32 = (0..27).filter(|&b| offset(b).cmple(IVec3::ZERO).all()).map(|b| 1 << b).sum();
+        assert_eq!(CELL_READERS, cell_readers);
         let urgent: HashSet<ChunkKey> = new_keys
             .iter()
-            .flat_map(|&k| (0..27).map(move |b| k + IVec3::new(b % 3, (b / 3) % 3, b / 9) - IVec3::ONE))
+            .flat_map(|&k| (0..27).filter(|b| CELL_READERS >> b & 1 != 0).map(move |b| k + offset(b)))
             .filter(|k| big.index.contains_key(k))
             .collect();
         assert!(

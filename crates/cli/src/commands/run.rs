@@ -180,6 +180,12 @@ impl From<UpEstimate> for UpJson {
 }
 
 #[derive(Serialize)]
+struct PendingJson {
+    mean: f64,
+    max: usize,
+}
+
+#[derive(Serialize)]
 struct Report {
     dataset: String,
     first_frame: usize,
@@ -195,6 +201,9 @@ struct Report {
     keyframe_every: usize,
     /// Most chunks a keyframe re-meshed (`null`: every changed chunk).
     mesh_budget: Option<usize>,
+    /// Under a budget: the chunks left waiting for a refresh after each keyframe, mean and
+    /// largest (how far the live mesh lagged; the written mesh is complete).
+    mesh_pending_chunks: Option<PendingJson>,
     poses: &'static str,
     realtime: bool,
     /// Real-time mode: the largest delay between a frame's capture time and the end of its
@@ -403,6 +412,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         voxel_size_m: args.recon.voxel,
         keyframe_every: args.recon.keyframe_every,
         mesh_budget: pipeline.config().mesh_budget.map(|b| b.get()),
+        mesh_pending_chunks: match (pipeline.config().mesh_budget, pipeline.mesh_lag()) {
+            (Some(_), Some((mean, max))) => Some(PendingJson { mean, max }),
+            _ => None,
+        },
         poses: args.recon.poses.describe(),
         realtime: args.realtime,
         max_lag_s,
@@ -440,6 +453,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         "front end (tracking + fusion + meshing, final included + semantic snapshot + waits for semantics): {:.2} s for {:.2} s of input, real-time factor {:.2} (wall {:.1} s with loading)",
         report.pipeline_s, input_s, report.realtime_factor, wall_s
     );
+    if let (Some(budget), Some(p)) = (report.mesh_budget, &report.mesh_pending_chunks) {
+        println!(
+            "meshing: at most {budget} chunks a keyframe; {:.0} chunks waited for a refresh after a keyframe on average, {} at most (the written mesh is complete)",
+            p.mean, p.max
+        );
+    }
     if let Some(lag) = max_lag_s {
         println!(
             "real time: the front end fell behind the camera by up to {lag:.2} s; {} keyframes skipped by semantics",
