@@ -9,7 +9,7 @@ use crate::error::{PipelineError, Result};
 
 /// A [`PipelineConfig::mesh_budget`] for reconstruction without semantics, in chunks (what
 /// `semrecon run --semantics off` uses): 16-20 ms of meshing a keyframe on two cores at 5 mm
-/// on 7-Scenes, where a chunk in view then waits about five keyframes for its refresh
+/// on 7-Scenes, where a changed chunk then waits about six keyframes (at most 12) for its refresh
 /// (docs/benchmarks.md, "Meshing within a budget, session 10"). With semantics the default
 /// is no budget: the network reads the mesh, and a mesh refreshed keyframes late cost live
 /// labels in the measurements.
