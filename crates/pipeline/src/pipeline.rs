@@ -120,8 +120,9 @@ pub struct Pipeline {
     times: StageTimes,
     fused: usize,
     meshed_at: usize,
-    /// Chunks the mesh budget left waiting after each keyframe's meshing.
-    pending_after_keyframes: Vec<usize>,
+    /// Chunks the mesh budget left waiting after the keyframes' meshing: (keyframes, sum,
+    /// largest).
+    pending_after_keyframes: (usize, usize, usize),
     frames: usize,
     lost: usize,
     last_pose: Option<Affine3A>,
@@ -188,7 +189,7 @@ impl Pipeline {
             times: StageTimes::default(),
             fused: 0,
             meshed_at: 0,
-            pending_after_keyframes: Vec::new(),
+            pending_after_keyframes: (0, 0, 0),
             frames: 0,
             lost: 0,
             last_pose: None,
@@ -297,7 +298,8 @@ impl Pipeline {
         let t = Instant::now();
         let stats = self.mesher.update(&self.map);
         self.times.record("meshing", t.elapsed());
-        self.pending_after_keyframes.push(stats.pending_chunks);
+        let (n, sum, max) = self.pending_after_keyframes;
+        self.pending_after_keyframes = (n + 1, sum + stats.pending_chunks, max.max(stats.pending_chunks));
         self.meshed_at = self.fused;
     }
 
@@ -496,9 +498,8 @@ impl Pipeline {
     /// left waiting after each keyframe's meshing, as (mean, largest); `None` before the first
     /// keyframe. Always (0, 0) without a budget.
     pub fn mesh_lag(&self) -> Option<(f64, usize)> {
-        let n = self.pending_after_keyframes.len();
-        let max = *self.pending_after_keyframes.iter().max()?;
-        Some((self.pending_after_keyframes.iter().sum::<usize>() as f64 / n as f64, max))
+        let (n, sum, max) = self.pending_after_keyframes;
+        (n > 0).then(|| (sum as f64 / n as f64, max))
     }
 
     /// Frames pushed (valid ones), fused, and not fused (lost or without pose).
