@@ -132,16 +132,12 @@ pub fn pipeline_config(
     tsdf.validate().with_context(|| {
         format!("truncation of {} voxels, fused depth up to {} m", recon.truncation, recon.max_depth)
     })?;
+    // The network reads the mesh, and a lagging one costs labels: no budget with semantics.
+    let default_mesh_budget = if semantics.semantics == SemanticsMode::Off { DEFAULT_MESH_BUDGET } else { 0 };
     let mut config = PipelineConfig {
         tsdf,
         mesh: MeshConfig { min_weight: recon.min_mesh_weight, min_component_triangles: recon.min_mesh_piece },
-        mesh_budget: std::num::NonZeroUsize::new(
-            recon.mesh_budget.unwrap_or(if semantics.semantics == SemanticsMode::Off {
-                DEFAULT_MESH_BUDGET
-            } else {
-                0
-            }),
-        ),
+        mesh_budget: std::num::NonZeroUsize::new(recon.mesh_budget.unwrap_or(default_mesh_budget)),
         tracker: TrackerConfig {
             keyframe_interval: recon.keyframe_every,
             photometric_weight: recon.photometric_weight,

@@ -39,6 +39,7 @@ mod reader_marks;
 use crate::map::{
     key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE, CHUNK_VOXELS, TSDF_SCALE, WEIGHT_SCALE,
 };
+use reader_marks::{ALL_READERS, CELL_READERS};
 
 /// Largest TSDF difference across a cell edge that still counts as a surface crossing, in
 /// units of the narrowest truncation band: a real surface changes the TSDF by about one
@@ -1500,11 +1501,6 @@ const UNSEEN: u64 = u64::MAX;
 /// [`CacheEntry::pending_since`] of an entry with nothing left to re-mesh.
 const NOT_PENDING: u64 = u64::MAX;
 
-/// Reader bits (`ox + 3 oy + 9 oz` for offset `(ox, oy, oz) - 1`) of a chunk and the
-/// neighbours whose cells take corners from it: offsets -1 and 0 on every axis, since a
-/// chunk owns the cells whose lowest corner is one of its voxels.
-const CELL_READERS: u32 = 1 << 0 | 1 << 1 | 1 << 3 | 1 << 4 | 1 << 9 | 1 << 10 | 1 << 12 | 1 << 13;
-
 /// Per-chunk mesh cache that re-meshes only what changed in the map (materially, with a
 /// [`RemeshTolerance`]), optionally at most a budget of chunks per update.
 ///
@@ -1691,7 +1687,6 @@ impl IncrementalMesher {
             }
         }
         // Per changed chunk, which of its neighbours (and itself) read what changed.
-        let all_readers = (1u32 << 27) - 1;
         let tolerant = self.tolerance.distance_voxels > 0.0;
         let tolerance =
             (0.5 * self.tolerance.distance_voxels / map.config().truncation_voxels * TSDF_SCALE).floor() as i32;
@@ -1705,11 +1700,11 @@ impl IncrementalMesher {
                 let chunk = &map.chunks[slot as usize];
                 e.revision = chunk.revision;
                 if !tolerant {
-                    return (chunk.key, all_readers);
+                    return (chunk.key, ALL_READERS);
                 }
                 let mask = match &mut e.snapshot {
                     Some(s) => readers(&s.refresh_material(chunk, tolerance, min_weight)),
-                    None => all_readers,
+                    None => ALL_READERS,
                 };
                 // Single-signed chunks hold no surface of their own; their changes re-mesh
                 // all readers instead of costing a snapshot.
@@ -1724,7 +1719,7 @@ impl IncrementalMesher {
         // The map slots to re-mesh: the changed chunks' readers, and all neighbours of the
         // freed ones.
         let mut marks = readers_of;
-        marks.extend(freed.iter().map(|&k| (k, all_readers)));
+        marks.extend(freed.iter().map(|&k| (k, ALL_READERS)));
         let mut remesh: Vec<bool> = self.entries.iter().map(|e| e.pending_since != NOT_PENDING).collect();
         for slot in reader_marks::marked_slots(map, &marks) {
             remesh[entry_of[slot as usize] as usize] = true;
@@ -2479,12 +2474,9 @@ mod tests {
             big.chunks.iter().map(|c| c.key).filter(|k| !small.index.contains_key(k)).collect();
         // New chunks and their lower neighbours, whose cells reach into them (all due: every
         // chunk changed), go first.
-        let offset = |b: i32| IVec3::new(b % 3, (b / 3) % 3, b / 9) - IVec3::ONE;
-        let cell_readers: u32 = (0..27).filter(|&b| offset(b).cmple(IVec3::ZERO).all()).map(|b| 1 << b).sum();
-        assert_eq!(CELL_READERS, cell_readers);
         let urgent: HashSet<ChunkKey> = new_keys
             .iter()
-            .flat_map(|&k| (0..27).filter(|b| CELL_READERS >> b & 1 != 0).map(move |b| k + offset(b)))
+            .flat_map(|&k| reader_marks::bits(CELL_READERS).map(move |b| k + reader_marks::reader_offset(b)))
             .filter(|k| big.index.contains_key(k))
             .collect();
         assert!(

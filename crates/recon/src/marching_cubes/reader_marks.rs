@@ -18,14 +18,22 @@ use crate::map::{ChunkKey, TsdfMap};
 /// on each side).
 const MAX_BITS: i64 = 1 << 21;
 
+/// Every reader bit: the chunk and all 26 neighbours.
+pub(super) const ALL_READERS: u32 = (1 << 27) - 1;
+
+/// The reader bits of a chunk and the neighbours whose cells take corners from it: offsets
+/// -1 and 0 on every axis, since a chunk owns the cells whose lowest corner is one of its
+/// voxels (the other neighbours read it only for the normals at their edge).
+pub(super) const CELL_READERS: u32 = 1 << 0 | 1 << 1 | 1 << 3 | 1 << 4 | 1 << 9 | 1 << 10 | 1 << 12 | 1 << 13;
+
 /// The neighbour offset of reader bit `b` (0..27).
-fn reader_offset(b: u32) -> IVec3 {
+pub(super) fn reader_offset(b: u32) -> IVec3 {
     IVec3::new((b % 3) as i32, ((b / 3) % 3) as i32, (b / 9) as i32) - IVec3::ONE
 }
 
 /// The set bits of a reader mask.
-fn bits(mask: u32) -> impl Iterator<Item = u32> {
-    let mut rest = mask & ((1 << 27) - 1);
+pub(super) fn bits(mask: u32) -> impl Iterator<Item = u32> {
+    let mut rest = mask & ALL_READERS;
     std::iter::from_fn(move || {
         (rest != 0).then(|| {
             let b = rest.trailing_zeros();
@@ -125,6 +133,13 @@ mod tests {
     use crate::map::TsdfConfig;
 
     #[test]
+    fn cell_readers_are_the_lower_neighbours_and_the_chunk() {
+        let want: u32 = (0..27).filter(|&b| reader_offset(b).cmple(IVec3::ZERO).all()).map(|b| 1 << b).sum();
+        assert_eq!(CELL_READERS, want);
+        assert_eq!(bits(ALL_READERS).count(), 27);
+    }
+
+    #[test]
     fn the_bitmap_marks_what_the_lookups_mark() {
         let mut rng = ChaCha8Rng::seed_from_u64(7);
         for round in 0..40 {
@@ -144,9 +159,9 @@ mod tests {
             let mut marks: Vec<(ChunkKey, u32)> = (0..rng.random_range(0..60))
                 .map(|_| {
                     let mask = match rng.random_range(0..3) {
-                        0 => (1 << 27) - 1,
+                        0 => ALL_READERS,
                         1 => 1 << 13,
-                        _ => rng.random::<u32>() & ((1 << 27) - 1),
+                        _ => rng.random::<u32>() & ALL_READERS,
                     };
                     (random_key(&mut rng), mask)
                 })
@@ -158,7 +173,7 @@ mod tests {
             }
             assert!(Bitmap::new(&marks).is_some(), "round {round}: a small box takes the bitmap path");
             // One change far away: too big a box, the lookups answer.
-            marks.push((IVec3::new(i32::MAX - 1, 0, i32::MIN + 1), (1 << 27) - 1));
+            marks.push((IVec3::new(i32::MAX - 1, 0, i32::MIN + 1), ALL_READERS));
             assert!(Bitmap::new(&marks).is_none());
             assert_eq!(marked_slots(&map, &marks), marked_slots_by_lookup(&map, &marks), "round {round}");
         }
