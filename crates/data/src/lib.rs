@@ -16,6 +16,7 @@ pub mod datasets;
 pub mod depth_image;
 pub mod error;
 pub mod frame;
+pub mod library;
 pub mod mesh;
 pub mod ply;
 pub mod point_cloud;

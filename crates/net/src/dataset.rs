@@ -10,6 +10,9 @@
 //! | `synth:A..B` | procedural rooms of seeds `A..B` (`semrecon_data::synth`), style drawn from the seed |
 //! | `synth:A..B:office,lounge` | the same seeds, styles taken in turn from the list (`seed % len`) |
 //! | `synth:A..B:classroom` | the held-out style, which no seed draws: rooms unlike any in training |
+//! | `synth-lib:A..B` | homes and offices furnished with real modelled furniture (`semrecon_data::library`, needs Debian's `sweethome3d-furniture`), kind drawn from the seed, training models only |
+//! | `synth-lib:A..B:bedroom,kitchen` | the same, kinds taken in turn |
+//! | `synth-lib:A..B:held-out` (or `:KINDS:held-out`) | furnished only with the held-out models (a whole catalogue and a tenth of the others): furniture training never saw |
 //! | `s3dis:PATH` | S3DIS rooms under `PATH` (root, `Area_N` or room folder) |
 //! | `scannet:PATH` | one ScanNet scene (folder or `.labels.ply`), or a folder of scene folders |
 //! | `ply:PATH` | a PLY file, or every `.ply` file of a folder (sorted), with a vertex `label` property |
@@ -45,10 +48,13 @@
 
 use std::ops::Range;
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
 use glam::{Mat3, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use semrecon_data::library::rooms::{generate_library_room, HomeRoomKind, LibraryRoomConfig};
+use semrecon_data::library::{FurnitureLibrary, Split};
 use semrecon_data::synth::{generate_room, RoomConfig, RoomStyle};
 use semrecon_data::{read_ply, LabeledMesh, LabeledPointCloud};
 
@@ -75,6 +81,15 @@ pub enum DataSource {
         /// Styles taken in turn (`seed % len`); empty: drawn from the seed.
         styles: Vec<RoomStyle>,
     },
+    /// Rooms furnished from the furniture catalogues (`semrecon_data::library`).
+    Library {
+        /// Room seeds.
+        seeds: Range<u64>,
+        /// Kinds taken in turn (`seed % len`); empty: drawn from the seed.
+        kinds: Vec<HomeRoomKind>,
+        /// Training models, or the held-out ones only.
+        split: Split,
+    },
     /// S3DIS rooms under a folder.
     S3dis(PathBuf),
     /// ScanNet scenes: one scene (folder or `.labels.ply`) or a folder of scene folders.
@@ -97,6 +112,7 @@ pub struct RoomRef {
 #[derive(Debug, Clone, PartialEq)]
 enum RoomKind {
     Synth { seed: u64, style: Option<RoomStyle> },
+    Library { seed: u64, kind: Option<HomeRoomKind>, split: Split },
     S3dis(PathBuf),
     Scannet(PathBuf),
     Ply(PathBuf),
@@ -111,22 +127,45 @@ impl DataSource {
     pub fn parse(spec: &str) -> Result<Self> {
         let bad = |why: &str| {
             NetError::InvalidInput(format!(
-                "data source {spec:?}: {why} (expected synth:A..B[:style,...], s3dis:PATH, scannet:PATH or ply:PATH)"
+                "data source {spec:?}: {why} (expected synth:A..B[:style,...], synth-lib:A..B[:kind,...][:held-out], s3dis:PATH, scannet:PATH or ply:PATH)"
             ))
         };
         let (kind, rest) = spec.split_once(':').ok_or_else(|| bad("no `kind:` prefix"))?;
+        let seed_range = |range: &str| -> Result<Range<u64>> {
+            let (a, b) = range.split_once("..").ok_or_else(|| bad("seeds must be a range A..B"))?;
+            let a: u64 = a.trim().parse().map_err(|_| bad("first seed is not an integer"))?;
+            let b: u64 = b.trim().parse().map_err(|_| bad("last seed is not an integer"))?;
+            if b <= a {
+                return Err(bad("empty seed range"));
+            }
+            Ok(a..b)
+        };
         match kind {
+            "synth-lib" => {
+                let mut parts = rest.split(':');
+                let seeds = seed_range(parts.next().unwrap_or_default())?;
+                let mut kinds = Vec::new();
+                let mut split = Split::Train;
+                for part in parts {
+                    if part.trim().eq_ignore_ascii_case("held-out") {
+                        split = Split::HeldOut;
+                    } else if kinds.is_empty() && split == Split::Train {
+                        kinds = part
+                            .split(',')
+                            .map(|x| x.parse::<HomeRoomKind>().map_err(|e| bad(&e.to_string())))
+                            .collect::<Result<Vec<_>>>()?;
+                    } else {
+                        return Err(bad(&format!("unexpected part {part:?}")));
+                    }
+                }
+                Ok(Self::Library { seeds, kinds, split })
+            }
             "synth" => {
                 let (range, styles) = match rest.split_once(':') {
                     Some((r, s)) => (r, Some(s)),
                     None => (rest, None),
                 };
-                let (a, b) = range.split_once("..").ok_or_else(|| bad("seeds must be a range A..B"))?;
-                let a: u64 = a.trim().parse().map_err(|_| bad("first seed is not an integer"))?;
-                let b: u64 = b.trim().parse().map_err(|_| bad("last seed is not an integer"))?;
-                if b <= a {
-                    return Err(bad("empty seed range"));
-                }
+                let seeds = seed_range(range)?;
                 let styles = match styles {
                     Some(s) => s
                         .split(',')
@@ -134,7 +173,7 @@ impl DataSource {
                         .collect::<Result<Vec<_>>>()?,
                     None => Vec::new(),
                 };
-                Ok(Self::Synth { seeds: a..b, styles })
+                Ok(Self::Synth { seeds, styles })
             }
             "s3dis" | "scannet" | "ply" if rest.is_empty() => Err(bad("empty path")),
             "s3dis" => Ok(Self::S3dis(PathBuf::from(rest))),
@@ -159,6 +198,18 @@ impl DataSource {
                         name: format!("synth:{seed}"),
                         group: style.unwrap_or_else(|| drawn_style(seed)).name().to_string(),
                         kind: RoomKind::Synth { seed, style },
+                    }
+                })
+                .collect()),
+            Self::Library { seeds, kinds, split } => Ok(seeds
+                .clone()
+                .map(|seed| {
+                    let kind = if kinds.is_empty() { None } else { Some(kinds[(seed % kinds.len() as u64) as usize]) };
+                    let held_out = if *split == Split::HeldOut { "-held-out" } else { "" };
+                    RoomRef {
+                        name: format!("synth-lib:{seed}{held_out}"),
+                        group: format!("lib-{}{held_out}", kind.unwrap_or_else(|| drawn_kind(seed)).name()),
+                        kind: RoomKind::Library { seed, kind, split: *split },
                     }
                 })
                 .collect()),
@@ -253,6 +304,24 @@ fn drawn_style(seed: u64) -> RoomStyle {
     RoomStyle::ALL[rng.random_range(0..RoomStyle::ALL.len())]
 }
 
+/// The furniture catalogues, opened once per process (they are read-only, and their model
+/// meshes are cached inside).
+fn furniture_library() -> Result<&'static FurnitureLibrary> {
+    static LIBRARY: OnceLock<std::result::Result<FurnitureLibrary, String>> = OnceLock::new();
+    LIBRARY
+        .get_or_init(|| FurnitureLibrary::open_default().map_err(|e| e.to_string()))
+        .as_ref()
+        .map_err(|e| NetError::InvalidInput(e.clone()))
+}
+
+/// The kind `generate_library_room` draws for `seed` when none is given: its first draw
+/// (checked against the generator by a test over the installed library), so listing rooms
+/// does not have to generate them.
+fn drawn_kind(seed: u64) -> HomeRoomKind {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x4C49_4252_4152_5931);
+    HomeRoomKind::ALL[rng.random_range(0..HomeRoomKind::ALL.len())]
+}
+
 /// The labelled point cloud of a room, before augmentation: surface samples of meshes
 /// (seeded by `seed`), the points of point clouds.
 ///
@@ -270,6 +339,11 @@ pub fn load_cloud(room: &RoomRef, voxel_size: f32, seed: u64) -> Result<LabeledP
     Ok(match &room.kind {
         RoomKind::Synth { seed: room_seed, style } => {
             let r = generate_room(&RoomConfig { seed: *room_seed, style: *style });
+            sample_surface(&r.mesh, density, seed)
+        }
+        RoomKind::Library { seed: room_seed, kind, split } => {
+            let config = LibraryRoomConfig { seed: *room_seed, kind: *kind, split: *split };
+            let r = generate_library_room(&config, furniture_library()?)?;
             sample_surface(&r.mesh, density, seed)
         }
         RoomKind::S3dis(p) => semrecon_data::s3dis::read_s3dis_room(p)?,
@@ -364,6 +438,10 @@ pub struct Augment {
     /// without its head casing. A network that only saw whole doors calls that wall (the
     /// demo room's door, cut at 1.8 m: 10 % IoU, against 65 % whole).
     pub height_cut: [f32; 2],
+    /// Probability of repainting the sample as a consumer camera in a real room records it
+    /// (white balance, exposure, gamma, saturation, slow lighting;
+    /// [`crate::camera_colours::apply_camera_colours`]), before the per-channel jitter.
+    pub camera_colour_probability: f32,
 }
 
 impl Augment {
@@ -387,6 +465,7 @@ impl Augment {
             translate: [0.0; 3],
             height_cut_probability: 0.0,
             height_cut: [2.0, 2.0],
+            camera_colour_probability: 0.0,
         }
     }
 
@@ -412,6 +491,7 @@ impl Augment {
             translate: [0.0; 3],
             height_cut_probability: 0.0,
             height_cut: [2.0, 2.0],
+            camera_colour_probability: 0.0,
         }
     }
 
@@ -434,6 +514,13 @@ impl Augment {
     /// scan at eye height does (the seventh training leg of docs/model.md).
     pub fn casual_scans() -> Self {
         Self { height_cut_probability: 0.35, height_cut: [1.0, 2.2], ..Self::live_maps() }
+    }
+
+    /// [`Augment::casual_scans`] plus camera colours half of the time: the recipe for rooms
+    /// furnished from the catalogues (`synth-lib:`), which must carry over to real scans
+    /// (the eighth training leg of docs/model.md).
+    pub fn real_rooms() -> Self {
+        Self { camera_colour_probability: 0.5, ..Self::casual_scans() }
     }
 
     /// Applies the augmentation to `cloud` in place, seeded by `seed`.
@@ -533,6 +620,11 @@ impl Augment {
                 keep[i - 1]
             });
         }
+        // Own stream: the other choices of a seed stay those of the seventh leg.
+        let mut camera_rng = ChaCha8Rng::seed_from_u64(seed ^ 0xCA3E_4A00);
+        if self.camera_colour_probability > 0.0 && camera_rng.random::<f32>() < self.camera_colour_probability {
+            crate::camera_colours::apply_camera_colours(cloud, &mut camera_rng);
+        }
         // Colour: gain per channel and brightness per room, noise per point.
         if self.color_gain > 0.0 || self.brightness > 0.0 || self.color_noise > 0.0 {
             let gain: [f32; 3] =
@@ -631,6 +723,49 @@ mod tests {
         }
         let e = DataSource::parse("ply:/no/such/dir").unwrap().rooms().unwrap_err().to_string();
         assert!(e.contains("/no/such/dir"), "{e}");
+    }
+
+    #[test]
+    fn parses_library_sources() {
+        assert_eq!(
+            DataSource::parse("synth-lib:3..5").unwrap(),
+            DataSource::Library { seeds: 3..5, kinds: vec![], split: Split::Train }
+        );
+        assert_eq!(
+            DataSource::parse("synth-lib:0..4:bedroom,kitchen:held-out").unwrap(),
+            DataSource::Library {
+                seeds: 0..4,
+                kinds: vec![HomeRoomKind::Bedroom, HomeRoomKind::Kitchen],
+                split: Split::HeldOut
+            }
+        );
+        assert_eq!(
+            DataSource::parse("synth-lib:0..4:held-out").unwrap(),
+            DataSource::Library { seeds: 0..4, kinds: vec![], split: Split::HeldOut }
+        );
+        let rooms = DataSource::parse("synth-lib:0..4:bedroom,kitchen:held-out").unwrap().rooms().unwrap();
+        let groups: Vec<_> = rooms.iter().map(|r| r.group.as_str()).collect();
+        assert_eq!(groups, ["lib-bedroom-held-out", "lib-kitchen-held-out", "lib-bedroom-held-out", "lib-kitchen-held-out"]);
+        for bad in ["synth-lib:5..5", "synth-lib:0..3:garage", "synth-lib:0..3:held-out:bedroom", "synth-lib:"] {
+            let e = DataSource::parse(bad).unwrap_err().to_string();
+            assert!(e.contains(bad), "{e}");
+        }
+    }
+
+    #[test]
+    fn listed_kind_is_the_generated_kind() {
+        let Ok(lib) = furniture_library() else {
+            println!("skipping: the furniture catalogues are not installed (apt-get install sweethome3d-furniture)");
+            return;
+        };
+        for seed in 0..3 {
+            let room = semrecon_data::library::rooms::generate_library_room_detailed(
+                &LibraryRoomConfig { seed, kind: None, split: Split::Train },
+                lib,
+            )
+            .unwrap();
+            assert_eq!(room.kind, drawn_kind(seed));
+        }
     }
 
     #[test]

@@ -309,6 +309,23 @@ pub struct Timing {
     pub forward: Duration,
 }
 
+/// A voxelised point cloud with the network's scores ([`Segmenter::segment_points_scores`]).
+///
+/// # Shapes
+/// `coords`: `[v]`; `features`: `[v, 3]`; `logits`: `[v, classes]`; `point_to_voxel`: `[n]`
+/// rows of `coords`.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PointScores {
+    /// The voxels (Z-order, batch 0).
+    pub coords: Vec<Coord>,
+    /// Mean colour features of each voxel ([`color_features`]).
+    pub features: Vec<f32>,
+    /// Class scores of each voxel.
+    pub logits: Vec<f32>,
+    /// The voxel of every input point.
+    pub point_to_voxel: Vec<u32>,
+}
+
 /// The network ready for inference: folded weights, a chunk configuration and a workspace.
 pub struct Segmenter {
     config: NetConfig,
@@ -422,12 +439,37 @@ impl Segmenter {
                 self.config.name, self.config.in_channels
             )));
         }
+        let scores = self.segment_points_scores(points, colors)?;
+        let voxel_class = argmax_rows(&scores.logits, self.config.classes);
+        Ok(scores.point_to_voxel.iter().map(|&r| voxel_class[r as usize]).collect())
+    }
+
+    /// Voxelises a coloured point cloud at the configuration's voxel size and returns the
+    /// voxels with the network's class scores (logits; [`crate::structure::softmax_rows`]
+    /// makes probabilities of them) and the voxel of every point: what
+    /// [`segment_points`](Self::segment_points) takes its argmax of, for callers that refine
+    /// the labels ([`crate::structure`]) or average several passes.
+    ///
+    /// # Shapes
+    /// `points`: `[n]` metres; `colors`: `[n]`; the result's `coords`: `[v]` (Z-order),
+    /// `features`: `[v, 3]`, `logits`: `[v, classes]`, `point_to_voxel`: `[n]`.
+    ///
+    /// # Errors
+    /// As [`segment_points`](Self::segment_points).
+    pub fn segment_points_scores(&mut self, points: &[[f32; 3]], colors: &[[u8; 3]]) -> Result<PointScores> {
+        if points.len() != colors.len() {
+            return Err(NetError::InvalidInput(format!("{} points but {} colours", points.len(), colors.len())));
+        }
+        if self.config.in_channels != 3 {
+            return Err(NetError::InvalidInput(format!(
+                "configuration {} takes {} input channels, not RGB",
+                self.config.name, self.config.in_channels
+            )));
+        }
         let v = voxelize(points, &color_features(colors), 3, self.config.voxel_size, 0)?;
-        let (coords, feats) = v.tensor.into_parts();
-        let logits = self.forward_sorted(coords, &feats)?;
-        let k = self.config.classes;
-        let voxel_class = argmax_rows(&logits, k);
-        Ok(v.point_to_voxel.iter().map(|&r| voxel_class[r as usize]).collect())
+        let (coords, features) = v.tensor.into_parts();
+        let logits = self.forward_sorted(coords.clone(), &features)?;
+        Ok(PointScores { coords, features, logits, point_to_voxel: v.point_to_voxel })
     }
 
     /// Class scores of the voxels of a prebuilt geometry (for callers that keep the geometry

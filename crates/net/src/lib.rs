@@ -13,6 +13,8 @@
 //! - [`sample`]: voxelised, labelled rooms ([`VoxelSample`]), the unit of training and evaluation;
 //! - [`dataset`]: data sources (`synth:`, `s3dis:`, `scannet:`, `ply:`), loading and augmentation;
 //! - [`shipped`]: the shipped default model and the checked loading of model files;
+//! - [`structure`]: room structure after the network (segment votes, floor and ceiling
+//!   planes, test-time augmentation);
 //! - `train` (cargo feature `train`): training with burn (custom sparse-convolution operation,
 //!   the network in burn, the training loop); see docs/model.md.
 //!
@@ -29,6 +31,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod camera_colours;
 pub mod config;
 pub mod dataset;
 pub mod error;
@@ -40,6 +43,7 @@ pub mod reference;
 pub mod sample;
 pub mod scan_imitation;
 pub mod shipped;
+pub mod structure;
 pub mod surface;
 #[cfg(feature = "train")]
 pub mod train;
@@ -48,7 +52,7 @@ pub mod weights;
 pub use config::NetConfig;
 pub use error::{NetError, Result};
 pub use geometry::NetGeometry;
-pub use inference::{color_features, ConvKernel, Segmenter, Timing};
+pub use inference::{color_features, ConvKernel, PointScores, Segmenter, Timing};
 pub use metrics::ConfusionMatrix;
 pub use model::{forward_flops, parameter_count, LevelStats};
 pub use sample::VoxelSample;

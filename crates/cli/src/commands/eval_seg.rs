@@ -4,7 +4,8 @@
 //! voxel with the majority label of its points (voxels without a labelled point are not
 //! counted). Prints the per-class IoU in the layout of the paper's Table 3 (classes as
 //! columns, then mIoU and overall accuracy), and the mean time per room of the network call
-//! (kernel maps included, loading the room left out).
+//! (kernel maps included, loading the room left out). `--structure` and `--tta` refine the
+//! labels as `semrecon segment` does (the time of the structure step is reported apart).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -36,6 +37,8 @@ pub struct SegArgs {
     /// Seed of the surface sampling of meshes.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    #[command(flatten)]
+    structure: super::segment::StructureArgs,
 }
 
 /// The columns of the paper's Table 3, in its order.
@@ -60,8 +63,15 @@ struct RoomRow {
     room: String,
     voxels: usize,
     ms: f64,
+    structure_ms: f64,
+    /// Of the structure step: neighbours and normals, planes, segments and vote.
+    structure_ms_parts: [f64; 3],
     miou: f64,
     accuracy: f64,
+    floor_z: Option<f32>,
+    ceiling_z: Option<f32>,
+    segments: usize,
+    changed: usize,
 }
 
 #[derive(Serialize)]
@@ -75,8 +85,14 @@ struct SegReport {
     per_class: serde_json::Map<String, serde_json::Value>,
     /// Overall voxel accuracy, 0..1.
     accuracy: f64,
-    /// Mean milliseconds of the network call per room (kernel maps included).
+    /// Mean milliseconds of the network call per room (kernel maps included; all `tta` passes).
     ms_per_room: f64,
+    /// `--structure`.
+    structure: String,
+    /// `--tta`.
+    tta: u32,
+    /// Mean milliseconds of the structure step per room.
+    structure_ms_per_room: f64,
     rooms: usize,
     voxels: usize,
     per_room: Vec<RoomRow>,
@@ -102,20 +118,28 @@ pub fn run(args: SegArgs) -> anyhow::Result<()> {
         let t = Instant::now();
         let logits =
             net.segment(&sample.coords, &sample.features).with_context(|| format!("segmenting {}", room.name))?;
-        let ms = t.elapsed().as_secs_f64() * 1e3;
-        let prediction: Vec<u8> = logits
-            .chunks_exact(classes)
-            .map(|row| row.iter().enumerate().fold(0, |best, (c, &v)| if v > row[best] { c } else { best }) as u8)
-            .collect();
+        let first_ms = t.elapsed().as_secs_f64() * 1e3;
+        let (refinement, network_s, structure_s) =
+            super::segment::voxel_labels(&mut net, &sample.coords, &sample.features, Some(logits), &args.structure)
+                .with_context(|| format!("segmenting {}", room.name))?;
+        let ms = first_ms + network_s * 1e3;
+        let prediction = &refinement.labels;
         let mut m = ConfusionMatrix::new(classes);
-        m.add(&sample.labels, &prediction);
+        m.add(&sample.labels, prediction);
         total.merge(&m);
         per_room.push(RoomRow {
             room: room.name.clone(),
             voxels: sample.len(),
             ms,
+            structure_ms: structure_s * 1e3,
+            structure_ms_parts: [refinement.timing.normals, refinement.timing.planes, refinement.timing.segments]
+                .map(|d| d.as_secs_f64() * 1e3),
             miou: m.miou(),
             accuracy: m.accuracy(),
+            floor_z: refinement.floor_z,
+            ceiling_z: refinement.ceiling_z,
+            segments: refinement.segments,
+            changed: refinement.changed,
         });
         bar.inc(1);
     }
@@ -135,6 +159,9 @@ pub fn run(args: SegArgs) -> anyhow::Result<()> {
         per_class,
         accuracy: total.accuracy(),
         ms_per_room: per_room.iter().map(|r| r.ms).sum::<f64>() / per_room.len() as f64,
+        structure: args.structure.structure.to_string(),
+        tta: args.structure.tta,
+        structure_ms_per_room: per_room.iter().map(|r| r.structure_ms).sum::<f64>() / per_room.len() as f64,
         rooms: per_room.len(),
         voxels: per_room.iter().map(|r| r.voxels).sum(),
         per_room,
@@ -161,7 +188,18 @@ pub fn run(args: SegArgs) -> anyhow::Result<()> {
     }
     println!("{head}{:>9}{:>9}", "mIoU", "accuracy");
     println!("{line}{:>9.1}{:>9.1}", 100.0 * report.miou, 100.0 * report.accuracy);
-    println!("mean time per room: {:.1} ms (network call, kernel maps included)", report.ms_per_room);
+    let part = |i: usize| report.per_room.iter().map(|r| r.structure_ms_parts[i]).sum::<f64>() / report.rooms as f64;
+    println!(
+        "mean time per room: {:.1} ms (network call, kernel maps included, tta {}), structure {}: {:.1} ms \
+         (normals {:.1}, planes {:.1}, segments {:.1})",
+        report.ms_per_room,
+        report.tta,
+        report.structure,
+        report.structure_ms_per_room,
+        part(0),
+        part(1),
+        part(2)
+    );
     if let Some(path) = &args.json {
         write_atomic(path, serde_json::to_string_pretty(&report)?.as_bytes())?;
         eprintln!("wrote {}", path.display());

@@ -1,11 +1,15 @@
-//! `semrecon snapshot`: renders a mesh to a PNG from a bird's-eye corner view (or any
-//! viewpoint), shaded, in its own colours or in class colours — the quickest way to look at
-//! what the pipeline made. Uses the same rasteriser as the synthetic data.
+//! `semrecon snapshot`: renders a mesh or a point cloud to a PNG from a bird's-eye corner
+//! view (or any viewpoint), shaded, in its own colours or in class colours — the quickest way
+//! to look at what the pipeline made. Meshes go through the same rasteriser as the synthetic
+//! data; point clouds (PLY files without faces) are drawn as small oriented discs
+//! ([`points`]).
+
+mod points;
 
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
-use glam::{Affine3A, Mat3A, Vec3};
+use glam::{Affine3A, Mat3A, Quat, Vec3};
 use semrecon_data::class::UNLABELED;
 use semrecon_data::depth_image::write_color_png;
 use semrecon_data::{read_ply, Intrinsics, LabeledMesh, PreparedMesh, Renderer, SemanticClass};
@@ -13,7 +17,7 @@ use semrecon_data::{read_ply, Intrinsics, LabeledMesh, PreparedMesh, Renderer, S
 /// Arguments of `semrecon snapshot`.
 #[derive(clap::Args)]
 pub struct SnapshotArgs {
-    /// Mesh to render (PLY).
+    /// Mesh or point cloud to render (PLY; a file without faces is drawn as points).
     mesh: PathBuf,
     /// Output PNG.
     #[arg(long)]
@@ -33,6 +37,10 @@ pub struct SnapshotArgs {
     /// Image width in pixels (height is 3/4 of it).
     #[arg(long, default_value_t = 1024)]
     width: u32,
+    /// The scene's up direction x,y,z (default 0,0,1): the scene is first turned so that it
+    /// points along +z (for meshes of `semrecon run`, minus the dataset's gravity direction).
+    #[arg(long, value_parser = crate::cli_values::parse_vec3, allow_hyphen_values = true)]
+    up: Option<Vec3>,
 }
 
 /// `world_from_camera` of a camera at `eye` looking at `at` with world z up (camera x right,
@@ -56,6 +64,16 @@ pub fn run(args: SnapshotArgs) -> anyhow::Result<()> {
             bail!("{}: the mesh has no `label` property to colour by", args.mesh.display());
         }
         mesh.colors = labels.iter().map(|&l| SemanticClass::from_id(l).map_or([0, 0, 0], |c| c.color())).collect();
+        println!("classes (share of vertices): {}", class_shares(&labels));
+    }
+    if let Some(up) = args.up {
+        let up = up.normalize_or_zero();
+        if up == Vec3::ZERO {
+            bail!("--up must not be the zero vector");
+        }
+        let turn = Quat::from_rotation_arc(up, Vec3::Z);
+        mesh.positions.iter_mut().for_each(|p| *p = turn * *p);
+        mesh.normals.iter_mut().for_each(|n| *n = turn * *n);
     }
     let (lo, hi) = mesh.bounds().with_context(|| format!("{}: the mesh is empty", args.mesh.display()))?;
     let at = args.at.unwrap_or(Vec3::new((lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0, lo.z + (hi.z - lo.z) * 0.25));
@@ -67,13 +85,32 @@ pub fn run(args: SnapshotArgs) -> anyhow::Result<()> {
         at + from.normalize() * (0.5 * size.length() / 0.384 * 0.9)
     });
     let world_from_camera = look_at(eye, at)?;
+    let (w, h) = (args.width.clamp(16, 8192), args.width.clamp(16, 8192) * 3 / 4);
+    let k = Intrinsics::new(w, h, w as f32 * 0.9, w as f32 * 0.9, (w as f32 - 1.0) / 2.0, (h as f32 - 1.0) / 2.0)?;
+
+    if mesh.triangles.is_empty() {
+        let (radius, normals) = points::point_discs(&mesh);
+        let keep = points::visible_points(&mesh, &normals, eye, args.cut_above);
+        let drawn = keep.iter().filter(|&&k| k).count();
+        if drawn == 0 {
+            bail!("{}: nothing left to draw (everything cut away)", args.mesh.display());
+        }
+        // Framed to what is drawn, unless the camera was placed by hand.
+        let k = if args.eye.is_none() && args.at.is_none() {
+            points::fit_to_points(&mesh, &keep, world_from_camera, k, 0.92)
+        } else {
+            k
+        };
+        let pixels = points::render_points(&mesh, &radius, &normals, &keep, world_from_camera, k);
+        write_color_png(&args.out, w, h, &pixels)?;
+        println!("wrote {} ({w}x{h}, {drawn} points drawn)", args.out.display());
+        return Ok(());
+    }
+
     keep_visible_side(&mut mesh, eye, args.cut_above);
     if mesh.triangles.is_empty() {
         bail!("{}: nothing left to draw (everything cut away or facing away)", args.mesh.display());
     }
-
-    let (w, h) = (args.width.clamp(16, 8192), args.width.clamp(16, 8192) * 3 / 4);
-    let k = Intrinsics::new(w, h, w as f32 * 0.9, w as f32 * 0.9, (w as f32 - 1.0) / 2.0, (h as f32 - 1.0) / 2.0)?;
     let mut renderer = Renderer::new(k)?;
     let out = renderer.render(&PreparedMesh::new(&mesh)?, world_from_camera);
     let pixels: Vec<[u8; 3]> = (0..out.depth.len())
@@ -90,6 +127,25 @@ pub fn run(args: SnapshotArgs) -> anyhow::Result<()> {
     write_color_png(&args.out, w, h, &pixels)?;
     println!("wrote {} ({w}x{h}, {} triangles drawn)", args.out.display(), mesh.triangle_count());
     Ok(())
+}
+
+/// `name share%` of every class present, largest first, then the unlabelled share.
+fn class_shares(labels: &[u8]) -> String {
+    let mut counts = [0usize; 256];
+    for &l in labels {
+        counts[l as usize] += 1;
+    }
+    let total = labels.len().max(1) as f64;
+    let mut present: Vec<(usize, SemanticClass)> =
+        SemanticClass::ALL.iter().map(|&c| (counts[c.id() as usize], c)).filter(|(n, _)| *n > 0).collect();
+    present.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.id().cmp(&b.1.id())));
+    let mut parts: Vec<String> =
+        present.iter().map(|(n, c)| format!("{} {:.1}%", c.name(), 100.0 * *n as f64 / total)).collect();
+    let other = labels.len() - present.iter().map(|(n, _)| n).sum::<usize>();
+    if other > 0 {
+        parts.push(format!("unlabelled {:.1}%", 100.0 * other as f64 / total));
+    }
+    parts.join(", ")
 }
 
 /// Drops triangles above `cut_above` and those whose front (vertex normals, else the

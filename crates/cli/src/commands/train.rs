@@ -54,13 +54,18 @@ pub struct TrainArgs {
     seed: u64,
     /// Augmentation recipe: `training` (rotations, flips, scaling, elastic distortion, box
     /// crops, dropout, colour), `live-maps` (the same plus a short walk's view and rugs on
-    /// the floor, to imitate the partial maps the live pipeline labels) or `casual-scans`
-    /// (`live-maps` plus cuts above 1.0-2.2 m, as a scan that rarely looks up).
-    #[arg(long, default_value = "training", value_parser = ["training", "live-maps", "casual-scans"])]
+    /// the floor, to imitate the partial maps the live pipeline labels), `casual-scans`
+    /// (`live-maps` plus cuts above 1.0-2.2 m, as a scan that rarely looks up) or
+    /// `real-rooms` (`casual-scans` plus a real camera's colours half of the time).
+    #[arg(long, default_value = "training", value_parser = ["training", "live-maps", "casual-scans", "real-rooms"])]
     augment: String,
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+    /// Start from these weights (e.g. the shipped model, to fine-tune it) instead of a random
+    /// initialisation; ignored when --resume finds a checkpoint.
+    #[arg(long)]
+    init: Option<PathBuf>,
 }
 
 /// Runs `semrecon train`.
@@ -109,10 +114,12 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     opts.val_every_steps = args.val_every.max(1);
     opts.checkpoint_every_steps = args.checkpoint_every.max(1);
     opts.resume = args.resume;
+    opts.init = args.init.clone();
     opts.seed = args.seed;
     opts.augment = match args.augment.as_str() {
         "live-maps" => semrecon_net::dataset::Augment::live_maps(),
         "casual-scans" => semrecon_net::dataset::Augment::casual_scans(),
+        "real-rooms" => semrecon_net::dataset::Augment::real_rooms(),
         _ => semrecon_net::dataset::Augment::training(),
     };
     eprintln!(

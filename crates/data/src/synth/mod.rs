@@ -15,12 +15,12 @@
 //! `clutter`, `layout` (occupancy of floor and walls), `styles` (per-style recipes),
 //! `palette` (colours).
 
-mod clutter;
-mod furniture;
-mod layout;
-mod palette;
-mod shapes;
-mod shell;
+pub(crate) mod clutter;
+pub(crate) mod furniture;
+pub(crate) mod layout;
+pub(crate) mod palette;
+pub(crate) mod shapes;
+pub(crate) mod shell;
 mod styles;
 
 use glam::{Vec2, Vec3};

@@ -155,7 +155,7 @@ pub(crate) fn add_structure(
 /// A column against wall `k` at `s`, `width` along the wall and `depth` into the room, if
 /// the wall and floor there are free.
 #[allow(clippy::too_many_arguments)]
-fn add_pilaster(
+pub(crate) fn add_pilaster(
     b: &mut MeshBuilder,
     layout: &mut Layout,
     k: usize,
@@ -292,7 +292,7 @@ pub(crate) fn plan_openings(layout: &mut Layout, rng: &mut ChaCha8Rng, style: Ro
 }
 
 #[allow(clippy::too_many_arguments)]
-fn try_add_opening(
+pub(crate) fn try_add_opening(
     layout: &mut Layout,
     openings: &mut Vec<Opening>,
     k: usize,
@@ -396,7 +396,7 @@ fn reveals(
     b.rect(p00, depth, ws, Vec3::Z, bottom, bottom_color);
 }
 
-fn window(b: &mut MeshBuilder, o: &Opening, rng: &mut ChaCha8Rng, pal: &Palette) {
+pub(crate) fn window(b: &mut MeshBuilder, o: &Opening, rng: &mut ChaCha8Rng, pal: &Palette) {
     reveals(b, o, SemanticClass::Wall, SemanticClass::Wall, pal.wall, jitter(rng, pal.wall, 0.03));
     let r = o.recess;
     b.set_noise(0.02);
@@ -432,7 +432,7 @@ fn window(b: &mut MeshBuilder, o: &Opening, rng: &mut ChaCha8Rng, pal: &Palette)
     }
 }
 
-fn door(b: &mut MeshBuilder, o: &Opening, rng: &mut ChaCha8Rng, pal: &Palette) {
+pub(crate) fn door(b: &mut MeshBuilder, o: &Opening, rng: &mut ChaCha8Rng, pal: &Palette) {
     let leaf_color = jitter(rng, pal.door, 0.03);
     let casing_color = if rng.random_bool(0.5) { jitter(rng, pal.door, 0.02) } else { jitter(rng, pal.frame, 0.03) };
     reveals(b, o, SemanticClass::Door, SemanticClass::Floor, casing_color, pal.floor);

@@ -94,6 +94,9 @@ pub struct TrainOptions {
     pub checkpoint_every: Duration,
     /// Continue from the checkpoint in `out`.
     pub resume: bool,
+    /// Weights to start from when not resuming (fine-tuning a shipped model); `None`: the
+    /// seeded random initialisation. The optimiser starts afresh either way.
+    pub init: Option<PathBuf>,
 }
 
 impl TrainOptions {
@@ -121,6 +124,7 @@ impl TrainOptions {
             checkpoint_every_steps: 200,
             checkpoint_every: Duration::from_secs(300),
             resume: false,
+            init: None,
         }
     }
 }
@@ -523,8 +527,12 @@ pub fn train(opts: &TrainOptions, progress: &mut dyn FnMut(&Progress)) -> Result
             .map_err(|e| NetError::WeightFile { file: state_path.display().to_string(), message: e.to_string() })?;
         (w, s)
     } else {
+        let initial = match &opts.init {
+            Some(path) => Weights::load(path, config)?,
+            None => Weights::random(config, opts.seed),
+        };
         (
-            Weights::random(config, opts.seed),
+            initial,
             TrainState {
                 step: 0,
                 samples: 0,
