@@ -6,6 +6,8 @@
 #     Debian's sweethome3d-furniture) and with training furniture (seeds training never drew),
 #   - the demo (seed 1, the default `semrecon demo`), its semantic mIoU.
 # Usage: bench/real_rooms_eval.sh MODEL_A MODEL_B [OUT_DIR]   (default target/real_rooms_eval)
+# Environment: STRUCTURE (segments, the default of `segment` and `eval seg`; `none` for the
+#   network alone), SKIP_DEMO=1 to leave the demo out.
 # Writes OUT_DIR/NAME_{a,b}.json (eval seg reports) and OUT_DIR/table.md, and prints the table.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -13,6 +15,7 @@ A=${1:?usage: bench/real_rooms_eval.sh MODEL_A MODEL_B [OUT_DIR]}
 B=${2:?usage: bench/real_rooms_eval.sh MODEL_A MODEL_B [OUT_DIR]}
 OUT=${3:-target/real_rooms_eval}
 SHARED=${SEMRECON_SHARED_DATA:-../shared/data}
+STRUCTURE=${STRUCTURE:-segments}
 mkdir -p "$OUT"
 cargo build --release -p semrecon
 bin=./target/release/semrecon
@@ -32,14 +35,15 @@ else
 fi
 miou() { python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('%.1f / %.1f' % (100*r['miou'], 100*r['accuracy']))" "$1"; }
 {
-  echo "| set | A: $(basename "$A") mIoU / acc % | B: $(basename "$B") mIoU / acc % |"
+  echo "| set (structure $STRUCTURE) | A: $(basename "$A") mIoU / acc % | B: $(basename "$B") mIoU / acc % |"
   echo "|---|---|---|"
   for s in "${sets[@]}"; do
     name=${s%% *}; data=${s#* }
-    "$bin" eval seg --model "$A" --data "$data" --json "$OUT/${name}_a.json" > "$OUT/${name}_a.txt"
-    "$bin" eval seg --model "$B" --data "$data" --json "$OUT/${name}_b.json" > "$OUT/${name}_b.txt"
+    "$bin" eval seg --structure "$STRUCTURE" --model "$A" --data "$data" --json "$OUT/${name}_a.json" > "$OUT/${name}_a.txt"
+    "$bin" eval seg --structure "$STRUCTURE" --model "$B" --data "$data" --json "$OUT/${name}_b.json" > "$OUT/${name}_b.txt"
     echo "| $name | $(miou "$OUT/${name}_a.json") | $(miou "$OUT/${name}_b.json") |"
   done
+  [ "${SKIP_DEMO:-0}" = 1 ] && exit 0
   for m in a b; do
     model=$A; [ $m = b ] && model=$B
     SEMRECON_MODEL=$model "$bin" demo --out "$OUT/demo_$m" > "$OUT/demo_$m.txt" 2>&1
