@@ -71,14 +71,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .unzip();
         // Per-class confidence threshold: the (1 - kept) quantile of the class's points.
         let mut threshold = [f32::MAX; 13];
-        for class in 0..k {
-            let mut c: Vec<f32> = (0..n).filter(|&i| labels[i] as usize == class).map(|i| confidence[i]).collect();
+        for (class, t) in threshold.iter_mut().enumerate() {
+            let mut c: Vec<f32> =
+                labels.iter().zip(&confidence).filter(|(&l, _)| l as usize == class).map(|(_, &p)| p).collect();
             if c.is_empty() {
                 continue;
             }
             c.sort_by(f32::total_cmp);
             let q = c[((c.len() as f32 * (1.0 - CLASS_QUANTILE_KEPT)) as usize).min(c.len() - 1)];
-            threshold[class] = q.max(MIN_CONFIDENCE);
+            *t = q.max(MIN_CONFIDENCE);
         }
         let kept: Vec<u8> = (0..n)
             .map(|i| if confidence[i] >= threshold[labels[i] as usize] { labels[i] } else { UNLABELED })

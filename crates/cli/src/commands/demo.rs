@@ -11,7 +11,9 @@ use std::time::Instant;
 
 use anyhow::Context;
 use semrecon_data::atomic_file::write_atomic;
-use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
+use semrecon_data::datasets::{synthetic_scan, synthetic_scan_of, SyntheticScanConfig};
+use semrecon_data::library::rooms::{generate_library_room_detailed, LibraryRoomConfig};
+use semrecon_data::library::FurnitureLibrary;
 use semrecon_data::{write_ply, FrameSource, PlyEncoding, Trajectory};
 use semrecon_eval::{evaluate_mesh, evaluate_trajectory, MeshEvalConfig, TrajectoryEvalConfig};
 use semrecon_pipeline::{FrameStatus, Pipeline};
@@ -45,6 +47,10 @@ pub struct DemoArgs {
     recon: ReconArgs,
     #[command(flatten)]
     semantics: SemanticArgs,
+    /// Scan a home or office furnished with real modelled furniture (Debian's
+    /// sweethome3d-furniture catalogues) instead of the built-in procedural room.
+    #[arg(long)]
+    library: bool,
     /// Skip measuring the mesh against the ground truth (saves a few seconds).
     #[arg(long)]
     no_mesh_eval: bool,
@@ -97,8 +103,17 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let mut scan_config = SyntheticScanConfig::new(args.seed);
     scan_config.frames = args.frames;
     scan_config.vertical_sweep_deg = args.sweep;
-    let (room, scan) = synthetic_scan(&scan_config)?;
-    let scene = format!("synthetic {} room, seed {}", room.style, args.seed);
+    let (room, scan, scene) = if args.library {
+        let library = FurnitureLibrary::open_default()?;
+        let furnished = generate_library_room_detailed(&LibraryRoomConfig::new(args.seed), &library)
+            .with_context(|| format!("furnishing library room {}", args.seed))?;
+        let (room, scan) = synthetic_scan_of(furnished.room, &scan_config)?;
+        (room, scan, format!("furnished {} (library), seed {}", furnished.kind, args.seed))
+    } else {
+        let (room, scan) = synthetic_scan(&scan_config)?;
+        let scene = format!("synthetic {} room, seed {}", room.style, args.seed);
+        (room, scan, scene)
+    };
     println!(
         "{scene}: {} triangles, {} frames {}x{}",
         room.mesh.triangle_count(),

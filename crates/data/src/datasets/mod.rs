@@ -20,7 +20,7 @@ pub use replica::Replica;
 pub use scannet::ScanNet;
 pub use seven_scenes::{SevenScenes, SevenScenesWriter};
 pub use spec::{open_dataset, DatasetSpec};
-pub use synthetic::{synthetic_scan, SyntheticScanConfig};
+pub use synthetic::{synthetic_scan, synthetic_scan_of, SyntheticScanConfig};
 pub use tum::Tum;
 
 use std::path::{Path, PathBuf};

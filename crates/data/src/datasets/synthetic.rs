@@ -76,6 +76,12 @@ pub fn room_scan_poses(room: &SyntheticRoom, seed: u64, frames: usize, frame_rat
 /// Generates the room and the scan of `config`; the room is returned too (ground-truth mesh).
 pub fn synthetic_scan(config: &SyntheticScanConfig) -> Result<(SyntheticRoom, RenderedScan)> {
     let room = generate_room(&RoomConfig { seed: config.seed, style: config.style });
+    synthetic_scan_of(room, config)
+}
+
+/// The scan of `config` through a room generated elsewhere (a room furnished from the
+/// furniture catalogues, [`crate::library::rooms`]); `config.style` is not used.
+pub fn synthetic_scan_of(room: SyntheticRoom, config: &SyntheticScanConfig) -> Result<(SyntheticRoom, RenderedScan)> {
     let mut plan = room_scan_plan(&room, config.seed, config.frame_rate);
     plan.vertical_sweep_deg = config.vertical_sweep_deg;
     let poses = plan.poses(config.frames)?;
