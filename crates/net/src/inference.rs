@@ -430,15 +430,7 @@ impl Segmenter {
     /// [`NetError::InvalidInput`] when the lengths differ or the network does not take RGB
     /// (`in_channels != 3`); voxelisation errors (non-finite points) as [`NetError::Sparse`].
     pub fn segment_points(&mut self, points: &[[f32; 3]], colors: &[[u8; 3]]) -> Result<Vec<u8>> {
-        if points.len() != colors.len() {
-            return Err(NetError::InvalidInput(format!("{} points but {} colours", points.len(), colors.len())));
-        }
-        if self.config.in_channels != 3 {
-            return Err(NetError::InvalidInput(format!(
-                "configuration {} takes {} input channels, not RGB",
-                self.config.name, self.config.in_channels
-            )));
-        }
+        // `segment_points_scores` checks the inputs.
         let scores = self.segment_points_scores(points, colors)?;
         let voxel_class = argmax_rows(&scores.logits, self.config.classes);
         Ok(scores.point_to_voxel.iter().map(|&r| voxel_class[r as usize]).collect())

@@ -11,7 +11,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::layout::{footprint, Layout, Rect2};
 use super::palette::{jitter, uniform, Palette};
-use super::shapes::{MeshBuilder, SKIP_NEG_Y, SKIP_NEG_Z, SKIP_POS_Y, SKIP_POS_Z};
+use super::shapes::{MeshBuilder, Rgb, SKIP_NEG_Y, SKIP_NEG_Z, SKIP_POS_Y, SKIP_POS_Z};
 use super::RoomStyle;
 use crate::class::SemanticClass;
 
@@ -323,6 +323,23 @@ pub(crate) fn try_add_opening(
     true
 }
 
+/// Emits wall `k` of `layout`, floor to ceiling in `color`, with holes for the `openings`
+/// in it (leaves `b` placed in the wall's frame).
+pub(crate) fn wall_with_openings(b: &mut MeshBuilder, layout: &Layout, k: usize, openings: &[Opening], color: Rgb) {
+    let wall = layout.walls[k];
+    let holes: Vec<[f32; 4]> = openings.iter().filter(|o| o.wall == k).map(|o| [o.s0, o.s1, o.z0, o.z1]).collect();
+    b.place(wall.start.extend(0.0), wall.yaw);
+    b.rect_with_holes(
+        Vec3::ZERO,
+        Vec3::X * wall.length,
+        Vec3::Z * layout.height,
+        Vec3::Y,
+        &holes,
+        SemanticClass::Wall,
+        color,
+    );
+}
+
 /// Emits floor, ceiling and walls with their openings, panes, leaves, reveals and casings.
 pub(crate) fn build_shell(
     b: &mut MeshBuilder,
@@ -351,19 +368,8 @@ pub(crate) fn build_shell(
         }
     }
     b.set_noise(0.05);
-    for (k, wall) in layout.walls.iter().enumerate() {
-        let holes: Vec<[f32; 4]> = openings.iter().filter(|o| o.wall == k).map(|o| [o.s0, o.s1, o.z0, o.z1]).collect();
-        b.place(wall.start.extend(0.0), wall.yaw);
-        b.set_noise(0.05);
-        b.rect_with_holes(
-            Vec3::ZERO,
-            Vec3::X * wall.length,
-            Vec3::Z * h,
-            Vec3::Y,
-            &holes,
-            SemanticClass::Wall,
-            pal.wall,
-        );
+    for k in 0..4 {
+        wall_with_openings(b, layout, k, openings, pal.wall);
     }
     for o in openings {
         let wall = layout.walls[o.wall];

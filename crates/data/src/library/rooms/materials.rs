@@ -12,6 +12,7 @@ use super::{Home, HomeRoomKind, ModelSource};
 use crate::class::SemanticClass;
 use crate::synth::palette::{jitter, jitter_pick, pick, uniform};
 use crate::synth::shapes::{splitmix, MeshBuilder, Rgb, SKIP_NEG_Y};
+use crate::synth::shell;
 
 impl<'a, S: ModelSource + ?Sized> Home<'a, S> {
     /// Floor, ceiling, walls with their holes, skirting; returns the number of shell
@@ -43,23 +44,11 @@ impl<'a, S: ModelSource + ?Sized> Home<'a, S> {
         };
         b.set_noise(0.025);
         for k in 0..4 {
-            let wall = self.layout.walls[k];
-            let holes: Vec<[f32; 4]> =
-                self.openings.iter().filter(|o| o.wall == k).map(|o| [o.s0, o.s1, o.z0, o.z1]).collect();
             let color = match accent {
                 Some((a, c)) if a == k => c,
                 _ => paint,
             };
-            b.place(wall.start.extend(0.0), wall.yaw);
-            b.rect_with_holes(
-                Vec3::ZERO,
-                Vec3::X * wall.length,
-                Vec3::Z * h,
-                Vec3::Y,
-                &holes,
-                SemanticClass::Wall,
-                color,
-            );
+            shell::wall_with_openings(b, &self.layout, k, &self.openings, color);
         }
         let shell_end = b.mesh.positions.len();
         // Tiles on the lower walls of bathrooms and some kitchens.
