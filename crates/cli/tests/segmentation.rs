@@ -228,6 +228,42 @@ fn make_scans_writes_labelled_reconstructions() {
 }
 
 #[test]
+fn make_scans_library_scans_furnished_rooms_or_says_how_to_install() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("lib_scans");
+    let args = [
+        "make-scans",
+        "--library",
+        "--seeds",
+        "7",
+        "--out",
+        s(&out),
+        "--frames",
+        "8",
+        "--size",
+        "80x60",
+        "--voxel",
+        "0.05",
+    ];
+    let o = semrecon(&args);
+    if !semrecon_data::library::default_dir().is_dir() {
+        eprintln!("skipping the furnished scan: sweethome3d-furniture is not installed");
+        assert_clean_failure(&o, &["sweethome3d-furniture"]);
+        return;
+    }
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mesh = semrecon_data::read_ply(&out.join("room_7.ply")).expect("read scan");
+    assert!(mesh.positions.len() > 100 && !mesh.triangles.is_empty(), "{}", mesh.positions.len());
+    let labelled = mesh.vertex_labels.iter().filter(|&&l| l < 13).count();
+    assert!(labelled > mesh.positions.len() * 9 / 10, "{labelled} of {}", mesh.positions.len());
+    // A style belongs to the procedural rooms.
+    assert_clean_failure(
+        &semrecon(&["make-scans", "--library", "--style", "office", "--seeds", "7", "--out", s(&out)]),
+        &["--style"],
+    );
+}
+
+#[test]
 fn eval_seg_reports_the_table_and_json_keys() {
     let dir = tempfile::tempdir().expect("tempdir");
     let model = tiny_model(dir.path());

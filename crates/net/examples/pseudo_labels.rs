@@ -64,8 +64,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let (labels, confidence): (Vec<u8>, Vec<f32>) = probs
             .chunks_exact(k)
             .map(|row| {
-                let (best, p) =
-                    row.iter().enumerate().fold((0, f32::MIN), |(bi, bp), (i, &p)| if p > bp { (i, p) } else { (bi, bp) });
+                let (best, p) = row
+                    .iter()
+                    .enumerate()
+                    .fold((0, f32::MIN), |(bi, bp), (i, &p)| if p > bp { (i, p) } else { (bi, bp) });
                 (best as u8, p)
             })
             .unzip();

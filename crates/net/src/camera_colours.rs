@@ -39,7 +39,8 @@ impl CameraColours {
     /// Draws a response: warm casts twice as often as cool ones, exposure 0.55-1.15,
     /// gamma 0.8-1.5, saturation 0.6-1.3, lighting amplitude 0-0.35.
     pub fn draw(rng: &mut ChaCha8Rng) -> Self {
-        let warmth: f32 = if rng.random_bool(2.0 / 3.0) { rng.random_range(0.0..0.35) } else { rng.random_range(-0.15..0.0) };
+        let warmth: f32 =
+            if rng.random_bool(2.0 / 3.0) { rng.random_range(0.0..0.35) } else { rng.random_range(-0.15..0.0) };
         Self {
             white_balance: [1.0 + warmth, 1.0, 1.0 - warmth * 0.9],
             exposure: rng.random_range(0.55..1.15),
@@ -82,7 +83,8 @@ struct LightField {
 
 impl LightField {
     fn new(points: &[Vec3], amplitude: f32, rng: &mut ChaCha8Rng) -> Self {
-        let (lo, hi) = points.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(l, h), p| (l.min(*p), h.max(*p)));
+        let (lo, hi) =
+            points.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(l, h), p| (l.min(*p), h.max(*p)));
         let dims = ((hi - lo) / LIGHT_SPACING).to_array().map(|e| e.max(0.0).ceil() as usize + 2);
         let values = (0..dims[0] * dims[1] * dims[2])
             .map(|_| if amplitude > 0.0 { 1.0 + rng.random_range(-amplitude..=amplitude) } else { 1.0 })

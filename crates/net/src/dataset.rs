@@ -745,7 +745,10 @@ mod tests {
         );
         let rooms = DataSource::parse("synth-lib:0..4:bedroom,kitchen:held-out").unwrap().rooms().unwrap();
         let groups: Vec<_> = rooms.iter().map(|r| r.group.as_str()).collect();
-        assert_eq!(groups, ["lib-bedroom-held-out", "lib-kitchen-held-out", "lib-bedroom-held-out", "lib-kitchen-held-out"]);
+        assert_eq!(
+            groups,
+            ["lib-bedroom-held-out", "lib-kitchen-held-out", "lib-bedroom-held-out", "lib-kitchen-held-out"]
+        );
         for bad in ["synth-lib:5..5", "synth-lib:0..3:garage", "synth-lib:0..3:held-out:bedroom", "synth-lib:"] {
             let e = DataSource::parse(bad).unwrap_err().to_string();
             assert!(e.contains(bad), "{e}");

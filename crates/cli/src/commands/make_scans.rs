@@ -7,6 +7,11 @@
 //! synthetic meshes do not; `--partial` fuses only a short stretch of the trajectory, like the
 //! growing map the live system segments.
 //!
+//! `--library` scans rooms furnished from the furniture catalogues (homes and offices with
+//! modelled furniture, `semrecon_data::library::rooms`, training models only unless
+//! `--held-out`) instead of the procedural rooms: the real-rooms training data whose
+//! colours, holes and noise are those of a live map.
+//!
 //! Output: `DIR/room_SEED.ply` (binary) with vertex `x y z red green blue label` and the
 //! mesh's faces, readable by the training data source `ply:DIR`.
 
@@ -18,7 +23,9 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use semrecon_data::class::UNLABELED;
-use semrecon_data::datasets::synthetic::{synthetic_scan, SyntheticScanConfig};
+use semrecon_data::datasets::synthetic::{synthetic_scan, synthetic_scan_of, SyntheticScanConfig};
+use semrecon_data::library::rooms::{generate_library_room_detailed, LibraryRoomConfig};
+use semrecon_data::library::{FurnitureLibrary, Split};
 use semrecon_data::synth::RoomStyle;
 use semrecon_data::{write_ply, FrameSource, PlyEncoding};
 use semrecon_eval::SurfaceLabeler;
@@ -41,6 +48,13 @@ pub struct MakeScansArgs {
     /// (an incomplete map, as the live system sees while scanning).
     #[arg(long)]
     partial: bool,
+    /// Scan rooms furnished from the furniture catalogues (Debian's sweethome3d-furniture)
+    /// instead of the procedural rooms; the kind is drawn from the seed.
+    #[arg(long)]
+    library: bool,
+    /// With --library: furnish with the held-out models only (furniture training never sees).
+    #[arg(long, requires = "library")]
+    held_out: bool,
     /// Room style (office, conference, lounge, hallway, or the held-out classroom); drawn
     /// from each seed, among the trained styles, when absent.
     #[arg(long)]
@@ -116,6 +130,11 @@ pub fn run(args: MakeScansArgs) -> anyhow::Result<()> {
         args.voxel
     );
     anyhow::ensure!(args.max_distance > 0.0, "--max-distance must be positive");
+    anyhow::ensure!(
+        !(args.library && args.style.is_some()),
+        "--style names a procedural style: it does not go with --library"
+    );
+    let library = if args.library { Some(FurnitureLibrary::open_default()?) } else { None };
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let (first, end) = args.seeds;
     let mut rows = Vec::new();
@@ -125,7 +144,7 @@ pub fn run(args: MakeScansArgs) -> anyhow::Result<()> {
             println!("seed {seed}: {} exists, kept", file.display());
             continue;
         }
-        let row = make_room(&args, seed, &file).with_context(|| format!("room of seed {seed}"))?;
+        let row = make_room(&args, library.as_ref(), seed, &file).with_context(|| format!("room of seed {seed}"))?;
         println!(
             "seed {:>4} {:<10} {:>4} frames {:>8} vertices {:>5.1}% labelled  {:>5.1} s (render {:.1}, fuse+mesh {:.1}, label {:.1})  {}",
             row.seed,
@@ -151,13 +170,31 @@ pub fn run(args: MakeScansArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn make_room(args: &MakeScansArgs, seed: u64, file: &std::path::Path) -> anyhow::Result<RoomRow> {
+fn make_room(
+    args: &MakeScansArgs,
+    library: Option<&FurnitureLibrary>,
+    seed: u64,
+    file: &std::path::Path,
+) -> anyhow::Result<RoomRow> {
     let t0 = Instant::now();
     let mut config = SyntheticScanConfig::new(seed);
     config.frames = args.frames;
     config.style = args.style;
     config.intrinsics = config.intrinsics.scaled(args.size.0, args.size.1);
-    let (room, scan) = synthetic_scan(&config)?;
+    let (room, scan, style) = match library {
+        Some(library) => {
+            let split = if args.held_out { Split::HeldOut } else { Split::Train };
+            let furnished = generate_library_room_detailed(&LibraryRoomConfig { seed, kind: None, split }, library)?;
+            let kind = furnished.kind.to_string();
+            let (room, scan) = synthetic_scan_of(furnished.room, &config)?;
+            (room, scan, kind)
+        }
+        None => {
+            let (room, scan) = synthetic_scan(&config)?;
+            let style = room.style.to_string();
+            (room, scan, style)
+        }
+    };
     let frames: Vec<usize> = if args.partial {
         let len = (args.frames / 4).max(2);
         // Another stream than the room's and the trajectory's, so the window is independent.
@@ -194,7 +231,7 @@ fn make_room(args: &MakeScansArgs, seed: u64, file: &std::path::Path) -> anyhow:
     write_ply(file, &mesh, PlyEncoding::BinaryLittleEndian)?;
     Ok(RoomRow {
         seed,
-        style: room.style.to_string(),
+        style,
         file: file.display().to_string(),
         frames_fused: frames.len(),
         vertices: mesh.positions.len(),
