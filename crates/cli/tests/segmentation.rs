@@ -182,35 +182,33 @@ fn segment_rejects_bad_models_and_inputs_clearly() {
     assert!(!out.exists(), "no output on failure");
 }
 
+/// `make-scans` at a test's size (8 frames of 80x60, 5 cm voxels) with `extra` arguments.
+fn tiny_scans(seeds: &str, out: &Path, extra: &[&str]) -> Output {
+    let mut args =
+        vec!["make-scans", "--seeds", seeds, "--out", s(out), "--frames", "8", "--size", "80x60", "--voxel", "0.05"];
+    args.extend_from_slice(extra);
+    semrecon(&args)
+}
+
+/// A reconstruction of `make-scans`: a mesh whose vertices nearly all have a class.
+fn assert_labelled_scan(path: &Path) {
+    let mesh = semrecon_data::read_ply(path).expect("read scan");
+    assert!(mesh.positions.len() > 100 && !mesh.triangles.is_empty(), "{}", mesh.positions.len());
+    assert_eq!(mesh.vertex_labels.len(), mesh.positions.len());
+    let labelled = mesh.vertex_labels.iter().filter(|&&l| l < 13).count();
+    assert!(labelled > mesh.positions.len() * 9 / 10, "{labelled} of {}", mesh.positions.len());
+}
+
 #[test]
 fn make_scans_writes_labelled_reconstructions() {
     let dir = tempfile::tempdir().expect("tempdir");
     let out = dir.path().join("scans");
     let json = dir.path().join("rows.json");
-    let o = semrecon(&[
-        "make-scans",
-        "--seeds",
-        "3..5",
-        "--out",
-        s(&out),
-        "--frames",
-        "8",
-        "--size",
-        "80x60",
-        "--voxel",
-        "0.05",
-        "--partial",
-        "--json",
-        s(&json),
-    ]);
+    let o = tiny_scans("3..5", &out, &["--partial", "--json", s(&json)]);
     assert!(o.status.success(), "{}", stderr(&o));
     for seed in [3, 4] {
         let path = out.join(format!("room_{seed}.ply"));
-        let mesh = semrecon_data::read_ply(&path).expect("read scan");
-        assert!(mesh.positions.len() > 100 && !mesh.triangles.is_empty(), "{}", mesh.positions.len());
-        assert_eq!(mesh.vertex_labels.len(), mesh.positions.len());
-        let labelled = mesh.vertex_labels.iter().filter(|&&l| l < 13).count();
-        assert!(labelled > mesh.positions.len() * 9 / 10, "{labelled} of {}", mesh.positions.len());
+        assert_labelled_scan(&path);
         let names: Vec<String> = PlyFile::read(&path)
             .expect("ply")
             .element("vertex")
@@ -231,36 +229,16 @@ fn make_scans_writes_labelled_reconstructions() {
 fn make_scans_library_scans_furnished_rooms_or_says_how_to_install() {
     let dir = tempfile::tempdir().expect("tempdir");
     let out = dir.path().join("lib_scans");
-    let args = [
-        "make-scans",
-        "--library",
-        "--seeds",
-        "7",
-        "--out",
-        s(&out),
-        "--frames",
-        "8",
-        "--size",
-        "80x60",
-        "--voxel",
-        "0.05",
-    ];
-    let o = semrecon(&args);
+    let o = tiny_scans("7", &out, &["--library"]);
     if !semrecon_data::library::default_dir().is_dir() {
         eprintln!("skipping the furnished scan: sweethome3d-furniture is not installed");
         assert_clean_failure(&o, &["sweethome3d-furniture"]);
         return;
     }
     assert!(o.status.success(), "{}", stderr(&o));
-    let mesh = semrecon_data::read_ply(&out.join("room_7.ply")).expect("read scan");
-    assert!(mesh.positions.len() > 100 && !mesh.triangles.is_empty(), "{}", mesh.positions.len());
-    let labelled = mesh.vertex_labels.iter().filter(|&&l| l < 13).count();
-    assert!(labelled > mesh.positions.len() * 9 / 10, "{labelled} of {}", mesh.positions.len());
+    assert_labelled_scan(&out.join("room_7.ply"));
     // A style belongs to the procedural rooms.
-    assert_clean_failure(
-        &semrecon(&["make-scans", "--library", "--style", "office", "--seeds", "7", "--out", s(&out)]),
-        &["--style"],
-    );
+    assert_clean_failure(&tiny_scans("7", &out, &["--library", "--style", "office"]), &["--style"]);
 }
 
 #[test]
