@@ -2,7 +2,7 @@
 //! network trains on (a short walk's view, rugs, crops, colour changes).
 //!
 //! ```text
-//! cargo run --release -p semrecon-net --example augment_preview -- SOURCE OUT_DIR [training|live-maps|casual-scans|real-rooms] [N]
+//! cargo run --release -p semrecon-net --example augment_preview -- SOURCE OUT_DIR [training|live-maps|casual-scans|real-rooms|real-scans] [N]
 //! ```
 //!
 //! `SOURCE` is a data source (`synth:0..4`, `ply:DIR`); the first `N` (default 4) rooms are
@@ -14,13 +14,16 @@ use semrecon_net::dataset::{load_cloud, rooms_of, sample_seed, Augment, DataSour
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let (Some(source), Some(out)) = (args.first(), args.get(1)) else {
-        return Err("usage: augment_preview SOURCE OUT_DIR [training|live-maps|casual-scans|real-rooms] [N]".into());
+        return Err(
+            "usage: augment_preview SOURCE OUT_DIR [training|live-maps|casual-scans|real-rooms|real-scans] [N]".into(),
+        );
     };
     let augment = match args.get(2).map(String::as_str) {
         None | Some("live-maps") => Augment::live_maps(),
         Some("casual-scans") => Augment::casual_scans(),
         Some("training") => Augment::training(),
         Some("real-rooms") => Augment::real_rooms(),
+        Some("real-scans") => Augment::real_scans(),
         Some(other) => return Err(format!("unknown recipe `{other}`").into()),
     };
     let n: usize = args.get(3).map(|s| s.parse()).transpose()?.unwrap_or(4);

@@ -442,6 +442,15 @@ pub struct Augment {
     /// (white balance, exposure, gamma, saturation, slow lighting;
     /// [`crate::camera_colours::apply_camera_colours`]), before the per-channel jitter.
     pub camera_colour_probability: f32,
+    /// Probability of dropping every ceiling point (class 0). Real maps seldom hold a
+    /// ceiling: none of the three ScanNet homes in `../shared/data` has one, a handheld scan
+    /// at eye height hardly looks up, and S3DIS fragments are objects without their room.
+    /// Without a ceiling the network must tell a beam or the top of a wall from the object
+    /// itself rather than from what hangs above it.
+    pub ceiling_drop_probability: f32,
+    /// Probability of dropping every floor point (class 1): furniture without the floor it
+    /// stands on, as in an object-level fragment or a scan that never looked down.
+    pub floor_drop_probability: f32,
 }
 
 impl Augment {
@@ -466,6 +475,8 @@ impl Augment {
             height_cut_probability: 0.0,
             height_cut: [2.0, 2.0],
             camera_colour_probability: 0.0,
+            ceiling_drop_probability: 0.0,
+            floor_drop_probability: 0.0,
         }
     }
 
@@ -492,6 +503,8 @@ impl Augment {
             height_cut_probability: 0.0,
             height_cut: [2.0, 2.0],
             camera_colour_probability: 0.0,
+            ceiling_drop_probability: 0.0,
+            floor_drop_probability: 0.0,
         }
     }
 
@@ -521,6 +534,14 @@ impl Augment {
     /// (the eighth training leg of docs/model.md).
     pub fn real_rooms() -> Self {
         Self { camera_colour_probability: 0.5, ..Self::casual_scans() }
+    }
+
+    /// [`Augment::real_rooms`] without the room's context now and then: the ceiling dropped
+    /// from half of the samples and the floor from 15 % (the second part of the eighth
+    /// training leg of docs/model.md, with reconstructions of rendered scans and
+    /// pseudo-labelled real scans in the data).
+    pub fn real_scans() -> Self {
+        Self { ceiling_drop_probability: 0.5, floor_drop_probability: 0.15, ..Self::real_rooms() }
     }
 
     /// Applies the augmentation to `cloud` in place, seeded by `seed`.
@@ -593,6 +614,21 @@ impl Augment {
             let c = cloud.positions[rng.random_range(0..cloud.len())];
             for (k, p) in keep.iter_mut().zip(&cloud.positions) {
                 *k = (p.x - c.x).abs() <= sx * 0.5 && (p.y - c.y).abs() <= sy * 0.5;
+            }
+        }
+        // Own stream: the other choices of a seed stay those of the real-rooms recipe.
+        let mut context_rng = ChaCha8Rng::seed_from_u64(seed ^ 0xC0_7E47_D209);
+        let drop_ceiling =
+            self.ceiling_drop_probability > 0.0 && context_rng.random::<f32>() < self.ceiling_drop_probability;
+        let drop_floor = self.floor_drop_probability > 0.0 && context_rng.random::<f32>() < self.floor_drop_probability;
+        if drop_ceiling || drop_floor {
+            let dropped = |label: u8| (drop_ceiling && label == 0) || (drop_floor && label == 1);
+            let left = keep.iter().zip(&cloud.labels).filter(|&(&k, &l)| k && !dropped(l)).count();
+            // A sample that would be (nearly) all ceiling and floor keeps them.
+            if left * 10 >= keep.iter().filter(|&&k| k).count() {
+                for (k, &l) in keep.iter_mut().zip(&cloud.labels) {
+                    *k &= !dropped(l);
+                }
             }
         }
         if self.dropout_max > 0.0 {
@@ -865,6 +901,40 @@ mod tests {
         let mut cropped = original.clone();
         crop.apply(&mut cropped, 3);
         assert!(cropped.positions.iter().any(|p| p.z > 2.0));
+    }
+
+    #[test]
+    fn context_drop_removes_exactly_the_ceiling_or_the_floor() {
+        let room = &DataSource::parse("synth:11..12").unwrap().rooms().unwrap()[0];
+        let original = load_cloud(room, 0.1, 1).unwrap();
+        let count = |c: &LabeledPointCloud, class: u8| c.labels.iter().filter(|&&l| l == class).count();
+        assert!(count(&original, 0) > 0 && count(&original, 1) > 0);
+        for (ceiling, floor) in [(1.0, 0.0), (0.0, 1.0), (1.0, 1.0)] {
+            let drop = Augment { ceiling_drop_probability: ceiling, floor_drop_probability: floor, ..Augment::none() };
+            let mut cloud = original.clone();
+            drop.apply(&mut cloud, 5);
+            let gone = |class: u8, p: f32| if p > 0.0 { 0 } else { count(&original, class) };
+            assert_eq!(count(&cloud, 0), gone(0, ceiling));
+            assert_eq!(count(&cloud, 1), gone(1, floor));
+            // Everything else stays, in order.
+            let rest: Vec<u8> = original.labels.iter().copied().filter(|&l| l > 1).collect();
+            let kept: Vec<u8> = cloud.labels.iter().copied().filter(|&l| l > 1).collect();
+            assert_eq!(rest, kept);
+        }
+        // The recipe drops the ceiling from some samples and keeps it in others.
+        let with_ceiling: Vec<bool> = (0..16)
+            .map(|seed| {
+                let mut c = original.clone();
+                Augment { ceiling_drop_probability: 0.5, ..Augment::none() }.apply(&mut c, seed);
+                count(&c, 0) > 0
+            })
+            .collect();
+        assert!(with_ceiling.contains(&true) && with_ceiling.contains(&false), "{with_ceiling:?}");
+        // A sample of nothing but ceiling keeps it.
+        let mut only_ceiling = original.clone();
+        only_ceiling.labels.iter_mut().for_each(|l| *l = 0);
+        Augment { ceiling_drop_probability: 1.0, ..Augment::none() }.apply(&mut only_ceiling, 5);
+        assert_eq!(only_ceiling.len(), original.len());
     }
 
     #[test]

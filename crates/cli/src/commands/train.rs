@@ -56,8 +56,9 @@ pub struct TrainArgs {
     /// crops, dropout, colour), `live-maps` (the same plus a short walk's view and rugs on
     /// the floor, to imitate the partial maps the live pipeline labels), `casual-scans`
     /// (`live-maps` plus cuts above 1.0-2.2 m, as a scan that rarely looks up) or
-    /// `real-rooms` (`casual-scans` plus a real camera's colours half of the time).
-    #[arg(long, default_value = "training", value_parser = ["training", "live-maps", "casual-scans", "real-rooms"])]
+    /// `real-rooms` (`casual-scans` plus a real camera's colours half of the time) or
+    /// `real-scans` (`real-rooms` with the ceiling dropped half of the time, the floor 15 %).
+    #[arg(long, default_value = "training", value_parser = ["training", "live-maps", "casual-scans", "real-rooms", "real-scans"])]
     augment: String,
     /// Worker threads (default: all cores).
     #[arg(long)]
@@ -120,6 +121,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         "live-maps" => semrecon_net::dataset::Augment::live_maps(),
         "casual-scans" => semrecon_net::dataset::Augment::casual_scans(),
         "real-rooms" => semrecon_net::dataset::Augment::real_rooms(),
+        "real-scans" => semrecon_net::dataset::Augment::real_scans(),
         _ => semrecon_net::dataset::Augment::training(),
     };
     eprintln!(
