@@ -4,6 +4,8 @@
 #   - generated test rooms (synth:2000000..2000040), the held-out classroom style,
 #   - rooms furnished with furniture training never saw (synth-lib:...:held-out; needs
 #     Debian's sweethome3d-furniture) and with training furniture (seeds training never drew),
+#   - reconstructions of rendered scans (make-scans, 8 full + 8 partial, seeds training never
+#     drew), of procedural rooms and of library rooms furnished with held-out furniture,
 #   - the demo (seed 1, the default `semrecon demo`), its semantic mIoU.
 # Usage: bench/real_rooms_eval.sh MODEL_A MODEL_B [OUT_DIR]   (default target/real_rooms_eval)
 # Environment: STRUCTURE (segments, the default of `segment` and `eval seg`; `none` for the
@@ -23,8 +25,15 @@ sets=(
   "synth_test synth:2000000..2000040"
   "classroom synth:2000000..2000040:classroom"
 )
+# The scans are made once per OUT_DIR (make-scans --keep-existing).
+"$bin" make-scans --seeds 1000200..1000208 --out "$OUT/scans_test" --keep-existing > /dev/null
+"$bin" make-scans --seeds 1000300..1000308 --partial --out "$OUT/scans_test" --keep-existing > /dev/null
+sets+=("scans_test ply:$OUT/scans_test")
 if [ -d /usr/share/sweethome3d/furniture ] || [ -n "${SEMRECON_FURNITURE_DIR:-}" ]; then
   sets+=("lib_held_out synth-lib:2000000..2000040:held-out" "lib_test synth-lib:2000000..2000040")
+  "$bin" make-scans --library --held-out --seeds 1000200..1000208 --out "$OUT/lib_scans_test" --keep-existing > /dev/null
+  "$bin" make-scans --library --held-out --seeds 1000300..1000308 --partial --out "$OUT/lib_scans_test" --keep-existing > /dev/null
+  sets+=("lib_scans_held_out ply:$OUT/lib_scans_test")
 else
   echo "skipping the library rooms: sweethome3d-furniture is not installed (apt-get install sweethome3d-furniture)"
 fi
