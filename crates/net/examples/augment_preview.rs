@@ -18,14 +18,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "usage: augment_preview SOURCE OUT_DIR [training|live-maps|casual-scans|real-rooms|real-scans] [N]".into(),
         );
     };
-    let augment = match args.get(2).map(String::as_str) {
-        None | Some("live-maps") => Augment::live_maps(),
-        Some("casual-scans") => Augment::casual_scans(),
-        Some("training") => Augment::training(),
-        Some("real-rooms") => Augment::real_rooms(),
-        Some("real-scans") => Augment::real_scans(),
-        Some(other) => return Err(format!("unknown recipe `{other}`").into()),
-    };
+    let recipe = args.get(2).map_or("live-maps", String::as_str);
+    let augment = Augment::from_recipe(recipe)
+        .ok_or_else(|| format!("unknown recipe `{recipe}`: one of {:?}", Augment::RECIPES))?;
     let n: usize = args.get(3).map(|s| s.parse()).transpose()?.unwrap_or(4);
     std::fs::create_dir_all(out)?;
     let rooms = rooms_of(&[DataSource::parse(source)?])?;

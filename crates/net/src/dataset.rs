@@ -53,6 +53,7 @@ use std::sync::OnceLock;
 use glam::{Mat3, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use semrecon_data::class::SemanticClass;
 use semrecon_data::library::rooms::{generate_library_room, HomeRoomKind, LibraryRoomConfig};
 use semrecon_data::library::{FurnitureLibrary, Split};
 use semrecon_data::synth::{generate_room, RoomConfig, RoomStyle};
@@ -544,6 +545,21 @@ impl Augment {
         Self { ceiling_drop_probability: 0.5, floor_drop_probability: 0.15, ..Self::real_rooms() }
     }
 
+    /// Names of the recipes [`Augment::from_recipe`] knows (`semrecon train --augment`).
+    pub const RECIPES: [&'static str; 5] = ["training", "live-maps", "casual-scans", "real-rooms", "real-scans"];
+
+    /// The recipe of a name in [`Augment::RECIPES`]; `None` for any other name.
+    pub fn from_recipe(name: &str) -> Option<Self> {
+        match name {
+            "training" => Some(Self::training()),
+            "live-maps" => Some(Self::live_maps()),
+            "casual-scans" => Some(Self::casual_scans()),
+            "real-rooms" => Some(Self::real_rooms()),
+            "real-scans" => Some(Self::real_scans()),
+            _ => None,
+        }
+    }
+
     /// Applies the augmentation to `cloud` in place, seeded by `seed`.
     pub fn apply(&self, cloud: &mut LabeledPointCloud, seed: u64) {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_A06E);
@@ -622,7 +638,10 @@ impl Augment {
             self.ceiling_drop_probability > 0.0 && context_rng.random::<f32>() < self.ceiling_drop_probability;
         let drop_floor = self.floor_drop_probability > 0.0 && context_rng.random::<f32>() < self.floor_drop_probability;
         if drop_ceiling || drop_floor {
-            let dropped = |label: u8| (drop_ceiling && label == 0) || (drop_floor && label == 1);
+            let dropped = |label: u8| {
+                (drop_ceiling && label == SemanticClass::Ceiling.id())
+                    || (drop_floor && label == SemanticClass::Floor.id())
+            };
             let left = keep.iter().zip(&cloud.labels).filter(|&(&k, &l)| k && !dropped(l)).count();
             // A sample that would be (nearly) all ceiling and floor keeps them.
             if left * 10 >= keep.iter().filter(|&&k| k).count() {

@@ -58,7 +58,7 @@ pub struct TrainArgs {
     /// (`live-maps` plus cuts above 1.0-2.2 m, as a scan that rarely looks up) or
     /// `real-rooms` (`casual-scans` plus a real camera's colours half of the time) or
     /// `real-scans` (`real-rooms` with the ceiling dropped half of the time, the floor 15 %).
-    #[arg(long, default_value = "training", value_parser = ["training", "live-maps", "casual-scans", "real-rooms", "real-scans"])]
+    #[arg(long, default_value = "training", value_parser = semrecon_net::dataset::Augment::RECIPES)]
     augment: String,
     /// Worker threads (default: all cores).
     #[arg(long)]
@@ -117,13 +117,9 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     opts.resume = args.resume;
     opts.init = args.init.clone();
     opts.seed = args.seed;
-    opts.augment = match args.augment.as_str() {
-        "live-maps" => semrecon_net::dataset::Augment::live_maps(),
-        "casual-scans" => semrecon_net::dataset::Augment::casual_scans(),
-        "real-rooms" => semrecon_net::dataset::Augment::real_rooms(),
-        "real-scans" => semrecon_net::dataset::Augment::real_scans(),
-        _ => semrecon_net::dataset::Augment::training(),
-    };
+    opts.augment = semrecon_net::dataset::Augment::from_recipe(&args.augment).with_context(|| {
+        format!("--augment {}: not one of {:?}", args.augment, semrecon_net::dataset::Augment::RECIPES)
+    })?;
     eprintln!(
         "training {} on {} rooms, validating on {} rooms, output {}",
         config.summary(),
