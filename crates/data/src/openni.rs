@@ -165,6 +165,14 @@ struct Api {
 
 static API: OnceLock<Result<Api, OpenNiError>> = OnceLock::new();
 
+/// Held while a device is opened, set up or closed: OpenNI2's device list and driver state are
+/// not safe to change from two threads at once (two recordings opened together crash it).
+static DEVICE_LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn device_lock() -> std::sync::MutexGuard<'static, ()> {
+    DEVICE_LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
 /// Loads and initialises OpenNI2 (once per process).
 fn api() -> Result<&'static Api, OpenNiError> {
     API.get_or_init(load).as_ref().map_err(Clone::clone)
@@ -317,6 +325,7 @@ pub struct DeviceInfo {
 /// The devices OpenNI2 sees (cameras plugged in; recordings are not listed).
 pub fn devices() -> Result<Vec<DeviceInfo>, OpenNiError> {
     let api = api()?;
+    let _serial = device_lock();
     let mut list: *mut DeviceInfoRaw = std::ptr::null_mut();
     let mut count: c_int = 0;
     // SAFETY: OpenNI fills `list` with `count` entries it owns until released below.
@@ -423,6 +432,7 @@ impl OniCamera {
 
     fn open(uri: &str, name: &str, playback: Playback) -> Result<Self, OpenNiError> {
         let api = api()?;
+        let serial = device_lock();
         let c_uri = CString::new(uri).map_err(|_| OpenNiError::device(name, "the URI holds a NUL byte"))?;
         let mut device: DeviceHandle = std::ptr::null_mut();
         // SAFETY: a NUL-terminated URI and a handle to fill.
@@ -455,9 +465,10 @@ impl OniCamera {
             first_timestamp_us: None,
             notes: Vec::new(),
         };
-        // From here on `Drop` closes what was opened.
-        camera.set_up(playback)?;
-        Ok(camera)
+        // From here on `Drop` closes what was opened (taking the lock: release it first).
+        let set_up = camera.set_up(playback);
+        drop(serial);
+        set_up.map(|()| camera)
     }
 
     fn set_up(&mut self, playback: Playback) -> Result<(), OpenNiError> {
@@ -678,7 +689,7 @@ impl OniCamera {
             let mut index: c_int = -1;
             // A recording played on demand has its next frame at once; waiting longer means
             // it ended early.
-            let timeout = if self.recorded_frames.is_some() { 2000 } else { DEVICE_TIMEOUT_MS };
+            let timeout = if self.recorded_frames.is_some() { 1000 } else { DEVICE_TIMEOUT_MS };
             // SAFETY: the started streams of this device; OpenNI writes the ready one's index.
             let status = unsafe {
                 (api.wait_for_any_stream)(self.streams.as_mut_ptr(), self.streams.len() as c_int, &mut index, timeout)
@@ -792,6 +803,7 @@ impl OniCamera {
 impl Drop for OniCamera {
     fn drop(&mut self) {
         let api = self.api;
+        let _serial = device_lock();
         for &stream in &self.streams {
             // SAFETY: streams of this device, stopped and destroyed once.
             unsafe {

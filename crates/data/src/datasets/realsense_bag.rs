@@ -116,7 +116,10 @@ impl RealSenseBag {
         let mut topics: HashMap<u32, String> = HashMap::new();
         let mut chunks = Vec::new();
         for record in bag.index_records() {
-            match record.map_err(|e| bad(format!("damaged index: {}", rosbag_error(&e))))? {
+            let record = record.map_err(|e| {
+                bad(format!("the index at the end of the file is cut short or damaged ({}): a truncated copy?", rosbag_error(&e)))
+            })?;
+            match record {
                 IndexRecord::Connection(c) => {
                     topics.insert(c.id, c.topic.to_owned());
                 }
