@@ -3,7 +3,7 @@
 //! never needs OpenNI2; opening a camera without it says how to install it ([`INSTALL_HINT`]).
 //!
 //! [`OniCamera`] opens a device (the first one, or by URI) or a recording (OpenNI opens a file
-//! path as a device), starts depth and colour together (a recording's streams share one
+//! path as a device; it is played on demand, a frame per read), starts depth and colour together (a recording's streams share one
 //! playback timeline: reading one to its end first leaves nothing of the other), asks the device
 //! to register depth to colour where it can, and reads frames as they arrive: depth in metres,
 //! the latest colour frame resampled to the depth grid, timestamps in seconds. Mirrored streams
@@ -151,7 +151,6 @@ struct Api {
     device_create_stream: unsafe extern "C" fn(DeviceHandle, c_int, *mut StreamHandle) -> OniStatus,
     device_set_property: unsafe extern "C" fn(DeviceHandle, c_int, *const c_void, c_int) -> OniStatus,
     device_registration_supported: unsafe extern "C" fn(DeviceHandle, c_int) -> c_int,
-    stream_destroy: unsafe extern "C" fn(StreamHandle),
     stream_start: unsafe extern "C" fn(StreamHandle) -> OniStatus,
     stream_stop: unsafe extern "C" fn(StreamHandle),
     stream_read_frame: unsafe extern "C" fn(StreamHandle, *mut *mut OniFrame) -> OniStatus,
@@ -240,7 +239,6 @@ fn resolve(library: libloading::Library, name: &str) -> Result<Api, OpenNiError>
         device_create_stream: symbol!("oniDeviceCreateStream"),
         device_set_property: symbol!("oniDeviceSetProperty"),
         device_registration_supported: symbol!("oniDeviceIsImageRegistrationModeSupported"),
-        stream_destroy: symbol!("oniStreamDestroy"),
         stream_start: symbol!("oniStreamStart"),
         stream_stop: symbol!("oniStreamStop"),
         stream_read_frame: symbol!("oniStreamReadFrame"),
@@ -348,15 +346,6 @@ pub fn devices() -> Result<Vec<DeviceInfo>, OpenNiError> {
     Ok(out)
 }
 
-/// How a recording plays back.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Playback {
-    /// At the speed it was recorded, as a live camera would deliver it.
-    RealTime,
-    /// One frame each time one is read, as fast as the reader goes (a dataset).
-    OnDemand,
-}
-
 /// An open OpenNI device or recording with its depth (and, where it has one, colour) stream
 /// started.
 pub struct OniCamera {
@@ -408,11 +397,13 @@ impl OniCamera {
                 first.uri
             }
         };
-        Self::open(&uri, &uri, Playback::RealTime)
+        Self::open(&uri, &uri)
     }
 
-    /// Opens a `.oni` recording.
-    pub fn open_recording(path: &Path, playback: Playback) -> Result<Self, OpenNiError> {
+    /// Opens a `.oni` recording. It plays on demand: each read takes the next frame at once
+    /// ([`crate::live::Replay`] paces it as a camera; OpenNI 2.2's own real-time playback
+    /// crashed its player thread when the recording was closed).
+    pub fn open_recording(path: &Path) -> Result<Self, OpenNiError> {
         let name = path.display().to_string();
         let mut magic = [0u8; 4];
         let read = std::fs::File::open(path).and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic));
@@ -427,10 +418,10 @@ impl OniCamera {
             Ok(()) => {}
         }
         let uri = path.to_str().ok_or_else(|| OpenNiError::device(&name, "the path is not UTF-8"))?;
-        Self::open(uri, &name, playback)
+        Self::open(uri, &name)
     }
 
-    fn open(uri: &str, name: &str, playback: Playback) -> Result<Self, OpenNiError> {
+    fn open(uri: &str, name: &str) -> Result<Self, OpenNiError> {
         let api = api()?;
         let serial = device_lock();
         let c_uri = CString::new(uri).map_err(|_| OpenNiError::device(name, "the URI holds a NUL byte"))?;
@@ -466,14 +457,14 @@ impl OniCamera {
             notes: Vec::new(),
         };
         // From here on `Drop` closes what was opened (taking the lock: release it first).
-        let set_up = camera.set_up(playback);
+        let set_up = camera.set_up();
         drop(serial);
         set_up.map(|()| camera)
     }
 
-    fn set_up(&mut self, playback: Playback) -> Result<(), OpenNiError> {
+    fn set_up(&mut self) -> Result<(), OpenNiError> {
         let api = self.api;
-        let is_recording = self.set_playback(playback);
+        let is_recording = self.play_on_demand();
         // SAFETY: the open device; a sensor type of the enum.
         let has = |sensor| !unsafe { (api.device_get_sensor_info)(self.device, sensor) }.is_null();
         if !has(SENSOR_DEPTH) {
@@ -516,8 +507,6 @@ impl OniCamera {
             } else {
                 self.notes.push(format!("colour format {} not supported: frames have no colour", cmode.pixel_format));
                 self.streams.pop();
-                // SAFETY: the stream created above, not started.
-                unsafe { (api.stream_destroy)(color) };
             }
         } else {
             self.notes.push("no colour stream: frames have no colour".into());
@@ -569,13 +558,10 @@ impl OniCamera {
         Ok(())
     }
 
-    /// Sets the playback speed and no repeat; whether the device is a recording (live devices
-    /// refuse the property).
-    fn set_playback(&self, playback: Playback) -> bool {
-        let speed: f32 = match playback {
-            Playback::RealTime => 1.0,
-            Playback::OnDemand => -1.0,
-        };
+    /// Sets a recording to play on demand (a frame per read, OpenNI's speed -1) without repeat;
+    /// whether the device is a recording (live devices refuse the property).
+    fn play_on_demand(&self) -> bool {
+        let speed: f32 = -1.0;
         let size = std::mem::size_of::<f32>() as c_int;
         // SAFETY: the property holds a float.
         let ok = unsafe {
@@ -804,12 +790,13 @@ impl Drop for OniCamera {
     fn drop(&mut self) {
         let api = self.api;
         let _serial = device_lock();
+        // The streams are stopped and the device closed, but the streams are not destroyed:
+        // destroying a recording's streams raced its player thread in OpenNI 2.2 (a crash about
+        // one close in ten under load). Closing the device stops and joins that thread; the
+        // streams' few kilobytes stay allocated until the process ends.
         for &stream in &self.streams {
-            // SAFETY: streams of this device, stopped and destroyed once.
-            unsafe {
-                (api.stream_stop)(stream);
-                (api.stream_destroy)(stream);
-            }
+            // SAFETY: streams of this device, stopped once.
+            unsafe { (api.stream_stop)(stream) };
         }
         // SAFETY: the device opened in `open`, closed once.
         unsafe { (api.device_close)(self.device) };

@@ -1,5 +1,6 @@
 //! `oni:FILE`: an OpenNI `.oni` recording as a dataset, frame by frame without dropping any
-//! (the recording plays on demand, one frame per read), through [`crate::openni`].
+//! (the recording plays on demand, one frame per read), through [`crate::openni`]. Live
+//! (`semrecon live --oni`), [`crate::live::Replay`] delivers it at its recorded times.
 //!
 //! OpenNI reads a recording forwards only: frames are read in order, a frame behind the last
 //! one read reopens the recording, and a frame ahead skips the ones between. Each frame is the
@@ -11,7 +12,7 @@ use std::sync::Mutex;
 use crate::camera::Intrinsics;
 use crate::error::{DataError, Result};
 use crate::frame::{Frame, FrameSource};
-use crate::openni::{OniCamera, OpenNiError, Playback};
+use crate::openni::{OniCamera, OpenNiError};
 
 /// An OpenNI recording read as a dataset.
 #[derive(Debug)]
@@ -35,7 +36,7 @@ impl Oni {
                 if path.exists() { "not a file; expected an OpenNI .oni recording" } else { "file does not exist" },
             ));
         }
-        let camera = OniCamera::open_recording(&path, Playback::OnDemand)?;
+        let camera = OniCamera::open_recording(&path)?;
         let frames = camera.recorded_frames().unwrap_or(0);
         let mut notes = camera.notes();
         notes.insert(0, format!("depth units {} m", camera.depth_unit_m()));
@@ -53,7 +54,7 @@ impl Oni {
         let mut guard = self.camera.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
         if guard.as_ref().is_none_or(|c| c.frames_read() > index) {
             *guard = None;
-            *guard = Some(OniCamera::open_recording(&self.path, Playback::OnDemand)?);
+            *guard = Some(OniCamera::open_recording(&self.path)?);
         }
         let Some(camera) = guard.as_mut() else {
             return Err(OpenNiError::Device { name: self.path.display().to_string(), message: "not open".into() });
