@@ -431,9 +431,12 @@ impl OniCamera {
         if status != STATUS_OK || device.is_null() {
             let why = api.last_error("");
             let message = if why.is_empty() {
-                format!(
-                    "OpenNI2 cannot open it (status {status}): a truncated or damaged recording, or a camera in use"
-                )
+                let what = if Path::new(uri).is_file() {
+                    "a truncated or damaged recording"
+                } else {
+                    "a camera unplugged or in use by another program"
+                };
+                format!("OpenNI2 cannot open it (status {status}): {what}")
             } else {
                 format!("OpenNI2 cannot open it: {why}")
             };
