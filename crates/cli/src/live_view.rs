@@ -50,7 +50,7 @@ impl LiveView {
     /// is due, shows the pipeline's mesh; how long that took, `None` when nothing was pushed.
     pub fn push_at_keyframe(&mut self, pipeline: &Pipeline, keyframe_every: usize) -> Result<Option<Duration>, String> {
         let fused = pipeline.frame_counts().1;
-        if fused == 0 || fused % keyframe_every.max(1) != 0 || !self.due(fused) {
+        if fused == 0 || !fused.is_multiple_of(keyframe_every.max(1)) || !self.due(fused) {
             return Ok(None);
         }
         let t = Instant::now();
