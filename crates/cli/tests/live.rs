@@ -54,7 +54,19 @@ fn oni_recording() -> Option<PathBuf> {
 fn the_simulated_camera_runs_in_real_time_dropping_what_the_pipeline_cannot_take() {
     let dir = tempfile::tempdir().expect("tempdir");
     let out = dir.path().join("out");
-    let o = semrecon(&["live", "--synth", "4", "--max-frames", "45", "--voxel", "0.02", "--semantics", "off", "--out", s(&out)]);
+    let o = semrecon(&[
+        "live",
+        "--synth",
+        "4",
+        "--max-frames",
+        "45",
+        "--voxel",
+        "0.02",
+        "--semantics",
+        "off",
+        "--out",
+        s(&out),
+    ]);
     assert!(o.status.success(), "{}\n{}", stdout(&o), stderr(&o));
     let r = check_outputs(&out);
     assert_eq!(count(&r, "frames_in"), 45);
@@ -77,7 +89,19 @@ fn ctrl_c_mid_stream_writes_valid_outputs() {
     let dir = tempfile::tempdir().expect("tempdir");
     let out = dir.path().join("out");
     let mut child = Command::new(env!("CARGO_BIN_EXE_semrecon"))
-        .args(["live", "--synth", "5", "--max-frames", "150", "--voxel", "0.02", "--semantics", "off", "--out", s(&out)])
+        .args([
+            "live",
+            "--synth",
+            "5",
+            "--max-frames",
+            "150",
+            "--voxel",
+            "0.02",
+            "--semantics",
+            "off",
+            "--out",
+            s(&out),
+        ])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -123,7 +147,17 @@ fn the_kinect_recording_runs_live_and_as_a_dataset() {
     assert_eq!(r["stopped_by"], "end_of_stream");
     assert!(count(&r, "fused_frames") >= 2, "{r}");
     let run = dir.path().join("run");
-    let o = semrecon(&["run", "--dataset", &format!("oni:{}", oni.display()), "--voxel", "0.02", "--semantics", "off", "--out", s(&run)]);
+    let o = semrecon(&[
+        "run",
+        "--dataset",
+        &format!("oni:{}", oni.display()),
+        "--voxel",
+        "0.02",
+        "--semantics",
+        "off",
+        "--out",
+        s(&run),
+    ]);
     assert!(o.status.success(), "{}\n{}", stdout(&o), stderr(&o));
     let r = report(&run);
     assert_eq!((count(&r, "frames"), count(&r, "fused_frames")), (12, 12), "no frame dropped as a dataset: {r}");

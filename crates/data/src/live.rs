@@ -214,7 +214,9 @@ impl LiveCamera for Replay {
             Err(e) => {
                 self.failed_in_a_row += 1;
                 if self.failed_in_a_row >= MAX_FAILED_READS {
-                    CameraEvent::Ended(Some(format!("{MAX_FAILED_READS} frames in a row failed to load, the last: {e}")))
+                    CameraEvent::Ended(Some(format!(
+                        "{MAX_FAILED_READS} frames in a row failed to load, the last: {e}"
+                    )))
                 } else {
                     CameraEvent::Skipped(format!("frame {index}: {e}"))
                 }

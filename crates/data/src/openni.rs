@@ -295,8 +295,9 @@ impl Api {
         let mut mode = VideoMode::default();
         let mut size = std::mem::size_of::<VideoMode>() as c_int;
         // SAFETY: `mode` is the OniVideoMode the property holds.
-        let status =
-            unsafe { (self.stream_get_property)(stream, STREAM_PROPERTY_VIDEO_MODE, (&raw mut mode).cast(), &mut size) };
+        let status = unsafe {
+            (self.stream_get_property)(stream, STREAM_PROPERTY_VIDEO_MODE, (&raw mut mode).cast(), &mut size)
+        };
         (status == STATUS_OK).then_some(mode)
     }
 
@@ -531,7 +532,8 @@ impl OniCamera {
                     )
                 } == STATUS_OK;
             if !self.registered {
-                self.notes.push("depth not registered to colour by the device: colour resampled by field of view".into());
+                self.notes
+                    .push("depth not registered to colour by the device: colour resampled by field of view".into());
             }
         }
         // Intrinsics from the depth stream's field of view (OpenNI gives no more), centred.
@@ -723,6 +725,12 @@ impl OniCamera {
     /// # Safety
     /// `f.data` points at `f.data_size` readable bytes.
     unsafe fn take(&mut self, f: &OniFrame, is_depth: bool) -> Result<Option<Frame>, OpenNiError> {
+        // A depth frame counts as read even when it turns out damaged: the next one keeps its
+        // index.
+        let index = self.depth_read;
+        if is_depth {
+            self.depth_read += 1;
+        }
         let expected = if is_depth { self.depth_mode } else { self.color_mode.unwrap_or_default() };
         let what = if is_depth { "depth" } else { "colour" };
         let bytes_per_pixel: usize = if is_depth { 2 } else { 3 };
@@ -772,8 +780,6 @@ impl OniCamera {
             }
         }
         let t0 = *self.first_timestamp_us.get_or_insert(f.timestamp);
-        let index = self.depth_read;
-        self.depth_read += 1;
         let color = self.latest_color.clone().unwrap_or_else(|| vec![[0; 3]; w * h]);
         let frame = Frame {
             index,

@@ -80,7 +80,11 @@ pub struct LiveFeed {
 impl LiveFeed {
     /// Starts `camera` on its own thread.
     pub fn start(mut camera: Box<dyn LiveCamera>) -> Self {
-        let shared = Arc::new(Shared { state: Mutex::new(State::default()), ready: Condvar::new(), stop: AtomicBool::new(false) });
+        let shared = Arc::new(Shared {
+            state: Mutex::new(State::default()),
+            ready: Condvar::new(),
+            stop: AtomicBool::new(false),
+        });
         let producer = Arc::clone(&shared);
         let thread = std::thread::Builder::new()
             .name("camera".into())

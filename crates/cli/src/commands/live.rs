@@ -33,7 +33,9 @@ use serde::Serialize;
 use crate::interrupt;
 use crate::live_view::LiveView;
 use crate::progress::spinner;
-use crate::reconstruction::{labelled_share, load_network, pipeline_config, prepare_output_dir, write_outputs, ReconArgs, SemanticArgs};
+use crate::reconstruction::{
+    labelled_share, load_network, pipeline_config, prepare_output_dir, write_outputs, ReconArgs, SemanticArgs,
+};
 use crate::timing::{print_table, stages_json};
 
 /// Warnings printed one by one before they are only counted.
@@ -169,7 +171,8 @@ fn open_camera(args: &LiveArgs) -> anyhow::Result<Box<dyn LiveCamera>> {
         return Ok(Box::new(Replay::new(Box::new(oni))));
     }
     if let Some(path) = &args.bag {
-        let bag = RealSenseBag::open(path).with_context(|| format!("opening the RealSense recording {}", path.display()))?;
+        let bag =
+            RealSenseBag::open(path).with_context(|| format!("opening the RealSense recording {}", path.display()))?;
         return Ok(Box::new(Replay::new(Box::new(bag))));
     }
     if let Some(seed) = args.synth {
@@ -288,7 +291,9 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
                     warn(format!("frame {} skipped: no pose", frame.index));
                     lost += 1;
                 }
-                FrameStatus::Relocalised => warn(format!("frame {}: tracking recovered by relocalisation", frame.index)),
+                FrameStatus::Relocalised => {
+                    warn(format!("frame {}: tracking recovered by relocalisation", frame.index))
+                }
                 FrameStatus::Initialized | FrameStatus::Fused => {}
             },
             Err(e) => {

@@ -60,6 +60,7 @@ impl Oni {
             return Err(OpenNiError::Device { name: self.path.display().to_string(), message: "not open".into() });
         };
         loop {
+            let before = camera.frames_read();
             match camera.next_frame() {
                 Ok(Some(frame)) if frame.index == index => return Ok(frame),
                 Ok(Some(_)) => continue,
@@ -70,8 +71,16 @@ impl Oni {
                     })
                 }
                 Err(e) => {
-                    // Start afresh at the next read.
-                    *guard = None;
+                    // A damaged frame is consumed and the recording reads on (one before the
+                    // frame wanted is passed over); anything else (the recording stopped
+                    // delivering) starts afresh at the next read.
+                    let consumed = camera.frames_read() > before;
+                    if consumed && before < index {
+                        continue;
+                    }
+                    if !consumed {
+                        *guard = None;
+                    }
                     return Err(e);
                 }
             }
@@ -102,7 +111,11 @@ impl FrameSource for Oni {
 
     fn frame(&self, index: usize) -> Result<Frame> {
         if index >= self.frames {
-            return Err(DataError::InvalidArgument(format!("frame {index} of {} frames in {}", self.frames, self.name())));
+            return Err(DataError::InvalidArgument(format!(
+                "frame {index} of {} frames in {}",
+                self.frames,
+                self.name()
+            )));
         }
         Ok(self.read(index)?)
     }

@@ -117,7 +117,10 @@ impl RealSenseBag {
         let mut chunks = Vec::new();
         for record in bag.index_records() {
             let record = record.map_err(|e| {
-                bad(format!("the index at the end of the file is cut short or damaged ({}): a truncated copy?", rosbag_error(&e)))
+                bad(format!(
+                    "the index at the end of the file is cut short or damaged ({}): a truncated copy?",
+                    rosbag_error(&e)
+                ))
             })?;
             match record {
                 IndexRecord::Connection(c) => {
@@ -303,7 +306,10 @@ impl RealSenseBag {
                 }
             }
         }
-        Err(bad(format!("message {} of connection {} missing from the chunk at byte {}", at.nth, at.conn, at.chunk_pos)))
+        Err(bad(format!(
+            "message {} of connection {} missing from the chunk at byte {}",
+            at.nth, at.conn, at.chunk_pos
+        )))
     }
 
     fn depth(&self, index: usize, bytes: &[u8]) -> Result<Vec<f32>> {
@@ -311,10 +317,7 @@ impl RealSenseBag {
         let image = Image::decode(bytes).map_err(|e| bad(e.to_string()))?;
         let k = &self.intrinsics;
         if (image.width, image.height) != (k.width, k.height) {
-            return Err(bad(format!(
-                "{}x{}, the depth camera is {}x{}",
-                image.width, image.height, k.width, k.height
-            )));
+            return Err(bad(format!("{}x{}, the depth camera is {}x{}", image.width, image.height, k.width, k.height)));
         }
         if !matches!(image.encoding.as_str(), "mono16" | "16UC1" | "z16") {
             return Err(bad(format!("encoding `{}`; mono16 or 16UC1 expected", image.encoding)));
@@ -324,7 +327,8 @@ impl RealSenseBag {
         for y in 0..h {
             let row = image.row(y, w * 2).ok_or_else(|| bad(format!("row {y} is short")))?;
             depth.extend(row.chunks_exact(2).map(|p| {
-                let raw = if image.big_endian { u16::from_be_bytes([p[0], p[1]]) } else { u16::from_le_bytes([p[0], p[1]]) };
+                let raw =
+                    if image.big_endian { u16::from_be_bytes([p[0], p[1]]) } else { u16::from_le_bytes([p[0], p[1]]) };
                 raw as f32 * self.depth_unit_m
             }));
         }
@@ -345,7 +349,8 @@ impl RealSenseBag {
         let mut pixels = Vec::with_capacity(w * h);
         for y in 0..h {
             let row = image.row(y, w * channels).ok_or_else(|| bad(format!("row {y} is short")))?;
-            pixels.extend(row.chunks_exact(channels).map(|p| if bgr { [p[2], p[1], p[0]] } else { [p[0], p[1], p[2]] }));
+            pixels
+                .extend(row.chunks_exact(channels).map(|p| if bgr { [p[2], p[1], p[0]] } else { [p[0], p[1], p[2]] }));
         }
         let ck = self.color_intrinsics.filter(|c| (c.width, c.height) == (image.width, image.height));
         let image = ColorImage { width: image.width, height: image.height, pixels };
@@ -359,9 +364,7 @@ fn check_header(path: &Path) -> Result<()> {
     let bad = |message: String| DataError::dataset(path, message);
     let file_len = std::fs::metadata(path).map_err(|e| DataError::io(path, e))?.len();
     let mut head = Vec::new();
-    std::fs::File::open(path)
-        .and_then(|f| f.take(4096).read_to_end(&mut head))
-        .map_err(|e| DataError::io(path, e))?;
+    std::fs::File::open(path).and_then(|f| f.take(4096).read_to_end(&mut head)).map_err(|e| DataError::io(path, e))?;
     let Some(rest) = head.strip_prefix(MAGIC) else {
         return Err(bad("not a ROS bag v2.0 (no `#ROSBAG V2.0` line): expected a RealSense .bag recording".into()));
     };
@@ -380,7 +383,9 @@ fn check_header(path: &Path) -> Result<()> {
     }
     match index_pos {
         None => Err(bad("the bag header has no index position".into())),
-        Some(0) => Err(bad("the recording was not closed (its bag has no index); `rosbag reindex` can repair it".into())),
+        Some(0) => {
+            Err(bad("the recording was not closed (its bag has no index); `rosbag reindex` can repair it".into()))
+        }
         Some(p) if p > file_len => Err(bad(format!(
             "truncated: the index should start at byte {p} but the file has {file_len} bytes (a copy cut short?)"
         ))),

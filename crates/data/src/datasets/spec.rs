@@ -12,8 +12,7 @@ use crate::error::{DataError, Result};
 use crate::frame::FrameSource;
 
 /// The accepted kinds, for error messages.
-const KINDS: &str =
-    "7scenes:PATH, tum:PATH, redwood:PATH, scannet:PATH, replica:PATH, oni:FILE, bag:FILE, synth:SEED";
+const KINDS: &str = "7scenes:PATH, tum:PATH, redwood:PATH, scannet:PATH, replica:PATH, oni:FILE, bag:FILE, synth:SEED";
 
 /// Which dataset reader to use on which folder (or which synthetic scene).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -101,7 +100,16 @@ mod tests {
 
     #[test]
     fn specs_parse_and_print_back() {
-        for s in ["7scenes:/a/b", "tum:x", "redwood:../r", "scannet:s", "replica:C:/w", "oni:a.oni", "bag:/r/b.bag", "synth:42"] {
+        for s in [
+            "7scenes:/a/b",
+            "tum:x",
+            "redwood:../r",
+            "scannet:s",
+            "replica:C:/w",
+            "oni:a.oni",
+            "bag:/r/b.bag",
+            "synth:42",
+        ] {
             let spec: DatasetSpec = s.parse().expect("valid");
             assert_eq!(spec.to_string(), s);
         }
