@@ -5,7 +5,7 @@
 //! camera takes to deliver the next one (one frame period).
 //!
 //! ```text
-//! camera thread: next_event() --> [ mailbox: newest frame ] --> LiveFeed::next() --> pipeline
+//! camera thread: next_event() --> [ mailbox: newest frame ] --> LiveFeed::next_timeout() --> pipeline
 //!                                        \-- replaced: dropped += 1
 //! ```
 
