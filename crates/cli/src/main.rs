@@ -4,6 +4,8 @@ use clap::{Parser, Subcommand};
 
 mod cli_values;
 mod commands;
+mod interrupt;
+mod live_view;
 mod progress;
 mod reconstruction;
 mod timing;
@@ -32,6 +34,8 @@ enum Command {
     MakeScans(commands::make_scans::MakeScansArgs),
     /// Reconstruct a dataset: poses, TSDF fusion, meshing; writes mesh, trajectory and report.
     Run(commands::run::RunArgs),
+    /// Live session on a camera (OpenNI2 device or .oni, RealSense .bag, simulated): real time, late frames dropped; Ctrl-C writes the outputs.
+    Live(commands::live::LiveArgs),
     /// Label every vertex of a point cloud or mesh (PLY) with the network: adds a `label` property.
     Segment(commands::segment::SegmentArgs),
     /// Generate a synthetic labelled room and render an RGB-D scan of it (7-Scenes layout).
@@ -56,6 +60,7 @@ fn main() -> std::process::ExitCode {
         Command::Demo(args) => commands::demo::run(args),
         Command::Eval(args) => commands::eval::run(args),
         Command::Info(args) => commands::info::run(args),
+        Command::Live(args) => commands::live::run(args),
         Command::MakeScans(args) => commands::make_scans::run(args),
         Command::Run(args) => commands::run::run(args),
         Command::Segment(args) => commands::segment::run(args),

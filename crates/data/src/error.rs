@@ -47,6 +47,9 @@ pub enum DataError {
     /// An argument out of its valid range (not tied to a file).
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
+    /// OpenNI2 missing, or a device or `.oni` recording it cannot open or read.
+    #[error(transparent)]
+    OpenNi(#[from] crate::openni::OpenNiError),
 }
 
 impl DataError {

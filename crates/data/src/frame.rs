@@ -104,6 +104,11 @@ pub trait FrameSource: Send + Sync {
     }
     /// Loads frame `index`; errors name the file and what is wrong with it.
     fn frame(&self, index: usize) -> crate::Result<Frame>;
+    /// What else a user should know about the source (depth units, how colour is registered,
+    /// the library that reads it), one line each; `semrecon info` prints them.
+    fn notes(&self) -> Vec<String> {
+        Vec::new()
+    }
 }
 
 #[cfg(test)]

@@ -1,8 +1,10 @@
 //! Data for semrecon: the semantic classes, cameras and frames, every file format the
 //! system reads or writes (PLY, TUM trajectories, S3DIS rooms, ScanNet labelled meshes),
 //! readers for the common RGB-D dataset layouts behind one [`FrameSource`] trait, a
-//! procedural generator of labelled indoor rooms, and a z-buffer RGB-D renderer with a
-//! Kinect-like sensor model.
+//! procedural generator of labelled indoor rooms, a z-buffer RGB-D renderer with a
+//! Kinect-like sensor model, and live cameras: OpenNI2 devices and recordings (the library
+//! loaded at run time), RealSense recordings, and any source replayed in real time
+//! ([`live`]).
 //!
 //! Conventions: metres; world frame z up with the floor at z = 0; camera frame x right,
 //! y down, z forward (the pinhole convention of every dataset read here); poses are
@@ -17,10 +19,13 @@ pub mod depth_image;
 pub mod error;
 pub mod frame;
 pub mod library;
+pub mod live;
 pub mod mesh;
+pub mod openni;
 pub mod ply;
 pub mod point_cloud;
 pub mod render;
+pub mod ros_messages;
 pub mod s3dis;
 pub mod scan_path;
 pub mod scannet_mesh;

@@ -7,7 +7,7 @@ use serde::Serialize;
 /// Arguments of `semrecon info`.
 #[derive(clap::Args)]
 pub struct InfoArgs {
-    /// Dataset as KIND:PATH (7scenes:, tum:, redwood:, scannet:, replica:, synth:SEED).
+    /// Dataset as KIND:PATH (7scenes:, tum:, redwood:, scannet:, replica:, oni:FILE, bag:FILE, synth:SEED).
     #[arg(long)]
     dataset: DatasetSpec,
     /// Print JSON instead of a table.
@@ -32,6 +32,8 @@ struct Info {
     has_gt: bool,
     depth_min_m: Option<f32>,
     depth_max_m: Option<f32>,
+    /// What else the reader says (depth units, registration, library).
+    notes: Vec<String>,
 }
 
 /// Runs the command.
@@ -65,6 +67,7 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
         has_gt: source.has_ground_truth(),
         depth_min_m: range.map(|r| r.0),
         depth_max_m: range.map(|r| r.1),
+        notes: source.notes(),
     };
     if args.json {
         println!("{}", serde_json::to_string_pretty(&info)?);
@@ -79,6 +82,9 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
             None => println!("depth range  none valid in {samples} sampled frames"),
         }
         println!("ground truth {}", if info.has_gt { "yes" } else { "no" });
+        for note in &info.notes {
+            println!("note         {note}");
+        }
     }
     Ok(())
 }

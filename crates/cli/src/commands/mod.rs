@@ -7,6 +7,7 @@ pub mod demo;
 pub mod eval;
 pub mod eval_seg;
 pub mod info;
+pub mod live;
 pub mod make_scans;
 pub mod run;
 pub mod segment;

@@ -13,7 +13,8 @@
 //! frame) when the run starts at the dataset's ground-truth pose.
 //!
 //! With `--serve` the viewer of `semrecon view` follows the run live on 127.0.0.1: the mesh
-//! and trajectory are pushed to it at keyframes (at most once per [`LIVE_PUSH_INTERVAL`] of
+//! and trajectory are pushed to it at keyframes (at most once per
+//! [`LIVE_PUSH_INTERVAL`](crate::live_view::LIVE_PUSH_INTERVAL) of
 //! wall time, outside the timed pipeline stages), and the final result stays served until
 //! Ctrl-C (or, with `--serve-exit`, the server stops when the run ends).
 //!
@@ -32,12 +33,12 @@ use anyhow::Context;
 use semrecon_data::atomic_file::write_atomic;
 use semrecon_data::datasets::{open_dataset, DatasetSpec};
 use semrecon_data::synth::{generate_room, RoomConfig};
-use semrecon_data::{LabeledMesh, Trajectory};
+use semrecon_data::Trajectory;
 use semrecon_eval::{evaluate_trajectory, TrajectoryEvalConfig};
 use semrecon_pipeline::{FrameStatus, Pipeline, UpEstimate};
-use semrecon_viewer::{LiveScene, ViewerServer};
 use serde::Serialize;
 
+use crate::live_view::LiveView;
 use crate::progress::progress_bar;
 use crate::reconstruction::{
     dataset_up, labelled_share, load_network, pipeline_config, prepare_output_dir, semantic_score, vertex_accuracy_mm,
@@ -51,14 +52,10 @@ const MAX_WARNINGS: usize = 10;
 /// Failed loads in a row after which the dataset is taken to have ended early.
 pub const MAX_CONSECUTIVE_FAILED_LOADS: usize = 30;
 
-/// Shortest wall time between two pushes to the live viewer: building the whole mesh and
-/// its collision geometry costs far more than a keyframe's incremental meshing.
-pub const LIVE_PUSH_INTERVAL: Duration = Duration::from_secs(1);
-
 /// Arguments of `semrecon run`.
 #[derive(clap::Args)]
 pub struct RunArgs {
-    /// Dataset as KIND:PATH (7scenes:, tum:, redwood:, scannet:, replica:, synth:SEED).
+    /// Dataset as KIND:PATH (7scenes:, tum:, redwood:, scannet:, replica:, oni:FILE, bag:FILE, synth:SEED).
     #[arg(long)]
     dataset: DatasetSpec,
     /// Frames to process as A..B (B excluded; either end may be left out): all by default.
@@ -85,38 +82,6 @@ pub struct RunArgs {
     /// Stop the live viewer when the run ends instead of serving on (for scripts and tests).
     #[arg(long, requires = "serve")]
     serve_exit: bool,
-}
-
-/// The live viewer of `--serve`.
-struct LiveView {
-    server: ViewerServer,
-    scene: LiveScene,
-    /// Fused frame count at the last push (the map has not changed while it is the same).
-    pushed_at: Option<usize>,
-    last_push: Option<Instant>,
-}
-
-impl LiveView {
-    fn start(port: Option<u16>) -> anyhow::Result<Self> {
-        let (server, scene) = ViewerServer::start_live(port).context("starting the live viewer")?;
-        Ok(Self { server, scene, pushed_at: None, last_push: None })
-    }
-
-    /// Whether the map changed since the last push and the push interval has passed.
-    fn due(&self, fused: usize) -> bool {
-        self.pushed_at != Some(fused) && self.last_push.is_none_or(|t| t.elapsed() >= LIVE_PUSH_INTERVAL)
-    }
-
-    /// Shows `mesh` and `trajectory`; an empty mesh (nothing surfaced yet) is skipped.
-    fn push(&mut self, fused: usize, mesh: &LabeledMesh, trajectory: &Trajectory) -> Result<(), String> {
-        if mesh.triangles.is_empty() {
-            return Ok(());
-        }
-        self.scene.update(mesh, trajectory).map_err(|e| format!("live viewer not updated: {e}"))?;
-        self.pushed_at = Some(fused);
-        self.last_push = Some(Instant::now());
-        Ok(())
-    }
 }
 
 /// A `--frames` value: `A..B`, `A..` or `..B`.
@@ -342,17 +307,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             let lag = Instant::now().saturating_duration_since(due).as_secs_f64();
             max_lag_s = Some(max_lag_s.map_or(lag, |m: f64| m.max(lag)));
         }
-        // Only at keyframes, where the incremental mesh was just brought up to date.
-        let fused = pipeline.frame_counts().1;
-        if let Some(live) =
-            live.as_mut().filter(|l| fused > 0 && fused % args.recon.keyframe_every == 0 && l.due(fused))
-        {
-            let t = Instant::now();
-            let mesh = pipeline.mesh();
-            if let Err(why) = live.push(fused, &mesh, pipeline.trajectory()) {
-                warn(why);
+        if let Some(live) = live.as_mut() {
+            match live.push_at_keyframe(&pipeline, args.recon.keyframe_every) {
+                Ok(Some(took)) => other_times.record("live view", took),
+                Ok(None) => {}
+                Err(why) => warn(why),
             }
-            other_times.record("live view", t.elapsed());
         }
         bar.inc(1);
     }

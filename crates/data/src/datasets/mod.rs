@@ -1,12 +1,15 @@
 //! Readers for the common RGB-D dataset layouts (7-Scenes/SUN3D, TUM RGB-D, Redwood/Open3D,
-//! ScanNet exports, Replica/NICE-SLAM), each a [`FrameSource`](crate::FrameSource), and the
-//! `KIND:PATH` specification that picks one from the command line.
+//! ScanNet exports, Replica/NICE-SLAM) and camera recordings (OpenNI `.oni`, RealSense `.bag`),
+//! each a [`FrameSource`](crate::FrameSource), and the `KIND:PATH` specification that picks one
+//! from the command line.
 //!
 //! Readers index the files when opened (cheap: directory listings and one image header) and
 //! decode a frame only when asked for it, so that opening a long sequence is instant and a
 //! reader thread can stream frames. Layout problems are reported at open time, naming what
 //! was expected; problems with one frame's files are reported by `frame(i)`, naming the file.
 
+pub mod oni;
+pub mod realsense_bag;
 pub mod redwood;
 pub mod replica;
 pub mod scannet;
@@ -15,6 +18,8 @@ pub mod spec;
 pub mod synthetic;
 pub mod tum;
 
+pub use oni::Oni;
+pub use realsense_bag::RealSenseBag;
 pub use redwood::Redwood;
 pub use replica::Replica;
 pub use scannet::ScanNet;

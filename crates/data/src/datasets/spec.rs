@@ -1,5 +1,5 @@
 //! `KIND:PATH` dataset specifications (`7scenes:/data/redkitchen`, `tum:...`, `redwood:...`,
-//! `scannet:...`, `replica:...`, `synth:SEED`) as typed on the command line, and the one
+//! `scannet:...`, `replica:...`, `oni:FILE`, `bag:FILE`, `synth:SEED`) as typed on the command line, and the one
 //! function that opens any of them as a boxed [`FrameSource`].
 
 use std::fmt;
@@ -7,12 +7,12 @@ use std::path::PathBuf;
 use std::str::FromStr;
 
 use crate::datasets::synthetic::{synthetic_scan, SyntheticScanConfig};
-use crate::datasets::{Redwood, Replica, ScanNet, SevenScenes, Tum};
+use crate::datasets::{Oni, RealSenseBag, Redwood, Replica, ScanNet, SevenScenes, Tum};
 use crate::error::{DataError, Result};
 use crate::frame::FrameSource;
 
 /// The accepted kinds, for error messages.
-const KINDS: &str = "7scenes:PATH, tum:PATH, redwood:PATH, scannet:PATH, replica:PATH, synth:SEED";
+const KINDS: &str = "7scenes:PATH, tum:PATH, redwood:PATH, scannet:PATH, replica:PATH, oni:FILE, bag:FILE, synth:SEED";
 
 /// Which dataset reader to use on which folder (or which synthetic scene).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -27,6 +27,10 @@ pub enum DatasetSpec {
     ScanNet(PathBuf),
     /// A Replica (NICE-SLAM layout) sequence or its parent.
     Replica(PathBuf),
+    /// An OpenNI `.oni` recording (needs OpenNI2 at run time).
+    Oni(PathBuf),
+    /// A RealSense `.bag` recording (ROS 1 bag).
+    Bag(PathBuf),
     /// A procedurally generated room, rendered, from a seed.
     Synth(u64),
 }
@@ -51,6 +55,8 @@ impl FromStr for DatasetSpec {
             "redwood" => Self::Redwood(path()),
             "scannet" => Self::ScanNet(path()),
             "replica" => Self::Replica(path()),
+            "oni" => Self::Oni(path()),
+            "bag" => Self::Bag(path()),
             "synth" => Self::Synth(rest.parse().map_err(|_| {
                 DataError::dataset(s, format!("`{rest}` is not a seed (a non-negative integer) for synth:SEED"))
             })?),
@@ -67,6 +73,8 @@ impl fmt::Display for DatasetSpec {
             Self::Redwood(p) => write!(f, "redwood:{}", p.display()),
             Self::ScanNet(p) => write!(f, "scannet:{}", p.display()),
             Self::Replica(p) => write!(f, "replica:{}", p.display()),
+            Self::Oni(p) => write!(f, "oni:{}", p.display()),
+            Self::Bag(p) => write!(f, "bag:{}", p.display()),
             Self::Synth(seed) => write!(f, "synth:{seed}"),
         }
     }
@@ -80,6 +88,8 @@ pub fn open_dataset(spec: &DatasetSpec) -> Result<Box<dyn FrameSource>> {
         DatasetSpec::Redwood(p) => Box::new(Redwood::open(p)?),
         DatasetSpec::ScanNet(p) => Box::new(ScanNet::open(p)?),
         DatasetSpec::Replica(p) => Box::new(Replica::open(p)?),
+        DatasetSpec::Oni(p) => Box::new(Oni::open(p)?),
+        DatasetSpec::Bag(p) => Box::new(RealSenseBag::open(p)?),
         DatasetSpec::Synth(seed) => Box::new(synthetic_scan(&SyntheticScanConfig::new(*seed))?.1),
     })
 }
@@ -90,7 +100,16 @@ mod tests {
 
     #[test]
     fn specs_parse_and_print_back() {
-        for s in ["7scenes:/a/b", "tum:x", "redwood:../r", "scannet:s", "replica:C:/w", "synth:42"] {
+        for s in [
+            "7scenes:/a/b",
+            "tum:x",
+            "redwood:../r",
+            "scannet:s",
+            "replica:C:/w",
+            "oni:a.oni",
+            "bag:/r/b.bag",
+            "synth:42",
+        ] {
             let spec: DatasetSpec = s.parse().expect("valid");
             assert_eq!(spec.to_string(), s);
         }
