@@ -215,7 +215,7 @@ impl Dataset {
     }
 
     fn __repr__(&self) -> String {
-        format!("Dataset({:?}, {} frames)", self.source.name(), self.source.len())
+        format!("Dataset('{}', {} frames)", self.source.name(), self.source.len())
     }
 }
 

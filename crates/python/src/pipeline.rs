@@ -96,7 +96,8 @@ impl FrameResult {
 
     fn __repr__(&self) -> String {
         let reason = self.lost_reason().map(|r| format!(" ({r})")).unwrap_or_default();
-        format!("FrameResult(index={}, status={:?}{reason}, keyframe={})", self.0.index, self.status(), self.0.keyframe)
+        let keyframe = if self.0.keyframe { "True" } else { "False" };
+        format!("FrameResult(index={}, status='{}'{reason}, keyframe={keyframe})", self.0.index, self.status())
     }
 }
 
