@@ -20,8 +20,8 @@ pub struct Checked<'py, T: Element> {
 impl<'py, T: Element> Checked<'py, T> {
     /// The data in C order.
     pub fn slice(&self) -> &[T] {
-        // `typed` checked C-contiguity, under which `as_slice` cannot fail; an empty slice
-        // is the harmless answer should it ever.
+        // `typed` checked C-contiguity and alignment, under which `as_slice` cannot fail (an
+        // empty slice, which every caller's length checks reject, should it ever).
         self.array.as_slice().unwrap_or(&[])
     }
 }
@@ -51,7 +51,8 @@ pub fn typed<'py, T: Element>(
             untyped.dtype()
         ))
     })?;
-    let shape_ok = got_shape.len() == shape.len() && got_shape.iter().zip(shape).all(|(g, e)| e.is_none_or(|e| *g == e));
+    let shape_ok =
+        got_shape.len() == shape.len() && got_shape.iter().zip(shape).all(|(g, e)| e.is_none_or(|e| *g == e));
     if !shape_ok {
         return Err(PyValueError::new_err(format!("{arg}: expected shape {expected}, got {got_shape:?}")));
     }
@@ -59,6 +60,11 @@ pub fn typed<'py, T: Element>(
         return Err(PyValueError::new_err(format!(
             "{arg}: the array is not C-contiguous (strides {:?}); pass np.ascontiguousarray({arg})",
             untyped.strides()
+        )));
+    }
+    if !untyped.is_aligned() {
+        return Err(PyValueError::new_err(format!(
+            "{arg}: the array's data is not aligned for {dtype}; pass np.require({arg}, requirements='CA')"
         )));
     }
     Ok(Checked { array: array.readonly(), shape: got_shape })
@@ -74,7 +80,7 @@ pub fn require_finite(arg: &str, values: &[f32]) -> PyResult<()> {
 
 /// A `[n, cols]` numpy array from row-major `data`.
 pub fn rows<'py, T: Element>(py: Python<'py>, data: Vec<T>, cols: usize) -> PyResult<Bound<'py, PyArray2<T>>> {
-    let n = if cols == 0 { 0 } else { data.len() / cols };
+    let n = data.len().checked_div(cols).unwrap_or(0);
     PyArray1::from_vec(py, data).reshape([n, cols])
 }
 

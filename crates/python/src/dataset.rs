@@ -76,7 +76,10 @@ impl Intrinsics {
 
     fn __repr__(&self) -> String {
         let k = &self.0;
-        format!("Intrinsics(width={}, height={}, fx={}, fy={}, cx={}, cy={})", k.width, k.height, k.fx, k.fy, k.cx, k.cy)
+        format!(
+            "Intrinsics(width={}, height={}, fx={}, fy={}, cx={}, cy={})",
+            k.width, k.height, k.fx, k.fy, k.cx, k.cy
+        )
     }
 
     fn __eq__(&self, other: &Self) -> bool {

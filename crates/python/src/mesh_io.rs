@@ -43,9 +43,7 @@ fn mesh_arg(mesh: &Bound<'_, PyDict>) -> PyResult<LabeledMesh> {
     require_finite("mesh['vertices']", v.slice())?;
     let n = v.shape[0];
     let positions: Vec<Vec3> = v.slice().chunks_exact(3).map(Vec3::from_slice).collect();
-    let get = |key: &str| -> PyResult<Option<Bound<'_, PyAny>>> {
-        Ok(mesh.get_item(key)?.filter(|o| !o.is_none()))
-    };
+    let get = |key: &str| -> PyResult<Option<Bound<'_, PyAny>>> { Ok(mesh.get_item(key)?.filter(|o| !o.is_none())) };
     let triangles = match get("faces")? {
         Some(f) => faces_arg(&f, n)?,
         None => Vec::new(),
@@ -66,7 +64,10 @@ fn mesh_arg(mesh: &Bound<'_, PyDict>) -> PyResult<LabeledMesh> {
         Some(nm) => {
             let a = typed::<f32>("mesh['normals']", &nm, "float32", &[None, Some(3)], &format!("({n}, 3) or (0, 3)"))?;
             if a.shape[0] != 0 && a.shape[0] != n {
-                return Err(value_error("mesh['normals']", format!("expected shape ({n}, 3) or (0, 3), got {:?}", a.shape)));
+                return Err(value_error(
+                    "mesh['normals']",
+                    format!("expected shape ({n}, 3) or (0, 3), got {:?}", a.shape),
+                ));
             }
             require_finite("mesh['normals']", a.slice())?;
             a.slice().chunks_exact(3).map(Vec3::from_slice).collect()

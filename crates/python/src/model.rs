@@ -32,7 +32,11 @@ pub fn default_model_path() -> PathBuf {
 /// # Errors
 /// `FileNotFoundError` for a missing file; `ValueError` for a file that is not a model.
 pub fn load(model: Option<&str>) -> PyResult<Segmenter> {
-    let path = model.map_or_else(default_model_path, PathBuf::from);
+    load_path(&model.map_or_else(default_model_path, PathBuf::from))
+}
+
+/// The network of the model file `path`.
+fn load_path(path: &std::path::Path) -> PyResult<Segmenter> {
     if !path.is_file() {
         return Err(pyo3::exceptions::PyFileNotFoundError::new_err(format!(
             "model: no file at {} (pass model=PATH to a safetensors model, or set {})",
@@ -40,7 +44,35 @@ pub fn load(model: Option<&str>) -> PyResult<Segmenter> {
             shipped::MODEL_ENV
         )));
     }
-    shipped::load(&path, None).map_err(net_err)
+    shipped::load(path, None).map_err(net_err)
+}
+
+/// The network `segment` used last, with the file and modification time it was read from.
+type CachedNet = (PathBuf, Option<std::time::SystemTime>, Segmenter);
+static SEGMENT_NET: Mutex<Option<CachedNet>> = Mutex::new(None);
+
+/// Runs `f` on the network of `model` (see [`load`]), kept between calls while the file
+/// stays the same, so that repeated `segment` calls do not re-read ~11 MB of weights. Call
+/// with the GIL released.
+///
+/// # Errors
+/// Those of [`load`] and of `f`.
+pub fn with_cached<R>(model: Option<&str>, f: impl FnOnce(&mut Segmenter) -> PyResult<R>) -> PyResult<R> {
+    let path = model.map_or_else(default_model_path, PathBuf::from);
+    let modified = std::fs::metadata(&path).and_then(|m| m.modified()).ok();
+    let mut cache = SEGMENT_NET
+        .lock()
+        .map_err(|_| pyo3::exceptions::PyRuntimeError::new_err("the network failed in an earlier call"))?;
+    let fresh = matches!(&*cache, Some((p, m, _)) if *p == path && *m == modified && m.is_some());
+    if !fresh {
+        *cache = None;
+        let net = load_path(&path)?;
+        *cache = Some((path, modified, net));
+    }
+    match cache.as_mut() {
+        Some((_, _, net)) => f(net),
+        None => Err(pyo3::exceptions::PyRuntimeError::new_err("no network")),
+    }
 }
 
 /// `_set_package_model(path)`: registers the package's copy of the shipped model.

@@ -101,7 +101,17 @@ impl FrameResult {
     }
 }
 
-/// The live pipeline; see the module documentation and `semrecon/_native.pyi`.
+/// Pipeline(intrinsics, *, voxel_size=0.005, semantics=True, model=None, keyframe_every=10, ...)
+///
+/// The live pipeline: frame-to-model tracking and TSDF fusion of every frame, meshing and a
+/// semantic pass (the network, in a back-end thread) every `keyframe_every` frames. Options
+/// and defaults are those of `semrecon run`: `voxel_size` metres (0.002..0.05); `semantics`
+/// True/"incremental", "full" or False/"off"; `model` a safetensors file (default: the shipped
+/// model); `truncation` voxels; `max_depth` metres; `poses` "track" or "ground_truth";
+/// `mesh_budget` chunks per keyframe; `realtime`; `up` (x, y, z); `context` metres;
+/// `min_label_island` m^2; `photometric_weight`; `min_mesh_weight`; `min_mesh_piece`
+/// triangles; `frame_rate` Hz. `intrinsics`: an `Intrinsics` or (width, height, fx, fy, cx, cy)
+/// in pixels. Full reference: semrecon/_native.pyi and docs/python.md.
 #[pyclass(module = "semrecon")]
 pub struct Pipeline {
     inner: Mutex<semrecon_pipeline::Pipeline>,
@@ -180,7 +190,12 @@ fn depth_arg(obj: &Bound<'_, PyAny>, h: usize, w: usize, depth_scale: f32) -> Py
     if let Some(i) = v.iter().position(|d| !(d.is_finite() && *d >= 0.0)) {
         return Err(value_error(
             "depth",
-            format!("pixel ({}, {}) is {} metres (expected finite and >= 0; 0 marks missing depth)", i / w, i % w, v[i]),
+            format!(
+                "pixel ({}, {}) is {} metres (expected finite and >= 0; 0 marks missing depth)",
+                i / w,
+                i % w,
+                v[i]
+            ),
         ));
     }
     Ok(v.to_vec())
@@ -253,8 +268,7 @@ impl Pipeline {
         if !(frame_rate.is_finite() && frame_rate > 0.0) {
             return Err(value_error("frame_rate", format!("{frame_rate} Hz is not positive")));
         }
-        let mut tsdf =
-            TsdfConfig::with_voxel_size(voxel_size).map_err(|e| value_error("voxel_size", e.to_string()))?;
+        let mut tsdf = TsdfConfig::with_voxel_size(voxel_size).map_err(|e| value_error("voxel_size", e.to_string()))?;
         tsdf.truncation_voxels = truncation;
         if let Some(d) = max_depth {
             tsdf.max_depth = d;
@@ -276,7 +290,11 @@ impl Pipeline {
             tsdf,
             mesh,
             mesh_budget: NonZeroUsize::new(mesh_budget.unwrap_or(default_budget)),
-            tracker: TrackerConfig { keyframe_interval: keyframe_every, photometric_weight, ..TrackerConfig::default() },
+            tracker: TrackerConfig {
+                keyframe_interval: keyframe_every,
+                photometric_weight,
+                ..TrackerConfig::default()
+            },
             poses,
             initial_pose: None,
             keyframe_every,
@@ -289,18 +307,25 @@ impl Pipeline {
         config.semantics.up = up.map(|u| vec3_arg("up", u)).transpose()?;
         config.semantics.min_island_m2 = min_label_island;
         config.validate().map_err(pipeline_err)?;
-        let pipeline = py
-            .detach(|| {
-                let net = match mode {
-                    Some(_) => Some(crate::model::load(model.as_deref())?),
-                    None => None,
-                };
-                semrecon_pipeline::Pipeline::new(config, intrinsics, net).map_err(pipeline_err)
-            })?;
+        let pipeline = py.detach(|| {
+            let net = match mode {
+                Some(_) => Some(crate::model::load(model.as_deref())?),
+                None => None,
+            };
+            semrecon_pipeline::Pipeline::new(config, intrinsics, net).map_err(pipeline_err)
+        })?;
         Ok(Self { inner: Mutex::new(pipeline), intrinsics, pushed: Mutex::new(0), frame_rate })
     }
 
-    /// Tracks and fuses one frame; see the stub for the arguments.
+    /// push_frame(depth, color, *, pose=None, timestamp=None, depth_scale=1000.0) -> FrameResult
+    ///
+    /// Tracks and fuses one frame (GIL released). `depth`: uint16 (H, W) in 1/depth_scale
+    /// metres (millimetres by default) or float32 (H, W) metres, 0 = missing; `color`: uint8
+    /// (H, W, 3) RGB registered to depth; both C-contiguous. `pose`: world_from_camera (4, 4)
+    /// float64/float32 (every frame's pose with poses="ground_truth"; with tracking, where the
+    /// first frame starts). `timestamp`: seconds (default: frames pushed / frame_rate).
+    /// Raises TypeError (dtype) or ValueError (shape, strides, NaN or negative depth, a pose
+    /// that is not rigid) naming the argument.
     #[pyo3(signature = (depth, color, *, pose = None, timestamp = None, depth_scale = 1000.0))]
     fn push_frame(
         &self,
@@ -324,15 +349,8 @@ impl Pipeline {
         if !timestamp.is_finite() {
             return Err(value_error("timestamp", format!("{timestamp} is not finite")));
         }
-        let frame = RustFrame {
-            index,
-            timestamp,
-            depth,
-            color,
-            intrinsics: self.intrinsics,
-            world_from_camera,
-            labels: None,
-        };
+        let frame =
+            RustFrame { index, timestamp, depth, color, intrinsics: self.intrinsics, world_from_camera, labels: None };
         self.push_rust(py, frame)
     }
 
@@ -418,7 +436,9 @@ impl Pipeline {
         py.detach(|| t.write_tum(&path)).map_err(crate::errors::data_err)
     }
 
-    /// The mesh as of the last keyframe: a dict of numpy arrays (see the stub).
+    /// The mesh as of the last keyframe: {"vertices": float32 (V, 3) metres, "faces": int32
+    /// (F, 3), "colors": uint8 (V, 3) RGB, "labels": uint8 (V,) class ids (255 = unlabelled),
+    /// "normals": float32 (V, 3)}.
     fn mesh<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let mut guard = self.lock()?;
         let pipeline = &mut *guard;
@@ -427,7 +447,8 @@ impl Pipeline {
         mesh_dict(py, mesh)
     }
 
-    /// Ends the stream (last semantic pass, mesh brought up to date) and returns the mesh.
+    /// Ends the stream (waits for the back end, runs a last semantic pass, brings the mesh up to
+    /// date) and returns the mesh dict of `mesh()`.
     fn finish<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let mut guard = self.lock()?;
         let pipeline = &mut *guard;

@@ -27,11 +27,12 @@ fn segment<'py>(
     if pts.is_empty() {
         return Ok(PyArray1::from_vec(py, Vec::new()));
     }
-    let labels = py.detach(|| -> PyResult<Vec<u8>> {
-        let mut net = crate::model::load(model.as_deref())?;
-        net.segment_points(&pts, &cols).map_err(|e| match e {
-            semrecon_net::NetError::Sparse(s) => value_error("points", s),
-            other => net_err(other),
+    let labels = py.detach(|| {
+        crate::model::with_cached(model.as_deref(), |net| {
+            net.segment_points(&pts, &cols).map_err(|e| match e {
+                semrecon_net::NetError::Sparse(s) => value_error("points", s),
+                other => net_err(other),
+            })
         })
     })?;
     Ok(PyArray1::from_vec(py, labels))

@@ -29,6 +29,9 @@ fn coords_array<'py>(py: Python<'py>, coords: &[Coord]) -> PyResult<Bound<'py, P
     rows(py, coords.iter().flat_map(|c| [c[3], c[0], c[1], c[2]]).collect(), 4)
 }
 
+/// `(in_rows, out_rows)` of one kernel offset.
+type RowPairs<'py> = (Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<i64>>);
+
 /// The geometry of one sparse convolution layer; see the module documentation.
 #[pyclass(frozen, module = "semrecon")]
 pub struct ConvGeometry {
@@ -50,7 +53,8 @@ impl ConvGeometry {
         rows: usize,
         side: &str,
     ) -> PyResult<(crate::arrays::Checked<'py, f32>, usize)> {
-        let a = typed::<f32>(arg, obj, "float32", &[Some(rows), None], &format!("({rows}, C), one row per {side} voxel"))?;
+        let a =
+            typed::<f32>(arg, obj, "float32", &[Some(rows), None], &format!("({rows}, C), one row per {side} voxel"))?;
         let c = a.shape[1];
         Ok((a, c))
     }
@@ -164,11 +168,7 @@ impl ConvGeometry {
     }
 
     /// The pairs of offset `k`: `(in_rows, out_rows)`, int64 `(P,)` each.
-    fn pairs<'py>(
-        &self,
-        py: Python<'py>,
-        k: usize,
-    ) -> PyResult<(Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<i64>>)> {
+    fn pairs<'py>(&self, py: Python<'py>, k: usize) -> PyResult<RowPairs<'py>> {
         if k >= self.kv() {
             return Err(value_error("k", format!("offset {k} of a kernel with {} offsets", self.kv())));
         }
@@ -184,13 +184,13 @@ impl ConvGeometry {
         py: Python<'py>,
         features: &Bound<'py, PyAny>,
         weight: &Bound<'py, PyAny>,
-    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let (x, c_in) = self.features("features", features, self.conv.n_in(), "input")?;
         let w = self.weight(weight, Some(c_in), None)?;
         let c_out = w.shape[2];
         let (xs, ws) = (x.slice(), w.slice());
         let y = py.detach(|| self.conv.forward(xs, c_in, ws, c_out)).map_err(sparse_err)?;
-        rows(py, y, c_out)
+        shaped(py, y, &[self.conv.n_out(), c_out])
     }
 
     /// Gradient of the input: `grad_out` float32 `(n_out, C_out)`, `weight` float32
@@ -200,13 +200,13 @@ impl ConvGeometry {
         py: Python<'py>,
         grad_out: &Bound<'py, PyAny>,
         weight: &Bound<'py, PyAny>,
-    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let (dy, c_out) = self.features("grad_out", grad_out, self.conv.n_out(), "output")?;
         let w = self.weight(weight, None, Some(c_out))?;
         let c_in = w.shape[1];
         let (dys, ws) = (dy.slice(), w.slice());
         let dx = py.detach(|| self.conv.backward_input(dys, c_out, ws, c_in)).map_err(sparse_err)?;
-        rows(py, dx, c_in)
+        shaped(py, dx, &[self.conv.n_in(), c_in])
     }
 
     /// Gradient of the weight: `features` float32 `(n_in, C_in)`, `grad_out` float32

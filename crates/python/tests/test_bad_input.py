@@ -193,3 +193,11 @@ def test_bad_conv_arrays():
     fine = coords([[0, 4, 4, 4]])
     with pytest.raises(ValueError, match="has no parent in the coarse set"):
         ConvGeometry.upsample(coords([[0, 0, 0, 0]]), fine)
+
+
+def test_unaligned_arrays_are_refused(pipeline):
+    raw = np.zeros(24 * 32 * 4 + 1, np.uint8)
+    unaligned = np.frombuffer(raw.data, dtype=np.float32, count=24 * 32, offset=1).reshape(24, 32)
+    assert not unaligned.flags.aligned
+    with pytest.raises(ValueError, match="depth: the array's data is not aligned"):
+        pipeline.push_frame(unaligned, color())
