@@ -4,12 +4,32 @@ Units: metres, seconds, pixels. Poses: ``world_from_camera`` float64 ``(4, 4)``.
 """
 
 from os import PathLike
-from typing import Dict, Iterator, List, Literal, Optional, Sequence, Tuple, TypedDict, Union
+from typing import Dict, Iterator, List, Literal, Optional, Sequence, Tuple, TypedDict, Union, final
 
 import numpy as np
 import numpy.typing as npt
 
 __version__: str
+__all__ = [
+    "__version__",
+    "CLASSES",
+    "CLASS_COLORS",
+    "UNLABELED",
+    "Intrinsics",
+    "Frame",
+    "Dataset",
+    "FrameIter",
+    "open_dataset",
+    "synthetic_scan",
+    "Pipeline",
+    "FrameResult",
+    "segment",
+    "write_ply",
+    "read_ply",
+    "_set_package_model",
+    "default_model_path",
+    "ConvGeometry",
+]
 
 CLASSES: Tuple[str, ...]
 """The 13 class names; index = class id (ceiling, floor, wall, beam, column, window, door,
@@ -21,7 +41,7 @@ UNLABELED: int
 
 _Path = Union[str, "PathLike[str]"]
 
-class Mesh(TypedDict):
+class _Mesh(TypedDict):
     """A labelled triangle mesh."""
 
     vertices: npt.NDArray[np.float32]
@@ -35,23 +55,24 @@ class Mesh(TypedDict):
     normals: npt.NDArray[np.float32]
     """float32 ``(V, 3)`` unit normals, or ``(0, 3)`` when the mesh has none."""
 
-class Trajectory(TypedDict):
+class _Trajectory(TypedDict):
     timestamps: npt.NDArray[np.float64]
     """float64 ``(N,)`` seconds."""
     poses: npt.NDArray[np.float64]
     """float64 ``(N, 4, 4)`` ``world_from_camera``."""
 
-class StageTiming(TypedDict):
+class _StageTiming(TypedDict):
     median_ms: float
     p95_ms: float
     max_ms: float
     count: int
     total_ms: float
 
+@final
 class Intrinsics:
     """Pinhole intrinsics of the depth image, pixels; pixel centres at integer coordinates."""
 
-    def __init__(self, width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> None: ...
+    def __new__(cls, width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> "Intrinsics": ...
     @property
     def width(self) -> int: ...
     @property
@@ -69,6 +90,7 @@ class Intrinsics:
     def scaled(self, width: int, height: int) -> "Intrinsics":
         """The same camera at another resolution."""
 
+@final
 class Frame:
     """One RGB-D frame of a :class:`Dataset`. Array attributes return a new array each time."""
 
@@ -92,6 +114,7 @@ class Frame:
     def labels(self) -> Optional[npt.NDArray[np.uint8]]:
         """uint8 ``(H, W)`` class ids (rendered data only; 255 = nothing), or None."""
 
+@final
 class Dataset:
     """A sequence of RGB-D frames with one camera; frames are decoded on access."""
 
@@ -105,10 +128,11 @@ class Dataset:
     def frame_rate(self) -> float:
         """Nominal frame rate, Hz."""
     def __len__(self) -> int: ...
-    def __getitem__(self, index: int) -> Frame:
+    def __getitem__(self, index: int, /) -> Frame:
         """Frame ``index`` (negative counts from the end); IndexError past the end."""
     def __iter__(self) -> Iterator[Frame]: ...
 
+@final
 class FrameIter(Iterator[Frame]):
     def __next__(self) -> Frame: ...
 
@@ -126,13 +150,14 @@ def synthetic_scan(
     the seed when None) scanned along a handheld-like path through a Kinect-like sensor
     model, rendered on access: ground-truth poses and per-pixel classes, no files."""
 
-FrameStatus = Literal["initialized", "fused", "relocalised", "lost", "no_pose"]
+_FrameStatus = Literal["initialized", "fused", "relocalised", "lost", "no_pose"]
 
+@final
 class FrameResult:
     """What :meth:`Pipeline.push_frame` did with one frame."""
 
     @property
-    def status(self) -> FrameStatus: ...
+    def status(self) -> _FrameStatus: ...
     @property
     def lost_reason(self) -> Optional[str]:
         """Why tracking failed (no_depth, no_model, few_inliers, large_residual, pose_jump,
@@ -149,6 +174,7 @@ class FrameResult:
     @property
     def index(self) -> int: ...
 
+@final
 class Pipeline:
     """The live pipeline: frame-to-model tracking and TSDF fusion on every frame, meshing and
     a semantic pass (in a back-end thread) every ``keyframe_every`` frames.
@@ -177,8 +203,8 @@ class Pipeline:
     Raises ValueError for out-of-range options, FileNotFoundError for a missing model file.
     """
 
-    def __init__(
-        self,
+    def __new__(
+        cls,
         intrinsics: Union[Intrinsics, Sequence[float]],
         *,
         voxel_size: float = 0.005,
@@ -197,7 +223,7 @@ class Pipeline:
         min_mesh_weight: Optional[float] = None,
         min_mesh_piece: Optional[int] = None,
         frame_rate: float = 30.0,
-    ) -> None: ...
+    ) -> "Pipeline": ...
     def push_frame(
         self,
         depth: Union[npt.NDArray[np.uint16], npt.NDArray[np.float32]],
@@ -232,16 +258,16 @@ class Pipeline:
     def intrinsics(self) -> Intrinsics: ...
     @property
     def has_semantics(self) -> bool: ...
-    def trajectory(self) -> Trajectory:
+    def trajectory(self) -> _Trajectory:
         """Poses of the fused frames."""
     def write_trajectory(self, path: _Path) -> None:
         """Writes the trajectory as TUM text (``timestamp tx ty tz qx qy qz qw``)."""
-    def mesh(self) -> Mesh:
+    def mesh(self) -> _Mesh:
         """The mesh as of the last keyframe, with per-vertex classes."""
-    def finish(self) -> Mesh:
+    def finish(self) -> _Mesh:
         """Ends the stream: waits for the semantic back end, runs a last pass, brings the mesh
         up to date and returns it."""
-    def timings(self) -> Dict[str, StageTiming]:
+    def timings(self) -> Dict[str, _StageTiming]:
         """Per-stage timings in milliseconds: tracking, fusion (per frame), meshing, semantic
         snapshot (per keyframe), semantic (per pass, back end), semantic wait, final meshing."""
     @property
@@ -260,11 +286,11 @@ def segment(
     metres, z up; ``colors`` uint8 ``(N, 3)`` RGB. The network (the shipped model by
     default) labels 5 cm voxels; every point takes its voxel's class."""
 
-def write_ply(path: _Path, mesh: Mesh, *, binary: bool = True) -> None:
+def write_ply(path: _Path, mesh: _Mesh, *, binary: bool = True) -> None:
     """Writes a mesh dict (``vertices`` required; ``faces`` int32/int64/uint32, ``colors``,
     ``labels`` (as a vertex ``label`` property), ``normals`` optional) as PLY, atomically."""
 
-def read_ply(path: _Path) -> Mesh:
+def read_ply(path: _Path) -> _Mesh:
     """Reads a PLY mesh or point cloud (``faces`` empty for a point cloud; ``labels`` 255
     where the file has none)."""
 
@@ -273,6 +299,7 @@ def default_model_path() -> str:
 
 def _set_package_model(path: str) -> None: ...
 
+@final
 class ConvGeometry:
     """One sparse convolution layer's geometry: the kernel map between an input and an output
     voxel set and the chunk plans of the kernels. Build once per coordinate set; reuse for
