@@ -11,7 +11,7 @@
 //! through offset `dx + 2 dy + 4 dz` with `d = u - 2 floor(u / 2)`; transposed: the same pairs
 //! from coarse to fine).
 
-use numpy::{PyArray1, PyArray2, PyArrayDyn};
+use numpy::{PyArray1, PyArray2, PyArrayDyn, PyArrayMethods, PyReadwriteArrayDyn};
 use pyo3::prelude::*;
 use semrecon_sparse::{ChunkConfig, ChunkedConv, Coord, KernelMap, MapKind};
 
@@ -27,6 +27,14 @@ fn coords_arg(arg: &str, obj: &Bound<'_, PyAny>) -> PyResult<Vec<Coord>> {
 /// Rust coordinates as an int32 `(N, 4)` array of rows `(batch, x, y, z)`.
 fn coords_array<'py>(py: Python<'py>, coords: &[Coord]) -> PyResult<Bound<'py, PyArray2<i32>>> {
     rows(py, coords.iter().flat_map(|c| [c[3], c[0], c[1], c[2]]).collect(), 4)
+}
+
+/// The `out` argument: a writeable, C-contiguous, aligned float32 `(rows, cols)` array.
+fn writable<'py>(out: &Bound<'py, PyAny>, rows: usize, cols: usize) -> PyResult<PyReadwriteArrayDyn<'py, f32>> {
+    // The checks of `typed` (dtype, shape, contiguity, alignment), then writeability.
+    typed::<f32>("out", out, "float32", &[Some(rows), Some(cols)], &format!("({rows}, {cols})"))?;
+    let array = out.cast::<PyArrayDyn<f32>>().map_err(|_| value_error("out", "expected a float32 array"))?;
+    array.try_readwrite().map_err(|_| value_error("out", "the array is not writeable (or is borrowed)"))
 }
 
 /// `(in_rows, out_rows)` of one kernel offset.
@@ -178,19 +186,29 @@ impl ConvGeometry {
     }
 
     /// Forward: `features` float32 `(n_in, C_in)`, `weight` float32 `(K^3, C_in, C_out)` ->
-    /// float32 `(n_out, C_out)`.
+    /// float32 `(n_out, C_out)`, written into `out` when given (a C-contiguous, writeable
+    /// float32 array of that shape, kept between calls as a training loop would).
+    #[pyo3(signature = (features, weight, *, out = None))]
     fn forward<'py>(
         &self,
         py: Python<'py>,
         features: &Bound<'py, PyAny>,
         weight: &Bound<'py, PyAny>,
-    ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        out: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyAny>> {
         let (x, c_in) = self.features("features", features, self.conv.n_in(), "input")?;
         let w = self.weight(weight, Some(c_in), None)?;
         let c_out = w.shape[2];
         let (xs, ws) = (x.slice(), w.slice());
-        let y = py.detach(|| self.conv.forward(xs, c_in, ws, c_out)).map_err(sparse_err)?;
-        shaped(py, y, &[self.conv.n_out(), c_out])
+        let Some(out) = out else {
+            let y = py.detach(|| self.conv.forward(xs, c_in, ws, c_out)).map_err(sparse_err)?;
+            return Ok(shaped(py, y, &[self.conv.n_out(), c_out])?.into_any());
+        };
+        let mut y = writable(out, self.conv.n_out(), c_out)?;
+        let ys = y.as_slice_mut().map_err(|_| value_error("out", "not a contiguous array"))?;
+        py.detach(|| self.conv.forward_into(xs, c_in, ws, c_out, ys)).map_err(sparse_err)?;
+        drop(y);
+        Ok(out.clone())
     }
 
     /// Gradient of the input: `grad_out` float32 `(n_out, C_out)`, `weight` float32

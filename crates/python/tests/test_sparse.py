@@ -88,3 +88,22 @@ def test_geometry_attributes():
     assert ConvGeometry.downsample(one).out_coords.tolist() == [[0, -1, -2, 2]]
     empty = ConvGeometry.submanifold(np.zeros((0, 4), np.int32))
     assert empty.forward(np.zeros((0, 2), np.float32), np.zeros((27, 2, 3), np.float32)).shape == (0, 3)
+
+
+def test_forward_into_a_kept_buffer():
+    rng = np.random.default_rng(2)
+    g = ConvGeometry.submanifold(ref.random_coords(rng, 100))
+    x = rng.standard_normal((100, 4)).astype(np.float32)
+    w = rng.standard_normal((27, 4, 3)).astype(np.float32)
+    out = np.full((100, 3), np.nan, np.float32)
+    assert g.forward(x, w, out=out) is out
+    np.testing.assert_array_equal(out, g.forward(x, w))
+    with pytest.raises(ValueError, match=r"out: expected shape \(100, 3\)"):
+        g.forward(x, w, out=np.zeros((100, 4), np.float32))
+    frozen = np.zeros((100, 3), np.float32)
+    frozen.flags.writeable = False
+    with pytest.raises(ValueError, match="out: the array is not writeable"):
+        g.forward(x, w, out=frozen)
+    square = np.zeros((100, 4), np.float32)
+    with pytest.raises(ValueError, match="out: the array is not writeable"):  # aliases the input
+        g.forward(square, rng.standard_normal((27, 4, 4)).astype(np.float32), out=square)

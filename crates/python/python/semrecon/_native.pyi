@@ -339,8 +339,15 @@ class ConvGeometry:
     def out_coords(self) -> npt.NDArray[np.int32]: ...
     def pairs(self, k: int) -> Tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
         """``(in_rows, out_rows)`` of offset ``k``."""
-    def forward(self, features: npt.NDArray[np.float32], weight: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
-        """``features`` ``(n_in, C_in)``, ``weight`` ``(K**3, C_in, C_out)`` -> ``(n_out, C_out)``."""
+    def forward(
+        self,
+        features: npt.NDArray[np.float32],
+        weight: npt.NDArray[np.float32],
+        *,
+        out: Optional[npt.NDArray[np.float32]] = None,
+    ) -> npt.NDArray[np.float32]:
+        """``features`` ``(n_in, C_in)``, ``weight`` ``(K**3, C_in, C_out)`` -> ``(n_out, C_out)``,
+        written into ``out`` (C-contiguous, writeable, not ``features``) when given."""
     def backward_input(
         self, grad_out: npt.NDArray[np.float32], weight: npt.NDArray[np.float32]
     ) -> npt.NDArray[np.float32]:
