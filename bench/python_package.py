@@ -36,36 +36,68 @@ def best(f, repeats):
     return min(t)
 
 
+def best_interleaved(fs, repeats):
+    """Fastest of `repeats` rounds of each function, run round-robin so that the load of other
+    processes on a shared machine hits all alike."""
+    for f in fs.values():
+        f()
+    t = {k: float("inf") for k in fs}
+    for _ in range(repeats):
+        for k, f in fs.items():
+            s = time.perf_counter()
+            f()
+            t[k] = min(t[k], time.perf_counter() - s)
+    return t
+
+
+def dataset_up(spec):
+    """The up direction `semrecon run` takes from a 7-Scenes style gravity-direction.txt."""
+    folder = spec.split(":", 1)[1]
+    path = os.path.join(folder, "gravity-direction.txt")
+    if not os.path.isfile(path):
+        return None
+    # In float32 and in glam's order (`-g.normalize()`: g times the reciprocal of its length),
+    # so that the direction has the CLI's bits.
+    g = np.loadtxt(path, dtype=np.float32).reshape(3)
+    length = np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2], dtype=np.float32)
+    up = -(g * (np.float32(1) / length))
+    return tuple(float(v) for v in up)
+
+
 def bench_pipeline(args):
     ds = semrecon.open_dataset(args.dataset)
     n = min(args.frames, len(ds))
-    out = os.path.join(args.out, "cli_run")
-    subprocess.run([args.cli, "run", "--dataset", args.dataset, "--frames", f"0..{n}", "--out", out],
-                   check=True, stdout=subprocess.DEVNULL)
-    with open(os.path.join(out, "report.json")) as f:
-        cli_s = json.load(f)["pipeline_s"]
+    up = dataset_up(args.dataset)
     frames = [ds[i] for i in range(n)]
     arrays = [(f.depth, f.color, f.pose, f.timestamp) for f in frames]
-    p = semrecon.Pipeline(ds.intrinsics)
-    start = time.perf_counter()
-    for d, c, pose, t in arrays:
-        p.push_frame(d, c, pose=pose, timestamp=t)
-    mesh = p.finish()
-    wall = time.perf_counter() - start
-    q = semrecon.Pipeline(ds.intrinsics)
-    q.run(ds, stop=n)
-    q_mesh = q.finish()
+    out = os.path.join(args.out, "cli_run")
+    times = {"cli": [], "push_frame": [], "run": []}
+    for _ in range(args.pipeline_rounds):
+        # Alternated, so that the load of other processes hits all three alike.
+        subprocess.run([args.cli, "run", "--dataset", args.dataset, "--frames", f"0..{n}", "--out", out],
+                       check=True, stdout=subprocess.DEVNULL)
+        with open(os.path.join(out, "report.json")) as f:
+            times["cli"].append(json.load(f)["pipeline_s"])
+        p = semrecon.Pipeline(ds.intrinsics, up=up)
+        for d, c, pose, t in arrays:
+            p.push_frame(d, c, pose=pose, timestamp=t)
+        mesh = p.finish()
+        times["push_frame"].append(p.front_end_seconds)
+        q = semrecon.Pipeline(ds.intrinsics, up=up)
+        q.run(ds, stop=n)
+        q_mesh = q.finish()
+        times["run"].append(q.front_end_seconds)
     cli_mesh = semrecon.read_ply(os.path.join(out, "mesh.ply"))
-    same = all(np.array_equal(mesh[k], cli_mesh[k]) and np.array_equal(mesh[k], q_mesh[k])
-               for k in ("vertices", "faces", "colors", "labels"))
-    print(f"pipeline on {args.dataset}, {n} frames ({n / ds.frame_rate:.1f} s of input):")
-    print(f"  CLI front end            {cli_s:7.2f} s")
-    print(f"  Python push_frame        {p.front_end_seconds:7.2f} s  ({p.front_end_seconds / cli_s - 1:+.1%}); "
-          f"wall of the push_frame loop and finish {wall:.2f} s")
-    print(f"  Python Pipeline.run      {q.front_end_seconds:7.2f} s  ({q.front_end_seconds / cli_s - 1:+.1%})")
+    same = {k: bool(np.array_equal(mesh[k], cli_mesh[k]) and np.array_equal(mesh[k], q_mesh[k]))
+            for k in ("vertices", "faces", "colors", "labels")}
+    best_s = {k: min(v) for k, v in times.items()}
+    print(f"pipeline on {args.dataset}, {n} frames ({n / ds.frame_rate:.1f} s of input), "
+          f"front-end seconds, fastest of {args.pipeline_rounds} alternated rounds (all: {times}):")
+    print(f"  CLI `semrecon run`       {best_s['cli']:7.2f} s")
+    for k in ("push_frame", "run"):
+        print(f"  Python {k:<17} {best_s[k]:7.2f} s  ({best_s[k] / best_s['cli'] - 1:+.1%})")
     print(f"  meshes identical (CLI, push_frame, run): {same}")
-    return {"cli_s": cli_s, "push_frame_s": p.front_end_seconds, "push_frame_wall_s": wall,
-            "run_s": q.front_end_seconds, "identical": same}
+    return {"times_s": times, "identical": same}
 
 
 def bench_conv(args):
@@ -89,29 +121,40 @@ def bench_conv(args):
     w = (rng.standard_normal((27, c, c)) / np.sqrt(27 * c)).astype(np.float32)
     dy = rng.standard_normal((n, c)).astype(np.float32)
     r = args.repeats
-    rows = {}
-    rows["numpy forward"] = best(lambda: g.forward(x, w), r)
-    rows["numpy input grad"] = best(lambda: g.backward_input(dy, w), r)
-    rows["numpy weight grad"] = best(lambda: g.backward_weight(x, dy), r)
     xt = torch.from_numpy(x).requires_grad_()
     wt = torch.from_numpy(w).requires_grad_()
     dyt = torch.from_numpy(dy)
-    rows["torch forward"] = best(lambda: st.sparse_conv(xt.detach(), wt.detach(), g), r)
+    out = np.empty((n, c), np.float32)
 
     def fwd_bwd():
         xt.grad = wt.grad = None
         st.sparse_conv(xt, wt, g).backward(dyt)
 
-    rows["torch forward+backward"] = best(fwd_bwd, r)
     gms = TorchGatherMmScatter(n, h["offset_start"], in_rows, out_rows, c, c)
     y = torch.empty(n, c)
     dx = torch.empty(n, c)
     dw = torch.empty(27, c, c)
-    with torch.no_grad():
-        rows["torch-gms forward"] = best(lambda: gms.forward(xt.detach(), wt.detach(), y), r)
-        rows["torch-gms forward+backward"] = best(
-            lambda: (gms.forward(xt.detach(), wt.detach(), y), gms.backward_input(dyt, wt.detach(), dx),
-                     gms.backward_weight(xt.detach(), dyt, dw)), r)
+
+    def gms_fwd():
+        with torch.no_grad():
+            gms.forward(xt.detach(), wt.detach(), y)
+
+    def gms_fwd_bwd():
+        with torch.no_grad():
+            gms.forward(xt.detach(), wt.detach(), y)
+            gms.backward_input(dyt, wt.detach(), dx)
+            gms.backward_weight(xt.detach(), dyt, dw)
+
+    rows = best_interleaved({
+        "numpy forward, out= kept": lambda: g.forward(x, w, out=out),
+        "numpy forward, new array": lambda: g.forward(x, w),
+        "numpy input grad": lambda: g.backward_input(dy, w),
+        "numpy weight grad": lambda: g.backward_weight(x, dy),
+        "torch forward": lambda: st.sparse_conv(xt.detach(), wt.detach(), g),
+        "torch forward+backward": fwd_bwd,
+        "torch-gms forward": gms_fwd,
+        "torch-gms forward+backward": gms_fwd_bwd,
+    }, r)
     ours = {}
     if args.ours:
         with open(args.ours) as f:
@@ -126,7 +169,12 @@ def bench_conv(args):
         print(f"  Rust kernels (bench conv)  forward {ours.get('forward', float('nan')) * 1e3:.2f} ms, "
               f"forward+backward {fb * 1e3:.2f} ms")
         print(f"  torch wrapper / Rust: forward {rows['torch forward'] / ours['forward']:.3f}, "
-              f"forward+backward {rows['torch forward+backward'] / fb:.3f}")
+              f"forward+backward {rows['torch forward+backward'] / fb:.3f} (separate processes)")
+    numpy_fb = rows["numpy forward, new array"] + rows["numpy input grad"] + rows["numpy weight grad"]
+    print(f"  in this process: torch forward / numpy forward into a kept buffer "
+          f"{rows['torch forward'] / rows['numpy forward, out= kept']:.3f}, / numpy forward with a new array "
+          f"{rows['torch forward'] / rows['numpy forward, new array']:.3f}; torch forward+backward / the three "
+          f"numpy calls {rows['torch forward+backward'] / numpy_fb:.3f}")
     print(f"  torch-gms / torch wrapper: forward {rows['torch-gms forward'] / rows['torch forward']:.2f}x, "
           f"forward+backward {rows['torch-gms forward+backward'] / rows['torch forward+backward']:.2f}x")
     return {"ms": {k: v * 1e3 for k, v in rows.items()}, "rust_s": ours}
@@ -144,6 +192,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--out", default="target/python_bench")
     ap.add_argument("--skip-pipeline", action="store_true")
+    ap.add_argument("--pipeline-rounds", type=int, default=2)
     args = ap.parse_args()
     os.makedirs(args.out, exist_ok=True)
     result = {}

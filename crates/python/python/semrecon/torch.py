@@ -24,8 +24,12 @@ import math
 from typing import Any, Callable, Dict, Hashable, Optional, Tuple
 
 import numpy as np
-import torch
-from torch import nn
+
+try:
+    import torch
+    from torch import nn
+except ImportError as e:  # pragma: no cover - depends on the environment
+    raise ImportError("semrecon.torch needs PyTorch (pip install torch); the rest of semrecon does not") from e
 
 from ._native import ConvGeometry
 
