@@ -87,8 +87,24 @@ impl Intrinsics {
     }
 }
 
-/// The intrinsics argument: an `Intrinsics` or a sequence `(width, height, fx, fy, cx, cy)`.
+/// Largest image side accepted for cameras made here (larger images would only exhaust
+/// memory, which aborts the interpreter instead of raising).
+pub const MAX_SIDE: u32 = 8192;
+
+/// The intrinsics argument: an `Intrinsics` or a sequence `(width, height, fx, fy, cx, cy)`;
+/// at most [`MAX_SIDE`] pixels a side.
 pub fn intrinsics_arg(obj: &Bound<'_, PyAny>) -> PyResult<semrecon_data::Intrinsics> {
+    let k = intrinsics_any(obj)?;
+    if k.width > MAX_SIDE || k.height > MAX_SIDE {
+        return Err(PyValueError::new_err(format!(
+            "intrinsics: {}x{} images; at most {MAX_SIDE} pixels a side are supported",
+            k.width, k.height
+        )));
+    }
+    Ok(k)
+}
+
+fn intrinsics_any(obj: &Bound<'_, PyAny>) -> PyResult<semrecon_data::Intrinsics> {
     if let Ok(k) = obj.cast::<Intrinsics>() {
         return Ok(k.get().0);
     }
@@ -267,9 +283,9 @@ fn synthetic_scan_py(
     height: u32,
     style: Option<&str>,
 ) -> PyResult<Dataset> {
-    if frames == 0 || width < 8 || height < 8 {
+    if !(1..=100_000).contains(&frames) || !(8..=MAX_SIDE).contains(&width) || !(8..=MAX_SIDE).contains(&height) {
         return Err(PyValueError::new_err(format!(
-            "synthetic_scan: {frames} frames of {width}x{height}; expected at least 1 frame of 8x8"
+            "synthetic_scan: {frames} frames of {width}x{height}; expected 1..100000 frames of 8x8..{MAX_SIDE}x{MAX_SIDE}"
         )));
     }
     let mut config = SyntheticScanConfig::new(seed);

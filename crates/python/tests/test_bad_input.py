@@ -201,3 +201,10 @@ def test_unaligned_arrays_are_refused(pipeline):
     assert not unaligned.flags.aligned
     with pytest.raises(ValueError, match="depth: the array's data is not aligned"):
         pipeline.push_frame(unaligned, color())
+
+
+def test_sizes_that_would_exhaust_memory_are_refused():
+    with pytest.raises(ValueError, match="intrinsics: 100000x100000 images; at most 8192"):
+        semrecon.Pipeline((100000, 100000, 500.0, 500.0, 0.0, 0.0), semantics=False)
+    with pytest.raises(ValueError, match="synthetic_scan: 2 frames of 100000x48"):
+        semrecon.synthetic_scan(1, frames=2, width=100000, height=48)
