@@ -17,6 +17,8 @@
 //! - [`gravity`]: the up direction from the map's horizontal planes and the cameras;
 //! - [`semantic_map`]: surface cells and accumulated labels;
 //! - [`label_islands`]: specks of a class merged into their surroundings;
+//! - [`loop_closure`]: loops found at keyframes, the pose graph optimised, the map re-fused
+//!   where frames moved;
 //! - [`timing`]: per-stage statistics.
 //!
 //! ```
@@ -49,6 +51,7 @@ pub mod config;
 pub mod error;
 pub mod gravity;
 pub mod label_islands;
+pub mod loop_closure;
 mod pipeline;
 pub mod semantic_map;
 pub mod timing;
@@ -56,5 +59,6 @@ pub mod timing;
 pub use config::{PipelineConfig, PoseMode, SemanticConfig, SemanticMode, DEFAULT_MESH_BUDGET};
 pub use error::{PipelineError, Result};
 pub use gravity::{UpEstimate, UpSource};
+pub use loop_closure::{CorrectionRecord, LoopClosureConfig, LoopClosureReport, LoopRecord};
 pub use pipeline::{FrameResult, FrameStatus, Pipeline, SemanticPass, FRONT_END_STAGES};
 pub use timing::{StageSummary, StageTimes};

@@ -25,6 +25,7 @@ use crate::backend::{Backend, Job, JobResult};
 use crate::config::{PipelineConfig, PoseMode, SemanticMode};
 use crate::error::{PipelineError, Result};
 use crate::gravity::{camera_up_prior, estimate_up, given_up, UpEstimate};
+use crate::loop_closure::{LoopClosure, LoopClosureReport, PoseUpdate};
 use crate::semantic_map::{LabelStore, SurfaceCells, CLASSES};
 use crate::timing::StageTimes;
 
@@ -37,8 +38,16 @@ const RELOCALISATION_EVERY: usize = 3;
 
 /// Stages the front end runs, and its waits for the back end (their sum is
 /// [`Pipeline::front_end_seconds`]).
-pub const FRONT_END_STAGES: [&str; 6] =
-    ["tracking", "fusion", "meshing", "final meshing", "semantic snapshot", "semantic wait"];
+pub const FRONT_END_STAGES: [&str; 8] = [
+    "tracking",
+    "fusion",
+    "global pose optimisation",
+    "map re-integration",
+    "meshing",
+    "final meshing",
+    "semantic snapshot",
+    "semantic wait",
+];
 
 /// What happened to one frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -127,6 +136,8 @@ pub struct Pipeline {
     lost: usize,
     last_pose: Option<Affine3A>,
     semantics: Option<Semantics>,
+    /// Keyframe graph, loop detection and the frame store (tracking with loop closure on).
+    loop_closure: Option<LoopClosure>,
     warnings: Vec<String>,
 }
 
@@ -176,6 +187,8 @@ impl Pipeline {
         };
         let mesher =
             IncrementalMesher::with_config(config.mesh, RemeshTolerance::EXACT)?.with_budget(config.mesh_budget);
+        let loop_closure = (config.poses == PoseMode::Track && config.loop_closure.enabled)
+            .then(|| LoopClosure::new(config.loop_closure.clone(), intrinsics));
         Ok(Self {
             config,
             intrinsics,
@@ -194,6 +207,7 @@ impl Pipeline {
             lost: 0,
             last_pose: None,
             semantics,
+            loop_closure,
             warnings: Vec::new(),
         })
     }
@@ -286,12 +300,62 @@ impl Pipeline {
         if let Some(s) = &mut self.semantics {
             s.stale = true;
         }
-        if self.fused.is_multiple_of(self.config.keyframe_every) {
+        let keyframe = self.fused.is_multiple_of(self.config.keyframe_every);
+        self.global_optimisation(frame, pose, keyframe)?;
+        if keyframe {
             result.keyframe = true;
             self.remesh();
             result.semantic_pass = self.keyframe_semantics(frame.index)?;
         }
         Ok(result)
+    }
+
+    /// Loop closure for a fused frame: stores it, and at keyframes looks for loops and
+    /// applies a correction of the poses to the trajectory, the tracker and the map.
+    fn global_optimisation(&mut self, frame: &Frame, pose: Affine3A, keyframe: bool) -> Result<()> {
+        let Some(lc) = &mut self.loop_closure else { return Ok(()) };
+        lc.add_frame(frame, pose, keyframe)?;
+        if !keyframe {
+            return Ok(());
+        }
+        let t = Instant::now();
+        let update = lc.close_loops(frame.index, &mut self.warnings);
+        self.times.record("global pose optimisation", t.elapsed());
+        if let Some(update) = update {
+            self.apply_correction(update)?;
+        }
+        Ok(())
+    }
+
+    /// Moves the fused frames to their corrected poses: the map is re-fused where they
+    /// moved, the trajectory and the tracker follow.
+    fn apply_correction(&mut self, mut update: PoseUpdate) -> Result<()> {
+        let Some(lc) = &mut self.loop_closure else { return Ok(()) };
+        if update.poses.len() != self.trajectory.poses.len() {
+            // The store and the trajectory disagree (cannot happen while both grow together):
+            // keep everything as it is.
+            self.warnings.push("loop closure: frame store out of step with the trajectory; correction skipped".into());
+            return Ok(());
+        }
+        let t = Instant::now();
+        let (refused, chunks) = lc.reintegrate(&mut self.map, &self.trajectory.poses, &update.poses)?;
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        self.times.record_ms("map re-integration", ms);
+        update.record.refused_frames = refused;
+        update.record.rebuilt_chunks = chunks;
+        update.record.reintegrate_ms = ms;
+        lc.record_correction(update.record);
+        if let (Some(old), Some(new)) = (self.trajectory.poses.last().copied(), update.poses.last().copied()) {
+            if let Some(tracker) = &mut self.tracker {
+                tracker.correct(new * old.inverse());
+            }
+            self.last_pose = Some(new);
+        }
+        self.trajectory.poses = update.poses;
+        if let Some(s) = &mut self.semantics {
+            s.stale = true;
+        }
+        Ok(())
     }
 
     fn remesh(&mut self) {
@@ -446,6 +510,19 @@ impl Pipeline {
             }
         }
         Ok(self.mesh())
+    }
+
+    /// Loop closure's account: loops tried (accepted and rejected, with their frames and
+    /// residuals) and corrections applied; `None` when it is off (ground-truth poses,
+    /// [`crate::LoopClosureConfig::enabled`] false).
+    pub fn loop_closure(&self) -> Option<LoopClosureReport> {
+        self.loop_closure.as_ref().map(LoopClosure::report)
+    }
+
+    /// Poses of the fused frames as tracked, before any loop-closure correction (`None`
+    /// when loop closure is off: then [`Pipeline::trajectory`] is that).
+    pub fn tracked_trajectory(&self) -> Option<&Trajectory> {
+        self.loop_closure.as_ref().map(LoopClosure::tracked)
     }
 
     /// The pose of the last fused frame (`None` before the first).
