@@ -338,18 +338,19 @@ impl Pipeline {
             return Ok(());
         }
         let t = Instant::now();
-        let (refused, chunks) = lc.reintegrate(&mut self.map, &self.trajectory.poses, &update.poses)?;
+        let (corrected_from_old, refused, chunks) = lc.follow(&mut self.map, &update.poses)?;
         let ms = t.elapsed().as_secs_f64() * 1e3;
         self.times.record_ms("map re-integration", ms);
         update.record.refused_frames = refused;
         update.record.rebuilt_chunks = chunks;
         update.record.reintegrate_ms = ms;
         lc.record_correction(update.record);
-        if let (Some(old), Some(new)) = (self.trajectory.poses.last().copied(), update.poses.last().copied()) {
-            if let Some(tracker) = &mut self.tracker {
-                tracker.correct(new * old.inverse());
-            }
-            self.last_pose = Some(new);
+        // The tracker works in the map: it moves with the last frame's map pose.
+        if let Some(tracker) = &mut self.tracker {
+            tracker.correct(corrected_from_old);
+        }
+        if let Some(p) = self.last_pose.as_mut() {
+            *p = corrected_from_old * *p;
         }
         self.trajectory.poses = update.poses;
         if let Some(s) = &mut self.semantics {
