@@ -230,6 +230,9 @@ fn perturbed(pose: &DAffine3, delta: &[f64]) -> DAffine3 {
     DAffine3 { matrix3: r, translation: pose.translation + DVec3::new(delta[0], delta[1], delta[2]) }
 }
 
+/// A sparse Cholesky factorisation and the block pattern it was analysed for.
+type Factor = Option<(Vec<(usize, usize)>, CscCholesky<f64>)>;
+
 /// `eᵀ Ω e`.
 fn chi2(e: &[f64; 6], omega: &Mat6) -> f64 {
     let mut s = 0.0;
@@ -487,7 +490,7 @@ impl PoseGraph {
         config: &PoseGraphConfig,
     ) -> Result<(usize, f64), PoseGraphError> {
         let mut lambda = 1e-6;
-        let mut factor: Option<(Vec<(usize, usize)>, CscCholesky<f64>)> = None;
+        let mut factor: Factor = None;
         let mut cost = self.cost(poses, active, config);
         let mut iterations = 0;
         while iterations < config.max_iterations {
@@ -521,11 +524,7 @@ impl PoseGraph {
 
 /// Solves `(H + λ diag(H)) δ = -g` with the sparse Cholesky factorisation, reusing the
 /// symbolic analysis of `factor` while the block pattern is the same.
-fn solve_sparse(
-    ne: &NormalEquations,
-    lambda: f64,
-    factor: &mut Option<(Vec<(usize, usize)>, CscCholesky<f64>)>,
-) -> Result<Vec<f64>, PoseGraphError> {
+fn solve_sparse(ne: &NormalEquations, lambda: f64, factor: &mut Factor) -> Result<Vec<f64>, PoseGraphError> {
     let n = ne.gradient.len();
     let pattern: Vec<(usize, usize)> = ne.blocks.keys().copied().collect();
     // Columns of the full symmetric matrix: block column c holds blocks (r, c) for r <= c

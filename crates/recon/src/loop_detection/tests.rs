@@ -2,7 +2,6 @@
 //! the drift measured, unrelated views and look-alike places elsewhere rejected.
 
 use super::*;
-use glam::Affine3A;
 use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
 use semrecon_data::FrameSource;
 
@@ -18,16 +17,6 @@ fn scan_keyframes() -> Vec<(Frame, DAffine3)> {
             (f, pose)
         })
         .collect()
-}
-
-trait AsD {
-    fn as_daffine3(&self) -> DAffine3;
-}
-
-impl AsD for Affine3A {
-    fn as_daffine3(&self) -> DAffine3 {
-        DAffine3 { matrix3: self.matrix3.as_dmat3(), translation: self.translation.as_dvec3() }
-    }
 }
 
 /// `pose` after drift that grows along the scan: `k` keyframes in, 2 mm and 0.03 degree per
@@ -58,6 +47,13 @@ fn a_revisit_with_drift_is_accepted_and_the_alignment_recovers_the_truth() {
         let predicted = drifted[v.old].inverse() * drifted[last];
         let (t_err, r_err) = pose_distance(&v.old_from_new, &true_relative);
         let (t_drift, _) = pose_distance(&predicted, &true_relative);
+        eprintln!(
+            "keyframes {} -> {last}: alignment off the truth by {:.2} mm, {:.3} deg (drift {:.1} mm)",
+            v.old,
+            t_err * 1e3,
+            r_err.to_degrees(),
+            t_drift * 1e3
+        );
         assert!(t_err < 0.01 && r_err < 0.01, "alignment off the truth by {t_err} m, {r_err} rad");
         assert!(t_err < t_drift / 3.0, "the alignment removes the drift: {t_err} against {t_drift}");
     }

@@ -86,7 +86,7 @@ fn drifting_graph(truth: &[DAffine3], seed: u64) -> PoseGraph {
     g.add_pose(pose).expect("finite");
     for i in 1..truth.len() {
         let z = truth[i - 1].inverse() * truth[i] * bias * random_pose(&mut rng, 0.004, 0.004);
-        pose = pose * z;
+        pose *= z;
         g.add_pose(pose).expect("finite");
         g.add_edge(PoseEdge {
             from: i - 1,
