@@ -59,6 +59,6 @@ pub mod timing;
 pub use config::{PipelineConfig, PoseMode, SemanticConfig, SemanticMode, DEFAULT_MESH_BUDGET};
 pub use error::{PipelineError, Result};
 pub use gravity::{UpEstimate, UpSource};
-pub use loop_closure::{CorrectionRecord, LoopClosureConfig, LoopClosureReport, LoopRecord};
+pub use loop_closure::{CorrectionRecord, LoopClosureConfig, LoopClosureReport, LoopRecord, ReintegrationRecord};
 pub use pipeline::{FrameResult, FrameStatus, Pipeline, SemanticPass, FRONT_END_STAGES};
 pub use timing::{StageSummary, StageTimes};

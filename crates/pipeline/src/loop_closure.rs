@@ -62,6 +62,12 @@ pub struct LoopClosureConfig {
     pub min_move: f64,
     /// Most megabytes of stored frames (1.5 MB each at 640x480); past it loop closure stops.
     pub frame_store_mb: usize,
+    /// The map follows corrected poses at most every this many keyframes (and at the end
+    /// of the scan): a revisit finds a loop at keyframe after keyframe, and re-fusing the map
+    /// for each costs seconds (7-Scenes: 19 re-integrations of the whole clip at 1, docs/
+    /// loop_closure.md). Meanwhile the trajectory is corrected and the tracker stays in the
+    /// map's frame.
+    pub follow_every: usize,
 }
 
 impl Default for LoopClosureConfig {
@@ -75,6 +81,7 @@ impl Default for LoopClosureConfig {
             min_loop_chi2: 6.0,
             min_move: 0.008,
             frame_store_mb: 4096,
+            follow_every: 10,
         }
     }
 }
@@ -100,6 +107,9 @@ impl LoopClosureConfig {
             && self.min_loop_chi2 >= 0.0)
         {
             return bad("loop closure thresholds must be finite and >= 0".into());
+        }
+        if self.follow_every == 0 {
+            return bad("follow_every must be at least 1".into());
         }
         if self.detector.min_keyframe_gap == 0 || self.detector.candidates == 0 {
             return bad("loop detection needs a keyframe gap and candidates of at least 1".into());
@@ -153,12 +163,21 @@ pub struct CorrectionRecord {
     pub largest_turn_deg: f64,
     /// Time of the optimisation, ms.
     pub optimise_ms: f64,
-    /// Frames fused again.
+}
+
+/// One re-integration: the map brought to the corrected poses.
+#[derive(Debug, Clone, Serialize)]
+pub struct ReintegrationRecord {
+    /// The frame at which it happened.
+    pub frame: usize,
+    /// Frames moved to their corrected pose (further than `min_move` from the map's).
+    pub moved_frames: usize,
+    /// Frames fused again (the moved ones and those sharing chunks with them).
     pub refused_frames: usize,
     /// Chunks cleared and rebuilt.
     pub rebuilt_chunks: usize,
-    /// Time of the re-integration, ms.
-    pub reintegrate_ms: f64,
+    /// Time, ms.
+    pub ms: f64,
 }
 
 /// What [`crate::Pipeline::loop_closure`] reports.
@@ -172,8 +191,10 @@ pub struct LoopClosureReport {
     pub keyframes: usize,
     /// Every candidate verified, in order.
     pub loops: Vec<LoopRecord>,
-    /// Every correction applied.
+    /// Every correction of the poses.
     pub corrections: Vec<CorrectionRecord>,
+    /// Every re-integration of the map.
+    pub reintegrations: Vec<ReintegrationRecord>,
 }
 
 /// A fused frame kept for re-integration.
@@ -228,6 +249,9 @@ pub(crate) struct LoopClosure {
     report: LoopClosureReport,
     /// Poses of the fused frames as tracked, before any correction.
     tracked: Trajectory,
+    /// Whether a correction awaits the map, and keyframes since the map last followed.
+    behind: bool,
+    keyframes_since_follow: usize,
 }
 
 fn to_f64(p: Affine3A) -> DAffine3 {
@@ -249,6 +273,8 @@ impl LoopClosure {
             store_bytes: 0,
             report: LoopClosureReport { enabled: true, ..LoopClosureReport::default() },
             tracked: Trajectory::default(),
+            behind: false,
+            keyframes_since_follow: 0,
             config,
         }
     }
@@ -424,7 +450,7 @@ impl LoopClosure {
         if !moved {
             return None;
         }
-        let poses = self.frames.iter().map(|f| to_f32(self.graph.poses()[f.node] * f.node_from_camera)).collect();
+        let poses = self.estimates();
         let loops = self
             .graph
             .edges()
@@ -442,38 +468,72 @@ impl LoopClosure {
                 largest_move_m: report.largest_change.0,
                 largest_turn_deg: report.largest_change.1.to_degrees(),
                 optimise_ms,
-                refused_frames: 0,
-                rebuilt_chunks: 0,
-                reintegrate_ms: 0.0,
             },
         })
     }
 
+    /// Records a correction adopted by the trajectory; the map is then behind it.
     pub fn record_correction(&mut self, record: CorrectionRecord) {
         self.report.corrections.push(record);
+        self.behind = true;
     }
 
-    /// Makes `map` follow the optimised poses (one per stored frame): the frames whose map
+    /// Whether a correction has not reached the map yet.
+    pub fn is_behind(&self) -> bool {
+        self.behind
+    }
+
+    /// Called once per keyframe: whether the map should follow now.
+    pub fn follow_due(&mut self) -> bool {
+        self.keyframes_since_follow += 1;
+        self.behind && self.keyframes_since_follow >= self.config.follow_every
+    }
+
+    /// Makes `map` follow the graph's estimates of the poses: the frames whose map
     /// pose is more than [`LoopClosureConfig::min_move`] from their optimised one move to
     /// it; every chunk such a frame touched or now touches is cleared, and every frame that
     /// touched one of them is fused again, in capture order, at its (new) map pose. Returns
-    /// the move of the last frame's map pose (`corrected_from_old`, for the tracker), frames
-    /// fused and chunks rebuilt.
-    pub fn follow(&mut self, map: &mut TsdfMap, optimised: &[Affine3A]) -> Result<(Affine3A, usize, usize)> {
+    /// the move of the last frame's map pose (`corrected_from_old`, for the tracker) and the
+    /// estimates of every frame's pose (the corrected trajectory); records the
+    /// re-integration (at `frame`, timed from `started`). Nothing moves when loop closure
+    /// stopped (the store is gone).
+    pub fn follow(
+        &mut self,
+        map: &mut TsdfMap,
+        frame: usize,
+        started: std::time::Instant,
+    ) -> Result<(Affine3A, Vec<Affine3A>)> {
+        self.behind = false;
+        self.keyframes_since_follow = 0;
+        let optimised = self.estimates();
+        let optimised = optimised.as_slice();
         let old: Vec<Affine3A> = self.frames.iter().map(|f| f.map_pose).collect();
         let moved: Vec<bool> =
             old.iter().zip(optimised).map(|(a, b)| moved_by(&to_f64(*a), &to_f64(*b)) > self.config.min_move).collect();
         let new: Vec<Affine3A> =
             old.iter().zip(optimised).zip(&moved).map(|((o, n), m)| if *m { *n } else { *o }).collect();
-        let (fused, chunks) = self.reintegrate(map, &moved, &new)?;
+        let (refused, chunks) = self.reintegrate(map, &moved, &new)?;
         for (f, p) in self.frames.iter_mut().zip(&new) {
             f.map_pose = *p;
         }
-        let correction = match (old.last(), new.last()) {
+        self.report.reintegrations.push(ReintegrationRecord {
+            frame,
+            moved_frames: moved.iter().filter(|m| **m).count(),
+            refused_frames: refused,
+            rebuilt_chunks: chunks,
+            ms: started.elapsed().as_secs_f64() * 1e3,
+        });
+        let corrected_from_old = match (old.last(), new.last()) {
             (Some(o), Some(n)) => *n * o.inverse(),
             _ => Affine3A::IDENTITY,
         };
-        Ok((correction, fused, chunks))
+        Ok((corrected_from_old, self.estimates()))
+    }
+
+    /// The graph's estimate of every stored frame's pose: its keyframe's pose times its
+    /// fixed offset (keyframes added since the last optimisation extend the corrected chain).
+    fn estimates(&self) -> Vec<Affine3A> {
+        self.frames.iter().map(|f| to_f32(self.graph.poses()[f.node] * f.node_from_camera)).collect()
     }
 
     /// Clears the chunks the `moved` frames touched or touch at their `new` poses and fuses

@@ -25,7 +25,7 @@ use crate::backend::{Backend, Job, JobResult};
 use crate::config::{PipelineConfig, PoseMode, SemanticMode};
 use crate::error::{PipelineError, Result};
 use crate::gravity::{camera_up_prior, estimate_up, given_up, UpEstimate};
-use crate::loop_closure::{LoopClosure, LoopClosureReport, PoseUpdate};
+use crate::loop_closure::{LoopClosure, LoopClosureReport};
 use crate::semantic_map::{LabelStore, SurfaceCells, CLASSES};
 use crate::timing::StageTimes;
 
@@ -322,37 +322,37 @@ impl Pipeline {
         let update = lc.close_loops(frame.index, &mut self.warnings);
         self.times.record("global pose optimisation", t.elapsed());
         if let Some(update) = update {
-            self.apply_correction(update)?;
+            if update.poses.len() == self.trajectory.poses.len() {
+                lc.record_correction(update.record);
+                self.trajectory.poses = update.poses;
+            } else {
+                // Cannot happen while the store and the trajectory grow together.
+                self.warnings
+                    .push("loop closure: frame store out of step with the trajectory; correction skipped".into());
+            }
+        }
+        if lc.follow_due() {
+            self.follow_poses(frame.index)?;
         }
         Ok(())
     }
 
-    /// Moves the fused frames to their corrected poses: the map is re-fused where they
-    /// moved, the trajectory and the tracker follow.
-    fn apply_correction(&mut self, mut update: PoseUpdate) -> Result<()> {
+    /// Makes the map follow the corrected trajectory (re-fusing where frames moved); the
+    /// tracker, which works in the map, moves with the last frame.
+    fn follow_poses(&mut self, frame: usize) -> Result<()> {
         let Some(lc) = &mut self.loop_closure else { return Ok(()) };
-        if update.poses.len() != self.trajectory.poses.len() {
-            // The store and the trajectory disagree (cannot happen while both grow together):
-            // keep everything as it is.
-            self.warnings.push("loop closure: frame store out of step with the trajectory; correction skipped".into());
-            return Ok(());
-        }
         let t = Instant::now();
-        let (corrected_from_old, refused, chunks) = lc.follow(&mut self.map, &update.poses)?;
-        let ms = t.elapsed().as_secs_f64() * 1e3;
-        self.times.record_ms("map re-integration", ms);
-        update.record.refused_frames = refused;
-        update.record.rebuilt_chunks = chunks;
-        update.record.reintegrate_ms = ms;
-        lc.record_correction(update.record);
-        // The tracker works in the map: it moves with the last frame's map pose.
+        let (corrected_from_old, estimates) = lc.follow(&mut self.map, frame, t)?;
+        self.times.record("map re-integration", t.elapsed());
+        if estimates.len() == self.trajectory.poses.len() {
+            self.trajectory.poses = estimates;
+        }
         if let Some(tracker) = &mut self.tracker {
             tracker.correct(corrected_from_old);
         }
         if let Some(p) = self.last_pose.as_mut() {
             *p = corrected_from_old * *p;
         }
-        self.trajectory.poses = update.poses;
         if let Some(s) = &mut self.semantics {
             s.stale = true;
         }
@@ -484,6 +484,9 @@ impl Pipeline {
     /// None at present (failures of the back end are [`Pipeline::warnings`]); the `Result`
     /// leaves room for outputs that can fail.
     pub fn finish(&mut self) -> Result<LabeledMesh> {
+        if self.loop_closure.as_ref().is_some_and(LoopClosure::is_behind) {
+            self.follow_poses(self.frames.saturating_sub(1))?;
+        }
         if self.meshed_at != self.fused || self.mesher.pending_chunks() > 0 {
             let t = Instant::now();
             let stats = self.mesher.update_all(&self.map);
