@@ -316,6 +316,7 @@ pub fn loop_closure_json(pipeline: &Pipeline, gt: Option<&Trajectory>) -> serde_
         "loops_rejected": report.loops.len() - accepted,
         "loops": report.loops,
         "corrections": report.corrections,
+        "reintegrations": report.reintegrations,
         "ate_rmse_before_m": ate(before),
         "ate_rmse_after_m": ate(pipeline.trajectory()),
         "trajectory_before": rows(before),
@@ -330,11 +331,12 @@ pub fn loop_closure_summary(json: &serde_json::Value) -> String {
     }
     let mm = |k: &str| json[k].as_f64().map_or("n/a".to_string(), |v| format!("{:.1} mm", v * 1e3));
     format!(
-        "loop closure: {} keyframes, {} loops accepted, {} rejected, {} corrections; ATE {} as tracked, {} after{}",
+        "loop closure: {} keyframes, {} loops accepted, {} rejected, {} pose corrections, {} map re-integrations; ATE {} as tracked, {} after{}",
         json["keyframes"],
         json["loops_accepted"],
         json["loops_rejected"],
         json["corrections"].as_array().map_or(0, Vec::len),
+        json["reintegrations"].as_array().map_or(0, Vec::len),
         mm("ate_rmse_before_m"),
         mm("ate_rmse_after_m"),
         json["stopped"].as_str().map_or(String::new(), |s| format!(" ({s})"))
