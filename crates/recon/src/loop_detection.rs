@@ -34,9 +34,10 @@
 use glam::{DAffine3, DVec3, Vec3};
 use semrecon_data::{Frame, Intrinsics};
 
-use crate::linalg::{cholesky_solve, symmetric_eigen};
+use crate::linalg::cholesky_solve;
 use crate::pose_graph::{pose_distance, rotation_exp};
 use crate::relocalisation::Thumbnail;
+use crate::tracking::conditioning;
 
 /// Downscale of the keyframe copies (640x480 becomes 160x120).
 const DOWNSCALE: usize = 4;
@@ -284,7 +285,7 @@ impl LoopDetector {
             Some(LoopRejection::FewInliers)
         } else if !(residual_rms <= c.max_residual) {
             Some(LoopRejection::LargeResidual)
-        } else if !(condition(&stats.h) >= c.min_condition) {
+        } else if !(conditioning(&stats.h, c.min_condition).0 >= c.min_condition) {
             Some(LoopRejection::Degenerate)
         } else if !(correction.0 <= c.max_correction.0 as f64 && correction.1 <= c.max_correction.1 as f64) {
             Some(LoopRejection::LargeCorrection)
@@ -325,23 +326,6 @@ fn damped(h: &[[f64; 6]; 6]) -> [[f64; 6]; 6] {
         d[i][i] += 1e-6 * h[i][i] + 1e-9;
     }
     d
-}
-
-/// Smallest over largest eigenvalue of `h` scaled to a unit diagonal.
-fn condition(h: &[[f64; 6]; 6]) -> f64 {
-    let s: Vec<f64> = (0..6).map(|i| if h[i][i] > 0.0 { 1.0 / h[i][i].sqrt() } else { 0.0 }).collect();
-    let mut m = [[0.0; 6]; 6];
-    for r in 0..6 {
-        for c in 0..6 {
-            m[r][c] = h[r][c] * s[r] * s[c];
-        }
-    }
-    let (values, _) = symmetric_eigen(&m);
-    if values[5] > 0.0 {
-        values[0] / values[5]
-    } else {
-        0.0
-    }
 }
 
 /// Point-to-plane sums of `src`'s points moved by `dst_from_src` against `dst`'s maps

@@ -1507,7 +1507,7 @@ fn scaled_eigen(h: &[[f64; 6]; 6]) -> ScaledEigen {
 /// Smallest over largest eigenvalue of the scale-normalised `h` (0 when a direction has
 /// no constraint at all), and how many eigenvalues are at least `min_condition` times the
 /// largest: the motion directions the alignment constrains.
-fn conditioning(h: &[[f64; 6]; 6], min_condition: f64) -> (f64, usize) {
+pub(crate) fn conditioning(h: &[[f64; 6]; 6], min_condition: f64) -> (f64, usize) {
     let (d, vals, _) = scaled_eigen(h);
     if !(vals[5] > 0.0) {
         return (0.0, 0);
