@@ -326,6 +326,10 @@ impl LoopClosure {
                 None => pose64,
             };
             let node = self.graph.add_pose(start).map_err(invalid)?;
+            // The node's frame and keyframe copy first: a failed edge below leaves a node
+            // without odometry (the optimiser keeps it still), never an inconsistent store.
+            self.node_frames.push(self.frames.len());
+            self.detector.add(frame);
             if let Some(z) = odometry {
                 let (st, sr) = self.config.odometry_sigma;
                 self.graph
@@ -338,11 +342,9 @@ impl LoopClosure {
                     })
                     .map_err(invalid)?;
             }
-            self.node_frames.push(self.frames.len());
-            self.detector.add(frame);
         }
         let node = self.graph.poses().len() - 1;
-        let node_map_pose = self.frames.get(self.node_frames[node]).map_or(pose, |f| f.map_pose);
+        let node_map_pose = self.node_frames.get(node).and_then(|&f| self.frames.get(f)).map_or(pose, |f| f.map_pose);
         let stored = StoredFrame {
             index: frame.index,
             timestamp: frame.timestamp,

@@ -245,18 +245,23 @@ impl LoopDetector {
             }
             chosen.push(old);
             let prediction = poses[old].inverse() * *pose_new;
-            let mut v = self.verify(old, new, prediction);
-            v.appearance = appearance;
-            verdicts.push(v);
+            if let Some(mut v) = self.verify(old, new, prediction) {
+                v.appearance = appearance;
+                verdicts.push(v);
+            }
         }
         verdicts
     }
 
     /// Aligns keyframe `new` onto keyframe `old` from `prediction` (`old_from_new`) and
-    /// judges the result.
-    pub fn verify(&self, old: usize, new: usize, prediction: DAffine3) -> LoopVerdict {
+    /// judges the result; `None` when either keyframe is missing or the prediction is not
+    /// finite.
+    pub fn verify(&self, old: usize, new: usize, prediction: DAffine3) -> Option<LoopVerdict> {
         let c = &self.config;
-        let (src, dst) = (&self.keyframes[new], &self.keyframes[old]);
+        let (src, dst) = (self.keyframes.get(new)?, self.keyframes.get(old)?);
+        if !prediction.is_finite() {
+            return None;
+        }
         let mut estimate = prediction;
         for level in [1, 0] {
             let gate = c.max_distance * if level == 1 { 4.0 } else { 1.0 };
@@ -292,7 +297,7 @@ impl LoopDetector {
         } else {
             None
         };
-        LoopVerdict {
+        Some(LoopVerdict {
             old,
             new,
             frames: (dst.frame_index, src.frame_index),
@@ -303,7 +308,7 @@ impl LoopDetector {
             residual_rms,
             correction,
             appearance: 0.0,
-        }
+        })
     }
 }
 

@@ -85,11 +85,15 @@ fn an_unrelated_view_at_the_predicted_place_is_rejected() {
         detector.add(f);
     }
     // Keyframe 15 looks elsewhere in the room; claim it stands where keyframe 0 stood.
-    let v = detector.verify(0, 15, DAffine3::IDENTITY);
+    let v = detector.verify(0, 15, DAffine3::IDENTITY).expect("both keyframes exist");
     assert!(!v.accepted(), "{v:#?}");
     // And the true pair is accepted from its true relative pose.
     let truth = keyframes[0].1.inverse() * keyframes[29].1;
-    assert!(detector.verify(0, 29, truth).accepted());
+    assert!(detector.verify(0, 29, truth).is_some_and(|v| v.accepted()));
+    // Missing keyframes and non-finite predictions give no verdict, not a panic.
+    assert!(detector.verify(0, 99, truth).is_none());
+    let nan = DAffine3::from_translation(DVec3::new(f64::NAN, 0.0, 0.0));
+    assert!(detector.verify(0, 29, nan).is_none());
 }
 
 #[test]
