@@ -2,7 +2,9 @@
 //! tracked and fused on the caller's thread (the front end); every `keyframe_every` fused
 //! frames the mesh is brought up to date and the changed part of the map's surface is handed to
 //! the semantic back end (its own thread, see [`crate::backend`]), whose class probabilities
-//! are accumulated per 5 cm cell and read by [`Pipeline::mesh`].
+//! are accumulated per 5 cm cell and read by [`Pipeline::mesh`]. When tracking, keyframes
+//! also look for loops and correct the poses, and the map follows the correction (see
+//! [`crate::loop_closure`]; on the front end, before the keyframe's meshing).
 //!
 //! Timing rules: without `realtime`, the front end waits at each keyframe for the previous
 //! keyframe's labels before it snapshots the map again, so every pass sees the same map and
