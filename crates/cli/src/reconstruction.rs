@@ -16,9 +16,10 @@ use glam::Vec3;
 use rayon::prelude::*;
 use semrecon_data::class::UNLABELED;
 use semrecon_data::{write_ply, LabeledMesh, PlyEncoding, SemanticClass, Trajectory};
+use semrecon_eval::{evaluate_trajectory, TrajectoryEvalConfig};
 use semrecon_eval::{MeshEvalConfig, SurfaceIndex, SurfaceLabeler};
 use semrecon_net::{shipped, ConfusionMatrix, NetConfig, Segmenter, Weights};
-use semrecon_pipeline::{PipelineConfig, SemanticMode, DEFAULT_MESH_BUDGET};
+use semrecon_pipeline::{Pipeline, PipelineConfig, SemanticMode, DEFAULT_MESH_BUDGET};
 use semrecon_recon::{MeshConfig, TrackerConfig, TsdfConfig};
 
 /// Options of the dense-geometry loop, shared by `run` and `demo`.
@@ -64,6 +65,9 @@ pub struct ReconArgs {
     /// Where poses come from: tracking, or the dataset's ground truth.
     #[arg(long, value_enum, default_value_t = PoseMode::Track)]
     pub poses: PoseMode,
+    /// Turn loop closure off (no global pose optimisation: poses stay as tracked), to compare.
+    #[arg(long)]
+    pub no_loop_closure: bool,
 }
 
 /// Where the pose of each frame comes from.
@@ -158,6 +162,7 @@ pub fn pipeline_config(
     config.semantics.realtime = realtime;
     config.semantics.up = up;
     config.semantics.min_island_m2 = semantics.min_label_island;
+    config.loop_closure.enabled = !recon.no_loop_closure;
     config.validate().context("pipeline options")?;
     Ok(config)
 }
@@ -278,4 +283,62 @@ pub fn labelled_share(mesh: &LabeledMesh) -> f64 {
         return 0.0;
     }
     mesh.vertex_labels.iter().filter(|&&l| l != UNLABELED).count() as f64 / mesh.vertex_labels.len() as f64
+}
+
+/// The `loop_closure` object of `report.json`: loops tried (frame pairs, residuals, accepted
+/// or why not), corrections applied, the trajectory before and after optimisation
+/// (`[t, x, y, z, qx, qy, qz, qw]` rows, `world_from_camera`), and with a ground truth the ATE
+/// of both. `null` when loop closure was off.
+pub fn loop_closure_json(pipeline: &Pipeline, gt: Option<&Trajectory>) -> serde_json::Value {
+    let (Some(report), Some(before)) = (pipeline.loop_closure(), pipeline.tracked_trajectory()) else {
+        return serde_json::Value::Null;
+    };
+    let rows = |t: &Trajectory| -> Vec<[f64; 8]> {
+        t.timestamps
+            .iter()
+            .zip(&t.poses)
+            .map(|(&time, p)| {
+                let (_, q, x) = p.to_scale_rotation_translation();
+                [time, x.x as f64, x.y as f64, x.z as f64, q.x as f64, q.y as f64, q.z as f64, q.w as f64]
+            })
+            .collect()
+    };
+    let ate = |t: &Trajectory| {
+        gt.filter(|g| !g.is_empty() && !t.is_empty())
+            .and_then(|g| evaluate_trajectory(g, t, &TrajectoryEvalConfig::default()).ok())
+            .map(|e| e.ate_rmse_m)
+    };
+    let accepted = report.loops.iter().filter(|l| l.accepted).count();
+    serde_json::json!({
+        "keyframes": report.keyframes,
+        "stopped": report.stopped,
+        "loops_accepted": accepted,
+        "loops_rejected": report.loops.len() - accepted,
+        "loops": report.loops,
+        "corrections": report.corrections,
+        "reintegrations": report.reintegrations,
+        "ate_rmse_before_m": ate(before),
+        "ate_rmse_after_m": ate(pipeline.trajectory()),
+        "trajectory_before": rows(before),
+        "trajectory_after": rows(pipeline.trajectory()),
+    })
+}
+
+/// One line on loop closure from [`loop_closure_json`]'s object.
+pub fn loop_closure_summary(json: &serde_json::Value) -> String {
+    if json.is_null() {
+        return "loop closure: off".into();
+    }
+    let mm = |k: &str| json[k].as_f64().map_or("n/a".to_string(), |v| format!("{:.1} mm", v * 1e3));
+    format!(
+        "loop closure: {} keyframes, {} loops accepted, {} rejected, {} pose corrections, {} map re-integrations; ATE {} as tracked, {} after{}",
+        json["keyframes"],
+        json["loops_accepted"],
+        json["loops_rejected"],
+        json["corrections"].as_array().map_or(0, Vec::len),
+        json["reintegrations"].as_array().map_or(0, Vec::len),
+        mm("ate_rmse_before_m"),
+        mm("ate_rmse_after_m"),
+        json["stopped"].as_str().map_or(String::new(), |s| format!(" ({s})"))
+    )
 }

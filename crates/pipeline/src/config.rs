@@ -6,6 +6,7 @@ use glam::{Affine3A, Vec3};
 use semrecon_recon::{MeshConfig, TrackerConfig, TsdfConfig};
 
 use crate::error::{PipelineError, Result};
+use crate::loop_closure::LoopClosureConfig;
 
 /// A [`PipelineConfig::mesh_budget`] for reconstruction without semantics, in chunks (what
 /// `semrecon run --semantics off` uses): 16-20 ms of meshing a keyframe on two cores at 5 mm
@@ -114,6 +115,9 @@ pub struct PipelineConfig {
     pub keyframe_every: usize,
     /// Semantics.
     pub semantics: SemanticConfig,
+    /// Loop closure and global pose optimisation (tracking only: ground-truth poses need
+    /// none).
+    pub loop_closure: LoopClosureConfig,
 }
 
 impl Default for PipelineConfig {
@@ -127,6 +131,7 @@ impl Default for PipelineConfig {
             initial_pose: None,
             keyframe_every: 10,
             semantics: SemanticConfig::default(),
+            loop_closure: LoopClosureConfig::default(),
         }
     }
 }
@@ -141,6 +146,7 @@ impl PipelineConfig {
         self.tsdf.validate()?;
         self.mesh.validate()?;
         self.tracker.validate()?;
+        self.loop_closure.validate()?;
         let bad = |m: String| Err(PipelineError::InvalidConfig(m));
         if self.keyframe_every == 0 {
             return bad("keyframe_every must be at least 1".into());

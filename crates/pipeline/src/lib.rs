@@ -19,6 +19,8 @@
 //! - [`label_islands`]: specks of a class merged into their surroundings;
 //! - [`live`]: the feed from a live camera, a one-frame mailbox that drops and counts frames
 //!   arriving while the pipeline is busy;
+//! - [`loop_closure`]: loops found at keyframes, the pose graph optimised, the map re-fused
+//!   where frames moved;
 //! - [`timing`]: per-stage statistics.
 //!
 //! ```
@@ -52,6 +54,7 @@ pub mod error;
 pub mod gravity;
 pub mod label_islands;
 pub mod live;
+pub mod loop_closure;
 mod pipeline;
 pub mod semantic_map;
 pub mod timing;
@@ -60,5 +63,6 @@ pub use config::{PipelineConfig, PoseMode, SemanticConfig, SemanticMode, DEFAULT
 pub use error::{PipelineError, Result};
 pub use gravity::{UpEstimate, UpSource};
 pub use live::{FeedStats, LiveFeed, LiveFrame};
+pub use loop_closure::{CorrectionRecord, LoopClosureConfig, LoopClosureReport, LoopRecord, ReintegrationRecord};
 pub use pipeline::{FrameResult, FrameStatus, Pipeline, SemanticPass, FRONT_END_STAGES};
 pub use timing::{StageSummary, StageTimes};

@@ -2,7 +2,9 @@
 //! tracked and fused on the caller's thread (the front end); every `keyframe_every` fused
 //! frames the mesh is brought up to date and the changed part of the map's surface is handed to
 //! the semantic back end (its own thread, see [`crate::backend`]), whose class probabilities
-//! are accumulated per 5 cm cell and read by [`Pipeline::mesh`].
+//! are accumulated per 5 cm cell and read by [`Pipeline::mesh`]. When tracking, keyframes
+//! also look for loops and correct the poses, and the map follows the correction (see
+//! [`crate::loop_closure`]; on the front end, before the keyframe's meshing).
 //!
 //! Timing rules: without `realtime`, the front end waits at each keyframe for the previous
 //! keyframe's labels before it snapshots the map again, so every pass sees the same map and
@@ -25,6 +27,7 @@ use crate::backend::{Backend, Job, JobResult};
 use crate::config::{PipelineConfig, PoseMode, SemanticMode};
 use crate::error::{PipelineError, Result};
 use crate::gravity::{camera_up_prior, estimate_up, given_up, UpEstimate};
+use crate::loop_closure::{LoopClosure, LoopClosureReport};
 use crate::semantic_map::{LabelStore, SurfaceCells, CLASSES};
 use crate::timing::StageTimes;
 
@@ -37,8 +40,16 @@ const RELOCALISATION_EVERY: usize = 3;
 
 /// Stages the front end runs, and its waits for the back end (their sum is
 /// [`Pipeline::front_end_seconds`]).
-pub const FRONT_END_STAGES: [&str; 6] =
-    ["tracking", "fusion", "meshing", "final meshing", "semantic snapshot", "semantic wait"];
+pub const FRONT_END_STAGES: [&str; 8] = [
+    "tracking",
+    "fusion",
+    "global pose optimisation",
+    "map re-integration",
+    "meshing",
+    "final meshing",
+    "semantic snapshot",
+    "semantic wait",
+];
 
 /// What happened to one frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -127,6 +138,8 @@ pub struct Pipeline {
     lost: usize,
     last_pose: Option<Affine3A>,
     semantics: Option<Semantics>,
+    /// Keyframe graph, loop detection and the frame store (tracking with loop closure on).
+    loop_closure: Option<LoopClosure>,
     warnings: Vec<String>,
 }
 
@@ -176,6 +189,8 @@ impl Pipeline {
         };
         let mesher =
             IncrementalMesher::with_config(config.mesh, RemeshTolerance::EXACT)?.with_budget(config.mesh_budget);
+        let loop_closure = (config.poses == PoseMode::Track && config.loop_closure.enabled)
+            .then(|| LoopClosure::new(config.loop_closure.clone(), intrinsics));
         Ok(Self {
             config,
             intrinsics,
@@ -194,6 +209,7 @@ impl Pipeline {
             lost: 0,
             last_pose: None,
             semantics,
+            loop_closure,
             warnings: Vec::new(),
         })
     }
@@ -286,12 +302,63 @@ impl Pipeline {
         if let Some(s) = &mut self.semantics {
             s.stale = true;
         }
-        if self.fused.is_multiple_of(self.config.keyframe_every) {
+        let keyframe = self.fused.is_multiple_of(self.config.keyframe_every);
+        self.global_optimisation(frame, pose, keyframe)?;
+        if keyframe {
             result.keyframe = true;
             self.remesh();
             result.semantic_pass = self.keyframe_semantics(frame.index)?;
         }
         Ok(result)
+    }
+
+    /// Loop closure for a fused frame: stores it, and at keyframes looks for loops and
+    /// applies a correction of the poses to the trajectory, the tracker and the map.
+    fn global_optimisation(&mut self, frame: &Frame, pose: Affine3A, keyframe: bool) -> Result<()> {
+        let Some(lc) = &mut self.loop_closure else { return Ok(()) };
+        lc.add_frame(frame, pose, keyframe)?;
+        if !keyframe {
+            return Ok(());
+        }
+        let t = Instant::now();
+        let update = lc.close_loops(frame.index, &mut self.warnings);
+        self.times.record("global pose optimisation", t.elapsed());
+        if let Some(update) = update {
+            if update.poses.len() == self.trajectory.poses.len() {
+                lc.record_correction(update.record);
+                self.trajectory.poses = update.poses;
+            } else {
+                // Cannot happen while the store and the trajectory grow together.
+                self.warnings
+                    .push("loop closure: frame store out of step with the trajectory; correction skipped".into());
+            }
+        }
+        if lc.follow_due() {
+            self.follow_poses(frame.index)?;
+        }
+        Ok(())
+    }
+
+    /// Makes the map follow the corrected trajectory (re-fusing where frames moved); the
+    /// tracker, which works in the map, moves with the last frame.
+    fn follow_poses(&mut self, frame: usize) -> Result<()> {
+        let Some(lc) = &mut self.loop_closure else { return Ok(()) };
+        let t = Instant::now();
+        let (corrected_from_old, estimates) = lc.follow(&mut self.map, frame, t)?;
+        self.times.record("map re-integration", t.elapsed());
+        if estimates.len() == self.trajectory.poses.len() {
+            self.trajectory.poses = estimates;
+        }
+        if let Some(tracker) = &mut self.tracker {
+            tracker.correct(corrected_from_old);
+        }
+        if let Some(p) = self.last_pose.as_mut() {
+            *p = corrected_from_old * *p;
+        }
+        if let Some(s) = &mut self.semantics {
+            s.stale = true;
+        }
+        Ok(())
     }
 
     fn remesh(&mut self) {
@@ -419,6 +486,9 @@ impl Pipeline {
     /// None at present (failures of the back end are [`Pipeline::warnings`]); the `Result`
     /// leaves room for outputs that can fail.
     pub fn finish(&mut self) -> Result<LabeledMesh> {
+        if self.loop_closure.as_ref().is_some_and(LoopClosure::is_behind) {
+            self.follow_poses(self.frames.saturating_sub(1))?;
+        }
         if self.meshed_at != self.fused || self.mesher.pending_chunks() > 0 {
             let t = Instant::now();
             let stats = self.mesher.update_all(&self.map);
@@ -446,6 +516,19 @@ impl Pipeline {
             }
         }
         Ok(self.mesh())
+    }
+
+    /// Loop closure's account: loops tried (accepted and rejected, with their frames and
+    /// residuals) and corrections applied; `None` when it is off (ground-truth poses,
+    /// [`crate::LoopClosureConfig::enabled`] false).
+    pub fn loop_closure(&self) -> Option<LoopClosureReport> {
+        self.loop_closure.as_ref().map(LoopClosure::report)
+    }
+
+    /// Poses of the fused frames as tracked, before any loop-closure correction (`None`
+    /// when loop closure is off: then [`Pipeline::trajectory`] is that).
+    pub fn tracked_trajectory(&self) -> Option<&Trajectory> {
+        self.loop_closure.as_ref().map(LoopClosure::tracked)
     }
 
     /// The pose of the last fused frame (`None` before the first).

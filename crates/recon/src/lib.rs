@@ -24,19 +24,23 @@ mod cube_cases;
 pub mod error;
 pub mod fusion;
 mod linalg;
+pub mod loop_detection;
 pub mod map;
 pub mod marching_cubes;
+pub mod pose_graph;
 pub mod raycast;
 pub mod relocalisation;
 pub mod tracking;
 
 pub use error::{ReconError, Result};
 pub use fusion::{depth_weight, IntegrationStats};
+pub use loop_detection::{LoopConfig, LoopDetector, LoopRejection, LoopVerdict};
 pub use map::{Chunk, ChunkKey, TsdfConfig, TsdfMap, Voxel, CHUNK_SIDE, CHUNK_VOXELS};
 pub use marching_cubes::{
     extract_mesh, extract_mesh_with, mesh_chunk, mesh_chunk_with, ChunkMesh, IncrementalMesher, MeshConfig,
     MeshingStats, RemeshTolerance,
 };
+pub use pose_graph::{EdgeKind, PoseEdge, PoseGraph, PoseGraphConfig, PoseGraphError};
 pub use raycast::{raycast, ModelView};
 pub use relocalisation::KeyframeIndex;
 pub use tracking::{ate_rmse, Keyframe, LostReason, Tracker, TrackerConfig, TrackingResult, TrackingStatus};

@@ -634,6 +634,41 @@ impl TsdfMap {
         keys
     }
 
+    /// Clears the chunks at `keys` (distances, weights, colours and frame runs) and marks
+    /// them changed, so that the frames that made them can be fused again at corrected poses
+    /// (loop closure); keys without a chunk are ignored. Consumers see a new revision.
+    pub fn reset_chunks(&mut self, keys: &[ChunkKey]) {
+        let revision = self.next_revision;
+        self.next_revision += 1;
+        for key in keys {
+            if let Some(&slot) = self.index.get(key) {
+                let c = &mut self.chunks[slot as usize];
+                c.voxels.tsdf.fill(0);
+                c.voxels.weight.fill(0);
+                c.voxels.color.fill([0; 4]);
+                c.frames = FrameRuns::default();
+                c.signs = 0;
+                c.dirty = true;
+                c.revision = revision;
+            }
+        }
+    }
+
+    /// Frees those chunks of `keys` without an observed voxel (left empty by a
+    /// re-integration whose frames now see that space elsewhere); returns how many.
+    pub fn free_unobserved(&mut self, keys: &[ChunkKey]) -> usize {
+        let slots: Vec<u32> = keys
+            .iter()
+            .filter_map(|k| self.index.get(k).copied())
+            .filter(|&s| self.chunks[s as usize].voxels.weight.iter().all(|&w| w == 0))
+            .collect::<std::collections::BTreeSet<u32>>()
+            .into_iter()
+            .collect();
+        let n = slots.len();
+        self.free(slots);
+        n
+    }
+
     /// Allocates the chunk at `key` when absent; returns its slab position and whether it is
     /// new ([`TsdfMap::allocate_all`] for one key, which is what tests build maps with).
     #[cfg(test)]

@@ -34,7 +34,7 @@ const DISTINCT_ROTATION: f32 = 0.09;
 
 /// A keyframe's thumbnail and pose.
 #[derive(Debug, Clone)]
-struct Thumbnail {
+pub(crate) struct Thumbnail {
     world_from_camera: Affine3A,
     /// Mean depth per block, metres; 0 where the block is invalid.
     depth: Vec<f32>,
@@ -45,7 +45,7 @@ struct Thumbnail {
 }
 
 impl Thumbnail {
-    fn of(frame: &Frame, world_from_camera: Affine3A) -> Self {
+    pub(crate) fn of(frame: &Frame, world_from_camera: Affine3A) -> Self {
         let (w, h) = (frame.intrinsics.width as usize, frame.intrinsics.height as usize);
         let mut depth_sum = vec![0.0f32; THUMB_W * THUMB_H];
         let mut luma_sum = vec![0.0f32; THUMB_W * THUMB_H];
@@ -111,7 +111,7 @@ impl Thumbnail {
     /// Dissimilarity to `other` (mean over the blocks both have of the depth difference in
     /// units of [`DEPTH_SCALE`] plus the intensity difference); `None` when they share too
     /// few blocks.
-    fn distance(&self, other: &Thumbnail) -> Option<f32> {
+    pub(crate) fn distance(&self, other: &Thumbnail) -> Option<f32> {
         let (mut both, mut either, mut sum) = (0u32, 0u32, 0.0f32);
         for b in 0..self.depth.len() {
             let (a, c) = (self.depth[b] > 0.0, other.depth[b] > 0.0);

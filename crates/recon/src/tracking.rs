@@ -640,6 +640,19 @@ impl Tracker {
         finish(result)
     }
 
+    /// Moves the tracker into a corrected map frame after loop closure: its last pose and
+    /// keyframes become `corrected_from_old` times what they were; the motion model (a
+    /// relative motion) is kept, and the cached model view, cast from the old map, is dropped.
+    pub fn correct(&mut self, corrected_from_old: Affine3A) {
+        if let Some(last) = self.last {
+            self.last = Some(orthonormalised(corrected_from_old * last));
+        }
+        for k in &mut self.keyframes {
+            k.world_from_camera = orthonormalised(corrected_from_old * k.world_from_camera);
+        }
+        self.cache = None;
+    }
+
     /// Continues from `world_from_camera` as if it were the last good pose, at rest, with no
     /// cached model (it belongs to the old pose) and `start_depth` (depth seen from the new
     /// pose, at the model's resolution) bounding the next ray-cast's march: for
@@ -1494,7 +1507,7 @@ fn scaled_eigen(h: &[[f64; 6]; 6]) -> ScaledEigen {
 /// Smallest over largest eigenvalue of the scale-normalised `h` (0 when a direction has
 /// no constraint at all), and how many eigenvalues are at least `min_condition` times the
 /// largest: the motion directions the alignment constrains.
-fn conditioning(h: &[[f64; 6]; 6], min_condition: f64) -> (f64, usize) {
+pub(crate) fn conditioning(h: &[[f64; 6]; 6], min_condition: f64) -> (f64, usize) {
     let (d, vals, _) = scaled_eigen(h);
     if !(vals[5] > 0.0) {
         return (0.0, 0);

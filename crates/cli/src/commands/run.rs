@@ -41,8 +41,8 @@ use serde::Serialize;
 use crate::live_view::LiveView;
 use crate::progress::progress_bar;
 use crate::reconstruction::{
-    dataset_up, labelled_share, load_network, pipeline_config, prepare_output_dir, semantic_score, vertex_accuracy_mm,
-    write_outputs, ReconArgs, SemanticArgs,
+    dataset_up, labelled_share, load_network, loop_closure_json, loop_closure_summary, pipeline_config,
+    prepare_output_dir, semantic_score, vertex_accuracy_mm, write_outputs, ReconArgs, SemanticArgs,
 };
 use crate::timing::{print_table, stages_json};
 
@@ -190,6 +190,8 @@ struct Report {
     mesh_triangles: usize,
     #[serde(skip_serializing_if = "Option::is_none")]
     ate_rmse_m: Option<f64>,
+    /// Loops tried and corrections, trajectory before and after (`null` without loop closure).
+    loop_closure: serde_json::Value,
     /// Mean distance from the mesh vertices to the true surface (synthetic datasets), mm.
     mesh_accuracy_mm: Option<f64>,
     /// mIoU of the mesh vertices' classes (synthetic datasets: against the generated room).
@@ -394,6 +396,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         mesh_vertices: mesh.vertex_count(),
         mesh_triangles: mesh.triangle_count(),
         ate_rmse_m,
+        loop_closure: loop_closure_json(&pipeline, source.has_ground_truth().then_some(&gt)),
         mesh_accuracy_mm,
         miou,
     };
@@ -438,6 +441,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(ate) = ate_rmse_m {
         println!("ATE rmse {:.4} m against the dataset's ground truth", ate);
     }
+    println!("{}", loop_closure_summary(&report.loop_closure));
     if let Some(acc) = mesh_accuracy_mm {
         println!("mesh accuracy {acc:.1} mm (mean vertex distance to the generated room)");
     }

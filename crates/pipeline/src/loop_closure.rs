@@ -1,0 +1,613 @@
+//! Global consistency for the live pipeline: keyframes in a pose graph, loops found at
+//! keyframes ([`semrecon_recon::LoopDetector`]), the graph optimised when a loop disagrees
+//! with the poses ([`semrecon_recon::PoseGraph`]), and the map made to follow the corrected
+//! poses.
+//!
+//! Every fused frame is attached to the last keyframe before it (`keyframe_from_camera`,
+//! fixed), so a keyframe's corrected pose moves its frames with it. The map follows by
+//! re-integration: the chunks touched by a frame that moved (before or after the move) are
+//! cleared and every frame that touched them is fused again, in capture order, at its
+//! corrected pose. Fusion has no exact inverse here (capped weights, quantised distances,
+//! blended colours), so subtracting a frame ("de-integration") would leave residue; clearing
+//! and re-fusing gives exactly the map a scan with the corrected poses would have built,
+//! and chunks no moved frame touched are left alone (their meshes and semantic cells are not
+//! redone). Rigid submaps were the other choice: they avoid re-fusing, but tracking and
+//! meshing would then work on overlapping submaps, a larger change. The cost is a copy of
+//! every fused frame (1.5 MB at 640x480: depth as `u16` in units of 0.2 mm, the unit of
+//! TUM and a fifth of 7-Scenes' millimetre, and colour), bounded by
+//! [`LoopClosureConfig::frame_store_mb`]; past it loop closure stops with a warning. Timings
+//! and memory in docs/loop_closure.md.
+//!
+//! Everything runs on the front end's thread at keyframes, in a fixed order: the output is
+//! the same for any thread count. Detection and optimisation cost milliseconds; the
+//! re-integration after a correction costs about a fusion per frame re-fused.
+
+use std::collections::{BTreeSet, HashSet};
+
+use glam::{Affine3A, DAffine3};
+use semrecon_data::{Frame, Intrinsics, Trajectory};
+use semrecon_recon::pose_graph::{isotropic_information, pose_distance};
+use semrecon_recon::{
+    ChunkKey, EdgeKind, LoopConfig, LoopDetector, LoopVerdict, PoseEdge, PoseGraph, PoseGraphConfig, TsdfMap,
+};
+use serde::Serialize;
+
+use crate::error::{PipelineError, Result};
+
+/// Depth units of the frame store: metres times this (0.2 mm steps, up to 13 m).
+const DEPTH_UNITS_PER_M: f32 = 5000.0;
+
+/// Parameters of loop closure.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoopClosureConfig {
+    /// Off: keyframes are not kept and poses are never corrected (`--no-loop-closure`).
+    pub enabled: bool,
+    /// Candidate search and geometric acceptance.
+    pub detector: LoopConfig,
+    /// The optimiser (robust kernel, outlier rejection, bounds on a correction).
+    pub graph: PoseGraphConfig,
+    /// Standard deviation of the odometry between consecutive keyframes: metres and radians
+    /// per keyframe (frame-to-model tracking drifts a few millimetres per ten frames).
+    pub odometry_sigma: (f64, f64),
+    /// Standard deviation of a loop alignment: metres and radians.
+    pub loop_sigma: (f64, f64),
+    /// The graph is optimised when a new loop edge's chi-square at the current poses exceeds
+    /// this: a loop that agrees with the poses changes nothing worth re-fusing the map for.
+    pub min_loop_chi2: f64,
+    /// Frames move with their keyframe; one whose points (at 2 m) would move less than this
+    /// many metres from where the map holds them stays there (the trajectory still reports
+    /// its optimised pose). 8 mm, under two 5 mm voxels and under the depth noise at 2 m: on
+    /// 7-Scenes re-fusing every frame that moved by a millimetre cost seconds per correction
+    /// for no visible change.
+    pub min_move: f64,
+    /// Most megabytes of stored frames (1.5 MB each at 640x480); past it loop closure stops.
+    pub frame_store_mb: usize,
+    /// The map follows corrected poses at most every this many keyframes (and at the end
+    /// of the scan): a revisit finds a loop at keyframe after keyframe, and re-fusing the map
+    /// for each costs seconds (7-Scenes: 19 re-integrations of the whole clip at 1, docs/
+    /// loop_closure.md). Meanwhile the trajectory is corrected and the tracker stays in the
+    /// map's frame.
+    pub follow_every: usize,
+}
+
+impl Default for LoopClosureConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            detector: LoopConfig::default(),
+            graph: PoseGraphConfig::default(),
+            odometry_sigma: (0.005, 0.004),
+            loop_sigma: (0.004, 0.003),
+            min_loop_chi2: 6.0,
+            min_move: 0.008,
+            frame_store_mb: 4096,
+            follow_every: 10,
+        }
+    }
+}
+
+impl LoopClosureConfig {
+    /// Checks the ranges of the fields.
+    ///
+    /// # Errors
+    /// [`PipelineError::InvalidConfig`] naming the field.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(PipelineError::InvalidConfig(m));
+        let (a, b) = self.odometry_sigma;
+        let (c, d) = self.loop_sigma;
+        if ![a, b, c, d].iter().all(|v| v.is_finite() && *v > 0.0) {
+            return bad(format!(
+                "loop closure sigmas {:?} {:?} must be positive",
+                self.odometry_sigma, self.loop_sigma
+            ));
+        }
+        if !(self.min_move.is_finite()
+            && self.min_move >= 0.0
+            && self.min_loop_chi2.is_finite()
+            && self.min_loop_chi2 >= 0.0)
+        {
+            return bad("loop closure thresholds must be finite and >= 0".into());
+        }
+        if self.follow_every == 0 {
+            return bad("follow_every must be at least 1".into());
+        }
+        if self.detector.min_keyframe_gap == 0 || self.detector.candidates == 0 {
+            return bad("loop detection needs a keyframe gap and candidates of at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// A loop candidate tried, for the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct LoopRecord {
+    /// The frame (a keyframe) at which the loop was looked for.
+    pub new_frame: usize,
+    /// The earlier keyframe's frame.
+    pub old_frame: usize,
+    /// Accepted into the graph (and not rejected later by the optimiser).
+    pub accepted: bool,
+    /// Why not, when not.
+    pub rejection: Option<String>,
+    /// Share of the new keyframe's points landing on the old one's view.
+    pub overlap: f32,
+    /// Share of those agreeing after alignment.
+    pub inlier_ratio: f32,
+    /// RMS point-to-plane residual after alignment, metres.
+    pub residual_m: f32,
+    /// How far the alignment moved the poses' prediction, metres and degrees.
+    pub correction_m: f64,
+    /// See `correction_m`.
+    pub correction_deg: f64,
+    /// The edge's chi-square at the poses before optimisation (accepted loops).
+    pub chi2_before: Option<f64>,
+    /// Its graph edge (accepted loops), to follow rejections by the optimiser.
+    #[serde(skip)]
+    pub edge: Option<usize>,
+}
+
+/// One correction of the poses and the map.
+#[derive(Debug, Clone, Serialize)]
+pub struct CorrectionRecord {
+    /// The frame at which it happened.
+    pub frame: usize,
+    /// Keyframes in the graph.
+    pub keyframes: usize,
+    /// Loop edges in the graph (kept).
+    pub loops: usize,
+    /// Optimiser iterations.
+    pub iterations: usize,
+    /// Largest move and turn of a keyframe.
+    pub largest_move_m: f64,
+    /// See `largest_move_m`, degrees.
+    pub largest_turn_deg: f64,
+    /// Time of the optimisation, ms.
+    pub optimise_ms: f64,
+}
+
+/// One re-integration: the map brought to the corrected poses.
+#[derive(Debug, Clone, Serialize)]
+pub struct ReintegrationRecord {
+    /// The frame at which it happened.
+    pub frame: usize,
+    /// Frames moved to their corrected pose (further than `min_move` from the map's).
+    pub moved_frames: usize,
+    /// Frames fused again (the moved ones and those sharing chunks with them).
+    pub refused_frames: usize,
+    /// Chunks cleared and rebuilt.
+    pub rebuilt_chunks: usize,
+    /// Time, ms.
+    pub ms: f64,
+}
+
+/// What [`crate::Pipeline::loop_closure`] reports.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct LoopClosureReport {
+    /// Whether loop closure ran.
+    pub enabled: bool,
+    /// Why it stopped, when it did (frame store full, ...).
+    pub stopped: Option<String>,
+    /// Keyframes in the graph.
+    pub keyframes: usize,
+    /// Every candidate verified, in order.
+    pub loops: Vec<LoopRecord>,
+    /// Every correction of the poses.
+    pub corrections: Vec<CorrectionRecord>,
+    /// Every re-integration of the map.
+    pub reintegrations: Vec<ReintegrationRecord>,
+}
+
+/// A fused frame kept for re-integration.
+struct StoredFrame {
+    index: usize,
+    timestamp: f64,
+    node: usize,
+    /// Fixed offset from the node's keyframe, measured in the map frame when fused.
+    node_from_camera: DAffine3,
+    /// The pose the map holds the frame at (the tracked pose, or the corrected one once a
+    /// correction moved it by more than [`LoopClosureConfig::min_move`]).
+    map_pose: Affine3A,
+    depth: Vec<u16>,
+    color: Vec<[u8; 3]>,
+}
+
+impl StoredFrame {
+    fn frame(&self, intrinsics: Intrinsics) -> Frame {
+        let mut f = Frame::from_depth(
+            intrinsics,
+            self.depth.iter().map(|&d| if d == 0 { 0.0 } else { d as f32 / DEPTH_UNITS_PER_M }).collect(),
+        );
+        f.index = self.index;
+        f.timestamp = self.timestamp;
+        f.color.clone_from(&self.color);
+        f
+    }
+
+    fn bytes(&self) -> usize {
+        self.depth.len() * 2 + self.color.len() * 3 + std::mem::size_of::<Self>()
+    }
+}
+
+/// Corrected poses of the fused frames, from a correction of the graph.
+pub(crate) struct PoseUpdate {
+    /// Per fused frame, in order: the optimised estimate.
+    pub poses: Vec<Affine3A>,
+    /// The record, completed by the re-integration.
+    pub record: CorrectionRecord,
+}
+
+/// The loop-closure state of a pipeline. See the module documentation.
+pub(crate) struct LoopClosure {
+    config: LoopClosureConfig,
+    intrinsics: Intrinsics,
+    detector: LoopDetector,
+    graph: PoseGraph,
+    /// Per graph node, the position of its frame in `frames`.
+    node_frames: Vec<usize>,
+    frames: Vec<StoredFrame>,
+    store_bytes: usize,
+    report: LoopClosureReport,
+    /// Poses of the fused frames as tracked, before any correction.
+    tracked: Trajectory,
+    /// Whether a correction awaits the map, and keyframes since the map last followed.
+    behind: bool,
+    keyframes_since_follow: usize,
+}
+
+fn to_f64(p: Affine3A) -> DAffine3 {
+    DAffine3 { matrix3: p.matrix3.as_dmat3(), translation: p.translation.as_dvec3() }
+}
+
+fn to_f32(p: DAffine3) -> Affine3A {
+    Affine3A { matrix3: p.matrix3.as_mat3().into(), translation: p.translation.as_vec3().into() }
+}
+
+impl LoopClosure {
+    pub fn new(config: LoopClosureConfig, intrinsics: Intrinsics) -> Self {
+        Self {
+            detector: LoopDetector::new(config.detector),
+            graph: PoseGraph::new(),
+            node_frames: Vec::new(),
+            intrinsics,
+            frames: Vec::new(),
+            store_bytes: 0,
+            report: LoopClosureReport { enabled: true, ..LoopClosureReport::default() },
+            tracked: Trajectory::default(),
+            behind: false,
+            keyframes_since_follow: 0,
+            config,
+        }
+    }
+
+    pub fn is_running(&self) -> bool {
+        self.report.stopped.is_none()
+    }
+
+    pub fn report(&self) -> LoopClosureReport {
+        let mut r = self.report.clone();
+        r.keyframes = self.graph.poses().len();
+        for l in &mut r.loops {
+            if let Some(e) = l.edge {
+                if self.graph.is_rejected(e) {
+                    l.accepted = false;
+                    l.rejection = Some("rejected by the optimiser (inconsistent with the other edges)".into());
+                }
+            }
+        }
+        r
+    }
+
+    pub fn tracked(&self) -> &Trajectory {
+        &self.tracked
+    }
+
+    /// Records a fused frame at its tracked pose; a keyframe (`keyframe`, and always the
+    /// first frame) becomes a graph node with an odometry edge from the previous one.
+    pub fn add_frame(&mut self, frame: &Frame, pose: Affine3A, keyframe: bool) -> Result<()> {
+        self.tracked.push(frame.timestamp, pose);
+        if !self.is_running() {
+            return Ok(());
+        }
+        let pose64 = to_f64(pose);
+        let invalid = |e: semrecon_recon::PoseGraphError| PipelineError::InvalidFrame {
+            index: frame.index,
+            message: format!("loop closure: {e}"),
+        };
+        if !pose64.is_finite() {
+            return Err(invalid(semrecon_recon::PoseGraphError::NonFinitePose(self.graph.poses().len())));
+        }
+        if keyframe || self.graph.poses().is_empty() {
+            // Odometry is measured in the map frame, where the tracker works: from the map
+            // pose of the previous keyframe's frame (the graph's own estimate of it may have
+            // moved by less than `min_move` since, without the map following).
+            let odometry = self.node_frames.last().map(|&f| to_f64(self.frames[f].map_pose).inverse() * pose64);
+            let start = match odometry {
+                Some(z) => self.graph.poses()[self.graph.poses().len() - 1] * z,
+                None => pose64,
+            };
+            let node = self.graph.add_pose(start).map_err(invalid)?;
+            // The node's frame and keyframe copy first: a failed edge below leaves a node
+            // without odometry (the optimiser keeps it still), never an inconsistent store.
+            self.node_frames.push(self.frames.len());
+            self.detector.add(frame);
+            if let Some(z) = odometry {
+                let (st, sr) = self.config.odometry_sigma;
+                self.graph
+                    .add_edge(PoseEdge {
+                        from: node - 1,
+                        to: node,
+                        from_from_to: z,
+                        information: isotropic_information(st, sr),
+                        kind: EdgeKind::Odometry,
+                    })
+                    .map_err(invalid)?;
+            }
+        }
+        let node = self.graph.poses().len() - 1;
+        let node_map_pose = self.node_frames.get(node).and_then(|&f| self.frames.get(f)).map_or(pose, |f| f.map_pose);
+        let stored = StoredFrame {
+            index: frame.index,
+            timestamp: frame.timestamp,
+            node,
+            node_from_camera: to_f64(node_map_pose).inverse() * pose64,
+            map_pose: pose,
+            depth: frame
+                .depth
+                .iter()
+                .map(|&d| {
+                    if d > 0.0 && d.is_finite() {
+                        (d * DEPTH_UNITS_PER_M).round().min(u16::MAX as f32) as u16
+                    } else {
+                        0
+                    }
+                })
+                .collect(),
+            color: frame.color.clone(),
+        };
+        self.store_bytes += stored.bytes();
+        self.frames.push(stored);
+        if self.store_bytes > self.config.frame_store_mb << 20 {
+            self.stop(format!(
+                "stopped at frame {}: the frame store reached {} MB (frame_store_mb)",
+                frame.index, self.config.frame_store_mb
+            ));
+        }
+        Ok(())
+    }
+
+    fn stop(&mut self, why: String) {
+        self.report.stopped = Some(why);
+        self.frames = Vec::new();
+        self.store_bytes = 0;
+    }
+
+    /// At a keyframe: looks for loops of the newest node, adds the accepted ones, and
+    /// optimises when one disagrees with the poses. Returns the corrected frame poses when
+    /// the optimisation moved them; warnings for refused results.
+    pub fn close_loops(&mut self, frame_index: usize, warnings: &mut Vec<String>) -> Option<PoseUpdate> {
+        if !self.is_running() || self.graph.poses().len() < 2 {
+            return None;
+        }
+        let new = self.graph.poses().len() - 1;
+        let verdicts: Vec<LoopVerdict> = self.detector.detect(new, self.graph.poses());
+        let mut worth_optimising = false;
+        let mut added = Vec::new();
+        for v in verdicts {
+            let mut record = LoopRecord {
+                new_frame: v.frames.1,
+                old_frame: v.frames.0,
+                accepted: v.accepted(),
+                rejection: v.rejection.map(|r| format!("{r:?}")),
+                overlap: v.overlap,
+                inlier_ratio: v.inlier_ratio,
+                residual_m: v.residual_rms,
+                correction_m: v.correction.0,
+                correction_deg: v.correction.1.to_degrees(),
+                chi2_before: None,
+                edge: None,
+            };
+            if v.accepted() {
+                let (st, sr) = self.config.loop_sigma;
+                match self.graph.add_edge(PoseEdge {
+                    from: v.old,
+                    to: v.new,
+                    from_from_to: v.old_from_new,
+                    information: isotropic_information(st, sr),
+                    kind: EdgeKind::Loop,
+                }) {
+                    Ok(e) => {
+                        let chi2 = self.graph.edge_chi2(e);
+                        worth_optimising |= chi2.is_some_and(|c| c > self.config.min_loop_chi2);
+                        record.chi2_before = chi2;
+                        record.edge = Some(e);
+                        added.push(e);
+                    }
+                    Err(e) => {
+                        record.accepted = false;
+                        record.rejection = Some(format!("{e}"));
+                    }
+                }
+            }
+            self.report.loops.push(record);
+        }
+        if !worth_optimising {
+            return None;
+        }
+        let before: Vec<DAffine3> = self.graph.poses().to_vec();
+        let t = std::time::Instant::now();
+        let result = self.graph.optimise(&self.config.graph);
+        let optimise_ms = t.elapsed().as_secs_f64() * 1e3;
+        let report = match result {
+            Ok(r) => r,
+            Err(e) => {
+                // The poses are kept; the new loops must not poison later optimisations.
+                for &edge in &added {
+                    self.graph.reject(edge);
+                }
+                warnings.push(format!("loop closure at frame {frame_index}: {e}; poses kept"));
+                return None;
+            }
+        };
+        let moved = before.iter().zip(self.graph.poses()).any(|(a, b)| moved_by(a, b) > self.config.min_move);
+        if !moved {
+            return None;
+        }
+        let poses = self.estimates();
+        let loops = self
+            .graph
+            .edges()
+            .iter()
+            .enumerate()
+            .filter(|(i, e)| e.kind == EdgeKind::Loop && !self.graph.is_rejected(*i))
+            .count();
+        Some(PoseUpdate {
+            poses,
+            record: CorrectionRecord {
+                frame: frame_index,
+                keyframes: self.graph.poses().len(),
+                loops,
+                iterations: report.iterations,
+                largest_move_m: report.largest_change.0,
+                largest_turn_deg: report.largest_change.1.to_degrees(),
+                optimise_ms,
+            },
+        })
+    }
+
+    /// Records a correction adopted by the trajectory; the map is then behind it.
+    pub fn record_correction(&mut self, record: CorrectionRecord) {
+        self.report.corrections.push(record);
+        self.behind = true;
+    }
+
+    /// Whether a correction has not reached the map yet.
+    pub fn is_behind(&self) -> bool {
+        self.behind
+    }
+
+    /// Called once per keyframe: whether the map should follow now.
+    pub fn follow_due(&mut self) -> bool {
+        self.keyframes_since_follow += 1;
+        self.behind && self.keyframes_since_follow >= self.config.follow_every
+    }
+
+    /// Makes `map` follow the graph's estimates of the poses: the frames whose map
+    /// pose is more than [`LoopClosureConfig::min_move`] from their optimised one move to
+    /// it; every chunk such a frame touched or now touches is cleared, and every frame that
+    /// touched one of them is fused again, in capture order, at its (new) map pose. Returns
+    /// the move of the last frame's map pose (`corrected_from_old`, for the tracker) and the
+    /// estimates of every frame's pose (the corrected trajectory); records the
+    /// re-integration (at `frame`, timed from `started`). Nothing moves when loop closure
+    /// stopped (the store is gone).
+    pub fn follow(
+        &mut self,
+        map: &mut TsdfMap,
+        frame: usize,
+        started: std::time::Instant,
+    ) -> Result<(Affine3A, Vec<Affine3A>)> {
+        self.behind = false;
+        self.keyframes_since_follow = 0;
+        let optimised = self.estimates();
+        let optimised = optimised.as_slice();
+        let old: Vec<Affine3A> = self.frames.iter().map(|f| f.map_pose).collect();
+        let moved: Vec<bool> =
+            old.iter().zip(optimised).map(|(a, b)| moved_by(&to_f64(*a), &to_f64(*b)) > self.config.min_move).collect();
+        let new: Vec<Affine3A> =
+            old.iter().zip(optimised).zip(&moved).map(|((o, n), m)| if *m { *n } else { *o }).collect();
+        let (refused, chunks) = self.reintegrate(map, &moved, &new)?;
+        for (f, p) in self.frames.iter_mut().zip(&new) {
+            f.map_pose = *p;
+        }
+        self.report.reintegrations.push(ReintegrationRecord {
+            frame,
+            moved_frames: moved.iter().filter(|m| **m).count(),
+            refused_frames: refused,
+            rebuilt_chunks: chunks,
+            ms: started.elapsed().as_secs_f64() * 1e3,
+        });
+        let corrected_from_old = match (old.last(), new.last()) {
+            (Some(o), Some(n)) => *n * o.inverse(),
+            _ => Affine3A::IDENTITY,
+        };
+        Ok((corrected_from_old, self.estimates()))
+    }
+
+    /// The graph's estimate of every stored frame's pose: its keyframe's pose times its
+    /// fixed offset (keyframes added since the last optimisation extend the corrected chain).
+    fn estimates(&self) -> Vec<Affine3A> {
+        self.frames.iter().map(|f| to_f32(self.graph.poses()[f.node] * f.node_from_camera)).collect()
+    }
+
+    /// Clears the chunks the `moved` frames touched or touch at their `new` poses and fuses
+    /// every frame that touched them again at its `new` pose. Returns (frames fused, chunks
+    /// rebuilt).
+    fn reintegrate(&self, map: &mut TsdfMap, moved: &[bool], new: &[Affine3A]) -> Result<(usize, usize)> {
+        let moved_ids: BTreeSet<u32> =
+            self.frames.iter().zip(moved).filter(|(_, m)| **m).map(|(f, _)| f.index as u32).collect();
+        if moved_ids.is_empty() {
+            return Ok((0, 0));
+        }
+        let touches =
+            |runs: &[(u32, u32)], ids: &BTreeSet<u32>| runs.iter().any(|&(a, b)| ids.range(a..=b).next().is_some());
+        let mut rebuild: HashSet<ChunkKey> =
+            map.chunks().filter(|c| touches(c.frames().runs(), &moved_ids)).map(|c| c.key()).collect();
+        let mut selections: Vec<Option<Vec<ChunkKey>>> = vec![None; self.frames.len()];
+        for (i, f) in self.frames.iter().enumerate() {
+            if moved[i] {
+                let keys = map.select_chunks(&f.frame(self.intrinsics), new[i])?;
+                rebuild.extend(keys.iter().copied());
+                selections[i] = Some(keys);
+            }
+        }
+        // Frames that touched a rebuilt chunk (runs may over-approximate: a frame re-fused
+        // into a chunk it does not see changes nothing): a difference array over the stored
+        // frames, which are in capture order.
+        let indices: Vec<u32> = self.frames.iter().map(|f| f.index as u32).collect();
+        let mut cover = vec![0i64; indices.len() + 1];
+        for c in map.chunks().filter(|c| rebuild.contains(&c.key())) {
+            for &(a, b) in c.frames().runs() {
+                cover[indices.partition_point(|&i| i < a)] += 1;
+                cover[indices.partition_point(|&i| i <= b)] -= 1;
+            }
+        }
+        let mut depth = 0i64;
+        let touched: Vec<bool> = cover[..indices.len()]
+            .iter()
+            .map(|d| {
+                depth += d;
+                depth > 0
+            })
+            .collect();
+        let mut keys: Vec<ChunkKey> = rebuild.iter().copied().collect();
+        keys.sort_unstable_by_key(|k| (k.z, k.y, k.x));
+        map.reset_chunks(&keys);
+        let mut fused = 0;
+        for (i, f) in self.frames.iter().enumerate() {
+            if !(moved[i] || touched[i]) {
+                continue;
+            }
+            let frame = f.frame(self.intrinsics);
+            let selection = match selections[i].take() {
+                Some(s) => s,
+                None => map.select_chunks(&frame, new[i])?,
+            };
+            let mine: Vec<ChunkKey> = selection.into_iter().filter(|k| rebuild.contains(k)).collect();
+            if !mine.is_empty() {
+                map.integrate_chunks(&frame, new[i], &mine)?;
+                fused += 1;
+            }
+        }
+        map.free_unobserved(&keys);
+        Ok((fused, keys.len()))
+    }
+}
+
+/// How far `a` to `b` moves a point 2 m in front of the camera, about: translation plus
+/// twice the turn.
+fn moved_by(a: &DAffine3, b: &DAffine3) -> f64 {
+    let (t, r) = pose_distance(a, b);
+    t + 2.0 * r
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,58 @@
+//! Loop closure inside the live pipeline: a tracked synthetic scan that returns to its start
+//! finds its loop, keeps the output bits for any thread count, and `enabled: false` keeps
+//! the poses as tracked.
+
+use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
+use semrecon_data::{Frame, FrameSource, LabeledMesh};
+use semrecon_pipeline::{Pipeline, PipelineConfig, PoseMode};
+
+fn frames() -> Vec<Frame> {
+    let mut config = SyntheticScanConfig::new(2);
+    config.frames = 300;
+    config.intrinsics = config.intrinsics.scaled(320, 240);
+    let (_room, scan) = synthetic_scan(&config).expect("scan");
+    (0..scan.len()).map(|i| scan.frame(i).expect("frame")).collect()
+}
+
+fn config(loop_closure: bool) -> PipelineConfig {
+    let mut c = PipelineConfig { poses: PoseMode::Track, keyframe_every: 10, ..PipelineConfig::default() };
+    c.tsdf.voxel_size = 0.01;
+    c.tsdf.truncation_voxels = 6.0;
+    c.tracker.fine_stride = 1;
+    c.loop_closure.enabled = loop_closure;
+    c
+}
+
+fn run(frames: &[Frame], config: PipelineConfig) -> (Pipeline, LabeledMesh) {
+    let mut p = Pipeline::new(config, frames[0].intrinsics, None).expect("pipeline");
+    for f in frames {
+        p.push_frame(f).expect("frame");
+    }
+    let mesh = p.finish().expect("finish");
+    (p, mesh)
+}
+
+#[test]
+fn a_returning_scan_finds_its_loop_with_the_same_bits_for_any_thread_count() {
+    let frames = frames();
+    let runs: Vec<(Pipeline, LabeledMesh)> = [1, 2]
+        .iter()
+        .map(|&threads| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+            pool.install(|| run(&frames, config(true)))
+        })
+        .collect();
+    let report = runs[0].0.loop_closure().expect("on");
+    assert!(report.keyframes >= 30, "{} keyframes", report.keyframes);
+    assert!(report.loops.iter().any(|l| l.accepted), "{:#?}", report.loops);
+    assert_eq!(runs[0].0.trajectory().poses, runs[1].0.trajectory().poses);
+    assert_eq!(runs[0].1.positions, runs[1].1.positions);
+    assert_eq!(runs[0].1.triangles, runs[1].1.triangles);
+    assert!(runs[0].0.timings().summary("global pose optimisation").is_some());
+    // Off: no report, and the trajectory is the tracked one.
+    let (off, _) = run(&frames[..60], config(false));
+    assert!(off.loop_closure().is_none() && off.tracked_trajectory().is_none());
+    let (on, _) = run(&frames[..60], config(true));
+    assert_eq!(on.tracked_trajectory().expect("on").poses, on.trajectory().poses, "nothing to correct in 60 frames");
+    assert_eq!(off.trajectory().poses, on.trajectory().poses);
+}

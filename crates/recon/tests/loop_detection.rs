@@ -1,0 +1,79 @@
+//! Loop verification on real Kinect data (7-Scenes redkitchen, skipped when the data is
+//! absent): keyframes 100 frames apart that see the same place, aligned from their reference
+//! relative pose and from one perturbed by the drift tracking has.
+
+#[path = "common/seven_scenes.rs"]
+mod seven_scenes;
+
+use glam::{Affine3A, DAffine3, DVec3};
+use semrecon_recon::pose_graph::{pose_distance, rotation_exp};
+use semrecon_recon::{LoopConfig, LoopDetector};
+
+fn d(p: Affine3A) -> DAffine3 {
+    p.as_daffine3()
+}
+
+#[test]
+fn redkitchen_revisits_align_the_same_from_a_drifted_start() {
+    let Some(dir) = seven_scenes::redkitchen() else {
+        eprintln!("skipped: ../shared/data/7scenes-redkitchen is absent");
+        return;
+    };
+    let mut detector = LoopDetector::new(LoopConfig::default());
+    let mut poses = Vec::new();
+    for i in (0..500).step_by(10) {
+        let (frame, pose) = seven_scenes::read_frame(&dir, i).expect("frame");
+        detector.add(&frame);
+        poses.push(d(pose));
+    }
+    // Drift of the size 7-Scenes tracking has: 2 cm and 1 degree.
+    let drift =
+        DAffine3 { matrix3: rotation_exp(DVec3::new(0.0, 0.017, 0.0)), translation: DVec3::new(0.015, -0.01, 0.008) };
+    let mut errors = Vec::new();
+    for new in 10..poses.len() {
+        let old = new - 10;
+        let truth = poses[old].inverse() * poses[new];
+        let (Some(from_truth), Some(from_drift)) =
+            (detector.verify(old, new, truth), detector.verify(old, new, truth * drift))
+        else {
+            continue;
+        };
+        if from_truth.accepted() && from_drift.accepted() {
+            let (t, r) = pose_distance(&from_drift.old_from_new, &truth);
+            let (dt, _) = pose_distance(&from_drift.old_from_new, &from_truth.old_from_new);
+            errors.push((dt, t, r.to_degrees(), old * 10, new * 10, from_drift.residual_rms));
+        }
+    }
+    errors.sort_by(|a, b| a.0.total_cmp(&b.0));
+    for e in &errors {
+        eprintln!(
+            "{:>4} -> {:>4}: {:.2} mm between the two starts; {:.1} mm, {:.2} deg from the reference; residual {:.1} mm",
+            e.3,
+            e.4,
+            e.0 * 1e3,
+            e.1 * 1e3,
+            e.2,
+            e.5 * 1e3
+        );
+    }
+    let median = |i: usize| {
+        let mut v: Vec<f64> = errors.iter().map(|e| if i == 0 { e.0 } else { e.1 }).collect();
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+    };
+    eprintln!(
+        "{} of {} pairs accepted from both starts; median {:.2} mm apart, {:.1} mm from the reference",
+        errors.len(),
+        poses.len() - 10,
+        median(0) * 1e3,
+        median(1) * 1e3
+    );
+    // The alignment's own minimum does not depend on the start (2 cm / 1 degree away). The
+    // reference poses (KinectFusion's) are not the yardstick at this precision: tracking
+    // differs from them by 47 mm median over the same 100-frame gaps, and this alignment by
+    // about as much (docs/loop_closure.md), while on rendered scans it recovers the truth to
+    // under a millimetre (the unit tests).
+    assert!(errors.len() >= 10, "{} accepted", errors.len());
+    assert!(median(0) < 0.003, "median {} m between the starts", median(0));
+    assert!(median(1) < 0.08, "median {} m from the reference", median(1));
+}
