@@ -65,9 +65,11 @@ pub struct ReconArgs {
     /// Where poses come from: tracking, or the dataset's ground truth.
     #[arg(long, value_enum, default_value_t = PoseMode::Track)]
     pub poses: PoseMode,
-    /// Turn loop closure off (no global pose optimisation: poses stay as tracked), to compare.
+    /// Close loops: find revisited places at keyframes, optimise the pose graph and re-fuse
+    /// the map where frames moved. Off by default: each re-fusion stalls the front end for
+    /// seconds and every fused frame is kept in memory (docs/loop_closure.md).
     #[arg(long)]
-    pub no_loop_closure: bool,
+    pub loop_closure: bool,
 }
 
 /// Where the pose of each frame comes from.
@@ -162,7 +164,7 @@ pub fn pipeline_config(
     config.semantics.realtime = realtime;
     config.semantics.up = up;
     config.semantics.min_island_m2 = semantics.min_label_island;
-    config.loop_closure.enabled = !recon.no_loop_closure;
+    config.loop_closure.enabled = recon.loop_closure;
     config.validate().context("pipeline options")?;
     Ok(config)
 }

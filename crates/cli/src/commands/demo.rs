@@ -4,8 +4,8 @@
 //! outputs written to a folder, the Table 5 timing table printed, and the result measured
 //! against the ground truth (ATE, mesh accuracy, mIoU of the mesh's labels).
 //!
-//! Loop closure runs unless `--no-loop-closure`: the generated scan returns to its start, and
-//! the summary says what it found and how the ATE changed.
+//! With `--loop-closure` the pipeline closes loops (the generated scan returns to its start)
+//! and the summary says what it found and how the ATE changed.
 
 use std::path::PathBuf;
 use std::time::Instant;
