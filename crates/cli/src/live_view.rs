@@ -30,6 +30,17 @@ impl LiveView {
         Ok(Self { server, scene, pushed_at: None, last_push: None })
     }
 
+    /// For `--serve`: starts the viewer and prints its address (`what` follows: "the run", "the
+    /// session"); `None` without `--serve`.
+    pub fn serve(serve: bool, port: Option<u16>, what: &str) -> anyhow::Result<Option<Self>> {
+        if !serve {
+            return Ok(None);
+        }
+        let live = Self::start(port)?;
+        println!("live viewer at {} (follows {what}; open it in a browser)", live.server.url());
+        Ok(Some(live))
+    }
+
     /// Whether the map changed since the last push and the push interval has passed.
     pub fn due(&self, fused: usize) -> bool {
         self.pushed_at != Some(fused) && self.last_push.is_none_or(|t| t.elapsed() >= LIVE_PUSH_INTERVAL)

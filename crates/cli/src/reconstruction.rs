@@ -10,6 +10,7 @@
 //! simulating the sensor) is timed but left out, as a camera delivers it.
 
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use anyhow::Context;
 use glam::Vec3;
@@ -21,6 +22,8 @@ use semrecon_eval::{MeshEvalConfig, SurfaceIndex, SurfaceLabeler};
 use semrecon_net::{shipped, ConfusionMatrix, NetConfig, Segmenter, Weights};
 use semrecon_pipeline::{Pipeline, PipelineConfig, SemanticMode, DEFAULT_MESH_BUDGET};
 use semrecon_recon::{MeshConfig, TrackerConfig, TsdfConfig};
+
+use crate::live_view::LiveView;
 
 /// Options of the dense-geometry loop, shared by `run` and `demo`.
 #[derive(clap::Args)]
@@ -222,6 +225,37 @@ pub fn class_colored(mesh: &LabeledMesh) -> LabeledMesh {
 pub fn prepare_output_dir(dir: &Path) -> anyhow::Result<()> {
     anyhow::ensure!(!dir.exists() || dir.is_dir(), "output folder {}: exists and is not a folder", dir.display());
     std::fs::create_dir_all(dir).with_context(|| format!("creating the output folder {}", dir.display()))
+}
+
+/// Most warnings a run or live session prints; the rest are counted.
+pub const MAX_WARNINGS: usize = 10;
+
+/// Ends a `run` or `live` session alike: finishes the pipeline (the final meshing and
+/// semantics), shows the final mesh in the live viewer, prints the pipeline's warnings and
+/// how many of the session's `warnings` were not shown, and writes the outputs to `out`.
+/// Returns the mesh and the wall time since `start`, taken before the outputs are written.
+pub fn finish_session(
+    pipeline: &mut Pipeline,
+    live: Option<&mut LiveView>,
+    start: Instant,
+    warnings: usize,
+    out: &Path,
+) -> anyhow::Result<(LabeledMesh, f64)> {
+    let mesh = pipeline.finish()?;
+    let wall_s = start.elapsed().as_secs_f64();
+    if let Some(live) = live {
+        if let Err(why) = live.push(pipeline.frame_counts().1, &mesh, pipeline.trajectory()) {
+            eprintln!("warning: {why}");
+        }
+    }
+    for w in pipeline.warnings() {
+        eprintln!("warning: {w}");
+    }
+    if warnings > MAX_WARNINGS {
+        eprintln!("warning: {} more warnings not shown", warnings - MAX_WARNINGS);
+    }
+    write_outputs(out, &mesh, pipeline.trajectory())?;
+    Ok((mesh, wall_s))
 }
 
 /// Writes `dir/mesh.ply` (observed colours and a vertex `label`), `dir/semantic.ply` (class

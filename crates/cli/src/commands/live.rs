@@ -34,12 +34,12 @@ use crate::interrupt;
 use crate::live_view::LiveView;
 use crate::progress::spinner;
 use crate::reconstruction::{
-    labelled_share, load_network, pipeline_config, prepare_output_dir, write_outputs, ReconArgs, SemanticArgs,
+    finish_session, labelled_share, load_network, pipeline_config, prepare_output_dir, ReconArgs, SemanticArgs,
+    MAX_WARNINGS,
 };
 use crate::timing::{print_table, stages_json};
 
 /// Warnings printed one by one before they are only counted.
-const MAX_WARNINGS: usize = 10;
 
 /// Frames of the simulated camera (`--synth`) without `--max-frames`: 5 s at 30 fps, held in
 /// memory (2.2 MB a frame).
@@ -236,14 +236,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     }
     println!("semantics: {network}; voxel {} m; Ctrl-C finishes and writes the outputs", args.recon.voxel);
     let mut pipeline = Pipeline::new(config, k, net)?;
-    let mut live = match args.serve {
-        true => {
-            let live = LiveView::start(args.port)?;
-            println!("live viewer at {} (follows the session; open it in a browser)", live.server.url());
-            Some(live)
-        }
-        false => None,
-    };
+    let mut live = LiveView::serve(args.serve, args.port, "the session")?;
     if !caught {
         eprintln!("warning: Ctrl-C cannot be caught here: it ends the session without outputs");
     }
@@ -334,21 +327,8 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     for why in &stats.skip_reasons {
         warn(format!("camera frame skipped: {why}"));
     }
-    let mesh = pipeline.finish()?;
-    let wall_s = start.elapsed().as_secs_f64();
+    let (mesh, wall_s) = finish_session(&mut pipeline, live.as_mut(), start, warnings, &args.out)?;
     let fused = pipeline.frame_counts().1;
-    if let Some(live) = live.as_mut() {
-        if let Err(why) = live.push(fused, &mesh, pipeline.trajectory()) {
-            eprintln!("warning: {why}");
-        }
-    }
-    for w in pipeline.warnings() {
-        eprintln!("warning: {w}");
-    }
-    if warnings > MAX_WARNINGS {
-        eprintln!("warning: {} more warnings not shown", warnings - MAX_WARNINGS);
-    }
-    write_outputs(&args.out, &mesh, pipeline.trajectory())?;
     let ate_rmse_m = (gt.len() > 1 && pipeline.trajectory().len() > 1)
         .then(|| evaluate_trajectory(&gt, pipeline.trajectory(), &TrajectoryEvalConfig::default()).ok())
         .flatten()

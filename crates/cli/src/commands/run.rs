@@ -41,13 +41,12 @@ use serde::Serialize;
 use crate::live_view::LiveView;
 use crate::progress::progress_bar;
 use crate::reconstruction::{
-    dataset_up, labelled_share, load_network, loop_closure_json, loop_closure_summary, pipeline_config,
-    prepare_output_dir, semantic_score, vertex_accuracy_mm, write_outputs, ReconArgs, SemanticArgs,
+    dataset_up, finish_session, labelled_share, load_network, loop_closure_json, loop_closure_summary, pipeline_config,
+    prepare_output_dir, semantic_score, vertex_accuracy_mm, ReconArgs, SemanticArgs, MAX_WARNINGS,
 };
 use crate::timing::{print_table, stages_json};
 
 /// Warnings printed one by one before they are only counted.
-const MAX_WARNINGS: usize = 10;
 
 /// Failed loads in a row after which the dataset is taken to have ended early.
 pub const MAX_CONSECUTIVE_FAILED_LOADS: usize = 30;
@@ -226,14 +225,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     println!("semantics: {network}{}", if up.is_some() { "; up from the dataset's gravity file" } else { "" });
     let mut pipeline = Pipeline::new(config, k, net)?;
 
-    let mut live = match args.serve {
-        true => {
-            let live = LiveView::start(args.port)?;
-            println!("live viewer at {} (follows the run; open it in a browser)", live.server.url());
-            Some(live)
-        }
-        false => None,
-    };
+    let mut live = LiveView::serve(args.serve, args.port, "the run")?;
 
     let mut gt = Trajectory::default();
     let mut other_times = semrecon_pipeline::StageTimes::default();
@@ -319,22 +311,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let mesh = pipeline.finish()?;
-    let wall_s = start.elapsed().as_secs_f64();
+    let (mesh, wall_s) = finish_session(&mut pipeline, live.as_mut(), start, warnings, &args.out)?;
     let fused = pipeline.frame_counts().1;
-    if let Some(live) = live.as_mut() {
-        if let Err(why) = live.push(fused, &mesh, pipeline.trajectory()) {
-            eprintln!("warning: {why}");
-        }
-    }
-    for w in pipeline.warnings() {
-        eprintln!("warning: {w}");
-    }
-    if warnings > MAX_WARNINGS {
-        eprintln!("warning: {} more warnings not shown", warnings - MAX_WARNINGS);
-    }
-
-    write_outputs(&args.out, &mesh, pipeline.trajectory())?;
     let ate_rmse_m = if source.has_ground_truth() && !pipeline.trajectory().is_empty() {
         match evaluate_trajectory(&gt, pipeline.trajectory(), &TrajectoryEvalConfig::default()) {
             Ok(e) => Some(e.ate_rmse_m),
