@@ -1,0 +1,146 @@
+//! Tests of PLY reading and writing: round trips in every encoding, and malformed files.
+
+use super::*;
+
+fn parse(text: &[u8]) -> Result<PlyFile> {
+    PlyFile::parse(text, Path::new("test.ply"))
+}
+
+fn mesh_of(text: &[u8]) -> Result<LabeledMesh> {
+    mesh_from_ply(&parse(text)?, Path::new("test.ply"))
+}
+
+const QUAD: &[u8] = b"ply\nformat ascii 1.0\ncomment hello world\nelement vertex 4\nproperty float x\n\
+property float y\nproperty float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n\
+property uchar alpha\nproperty ushort label\nelement face 1\nproperty list uint8 int32 vertex_indices\n\
+property int label\nend_header\n0 0 0 255 0 0 9 1\n1 0 0 0 255 0 9 300\n1 1 0 0 0 255 9 2\n0 1 0 1 2 3 9 3\n4 0 1 2 3 7\n";
+
+#[test]
+fn ascii_quad_is_fan_triangulated_with_labels() {
+    let m = mesh_of(QUAD).expect("parse");
+    assert_eq!(m.positions.len(), 4);
+    assert_eq!(m.colors[1], [0, 255, 0]);
+    assert_eq!(m.vertex_labels, vec![1, UNLABELED, 2, 3]);
+    assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 3]]);
+    assert_eq!(m.triangle_labels, vec![7, 7]);
+    let ply = parse(QUAD).expect("parse");
+    assert_eq!(ply.comments, vec!["hello world".to_string()]);
+    assert_eq!(ply.element("vertex").and_then(|e| e.line_of_row(2)), Some(19));
+}
+
+#[test]
+fn big_endian_matches_little_endian() {
+    let ply = parse(QUAD).expect("parse");
+    let mut be = Vec::new();
+    ply.write_unchecked(&mut be, PlyFormat::BinaryBigEndian).expect("write");
+    let mut le = Vec::new();
+    ply.write_unchecked(&mut le, PlyFormat::BinaryLittleEndian).expect("write");
+    let a = parse(&be).expect("be");
+    let b = parse(&le).expect("le");
+    assert_eq!(a.elements, b.elements);
+    assert_eq!(a.elements, ply.elements);
+}
+
+#[test]
+fn errors_name_the_line() {
+    let cases: &[(&[u8], usize, &str)] = &[
+        (b"plx\n", 1, "first line"),
+        (b"ply\nformat ascii 1.0\nelement vertex 1\nproperty flot x\nend_header\n", 4, "unknown property type"),
+        (b"ply\nformat ascii 1.0\nproperty float x\nend_header\n", 3, "before any"),
+        (b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n", 5, "end_header"),
+        (b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nend_header\n1.5\n2.x\n", 7, "not a valid float"),
+        (b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nend_header\n1.5\n", 7, "end of file"),
+        (b"ply\nformat ascii 1.0\nelement vertex -2\nend_header\n", 3, "count"),
+        (b"ply\nformat ascii 1.0\nfoo\nend_header\n", 3, "unknown header keyword"),
+        (b"ply\nformat ascii 1.0\ncomment \xff\nend_header\n", 3, "UTF-8"),
+    ];
+    for (text, line, what) in cases {
+        let e = parse(text).expect_err("must fail");
+        match &e {
+            DataError::Parse { line: l, message, .. } => {
+                assert_eq!(*l, Some(*line), "{e}");
+                assert!(message.contains(what), "{e}");
+            }
+            other => panic!("unexpected {other}"),
+        }
+    }
+}
+
+#[test]
+fn semantic_errors() {
+    let bad_index = b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 3\n";
+    let e = mesh_of(bad_index).expect_err("index").to_string();
+    assert!(e.contains("test.ply:13") && e.contains("out of range"), "{e}");
+    let nan = b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n\
+property float z\nend_header\n0 0 0\n1 nan 0\n";
+    let e = mesh_of(nan).expect_err("nan").to_string();
+    assert!(e.contains("test.ply:9") && e.contains("non-finite"), "{e}");
+    let no_z = b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n0 0\n";
+    assert!(mesh_of(no_z).expect_err("z").to_string().contains("'z'"));
+}
+
+#[test]
+fn huge_counts_fail_without_allocating() {
+    let text = b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000\nproperty float x\n\
+element face 1000000000000\nproperty list uchar int vertex_indices\nend_header\n\x00\x00\x00\x00";
+    assert!(parse(text).expect_err("truncated").to_string().contains("truncated"));
+    let text = b"ply\nformat binary_little_endian 1.0\nelement face 1000000000000\n\
+property list uchar int vertex_indices\nend_header\n\x03\x00\x00\x00\x00";
+    assert!(parse(text).expect_err("truncated").to_string().contains("truncated"));
+    let text = b"ply\nformat ascii 1.0\nelement vertex 1000000000000\nproperty float x\nend_header\n1\n";
+    assert!(parse(text).expect_err("eof").to_string().contains("end of file"));
+}
+
+#[test]
+fn set_property_keeps_the_others() {
+    let mut ply = parse(QUAD).expect("parse");
+    let v = ply.element_mut("vertex").expect("vertex");
+    v.set_property(Property { name: "label".into(), data: PropertyData::Scalar(Column::UChar(vec![5; 4])) })
+        .expect("set");
+    assert!(v
+        .set_property(Property { name: "q".into(), data: PropertyData::Scalar(Column::UChar(vec![5; 3])) })
+        .is_err());
+    let bytes = ply.to_bytes(PlyEncoding::Ascii).expect("bytes");
+    let again = parse(&bytes).expect("parse");
+    let v = again.element("vertex").expect("vertex");
+    assert_eq!(v.properties.len(), 8);
+    assert_eq!(v.scalar("alpha"), Some(&Column::UChar(vec![9; 4])));
+    assert_eq!(v.scalar("label"), Some(&Column::UChar(vec![5; 4])));
+}
+
+#[test]
+fn inconsistent_files_in_code_fail_cleanly() {
+    let mut ply = parse(QUAD).expect("parse");
+    let face = ply.element_mut("face").expect("face");
+    face.count = 3;
+    let e = mesh_from_ply(&ply, Path::new("x.ply")).expect_err("inconsistent").to_string();
+    assert!(e.contains("rows"), "{e}");
+    assert!(ply.to_bytes(PlyEncoding::Ascii).is_err());
+    let dir = tempfile::tempdir().expect("tempdir");
+    assert!(ply.write(dir.path().join("x.ply"), PlyEncoding::BinaryLittleEndian).is_err());
+}
+
+#[test]
+fn crlf_headers_aliases_and_small_index_types() {
+    let text = b"ply\r\nformat ascii 1.0\r\nelement vertex 3\r\nproperty float32 x\r\nproperty float64 y\r\n\
+property int16 z\r\nelement edge 1\r\nproperty int8 a\r\nelement face 1\r\n\
+property list int8 uint16 vertex_index\r\nproperty char label\r\nend_header\r\n0 0 0\r\n1 0 0\r\n0 1 2\r\n-1\r\n3 2 1 0 -5\r\n";
+    let m = mesh_of(text).expect("parse");
+    assert_eq!(m.triangles, vec![[2, 1, 0]]);
+    assert_eq!(m.triangle_labels, vec![UNLABELED]);
+    assert_eq!(m.positions[2], Vec3::new(0.0, 1.0, 2.0));
+}
+
+#[test]
+fn writes_atomically_and_round_trips() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("m.ply");
+    let mesh = mesh_of(QUAD).expect("parse");
+    for enc in [PlyEncoding::Ascii, PlyEncoding::BinaryLittleEndian] {
+        write_ply(&path, &mesh, enc).expect("write");
+        assert_eq!(read_ply(&path).expect("read"), mesh);
+    }
+    let names: Vec<_> = std::fs::read_dir(dir.path()).expect("dir").map(|e| e.map(|e| e.file_name())).collect();
+    assert_eq!(names.len(), 1, "temporary file left behind: {names:?}");
+}
