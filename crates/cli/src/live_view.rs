@@ -13,6 +13,22 @@ use semrecon_viewer::{LiveScene, ViewerServer};
 /// its collision geometry costs far more than a keyframe's incremental meshing.
 pub const LIVE_PUSH_INTERVAL: Duration = Duration::from_secs(1);
 
+/// The live-viewer flags of `run` and `live`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct ServeArgs {
+    /// Show the growing map live in the viewer on 127.0.0.1 (open the printed URL), and keep
+    /// serving the final result after the run or session until Ctrl-C.
+    #[arg(long)]
+    pub serve: bool,
+    /// Port of the live viewer (a free port by default).
+    #[arg(long, requires = "serve")]
+    pub port: Option<u16>,
+    /// Stop the live viewer when the run or session ends instead of serving on (for scripts
+    /// and tests).
+    #[arg(long, requires = "serve")]
+    pub serve_exit: bool,
+}
+
 /// The live viewer of `--serve`.
 pub struct LiveView {
     /// The HTTP server.
@@ -32,11 +48,11 @@ impl LiveView {
 
     /// For `--serve`: starts the viewer and prints its address (`what` follows: "the run", "the
     /// session"); `None` without `--serve`.
-    pub fn serve(serve: bool, port: Option<u16>, what: &str) -> anyhow::Result<Option<Self>> {
-        if !serve {
+    pub fn serve(args: &ServeArgs, what: &str) -> anyhow::Result<Option<Self>> {
+        if !args.serve {
             return Ok(None);
         }
-        let live = Self::start(port)?;
+        let live = Self::start(args.port)?;
         println!("live viewer at {} (follows {what}; open it in a browser)", live.server.url());
         Ok(Some(live))
     }

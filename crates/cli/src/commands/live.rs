@@ -31,15 +31,13 @@ use semrecon_pipeline::{FeedStats, FrameStatus, LiveFeed, Pipeline};
 use serde::Serialize;
 
 use crate::interrupt;
-use crate::live_view::LiveView;
+use crate::live_view::{LiveView, ServeArgs};
 use crate::progress::spinner;
 use crate::reconstruction::{
     finish_session, labelled_share, load_network, pipeline_config, prepare_output_dir, ReconArgs, SemanticArgs,
     MAX_WARNINGS,
 };
 use crate::timing::{print_table, stages_json};
-
-/// Warnings printed one by one before they are only counted.
 
 /// Frames of the simulated camera (`--synth`) without `--max-frames`: 5 s at 30 fps, held in
 /// memory (2.2 MB a frame).
@@ -80,16 +78,8 @@ pub struct LiveArgs {
     /// Output folder.
     #[arg(long)]
     out: PathBuf,
-    /// Show the growing map live in the viewer on 127.0.0.1 (open the printed URL), and keep
-    /// serving the final result after the session until Ctrl-C.
-    #[arg(long)]
-    serve: bool,
-    /// Port of the live viewer (a free port by default).
-    #[arg(long, requires = "serve")]
-    port: Option<u16>,
-    /// Stop the live viewer when the session ends instead of serving on (for scripts and tests).
-    #[arg(long, requires = "serve")]
-    serve_exit: bool,
+    #[command(flatten)]
+    serve: ServeArgs,
 }
 
 /// Why the session finished.
@@ -236,7 +226,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     }
     println!("semantics: {network}; voxel {} m; Ctrl-C finishes and writes the outputs", args.recon.voxel);
     let mut pipeline = Pipeline::new(config, k, net)?;
-    let mut live = LiveView::serve(args.serve, args.port, "the session")?;
+    let mut live = LiveView::serve(&args.serve, "the session")?;
     if !caught {
         eprintln!("warning: Ctrl-C cannot be caught here: it ends the session without outputs");
     }
@@ -405,7 +395,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     }
     println!("wrote {}/{{mesh.ply, semantic.ply, trajectory.txt, report.json}}", args.out.display());
     if let Some(live) = live {
-        if args.serve_exit || stop == Stop::Interrupted {
+        if args.serve.serve_exit || stop == Stop::Interrupted {
             live.server.stop();
         } else {
             interrupt::restore_default();

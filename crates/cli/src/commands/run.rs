@@ -38,15 +38,13 @@ use semrecon_eval::{evaluate_trajectory, TrajectoryEvalConfig};
 use semrecon_pipeline::{FrameStatus, Pipeline, UpEstimate};
 use serde::Serialize;
 
-use crate::live_view::LiveView;
+use crate::live_view::{LiveView, ServeArgs};
 use crate::progress::progress_bar;
 use crate::reconstruction::{
     dataset_up, finish_session, labelled_share, load_network, loop_closure_json, loop_closure_summary, pipeline_config,
     prepare_output_dir, semantic_score, vertex_accuracy_mm, ReconArgs, SemanticArgs, MAX_WARNINGS,
 };
 use crate::timing::{print_table, stages_json};
-
-/// Warnings printed one by one before they are only counted.
 
 /// Failed loads in a row after which the dataset is taken to have ended early.
 pub const MAX_CONSECUTIVE_FAILED_LOADS: usize = 30;
@@ -71,16 +69,8 @@ pub struct RunArgs {
     /// Output folder.
     #[arg(long)]
     out: PathBuf,
-    /// Show the growing map live in the viewer on 127.0.0.1 (open the printed URL), and
-    /// keep serving the final result after the run until Ctrl-C.
-    #[arg(long)]
-    serve: bool,
-    /// Port of the live viewer (a free port by default).
-    #[arg(long, requires = "serve")]
-    port: Option<u16>,
-    /// Stop the live viewer when the run ends instead of serving on (for scripts and tests).
-    #[arg(long, requires = "serve")]
-    serve_exit: bool,
+    #[command(flatten)]
+    serve: ServeArgs,
 }
 
 /// A `--frames` value: `A..B`, `A..` or `..B`.
@@ -225,7 +215,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     println!("semantics: {network}{}", if up.is_some() { "; up from the dataset's gravity file" } else { "" });
     let mut pipeline = Pipeline::new(config, k, net)?;
 
-    let mut live = LiveView::serve(args.serve, args.port, "the run")?;
+    let mut live = LiveView::serve(&args.serve, "the run")?;
 
     let mut gt = Trajectory::default();
     let mut other_times = semrecon_pipeline::StageTimes::default();
@@ -425,7 +415,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     }
     println!("wrote {}/{{mesh.ply, semantic.ply, trajectory.txt, report.json}}", args.out.display());
     if let Some(live) = live {
-        if args.serve_exit {
+        if args.serve.serve_exit {
             live.server.stop();
         } else {
             println!("live viewer serving the final result at {} (Ctrl-C to stop)", live.server.url());
