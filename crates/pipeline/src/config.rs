@@ -11,7 +11,7 @@ use crate::loop_closure::LoopClosureConfig;
 /// A [`PipelineConfig::mesh_budget`] for reconstruction without semantics, in chunks (what
 /// `semrecon run --semantics off` uses): 16-20 ms of meshing a keyframe on two cores at 5 mm
 /// on 7-Scenes, where a changed chunk then waits about six keyframes (at most 12) for its refresh
-/// (docs/benchmarks.md, "Meshing within a budget, session 10"). With semantics the default
+/// (docs/benchmarks_log.md, "Meshing within a budget, session 10"). With semantics the default
 /// is no budget: the network reads the mesh, and a mesh refreshed keyframes late cost live
 /// labels in the measurements.
 pub const DEFAULT_MESH_BUDGET: usize = 3072;

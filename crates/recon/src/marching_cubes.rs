@@ -783,7 +783,7 @@ impl MeshConfig {
     pub const ALL_OBSERVED: Self = Self { min_weight: 0.0, min_component_triangles: 0 };
     /// What the live pipeline uses: a weight of 0.25 (one observation at 2 m, four at 4 m)
     /// and pieces of at least 50 triangles. On rendered 300-frame scans with Kinect-like
-    /// noise and true poses (docs/benchmarks.md, "Mesh accuracy, session 6") it cuts the
+    /// noise and true poses (docs/benchmarks_log.md, "Mesh accuracy, session 6") it cuts the
     /// mean distance of the vertices to the true surface by 12-19 % (1.59 -> 1.37 mm on
     /// `synth:1`: the tail of specks, far rarely seen surface and grazed depth edges) for
     /// under a point of the seen surface within 1 cm (95.2 -> 94.7 %).
