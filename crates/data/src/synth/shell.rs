@@ -152,6 +152,57 @@ pub(crate) fn add_structure(
     }
 }
 
+/// Deepest bulkhead (a beam along a wall): offices and conference rooms of real buildings
+/// (S3DIS's among them) carry ducts and down-stand beams boxed in along their walls, up to
+/// about a metre deep, where our cross beams are 0.25-0.5 m.
+const WALL_BEAM_MAX_DEPTH: f32 = 1.0;
+
+/// Adds bulkheads: beams running the whole length of one or two walls, flush against them,
+/// 0.3-0.8 m into the room and 0.3-1.0 m below the ceiling (never lower than
+/// [`BEAM_CLEARANCE`]), labelled beam and painted like the structure. A wall whose openings
+/// or earlier beams reach the bulkhead's underside gets a shallower one or none. Reserves
+/// the wall above the underside. Returns how many were added.
+///
+/// Call after the openings are planned, so that window heads are known.
+pub(crate) fn add_wall_beams(b: &mut MeshBuilder, layout: &mut Layout, rng: &mut ChaCha8Rng, pal: &Palette) -> usize {
+    let h = layout.height;
+    let max_depth = (h - BEAM_CLEARANCE).min(WALL_BEAM_MAX_DEPTH);
+    if max_depth < 0.2 {
+        return 0;
+    }
+    let n = if rng.random_bool(0.3) { 2 } else { 1 };
+    let first = rng.random_range(0..4usize);
+    // Two bulkheads go on opposite walls (a corridor's ducts) or adjacent ones (an L).
+    let second = (first + if rng.random_bool(0.5) { 2 } else { 1 }) % 4;
+    let color = jitter(rng, pal.structure, 0.02);
+    let mut added = 0;
+    for &k in [first, second].iter().take(n) {
+        let width = uniform(rng, 0.3, 0.8);
+        let wanted = uniform(rng, 0.3_f32.min(max_depth), max_depth);
+        let len = layout.walls[k].length;
+        // The deepest of the wanted, 2/3 and 1/3 of it whose underside is clear of
+        // openings and of beams already resting on the wall.
+        let depth = [wanted, wanted * 2.0 / 3.0, wanted / 3.0]
+            .into_iter()
+            .filter(|&dp| dp >= 0.15)
+            .find(|&dp| layout.wall_free(k, 0.0, len, h - dp - 0.05, h - dp, 0.0));
+        let Some(depth) = depth else { continue };
+        let wall = layout.walls[k];
+        b.place(wall.start.extend(0.0), wall.yaw);
+        b.cuboid(
+            Vec3::new(0.0, 0.0, h - depth),
+            Vec3::new(len, width, h),
+            super::shapes::SKIP_NEG_X | super::shapes::SKIP_POS_X | SKIP_NEG_Y | SKIP_POS_Z,
+            SemanticClass::Beam,
+            color,
+        );
+        layout.reserve_wall(k, 0.0, len, h - depth, h);
+        layout.interest.push(wall.point(len * 0.5, width * 0.5).extend(h - depth * 0.5));
+        added += 1;
+    }
+    added
+}
+
 /// A column against wall `k` at `s`, `width` along the wall and `depth` into the room, if
 /// the wall and floor there are free.
 #[allow(clippy::too_many_arguments)]
@@ -493,5 +544,47 @@ pub(crate) fn door(b: &mut MeshBuilder, o: &Opening, rng: &mut ChaCha8Rng, pal: 
         handle(b, o.s1 - 0.06);
     } else {
         handle(b, o.s0 + 0.18);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::SeedableRng;
+
+    use super::*;
+
+    /// Bulkheads hang from the ceiling against a wall, never below the clearance, and a
+    /// window whose head reaches the drawn underside makes that wall's bulkhead shallower
+    /// or leaves it out, never cut through.
+    #[test]
+    fn wall_beams_hang_against_walls_above_openings() {
+        let mut total = 0;
+        for seed in 0..40u64 {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let mut layout = Layout::new(6.0, 5.0, 3.2);
+            // A tall window on every wall: its head at 2.6 m.
+            for k in 0..4 {
+                layout.reserve_wall(k, 1.0, 2.5, 0.8, 2.6);
+            }
+            let pal = Palette::draw(&mut rng);
+            let mut b = MeshBuilder::new(0.12, seed);
+            let added = add_wall_beams(&mut b, &mut layout, &mut rng, &pal);
+            let mesh = b.finish();
+            total += added;
+            let beam_vertices: Vec<Vec3> = mesh
+                .triangles
+                .iter()
+                .zip(&mesh.triangle_labels)
+                .filter(|(_, &l)| l == SemanticClass::Beam as u8)
+                .flat_map(|(t, _)| t.map(|i| mesh.positions[i as usize]))
+                .collect();
+            assert_eq!(beam_vertices.is_empty(), added == 0, "seed {seed}");
+            for p in beam_vertices {
+                assert!(p.z >= 2.65 - 1e-4 && p.z <= 3.2 + 1e-4, "seed {seed}: beam vertex at {p}");
+                let to_wall = p.x.min(6.0 - p.x).min(p.y).min(5.0 - p.y);
+                assert!(to_wall <= 0.8 + 1e-4, "seed {seed}: beam vertex {p} is {to_wall} m from every wall");
+            }
+        }
+        assert!(total >= 30, "only {total} bulkheads over 40 seeds");
     }
 }

@@ -241,6 +241,7 @@ pub fn generate_library_room_detailed(
         openings: Vec::new(),
         opening_models: Vec::new(),
         lights: Vec::new(),
+        bulkhead_rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0x4255_4C4B_4845_4144),
     };
     home.build()?;
     let Home { b, layout, used, .. } = home;
@@ -276,6 +277,9 @@ struct Home<'a, S: ModelSource + ?Sized> {
     opening_models: Vec<Option<Piece<'a>>>,
     /// Where light comes from (windows, lamps), for the baked shading.
     lights: Vec<Vec3>,
+    /// The bulkheads' own random stream: adding them (session 14) left every other choice
+    /// of a seed's room as it was, so earlier evaluations stay comparable.
+    bulkhead_rng: ChaCha8Rng,
 }
 
 impl<'a, S: ModelSource + ?Sized> Home<'a, S> {
@@ -286,6 +290,7 @@ impl<'a, S: ModelSource + ?Sized> Home<'a, S> {
             shell::add_structure(&mut self.b, &mut self.layout, &mut self.rng, &self.pal, style);
         }
         self.plan_openings();
+        self.bulkheads();
         let shell_end = self.build_shell();
         self.fill_openings();
         self.radiators();
@@ -304,6 +309,21 @@ impl<'a, S: ModelSource + ?Sized> Home<'a, S> {
         self.ceiling_lamp();
         self.bake_light(shell_end);
         Ok(())
+    }
+}
+
+impl<S: ModelSource + ?Sized> Home<'_, S> {
+    /// Beams along walls (bulkheads), most often in offices, conference rooms and corridors,
+    /// now and then in homes; see [`shell::add_wall_beams`].
+    fn bulkheads(&mut self) {
+        let p = match self.kind {
+            HomeRoomKind::Office | HomeRoomKind::Conference | HomeRoomKind::Corridor => 0.5,
+            HomeRoomKind::LivingRoom | HomeRoomKind::Studio | HomeRoomKind::Kitchen => 0.15,
+            HomeRoomKind::Bedroom | HomeRoomKind::Bathroom => 0.05,
+        };
+        if self.bulkhead_rng.random_bool(p) {
+            shell::add_wall_beams(&mut self.b, &mut self.layout, &mut self.bulkhead_rng, &self.pal);
+        }
     }
 }
 
