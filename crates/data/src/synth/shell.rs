@@ -547,6 +547,75 @@ pub(crate) fn door(b: &mut MeshBuilder, o: &Opening, rng: &mut ChaCha8Rng, pal: 
     }
 }
 
+/// An open door (b placed in the wall's frame, as for [`door`]): the opening goes through a
+/// wall `0.1-0.2` m thick into a small room or corridor behind it (floor, walls and ceiling
+/// as far as the view through the doorway reaches), and the leaf (two for an opening wider
+/// than 1.3 m) stands swung into the room by 25-95 degrees about its hinge, reaching at most
+/// 0.85 m from the wall (the floor kept free in front of doors). Real scans catch doors
+/// open as often as shut; the leaf is then a free-standing panel, easy to take for clutter.
+pub(crate) fn open_door(b: &mut MeshBuilder, o: &Opening, rng: &mut ChaCha8Rng, pal: &Palette, room_height: f32) {
+    let thickness = uniform(rng, 0.1, 0.2);
+    let leaf_color = jitter(rng, pal.door, 0.03);
+    let casing_color = if rng.random_bool(0.5) { jitter(rng, pal.door, 0.02) } else { jitter(rng, pal.frame, 0.03) };
+    let through = Opening { recess: thickness, ..*o };
+    reveals(b, &through, SemanticClass::Door, SemanticClass::Floor, casing_color, pal.floor);
+    let (cw, ct) = (uniform(rng, 0.05, 0.09), uniform(rng, 0.01, 0.025));
+    for (s0, s1, z0, z1) in
+        [(o.s0 - cw, o.s0, 0.0, o.z1 + cw), (o.s1, o.s1 + cw, 0.0, o.z1 + cw), (o.s0, o.s1, o.z1, o.z1 + cw)]
+    {
+        b.cuboid(Vec3::new(s0, 0.0, z0), Vec3::new(s1, ct, z1), SKIP_NEG_Y, SemanticClass::Door, casing_color);
+    }
+    // Beyond: a box from the wall's back face, a little wider than the doorway.
+    let (sa, sb) = (o.s0 - uniform(rng, 0.3, 1.5), o.s1 + uniform(rng, 0.3, 1.5));
+    let (y0, y1) = (-thickness, -thickness - uniform(rng, 1.0, 2.5));
+    let (span, reach) = (Vec3::X * (sb - sa), Vec3::Y * (y0 - y1));
+    let h = room_height;
+    let beyond_wall = jitter(rng, pal.wall, 0.05);
+    let beyond_floor = jitter(rng, pal.floor, 0.05);
+    b.rect(Vec3::new(sa, y1, 0.0), span, reach, Vec3::Z, SemanticClass::Floor, beyond_floor);
+    b.rect(Vec3::new(sa, y1, h), span, reach, -Vec3::Z, SemanticClass::Ceiling, jitter(rng, pal.ceiling, 0.03));
+    b.rect(Vec3::new(sa, y1, 0.0), span, Vec3::Z * h, Vec3::Y, SemanticClass::Wall, beyond_wall);
+    b.rect(Vec3::new(sa, y1, 0.0), reach, Vec3::Z * h, Vec3::X, SemanticClass::Wall, beyond_wall);
+    b.rect(Vec3::new(sb, y1, 0.0), reach, Vec3::Z * h, -Vec3::X, SemanticClass::Wall, beyond_wall);
+    b.rect_with_holes(
+        Vec3::new(sa, y0, 0.0),
+        span,
+        Vec3::Z * h,
+        -Vec3::Y,
+        &[[o.s0 - sa, o.s1 - sa, o.z0, o.z1]],
+        SemanticClass::Wall,
+        beyond_wall,
+    );
+    // The leaves: hinged at an edge of the opening, turned into the room.
+    let width = o.s1 - o.s0;
+    let leaves: Vec<(f32, bool, f32)> = if width > 1.3 {
+        vec![(o.s0, true, width * 0.5), (o.s1, false, width * 0.5)]
+    } else if rng.random_bool(0.5) {
+        vec![(o.s0, true, width)]
+    } else {
+        vec![(o.s1, false, width)]
+    };
+    for (hinge, at_start, w) in leaves {
+        let max_angle = if w > 0.85 { (0.85 / w).asin().to_degrees() } else { 95.0 };
+        let angle = uniform(rng, 25.0_f32.min(max_angle), max_angle).to_radians();
+        let yaw = if at_start { angle } else { std::f32::consts::PI - angle };
+        let saved = b.push(Vec3::new(hinge, 0.0, 0.0), yaw);
+        let (y_lo, y_hi) = if at_start { (-0.04, 0.0) } else { (0.0, 0.04) };
+        b.cuboid(
+            Vec3::new(0.01, y_lo, o.z0 + 0.01),
+            Vec3::new(w - 0.01, y_hi, o.z1 - 0.01),
+            0,
+            SemanticClass::Door,
+            leaf_color,
+        );
+        let metal = pal.neutral(rng);
+        for (a, c) in [(y_hi, y_hi + 0.05), (y_lo - 0.05, y_lo)] {
+            b.cuboid(Vec3::new(w - 0.14, a, 0.98), Vec3::new(w - 0.06, c, 1.02), 0, SemanticClass::Door, metal);
+        }
+        b.pop(saved);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use rand::SeedableRng;
@@ -586,5 +655,35 @@ mod tests {
             }
         }
         assert!(total >= 30, "only {total} bulkheads over 40 seeds");
+    }
+
+    /// An open door's leaf stands in the room within reach of its hinge (never beyond the
+    /// 0.85 m kept free in front of doors), and everything behind the wall plane is the
+    /// space seen through the doorway.
+    #[test]
+    fn open_doors_swing_into_the_kept_free_floor() {
+        for seed in 0..40u64 {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let pal = Palette::draw(&mut rng);
+            let width = if seed % 3 == 0 { 1.6 } else { 0.9 };
+            let o =
+                Opening { wall: 0, s0: 2.0, s1: 2.0 + width, z0: 0.0, z1: 2.1, kind: OpeningKind::Door, recess: 0.05 };
+            let mut b = MeshBuilder::new(0.12, seed);
+            b.place(Vec3::ZERO, 0.0);
+            open_door(&mut b, &o, &mut rng, &pal, 2.8);
+            let mesh = b.finish();
+            let mut leaf_reach = 0.0f32;
+            for (p, &l) in mesh.positions.iter().zip(&mesh.vertex_labels) {
+                assert!(p.z >= -1e-4 && p.z <= 2.8 + 1e-4, "seed {seed}: {p}");
+                if p.y > 0.03 {
+                    // In the room: only the leaf and its handles.
+                    assert_eq!(l, SemanticClass::Door.id(), "seed {seed}: {p} in the room is class {l}");
+                    assert!(p.y <= 0.85 + 0.1, "seed {seed}: leaf reaches {p}");
+                    assert!(p.x >= o.s0 - 0.15 && p.x <= o.s1 + 0.15, "seed {seed}: leaf at {p}");
+                    leaf_reach = leaf_reach.max(p.y);
+                }
+            }
+            assert!(leaf_reach > 0.25, "seed {seed}: the leaf does not stand open ({leaf_reach} m)");
+        }
     }
 }

@@ -241,7 +241,7 @@ pub fn generate_library_room_detailed(
         openings: Vec::new(),
         opening_models: Vec::new(),
         lights: Vec::new(),
-        bulkhead_rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0x4255_4C4B_4845_4144),
+        extras_rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0x4255_4C4B_4845_4144),
     };
     home.build()?;
     let Home { b, layout, used, .. } = home;
@@ -277,9 +277,9 @@ struct Home<'a, S: ModelSource + ?Sized> {
     opening_models: Vec<Option<Piece<'a>>>,
     /// Where light comes from (windows, lamps), for the baked shading.
     lights: Vec<Vec3>,
-    /// The bulkheads' own random stream: adding them (session 14) left every other choice
-    /// of a seed's room as it was, so earlier evaluations stay comparable.
-    bulkhead_rng: ChaCha8Rng,
+    /// The random stream of what session 14 added (bulkheads, open doors): adding them left
+    /// every other choice of a seed's room as it was, so earlier evaluations stay comparable.
+    extras_rng: ChaCha8Rng,
 }
 
 impl<'a, S: ModelSource + ?Sized> Home<'a, S> {
@@ -321,8 +321,8 @@ impl<S: ModelSource + ?Sized> Home<'_, S> {
             HomeRoomKind::LivingRoom | HomeRoomKind::Studio | HomeRoomKind::Kitchen => 0.15,
             HomeRoomKind::Bedroom | HomeRoomKind::Bathroom => 0.05,
         };
-        if self.bulkhead_rng.random_bool(p) {
-            shell::add_wall_beams(&mut self.b, &mut self.layout, &mut self.bulkhead_rng, &self.pal);
+        if self.extras_rng.random_bool(p) {
+            shell::add_wall_beams(&mut self.b, &mut self.layout, &mut self.extras_rng, &self.pal);
         }
     }
 }

@@ -15,6 +15,9 @@ use crate::synth::layout::footprint;
 use crate::synth::palette::{jitter, uniform};
 use crate::synth::shell::{self, OpeningKind};
 
+/// Share of doors that stand open.
+const OPEN_DOOR_SHARE: f64 = 0.35;
+
 impl<'a, S: ModelSource + ?Sized> Home<'a, S> {
     /// Doors and windows for the kind, catalogue models where they fit.
     pub(super) fn plan_openings(&mut self) {
@@ -146,12 +149,19 @@ impl<'a, S: ModelSource + ?Sized> Home<'a, S> {
         }
     }
 
-    /// Catalogue doors and windows in their openings, the procedural ones elsewhere.
+    /// Catalogue doors and windows in their openings, the procedural ones elsewhere; some
+    /// doors open ([`shell::open_door`]).
     pub(super) fn fill_openings(&mut self) {
         let openings = self.openings.clone();
         let models = std::mem::take(&mut self.opening_models);
         for (o, model) in openings.iter().zip(models) {
             let wall = self.layout.walls[o.wall];
+            // A third of the doors stand open (their own random stream: see `extras_rng`).
+            if o.kind == OpeningKind::Door && self.extras_rng.random_bool(OPEN_DOOR_SHARE) {
+                self.b.place(wall.start.extend(0.0), wall.yaw);
+                shell::open_door(&mut self.b, o, &mut self.extras_rng, &self.pal, self.layout.height);
+                continue;
+            }
             match model {
                 Some(p) => {
                     let s = (o.s0 + o.s1) * 0.5;

@@ -139,6 +139,7 @@ fn kind_names_round_trip() {
 #[test]
 fn every_kind_generates_valid_closed_rooms() {
     let lib = BoxLibrary::new();
+    let mut beyond_open_doors = 0;
     for kind in HomeRoomKind::ALL {
         for seed in 0..6 {
             let r = room(&lib, seed, kind, Split::Train);
@@ -154,24 +155,24 @@ fn every_kind_generates_valid_closed_rooms() {
             assert!(m.triangle_count() <= MAX_TRIANGLES + 100_000);
             assert!(!r.model_ids.is_empty(), "{kind} {seed}: no models");
             let (w, d, h) = (r.room.floor_max.x, r.room.floor_max.y, r.room.ceiling_height);
-            // Everything inside the room; doors and windows may sit in the wall behind.
+            // Everything inside the room; doors and windows may sit in the wall behind, and
+            // an open door shows the floor, walls and ceiling of the space behind it.
             for (p, &l) in m.positions.iter().zip(&m.vertex_labels) {
+                let is = |classes: &[SemanticClass]| classes.iter().any(|c| c.id() == l);
                 // Reveals and thresholds of openings lie in the wall's thickness.
-                let slack = if [SemanticClass::Door, SemanticClass::Window, SemanticClass::Wall, SemanticClass::Floor]
-                    .iter()
-                    .any(|c| c.id() == l)
-                {
+                let slack = if is(&[SemanticClass::Floor, SemanticClass::Wall, SemanticClass::Ceiling]) {
+                    2.75
+                } else if is(&[SemanticClass::Door, SemanticClass::Window]) {
                     0.4
                 } else {
                     1e-3
                 };
+                let outside = (-p.x).max(-p.y).max(p.x - w).max(p.y - d);
+                if outside > 0.4 {
+                    beyond_open_doors += 1;
+                }
                 assert!(
-                    p.x >= -slack
-                        && p.y >= -slack
-                        && p.x <= w + slack
-                        && p.y <= d + slack
-                        && p.z >= -1e-3
-                        && p.z <= h + 1e-3,
+                    outside <= slack && p.z >= -1e-3 && p.z <= h + 1e-3,
                     "{kind} {seed}: vertex {p} (class {l}) outside {w} x {d} x {h}"
                 );
             }
@@ -187,6 +188,7 @@ fn every_kind_generates_valid_closed_rooms() {
             assert!(!r.room.interest_points.is_empty());
         }
     }
+    assert!(beyond_open_doors > 0, "no room has an open door");
 }
 
 #[test]
