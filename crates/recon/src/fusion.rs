@@ -6,7 +6,11 @@
 //! camera frustum. Integration then updates every voxel of the selected chunks: the voxel
 //! centre is projected into the depth image (nearest pixel), its signed distance is the depth
 //! minus the voxel's depth along the optical axis, truncated to ±band(depth), and folded into
-//! the voxel's running weighted mean with a depth-dependent weight.
+//! the voxel's running weighted mean with a depth-dependent weight. Colour, which needs far
+//! fewer observations than the distance, is blended from every
+//! [`crate::TsdfConfig::color_every`]-th frame only (and from every frame while a voxel has
+//! fewer than 16 colour observations): blending the whole band every frame was a fifth of
+//! fusion's time (docs/fusion.md).
 //!
 //! The band follows the sensor noise ([`crate::TsdfConfig::band`]): narrow for near surfaces,
 //! the full truncation distance far away. Distances are stored in units of the full
