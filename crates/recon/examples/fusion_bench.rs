@@ -4,7 +4,7 @@
 //! cargo run --release -p semrecon-recon --example fusion_bench -- [--frames N] [--voxel M]
 //!     [--7scenes DIR] [--out mesh.ply] [--keyframe K] [--trunc VOXELS]
 //!     [--band-factor K] [--min-band VOXELS] [--remesh-tol VOXELS] [--mesh-repeat N]
-//!     [--mesh-budget CHUNKS]
+//!     [--mesh-budget CHUNKS] [--color-every N]
 //! ```
 //!
 //! Without `--7scenes` the frames are ray-cast from an analytic scene (floor, wall, sphere).
@@ -16,12 +16,13 @@
 //! its `min_truncation_voxels`. `--remesh-tol` is the incremental mesher's
 //! `RemeshTolerance::distance_voxels` (default 0: exact). `--mesh-budget` caps the chunks
 //! one keyframe re-meshes (`IncrementalMesher::with_budget`; 0, the default: no cap); the
-//! final mesh is then brought up to date without it. `--mesh-repeat N` re-meshes the
-//! final map N more times, alternately from an empty cache (the incremental path over every
-//! chunk) and with `extract_mesh`, and prints the best and median CPU and wall time of each:
-//! a meshing-only load for profilers. The fusion kernel is the widest the
-//! CPU has; `SEMRECON_FUSION_SIMD=avx2|portable` forces a lower one. The printed map
-//! fingerprint (every voxel and frame run) must not depend on the kernel or the thread count.
+//! final mesh is then brought up to date without it. `--color-every` is
+//! `TsdfConfig::color_every` (1: colour from every frame, as before issue 20).
+//! `--mesh-repeat N` re-meshes the final map N more times, alternately from an empty cache
+//! (the incremental path over every chunk) and with `extract_mesh`, and prints the best and
+//! median CPU and wall time of each: a meshing-only load for profilers. The fusion kernel is
+//! the widest the CPU has; `SEMRECON_FUSION_SIMD=avx2|portable` forces a lower one. The
+//! printed map fingerprint (every voxel and frame run) must not depend on the kernel or the thread count.
 //! Meshing's vertex kernel is chosen the same way (`SEMRECON_MESH_SIMD=avx2|scalar`); the
 //! mesh written by `--out` is the same file with any of them.
 
@@ -57,6 +58,7 @@ struct Args {
     remesh_tol: f32,
     mesh_repeat: usize,
     mesh_budget: usize,
+    color_every: usize,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -72,6 +74,7 @@ fn parse_args() -> Result<Args, String> {
         remesh_tol: 0.0,
         mesh_repeat: 0,
         mesh_budget: 0,
+        color_every: TsdfConfig::default().color_every,
     };
     let mut flags = Flags::from_env();
     while let Some(flag) = flags.next_flag() {
@@ -84,6 +87,7 @@ fn parse_args() -> Result<Args, String> {
             "--remesh-tol" => a.remesh_tol = flags.value(&flag)?,
             "--mesh-repeat" => a.mesh_repeat = flags.value(&flag)?,
             "--mesh-budget" => a.mesh_budget = flags.value(&flag)?,
+            "--color-every" => a.color_every = flags.value(&flag)?,
             "--keyframe" => a.keyframe = flags.value(&flag)?,
             "--7scenes" => a.seven_scenes = Some(flags.value(&flag)?),
             "--out" => a.out = Some(flags.value(&flag)?),
@@ -180,6 +184,7 @@ fn main() {
             truncation_voxels: args.truncation,
             truncation_noise_factor: args.band_factor,
             min_truncation_voxels: args.min_band,
+            color_every: args.color_every,
             ..c
         })
         .and_then(|c| c.validate().map(|()| c))

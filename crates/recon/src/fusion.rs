@@ -6,7 +6,11 @@
 //! camera frustum. Integration then updates every voxel of the selected chunks: the voxel
 //! centre is projected into the depth image (nearest pixel), its signed distance is the depth
 //! minus the voxel's depth along the optical axis, truncated to ±band(depth), and folded into
-//! the voxel's running weighted mean with a depth-dependent weight.
+//! the voxel's running weighted mean with a depth-dependent weight. Colour, which needs far
+//! fewer observations than the distance, is blended from every
+//! [`crate::TsdfConfig::color_every`]-th frame only (and from every frame while a voxel has
+//! fewer than 16 colour observations): blending the whole band every frame was a fifth of
+//! fusion's time (docs/fusion.md).
 //!
 //! The band follows the sensor noise ([`crate::TsdfConfig::band`]): narrow for near surfaces,
 //! the full truncation distance far away. Distances are stored in units of the full
@@ -37,8 +41,8 @@ use wide::{f32x8, i16x8, i32x8, u16x8};
 
 use crate::error::{ReconError, Result};
 use crate::map::{
-    blend_color, key_order, BandModel, Chunk, ChunkKey, SignSummary, TsdfMap, CHUNK_SIDE, NOISE_OFFSET, TSDF_SCALE,
-    WEIGHT_SCALE,
+    blend_color, key_order, BandModel, Chunk, ChunkKey, SignSummary, TsdfMap, CHUNK_SIDE, COLOR_WARMUP, NOISE_OFFSET,
+    TSDF_SCALE, WEIGHT_SCALE,
 };
 use crate::TsdfConfig;
 
@@ -142,6 +146,10 @@ struct FrameView<'a> {
     min_depth: f32,
     max_depth: f32,
     weight_cap: u16,
+    /// Whether this is a colour frame ([`TsdfConfig::color_every`]): every voxel near the
+    /// surface takes the frame's colour; otherwise only those with fewer than
+    /// [`COLOR_WARMUP`] colour observations.
+    color_all: bool,
 }
 
 /// Per-chunk outcome of an integration task.
@@ -225,6 +233,7 @@ impl TsdfMap {
             min_depth: c.min_depth,
             max_depth: c.max_depth,
             weight_cap: (c.max_weight * WEIGHT_SCALE).round().clamp(1.0, u16::MAX as f32) as u16,
+            color_all: c.is_color_frame(frame.index),
         };
         let mut targets = select_mut(&mut self.chunks, &slots);
         // A fixed band (clamped to exactly 1 truncation) skips the band arithmetic.
@@ -631,7 +640,10 @@ fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> 
                     let mut bits = near_bits;
                     while bits != 0 {
                         let x = bits.trailing_zeros() as usize;
-                        blend_color(&mut color_rows[r][x], f.color[pix[x] as usize]);
+                        // Off colour frames only voxels still warming up take a colour.
+                        if f.color_all || color_rows[r][x][3] < COLOR_WARMUP {
+                            blend_color(&mut color_rows[r][x], f.color[pix[x] as usize]);
+                        }
                         bits &= bits - 1;
                     }
                 }
@@ -698,7 +710,7 @@ mod tests {
             if !(d >= f.min_depth && d <= f.max_depth && sdf >= -mu) {
                 continue;
             }
-            let color = (sdf < mu).then_some(f.color[pix]);
+            let color = (sdf < mu && (f.color_all || vox.color_count < COLOR_WARMUP)).then_some(f.color[pix]);
             vox.fuse(sdf.min(mu), depth_weight(d), color, f.weight_cap);
         }
     }
@@ -715,6 +727,19 @@ mod tests {
         };
         assert!(config.band(0.5) < config.band(0.7) && config.band(0.7) < config.truncation());
         check_simd_against_scalar(config);
+    }
+
+    #[test]
+    fn colour_on_every_frame_or_every_third_equals_the_scalar_specification() {
+        // Twenty frames (past the colour warm-up of 16 observations): with `color_every` 3,
+        // every third frame colours every voxel near the surface, the others only voxels
+        // still warming up.
+        for color_every in [1, 3] {
+            let config = TsdfConfig { max_weight: 3.0, color_every, ..TsdfConfig::default() };
+            for kernel in kernels() {
+                check_kernel_against_scalar(kernel, config, 20);
+            }
+        }
     }
 
     #[test]
@@ -742,15 +767,16 @@ mod tests {
 
     fn check_simd_against_scalar(config: TsdfConfig) {
         for kernel in kernels() {
-            check_kernel_against_scalar(kernel, config);
+            check_kernel_against_scalar(kernel, config, 6);
         }
     }
 
-    fn check_kernel_against_scalar(kernel: Kernel, config: TsdfConfig) {
+    /// Fuses `frames` noisy frames with `kernel` and with the scalar specification.
+    fn check_kernel_against_scalar(kernel: Kernel, config: TsdfConfig, frames: usize) {
         let mut rng = ChaCha8Rng::seed_from_u64(7);
         let mut map = TsdfMap::new(config).expect("valid");
         let mut spec: Vec<(IVec3, Vec<Voxel>)> = Vec::new();
-        for index in 0..6 {
+        for index in 0..frames {
             let frame = noisy_frame(index, &mut rng);
             let yaw = rng.random_range(-0.05..0.05);
             let pose = Affine3A::from_rotation_translation(
@@ -775,6 +801,7 @@ mod tests {
                 min_depth: config.min_depth,
                 max_depth: config.max_depth,
                 weight_cap: (config.max_weight * WEIGHT_SCALE) as u16,
+                color_all: config.is_color_frame(frame.index),
             };
             for &key in &keys {
                 let entry = match spec.iter().position(|(k, _)| *k == key) {

@@ -14,7 +14,9 @@ use std::arch::x86_64::*;
 use std::mem::MaybeUninit;
 
 use super::{Candidates, ChunkOutcome, FrameView, SelectionView, SELECTION_OFFSET};
-use crate::map::{Chunk, ChunkKey, SignSummary, CHUNK_SIDE, NOISE_OFFSET, RECIPROCALS, TSDF_SCALE, WEIGHT_SCALE};
+use crate::map::{
+    Chunk, ChunkKey, SignSummary, CHUNK_SIDE, COLOR_WARMUP, NOISE_OFFSET, RECIPROCALS, TSDF_SCALE, WEIGHT_SCALE,
+};
 
 /// The colour running mean's reciprocals, in memory for the gather.
 static RECIPROCAL_TABLE: [u32; 256] = RECIPROCALS;
@@ -195,48 +197,57 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 near_lanes = _mm256_or_ps(near_lanes, near);
                 // Half the rows have no voxel near the surface: their colours stay as they are.
                 if has_color && _mm256_movemask_ps(near) != 0 {
-                    let near_i = _mm256_castps_si256(near);
                     let row_ptr = color_rows.add(r * N * 4) as *mut __m256i;
                     let cur = _mm256_loadu_si256(row_ptr);
-                    // The observed colours, `[r, g, b, x]` per lane.
-                    let offset = _mm256_mullo_epi32(pix, _mm256_set1_epi32(3));
-                    let clamped = _mm256_min_epi32(offset, last_color_offset);
-                    let shift = _mm256_slli_epi32::<3>(_mm256_sub_epi32(offset, clamped));
-                    let obs_c = _mm256_srlv_epi32(
-                        _mm256_mask_i32gather_epi32::<1>(
-                            _mm256_setzero_si256(),
-                            color_ptr as *const i32,
-                            clamped,
-                            near_i,
-                        ),
-                        shift,
-                    );
-                    let count = _mm256_srli_epi32::<24>(cur);
-                    let recip = _mm256_i32gather_epi32::<4>(RECIPROCAL_TABLE.as_ptr() as *const i32, count);
-                    let nr = blend_channel(
-                        _mm256_and_si256(cur, byte_mask),
-                        _mm256_and_si256(obs_c, byte_mask),
-                        count,
-                        recip,
-                    );
-                    let ng = blend_channel(
-                        _mm256_and_si256(_mm256_srli_epi32::<8>(cur), byte_mask),
-                        _mm256_and_si256(_mm256_srli_epi32::<8>(obs_c), byte_mask),
-                        count,
-                        recip,
-                    );
-                    let nb = blend_channel(
-                        _mm256_and_si256(_mm256_srli_epi32::<16>(cur), byte_mask),
-                        _mm256_and_si256(_mm256_srli_epi32::<16>(obs_c), byte_mask),
-                        count,
-                        recip,
-                    );
-                    let nc = _mm256_min_epi32(_mm256_add_epi32(count, int_one), count_max);
-                    let packed = _mm256_or_si256(
-                        _mm256_or_si256(nr, _mm256_slli_epi32::<8>(ng)),
-                        _mm256_or_si256(_mm256_slli_epi32::<16>(nb), _mm256_slli_epi32::<24>(nc)),
-                    );
-                    _mm256_storeu_si256(row_ptr, _mm256_blendv_epi8(cur, packed, near_i));
+                    // Off colour frames only voxels still warming up take a colour.
+                    let near_i = if f.color_all {
+                        _mm256_castps_si256(near)
+                    } else {
+                        let uncoloured =
+                            _mm256_cmpgt_epi32(_mm256_set1_epi32(COLOR_WARMUP as i32), _mm256_srli_epi32::<24>(cur));
+                        _mm256_and_si256(_mm256_castps_si256(near), uncoloured)
+                    };
+                    if _mm256_testz_si256(near_i, near_i) == 0 {
+                        // The observed colours, `[r, g, b, x]` per lane.
+                        let offset = _mm256_mullo_epi32(pix, _mm256_set1_epi32(3));
+                        let clamped = _mm256_min_epi32(offset, last_color_offset);
+                        let shift = _mm256_slli_epi32::<3>(_mm256_sub_epi32(offset, clamped));
+                        let obs_c = _mm256_srlv_epi32(
+                            _mm256_mask_i32gather_epi32::<1>(
+                                _mm256_setzero_si256(),
+                                color_ptr as *const i32,
+                                clamped,
+                                near_i,
+                            ),
+                            shift,
+                        );
+                        let count = _mm256_srli_epi32::<24>(cur);
+                        let recip = _mm256_i32gather_epi32::<4>(RECIPROCAL_TABLE.as_ptr() as *const i32, count);
+                        let nr = blend_channel(
+                            _mm256_and_si256(cur, byte_mask),
+                            _mm256_and_si256(obs_c, byte_mask),
+                            count,
+                            recip,
+                        );
+                        let ng = blend_channel(
+                            _mm256_and_si256(_mm256_srli_epi32::<8>(cur), byte_mask),
+                            _mm256_and_si256(_mm256_srli_epi32::<8>(obs_c), byte_mask),
+                            count,
+                            recip,
+                        );
+                        let nb = blend_channel(
+                            _mm256_and_si256(_mm256_srli_epi32::<16>(cur), byte_mask),
+                            _mm256_and_si256(_mm256_srli_epi32::<16>(obs_c), byte_mask),
+                            count,
+                            recip,
+                        );
+                        let nc = _mm256_min_epi32(_mm256_add_epi32(count, int_one), count_max);
+                        let packed = _mm256_or_si256(
+                            _mm256_or_si256(nr, _mm256_slli_epi32::<8>(ng)),
+                            _mm256_or_si256(_mm256_slli_epi32::<16>(nb), _mm256_slli_epi32::<24>(nc)),
+                        );
+                        _mm256_storeu_si256(row_ptr, _mm256_blendv_epi8(cur, packed, near_i));
+                    }
                 }
                 (t_i, w_i)
             };

@@ -13,7 +13,9 @@ use std::arch::x86_64::*;
 use std::mem::MaybeUninit;
 
 use super::{Candidates, ChunkOutcome, FrameView, SelectionView, SELECTION_OFFSET};
-use crate::map::{Chunk, ChunkKey, SignSummary, CHUNK_SIDE, NOISE_OFFSET, RECIPROCALS, TSDF_SCALE, WEIGHT_SCALE};
+use crate::map::{
+    Chunk, ChunkKey, SignSummary, CHUNK_SIDE, COLOR_WARMUP, NOISE_OFFSET, RECIPROCALS, TSDF_SCALE, WEIGHT_SCALE,
+};
 
 /// The colour running mean's reciprocals, in memory for the gather.
 static RECIPROCAL_TABLE: [u32; 256] = RECIPROCALS;
@@ -104,6 +106,7 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
         let byte_mask = _mm512_set1_epi32(0xff);
         let count_max = _mm512_set1_epi32(255);
         let int_one = _mm512_set1_epi32(1);
+        let zero_i = _mm512_setzero_si512();
         let tsdf_ptr = block.tsdf.as_mut_ptr();
         let weight_ptr = block.weight.as_mut_ptr();
         let color_rows = block.color.as_mut_ptr() as *mut u8;
@@ -206,9 +209,15 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 let near = valid & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(sdf, mu);
                 near_any |= near;
                 // Half the row pairs have no voxel near the surface: their colours stay as they are.
+                let row_ptr = color_rows.add(r * N * 4) as *mut __m512i;
+                let cur = if has_color && near != 0 { _mm512_loadu_si512(row_ptr as *const _) } else { zero_i };
+                // Off colour frames only voxels still warming up take a colour.
+                let near = if f.color_all {
+                    near
+                } else {
+                    near & _mm512_cmplt_epu32_mask(_mm512_srli_epi32::<24>(cur), _mm512_set1_epi32(COLOR_WARMUP as i32))
+                };
                 if has_color && near != 0 {
-                    let row_ptr = color_rows.add(r * N * 4) as *mut __m512i;
-                    let cur = _mm512_loadu_si512(row_ptr as *const _);
                     let offset = _mm512_mullo_epi32(pix, _mm512_set1_epi32(3));
                     let clamped = _mm512_min_epi32(offset, last_color_offset);
                     let shift = _mm512_slli_epi32::<3>(_mm512_sub_epi32(offset, clamped));
