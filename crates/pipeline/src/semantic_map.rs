@@ -26,7 +26,7 @@ use glam::{IVec3, Vec3};
 use rayon::prelude::*;
 use semrecon_data::class::UNLABELED;
 use semrecon_recon::map::ChunkHashBuilder;
-use semrecon_recon::{ChunkKey, TsdfMap};
+use semrecon_recon::{ChunkKey, TsdfMap, CHUNK_SIDE};
 
 use crate::gravity::SurfaceSample;
 use crate::label_islands::merge_small_islands;
@@ -54,9 +54,10 @@ struct CellSum {
 impl CellSum {
     /// Adds one surface point, its position already in fixed point.
     fn add_point(&mut self, position: [i64; 3], point: &SurfacePoint) {
-        for k in 0..3 {
-            self.position[k] += position[k];
-            self.color[k] += u64::from(point.color[k]);
+        for ((sum, p), (color, c)) in self.position.iter_mut().zip(position).zip(self.color.iter_mut().zip(point.color))
+        {
+            *sum += p;
+            *color += u64::from(c);
         }
         self.normal[point.axis as usize] += if point.rising { 1 } else { -1 };
         self.count += 1;
@@ -225,15 +226,47 @@ impl SurfaceCells {
         changed
     }
 
-    /// The surface points of chunk `key` summed per cell, in (z, y, x) cell order.
+    /// The surface points of chunk `key` summed per cell, in (z, y, x) cell order: the cell
+    /// and the fixed-point position of each point as [`SurfaceCells::cell_of_point`] and
+    /// [`round_i64`] give them (the specification, see `reference_cells` in the tests).
+    ///
+    /// Off its edge's axis a point sits exactly on its lower voxel's coordinate, so those
+    /// coordinates' cells and fixed-point values are looked up from tables made once per
+    /// chunk; only the coordinate along the edge is converted per point.
     fn chunk_cells(&self, map: &TsdfMap, key: ChunkKey) -> ChunkCells {
+        let side = CHUNK_SIDE as i32;
+        let first_voxel = key * side;
+        // Per axis and local voxel coordinate: the cell and the fixed-point coordinate.
+        let mut tables: Option<[[(i32, i64); CHUNK_SIDE]; 3]> = None;
         // A chunk overlaps a handful of cells (at most 8 when cells are larger than chunks),
         // so a short list searched linearly beats any map; consecutive points mostly fall in
         // the same cell, hence the last-hit shortcut.
         let mut parts: Vec<((i32, i32, i32), CellSum)> = Vec::new();
         let mut last = usize::MAX;
         for_each_chunk_point(map, key, &self.rule, |point| {
-            let c = order(self.cell_of_point(point.position));
+            let tables = tables.get_or_insert_with(|| {
+                std::array::from_fn(|k| {
+                    std::array::from_fn(|i| {
+                        let x = (first_voxel[k] + i as i32) as f32 * self.rule.voxel_size;
+                        (floor_i32(x / self.cell_size), round_i64(x * self.position_scale))
+                    })
+                })
+            });
+            let local = point.low - first_voxel;
+            let axis = point.axis as usize;
+            let mut cell = [0; 3];
+            let mut position = [0; 3];
+            for k in 0..3 {
+                let (c, p) = if k == axis {
+                    let x = point.position[k];
+                    (floor_i32(x / self.cell_size), round_i64(x * self.position_scale))
+                } else {
+                    tables[k][(local[k] as usize) & (CHUNK_SIDE - 1)]
+                };
+                cell[k] = c;
+                position[k] = p;
+            }
+            let c = (cell[2], cell[1], cell[0]);
             if last >= parts.len() || parts[last].0 != c {
                 last = match parts.iter().position(|(k, _)| *k == c) {
                     Some(i) => i,
@@ -243,7 +276,6 @@ impl SurfaceCells {
                     }
                 };
             }
-            let position = [0, 1, 2].map(|k| round_i64(point.position[k] * self.position_scale));
             parts[last].1.add_point(position, &point);
         });
         parts.sort_unstable_by_key(|(k, _)| *k);
