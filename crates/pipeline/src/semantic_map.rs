@@ -11,7 +11,7 @@
 //!
 //! Cells live on the map frame's grid, not the gravity-aligned one: the up estimate may change
 //! from pass to pass, the stored labels must not move with it. Each cell is summarised by
-//! integer sums (fixed-point positions, colours, signed axis counts for the normal, counts), so
+//! integer sums (fixed-point positions, colours, quantised normals, counts), so
 //! that a chunk's old contribution can be subtracted exactly when it changes and the result
 //! never depends on the order of updates or on the number of threads.
 //!
@@ -38,6 +38,9 @@ pub const CLASSES: usize = semrecon_data::SemanticClass::COUNT;
 /// Integer coordinates of a coarse cell (cell `c` covers `[c, c + 1) * cell_size` per axis).
 pub type CellKey = IVec3;
 
+/// Fixed-point scale of the normal sums.
+const NORMAL_SCALE: f32 = 1024.0;
+
 /// Fixed-point steps of the position sums per map voxel (0.02 mm at 5 mm voxels).
 const POSITION_STEPS_PER_VOXEL: f32 = 256.0;
 
@@ -46,7 +49,6 @@ const POSITION_STEPS_PER_VOXEL: f32 = 256.0;
 struct CellSum {
     position: [i64; 3],
     color: [u64; 3],
-    /// Per axis, the points whose edge runs along it, signed toward free space.
     normal: [i64; 3],
     count: u64,
 }
@@ -59,7 +61,9 @@ impl CellSum {
             *sum += p;
             *color += u64::from(c);
         }
-        self.normal[point.axis as usize] += if point.rising { 1 } else { -1 };
+        for (sum, n) in self.normal.iter_mut().zip(point.normal.to_array()) {
+            *sum += round_i64(n * NORMAL_SCALE);
+        }
         self.count += 1;
     }
 
@@ -91,7 +95,7 @@ pub struct Cell {
     pub position: Vec3,
     /// Mean colour.
     pub color: [u8; 3],
-    /// Mean normal (unit, or zero): the sum of its points' signed edge axes, normalised.
+    /// Mean normal (unit, or zero).
     pub normal: Vec3,
     /// Number of surface points.
     pub points: u64,
