@@ -30,7 +30,7 @@ use semrecon_recon::{ChunkKey, TsdfMap, CHUNK_SIDE};
 
 use crate::gravity::SurfaceSample;
 use crate::label_islands::merge_small_islands;
-use crate::surface_cells::{for_each_chunk_point, readers_of, SurfacePoint, SurfaceRule};
+use crate::surface_cells::{for_each_chunk_point, prefetch_chunk, readers_of, SurfacePoint, SurfaceRule};
 
 /// Number of classes of the labels kept here (the S3DIS set).
 pub const CLASSES: usize = semrecon_data::SemanticClass::COUNT;
@@ -208,8 +208,19 @@ impl SurfaceCells {
         let mut reread: Vec<ChunkKey> = changed_chunks.iter().flat_map(|k| readers_of(*k)).collect();
         reread.sort_unstable_by_key(|k| order(*k));
         reread.dedup();
-        // The per-chunk sums in parallel; only merging them is serial.
-        let all_parts: Vec<ChunkCells> = reread.par_iter().map(|k| self.chunk_cells(map, *k)).collect();
+        // The per-chunk sums in parallel, each worker over runs of neighbouring chunks, asking
+        // for the next chunk's voxels while it reads one; only merging them is serial.
+        let all_parts: Vec<ChunkCells> = reread
+            .par_chunks(64)
+            .flat_map_iter(|keys| {
+                keys.iter().enumerate().map(|(i, key)| {
+                    if let Some(next) = keys.get(i + 1) {
+                        prefetch_chunk(map, *next);
+                    }
+                    self.chunk_cells(map, *key)
+                })
+            })
+            .collect();
         let mut changed = Vec::with_capacity(reread.len());
         for (key, parts) in reread.iter().zip(all_parts) {
             // A chunk re-read for its neighbour's sake often keeps its sums exactly.

@@ -245,6 +245,16 @@ pub fn for_each_chunk_point(map: &TsdfMap, key: ChunkKey, rule: &SurfaceRule, mu
     }
 }
 
+/// Asks for the voxels [`for_each_chunk_point`] reads first in chunk `key` (its distances
+/// and weights), so that a caller going through many chunks overlaps one chunk's cache misses
+/// with the work on the one before: a hint, with no effect on results.
+pub fn prefetch_chunk(map: &TsdfMap, key: ChunkKey) {
+    if let Some(c) = map.chunk(key) {
+        prefetch(c.stored_tsdf(), 64, 2 * CHUNK_SIDE * CHUNK_SIDE);
+        prefetch(c.stored_weights(), 64, 2 * CHUNK_SIDE * CHUNK_SIDE);
+    }
+}
+
 /// Asks for the cache lines at `count` offsets `stride` bytes apart from the start of `data`
 /// (those inside it): a hint, with no effect on results (none off x86-64).
 #[inline(always)]
