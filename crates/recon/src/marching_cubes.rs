@@ -57,9 +57,10 @@ use triangles::*;
 const MAX_EDGE_JUMP_BANDS: f32 = 1.5;
 
 /// The largest TSDF difference across a cell edge, in truncation units, that meshing takes
-/// for a surface crossing in a map of `config` (beyond it the edge is a seam between free
-/// space and the back of a surface, see [`MAX_EDGE_JUMP_BANDS`]): for other readers of zero
-/// crossings (the semantic map's surface cells) to see the surface the mesh shows.
+/// for a surface crossing in a map of `config`: 1.5 narrowest bands, at most one truncation
+/// (beyond it the edge is a seam between free space and the back of a surface). For other
+/// readers of zero crossings (the semantic map's surface cells) to see the surface the mesh
+/// shows.
 pub fn max_edge_jump(config: &crate::TsdfConfig) -> f32 {
     (MAX_EDGE_JUMP_BANDS * config.narrowest_band_voxels() / config.truncation_voxels).min(1.0)
 }
