@@ -56,8 +56,7 @@ pub struct ReconArgs {
     /// Most 8x8x8-voxel chunks a keyframe re-meshes: newly seen surface first, then the chunks
     /// waiting longest, the rest at later keyframes (the written mesh is always complete); 0
     /// re-meshes every changed chunk at every keyframe. Default: 3072 (16-20 ms at 5 mm on two
-    /// cores) with `--semantics off`, 0 with semantics (the network reads the mesh, and live
-    /// labels suffer when it lags).
+    /// cores); labels do not depend on it (the network reads the map, not the mesh).
     #[arg(long)]
     pub mesh_budget: Option<usize>,
     /// Weight of the tracker's photometric term (colour intensity 0..1 against metres of
@@ -141,8 +140,8 @@ pub fn pipeline_config(
     tsdf.validate().with_context(|| {
         format!("truncation of {} voxels, fused depth up to {} m", recon.truncation, recon.max_depth)
     })?;
-    // The network reads the mesh, and a lagging one costs labels: no budget with semantics.
-    let default_mesh_budget = if semantics.semantics == SemanticsMode::Off { DEFAULT_MESH_BUDGET } else { 0 };
+    // The same budget with semantics: the network reads the map's chunks, not the mesh.
+    let default_mesh_budget = DEFAULT_MESH_BUDGET;
     let mut config = PipelineConfig {
         tsdf,
         mesh: MeshConfig { min_weight: recon.min_mesh_weight, min_component_triangles: recon.min_mesh_piece },

@@ -8,12 +8,12 @@ use semrecon_recon::{MeshConfig, TrackerConfig, TsdfConfig};
 use crate::error::{PipelineError, Result};
 use crate::loop_closure::LoopClosureConfig;
 
-/// A [`PipelineConfig::mesh_budget`] for reconstruction without semantics, in chunks (what
-/// `semrecon run --semantics off` uses): 16-20 ms of meshing a keyframe on two cores at 5 mm
-/// on 7-Scenes, where a changed chunk then waits about six keyframes (at most 12) for its refresh
-/// (docs/benchmarks_log.md, "Meshing within a budget, session 10"). With semantics the default
-/// is no budget: the network reads the mesh, and a mesh refreshed keyframes late cost live
-/// labels in the measurements.
+/// A [`PipelineConfig::mesh_budget`] in chunks, what `semrecon run` uses with and without
+/// semantics: 16-20 ms of meshing a keyframe on two cores at 5 mm on 7-Scenes, where a changed
+/// chunk then waits about six keyframes (at most 12) for its refresh (docs/benchmarks_log.md,
+/// "Meshing within a budget, session 10"). The semantic passes read the map's surface from the
+/// TSDF chunks ([`crate::surface_cells`]), so the budget costs no labels ("Labels that do not
+/// wait for the mesh").
 pub const DEFAULT_MESH_BUDGET: usize = 3072;
 
 /// Where the pose of each frame comes from.
@@ -97,7 +97,8 @@ pub struct PipelineConfig {
     pub mesh: MeshConfig,
     /// Most chunks a keyframe re-meshes ([`IncrementalMesher::with_budget`]: newly seen
     /// surface first, then the chunks due the longest); `None`, the default, re-meshes every
-    /// changed chunk at every keyframe (see [`DEFAULT_MESH_BUDGET`]).
+    /// changed chunk at every keyframe (see [`DEFAULT_MESH_BUDGET`]). Labels do not depend on
+    /// it: the semantic passes read the map, not the mesh.
     /// [`crate::Pipeline::finish`] brings every chunk up to date either way.
     ///
     /// [`IncrementalMesher::with_budget`]: semrecon_recon::IncrementalMesher::with_budget

@@ -4,7 +4,7 @@
 //! probabilities per cell, so that the mesh's labels settle as the scan goes on.
 //!
 //! ```text
-//! Frame --push_frame--> tracking --> fusion --(keyframe)--> meshing
+//! Frame --push_frame--> tracking --> fusion --(keyframe)--> meshing (within a budget)
 //!                                                  \--> surface cells (5 cm, changed chunks)
 //!                                                        --> up estimate, tile selection
 //!                                                        --> back end: network --> labels
@@ -16,6 +16,8 @@
 //! - [`config`]: [`PipelineConfig`], [`SemanticConfig`], full or incremental semantics;
 //! - [`gravity`]: the up direction from the map's horizontal planes and the cameras;
 //! - [`semantic_map`]: surface cells and accumulated labels;
+//! - [`surface_cells`]: the map's surface points read from the TSDF chunks (the zero crossings
+//!   the mesher meshes), so that labels do not wait for the mesh;
 //! - [`label_islands`]: specks of a class merged into their surroundings;
 //! - [`live`]: the feed from a live camera, a one-frame mailbox that drops and counts frames
 //!   arriving while the pipeline is busy;
@@ -57,6 +59,7 @@ pub mod live;
 pub mod loop_closure;
 mod pipeline;
 pub mod semantic_map;
+pub mod surface_cells;
 pub mod timing;
 
 pub use config::{PipelineConfig, PoseMode, SemanticConfig, SemanticMode, DEFAULT_MESH_BUDGET};

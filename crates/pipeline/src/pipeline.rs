@@ -1,7 +1,8 @@
 //! [`Pipeline`]: the live system of MISSION.md section 1 behind one object. Every frame is
 //! tracked and fused on the caller's thread (the front end); every `keyframe_every` fused
-//! frames the mesh is brought up to date and the changed part of the map's surface is handed to
-//! the semantic back end (its own thread, see [`crate::backend`]), whose class probabilities
+//! frames the mesh is brought up to date (within [`PipelineConfig::mesh_budget`]) and the
+//! surface of the chunks that changed, read from the TSDF (not the mesh, which may lag under
+//! the budget), is handed to the semantic back end (its own thread, see [`crate::backend`]), whose class probabilities
 //! are accumulated per 5 cm cell and read by [`Pipeline::mesh`]. When tracking, keyframes
 //! also look for loops and correct the poses, and the map follows the correction (see
 //! [`crate::loop_closure`]; on the front end, before the keyframe's meshing).
@@ -29,6 +30,7 @@ use crate::error::{PipelineError, Result};
 use crate::gravity::{camera_up_prior, estimate_up, given_up, UpEstimate};
 use crate::loop_closure::{LoopClosure, LoopClosureReport};
 use crate::semantic_map::{LabelStore, SurfaceCells, CLASSES};
+use crate::surface_cells::SurfaceRule;
 use crate::timing::StageTimes;
 
 /// Keyframes tried per relocalisation; each costs about one tracking call with a ray-cast.
@@ -174,7 +176,7 @@ impl Pipeline {
                         c.name, c.in_channels
                     )));
                 }
-                let cells = SurfaceCells::new(c.voxel_size, config.tsdf.voxel_size);
+                let cells = SurfaceCells::new(c.voxel_size, SurfaceRule::new(&config.tsdf, &config.mesh));
                 Some(Semantics {
                     cells,
                     labels: LabelStore::new(island_cells(config.semantics.min_island_m2, c.voxel_size)),
@@ -394,8 +396,8 @@ impl Pipeline {
             return Ok(false);
         }
         let t = Instant::now();
-        // The mesh is up to date: keyframes re-mesh before they snapshot, and so does `finish`.
-        let changed = s.cells.update(&self.mesher);
+        // Straight from the map's changed chunks: the mesh may lag them under a budget.
+        let changed = s.cells.update(&self.map);
         s.stale = false;
         if changed.is_empty() || s.cells.is_empty() {
             return Ok(false);
@@ -491,14 +493,10 @@ impl Pipeline {
         }
         if self.meshed_at != self.fused || self.mesher.pending_chunks() > 0 {
             let t = Instant::now();
-            let stats = self.mesher.update_all(&self.map);
-            // Apart from the keyframes' "meshing": a one-off catch-up without the budget.
+            self.mesher.update_all(&self.map);
+            // Apart from the keyframes' "meshing": a one-off catch-up without the budget. The
+            // surface cells read the map, not the mesh, so this changes no label.
             self.times.record("final meshing", t.elapsed());
-            if stats.remeshed_chunks > 0 {
-                if let Some(s) = &mut self.semantics {
-                    s.stale = true;
-                }
-            }
             self.meshed_at = self.fused;
         }
         for _ in 0..2 {
@@ -542,7 +540,9 @@ impl Pipeline {
     }
 
     /// The mesh as of the last keyframe, with per-vertex classes ([`UNLABELED`] where no pass
-    /// reached yet) and observed colours.
+    /// reached yet) and observed colours. Each vertex takes the class of its 5 cm cell, else of
+    /// the neighbouring cell with the most evidence: under a mesh budget a vertex may stand where
+    /// the surface was keyframes ago, while the cells follow the map.
     pub fn mesh(&self) -> LabeledMesh {
         let mut mesh = self.mesher.mesh();
         mesh.vertex_labels = match &self.semantics {

@@ -2,34 +2,35 @@
 //! size (5 cm), kept up to date chunk by chunk, and the class probabilities accumulated per
 //! cell over the semantic passes.
 //!
-//! The surface is the incremental mesh's vertices. At a keyframe the front end has just
-//! re-meshed every chunk that changed, so the cells are brought up to date from those chunk
-//! meshes alone: no second pass over the voxels (which cost as much as meshing itself), and
-//! the network sees the same kind of input it was trained on (reconstructions of rendered
-//! scans are meshes too, see `semrecon make-scans`).
+//! The surface is the TSDF's zero crossings ([`crate::surface_cells`]): the points where the
+//! mesher puts its vertices, read from the chunks that changed since the last pass rather than
+//! from the mesh. So the cells do not wait for the mesh: meshing can run within a budget
+//! (refreshes keyframes late) while every pass sees the whole change, and the network still
+//! sees the kind of input it was trained on (mesh vertices summarised per cell: reconstructions
+//! of rendered scans are meshes too, see `semrecon make-scans`).
 //!
 //! Cells live on the map frame's grid, not the gravity-aligned one: the up estimate may change
 //! from pass to pass, the stored labels must not move with it. Each cell is summarised by
-//! integer sums (fixed-point positions, colours, quantised normals, counts), so that a chunk's
-//! old contribution can be subtracted exactly when it changes and the result never depends on
-//! the order of updates.
+//! integer sums (fixed-point positions, colours, quantised normals, counts), so
+//! that a chunk's old contribution can be subtracted exactly when it changes and the result
+//! never depends on the order of updates or on the number of threads.
 //!
 //! Probabilities are summed over passes (the label is the arg-max of the sum): a cell's label
 //! settles as evidence accumulates instead of flickering with each pass, and later passes, made
 //! on more complete geometry, still outvote early ones once they agree with each other.
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::{BTreeSet, HashMap, HashSet};
 use std::sync::OnceLock;
 
 use glam::{IVec3, Vec3};
 use rayon::prelude::*;
 use semrecon_data::class::UNLABELED;
 use semrecon_recon::map::ChunkHashBuilder;
-use semrecon_recon::{ChunkKey, ChunkMesh, IncrementalMesher};
-use wide::{f32x8, i32x8};
+use semrecon_recon::{ChunkKey, TsdfMap, CHUNK_SIDE};
 
 use crate::gravity::SurfaceSample;
 use crate::label_islands::merge_small_islands;
+use crate::surface_cells::{for_each_chunk_point, prefetch_chunk, readers_of, SurfacePoint, SurfaceRule};
 
 /// Number of classes of the labels kept here (the S3DIS set).
 pub const CLASSES: usize = semrecon_data::SemanticClass::COUNT;
@@ -53,12 +54,15 @@ struct CellSum {
 }
 
 impl CellSum {
-    /// Adds one surface point, already in fixed point.
-    fn add_point(&mut self, position: [i64; 3], color: [u8; 3], normal: [i64; 3]) {
-        for k in 0..3 {
-            self.position[k] += position[k];
-            self.color[k] += u64::from(color[k]);
-            self.normal[k] += normal[k];
+    /// Adds one surface point, its position already in fixed point.
+    fn add_point(&mut self, position: [i64; 3], point: &SurfacePoint) {
+        for ((sum, p), (color, c)) in self.position.iter_mut().zip(position).zip(self.color.iter_mut().zip(point.color))
+        {
+            *sum += p;
+            *color += u64::from(c);
+        }
+        for (sum, n) in self.normal.iter_mut().zip(point.normal.to_array()) {
+            *sum += round_i64(n * NORMAL_SCALE);
         }
         self.count += 1;
     }
@@ -87,7 +91,7 @@ impl CellSum {
 pub struct Cell {
     /// The cell.
     pub key: CellKey,
-    /// Mean position of its surface points (mesh vertices), metres, map frame.
+    /// Mean position of its surface points, metres, map frame.
     pub position: Vec3,
     /// Mean colour.
     pub color: [u8; 3],
@@ -97,7 +101,7 @@ pub struct Cell {
     pub points: u64,
 }
 
-/// A chunk's contribution to the cells it overlaps.
+/// A chunk's contribution to the cells it overlaps, in (z, y, x) cell order.
 type ChunkCells = Vec<(CellKey, CellSum)>;
 
 /// Order of cells and tiles: z, then y, then x.
@@ -109,13 +113,18 @@ fn order(k: IVec3) -> (i32, i32, i32) {
 #[derive(Debug, Clone)]
 pub struct SurfaceCells {
     cell_size: f32,
+    /// Which zero crossings are surface.
+    rule: SurfaceRule,
     /// Fixed-point position steps per metre.
     position_scale: f32,
-    /// The mesher generation the cells are up to date with.
-    generation: u64,
-    /// Chunk -> its contribution per cell (chunks whose mesh has vertices only).
+    /// The largest chunk revision the cells are up to date with.
+    revision: u64,
+    /// Every map chunk with a revision above 0 at the last update: the map frees chunks only
+    /// after loop closure, and this tells which without a lookup per tracked chunk.
+    known_chunks: HashSet<ChunkKey, ChunkHashBuilder>,
+    /// Chunk -> its contribution per cell (chunks with surface points only).
     chunks: HashMap<ChunkKey, ChunkCells, ChunkHashBuilder>,
-    /// Hashed: a keyframe adds and subtracts a few parts for each of some 10^4 re-meshed
+    /// Hashed: a keyframe adds and subtracts a few parts for each of some 10^4 changed
     /// chunks, where a B-tree's lookups cost more than all the summing.
     cells: HashMap<CellKey, CellSum, ChunkHashBuilder>,
     /// The keys of `cells` in (z, y, x) order, for every ordered read.
@@ -125,12 +134,14 @@ pub struct SurfaceCells {
 }
 
 impl SurfaceCells {
-    /// Empty; cells of `cell_size` metres over a map of `voxel_size` metres.
-    pub fn new(cell_size: f32, voxel_size: f32) -> Self {
+    /// Empty; cells of `cell_size` metres over a map whose surface `rule` says.
+    pub fn new(cell_size: f32, rule: SurfaceRule) -> Self {
         Self {
             cell_size,
-            position_scale: POSITION_STEPS_PER_VOXEL / voxel_size,
-            generation: 0,
+            rule,
+            position_scale: POSITION_STEPS_PER_VOXEL / rule.voxel_size,
+            revision: 0,
+            known_chunks: HashSet::default(),
             chunks: HashMap::default(),
             cells: HashMap::default(),
             ordered: Vec::new(),
@@ -169,20 +180,50 @@ impl SurfaceCells {
         self.cells.is_empty()
     }
 
-    /// Brings the cells up to date with the chunk meshes `mesher` re-made since the last call
-    /// (and forgets the chunks it dropped); returns the keys of the chunks whose contribution
-    /// changed, sorted (a re-meshed chunk whose sums came out the same is not among them).
-    /// Call it after [`IncrementalMesher::update`].
-    pub fn update(&mut self, mesher: &IncrementalMesher) -> Vec<ChunkKey> {
-        let mut remeshed: Vec<(ChunkKey, &ChunkMesh)> = mesher.remeshed_since(self.generation).collect();
-        self.generation = mesher.generation();
-        remeshed.sort_unstable_by_key(|(k, _)| order(*k));
-        let freed: Vec<ChunkKey> = self.chunks.keys().filter(|k| mesher.chunk_mesh(**k).is_none()).copied().collect();
-        // The per-chunk sums in parallel; only merging them is serial.
-        let all_parts: Vec<ChunkCells> = remeshed.par_iter().map(|(_, mesh)| self.chunk_cells(mesh)).collect();
-        let mut changed = Vec::with_capacity(remeshed.len() + freed.len());
-        for ((key, _), parts) in remeshed.iter().zip(all_parts) {
-            // A chunk re-meshed for its neighbour's sake often keeps its sums exactly.
+    /// Brings the cells up to date with the chunks of `map` that changed since the last call
+    /// (and forgets the chunks it freed); returns the keys of the chunks whose contribution
+    /// changed, sorted (a re-read chunk whose sums came out the same is not among them).
+    pub fn update(&mut self, map: &TsdfMap) -> Vec<ChunkKey> {
+        let mut changed_chunks = Vec::new();
+        let mut revised = 0;
+        let mut revision = self.revision;
+        for c in map.chunks() {
+            revised += usize::from(c.revision() > 0);
+            if c.revision() > self.revision {
+                changed_chunks.push(c.key());
+                revision = revision.max(c.revision());
+            }
+        }
+        self.revision = revision;
+        self.known_chunks.extend(changed_chunks.iter().copied());
+        // Every chunk with a revision is known, so more known than revised means frees.
+        if self.known_chunks.len() > revised {
+            let freed: Vec<ChunkKey> = self.known_chunks.iter().filter(|k| map.chunk(**k).is_none()).copied().collect();
+            for k in &freed {
+                self.known_chunks.remove(k);
+            }
+            changed_chunks.extend(freed);
+        }
+        // A chunk's voxels are read by its own points and its lower face neighbours'.
+        let mut reread: Vec<ChunkKey> = changed_chunks.iter().flat_map(|k| readers_of(*k)).collect();
+        reread.sort_unstable_by_key(|k| order(*k));
+        reread.dedup();
+        // The per-chunk sums in parallel, each worker over runs of neighbouring chunks, asking
+        // for the next chunk's voxels while it reads one; only merging them is serial.
+        let all_parts: Vec<ChunkCells> = reread
+            .par_chunks(64)
+            .flat_map_iter(|keys| {
+                keys.iter().enumerate().map(|(i, key)| {
+                    if let Some(next) = keys.get(i + 1) {
+                        prefetch_chunk(map, *next);
+                    }
+                    self.chunk_cells(map, *key)
+                })
+            })
+            .collect();
+        let mut changed = Vec::with_capacity(reread.len());
+        for (key, parts) in reread.iter().zip(all_parts) {
+            // A chunk re-read for its neighbour's sake often keeps its sums exactly.
             if self.chunks.get(key).map_or(parts.is_empty(), |old| *old == parts) {
                 continue;
             }
@@ -195,95 +236,52 @@ impl SurfaceCells {
             }
             changed.push(*key);
         }
-        for key in &freed {
-            if let Some(old) = self.chunks.remove(key) {
-                self.remove_parts(&old);
-            }
-        }
-        changed.extend(freed);
-        changed.sort_unstable_by_key(|k| order(*k));
         self.ordered = self.cells.keys().copied().collect();
         self.ordered.sort_unstable_by_key(|k| order(*k));
         changed
     }
 
-    /// A chunk mesh's vertices summed per cell, in (z, y, x) cell order.
+    /// The surface points of chunk `key` summed per cell, in (z, y, x) cell order: the cell
+    /// and the fixed-point position of each point as [`SurfaceCells::cell_of_point`] and
+    /// [`round_i64`] give them (the specification, see `reference_cells` in the tests).
     ///
-    /// The per-vertex conversions (cell, fixed-point position and normal) run 8 vertices at a
-    /// time; they were most of the semantic snapshot's time one by one. The integer results,
-    /// and so the sums, are exactly those of [`SurfaceCells::chunk_cells_reference`], which a
-    /// chunk falls back to if it holds a value the 32-bit lanes cannot carry (a vertex
-    /// further than about 40 km from the origin) or its attribute arrays differ in length.
-    fn chunk_cells(&self, mesh: &ChunkMesh) -> ChunkCells {
-        let n = mesh.positions.len();
-        if mesh.colors.len() != n || mesh.normals.len() != n {
-            return self.chunk_cells_reference(mesh);
-        }
-        let cell_size = f32x8::splat(self.cell_size);
-        let position_scale = f32x8::splat(self.position_scale);
-        let normal_scale = f32x8::splat(NORMAL_SCALE);
-        // Up to 8 cells on the stack (a 4 cm chunk meets at most 8 cells of 5 cm): growing a
-        // list per chunk cost as much as the sums.
-        let mut parts = [((0, 0, 0), CellSum::default()); 8];
-        let mut len = 0;
-        let mut last = 0;
-        for ((ps, ns), cs) in mesh.positions.chunks(8).zip(mesh.normals.chunks(8)).zip(mesh.colors.chunks(8)) {
-            let axis = |v: &[Vec3], k: usize| {
-                let mut a = [0.0f32; 8];
-                for (x, p) in a.iter_mut().zip(v) {
-                    *x = p[k];
-                }
-                f32x8::from(a)
-            };
-            let (px, py, pz) = (axis(ps, 0), axis(ps, 1), axis(ps, 2));
-            let (nx, ny, nz) = (axis(ns, 0), axis(ns, 1), axis(ns, 2));
-            let (qx, qy, qz) = (px / cell_size, py / cell_size, pz / cell_size);
-            let (sx, sy, sz) = (px * position_scale, py * position_scale, pz * position_scale);
-            let (mx, my, mz) = (nx * normal_scale, ny * normal_scale, nz * normal_scale);
-            // Every lane must convert exactly: finite and inside i32 (NaN fails the test).
-            let limit = f32x8::splat(LANE_LIMIT);
-            if ![qx, qy, qz, sx, sy, sz, mx, my, mz].iter().all(|v| v.abs().simd_lt(limit).all()) {
-                return self.chunk_cells_reference(mesh);
-            }
-            let (cx, cy, cz) = (floor_lanes(qx), floor_lanes(qy), floor_lanes(qz));
-            let (rx, ry, rz) = (round_lanes(sx), round_lanes(sy), round_lanes(sz));
-            let (ox, oy, oz) = (round_lanes(mx), round_lanes(my), round_lanes(mz));
-            for (j, color) in cs.iter().enumerate() {
-                let c = (cz[j], cy[j], cx[j]);
-                if last >= len || parts[last].0 != c {
-                    last = match parts[..len].iter().position(|(k, _)| *k == c) {
-                        Some(i) => i,
-                        None if len < parts.len() => {
-                            parts[len] = (c, CellSum::default());
-                            len += 1;
-                            len - 1
-                        }
-                        // More cells than a chunk of the usual size meets (cells smaller than
-                        // chunks): the reference handles any number.
-                        None => return self.chunk_cells_reference(mesh),
-                    };
-                }
-                parts[last].1.add_point(
-                    [rx[j], ry[j], rz[j]].map(i64::from),
-                    *color,
-                    [ox[j], oy[j], oz[j]].map(i64::from),
-                );
-            }
-        }
-        let parts = &mut parts[..len];
-        parts.sort_unstable_by_key(|(k, _)| *k);
-        parts.iter().map(|&((z, y, x), s)| (IVec3::new(x, y, z), s)).collect()
-    }
-
-    /// [`SurfaceCells::chunk_cells`] one vertex at a time: the specification.
-    fn chunk_cells_reference(&self, mesh: &ChunkMesh) -> ChunkCells {
+    /// Off its edge's axis a point sits exactly on its lower voxel's coordinate, so those
+    /// coordinates' cells and fixed-point values are looked up from tables made once per
+    /// chunk; only the coordinate along the edge is converted per point.
+    fn chunk_cells(&self, map: &TsdfMap, key: ChunkKey) -> ChunkCells {
+        let side = CHUNK_SIDE as i32;
+        let first_voxel = key * side;
+        // Per axis and local voxel coordinate: the cell and the fixed-point coordinate.
+        let mut tables: Option<[[(i32, i64); CHUNK_SIDE]; 3]> = None;
         // A chunk overlaps a handful of cells (at most 8 when cells are larger than chunks),
-        // so a short list searched linearly beats any map; consecutive vertices mostly fall
-        // in the same cell, hence the last-hit shortcut.
+        // so a short list searched linearly beats any map; consecutive points mostly fall in
+        // the same cell, hence the last-hit shortcut.
         let mut parts: Vec<((i32, i32, i32), CellSum)> = Vec::new();
         let mut last = usize::MAX;
-        for (i, p) in mesh.positions.iter().enumerate() {
-            let c = order(self.cell_of_point(*p));
+        for_each_chunk_point(map, key, &self.rule, |point| {
+            let tables = tables.get_or_insert_with(|| {
+                std::array::from_fn(|k| {
+                    std::array::from_fn(|i| {
+                        let x = (first_voxel[k] + i as i32) as f32 * self.rule.voxel_size;
+                        (floor_i32(x / self.cell_size), round_i64(x * self.position_scale))
+                    })
+                })
+            });
+            let local = point.low - first_voxel;
+            let axis = point.axis as usize;
+            let mut cell = [0; 3];
+            let mut position = [0; 3];
+            for k in 0..3 {
+                let (c, p) = if k == axis {
+                    let x = point.position[k];
+                    (floor_i32(x / self.cell_size), round_i64(x * self.position_scale))
+                } else {
+                    tables[k][(local[k] as usize) & (CHUNK_SIDE - 1)]
+                };
+                cell[k] = c;
+                position[k] = p;
+            }
+            let c = (cell[2], cell[1], cell[0]);
             if last >= parts.len() || parts[last].0 != c {
                 last = match parts.iter().position(|(k, _)| *k == c) {
                     Some(i) => i,
@@ -293,14 +291,8 @@ impl SurfaceCells {
                     }
                 };
             }
-            let color = mesh.colors.get(i).copied().unwrap_or_default();
-            let normal = mesh.normals.get(i).copied().unwrap_or_default();
-            parts[last].1.add_point(
-                [0, 1, 2].map(|k| round_i64(p[k] * self.position_scale)),
-                color,
-                [0, 1, 2].map(|k| round_i64(normal[k] * NORMAL_SCALE)),
-            );
-        }
+            parts[last].1.add_point(position, &point);
+        });
         parts.sort_unstable_by_key(|(k, _)| *k);
         parts.into_iter().map(|((z, y, x), s)| (IVec3::new(x, y, z), s)).collect()
     }
@@ -513,28 +505,10 @@ impl LabelStore {
 }
 
 /// `x.floor() as i32` without the library call `floor` is on x86-64 before SSE4.1 (this runs
-/// per mesh vertex at every keyframe); NaN gives 0 and out-of-range values saturate.
+/// per surface point at every keyframe); NaN gives 0 and out-of-range values saturate.
 fn floor_i32(x: f32) -> i32 {
     let t = x as i32;
     t.saturating_sub(((t as f32) > x) as i32)
-}
-
-/// Magnitude below which 8-lane conversions to `i32` are exact (the largest float below 2^31).
-const LANE_LIMIT: f32 = 2_147_483_520.0;
-
-/// [`floor_i32`] of 8 lanes, each finite and below [`LANE_LIMIT`] in magnitude.
-fn floor_lanes(x: f32x8) -> [i32; 8] {
-    let t = x.trunc_int();
-    // `t - (t > x)`: the mask is all ones (-1) where truncation rounded up.
-    let up: i32x8 = wide::bytemuck::cast(t.round_float().simd_gt(x));
-    (t + up).to_array()
-}
-
-/// [`round_i64`] of 8 lanes, each finite and below [`LANE_LIMIT`] in magnitude: the same
-/// addition of a half with the value's sign, then truncation.
-fn round_lanes(x: f32x8) -> [i32; 8] {
-    let half = f32x8::splat(0.5) | (x & f32x8::splat(-0.0));
-    (x + half).trunc_int().to_array()
 }
 
 /// `x.round() as i64` (half away from zero) without the library call, for the fixed-point sums
@@ -558,84 +532,80 @@ fn argmax(p: &[f32]) -> usize {
 mod tests {
     use super::*;
 
-    /// Cells kept up to date from the re-meshed chunks at every keyframe equal the cells of
-    /// the final mesh summed in one go, and account for every chunk-mesh vertex.
-    #[test]
-    fn incremental_cells_equal_the_cells_of_the_final_mesh() {
+    /// Fuses `frames` frames of a synthetic scan at 2 cm, calling `keyframe` after every third.
+    fn fuse_scan(seed: u64, frames: usize, mut keyframe: impl FnMut(&mut TsdfMap)) -> TsdfMap {
         use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
         use semrecon_data::FrameSource;
-        use semrecon_recon::{TsdfConfig, TsdfMap};
+        use semrecon_recon::TsdfConfig;
 
-        let mut config = SyntheticScanConfig::new(3);
-        config.frames = 12;
+        let mut config = SyntheticScanConfig::new(seed);
+        config.frames = frames;
         config.intrinsics = config.intrinsics.scaled(160, 120);
         let (_room, scan) = synthetic_scan(&config).expect("scan");
         let tsdf = TsdfConfig { voxel_size: 0.02, truncation_voxels: 4.0, ..TsdfConfig::default() };
         let mut map = TsdfMap::new(tsdf).expect("map");
-        let mut mesher = IncrementalMesher::new();
-        let mut cells = SurfaceCells::new(0.05, 0.02);
-        let mut reported = 0;
         for i in 0..scan.len() {
             let frame = scan.frame(i).expect("frame");
             map.integrate(&frame, frame.world_from_camera.expect("pose")).expect("fusion");
             if i % 3 == 2 {
-                mesher.update(&map);
-                reported += cells.update(&mesher).len();
-                // A second call with nothing re-meshed changes nothing.
-                assert!(cells.update(&mesher).is_empty());
+                keyframe(&mut map);
             }
         }
+        map
+    }
+
+    fn rule(map: &TsdfMap) -> SurfaceRule {
+        SurfaceRule::new(map.config(), &semrecon_recon::MeshConfig::RECOMMENDED)
+    }
+
+    /// The cells of a whole map, summed from the reference points of every chunk.
+    fn reference_cells(map: &TsdfMap) -> Vec<Cell> {
+        let mut cells = SurfaceCells::new(0.05, rule(map));
+        for key in map.sorted_keys() {
+            for p in crate::surface_cells::chunk_points_reference(map, key, &cells.rule) {
+                let position = [0, 1, 2].map(|k| round_i64(p.position[k] * cells.position_scale));
+                cells.cells.entry(cells.cell_of_point(p.position)).or_default().add_point(position, &p);
+            }
+        }
+        cells.ordered = cells.cells.keys().copied().collect();
+        cells.ordered.sort_unstable_by_key(|k| order(*k));
+        cells.cells()
+    }
+
+    /// Cells kept up to date from the chunks that changed between keyframes equal the cells
+    /// of the final map summed in one go from the reference points, also after chunks were
+    /// reset and freed (loop closure's re-integration) between two updates.
+    #[test]
+    fn incremental_cells_equal_the_cells_of_the_final_map() {
+        let mut cells = None;
+        let mut reported = 0;
+        let mut keyframes = 0;
+        let map = fuse_scan(3, 15, |map| {
+            let cells = cells.get_or_insert_with(|| SurfaceCells::new(0.05, rule(map)));
+            keyframes += 1;
+            if keyframes == 3 {
+                // Clear a slab of chunks, free those left unobserved, and fuse on.
+                let keys: Vec<ChunkKey> = map.sorted_keys().into_iter().filter(|k| k.x % 3 == 0).collect();
+                map.reset_chunks(&keys);
+                assert!(map.free_unobserved(&keys) > 0);
+            }
+            reported += cells.update(map).len();
+            // A second call with nothing changed changes nothing.
+            assert!(cells.update(map).is_empty());
+        });
+        let mut cells = cells.expect("keyframes ran");
+        cells.update(&map);
         assert!(reported > 0);
-        let mut full_mesher = IncrementalMesher::new();
-        full_mesher.update(&map);
-        let mut full = SurfaceCells::new(0.05, 0.02);
-        full.update(&full_mesher);
-        assert!(full.len() > 50, "{} cells", full.len());
-        assert_eq!(cells.cells(), full.cells());
-        let vertices: usize = mesher.remeshed_since(0).map(|(_, m)| m.positions.len()).sum();
-        assert_eq!(cells.cells().iter().map(|c| c.points as usize).sum::<usize>(), vertices);
+        let expected = reference_cells(&map);
+        assert!(expected.len() > 50, "{} cells", expected.len());
+        assert_eq!(cells.cells(), expected);
         let ordered = cells.cells();
         assert!(ordered.windows(2).all(|w| order(w[0].key) < order(w[1].key)), "(z, y, x) order");
-    }
-
-    /// A chunk mesh of `n` random vertices in a 4 cm box at `origin`, some on exact cell
-    /// boundaries and fixed-point half steps.
-    fn random_chunk_mesh(rng: &mut rand_chacha::ChaCha8Rng, origin: Vec3, n: usize) -> ChunkMesh {
-        use rand::Rng;
-        let mut mesh = ChunkMesh::default();
-        for i in 0..n {
-            let mut p = origin + Vec3::new(rng.random(), rng.random(), rng.random()) * 0.04;
-            match i % 7 {
-                0 => p.x = (p.x / 0.05).round() * 0.05,
-                1 => p.y = ((p.y * 51200.0).floor() + 0.5) / 51200.0,
-                _ => {}
-            }
-            mesh.positions.push(p);
-            let n = Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
-            mesh.normals.push(if i % 11 == 0 { Vec3::ZERO } else { n.normalize_or_zero() });
-            mesh.colors.push([rng.random(), rng.random(), rng.random()]);
-        }
-        mesh
-    }
-
-    #[test]
-    fn eight_lane_chunk_sums_equal_the_reference() {
-        use rand::{Rng, SeedableRng};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-        let cells = SurfaceCells::new(0.05, 0.005);
-        for case in 0..300 {
-            let origin =
-                Vec3::new(rng.random_range(-20.0..20.0), rng.random_range(-20.0..20.0), rng.random_range(-3.0..3.0));
-            let n = [0, 1, 7, 8, 9, 40, 123][case % 7];
-            let mesh = random_chunk_mesh(&mut rng, origin, n);
-            assert_eq!(cells.chunk_cells(&mesh), cells.chunk_cells_reference(&mesh), "case {case}");
-        }
-        // Vertices whose fixed-point values do not fit 32-bit lanes, and ragged attributes,
-        // take the reference path and still agree.
-        let mut far = random_chunk_mesh(&mut rng, Vec3::new(5.0e4, 0.0, 0.0), 20);
-        assert_eq!(cells.chunk_cells(&far), cells.chunk_cells_reference(&far));
-        far.colors.pop();
-        assert_eq!(cells.chunk_cells(&far), cells.chunk_cells_reference(&far));
+        // Cells of planes have their normals: most of the surface of a room is walls, floor
+        // and furniture faces, whose cells point along an axis of the room's own frame or
+        // another, but never nowhere.
+        assert!(ordered.iter().all(|c| c.points > 0));
+        assert!(ordered.iter().filter(|c| c.normal != Vec3::ZERO).count() * 10 > ordered.len() * 9);
     }
 
     #[test]

@@ -81,6 +81,37 @@ fn results_do_not_depend_on_timing() {
     assert!(a.semantic_passes().len() >= 4);
 }
 
+/// Labels read the map, not the mesh: a mesh budget changes no label (only how late the live
+/// mesh follows), and neither does the thread count (1, 2 or 4), bit for bit.
+#[test]
+fn labels_do_not_depend_on_the_mesh_budget_or_the_thread_count() {
+    let (frames, _) = scan_in_first_camera_frame(7, 20);
+    let budgeted = |budget: usize| PipelineConfig {
+        mesh_budget: std::num::NonZeroUsize::new(budget),
+        ..config(SemanticMode::default())
+    };
+    let runs: Vec<_> = [(1, 8), (2, 8), (4, 8), (2, 0)]
+        .iter()
+        .map(|&(threads, budget)| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+            pool.install(|| run(&frames, budgeted(budget), Some(tiny_net(4))))
+        })
+        .collect();
+    let (first, mesh) = &runs[0];
+    assert!(first.semantic_passes().len() >= 4);
+    assert!(first.mesh_lag().is_some_and(|(_, max)| max > 0), "the budget left chunks waiting");
+    for (p, m) in &runs[1..] {
+        assert_eq!(m, mesh, "the final labelled mesh");
+        assert_eq!(p.cell_labels(), first.cell_labels());
+        assert_eq!(p.semantic_passes().len(), first.semantic_passes().len());
+        let cells =
+            |p: &Pipeline| p.semantic_passes().iter().map(|s| (s.input_cells, s.updated_cells)).collect::<Vec<_>>();
+        assert_eq!(cells(p), cells(first));
+    }
+    let labelled = mesh.vertex_labels.iter().filter(|&&l| l != UNLABELED).count();
+    assert!(labelled * 100 >= mesh.vertex_count() * 99, "{labelled} of {} vertices labelled", mesh.vertex_count());
+}
+
 #[test]
 fn incremental_labels_agree_with_full_passes() {
     let (frames, _) = scan_in_first_camera_frame(5, 40);

@@ -280,8 +280,8 @@ impl Pipeline {
                 return Err(value_error("poses", format!("expected \"track\" or \"ground_truth\", got {other:?}")))
             }
         };
-        // As `semrecon run`: no mesh budget with semantics (the network reads the mesh).
-        let default_budget = if mode.is_none() { DEFAULT_MESH_BUDGET } else { 0 };
+        // As `semrecon run`: the same budget with semantics (the network reads the map).
+        let default_budget = DEFAULT_MESH_BUDGET;
         let mesh = MeshConfig {
             min_weight: min_mesh_weight.unwrap_or(MeshConfig::RECOMMENDED.min_weight),
             min_component_triangles: min_mesh_piece.unwrap_or(MeshConfig::RECOMMENDED.min_component_triangles),

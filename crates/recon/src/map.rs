@@ -32,7 +32,7 @@ pub type ChunkKey = IVec3;
 /// Fixed-point scale of [`Voxel`] weights: a stored weight of 256 is a weight of 1.
 pub const WEIGHT_SCALE: f32 = 256.0;
 /// Scale of the quantised truncated signed distance: `i16::MAX` is +1 truncation.
-pub(crate) const TSDF_SCALE: f32 = i16::MAX as f32;
+pub const TSDF_SCALE: f32 = i16::MAX as f32;
 
 /// Parameters of the map and of fusion.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -491,6 +491,35 @@ impl Chunk {
     /// The 512 voxels in local index order (`x + 8 y + 64 z`).
     pub fn voxels(&self) -> impl ExactSizeIterator<Item = Voxel> + '_ {
         (0..CHUNK_VOXELS).map(|i| self.voxels.get(i))
+    }
+
+    /// The stored distances of the 512 voxels in local index order, in units of the
+    /// truncation distance times [`TSDF_SCALE`] (the quantised form of [`Voxel::tsdf`]): for
+    /// readers that scan whole chunks (the semantic map's surface cells), where a [`Voxel`]
+    /// per voxel costs three gathers.
+    pub fn stored_tsdf(&self) -> &[i16; CHUNK_VOXELS] {
+        &self.voxels.tsdf
+    }
+
+    /// The stored weights of the 512 voxels in local index order, times [`WEIGHT_SCALE`]
+    /// (0: never observed; see [`Chunk::stored_tsdf`]).
+    pub fn stored_weights(&self) -> &[u16; CHUNK_VOXELS] {
+        &self.voxels.weight
+    }
+
+    /// The stored colours of the 512 voxels in local index order, `[r, g, b, colour
+    /// observation count]` (see [`Chunk::stored_tsdf`]).
+    pub fn stored_colors(&self) -> &[[u8; 4]; CHUNK_VOXELS] {
+        &self.voxels.color
+    }
+
+    /// Which signs the observed voxels (weight not 0) have, in the whole chunk and on its
+    /// three lower faces: bit 0 a negative distance anywhere, bit 1 a non-negative one; bits
+    /// 2/3 the same on the face x = 0, 4/5 on y = 0, 6/7 on z = 0. A reader of zero
+    /// crossings skips a chunk whose own bits and whose upper neighbours' lower-face bits do
+    /// not add up to both signs.
+    pub fn sign_bits(&self) -> u8 {
+        self.signs
     }
 
     /// Whether fusion changed the chunk since the last [`TsdfMap::take_dirty`].

@@ -56,6 +56,15 @@ use triangles::*;
 /// limit of the fixed band.
 const MAX_EDGE_JUMP_BANDS: f32 = 1.5;
 
+/// The largest TSDF difference across a cell edge, in truncation units, that meshing takes
+/// for a surface crossing in a map of `config`: 1.5 narrowest bands, at most one truncation
+/// (beyond it the edge is a seam between free space and the back of a surface). For other
+/// readers of zero crossings (the semantic map's surface cells) to see the surface the mesh
+/// shows.
+pub fn max_edge_jump(config: &crate::TsdfConfig) -> f32 {
+    (MAX_EDGE_JUMP_BANDS * config.narrowest_band_voxels() / config.truncation_voxels).min(1.0)
+}
+
 /// Side of the padded block: the chunk plus one voxel on every side.
 const PAD: usize = CHUNK_SIDE + 3;
 const PAD2: usize = PAD * PAD;
@@ -800,9 +809,10 @@ impl MeshConfig {
         Ok(())
     }
 
-    /// The threshold in stored weight units: at least 1, so that 0 means "observed at all".
-    /// A stored weight `w` passes exactly when `w / WEIGHT_SCALE >= min_weight`.
-    fn stored_min_weight(&self) -> u16 {
+    /// The threshold in stored weight units ([`crate::Chunk::stored_weights`]): at least 1,
+    /// so that 0 means "observed at all". A stored weight `w` passes exactly when
+    /// `w / WEIGHT_SCALE >= min_weight`.
+    pub fn stored_min_weight(&self) -> u16 {
         (self.min_weight * WEIGHT_SCALE).ceil().clamp(1.0, u16::MAX as f32) as u16
     }
 }
@@ -879,7 +889,7 @@ fn build(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scratch) -
     let mut mesh = std::mem::take(&mut scratch.mesh);
     mesh.clear();
     let config = map.config();
-    let max_jump = (MAX_EDGE_JUMP_BANDS * config.narrowest_band_voxels() / config.truncation_voxels).min(1.0);
+    let max_jump = max_edge_jump(config);
     let key_voxel = key * CHUNK_SIDE as i32;
     triangles(
         &scratch.block,

@@ -190,8 +190,8 @@ class Pipeline:
         truncation: TSDF truncation, voxels.
         max_depth: farthest depth fused, metres (default 5, as the CLI).
         poses: "track" (ICP tracking) or "ground_truth" (the ``pose`` given with each frame).
-        mesh_budget: most chunks re-meshed per keyframe; default none with semantics, 3072
-            without; 0 = none.
+        mesh_budget: most chunks re-meshed per keyframe (default 3072; labels read the map,
+            not the mesh, so it costs none); 0 = none.
         realtime: never wait for the semantic back end (results depend on timing).
         up: the map's up direction when known (three numbers); estimated otherwise.
         context: incremental semantics' context, metres.
