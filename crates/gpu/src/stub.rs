@@ -1,0 +1,103 @@
+//! The engine's types in a build without the `gpu` feature: they cannot be constructed
+//! ([`GpuEngine::new`] says how to build with the feature), so code written against them
+//! compiles in every build and needs no conditional compilation of its own.
+
+use std::sync::Arc;
+
+use semrecon_sparse::{BnRelu, ConvAlgorithm, ConvBackend, Coord};
+
+use crate::error::{GpuError, Result};
+
+/// No device: this build has no GPU engine.
+#[derive(Debug)]
+pub enum GpuContext {}
+
+impl GpuContext {
+    /// Always [`GpuError::NotBuilt`].
+    ///
+    /// # Errors
+    /// Always.
+    pub fn new() -> Result<Self> {
+        Err(GpuError::NotBuilt)
+    }
+
+    /// Never called (no value exists).
+    pub fn adapter_name(&self) -> String {
+        match *self {}
+    }
+
+    /// Never called (no value exists).
+    pub fn is_software(&self) -> bool {
+        match *self {}
+    }
+}
+
+/// No layers: this build has no GPU engine.
+#[derive(Debug)]
+pub enum GpuLayer {}
+
+/// The GPU engine of a build without the `gpu` feature: cannot be constructed.
+#[derive(Debug, Clone)]
+pub enum GpuEngine {}
+
+impl GpuEngine {
+    /// Always [`GpuError::NotBuilt`].
+    ///
+    /// # Errors
+    /// Always.
+    pub fn new(_algorithm: ConvAlgorithm) -> Result<Self> {
+        Err(GpuError::NotBuilt)
+    }
+
+    /// Never called (no value exists).
+    pub fn context(&self) -> &Arc<GpuContext> {
+        match *self {}
+    }
+}
+
+impl ConvBackend for GpuEngine {
+    type Layer = GpuLayer;
+    type Error = GpuError;
+
+    fn name(&self) -> String {
+        match *self {}
+    }
+
+    fn submanifold(&self, _: &[Coord], _: usize) -> Result<GpuLayer> {
+        match *self {}
+    }
+
+    fn downsample(&self, _: &[Coord]) -> Result<(Vec<Coord>, GpuLayer)> {
+        match *self {}
+    }
+
+    fn upsample(&self, _: &[Coord], _: &[Coord]) -> Result<GpuLayer> {
+        match *self {}
+    }
+
+    fn layer_rows(&self, _: &GpuLayer) -> (usize, usize) {
+        match *self {}
+    }
+
+    fn forward_into(
+        &self,
+        _: &GpuLayer,
+        _: &[f32],
+        _: usize,
+        _: Option<BnRelu<'_>>,
+        _: &[f32],
+        _: usize,
+        _: &mut [f32],
+        _: bool,
+    ) -> Result<()> {
+        match *self {}
+    }
+
+    fn backward_input(&self, _: &GpuLayer, _: &[f32], _: usize, _: &[f32], _: usize) -> Result<Vec<f32>> {
+        match *self {}
+    }
+
+    fn backward_weight(&self, _: &GpuLayer, _: &[f32], _: usize, _: &[f32], _: usize) -> Result<Vec<f32>> {
+        match *self {}
+    }
+}
