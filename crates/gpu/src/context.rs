@@ -9,8 +9,6 @@
 
 use std::sync::{mpsc, Arc, Mutex};
 
-use wgpu::util::DeviceExt;
-
 use crate::error::{GpuError, Result};
 
 /// Threads per workgroup of the one-dimensional kernels (and of the chunked kernel).
@@ -40,6 +38,8 @@ pub struct GpuContext {
     pub(crate) pipelines: Pipelines,
     info: wgpu::AdapterInfo,
     limits: wgpu::Limits,
+    /// A cap below the device's buffer limit ([`Self::set_buffer_limit`]).
+    buffer_cap: Option<u64>,
     errors: Arc<Mutex<Vec<String>>>,
     lost: Arc<Mutex<Option<String>>>,
 }
@@ -114,7 +114,7 @@ impl GpuContext {
             });
         }
         let pipelines = Pipelines::new(&device);
-        let context = Self { device, queue, pipelines, info, limits, errors, lost };
+        let context = Self { device, queue, pipelines, info, limits, buffer_cap: None, errors, lost };
         context.check()?;
         Ok(context)
     }
@@ -135,11 +135,20 @@ impl GpuContext {
         self.info.device_type == wgpu::DeviceType::Cpu
     }
 
+    /// [`GpuError::DeviceLost`] once the device is gone.
+    pub(crate) fn check_lost(&self) -> Result<()> {
+        match self.lost.lock() {
+            Ok(l) => match &*l {
+                Some(reason) => Err(GpuError::DeviceLost(reason.clone())),
+                None => Ok(()),
+            },
+            Err(_) => Err(GpuError::DeviceLost("device state poisoned".into())),
+        }
+    }
+
     /// The errors recorded since the last check, as one error (device loss first).
     pub(crate) fn check(&self) -> Result<()> {
-        if let Some(reason) = self.lost.lock().ok().and_then(|l| l.clone()) {
-            return Err(GpuError::DeviceLost(reason));
-        }
+        self.check_lost()?;
         let mut errors = self.errors.lock().map_err(|_| GpuError::Device("error log poisoned".into()))?;
         if errors.is_empty() {
             return Ok(());
@@ -150,12 +159,25 @@ impl GpuContext {
     }
 
     /// Bytes a storage buffer may hold on this device.
-    fn max_binding(&self) -> u64 {
-        self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size)
+    pub fn max_buffer_bytes(&self) -> u64 {
+        let device = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
+        self.buffer_cap.map_or(device, |c| c.min(device))
+    }
+
+    /// Treats buffers over `bytes` as over the device's limit (to leave memory to others, and
+    /// to test the limit without filling a real device).
+    pub fn set_buffer_limit(&mut self, bytes: u64) {
+        self.buffer_cap = Some(bytes);
+    }
+
+    /// Destroys the device: every later call fails with [`GpuError::DeviceLost`] (what a
+    /// driver reset or a removed GPU looks like to the engine).
+    pub fn destroy(&self) {
+        self.device.destroy();
     }
 
     fn check_size(&self, what: &'static str, bytes: u64) -> Result<()> {
-        let limit = self.max_binding();
+        let limit = self.max_buffer_bytes();
         if bytes > limit {
             return Err(GpuError::TooLarge { what, bytes, limit });
         }
@@ -163,22 +185,21 @@ impl GpuContext {
     }
 
     /// A storage buffer holding `data` (at least one word: empty bindings are invalid).
+    ///
+    /// Written through the queue, not mapped at creation: wgpu's mapped-at-creation path
+    /// panics on a lost device, the queue write reports an error.
     pub(crate) fn upload<T: bytemuck::Pod>(&self, what: &'static str, data: &[T]) -> Result<wgpu::Buffer> {
         let bytes: &[u8] = bytemuck::cast_slice(data);
-        self.check_size(what, bytes.len() as u64)?;
-        let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
-        if bytes.is_empty() {
-            return self.zeroed(what, 4);
+        let buffer = self.zeroed(what, bytes.len() as u64)?;
+        if !bytes.is_empty() {
+            self.queue.write_buffer(&buffer, 0, bytes);
         }
-        Ok(self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(what),
-            contents: bytes,
-            usage,
-        }))
+        Ok(buffer)
     }
 
     /// A zero-filled storage buffer of `bytes` (at least 4).
     pub(crate) fn zeroed(&self, what: &'static str, bytes: u64) -> Result<wgpu::Buffer> {
+        self.check_lost()?;
         self.check_size(what, bytes)?;
         let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
         // New buffers are zero-initialised by wgpu.
@@ -194,11 +215,14 @@ impl GpuContext {
     pub(crate) fn params(&self, words: &[u32]) -> wgpu::Buffer {
         let mut w = words.to_vec();
         w.resize(words.len().next_multiple_of(4).max(4), 0);
-        self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("params"),
-            contents: bytemuck::cast_slice(&w),
-            usage: wgpu::BufferUsages::UNIFORM,
-        })
+            size: w.len() as u64 * 4,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        self.queue.write_buffer(&buffer, 0, bytemuck::cast_slice(&w));
+        buffer
     }
 
     /// Records one dispatch of `pipeline` with `bindings` (binding number, buffer) over a

@@ -30,6 +30,21 @@ impl GpuContext {
     pub fn is_software(&self) -> bool {
         match *self {}
     }
+
+    /// Never called (no value exists).
+    pub fn max_buffer_bytes(&self) -> u64 {
+        match *self {}
+    }
+
+    /// Never called (no value exists).
+    pub fn set_buffer_limit(&mut self, _bytes: u64) {
+        match *self {}
+    }
+
+    /// Never called (no value exists).
+    pub fn destroy(&self) {
+        match *self {}
+    }
 }
 
 /// No layers: this build has no GPU engine.
@@ -47,6 +62,11 @@ impl GpuEngine {
     /// Always.
     pub fn new(_algorithm: ConvAlgorithm) -> Result<Self> {
         Err(GpuError::NotBuilt)
+    }
+
+    /// Never called (no value exists).
+    pub fn with_context(ctx: Arc<GpuContext>, _algorithm: ConvAlgorithm) -> Self {
+        match *ctx {}
     }
 
     /// Never called (no value exists).
