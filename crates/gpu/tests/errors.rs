@@ -1,6 +1,8 @@
 //! Bad conditions are errors, never panics or wrong results: a buffer over the device's
 //! limit, a lost device. (No adapter at all: tests/no_adapter.rs, its own process.)
 
+#![cfg(feature = "gpu")]
+
 use std::sync::Arc;
 
 use semrecon_gpu::{GpuContext, GpuEngine, GpuError};
