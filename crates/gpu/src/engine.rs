@@ -11,7 +11,7 @@
 use std::sync::Arc;
 
 use semrecon_sparse::backend::check_forward;
-use semrecon_sparse::{BnRelu, ChunkConfig, ConvAlgorithm, ConvBackend, Coord, MapKind};
+use semrecon_sparse::{BnRelu, ChunkConfig, ChunkedConv, ConvAlgorithm, ConvBackend, Coord, MapKind};
 
 use crate::context::{GpuContext, WORKGROUP};
 use crate::error::{GpuError, Result};
@@ -63,6 +63,20 @@ impl GpuEngine {
     /// The device.
     pub fn context(&self) -> &Arc<GpuContext> {
         &self.ctx
+    }
+
+    /// The same device running `algorithm`.
+    pub fn with_algorithm(&self, algorithm: ConvAlgorithm) -> Self {
+        Self { algorithm, ..self.clone() }
+    }
+
+    /// A layer of a CPU geometry (kernel map and chunk plans built on the host, as the
+    /// network's geometry builds them) uploaded for this engine.
+    ///
+    /// # Errors
+    /// Buffers over the device's limits, a lost device.
+    pub fn import(&self, layer: &ChunkedConv) -> Result<GpuLayer> {
+        GpuLayer::from_cpu(&self.ctx, layer)
     }
 
     /// The chunked kernel over `plan` into `y` (`[rows, c_out]`, with `accumulate` its

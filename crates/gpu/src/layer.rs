@@ -104,7 +104,7 @@ impl GpuLayer {
         let backward = layer.backward_plan().map(|p| DevicePlan::upload(ctx, p)).transpose()?;
         let (pairs, starts) = upload_pairs(ctx, &table, plan.kernel_volume())?;
         Ok(Self {
-            kind: layer.map().kind(),
+            kind: layer.kind(),
             kv: plan.kernel_volume(),
             n_in: layer.n_in(),
             n_out: layer.n_out(),

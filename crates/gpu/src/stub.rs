@@ -2,15 +2,18 @@
 //! ([`GpuEngine::new`] says how to build with the feature), so code written against them
 //! compiles in every build and needs no conditional compilation of its own.
 
+use std::convert::Infallible;
 use std::sync::Arc;
 
-use semrecon_sparse::{BnRelu, ConvAlgorithm, ConvBackend, Coord};
+use semrecon_sparse::{BnRelu, ChunkedConv, ConvAlgorithm, ConvBackend, Coord};
 
 use crate::error::{GpuError, Result};
 
 /// No device: this build has no GPU engine.
 #[derive(Debug)]
-pub enum GpuContext {}
+pub struct GpuContext {
+    never: Infallible,
+}
 
 impl GpuContext {
     /// Always [`GpuError::NotBuilt`].
@@ -23,37 +26,41 @@ impl GpuContext {
 
     /// Never called (no value exists).
     pub fn adapter_name(&self) -> String {
-        match *self {}
+        match self.never {}
     }
 
     /// Never called (no value exists).
     pub fn is_software(&self) -> bool {
-        match *self {}
+        match self.never {}
     }
 
     /// Never called (no value exists).
     pub fn max_buffer_bytes(&self) -> u64 {
-        match *self {}
+        match self.never {}
     }
 
     /// Never called (no value exists).
     pub fn set_buffer_limit(&mut self, _bytes: u64) {
-        match *self {}
+        match self.never {}
     }
 
     /// Never called (no value exists).
     pub fn destroy(&self) {
-        match *self {}
+        match self.never {}
     }
 }
 
 /// No layers: this build has no GPU engine.
 #[derive(Debug)]
-pub enum GpuLayer {}
+pub struct GpuLayer {
+    never: Infallible,
+}
 
 /// The GPU engine of a build without the `gpu` feature: cannot be constructed.
 #[derive(Debug, Clone)]
-pub enum GpuEngine {}
+pub struct GpuEngine {
+    never: Arc<Infallible>,
+}
 
 impl GpuEngine {
     /// Always [`GpuError::NotBuilt`].
@@ -66,12 +73,22 @@ impl GpuEngine {
 
     /// Never called (no value exists).
     pub fn with_context(ctx: Arc<GpuContext>, _algorithm: ConvAlgorithm) -> Self {
-        match *ctx {}
+        match ctx.never {}
     }
 
     /// Never called (no value exists).
     pub fn context(&self) -> &Arc<GpuContext> {
-        match *self {}
+        match *self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn with_algorithm(&self, _algorithm: ConvAlgorithm) -> Self {
+        match *self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn import(&self, _layer: &ChunkedConv) -> Result<GpuLayer> {
+        match *self.never {}
     }
 }
 
@@ -80,23 +97,23 @@ impl ConvBackend for GpuEngine {
     type Error = GpuError;
 
     fn name(&self) -> String {
-        match *self {}
+        match *self.never {}
     }
 
     fn submanifold(&self, _: &[Coord], _: usize) -> Result<GpuLayer> {
-        match *self {}
+        match *self.never {}
     }
 
     fn downsample(&self, _: &[Coord]) -> Result<(Vec<Coord>, GpuLayer)> {
-        match *self {}
+        match *self.never {}
     }
 
     fn upsample(&self, _: &[Coord], _: &[Coord]) -> Result<GpuLayer> {
-        match *self {}
+        match *self.never {}
     }
 
-    fn layer_rows(&self, _: &GpuLayer) -> (usize, usize) {
-        match *self {}
+    fn layer_rows(&self, layer: &GpuLayer) -> (usize, usize) {
+        match layer.never {}
     }
 
     fn forward_into(
@@ -110,14 +127,14 @@ impl ConvBackend for GpuEngine {
         _: &mut [f32],
         _: bool,
     ) -> Result<()> {
-        match *self {}
+        match *self.never {}
     }
 
     fn backward_input(&self, _: &GpuLayer, _: &[f32], _: usize, _: &[f32], _: usize) -> Result<Vec<f32>> {
-        match *self {}
+        match *self.never {}
     }
 
     fn backward_weight(&self, _: &GpuLayer, _: &[f32], _: usize, _: &[f32], _: usize) -> Result<Vec<f32>> {
-        match *self {}
+        match *self.never {}
     }
 }

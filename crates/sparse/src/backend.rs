@@ -252,28 +252,33 @@ impl ConvBackend for CpuEngine {
             (ConvAlgorithm::Chunked, None) if !accumulate => layer.forward_into(x, c_in, w, c_out, y),
             (ConvAlgorithm::Chunked, None) => {
                 // A residual sum without a batch norm (no fused form: the fused read applies
-                // a ReLU): a plain forward, then the sum.
-                let t = layer.forward(x, c_in, w, c_out)?;
-                y.iter_mut().zip(&t).for_each(|(a, b)| *a += b);
-                Ok(())
+                // a ReLU): a plain forward into scratch, then the sum.
+                with_scratch(y.len(), |t| {
+                    layer.forward_into(x, c_in, w, c_out, t)?;
+                    y.iter_mut().zip(t.iter()).for_each(|(a, b)| *a += b);
+                    Ok(())
+                })
             }
             (ConvAlgorithm::Rulebook, _) => {
                 // The standard algorithm: the batch norm is a separate pass before the gather.
-                let normalised;
-                let src = match bn {
-                    Some(bn) => {
-                        normalised = apply_bn_relu(x, bn);
-                        &normalised[..]
+                with_buffer(&NORMALISED, |normalised| {
+                    let src = match bn {
+                        Some(bn) => {
+                            apply_bn_relu_into(x, bn, normalised);
+                            &normalised[..]
+                        }
+                        None => x,
+                    };
+                    if accumulate {
+                        with_scratch(y.len(), |t| {
+                            rulebook::forward_into(layer.map(), src, c_in, w, c_out, t)?;
+                            y.iter_mut().zip(t.iter()).for_each(|(a, b)| *a += b);
+                            Ok(())
+                        })
+                    } else {
+                        rulebook::forward_into(layer.map(), src, c_in, w, c_out, y)
                     }
-                    None => x,
-                };
-                if accumulate {
-                    let t = rulebook::forward(layer.map(), src, c_in, w, c_out)?;
-                    y.iter_mut().zip(&t).for_each(|(a, b)| *a += b);
-                    Ok(())
-                } else {
-                    rulebook::forward_into(layer.map(), src, c_in, w, c_out, y)
-                }
+                })
             }
         }
     }
@@ -307,17 +312,56 @@ impl ConvBackend for CpuEngine {
     }
 }
 
+thread_local! {
+    /// The normalised input of the rulebook path, kept between calls: a fresh buffer per
+    /// layer costs page faults the baseline should not pay.
+    static NORMALISED: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// Products before a residual sum, kept between calls for the same reason.
+    static SCRATCH: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Runs `f` with this thread's buffer `key`, taken out for the call: a nested call on the same
+/// thread (rayon runs other jobs while it waits) gets an empty buffer instead of a conflict.
+fn with_buffer<R>(
+    key: &'static std::thread::LocalKey<std::cell::RefCell<Vec<f32>>>,
+    f: impl FnOnce(&mut Vec<f32>) -> R,
+) -> R {
+    let mut v = key.with(|c| std::mem::take(&mut *c.borrow_mut()));
+    let r = f(&mut v);
+    key.with(|c| *c.borrow_mut() = v);
+    r
+}
+
+/// Runs `f` with this thread's scratch buffer cut to `len` values.
+fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [f32]) -> R) -> R {
+    with_buffer(&SCRATCH, |s| {
+        if s.len() < len {
+            s.resize(len, 0.0);
+        }
+        f(&mut s[..len])
+    })
+}
+
 /// `max(0, x * scale + shift)` per row into a new buffer (the separate normalisation pass).
 ///
 /// # Shapes
 /// `x`: `[n, c]` with `c = bn.scale.len()`; result the same.
 pub fn apply_bn_relu(x: &[f32], bn: BnRelu<'_>) -> Vec<f32> {
-    let c = bn.scale.len().max(1);
-    let mut out = Vec::with_capacity(x.len());
-    for row in x.chunks(c) {
-        for ((v, s), b) in row.iter().zip(bn.scale).zip(bn.shift) {
-            out.push((v * s + b).max(0.0));
-        }
-    }
+    let mut out = Vec::new();
+    apply_bn_relu_into(x, bn, &mut out);
     out
+}
+
+/// [`apply_bn_relu`] into `out` (resized to `x`), rows in parallel.
+fn apply_bn_relu_into(x: &[f32], bn: BnRelu<'_>, out: &mut Vec<f32>) {
+    use rayon::prelude::*;
+    let c = bn.scale.len().max(1);
+    out.resize(x.len(), 0.0);
+    out.par_chunks_mut(c * 256).zip(x.par_chunks(c * 256)).for_each(|(d, s)| {
+        for (dr, sr) in d.chunks_mut(c).zip(s.chunks(c)) {
+            for (((v, x), s), b) in dr.iter_mut().zip(sr).zip(bn.scale).zip(bn.shift) {
+                *v = (x * s + b).max(0.0);
+            }
+        }
+    });
 }

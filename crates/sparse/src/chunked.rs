@@ -810,6 +810,11 @@ impl ChunkedConv {
         })
     }
 
+    /// What the layer connects (without building the kernel map, unlike `map().kind()`).
+    pub fn kind(&self) -> MapKind {
+        self.kind
+    }
+
     /// Number of (input, output) pairs over all offsets.
     pub fn num_pairs(&self) -> usize {
         self.forward.num_pairs()
