@@ -3,7 +3,9 @@
 // outputs read, planned on the host by crates/sparse ChunkPlan) is copied into workgroup
 // memory 16 channels at a time, with the folded batch norm and ReLU applied on the way in;
 // then, per kernel offset, a 16 x 16 weight tile joins it in workgroup memory and every thread
-// accumulates 4 output rows of one channel from the region. Each output row belongs to one
+// accumulates 8 output rows of one channel from the region (32 rows a pass, each pass
+// reloading the region and weight tiles). The 8 accumulators are separate variables: a
+// dynamically indexed array would live in slow per-thread memory on GPUs (and on lavapipe). Each output row belongs to one
 // chunk, so it is written once, by one thread: no atomics, and a fixed summation order
 // (channel tiles, then offsets, then channels), the same bits on every run.
 //
@@ -33,6 +35,7 @@ const EMPTY: u32 = 0xffffffffu;
 const CT: u32 = 16u;   // channels per region tile
 const OT: u32 = 16u;   // output channels per workgroup
 const CAP: u32 = 192u; // region rows in workgroup memory
+const ROWS: u32 = 32u; // output rows per pass: 4 row lanes x 8 accumulators
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> x: array<f32>;
@@ -76,11 +79,19 @@ fn forward(
     let n_region = cm.w;
     let in_tile = min(n_region, CAP);
     let oc = lid % OT;
-    let lane = lid / OT; // 0..4: rows lane, lane + 4, lane + 8, lane + 12 of a pass
+    let lane = lid / OT; // 0..4: rows lane, lane + 4, ..., lane + 28 of a pass
     let o = wid.z * OT + oc;
 
-    for (var rp = 0u; rp < m; rp += 16u) {
-        var acc = array<f32, 4>(0.0, 0.0, 0.0, 0.0);
+    for (var rp = 0u; rp < m; rp += ROWS) {
+        var a0 = 0.0;
+        var a1 = 0.0;
+        var a2 = 0.0;
+        var a3 = 0.0;
+        var a4 = 0.0;
+        var a5 = 0.0;
+        var a6 = 0.0;
+        var a7 = 0.0;
+        let j0 = rp + lane;
         for (var c0 = 0u; c0 < p.c_in; c0 += CT) {
             workgroupBarrier();
             for (var e = lid; e < in_tile * CT; e += 64u) {
@@ -103,40 +114,63 @@ fn forward(
                     wt[e] = v;
                 }
                 workgroupBarrier();
-                for (var r = 0u; r < 4u; r++) {
-                    let j = rp + lane + 4u * r;
-                    if (j < m) {
-                        let s = plan[p.o_table + (d0 + j) * p.kv + k];
-                        if (s != EMPTY) {
-                            if (s < CAP) {
-                                for (var c = 0u; c < CT; c++) {
-                                    acc[r] += region[s * CT + c] * wt[c * OT + oc];
-                                }
-                            } else {
-                                let row = plan[p.o_src_rows + s0 + s];
-                                for (var c = 0u; c < CT; c++) {
-                                    if (c0 + c < p.c_in) {
-                                        acc[r] += load_x(row, c0 + c) * wt[c * OT + oc];
-                                    }
-                                }
-                            }
-                        }
-                    }
-                }
+                a0 += row_sum(j0, m, d0, s0, c0, k, oc);
+                a1 += row_sum(j0 + 4u, m, d0, s0, c0, k, oc);
+                a2 += row_sum(j0 + 8u, m, d0, s0, c0, k, oc);
+                a3 += row_sum(j0 + 12u, m, d0, s0, c0, k, oc);
+                a4 += row_sum(j0 + 16u, m, d0, s0, c0, k, oc);
+                a5 += row_sum(j0 + 20u, m, d0, s0, c0, k, oc);
+                a6 += row_sum(j0 + 24u, m, d0, s0, c0, k, oc);
+                a7 += row_sum(j0 + 28u, m, d0, s0, c0, k, oc);
             }
         }
         if (o < p.c_out) {
-            for (var r = 0u; r < 4u; r++) {
-                let j = rp + lane + 4u * r;
-                if (j < m) {
-                    let at = plan[p.o_dst_rows + d0 + j] * p.c_out + o;
-                    var v = acc[r];
-                    if ((p.flags & 2u) != 0u) {
-                        v += y[at];
-                    }
-                    y[at] = v;
-                }
+            store(j0, m, d0, o, a0);
+            store(j0 + 4u, m, d0, o, a1);
+            store(j0 + 8u, m, d0, o, a2);
+            store(j0 + 12u, m, d0, o, a3);
+            store(j0 + 16u, m, d0, o, a4);
+            store(j0 + 20u, m, d0, o, a5);
+            store(j0 + 24u, m, d0, o, a6);
+            store(j0 + 28u, m, d0, o, a7);
+        }
+    }
+}
+
+// The contribution of the current channel tile and offset k to chunk row j, channel oc.
+fn row_sum(j: u32, m: u32, d0: u32, s0: u32, c0: u32, k: u32, oc: u32) -> f32 {
+    if (j >= m) {
+        return 0.0;
+    }
+    let s = plan[p.o_table + (d0 + j) * p.kv + k];
+    if (s == EMPTY) {
+        return 0.0;
+    }
+    var acc = 0.0;
+    if (s < CAP) {
+        for (var c = 0u; c < CT; c++) {
+            acc += region[s * CT + c] * wt[c * OT + oc];
+        }
+    } else {
+        let row = plan[p.o_src_rows + s0 + s];
+        for (var c = 0u; c < CT; c++) {
+            if (c0 + c < p.c_in) {
+                acc += load_x(row, c0 + c) * wt[c * OT + oc];
             }
         }
+    }
+    return acc;
+}
+
+// Writes (or, with the accumulate flag, adds) one output value of chunk row j.
+fn store(j: u32, m: u32, d0: u32, o: u32, v: f32) {
+    if (j >= m) {
+        return;
+    }
+    let at = plan[p.o_dst_rows + d0 + j] * p.c_out + o;
+    if ((p.flags & 2u) != 0u) {
+        y[at] = y[at] + v;
+    } else {
+        y[at] = v;
     }
 }
