@@ -15,9 +15,9 @@ use crate::error::{GpuError, Result};
 pub(crate) const WORKGROUP: u32 = 64;
 /// Largest workgroup count of one grid dimension (the WebGPU minimum every device offers).
 const MAX_GROUPS: u32 = 65_535;
-/// Workgroup memory the chunked kernel uses: the region tile (192 rows x 16 channels) and a
-/// weight tile (16 x 16), in bytes, plus a few words.
-const WORKGROUP_BYTES: u32 = (192 * 16 + 16 * 16 + 4) * 4;
+/// Workgroup memory the chunked kernel uses: the region tile (176 rows x 16 channels) and four
+/// weight tiles (16 x 16), in bytes, plus a few words.
+const WORKGROUP_BYTES: u32 = (176 * 16 + 4 * 16 * 16 + 4) * 4;
 
 /// The compute pipelines of the engine, compiled once per context.
 pub(crate) struct Pipelines {

@@ -2,14 +2,15 @@
 // and block of 16 output channels. The chunk's input region (the distinct input rows its
 // outputs read, planned on the host by crates/sparse ChunkPlan) is copied into workgroup
 // memory 16 channels at a time, with the folded batch norm and ReLU applied on the way in;
-// then, per kernel offset, a 16 x 16 weight tile joins it in workgroup memory and every thread
+// then, per group of 4 kernel offsets, their 16 x 16 weight tiles join it in workgroup memory
+// (one pair of barriers per group: barriers are what small chunks pay most for) and every thread
 // accumulates 8 output rows of one channel from the region (32 rows a pass, each pass
 // reloading the region and weight tiles). The 8 accumulators are separate variables: a
 // dynamically indexed array would live in slow per-thread memory on GPUs (and on lavapipe). Each output row belongs to one
 // chunk, so it is written once, by one thread: no atomics, and a fixed summation order
 // (channel tiles, then offsets, then channels), the same bits on every run.
 //
-// Regions larger than the tile (192 rows; the planner keeps them near its 256-row budget)
+// Regions larger than the tile (176 rows; the planner keeps them near its 256-row budget)
 // read their remaining rows straight from global memory: slower, never wrong.
 //
 // Plan buffer (u32): dst_start [chunks + 1] | dst_rows | src_start [chunks + 1] | src_rows |
@@ -34,7 +35,8 @@ struct Params {
 const EMPTY: u32 = 0xffffffffu;
 const CT: u32 = 16u;   // channels per region tile
 const OT: u32 = 16u;   // output channels per workgroup
-const CAP: u32 = 192u; // region rows in workgroup memory
+const CAP: u32 = 176u; // region rows in workgroup memory
+const KG: u32 = 4u;    // offsets whose weight tiles share one pair of barriers
 const ROWS: u32 = 32u; // output rows per pass: 4 row lanes x 8 accumulators
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -44,8 +46,8 @@ const ROWS: u32 = 32u; // output rows per pass: 4 row lanes x 8 accumulators
 @group(0) @binding(4) var<storage, read> plan: array<u32>;
 @group(0) @binding(5) var<storage, read_write> y: array<f32>;
 
-var<workgroup> region: array<f32, 3072>; // CAP x CT
-var<workgroup> wt: array<f32, 256>;      // CT x OT
+var<workgroup> region: array<f32, 2816>; // CAP x CT
+var<workgroup> wt: array<f32, 1024>;     // KG x CT x OT
 var<workgroup> chunk_meta: vec4<u32>;    // d0, m, s0, n_region
 
 fn load_x(row: u32, c: u32) -> f32 {
@@ -102,26 +104,29 @@ fn forward(
                 }
                 region[e] = v;
             }
-            for (var k = 0u; k < p.kv; k++) {
+            for (var kb = 0u; kb < p.kv; kb += KG) {
                 workgroupBarrier();
-                for (var e = lid; e < CT * OT; e += 64u) {
-                    let c = c0 + e / OT;
+                for (var e = lid; e < KG * CT * OT; e += 64u) {
+                    let k = kb + e / (CT * OT);
+                    let c = c0 + (e / OT) % CT;
                     let oo = wid.z * OT + e % OT;
                     var v = 0.0;
-                    if (c < p.c_in && oo < p.c_out) {
+                    if (k < p.kv && c < p.c_in && oo < p.c_out) {
                         v = w[(k * p.c_in + c) * p.c_out + oo];
                     }
                     wt[e] = v;
                 }
                 workgroupBarrier();
-                a0 += row_sum(j0, m, d0, s0, c0, k, oc);
-                a1 += row_sum(j0 + 4u, m, d0, s0, c0, k, oc);
-                a2 += row_sum(j0 + 8u, m, d0, s0, c0, k, oc);
-                a3 += row_sum(j0 + 12u, m, d0, s0, c0, k, oc);
-                a4 += row_sum(j0 + 16u, m, d0, s0, c0, k, oc);
-                a5 += row_sum(j0 + 20u, m, d0, s0, c0, k, oc);
-                a6 += row_sum(j0 + 24u, m, d0, s0, c0, k, oc);
-                a7 += row_sum(j0 + 28u, m, d0, s0, c0, k, oc);
+                for (var g = 0u; g < min(KG, p.kv - kb); g++) {
+                    a0 += row_sum(j0, m, d0, s0, c0, kb, g, oc);
+                    a1 += row_sum(j0 + 4u, m, d0, s0, c0, kb, g, oc);
+                    a2 += row_sum(j0 + 8u, m, d0, s0, c0, kb, g, oc);
+                    a3 += row_sum(j0 + 12u, m, d0, s0, c0, kb, g, oc);
+                    a4 += row_sum(j0 + 16u, m, d0, s0, c0, kb, g, oc);
+                    a5 += row_sum(j0 + 20u, m, d0, s0, c0, kb, g, oc);
+                    a6 += row_sum(j0 + 24u, m, d0, s0, c0, kb, g, oc);
+                    a7 += row_sum(j0 + 28u, m, d0, s0, c0, kb, g, oc);
+                }
             }
         }
         if (o < p.c_out) {
@@ -137,25 +142,26 @@ fn forward(
     }
 }
 
-// The contribution of the current channel tile and offset k to chunk row j, channel oc.
-fn row_sum(j: u32, m: u32, d0: u32, s0: u32, c0: u32, k: u32, oc: u32) -> f32 {
+// The contribution of the current channel tile and offset kb + g (weight tile g) to chunk row
+// j, channel oc.
+fn row_sum(j: u32, m: u32, d0: u32, s0: u32, c0: u32, kb: u32, g: u32, oc: u32) -> f32 {
     if (j >= m) {
         return 0.0;
     }
-    let s = plan[p.o_table + (d0 + j) * p.kv + k];
+    let s = plan[p.o_table + (d0 + j) * p.kv + kb + g];
     if (s == EMPTY) {
         return 0.0;
     }
     var acc = 0.0;
     if (s < CAP) {
         for (var c = 0u; c < CT; c++) {
-            acc += region[s * CT + c] * wt[c * OT + oc];
+            acc += region[s * CT + c] * wt[(g * CT + c) * OT + oc];
         }
     } else {
         let row = plan[p.o_src_rows + s0 + s];
         for (var c = 0u; c < CT; c++) {
             if (c0 + c < p.c_in) {
-                acc += load_x(row, c0 + c) * wt[c * OT + oc];
+                acc += load_x(row, c0 + c) * wt[(g * CT + c) * OT + oc];
             }
         }
     }
