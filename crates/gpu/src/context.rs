@@ -7,7 +7,8 @@
 //! engine call checks them after waiting for the queue, so a lost device or a bad dispatch
 //! becomes a [`GpuError`] instead of a panic or a silently wrong result.
 
-use std::sync::{mpsc, Arc, Mutex};
+use std::collections::HashMap;
+use std::sync::{mpsc, Arc, Mutex, MutexGuard};
 
 use crate::error::{GpuError, Result};
 
@@ -42,6 +43,12 @@ pub struct GpuContext {
     buffer_cap: Option<u64>,
     errors: Arc<Mutex<Vec<String>>>,
     lost: Arc<Mutex<Option<String>>>,
+    /// Per-call buffers (features, weights, outputs, scratch) by role, kept between calls and
+    /// only grown, so repeated calls (every layer of the network, every call of a benchmark)
+    /// allocate nothing on the device. Layer geometry is never pooled.
+    pool: Mutex<HashMap<&'static str, wgpu::Buffer>>,
+    /// Held for a whole engine call: pooled buffers are then never shared by two calls.
+    call: Mutex<()>,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -114,7 +121,18 @@ impl GpuContext {
             });
         }
         let pipelines = Pipelines::new(&device);
-        let context = Self { device, queue, pipelines, info, limits, buffer_cap: None, errors, lost };
+        let context = Self {
+            device,
+            queue,
+            pipelines,
+            info,
+            limits,
+            buffer_cap: None,
+            errors,
+            lost,
+            pool: Mutex::new(HashMap::new()),
+            call: Mutex::new(()),
+        };
         context.check()?;
         Ok(context)
     }
@@ -191,6 +209,47 @@ impl GpuContext {
     pub(crate) fn upload<T: bytemuck::Pod>(&self, what: &'static str, data: &[T]) -> Result<wgpu::Buffer> {
         let bytes: &[u8] = bytemuck::cast_slice(data);
         let buffer = self.zeroed(what, bytes.len() as u64)?;
+        if !bytes.is_empty() {
+            self.queue.write_buffer(&buffer, 0, bytes);
+        }
+        Ok(buffer)
+    }
+
+    /// Exclusive use of the pooled buffers for one engine call.
+    pub(crate) fn begin_call(&self) -> Result<MutexGuard<'_, ()>> {
+        self.check_lost()?;
+        // A panic while holding the lock left no buffer in a state a later call relies on.
+        Ok(self.call.lock().unwrap_or_else(std::sync::PoisonError::into_inner))
+    }
+
+    /// The pooled storage buffer of `role` with room for `bytes` (contents undefined), grown
+    /// to the next power of two when too small. Callers hold [`Self::begin_call`]'s guard.
+    pub(crate) fn transient(&self, role: &'static str, bytes: u64) -> Result<wgpu::Buffer> {
+        self.check_lost()?;
+        self.check_size(role, bytes)?;
+        let mut pool = self.pool.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(b) = pool.get(role) {
+            if b.size() >= bytes.max(4) {
+                return Ok(b.clone());
+            }
+        }
+        let limit = self.max_buffer_bytes();
+        let size = bytes.max(4).next_power_of_two().min(limit).max(bytes.max(4).next_multiple_of(4));
+        let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(role),
+            size,
+            usage,
+            mapped_at_creation: false,
+        });
+        pool.insert(role, buffer.clone());
+        Ok(buffer)
+    }
+
+    /// The pooled buffer of `role` holding `data`.
+    pub(crate) fn transient_upload<T: bytemuck::Pod>(&self, role: &'static str, data: &[T]) -> Result<wgpu::Buffer> {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        let buffer = self.transient(role, bytes.len() as u64)?;
         if !bytes.is_empty() {
             self.queue.write_buffer(&buffer, 0, bytes);
         }

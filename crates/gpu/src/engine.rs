@@ -1,9 +1,10 @@
 //! The GPU engine: [`ConvBackend`] on wgpu, with the chunked kernel (Algorithm 2) or the
 //! rulebook baseline (Algorithm 1) on the same device geometry.
 //!
-//! A call uploads its feature and weight buffers, records every dispatch of the layer in one
-//! command buffer, submits it and reads the result back; layer geometry stays on the device
-//! between calls. The input gradient is the forward kernel on the transposed problem (the
+//! A call copies its feature and weight buffers into the context's pooled device buffers
+//! (kept between calls and only grown), records every dispatch of the layer in one command
+//! buffer, submits it and reads the result back; layer geometry stays on the device between
+//! calls. The input gradient is the forward kernel on the transposed problem (the
 //! forward plan with mirrored offsets for submanifold layers, the plan over the inputs for
 //! strided ones, exactly as the CPU engine does it); the weight gradient runs one thread per
 //! weight over the offset's pair list.
@@ -95,13 +96,15 @@ impl GpuEngine {
         accumulate: bool,
     ) -> Result<()> {
         let ctx = &*self.ctx;
-        let xb = ctx.upload("features", x)?;
-        let wb = ctx.upload("weights", w)?;
+        let xb = ctx.transient_upload("features", x)?;
+        let wb = ctx.transient_upload("weights", w)?;
         let bnb = match bn {
-            Some(bn) => ctx.upload("batch norm", &[bn.scale, bn.shift].concat())?,
-            None => ctx.zeroed("batch norm", 4)?,
+            Some(bn) => ctx.transient_upload("batch norm", &[bn.scale, bn.shift].concat())?,
+            None => ctx.transient("batch norm", 4)?,
         };
-        let yb = if accumulate { ctx.upload("output", y)? } else { ctx.zeroed("output", y.len() as u64 * 4)? };
+        // Every output row belongs to one chunk and is written: no clearing needed.
+        let yb =
+            if accumulate { ctx.transient_upload("output", y)? } else { ctx.transient("output", y.len() as u64 * 4)? };
         let flags = u32::from(bn.is_some()) | (u32::from(accumulate) << 1);
         let o = plan.offsets;
         let params = ctx.params(&[
@@ -151,16 +154,22 @@ impl GpuEngine {
         let (cs, cd) = (count32("channels", c_src)?, count32("channels", c_dst)?);
         let n_pairs = count32("pairs", layer.num_pairs())?;
         let most = layer.starts.windows(2).map(|s| s[1] - s[0]).max().unwrap_or(0) as u64;
-        let mut xb = ctx.upload("features", x)?;
-        let wb = ctx.upload("weights", w)?;
-        let yb = if accumulate { ctx.upload("output", y)? } else { ctx.zeroed("output", y.len() as u64 * 4)? };
-        let gathered = ctx.zeroed("gathered rows", most * u64::from(cs) * 4)?;
-        let products = ctx.zeroed("products", most * u64::from(cd) * 4)?;
+        let mut xb = ctx.transient_upload("features", x)?;
+        let wb = ctx.transient_upload("weights", w)?;
+        let y_bytes = y.len() as u64 * 4;
+        let yb = if accumulate { ctx.transient_upload("output", y)? } else { ctx.transient("output", y_bytes)? };
+        // Written before they are read, within each offset.
+        let gathered = ctx.transient("gathered rows", most * u64::from(cs) * 4)?;
+        let products = ctx.transient("products", most * u64::from(cd) * 4)?;
         let mut enc = ctx.encoder();
+        if !accumulate {
+            // The scatter adds: the output starts at zero.
+            enc.clear_buffer(&yb, 0, Some(y_bytes.next_multiple_of(4)));
+        }
         if let Some(bn) = bn {
             // The standard algorithm's separate normalisation pass.
-            let bnb = ctx.upload("batch norm", &[bn.scale, bn.shift].concat())?;
-            let normalised = ctx.zeroed("normalised features", x.len() as u64 * 4)?;
+            let bnb = ctx.transient_upload("batch norm", &[bn.scale, bn.shift].concat())?;
+            let normalised = ctx.transient("normalised features", x.len() as u64 * 4)?;
             let n = count32("features", x.len())?;
             let params = ctx.params(&[n, cs, 0, 0, 0, 0, 0, 0]);
             let b = [(0, &params), (1, &xb), (3, &bnb), (4, &normalised)];
@@ -236,6 +245,7 @@ impl ConvBackend for GpuEngine {
             }
             return Ok(());
         }
+        let _call = self.ctx.begin_call()?;
         match self.algorithm {
             ConvAlgorithm::Chunked => self.run_chunked(&layer.forward, layer.kv, x, c_in, bn, w, c_out, y, accumulate),
             ConvAlgorithm::Rulebook => self.run_rulebook(layer, false, x, c_in, bn, w, c_out, y, accumulate),
@@ -250,6 +260,7 @@ impl ConvBackend for GpuEngine {
             return Ok(dx);
         }
         let kv = layer.kv;
+        let _call = self.ctx.begin_call()?;
         match (self.algorithm, &layer.backward) {
             (ConvAlgorithm::Rulebook, _) => {
                 let wt = transpose(w, kv, c_in, c_out, |k| k);
@@ -279,9 +290,11 @@ impl ConvBackend for GpuEngine {
             return Ok(dw);
         }
         let ctx = &*self.ctx;
-        let xb = ctx.upload("features", x)?;
-        let dyb = ctx.upload("output gradient", dy)?;
-        let dwb = ctx.zeroed("weight gradient", dw.len() as u64 * 4)?;
+        let _call = ctx.begin_call()?;
+        let xb = ctx.transient_upload("features", x)?;
+        let dyb = ctx.transient_upload("output gradient", dy)?;
+        // Every weight is written by the kernel.
+        let dwb = ctx.transient("weight gradient", dw.len() as u64 * 4)?;
         let n_pairs = count32("pairs", layer.num_pairs())?;
         let (cs, cd) = (count32("channels", c_in)?, count32("channels", c_out)?);
         let params = ctx.params(&[0, cs, cd, 0, n_pairs, 0, 0, kv as u32]);
