@@ -4,6 +4,7 @@ use clap::{Parser, Subcommand};
 
 mod cli_values;
 mod commands;
+mod device;
 mod interrupt;
 mod live_view;
 mod progress;
@@ -110,5 +111,33 @@ mod tests {
         assert_eq!(error_message(&err), "reading the mesh: /x.ply: No such file");
         let plain = anyhow::anyhow!("inner").context("outer");
         assert_eq!(error_message(&plain), "outer: inner");
+    }
+}
+
+#[cfg(test)]
+mod command_line_tests {
+    use clap::CommandFactory;
+
+    use super::*;
+
+    /// Every subcommand's arguments are consistent (no two flattened groups define the same
+    /// flag, e.g. `live --device` naming a camera and the network's `--device`).
+    #[test]
+    fn command_line_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    /// `--device` parses on the commands that run the network.
+    #[test]
+    fn device_flag_parses() {
+        for args in [
+            &["semrecon", "demo", "--device", "auto"][..],
+            &["semrecon", "segment", "--input", "a.ply", "--out", "b.ply", "--device", "gpu"],
+            &["semrecon", "bench", "conv", "--device", "cpu"],
+            &["semrecon", "bench", "net", "--device", "auto"],
+        ] {
+            assert!(Cli::try_parse_from(args).is_ok(), "{args:?}");
+        }
+        assert!(Cli::try_parse_from(["semrecon", "demo", "--device", "tpu"]).is_err());
     }
 }

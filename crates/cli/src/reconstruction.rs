@@ -173,10 +173,24 @@ pub fn pipeline_config(
 
 /// The network of `--model` (or the shipped model, or an untrained s20 when that is missing), `None` with `--semantics off`; with a
 /// sentence saying which.
-pub fn load_network(args: &SemanticArgs) -> anyhow::Result<(Option<Segmenter>, String)> {
+/// The network runs on `device` (`live` passes the CPU: its `--device` names a camera).
+pub fn load_network(
+    args: &SemanticArgs,
+    device: &crate::device::DeviceArgs,
+) -> anyhow::Result<(Option<Segmenter>, String)> {
     if args.semantics == SemanticsMode::Off {
         return Ok((None, "off".into()));
     }
+    let (net, summary) = load_network_on_cpu(args)?;
+    let Some(mut net) = net else { return Ok((None, summary)) };
+    let device = device.network_device()?;
+    let summary = format!("{summary} on {}", device.describe());
+    net.set_device(device);
+    Ok((Some(net), summary))
+}
+
+/// [`load_network`] before the device is chosen.
+fn load_network_on_cpu(args: &SemanticArgs) -> anyhow::Result<(Option<Segmenter>, String)> {
     match &args.model {
         Some(path) => {
             let net = shipped::load(path, None).with_context(|| format!("loading the model {}", path.display()))?;

@@ -92,6 +92,9 @@ pub enum NetError {
     /// An error of the sparse convolution engine.
     #[error(transparent)]
     Sparse(#[from] semrecon_sparse::SparseError),
+    /// The GPU engine failed (no adapter, lost device, a buffer over the device's limit).
+    #[error(transparent)]
+    Gpu(#[from] semrecon_gpu::GpuError),
 }
 
 impl NetError {

@@ -15,8 +15,9 @@
 use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
+use semrecon_gpu::{GpuEngine, GpuLayer};
 use semrecon_sparse::morton::morton_order;
-use semrecon_sparse::{rulebook, voxelize, ChunkConfig, ChunkedConv, Coord};
+use semrecon_sparse::{voxelize, BnRelu, ChunkConfig, ChunkedConv, ConvAlgorithm, ConvBackend, Coord, CpuEngine};
 
 use crate::config::NetConfig;
 use crate::error::{NetError, Result};
@@ -46,48 +47,6 @@ pub enum ConvKernel {
     Rulebook,
 }
 
-/// One convolution of the network with the chosen kernel; `y` is overwritten.
-fn run_conv(
-    kernel: ConvKernel,
-    layer: &ChunkedConv,
-    x: &[f32],
-    c_in: usize,
-    w: &[f32],
-    c_out: usize,
-    y: &mut [f32],
-) -> Result<()> {
-    match kernel {
-        ConvKernel::Chunked => layer.forward_into(x, c_in, w, c_out, y)?,
-        ConvKernel::Rulebook => rulebook::forward_into(layer.map(), x, c_in, w, c_out, y)?,
-    }
-    Ok(())
-}
-
-/// `y = conv(max(0, x * scale + shift))` with the batch norm `bn`: folded into the chunked
-/// kernel's gather, a separate pass into `scratch` for the rulebook (the standard algorithm).
-#[allow(clippy::too_many_arguments)]
-fn run_conv_bn(
-    kernel: ConvKernel,
-    layer: &ChunkedConv,
-    bn: &Affine,
-    x: &[f32],
-    c_in: usize,
-    w: &[f32],
-    c_out: usize,
-    y: &mut [f32],
-    scratch: &mut Vec<f32>,
-) -> Result<()> {
-    match kernel {
-        ConvKernel::Chunked => layer.forward_bn_relu_into(x, c_in, &bn.scale, &bn.shift, w, c_out, y, false)?,
-        ConvKernel::Rulebook => {
-            let a = sized(scratch, x.len());
-            bn.apply(x, a);
-            rulebook::forward_into(layer.map(), a, c_in, w, c_out, y)?;
-        }
-    }
-    Ok(())
-}
-
 /// Batch norm with running statistics, folded: `y = max(0, x * scale + shift)`.
 #[derive(Debug, Clone)]
 struct Affine {
@@ -104,27 +63,9 @@ impl Affine {
         Ok(Self { scale, shift })
     }
 
-    /// `dst = max(0, src * scale + shift)`, rows in parallel.
-    fn apply(&self, src: &[f32], dst: &mut [f32]) {
-        let c = self.scale.len();
-        dst.par_chunks_mut(c * ROWS_PER_TASK).zip(src.par_chunks(c * ROWS_PER_TASK)).for_each(|(d, s)| {
-            for (dr, sr) in d.chunks_exact_mut(c).zip(s.chunks_exact(c)) {
-                for (((v, x), s), b) in dr.iter_mut().zip(sr).zip(&self.scale).zip(&self.shift) {
-                    *v = (x * s + b).max(0.0);
-                }
-            }
-        });
-    }
-
-    fn apply_in_place(&self, x: &mut [f32]) {
-        let c = self.scale.len();
-        x.par_chunks_mut(c * ROWS_PER_TASK).for_each(|d| {
-            for dr in d.chunks_exact_mut(c) {
-                for ((v, s), b) in dr.iter_mut().zip(&self.scale).zip(&self.shift) {
-                    *v = (*v * s + b).max(0.0);
-                }
-            }
-        });
+    /// The folded batch norm as the engines take it.
+    fn bn(&self) -> BnRelu<'_> {
+        BnRelu { scale: &self.scale, shift: &self.shift }
     }
 }
 
@@ -147,29 +88,16 @@ impl ResBlock {
         })
     }
 
-    /// Applies the block to `x` (`[n, c]`) in place; `a`, `b` are scratch.
-    fn run(
-        &self,
-        kernel: ConvKernel,
-        conv: &ChunkedConv,
-        x: &mut [f32],
-        c: usize,
-        a: &mut Vec<f32>,
-        b: &mut Vec<f32>,
-    ) -> Result<()> {
-        let (a, b) = (sized(a, x.len()), sized(b, x.len()));
-        if kernel == ConvKernel::Chunked {
-            // Both batch norms folded into the convolutions' gathers, the residual sum into
-            // the second convolution's output.
-            conv.forward_bn_relu_into(x, c, &self.bn1.scale, &self.bn1.shift, &self.conv1, c, b, false)?;
-            conv.forward_bn_relu_into(b, c, &self.bn2.scale, &self.bn2.shift, &self.conv2, c, x, true)?;
-            return Ok(());
-        }
-        self.bn1.apply(x, a);
-        run_conv(kernel, conv, a, c, &self.conv1, c, b)?;
-        self.bn2.apply_in_place(b);
-        run_conv(kernel, conv, b, c, &self.conv2, c, a)?;
-        add_assign(x, a);
+    /// Applies the block to `x` (`[n, c]`) in place; `a` is scratch. Both batch norms go
+    /// into the convolutions' reads (fused by the chunked kernels, a separate pass for the
+    /// rulebook), the residual sum into the second convolution's output.
+    fn run<B: ConvBackend>(&self, engine: &B, conv: &B::Layer, x: &mut [f32], c: usize, a: &mut Vec<f32>) -> Result<()>
+    where
+        NetError: From<B::Error>,
+    {
+        let a = sized(a, x.len());
+        engine.forward_into(conv, x, c, Some(self.bn1.bn()), &self.conv1, c, a, false)?;
+        engine.forward_into(conv, a, c, Some(self.bn2.bn()), &self.conv2, c, x, true)?;
         Ok(())
     }
 }
@@ -278,10 +206,6 @@ fn gate(g: &mut [f32], c: usize) {
     });
 }
 
-fn add_assign(x: &mut [f32], y: &[f32]) {
-    x.par_chunks_mut(4096).zip(y.par_chunks(4096)).for_each(|(a, b)| a.iter_mut().zip(b).for_each(|(a, b)| *a += b));
-}
-
 /// The first `len` values of a buffer that only grows.
 fn sized(v: &mut Vec<f32>, len: usize) -> &mut [f32] {
     if v.len() < len {
@@ -296,7 +220,6 @@ struct Workspace {
     enc: Vec<Vec<f32>>,
     dec: Vec<Vec<f32>>,
     a: Vec<f32>,
-    b: Vec<f32>,
     g: Vec<f32>,
 }
 
@@ -333,6 +256,7 @@ pub struct Segmenter {
     chunk: ChunkConfig,
     kernel: ConvKernel,
     ws: Workspace,
+    device: Device,
     stats: Vec<LevelStats>,
     timing: Timing,
 }
@@ -358,6 +282,7 @@ impl Segmenter {
             chunk: ChunkConfig::default(),
             kernel: ConvKernel::Chunked,
             ws: Workspace::default(),
+            device: Device::Cpu,
             stats: Vec::new(),
             timing: Timing::default(),
         })
@@ -366,6 +291,17 @@ impl Segmenter {
     /// Runs the convolutions with `kernel` from now on (the chunked one by default).
     pub fn set_kernel(&mut self, kernel: ConvKernel) {
         self.kernel = kernel;
+    }
+
+    /// Runs the convolutions on `device` from now on (the CPU by default); the weights and
+    /// results are the same, within 1e-4 relative (summation order).
+    pub fn set_device(&mut self, device: Device) {
+        self.device = device;
+    }
+
+    /// Where the convolutions run.
+    pub fn device(&self) -> &Device {
+        &self.device
     }
 
     /// The configuration.
@@ -520,68 +456,146 @@ impl Segmenter {
         Ok(logits)
     }
 
+    /// The layers on the chosen device: the CPU engine reads the geometry's layers in place,
+    /// the GPU engine gets them uploaded once per call (every layer of a level then shares
+    /// them). The layer code itself is one, generic over the engine.
     fn run_layers(&mut self, geo: &NetGeometry, feats: &[f32], logits: &mut [f32]) -> Result<()> {
-        let Self { config, params: p, ws, kernel, .. } = self;
-        let kernel = *kernel;
-        let l = config.levels;
-        let c = |i: usize| config.channels(i);
-        let n = |i: usize| geo.levels[i].coords.len();
-        ws.enc.resize_with(l, Vec::new);
-        ws.dec.resize_with(l, Vec::new);
-
-        // Encoder.
-        {
-            let e0 = sized(&mut ws.enc[0], n(0) * c(0));
-            run_conv(kernel, &geo.levels[0].subm, feats, config.in_channels, &p.input, c(0), e0)?;
-            p.extract[0].run(kernel, &geo.levels[0].subm, e0, c(0), &mut ws.a, &mut ws.b)?;
-        }
-        for i in 1..l {
-            let (prev, rest) = ws.enc.split_at_mut(i);
-            let (bn, w) = &p.down[i - 1];
-            let e = sized(&mut rest[0], n(i) * c(i));
-            if let Some((down, _)) = &geo.levels[i - 1].down {
-                let x = &prev[i - 1][..n(i - 1) * c(i - 1)];
-                run_conv_bn(kernel, down, bn, x, c(i - 1), w, c(i), e, &mut ws.a)?;
+        let algorithm = match self.kernel {
+            ConvKernel::Chunked => ConvAlgorithm::Chunked,
+            ConvKernel::Rulebook => ConvAlgorithm::Rulebook,
+        };
+        let Self { config, params, ws, device, chunk, .. } = self;
+        match device {
+            Device::Cpu => {
+                let engine = CpuEngine { algorithm, chunk: *chunk };
+                let levels: Vec<LevelLayers<'_, ChunkedConv>> = geo
+                    .levels
+                    .iter()
+                    .map(|l| LevelLayers { subm: &l.subm, point: &l.point, down: l.down.as_ref().map(|(d, u)| (d, u)) })
+                    .collect();
+                forward_layers(&engine, &levels, geo, config, params, ws, feats, logits)
             }
-            p.extract[i].run(kernel, &geo.levels[i].subm, e, c(i), &mut ws.a, &mut ws.b)?;
-        }
-
-        // Decoder, coarse to fine, with the cross-scale fusion.
-        for t in (0..l.saturating_sub(1)).rev() {
-            let up = &p.up[t];
-            let (lower, higher) = ws.dec.split_at_mut(t + 1);
-            let d = sized(&mut lower[t], n(t) * c(t));
-            if let Some((_, tconv)) = &geo.levels[t].down {
-                let src: &[f32] = if t + 1 == l - 1 { &ws.enc[l - 1] } else { &higher[0] };
-                let x = &src[..n(t + 1) * c(t + 1)];
-                run_conv_bn(kernel, tconv, &up.bn, x, c(t + 1), &up.conv, c(t), d, &mut ws.a)?;
-            }
-            let b = sized(&mut ws.b, n(t) * c(t));
-            run_conv(kernel, &geo.levels[t].point, &ws.enc[t][..n(t) * c(t)], c(t), &up.skip, c(t), b)?;
-            add_assign(d, b);
-            up.block.run(kernel, &geo.levels[t].subm, d, c(t), &mut ws.a, &mut ws.b)?;
-            for (q, w) in p.fuse.get(t).into_iter().flatten().enumerate() {
-                let j = t + 1 + q;
-                let dj = &higher[j - t - 1][..n(j) * c(j)];
-                let g = sized(&mut ws.g, n(j) * (c(t) + 1));
-                run_conv(kernel, &geo.levels[j].point, dj, c(j), w, c(t) + 1, g)?;
-                gate(g, c(t));
-                interp_add(&geo.interp[t][q], g, c(t) + 1, c(t), d);
+            Device::Gpu(gpu) => {
+                let engine = gpu.with_algorithm(algorithm);
+                let mut owned = Vec::with_capacity(geo.levels.len());
+                for l in &geo.levels {
+                    let down = match &l.down {
+                        Some((d, u)) => Some((engine.import(d)?, engine.import(u)?)),
+                        None => None,
+                    };
+                    owned.push((engine.import(&l.subm)?, engine.import(&l.point)?, down));
+                }
+                let levels: Vec<LevelLayers<'_, GpuLayer>> = owned
+                    .iter()
+                    .map(|(subm, point, down)| LevelLayers { subm, point, down: down.as_ref().map(|(d, u)| (d, u)) })
+                    .collect();
+                forward_layers(&engine, &levels, geo, config, params, ws, feats, logits)
             }
         }
-
-        // Head.
-        let d0: &[f32] = if l == 1 { &ws.enc[0] } else { &ws.dec[0] };
-        let x = &d0[..n(0) * c(0)];
-        run_conv_bn(kernel, &geo.levels[0].point, &p.head_bn, x, c(0), &p.head_w, config.classes, logits, &mut ws.a)?;
-        let k = config.classes;
-        logits.par_chunks_mut(k * ROWS_PER_TASK).for_each(|blk| {
-            for row in blk.chunks_exact_mut(k) {
-                row.iter_mut().zip(&p.head_b).for_each(|(v, b)| *v += b);
-            }
-        });
-        Ok(())
     }
+}
+
+/// Where the network's convolutions run.
+#[derive(Debug, Clone, Default)]
+pub enum Device {
+    /// The CPU engine (the default).
+    #[default]
+    Cpu,
+    /// The GPU engine (crate `semrecon-gpu`, built with the cargo feature `gpu`).
+    Gpu(GpuEngine),
+}
+
+impl Device {
+    /// `cpu`, or `gpu (adapter name)`.
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Cpu => "cpu".into(),
+            Self::Gpu(g) => format!("gpu ({})", g.context().adapter_name()),
+        }
+    }
+}
+
+/// The layers of one level on one engine.
+struct LevelLayers<'a, L> {
+    subm: &'a L,
+    point: &'a L,
+    /// The strided layer to the next level and its transpose back.
+    down: Option<(&'a L, &'a L)>,
+}
+
+/// The whole forward pass on `engine`: encoder, decoder with cross-scale fusion, head. The
+/// element-wise steps (attention gates, interpolation, bias) run on the host.
+#[allow(clippy::too_many_arguments)]
+fn forward_layers<B: ConvBackend>(
+    engine: &B,
+    levels: &[LevelLayers<'_, B::Layer>],
+    geo: &NetGeometry,
+    config: &NetConfig,
+    p: &Params,
+    ws: &mut Workspace,
+    feats: &[f32],
+    logits: &mut [f32],
+) -> Result<()>
+where
+    NetError: From<B::Error>,
+{
+    let l = config.levels;
+    let c = |i: usize| config.channels(i);
+    let n = |i: usize| geo.levels[i].coords.len();
+    ws.enc.resize_with(l, Vec::new);
+    ws.dec.resize_with(l, Vec::new);
+
+    // Encoder.
+    {
+        let e0 = sized(&mut ws.enc[0], n(0) * c(0));
+        engine.forward_into(levels[0].subm, feats, config.in_channels, None, &p.input, c(0), e0, false)?;
+        p.extract[0].run(engine, levels[0].subm, e0, c(0), &mut ws.a)?;
+    }
+    for i in 1..l {
+        let (prev, rest) = ws.enc.split_at_mut(i);
+        let (bn, w) = &p.down[i - 1];
+        let e = sized(&mut rest[0], n(i) * c(i));
+        if let Some((down, _)) = levels[i - 1].down {
+            let x = &prev[i - 1][..n(i - 1) * c(i - 1)];
+            engine.forward_into(down, x, c(i - 1), Some(bn.bn()), w, c(i), e, false)?;
+        }
+        p.extract[i].run(engine, levels[i].subm, e, c(i), &mut ws.a)?;
+    }
+
+    // Decoder, coarse to fine, with the cross-scale fusion.
+    for t in (0..l.saturating_sub(1)).rev() {
+        let up = &p.up[t];
+        let (lower, higher) = ws.dec.split_at_mut(t + 1);
+        let d = sized(&mut lower[t], n(t) * c(t));
+        if let Some((_, tconv)) = levels[t].down {
+            let src: &[f32] = if t + 1 == l - 1 { &ws.enc[l - 1] } else { &higher[0] };
+            let x = &src[..n(t + 1) * c(t + 1)];
+            engine.forward_into(tconv, x, c(t + 1), Some(up.bn.bn()), &up.conv, c(t), d, false)?;
+        }
+        // The skip connection, added to the upsampled features.
+        engine.forward_into(levels[t].point, &ws.enc[t][..n(t) * c(t)], c(t), None, &up.skip, c(t), d, true)?;
+        up.block.run(engine, levels[t].subm, d, c(t), &mut ws.a)?;
+        for (q, w) in p.fuse.get(t).into_iter().flatten().enumerate() {
+            let j = t + 1 + q;
+            let dj = &higher[j - t - 1][..n(j) * c(j)];
+            let g = sized(&mut ws.g, n(j) * (c(t) + 1));
+            engine.forward_into(levels[j].point, dj, c(j), None, w, c(t) + 1, g, false)?;
+            gate(g, c(t));
+            interp_add(&geo.interp[t][q], g, c(t) + 1, c(t), d);
+        }
+    }
+
+    // Head.
+    let d0: &[f32] = if l == 1 { &ws.enc[0] } else { &ws.dec[0] };
+    let x = &d0[..n(0) * c(0)];
+    engine.forward_into(levels[0].point, x, c(0), Some(p.head_bn.bn()), &p.head_w, config.classes, logits, false)?;
+    let k = config.classes;
+    logits.par_chunks_mut(k * ROWS_PER_TASK).for_each(|blk| {
+        for row in blk.chunks_exact_mut(k) {
+            row.iter_mut().zip(&p.head_b).for_each(|(v, b)| *v += b);
+        }
+    });
+    Ok(())
 }
 
 /// The index of the largest score of every row of `k` scores (the first on ties): the class

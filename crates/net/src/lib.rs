@@ -7,7 +7,8 @@
 //! - [`weights`]: named tensors, safetensors files with `f16` storage, seeded initialisation;
 //! - [`geometry`]: kernel maps, chunk plans and interpolation tables of one input;
 //! - [`metrics`]: confusion matrix, per-class IoU, mIoU, accuracy;
-//! - [`inference`]: the fused CPU forward on the sparse engine ([`Segmenter`]);
+//! - [`inference`]: the fused forward on the sparse engine ([`Segmenter`]), on the CPU or,
+//!   with the cargo feature `gpu`, on the GPU engine ([`Device`]);
 //! - [`reference`](mod@reference): a plain, unfused forward, the oracle of the tests;
 //! - [`surface`]: coloured, labelled point samples of a mesh surface (network input);
 //! - [`sample`]: voxelised, labelled rooms ([`VoxelSample`]), the unit of training and evaluation;
@@ -52,7 +53,7 @@ pub mod weights;
 pub use config::NetConfig;
 pub use error::{NetError, Result};
 pub use geometry::NetGeometry;
-pub use inference::{color_features, ConvKernel, PointScores, Segmenter, Timing};
+pub use inference::{color_features, ConvKernel, Device, PointScores, Segmenter, Timing};
 pub use metrics::ConfusionMatrix;
 pub use model::{forward_flops, parameter_count, LevelStats};
 pub use sample::VoxelSample;

@@ -9,6 +9,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::backend::ConvBackend;
 use crate::chunked::{ChunkConfig, ChunkedConv};
 use crate::error::Result;
 use crate::gemm::gemm_rows;
@@ -342,4 +343,59 @@ pub fn run_conv_bench(
         simd: format!("{:?}", crate::gemm::simd_level()),
         threads: rayon::current_num_threads(),
     })
+}
+
+/// Times any [`ConvBackend`] on a voxel set: the submanifold layer's preparation (kernel map
+/// and plans, reported as pass `prepare`), then forward, input and weight gradient, each the
+/// fastest of `repeats` rounds after a warm-up. Times are whole calls as a caller sees them
+/// (for a GPU engine: uploads, dispatches and read-back included). Rows are named after the
+/// engine (`cpu-chunked`, `gpu-rulebook`, ...).
+///
+/// # Errors
+/// The engine's errors.
+pub fn run_backend_bench<B: ConvBackend>(
+    engine: &B,
+    scene: &str,
+    coords: &[Coord],
+    voxel_size: f32,
+    c_in: usize,
+    c_out: usize,
+    repeats: usize,
+) -> std::result::Result<Vec<BenchRow>, B::Error> {
+    let t = Instant::now();
+    let layer = engine.submanifold(coords, 3)?;
+    let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
+    let n = coords.len();
+    let (x, dy, w) = (fill(n * c_in, 3), fill(n * c_out, 4), fill(27 * c_in * c_out, 5));
+    let pairs = KernelMap::submanifold(coords, 3)?.num_pairs();
+    let flop = 2.0 * pairs as f64 * (c_in * c_out) as f64;
+    let mut best = [f64::INFINITY; 3];
+    for _ in 0..repeats.max(1) + 1 {
+        let t = Instant::now();
+        engine.forward(&layer, &x, c_in, &w, c_out)?;
+        best[0] = best[0].min(t.elapsed().as_secs_f64() * 1e3);
+        let t = Instant::now();
+        engine.backward_input(&layer, &dy, c_out, &w, c_in)?;
+        best[1] = best[1].min(t.elapsed().as_secs_f64() * 1e3);
+        let t = Instant::now();
+        engine.backward_weight(&layer, &x, c_in, &dy, c_out)?;
+        best[2] = best[2].min(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let row = |pass: &str, ms: f64, gflops: f64| BenchRow {
+        scene: scene.to_string(),
+        voxel_size,
+        n,
+        mean_neighbours: pairs as f64 / n.max(1) as f64,
+        c_in,
+        c_out,
+        kernel: engine.name(),
+        pass: pass.to_string(),
+        ms,
+        gflops,
+    };
+    let mut rows = vec![row("prepare", prepare_ms, 0.0)];
+    for (pass, ms) in ["forward", "backward_input", "backward_weight"].into_iter().zip(best) {
+        rows.push(row(pass, ms, flop / (ms * 1e6)));
+    }
+    Ok(rows)
 }

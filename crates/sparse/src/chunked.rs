@@ -275,6 +275,47 @@ impl ChunkPlan {
         )
     }
 
+    /// [`Self::new`] from a whole `[n_dst, kv]` neighbour table (the source row of every
+    /// destination and offset, or `u32::MAX`), for engines that build the table elsewhere
+    /// (the GPU engine builds it with a hash table on the device). `centre` names an identity
+    /// offset (source row = destination row) whose rows the regions list first.
+    ///
+    /// # Errors
+    /// [`SparseError::InvalidArgument`] for a table of the wrong size or with a source row
+    /// out of range, and the errors of [`Self::new`].
+    pub fn from_table(
+        table: &[u32],
+        kv: usize,
+        centre: Option<usize>,
+        n_src: usize,
+        dst_coords: &[Coord],
+        config: &ChunkConfig,
+    ) -> Result<Self> {
+        if kv == 0 || table.len() != dst_coords.len() * kv || centre.is_some_and(|c| c >= kv) {
+            return Err(SparseError::InvalidArgument(format!(
+                "neighbour table of {} entries for {} destinations of {kv} offsets (centre {centre:?})",
+                table.len(),
+                dst_coords.len()
+            )));
+        }
+        if let Some(bad) = table.iter().find(|&&s| s != NONE && s as usize >= n_src) {
+            return Err(SparseError::InvalidArgument(format!("neighbour table names source row {bad} of {n_src}")));
+        }
+        if let Some(c) = centre {
+            if table.chunks_exact(kv).enumerate().any(|(d, row)| row[c] as usize != d) {
+                return Err(SparseError::InvalidArgument("centre offset of the table is not the identity".into()));
+            }
+        }
+        Self::from_rows(
+            |d, row| row.copy_from_slice(&table[d * kv..(d + 1) * kv]),
+            kv,
+            centre,
+            n_src,
+            dst_coords,
+            config,
+        )
+    }
+
     /// [`Self::new`] from the rows of the map's `[n_dst, kv]` neighbour table (source row of
     /// every destination and offset, or `u32::MAX`): `fill(d, row)` writes row `d`. Rows are
     /// asked for chunk by chunk, so the whole table never needs to exist.
@@ -419,6 +460,11 @@ impl ChunkPlan {
 
     /// The `[n_dst, K]` neighbour table of the planned map (source row of every destination
     /// and offset, or `u32::MAX`), rebuilt from the chunk-local pairs.
+    pub fn neighbour_table(&self) -> Vec<u32> {
+        self.table()
+    }
+
+    /// The `[n_dst, kv]` neighbour table the plan was made from.
     pub(crate) fn table(&self) -> Vec<u32> {
         let kv = self.kernel_volume;
         let mut table = vec![NONE; self.n_dst * kv];
@@ -762,6 +808,11 @@ impl ChunkedConv {
         self.map.get_or_init(|| {
             KernelMap::from_table(self.kind, self.n_in, &self.forward.table(), self.forward.kernel_volume)
         })
+    }
+
+    /// What the layer connects (without building the kernel map, unlike `map().kind()`).
+    pub fn kind(&self) -> MapKind {
+        self.kind
     }
 
     /// Number of (input, output) pairs over all offsets.

@@ -11,6 +11,10 @@
 //! - [`rulebook`]: the gather-GEMM-scatter baseline (the paper's Algorithm 1);
 //! - [`chunked`]: the adaptive chunk-based kernel (Algorithm 2 for CPU caches), the fast path.
 //!
+//! [`ConvBackend`] is the one kernel interface of every engine: [`CpuEngine`] here, the GPU
+//! engine in crate `semrecon-gpu`; the shared suite `backend_tests` (cargo feature
+//! `test-suite`) holds each to the reference.
+//!
 //! All kernels are deterministic: the same bits for any number of rayon threads.
 //!
 //! ```
@@ -38,6 +42,9 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod backend;
+#[cfg(any(test, feature = "test-suite"))]
+pub mod backend_tests;
 pub mod bench;
 mod block_index;
 pub mod chunked;
@@ -53,6 +60,7 @@ mod scatter;
 pub mod tensor;
 pub mod voxelize;
 
+pub use backend::{BnRelu, ConvAlgorithm, ConvBackend, CpuEngine};
 pub use chunked::{ChunkConfig, ChunkPlan, ChunkPlanArrays, ChunkedConv};
 pub use error::{Result, SparseError};
 pub use gemm::{simd_level, SimdLevel};
@@ -61,3 +69,14 @@ pub use kernel_map::{KernelMap, MapKind};
 pub use key::Coord;
 pub use tensor::SparseTensor;
 pub use voxelize::{voxelize, Voxelization};
+
+#[cfg(test)]
+mod cpu_suite {
+    //! The shared backend suite on the CPU engine, both algorithms.
+    mod chunked {
+        crate::backend_test_suite!(Some(crate::CpuEngine::new(crate::ConvAlgorithm::Chunked)));
+    }
+    mod rulebook {
+        crate::backend_test_suite!(Some(crate::CpuEngine::new(crate::ConvAlgorithm::Rulebook)));
+    }
+}

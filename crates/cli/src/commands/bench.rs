@@ -18,8 +18,9 @@ use semrecon_data::datasets::synthetic::room_scan_poses;
 use semrecon_data::shared_data::shared_data_path;
 use semrecon_data::synth::{generate_room, RoomConfig, RoomStyle};
 use semrecon_data::{read_ply, Intrinsics, LabeledMesh, PreparedMesh, Renderer, ScanPlan, SensorModel};
-use semrecon_sparse::bench::{run_conv_bench, BenchOptions, BenchRow};
-use semrecon_sparse::KernelMap;
+use semrecon_gpu::GpuEngine;
+use semrecon_sparse::bench::{run_backend_bench, run_conv_bench, BenchOptions, BenchRow};
+use semrecon_sparse::{ConvAlgorithm, KernelMap};
 use serde::Serialize;
 
 /// Arguments of `semrecon bench`.
@@ -72,6 +73,10 @@ struct ConvArgs {
     /// for the peer benchmark `bench/peers_conv.py` (see [`export_voxels`]).
     #[arg(long)]
     export: Option<PathBuf>,
+    /// `gpu` (or `auto` with a GPU) times the GPU engine's chunked and rulebook kernels instead
+    /// of the CPU's: whole calls, uploads and read-back included.
+    #[command(flatten)]
+    device: crate::device::DeviceArgs,
 }
 
 /// Runs the command.
@@ -158,6 +163,9 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
 struct ConvRow {
     #[serde(flatten)]
     row: BenchRow,
+    /// `cpu`, or the GPU adapter's name.
+    device: String,
+    /// The CPU's dense GEMM rate (0 for GPU rows).
     sgemm_gflops: f64,
     threads: usize,
     simd: String,
@@ -166,6 +174,7 @@ struct ConvRow {
 fn conv(args: ConvArgs) -> anyhow::Result<()> {
     let room = generate_room(&RoomConfig { seed: args.seed, style: None });
     let options = BenchOptions { repeats: args.repeats.max(1), ..BenchOptions::default() };
+    let gpu = args.device.gpu_context()?;
     let mut rows = Vec::new();
     println!(
         "{:<26} {:>7} {:>6} {:>4} {:>9} {:>16} {:>9} {:>8} {:>7}",
@@ -180,6 +189,10 @@ fn conv(args: ConvArgs) -> anyhow::Result<()> {
         }
         for &c in &args.channels {
             anyhow::ensure!((1..=1024).contains(&c), "--channels {c}: must be 1..=1024");
+            if let Some(ctx) = &gpu {
+                rows.extend(gpu_conv(ctx, &scene, &coords, voxel, c, options.repeats)?);
+                continue;
+            }
             let report = run_conv_bench(&scene, &coords, voxel, c, c, &options)
                 .with_context(|| format!("benchmarking {scene} at {voxel} m, {c} channels"))?;
             for row in report.rows {
@@ -197,6 +210,7 @@ fn conv(args: ConvArgs) -> anyhow::Result<()> {
                 );
                 rows.push(ConvRow {
                     row,
+                    device: "cpu".into(),
                     sgemm_gflops: report.sgemm_gflops,
                     threads: report.threads,
                     simd: report.simd.clone(),
@@ -205,6 +219,39 @@ fn conv(args: ConvArgs) -> anyhow::Result<()> {
         }
     }
     write_json(args.json.as_ref(), &rows)
+}
+
+/// The GPU engine's rows (chunked and rulebook) of one voxel set and channel count.
+fn gpu_conv(
+    ctx: &std::sync::Arc<semrecon_gpu::GpuContext>,
+    scene: &str,
+    coords: &[semrecon_sparse::Coord],
+    voxel: f32,
+    c: usize,
+    repeats: usize,
+) -> anyhow::Result<Vec<ConvRow>> {
+    let mut rows = Vec::new();
+    for algorithm in [ConvAlgorithm::Chunked, ConvAlgorithm::Rulebook] {
+        let engine = GpuEngine::with_context(std::sync::Arc::clone(ctx), algorithm);
+        let bench = run_backend_bench(&engine, scene, coords, voxel, c, c, repeats)
+            .with_context(|| format!("GPU benchmark of {scene} at {voxel} m, {c} channels"))?;
+        for row in bench {
+            println!(
+                "{:<26} {:>7} {:>6.2} {:>4} {:>13} {:>16} {:>9.2} {:>8.1} {:>7}",
+                format!("{} @ {} cm", row.scene, voxel * 100.0),
+                row.n,
+                row.mean_neighbours,
+                row.c_in,
+                row.kernel,
+                row.pass,
+                row.ms,
+                row.gflops,
+                "-"
+            );
+            rows.push(ConvRow { row, device: ctx.adapter_name(), sgemm_gflops: 0.0, threads: 0, simd: String::new() });
+        }
+    }
+    Ok(rows)
 }
 
 /// Surface voxels of a mesh: points sampled on every triangle at a spacing well below the

@@ -45,6 +45,12 @@ pub struct NetArgs {
     /// `bench/peers_net.py`.
     #[arg(long)]
     export: Option<PathBuf>,
+    /// Keep only the room's corner within this many metres of its lower corner (small runs,
+    /// e.g. on a software GPU driver); default: the whole room.
+    #[arg(long)]
+    crop: Option<f32>,
+    #[command(flatten)]
+    device: crate::device::DeviceArgs,
 }
 
 /// One kernel's measurements.
@@ -57,6 +63,8 @@ struct NetRow {
     /// Voxels per level, finest first.
     level_voxels: Vec<usize>,
     kernel: String,
+    /// `cpu`, or `gpu (adapter)`.
+    device: String,
     /// Fastest round, whole call (geometry and layers).
     ms_per_room: f64,
     /// Mean over the rounds, whole call.
@@ -88,9 +96,20 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
     };
     let room = generate_room(&RoomConfig { seed: args.seed, style: None });
     let voxel = config.voxel_size;
-    let cloud = sample_surface(&room.mesh, points_per_m2(voxel), args.seed);
+    let mut cloud = sample_surface(&room.mesh, points_per_m2(voxel), args.seed);
+    if let Some(crop) = args.crop {
+        anyhow::ensure!(crop > 0.0, "--crop must be positive");
+        let keep: Vec<usize> = (0..cloud.len()).filter(|&i| cloud.positions[i].max_element() < crop).collect();
+        cloud.positions = keep.iter().map(|&i| cloud.positions[i]).collect();
+        cloud.colors = keep.iter().map(|&i| cloud.colors[i]).collect();
+        cloud.labels = keep.iter().map(|&i| cloud.labels[i]).collect();
+    }
     let sample = VoxelSample::from_cloud(&cloud, voxel)?;
-    let scene = format!("synthetic {} seed {}", room.style, args.seed);
+    let scene = match args.crop {
+        Some(c) => format!("synthetic {} seed {} ({c} m corner)", room.style, args.seed),
+        None => format!("synthetic {} seed {}", room.style, args.seed),
+    };
+    let device = args.device.network_device()?;
     anyhow::ensure!(!sample.is_empty(), "the room has no voxels");
 
     let kernels = [("chunked", ConvKernel::Chunked), ("rulebook", ConvKernel::Rulebook)];
@@ -98,6 +117,7 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
     for (_, k) in kernels {
         let mut net = Segmenter::new(weights.clone(), config.clone())?;
         net.set_kernel(k);
+        net.set_device(device.clone());
         // Warm-up: workspace buffers allocated, caches and thread pool up.
         net.segment(&sample.coords, &sample.features)?;
         nets.push(net);
@@ -134,6 +154,7 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
                 voxels: sample.len(),
                 level_voxels: stats.iter().map(|s| s.voxels).collect(),
                 kernel: (*name).to_string(),
+                device: device.describe(),
                 ms_per_room: total,
                 mean_ms_per_room: times[q].iter().map(|t| t.0).sum::<f64>() / times[q].len() as f64,
                 geometry_ms: geometry,
@@ -148,9 +169,10 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
         .collect();
 
     println!(
-        "{} on {scene} at {} cm: {} voxels (levels {:?}), {:.2} GFLOP per room, {} threads, best of {rounds}",
+        "{} on {scene} at {} cm on {}: {} voxels (levels {:?}), {:.2} GFLOP per room, {} threads, best of {rounds}",
         config.summary(),
         voxel * 100.0,
+        device.describe(),
         sample.len(),
         rows[0].level_voxels,
         flops as f64 / 1e9,

@@ -48,6 +48,8 @@ pub struct DemoArgs {
     recon: ReconArgs,
     #[command(flatten)]
     semantics: SemanticArgs,
+    #[command(flatten)]
+    device: crate::device::DeviceArgs,
     /// Scan a home or office furnished with real modelled furniture (Debian's
     /// sweethome3d-furniture catalogues) instead of the built-in procedural room.
     #[arg(long)]
@@ -123,7 +125,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         scan_config.intrinsics.width,
         scan_config.intrinsics.height
     );
-    let (net, network) = load_network(&args.semantics)?;
+    let (net, network) = load_network(&args.semantics, &args.device)?;
     println!("semantics: {network}");
 
     let mut pipeline = Pipeline::new(config, scan.intrinsics(), net)?;

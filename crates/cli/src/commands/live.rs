@@ -205,7 +205,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     let caught = interrupt::install();
     let camera = open_camera(&args)?;
     let config = pipeline_config(&args.recon, &args.semantics, true, None)?;
-    let (net, network) = load_network(&args.semantics)?;
+    let (net, network) = load_network(&args.semantics, &crate::device::DeviceArgs::default())?;
     let k = camera.intrinsics();
     let frame_rate = camera.frame_rate();
     let period = 1.0 / frame_rate.max(1e-3);

@@ -62,6 +62,8 @@ pub struct RunArgs {
     recon: ReconArgs,
     #[command(flatten)]
     semantics: SemanticArgs,
+    #[command(flatten)]
+    device: crate::device::DeviceArgs,
     /// Feed frames at their capture rate (timestamps) instead of as fast as possible;
     /// semantic passes skip keyframes while the back end is busy.
     #[arg(long)]
@@ -200,7 +202,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         _ => None,
     };
     let config = pipeline_config(&args.recon, &args.semantics, args.realtime, up)?;
-    let (net, network) = load_network(&args.semantics)?;
+    let (net, network) = load_network(&args.semantics, &args.device)?;
     let k = source.intrinsics();
     println!(
         "{}: frames {}..{} of {}, {}x{}, voxel {} m",

@@ -48,6 +48,8 @@ pub struct SegmentArgs {
     up: UpAxis,
     #[command(flatten)]
     structure: StructureArgs,
+    #[command(flatten)]
+    device: crate::device::DeviceArgs,
 }
 
 /// The structure and test-time augmentation options of `segment` and `eval seg`.
@@ -224,6 +226,7 @@ pub fn label_vertices(
 /// Runs the command.
 pub fn run(args: SegmentArgs) -> anyhow::Result<()> {
     let mut net = load_model(args.model.as_deref(), args.config.as_deref())?;
+    net.set_device(args.device.network_device()?);
     let t_read = Instant::now();
     let mut ply = PlyFile::read(&args.input)?;
     let vertex = ply

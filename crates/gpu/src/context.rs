@@ -1,0 +1,401 @@
+//! Device set-up and the plumbing every kernel shares: one Vulkan adapter and device, the
+//! compiled pipelines, buffer creation checked against the device's limits, dispatch and
+//! read-back.
+//!
+//! wgpu reports device errors through callbacks (its default handler panics). The context
+//! installs its own handlers, which record validation errors and device loss, and every
+//! engine call checks them after waiting for the queue, so a lost device or a bad dispatch
+//! becomes a [`GpuError`] instead of a panic or a silently wrong result.
+
+use std::collections::HashMap;
+use std::sync::{mpsc, Arc, Mutex, MutexGuard};
+
+use crate::error::{GpuError, Result};
+
+/// Threads per workgroup of the one-dimensional kernels (and of the chunked kernel).
+pub(crate) const WORKGROUP: u32 = 64;
+/// Largest workgroup count of one grid dimension (the WebGPU minimum every device offers).
+const MAX_GROUPS: u32 = 65_535;
+/// Workgroup memory the chunked kernel uses: the region tile (176 rows x 16 channels) and four
+/// weight tiles (16 x 16), in bytes, plus a few words.
+const WORKGROUP_BYTES: u32 = (176 * 16 + 4 * 16 * 16 + 4) * 4;
+
+/// The compute pipelines of the engine, compiled once per context.
+pub(crate) struct Pipelines {
+    pub map_insert: wgpu::ComputePipeline,
+    pub map_lookup: wgpu::ComputePipeline,
+    pub chunked: wgpu::ComputePipeline,
+    pub gather: wgpu::ComputePipeline,
+    pub gemm: wgpu::ComputePipeline,
+    pub scatter: wgpu::ComputePipeline,
+    pub bn_relu: wgpu::ComputePipeline,
+    pub weight_grad: wgpu::ComputePipeline,
+}
+
+/// An opened GPU: device, queue, pipelines and the error state of the device.
+pub struct GpuContext {
+    pub(crate) device: wgpu::Device,
+    pub(crate) queue: wgpu::Queue,
+    pub(crate) pipelines: Pipelines,
+    info: wgpu::AdapterInfo,
+    limits: wgpu::Limits,
+    /// A cap below the device's buffer limit ([`Self::set_buffer_limit`]).
+    buffer_cap: Option<u64>,
+    errors: Arc<Mutex<Vec<String>>>,
+    lost: Arc<Mutex<Option<String>>>,
+    /// Per-call buffers (features, weights, outputs, scratch) by role, kept between calls and
+    /// only grown, so repeated calls (every layer of the network, every call of a benchmark)
+    /// allocate nothing on the device. Layer geometry is never pooled.
+    pool: Mutex<HashMap<&'static str, wgpu::Buffer>>,
+    /// Held for a whole engine call: pooled buffers are then never shared by two calls.
+    call: Mutex<()>,
+}
+
+impl std::fmt::Debug for GpuContext {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuContext").field("adapter", &self.adapter_name()).finish_non_exhaustive()
+    }
+}
+
+/// Checks one adapter limit against what the engine needs.
+fn need(info: &wgpu::AdapterInfo, what: &'static str, has: u64, needs: u64) -> Result<()> {
+    if has < needs {
+        return Err(GpuError::MissingCapability { adapter: info.name.clone(), what, has, needs });
+    }
+    Ok(())
+}
+
+impl GpuContext {
+    /// Opens the first Vulkan adapter (`WGPU_ADAPTER_NAME` and `WGPU_BACKEND` pick another)
+    /// with the best limits it offers, and compiles the kernels.
+    ///
+    /// # Errors
+    /// [`GpuError::NoAdapter`] without a Vulkan driver, [`GpuError::MissingCapability`] when a
+    /// limit the kernels need is missing, [`GpuError::RequestDevice`] / [`GpuError::Device`]
+    /// when the device cannot be opened or a kernel does not compile on it.
+    pub fn new() -> Result<Self> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        desc.backends = wgpu::Backends::VULKAN;
+        let instance = wgpu::Instance::new(desc);
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: false,
+            compatible_surface: None,
+            apply_limit_buckets: false,
+        }))
+        .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        let info = adapter.get_info();
+        let limits = adapter.limits();
+        need(&info, "compute invocations per workgroup", limits.max_compute_invocations_per_workgroup.into(), 256)?;
+        need(
+            &info,
+            "workgroup storage bytes",
+            limits.max_compute_workgroup_storage_size.into(),
+            WORKGROUP_BYTES.into(),
+        )?;
+        need(&info, "storage buffers per shader stage", limits.max_storage_buffers_per_shader_stage.into(), 5)?;
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("semrecon-gpu"),
+            required_features: wgpu::Features::empty(),
+            required_limits: limits.clone(),
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(|e| GpuError::RequestDevice(e.to_string()))?;
+
+        let errors = Arc::new(Mutex::new(Vec::new()));
+        let lost = Arc::new(Mutex::new(None));
+        {
+            let errors = Arc::clone(&errors);
+            device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+                if let Ok(mut v) = errors.lock() {
+                    v.push(e.to_string());
+                }
+            }));
+            let lost = Arc::clone(&lost);
+            device.set_device_lost_callback(move |reason, message| {
+                if let Ok(mut l) = lost.lock() {
+                    *l = Some(format!("{reason:?}: {message}"));
+                }
+            });
+        }
+        let pipelines = Pipelines::new(&device);
+        let context = Self {
+            device,
+            queue,
+            pipelines,
+            info,
+            limits,
+            buffer_cap: None,
+            errors,
+            lost,
+            pool: Mutex::new(HashMap::new()),
+            call: Mutex::new(()),
+        };
+        context.check()?;
+        Ok(context)
+    }
+
+    /// The adapter's name and driver, e.g. `llvmpipe (LLVM 15.0.6, 256 bits) (Mesa 22.3.6)`.
+    pub fn adapter_name(&self) -> String {
+        let i = &self.info;
+        if i.driver_info.is_empty() {
+            i.name.clone()
+        } else {
+            format!("{} ({})", i.name, i.driver_info)
+        }
+    }
+
+    /// Whether the adapter is a CPU software rasteriser (lavapipe, SwiftShader): correct,
+    /// but its timings say nothing about a real GPU.
+    pub fn is_software(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
+    /// [`GpuError::DeviceLost`] once the device is gone.
+    pub(crate) fn check_lost(&self) -> Result<()> {
+        match self.lost.lock() {
+            Ok(l) => match &*l {
+                Some(reason) => Err(GpuError::DeviceLost(reason.clone())),
+                None => Ok(()),
+            },
+            Err(_) => Err(GpuError::DeviceLost("device state poisoned".into())),
+        }
+    }
+
+    /// The errors recorded since the last check, as one error (device loss first).
+    pub(crate) fn check(&self) -> Result<()> {
+        self.check_lost()?;
+        let mut errors = self.errors.lock().map_err(|_| GpuError::Device("error log poisoned".into()))?;
+        if errors.is_empty() {
+            return Ok(());
+        }
+        let message = errors.join("; ");
+        errors.clear();
+        Err(GpuError::Device(message))
+    }
+
+    /// Bytes a storage buffer may hold on this device.
+    pub fn max_buffer_bytes(&self) -> u64 {
+        let device = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
+        self.buffer_cap.map_or(device, |c| c.min(device))
+    }
+
+    /// Treats buffers over `bytes` as over the device's limit (to leave memory to others, and
+    /// to test the limit without filling a real device).
+    pub fn set_buffer_limit(&mut self, bytes: u64) {
+        self.buffer_cap = Some(bytes);
+    }
+
+    /// Destroys the device: every later call fails with [`GpuError::DeviceLost`] (what a
+    /// driver reset or a removed GPU looks like to the engine).
+    pub fn destroy(&self) {
+        self.device.destroy();
+    }
+
+    fn check_size(&self, what: &'static str, bytes: u64) -> Result<()> {
+        let limit = self.max_buffer_bytes();
+        if bytes > limit {
+            return Err(GpuError::TooLarge { what, bytes, limit });
+        }
+        Ok(())
+    }
+
+    /// A storage buffer holding `data` (at least one word: empty bindings are invalid).
+    ///
+    /// Written through the queue, not mapped at creation: wgpu's mapped-at-creation path
+    /// panics on a lost device, the queue write reports an error.
+    pub(crate) fn upload<T: bytemuck::Pod>(&self, what: &'static str, data: &[T]) -> Result<wgpu::Buffer> {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        let buffer = self.zeroed(what, bytes.len() as u64)?;
+        if !bytes.is_empty() {
+            self.queue.write_buffer(&buffer, 0, bytes);
+        }
+        Ok(buffer)
+    }
+
+    /// Exclusive use of the pooled buffers for one engine call.
+    pub(crate) fn begin_call(&self) -> Result<MutexGuard<'_, ()>> {
+        self.check_lost()?;
+        // A panic while holding the lock left no buffer in a state a later call relies on.
+        Ok(self.call.lock().unwrap_or_else(std::sync::PoisonError::into_inner))
+    }
+
+    /// The pooled storage buffer of `role` with room for `bytes` (contents undefined), grown
+    /// to the next power of two when too small. Callers hold [`Self::begin_call`]'s guard.
+    pub(crate) fn transient(&self, role: &'static str, bytes: u64) -> Result<wgpu::Buffer> {
+        self.check_lost()?;
+        self.check_size(role, bytes)?;
+        let mut pool = self.pool.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(b) = pool.get(role) {
+            if b.size() >= bytes.max(4) {
+                return Ok(b.clone());
+            }
+        }
+        let limit = self.max_buffer_bytes();
+        let size = bytes.max(4).next_power_of_two().min(limit).max(bytes.max(4).next_multiple_of(4));
+        let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(role),
+            size,
+            usage,
+            mapped_at_creation: false,
+        });
+        pool.insert(role, buffer.clone());
+        Ok(buffer)
+    }
+
+    /// The pooled buffer of `role` holding `data`.
+    pub(crate) fn transient_upload<T: bytemuck::Pod>(&self, role: &'static str, data: &[T]) -> Result<wgpu::Buffer> {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        let buffer = self.transient(role, bytes.len() as u64)?;
+        if !bytes.is_empty() {
+            self.queue.write_buffer(&buffer, 0, bytes);
+        }
+        Ok(buffer)
+    }
+
+    /// A zero-filled storage buffer of `bytes` (at least 4).
+    pub(crate) fn zeroed(&self, what: &'static str, bytes: u64) -> Result<wgpu::Buffer> {
+        self.check_lost()?;
+        self.check_size(what, bytes)?;
+        let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
+        // New buffers are zero-initialised by wgpu.
+        Ok(self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(what),
+            size: bytes.max(4).next_multiple_of(4),
+            usage,
+            mapped_at_creation: false,
+        }))
+    }
+
+    /// A uniform buffer of kernel parameters (`u32` words, padded to 16 bytes).
+    pub(crate) fn params(&self, words: &[u32]) -> wgpu::Buffer {
+        let mut w = words.to_vec();
+        w.resize(words.len().next_multiple_of(4).max(4), 0);
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("params"),
+            size: w.len() as u64 * 4,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        self.queue.write_buffer(&buffer, 0, bytemuck::cast_slice(&w));
+        buffer
+    }
+
+    /// Records one dispatch of `pipeline` with `bindings` (binding number, buffer) over a
+    /// grid of `groups` workgroups (folded into x and y past the per-dimension limit) times
+    /// `z` in the third dimension.
+    pub(crate) fn dispatch(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        pipeline: &wgpu::ComputePipeline,
+        bindings: &[(u32, &wgpu::Buffer)],
+        groups: u32,
+        z: u32,
+    ) {
+        if groups == 0 || z == 0 {
+            return;
+        }
+        let layout = pipeline.get_bind_group_layout(0);
+        let entries: Vec<wgpu::BindGroupEntry<'_>> = bindings
+            .iter()
+            .map(|&(binding, buffer)| wgpu::BindGroupEntry { binding, resource: buffer.as_entire_binding() })
+            .collect();
+        let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &layout,
+            entries: &entries,
+        });
+        let (x, y) = grid(groups);
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes: None });
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, &group, &[]);
+        pass.dispatch_workgroups(x, y, z);
+    }
+
+    /// A new command encoder.
+    pub(crate) fn encoder(&self) -> wgpu::CommandEncoder {
+        self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None })
+    }
+
+    /// Submits `encoder` after appending a copy of the first `count` values of `buffer` to a
+    /// staging buffer, waits, and returns them.
+    pub(crate) fn finish_and_read<T: bytemuck::Pod>(
+        &self,
+        mut encoder: wgpu::CommandEncoder,
+        buffer: &wgpu::Buffer,
+        count: usize,
+    ) -> Result<Vec<T>> {
+        let bytes = (count * std::mem::size_of::<T>()) as u64;
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("read-back"),
+            size: bytes.max(4).next_multiple_of(4),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        if bytes > 0 {
+            encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, bytes.next_multiple_of(4));
+        }
+        self.queue.submit([encoder.finish()]);
+        let (tx, rx) = mpsc::channel();
+        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            // The receiver waits below; a failed send only means it gave up.
+            let _ = tx.send(r);
+        });
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Readback(e.to_string()))?;
+        self.check()?;
+        match rx.recv() {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => return Err(GpuError::Readback(e.to_string())),
+            Err(_) => return Err(GpuError::Readback("the mapping callback never ran".into())),
+        }
+        let view = staging.slice(..).get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
+        let out: Vec<T> = bytemuck::pod_collect_to_vec(&view[..bytes as usize]);
+        drop(view);
+        staging.unmap();
+        Ok(out)
+    }
+}
+
+/// `groups` workgroups as an `(x, y)` grid within the per-dimension limit; kernels recover the
+/// flat index as `x + y * num_workgroups.x` and skip the tail.
+pub(crate) fn grid(groups: u32) -> (u32, u32) {
+    let x = groups.min(MAX_GROUPS);
+    (x, groups.div_ceil(x.max(1)))
+}
+
+impl Pipelines {
+    fn new(device: &wgpu::Device) -> Self {
+        let module = |label: &str, source: &str| {
+            device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            })
+        };
+        let map = module("map", include_str!("shaders/map.wgsl"));
+        let chunked = module("chunked", include_str!("shaders/chunked.wgsl"));
+        let rulebook = module("rulebook", include_str!("shaders/rulebook.wgsl"));
+        let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: None,
+                module: m,
+                entry_point: Some(entry),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                cache: None,
+            })
+        };
+        Self {
+            map_insert: pipeline(&map, "insert"),
+            map_lookup: pipeline(&map, "lookup"),
+            chunked: pipeline(&chunked, "forward"),
+            gather: pipeline(&rulebook, "gather"),
+            gemm: pipeline(&rulebook, "gemm"),
+            scatter: pipeline(&rulebook, "scatter"),
+            bn_relu: pipeline(&rulebook, "bn_relu"),
+            weight_grad: pipeline(&rulebook, "weight_grad"),
+        }
+    }
+}

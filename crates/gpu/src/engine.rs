@@ -1,0 +1,306 @@
+//! The GPU engine: [`ConvBackend`] on wgpu, with the chunked kernel (Algorithm 2) or the
+//! rulebook baseline (Algorithm 1) on the same device geometry.
+//!
+//! A call copies its feature and weight buffers into the context's pooled device buffers
+//! (kept between calls and only grown), records every dispatch of the layer in one command
+//! buffer, submits it and reads the result back; layer geometry stays on the device between
+//! calls. The input gradient is the forward kernel on the transposed problem (the
+//! forward plan with mirrored offsets for submanifold layers, the plan over the inputs for
+//! strided ones, exactly as the CPU engine does it); the weight gradient runs one thread per
+//! weight over the offset's pair list.
+
+use std::sync::Arc;
+
+use semrecon_sparse::backend::check_forward;
+use semrecon_sparse::{BnRelu, ChunkConfig, ChunkedConv, ConvAlgorithm, ConvBackend, Coord, MapKind};
+
+use crate::context::{GpuContext, WORKGROUP};
+use crate::error::{GpuError, Result};
+use crate::layer::{DevicePlan, GpuLayer};
+
+/// The GPU engine: an opened device and the algorithm of its convolutions.
+#[derive(Debug, Clone)]
+pub struct GpuEngine {
+    ctx: Arc<GpuContext>,
+    /// The algorithm of every convolution.
+    pub algorithm: ConvAlgorithm,
+    /// How outputs are cut into chunks (the same planner as the CPU engine).
+    pub chunk: ChunkConfig,
+}
+
+/// Weights `[kv, c_in, c_out]` transposed per offset to `[kv, c_out, c_in]`, offset `k` taken
+/// from `source(k)`.
+fn transpose(w: &[f32], kv: usize, c_in: usize, c_out: usize, source: impl Fn(usize) -> usize) -> Vec<f32> {
+    let mut t = vec![0f32; w.len()];
+    for k in 0..kv {
+        let s = source(k);
+        for ci in 0..c_in {
+            for co in 0..c_out {
+                t[(k * c_out + co) * c_in + ci] = w[(s * c_in + ci) * c_out + co];
+            }
+        }
+    }
+    t
+}
+
+fn count32(what: &'static str, n: usize) -> Result<u32> {
+    u32::try_from(n).map_err(|_| GpuError::TooLarge { what, bytes: n as u64 * 4, limit: u32::MAX as u64 })
+}
+
+impl GpuEngine {
+    /// Opens the GPU (see [`GpuContext::new`]) for `algorithm`.
+    ///
+    /// # Errors
+    /// As [`GpuContext::new`].
+    pub fn new(algorithm: ConvAlgorithm) -> Result<Self> {
+        Ok(Self::with_context(Arc::new(GpuContext::new()?), algorithm))
+    }
+
+    /// An engine on an already opened device (engines of both algorithms can share one).
+    pub fn with_context(ctx: Arc<GpuContext>, algorithm: ConvAlgorithm) -> Self {
+        Self { ctx, algorithm, chunk: ChunkConfig::default() }
+    }
+
+    /// The device.
+    pub fn context(&self) -> &Arc<GpuContext> {
+        &self.ctx
+    }
+
+    /// The same device running `algorithm`.
+    pub fn with_algorithm(&self, algorithm: ConvAlgorithm) -> Self {
+        Self { algorithm, ..self.clone() }
+    }
+
+    /// A layer of a CPU geometry (kernel map and chunk plans built on the host, as the
+    /// network's geometry builds them) uploaded for this engine.
+    ///
+    /// # Errors
+    /// Buffers over the device's limits, a lost device.
+    pub fn import(&self, layer: &ChunkedConv) -> Result<GpuLayer> {
+        GpuLayer::from_cpu(&self.ctx, layer)
+    }
+
+    /// The chunked kernel over `plan` into `y` (`[rows, c_out]`, with `accumulate` its
+    /// contents are added to).
+    #[allow(clippy::too_many_arguments)]
+    fn run_chunked(
+        &self,
+        plan: &DevicePlan,
+        kv: usize,
+        x: &[f32],
+        c_in: usize,
+        bn: Option<BnRelu<'_>>,
+        w: &[f32],
+        c_out: usize,
+        y: &mut [f32],
+        accumulate: bool,
+    ) -> Result<()> {
+        let ctx = &*self.ctx;
+        let xb = ctx.transient_upload("features", x)?;
+        let wb = ctx.transient_upload("weights", w)?;
+        let bnb = match bn {
+            Some(bn) => ctx.transient_upload("batch norm", &[bn.scale, bn.shift].concat())?,
+            None => ctx.transient("batch norm", 4)?,
+        };
+        // Every output row belongs to one chunk and is written: no clearing needed.
+        let yb =
+            if accumulate { ctx.transient_upload("output", y)? } else { ctx.transient("output", y.len() as u64 * 4)? };
+        let flags = u32::from(bn.is_some()) | (u32::from(accumulate) << 1);
+        let o = plan.offsets;
+        let params = ctx.params(&[
+            count32("channels", c_in)?,
+            count32("channels", c_out)?,
+            kv as u32,
+            plan.n_chunks,
+            flags,
+            o[0],
+            o[1],
+            o[2],
+            o[3],
+            o[4],
+        ]);
+        let mut enc = ctx.encoder();
+        let bindings = [(0, &params), (1, &xb), (2, &wb), (3, &bnb), (4, &plan.buffer), (5, &yb)];
+        ctx.dispatch(
+            &mut enc,
+            &ctx.pipelines.chunked,
+            &bindings,
+            plan.n_chunks,
+            count32("channels", c_out.div_ceil(16))?,
+        );
+        let out: Vec<f32> = ctx.finish_and_read(enc, &yb, y.len())?;
+        y.copy_from_slice(&out);
+        Ok(())
+    }
+
+    /// The rulebook kernels over the layer's pairs: per offset gather, GEMM, scatter-add;
+    /// `swap` reads from output rows and writes to input rows (the input gradient, with
+    /// weights `[kv, c_src, c_dst]` already transposed).
+    #[allow(clippy::too_many_arguments)]
+    fn run_rulebook(
+        &self,
+        layer: &GpuLayer,
+        swap: bool,
+        x: &[f32],
+        c_src: usize,
+        bn: Option<BnRelu<'_>>,
+        w: &[f32],
+        c_dst: usize,
+        y: &mut [f32],
+        accumulate: bool,
+    ) -> Result<()> {
+        let ctx = &*self.ctx;
+        let p = &ctx.pipelines;
+        let (cs, cd) = (count32("channels", c_src)?, count32("channels", c_dst)?);
+        let n_pairs = count32("pairs", layer.num_pairs())?;
+        let most = layer.starts.windows(2).map(|s| s[1] - s[0]).max().unwrap_or(0) as u64;
+        let mut xb = ctx.transient_upload("features", x)?;
+        let wb = ctx.transient_upload("weights", w)?;
+        let y_bytes = y.len() as u64 * 4;
+        let yb = if accumulate { ctx.transient_upload("output", y)? } else { ctx.transient("output", y_bytes)? };
+        // Written before they are read, within each offset.
+        let gathered = ctx.transient("gathered rows", most * u64::from(cs) * 4)?;
+        let products = ctx.transient("products", most * u64::from(cd) * 4)?;
+        let mut enc = ctx.encoder();
+        if !accumulate {
+            // The scatter adds: the output starts at zero.
+            enc.clear_buffer(&yb, 0, Some(y_bytes.next_multiple_of(4)));
+        }
+        if let Some(bn) = bn {
+            // The standard algorithm's separate normalisation pass.
+            let bnb = ctx.transient_upload("batch norm", &[bn.scale, bn.shift].concat())?;
+            let normalised = ctx.transient("normalised features", x.len() as u64 * 4)?;
+            let n = count32("features", x.len())?;
+            let params = ctx.params(&[n, cs, 0, 0, 0, 0, 0, 0]);
+            let b = [(0, &params), (1, &xb), (3, &bnb), (4, &normalised)];
+            ctx.dispatch(&mut enc, &p.bn_relu, &b, n.div_ceil(WORKGROUP), 1);
+            xb = normalised;
+        }
+        for k in 0..layer.kv {
+            let (base, rows) = (layer.starts[k], layer.starts[k + 1] - layer.starts[k]);
+            if rows == 0 {
+                continue;
+            }
+            let w_base = count32("weights", k * c_src * c_dst)?;
+            let params = ctx.params(&[rows, cs, cd, base, n_pairs, u32::from(swap), w_base, layer.kv as u32]);
+            let g = [(0, &params), (1, &xb), (2, &layer.pairs), (4, &gathered)];
+            ctx.dispatch(
+                &mut enc,
+                &p.gather,
+                &g,
+                count32("gathered rows", rows as usize * c_src)?.div_ceil(WORKGROUP),
+                1,
+            );
+            let m = [(0, &params), (1, &gathered), (3, &wb), (4, &products)];
+            ctx.dispatch(&mut enc, &p.gemm, &m, rows.div_ceil(16), cd.div_ceil(16));
+            let s = [(0, &params), (1, &products), (2, &layer.pairs), (4, &yb)];
+            ctx.dispatch(&mut enc, &p.scatter, &s, count32("products", rows as usize * c_dst)?.div_ceil(WORKGROUP), 1);
+        }
+        let out: Vec<f32> = ctx.finish_and_read(enc, &yb, y.len())?;
+        y.copy_from_slice(&out);
+        Ok(())
+    }
+}
+
+impl ConvBackend for GpuEngine {
+    type Layer = GpuLayer;
+    type Error = GpuError;
+
+    fn name(&self) -> String {
+        format!("gpu-{}", self.algorithm.name())
+    }
+
+    fn submanifold(&self, coords: &[Coord], kernel_size: usize) -> Result<GpuLayer> {
+        GpuLayer::submanifold(&self.ctx, coords, kernel_size, &self.chunk)
+    }
+
+    fn downsample(&self, fine: &[Coord]) -> Result<(Vec<Coord>, GpuLayer)> {
+        GpuLayer::downsample(&self.ctx, fine, &self.chunk)
+    }
+
+    fn upsample(&self, coarse: &[Coord], fine: &[Coord]) -> Result<GpuLayer> {
+        GpuLayer::upsample(&self.ctx, coarse, fine, &self.chunk)
+    }
+
+    fn layer_rows(&self, layer: &GpuLayer) -> (usize, usize) {
+        (layer.n_in, layer.n_out)
+    }
+
+    fn forward_into(
+        &self,
+        layer: &GpuLayer,
+        x: &[f32],
+        c_in: usize,
+        bn: Option<BnRelu<'_>>,
+        w: &[f32],
+        c_out: usize,
+        y: &mut [f32],
+        accumulate: bool,
+    ) -> Result<()> {
+        check_forward(layer.kv, (layer.n_in, layer.n_out), x, c_in, bn, w, c_out, y)?;
+        if y.is_empty() || layer.n_in == 0 || c_in == 0 {
+            // Nothing to read: the convolution is zero.
+            if !accumulate {
+                y.fill(0.0);
+            }
+            return Ok(());
+        }
+        let _call = self.ctx.begin_call()?;
+        match self.algorithm {
+            ConvAlgorithm::Chunked => self.run_chunked(&layer.forward, layer.kv, x, c_in, bn, w, c_out, y, accumulate),
+            ConvAlgorithm::Rulebook => self.run_rulebook(layer, false, x, c_in, bn, w, c_out, y, accumulate),
+        }
+    }
+
+    fn backward_input(&self, layer: &GpuLayer, dy: &[f32], c_out: usize, w: &[f32], c_in: usize) -> Result<Vec<f32>> {
+        let mut dx = vec![0f32; layer.n_in * c_in];
+        // The transposed problem's shapes: dy is its input, dx its output.
+        check_forward(layer.kv, (layer.n_out, layer.n_in), dy, c_out, None, w, c_in, &dx)?;
+        if dx.is_empty() || layer.n_out == 0 || c_out == 0 {
+            return Ok(dx);
+        }
+        let kv = layer.kv;
+        let _call = self.ctx.begin_call()?;
+        match (self.algorithm, &layer.backward) {
+            (ConvAlgorithm::Rulebook, _) => {
+                let wt = transpose(w, kv, c_in, c_out, |k| k);
+                self.run_rulebook(layer, true, dy, c_out, None, &wt, c_in, &mut dx, false)?;
+            }
+            (ConvAlgorithm::Chunked, Some(plan)) => {
+                let wt = transpose(w, kv, c_in, c_out, |k| k);
+                self.run_chunked(plan, kv, dy, c_out, None, &wt, c_in, &mut dx, false)?;
+            }
+            (ConvAlgorithm::Chunked, None) => {
+                if !matches!(layer.kind, MapKind::Submanifold { .. }) {
+                    return Err(GpuError::Device("strided layer without an input-side plan".into()));
+                }
+                // Submanifold: the pairs of offset k, swapped, are those of its mirror.
+                let wt = transpose(w, kv, c_in, c_out, |k| kv - 1 - k);
+                self.run_chunked(&layer.forward, kv, dy, c_out, None, &wt, c_in, &mut dx, false)?;
+            }
+        }
+        Ok(dx)
+    }
+
+    fn backward_weight(&self, layer: &GpuLayer, x: &[f32], c_in: usize, dy: &[f32], c_out: usize) -> Result<Vec<f32>> {
+        let kv = layer.kv;
+        let dw = vec![0f32; kv * c_in * c_out];
+        check_forward(kv, (layer.n_in, layer.n_out), x, c_in, None, &dw, c_out, dy)?;
+        if dw.is_empty() || layer.num_pairs() == 0 {
+            return Ok(dw);
+        }
+        let ctx = &*self.ctx;
+        let _call = ctx.begin_call()?;
+        let xb = ctx.transient_upload("features", x)?;
+        let dyb = ctx.transient_upload("output gradient", dy)?;
+        // Every weight is written by the kernel.
+        let dwb = ctx.transient("weight gradient", dw.len() as u64 * 4)?;
+        let n_pairs = count32("pairs", layer.num_pairs())?;
+        let (cs, cd) = (count32("channels", c_in)?, count32("channels", c_out)?);
+        let params = ctx.params(&[0, cs, cd, 0, n_pairs, 0, 0, kv as u32]);
+        let mut enc = ctx.encoder();
+        let b = [(0, &params), (1, &xb), (2, &layer.pairs), (4, &dwb), (5, &dyb)];
+        ctx.dispatch(&mut enc, &ctx.pipelines.weight_grad, &b, count32("weights", dw.len())?.div_ceil(WORKGROUP), 1);
+        ctx.finish_and_read(enc, &dwb, dw.len())
+    }
+}

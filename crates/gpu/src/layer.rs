@@ -1,0 +1,238 @@
+//! Layer geometry on the device: the kernel map and chunk plans of one layer, uploaded once
+//! and reused by every call (the network runs every layer of a level on one geometry).
+//!
+//! Submanifold maps are built on the device: the voxels go into a hash table (one
+//! compare-exchange per voxel) and one look-up per (voxel, offset) writes the `[n, K^3]`
+//! neighbour table. The table comes back to the host, where `semrecon_sparse::ChunkPlan`
+//! cuts the outputs into adaptive chunks (sides C, C/2, C/4) and the per-offset pair lists of
+//! the rulebook kernels are read off it; both go back up as plain index arrays. Strided maps
+//! (down and transposed) are built on the host by `semrecon_sparse::KernelMap`, which they
+//! share with the CPU engine. Planning on the device is left for later (docs/gpu.md).
+
+use semrecon_sparse::chunked::ChunkPlan;
+use semrecon_sparse::key::pack_key;
+use semrecon_sparse::{ChunkConfig, ChunkedConv, Coord, KernelMap, MapKind, SparseError};
+
+use crate::context::{GpuContext, WORKGROUP};
+use crate::error::{GpuError, Result};
+
+/// Marks a missing neighbour in tables.
+pub(crate) const EMPTY: u32 = u32::MAX;
+
+/// A chunk plan on the device: the index arrays of the chunked kernel in one buffer.
+#[derive(Debug)]
+pub(crate) struct DevicePlan {
+    pub buffer: wgpu::Buffer,
+    pub n_chunks: u32,
+    /// Word offsets of dst_start, dst_rows, src_start, src_rows and the local table.
+    pub offsets: [u32; 5],
+}
+
+impl DevicePlan {
+    /// Uploads `plan` with its chunk-local neighbour table.
+    fn upload(ctx: &GpuContext, plan: &ChunkPlan) -> Result<Self> {
+        let a = plan.arrays();
+        let kv = plan.kernel_volume();
+        let n_dst = a.dst_rows.len();
+        let mut table = vec![EMPTY; n_dst * kv];
+        for c in 0..plan.num_chunks() {
+            let d0 = a.dst_start[c] as usize;
+            for k in 0..kv {
+                let (ps, pd) = plan.chunk_pairs(c, k);
+                for (&s, &d) in ps.iter().zip(pd) {
+                    table[(d0 + d as usize) * kv + k] = s;
+                }
+            }
+        }
+        let mut words = Vec::with_capacity(a.dst_start.len() * 2 + n_dst + a.src_rows.len() + table.len());
+        let mut offsets = [0u32; 5];
+        for (i, part) in [a.dst_start, a.dst_rows, a.src_start, a.src_rows, &table].into_iter().enumerate() {
+            offsets[i] = word_offset(words.len())?;
+            words.extend_from_slice(part);
+        }
+        let n_chunks = u32::try_from(plan.num_chunks()).map_err(|_| SparseError::TooManyRows(plan.num_chunks()))?;
+        Ok(Self { buffer: ctx.upload("chunk plan", &words)?, n_chunks, offsets })
+    }
+}
+
+/// A word index as `u32`, or a size error.
+fn word_offset(n: usize) -> Result<u32> {
+    u32::try_from(n).map_err(|_| GpuError::TooLarge {
+        what: "index arrays",
+        bytes: n as u64 * 4,
+        limit: u32::MAX as u64,
+    })
+}
+
+/// A layer prepared on the device for the [`GpuEngine`](crate::GpuEngine).
+#[derive(Debug)]
+pub struct GpuLayer {
+    pub(crate) kind: MapKind,
+    pub(crate) kv: usize,
+    pub(crate) n_in: usize,
+    pub(crate) n_out: usize,
+    /// The plan over the outputs.
+    pub(crate) forward: DevicePlan,
+    /// The plan over the inputs (input gradient of strided maps; submanifold maps reuse the
+    /// forward plan with mirrored offsets).
+    pub(crate) backward: Option<DevicePlan>,
+    /// `[in rows | out rows | offset starts]` of the rulebook kernels.
+    pub(crate) pairs: wgpu::Buffer,
+    /// Host copy of the offset starts, `[kv + 1]`.
+    pub(crate) starts: Vec<u32>,
+}
+
+impl GpuLayer {
+    /// What the layer connects.
+    pub fn kind(&self) -> MapKind {
+        self.kind
+    }
+
+    /// Number of (input, output) pairs.
+    pub fn num_pairs(&self) -> usize {
+        self.starts.last().copied().unwrap_or(0) as usize
+    }
+
+    /// The layer of a CPU geometry: its plans and pairs uploaded as they are.
+    ///
+    /// # Errors
+    /// Buffers over the device's limits, device errors.
+    pub fn from_cpu(ctx: &GpuContext, layer: &ChunkedConv) -> Result<Self> {
+        let plan = layer.forward_plan();
+        let table = plan.neighbour_table();
+        let forward = DevicePlan::upload(ctx, plan)?;
+        let backward = layer.backward_plan().map(|p| DevicePlan::upload(ctx, p)).transpose()?;
+        let (pairs, starts) = upload_pairs(ctx, &table, plan.kernel_volume())?;
+        Ok(Self {
+            kind: layer.kind(),
+            kv: plan.kernel_volume(),
+            n_in: layer.n_in(),
+            n_out: layer.n_out(),
+            forward,
+            backward,
+            pairs,
+            starts,
+        })
+    }
+
+    /// A submanifold layer with its neighbour table built on the device.
+    pub(crate) fn submanifold(
+        ctx: &GpuContext,
+        coords: &[Coord],
+        kernel_size: usize,
+        chunk: &ChunkConfig,
+    ) -> Result<Self> {
+        if kernel_size.is_multiple_of(2) || kernel_size > 9 {
+            return Err(SparseError::KernelSize(kernel_size).into());
+        }
+        let kv = kernel_size.pow(3);
+        let n = coords.len();
+        let table = neighbour_table(ctx, coords, kernel_size)?;
+        let plan = ChunkPlan::from_table(&table, kv, Some(kv / 2), n, coords, chunk)?;
+        let forward = DevicePlan::upload(ctx, &plan)?;
+        let (pairs, starts) = upload_pairs(ctx, &table, kv)?;
+        Ok(Self {
+            kind: MapKind::Submanifold { kernel_size },
+            kv,
+            n_in: n,
+            n_out: n,
+            forward,
+            backward: None,
+            pairs,
+            starts,
+        })
+    }
+
+    /// The strided layer from `fine` to its coarse set.
+    pub(crate) fn downsample(ctx: &GpuContext, fine: &[Coord], chunk: &ChunkConfig) -> Result<(Vec<Coord>, Self)> {
+        let (coarse, map) = KernelMap::downsample(fine)?;
+        let layer = ChunkedConv::new(map, fine, &coarse, chunk)?;
+        Ok((coarse, Self::from_cpu(ctx, &layer)?))
+    }
+
+    /// The transposed layer from `coarse` to `fine`.
+    pub(crate) fn upsample(ctx: &GpuContext, coarse: &[Coord], fine: &[Coord], chunk: &ChunkConfig) -> Result<Self> {
+        let layer = ChunkedConv::new(KernelMap::upsample(coarse, fine)?, coarse, fine, chunk)?;
+        Self::from_cpu(ctx, &layer)
+    }
+}
+
+/// The per-offset pair lists of an `[n_out, kv]` neighbour table (sorted by output row within
+/// an offset, as `KernelMap` keeps them), uploaded as `[in | out | starts]`.
+fn upload_pairs(ctx: &GpuContext, table: &[u32], kv: usize) -> Result<(wgpu::Buffer, Vec<u32>)> {
+    let n_out = table.len().checked_div(kv).unwrap_or(0);
+    let mut per: Vec<(Vec<u32>, Vec<u32>)> = vec![(Vec::new(), Vec::new()); kv];
+    for u in 0..n_out {
+        for (k, p) in per.iter_mut().enumerate() {
+            let s = table[u * kv + k];
+            if s != EMPTY {
+                p.0.push(s);
+                p.1.push(u as u32);
+            }
+        }
+    }
+    let total: usize = per.iter().map(|p| p.0.len()).sum();
+    let mut words = Vec::with_capacity(2 * total + kv + 1);
+    let mut starts = Vec::with_capacity(kv + 1);
+    starts.push(0u32);
+    for p in &per {
+        words.extend_from_slice(&p.0);
+        starts.push(word_offset(words.len())?);
+    }
+    for p in &per {
+        words.extend_from_slice(&p.1);
+    }
+    words.extend_from_slice(&starts);
+    word_offset(words.len())?;
+    Ok((ctx.upload("pair lists", &words)?, starts))
+}
+
+/// The `[n, K^3]` submanifold neighbour table of `coords`, built on the device.
+fn neighbour_table(ctx: &GpuContext, coords: &[Coord], kernel_size: usize) -> Result<Vec<u32>> {
+    let n = coords.len();
+    let kv = kernel_size.pow(3);
+    for (row, &c) in coords.iter().enumerate() {
+        pack_key(c, row)?;
+    }
+    if n == 0 {
+        return Ok(Vec::new());
+    }
+    let entries = n.checked_mul(kv).filter(|&e| e < u32::MAX as usize).ok_or(SparseError::TooManyRows(n))?;
+    // Load factor at most one half: short probe sequences.
+    let capacity = (2 * n).next_power_of_two().max(64);
+    let cap32 = u32::try_from(capacity).map_err(|_| SparseError::TooManyRows(n))?;
+    let coords_buf = ctx.upload("coordinates", coords)?;
+    let slots = ctx.upload("hash slots", &vec![EMPTY; capacity])?;
+    let status = ctx.zeroed("map status", 8)?;
+    let table = ctx.zeroed("neighbour table", entries as u64 * 4)?;
+    let params = ctx.params(&[n as u32, cap32 - 1, kernel_size as u32, kv as u32]);
+    let mut enc = ctx.encoder();
+    let p = &ctx.pipelines;
+    ctx.dispatch(
+        &mut enc,
+        &p.map_insert,
+        &[(0, &params), (1, &coords_buf), (2, &slots), (3, &status)],
+        (n as u32).div_ceil(WORKGROUP),
+        1,
+    );
+    ctx.dispatch(
+        &mut enc,
+        &p.map_lookup,
+        &[(0, &params), (1, &coords_buf), (2, &slots), (4, &table)],
+        (entries as u32).div_ceil(WORKGROUP),
+        1,
+    );
+    let status: Vec<u32> = ctx.finish_and_read(enc, &status, 2)?;
+    if status[0] != 0 {
+        let row = status[0] as usize - 1;
+        return Err(SparseError::InvalidArgument(format!(
+            "duplicate coordinate {:?} at row {row} (build a SparseTensor to merge duplicates)",
+            coords[row]
+        ))
+        .into());
+    }
+    if status[1] != 0 {
+        return Err(GpuError::Device("the voxel hash table overflowed".into()));
+    }
+    ctx.finish_and_read(ctx.encoder(), &table, entries)
+}

@@ -1,0 +1,140 @@
+//! The engine's types in a build without the `gpu` feature: they cannot be constructed
+//! ([`GpuEngine::new`] says how to build with the feature), so code written against them
+//! compiles in every build and needs no conditional compilation of its own.
+
+use std::convert::Infallible;
+use std::sync::Arc;
+
+use semrecon_sparse::{BnRelu, ChunkedConv, ConvAlgorithm, ConvBackend, Coord};
+
+use crate::error::{GpuError, Result};
+
+/// No device: this build has no GPU engine.
+#[derive(Debug)]
+pub struct GpuContext {
+    never: Infallible,
+}
+
+impl GpuContext {
+    /// Always [`GpuError::NotBuilt`].
+    ///
+    /// # Errors
+    /// Always.
+    pub fn new() -> Result<Self> {
+        Err(GpuError::NotBuilt)
+    }
+
+    /// Never called (no value exists).
+    pub fn adapter_name(&self) -> String {
+        match self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn is_software(&self) -> bool {
+        match self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn max_buffer_bytes(&self) -> u64 {
+        match self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn set_buffer_limit(&mut self, _bytes: u64) {
+        match self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn destroy(&self) {
+        match self.never {}
+    }
+}
+
+/// No layers: this build has no GPU engine.
+#[derive(Debug)]
+pub struct GpuLayer {
+    never: Infallible,
+}
+
+/// The GPU engine of a build without the `gpu` feature: cannot be constructed.
+#[derive(Debug, Clone)]
+pub struct GpuEngine {
+    never: Arc<Infallible>,
+}
+
+impl GpuEngine {
+    /// Always [`GpuError::NotBuilt`].
+    ///
+    /// # Errors
+    /// Always.
+    pub fn new(_algorithm: ConvAlgorithm) -> Result<Self> {
+        Err(GpuError::NotBuilt)
+    }
+
+    /// Never called (no value exists).
+    pub fn with_context(ctx: Arc<GpuContext>, _algorithm: ConvAlgorithm) -> Self {
+        match ctx.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn context(&self) -> &Arc<GpuContext> {
+        match *self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn with_algorithm(&self, _algorithm: ConvAlgorithm) -> Self {
+        match *self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn import(&self, _layer: &ChunkedConv) -> Result<GpuLayer> {
+        match *self.never {}
+    }
+}
+
+impl ConvBackend for GpuEngine {
+    type Layer = GpuLayer;
+    type Error = GpuError;
+
+    fn name(&self) -> String {
+        match *self.never {}
+    }
+
+    fn submanifold(&self, _: &[Coord], _: usize) -> Result<GpuLayer> {
+        match *self.never {}
+    }
+
+    fn downsample(&self, _: &[Coord]) -> Result<(Vec<Coord>, GpuLayer)> {
+        match *self.never {}
+    }
+
+    fn upsample(&self, _: &[Coord], _: &[Coord]) -> Result<GpuLayer> {
+        match *self.never {}
+    }
+
+    fn layer_rows(&self, layer: &GpuLayer) -> (usize, usize) {
+        match layer.never {}
+    }
+
+    fn forward_into(
+        &self,
+        _: &GpuLayer,
+        _: &[f32],
+        _: usize,
+        _: Option<BnRelu<'_>>,
+        _: &[f32],
+        _: usize,
+        _: &mut [f32],
+        _: bool,
+    ) -> Result<()> {
+        match *self.never {}
+    }
+
+    fn backward_input(&self, _: &GpuLayer, _: &[f32], _: usize, _: &[f32], _: usize) -> Result<Vec<f32>> {
+        match *self.never {}
+    }
+
+    fn backward_weight(&self, _: &GpuLayer, _: &[f32], _: usize, _: &[f32], _: usize) -> Result<Vec<f32>> {
+        match *self.never {}
+    }
+}

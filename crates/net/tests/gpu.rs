@@ -1,0 +1,94 @@
+//! The network on the GPU engine against the CPU: logits within 1e-4 of the scale and the same
+//! labels, with random weights (both algorithms) and with the shipped model on a corner of a
+//! generated room. Runs on lavapipe in CI (`cargo test -p semrecon-net --features gpu --test
+//! gpu`); skips with a message when no GPU adapter exists.
+
+#![cfg(feature = "gpu")]
+#![allow(clippy::unwrap_used)]
+
+use semrecon_data::synth::{generate_room, RoomConfig};
+use semrecon_net::inference::Device;
+use semrecon_net::{reference, ConvKernel, NetConfig, Segmenter, Weights};
+use semrecon_sparse::backend_tests::{random_set, Rng};
+use semrecon_sparse::ConvAlgorithm;
+
+fn gpu() -> Option<Device> {
+    semrecon_gpu::test_engine(ConvAlgorithm::Chunked).map(Device::Gpu)
+}
+
+fn max_abs(v: &[f32]) -> f32 {
+    v.iter().fold(0.0, |m, x| m.max(x.abs()))
+}
+
+fn argmax(v: &[f32]) -> Vec<usize> {
+    v.chunks(13).map(|r| (0..13).fold(0, |b, c| if r[c] > r[b] { c } else { b })).collect()
+}
+
+/// Largest difference, and labels that differ where the CPU's best two scores are further
+/// apart than the error (a real disagreement, not a near-tie flipped by rounding).
+fn compare(what: &str, gpu: &[f32], cpu: &[f32]) {
+    let scale = max_abs(cpu).max(1.0);
+    let err = gpu.iter().zip(cpu).fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+    assert!(err <= 1e-4 * scale, "{what}: max error {err} (scale {scale})");
+    let (lg, lc) = (argmax(gpu), argmax(cpu));
+    let mut flips = 0;
+    for (v, (a, b)) in lg.iter().zip(&lc).enumerate() {
+        if a != b {
+            let row = &cpu[v * 13..(v + 1) * 13];
+            assert!(
+                (row[*a] - row[*b]).abs() <= 2.0 * err,
+                "{what}: voxel {v} labelled {a} on the GPU, {b} on the CPU"
+            );
+            flips += 1;
+        }
+    }
+    eprintln!("{what}: {} voxels, max error {err:e} (scale {scale}), {flips} near-tie label flips", lc.len());
+}
+
+#[test]
+fn gpu_network_matches_the_cpu_and_the_reference() {
+    let Some(device) = gpu() else { return };
+    for (levels, width, seed) in [(3, 4, 1u64), (4, 8, 2), (1, 5, 3)] {
+        let config = NetConfig::new("t", levels, width, 0.05);
+        let mut w = Weights::random(&config, seed);
+        w.perturb_normalisation(seed + 1);
+        let coords = random_set(1500, 18, seed);
+        let feats = Rng::new(seed).values(coords.len() * 3);
+        let want = reference::forward(&config, &w, &coords, &feats).unwrap();
+        let mut net = Segmenter::new(w, config).unwrap();
+        let cpu = net.segment(&coords, &feats).unwrap();
+        net.set_device(device.clone());
+        for kernel in [ConvKernel::Chunked, ConvKernel::Rulebook] {
+            net.set_kernel(kernel);
+            let got = net.segment(&coords, &feats).unwrap();
+            compare(&format!("L={levels} M={width} {kernel:?} vs reference"), &got, &want);
+            compare(&format!("L={levels} M={width} {kernel:?} vs cpu"), &got, &cpu);
+        }
+        // Empty input on the GPU too.
+        assert!(net.segment(&[], &[]).unwrap().is_empty());
+    }
+}
+
+#[test]
+fn shipped_model_labels_a_room_corner_alike_on_gpu_and_cpu() {
+    let Some(device) = gpu() else { return };
+    let mut net = match semrecon_net::shipped::load_default() {
+        Ok(n) => n,
+        Err(e) => {
+            eprintln!("skipping: {e}");
+            return;
+        }
+    };
+    let room = generate_room(&RoomConfig { seed: 1, style: None });
+    let cloud = semrecon_net::surface::sample_surface(&room.mesh, 400.0, 1);
+    // A 1.6 m corner (walls, floor, some furniture): a few thousand voxels, seconds on lavapipe.
+    let keep: Vec<usize> = (0..cloud.len()).filter(|&i| cloud.positions[i].max_element() < 1.6).collect();
+    let points: Vec<[f32; 3]> = keep.iter().map(|&i| cloud.positions[i].to_array()).collect();
+    let colors: Vec<[u8; 3]> = keep.iter().map(|&i| cloud.colors[i]).collect();
+    let cpu = net.segment_points_scores(&points, &colors).unwrap();
+    net.set_device(device);
+    let gpu = net.segment_points_scores(&points, &colors).unwrap();
+    assert_eq!(gpu.coords, cpu.coords);
+    compare("shipped s20, room corner", &gpu.logits, &cpu.logits);
+    assert_eq!(argmax(&gpu.logits), argmax(&cpu.logits), "labels differ");
+}
