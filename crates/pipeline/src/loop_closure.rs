@@ -20,7 +20,9 @@
 //!
 //! Everything runs on the front end's thread at keyframes, in a fixed order: the output is
 //! the same for any thread count. Detection and optimisation cost milliseconds; the
-//! re-integration after a correction costs about a fusion per frame re-fused.
+//! re-integration after a correction costs about a fusion per frame re-fused, so it is built
+//! in a shadow copy of the map a bounded number of frames per keyframe and swapped in at the
+//! keyframe it completes (`shadow`), instead of stalling the front end for seconds.
 
 use std::collections::{BTreeSet, HashSet};
 
@@ -76,7 +78,9 @@ pub struct LoopClosureConfig {
     /// are built in a shadow copy of the map, this many stored frames per keyframe, while the
     /// live map goes on; the shadow is swapped in at the first keyframe at which it holds every
     /// frame (a count of frames: deterministic). Bounds the front end's stall per keyframe to
-    /// about this many fusions. 0: re-fuse at once, stalling the front end for the whole
+    /// about this many fusions. Frames fused live meanwhile join the shadow's queue, so it
+    /// must exceed the keyframe interval (10 by default) for the shadow to catch up: with 20,
+    /// it gains 10 frames a keyframe. 0: re-fuse at once, stalling the front end for the whole
     /// re-integration (seconds on 7-Scenes).
     pub reintegration_frames_per_keyframe: usize,
 }
@@ -93,7 +97,7 @@ impl Default for LoopClosureConfig {
             min_move: 0.008,
             frame_store_mb: 4096,
             follow_every: 10,
-            reintegration_frames_per_keyframe: 8,
+            reintegration_frames_per_keyframe: 20,
         }
     }
 }
@@ -592,7 +596,12 @@ impl LoopClosure {
     /// store is gone).
     pub fn follow(&mut self, map: &mut TsdfMap, frame: usize) -> Result<(Affine3A, Vec<Affine3A>)> {
         let mut corrected_from_old = Affine3A::IDENTITY;
-        if let Some((c, _)) = self.advance(map, frame, None)? {
+        if self.behind {
+            // A correction came after the shadow's start: one re-integration from the live
+            // map (which still holds every frame at its map pose) covers both, for less work
+            // than completing the shadow and re-integrating again.
+            self.shadow = None;
+        } else if let Some((c, _)) = self.advance(map, frame, None)? {
             corrected_from_old = c;
         }
         if self.behind {

@@ -31,24 +31,34 @@ fn rmse(a: &[Affine3A], b: &[Affine3A]) -> f64 {
 
 #[test]
 fn a_drifting_loop_is_closed_and_the_map_follows() {
-    close_a_drifting_loop(1, LoopClosureConfig::default().reintegration_frames_per_keyframe);
+    close_a_drifting_loop(1, LoopClosureConfig::default());
 }
 
 /// The same, re-integrating at once (no shadow): as exact.
 #[test]
 fn a_drifting_loop_re_integrated_at_once() {
-    close_a_drifting_loop(1, 0);
+    close_a_drifting_loop(
+        1,
+        LoopClosureConfig { reintegration_frames_per_keyframe: 0, ..LoopClosureConfig::default() },
+    );
 }
 
 /// The shadow swaps in at the same keyframes and the map has the same bits with 1, 2 and 4
-/// threads (a small budget: re-integrations spread over many keyframes).
+/// threads (40 frames per 10-frame keyframe: a re-integration spread over keyframes).
 #[test]
 fn the_shadow_swaps_at_the_same_keyframe_for_any_thread_count() {
     let runs: Vec<_> = [1, 2, 4]
         .iter()
         .map(|&threads| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
-            pool.install(|| close_a_drifting_loop(1, 3))
+            // The map follows the first correction at once, so that the shadow completes
+            // before the scan ends (later corrections wait for the swap).
+            let config = LoopClosureConfig {
+                follow_every: 1,
+                reintegration_frames_per_keyframe: 40,
+                ..LoopClosureConfig::default()
+            };
+            pool.install(|| close_a_drifting_loop(1, config))
         })
         .collect();
     assert!(runs[0].1.iter().any(|(start, swap)| swap > start), "no re-integration was spread: {:?}", runs[0].1);
@@ -64,13 +74,13 @@ fn the_shadow_swaps_at_the_same_keyframe_for_any_thread_count() {
 #[ignore]
 fn more_drifting_loops() {
     for seed in 2..=5 {
-        close_a_drifting_loop(seed, LoopClosureConfig::default().reintegration_frames_per_keyframe);
+        close_a_drifting_loop(seed, LoopClosureConfig::default());
     }
 }
 
-/// Runs the scan with `budget` frames re-fused per keyframe; returns the final mesh's vertex
+/// Runs the scan with loop closure configured by `lc_config`; returns the final mesh's vertex
 /// bits and each re-integration's (start, swap) frames.
-fn close_a_drifting_loop(seed: u64, budget: usize) -> (Vec<[u32; 3]>, Vec<(usize, usize)>) {
+fn close_a_drifting_loop(seed: u64, lc_config: LoopClosureConfig) -> (Vec<[u32; 3]>, Vec<(usize, usize)>) {
     let mut config = SyntheticScanConfig::new(seed);
     config.frames = 300;
     config.intrinsics = config.intrinsics.scaled(320, 240);
@@ -100,7 +110,7 @@ fn close_a_drifting_loop(seed: u64, budget: usize) -> (Vec<[u32; 3]>, Vec<(usize
         .collect();
     let tsdf = TsdfConfig { truncation_voxels: 6.0, ..TsdfConfig::with_voxel_size(0.01).expect("config") };
     let mut map = TsdfMap::new(tsdf).expect("map");
-    let lc_config = LoopClosureConfig { reintegration_frames_per_keyframe: budget, ..LoopClosureConfig::default() };
+    let budget = lc_config.reintegration_frames_per_keyframe;
     let mut lc = LoopClosure::new(lc_config, frames[0].intrinsics);
     // `correction`: how the tracker's frame moved with the map (the tracker gives the drifted
     // pose in the map frame); `estimate`: the pipeline's trajectory (optimised where
