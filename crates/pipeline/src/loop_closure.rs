@@ -196,6 +196,8 @@ pub struct ReintegrationRecord {
     pub rebuilt_chunks: usize,
     /// Time spent on it, ms (summed over the keyframes it was spread over).
     pub ms: f64,
+    /// The most of it done at one keyframe (the front end's longest stall for it), ms.
+    pub longest_keyframe_ms: f64,
 }
 
 /// What [`crate::Pipeline::loop_closure`] reports.
@@ -543,7 +545,8 @@ impl LoopClosure {
             let t = std::time::Instant::now();
             let plan = self.plan(map)?;
             let mut shadow = Shadow::start(map, plan, frame);
-            shadow.ms += t.elapsed().as_secs_f64() * 1e3;
+            shadow.start_ms = t.elapsed().as_secs_f64() * 1e3;
+            shadow.ms += shadow.start_ms;
             self.shadow = Some(shadow);
         }
         self.advance(map, frame, Some(self.config.reintegration_frames_per_keyframe))
@@ -571,6 +574,7 @@ impl LoopClosure {
             refused_frames: shadow.fused,
             rebuilt_chunks: shadow.rebuilt_chunks(),
             ms: shadow.ms,
+            longest_keyframe_ms: shadow.longest_ms,
         });
         *map = shadow.into_map();
         let corrected_from_old = self.adopt(&poses);
@@ -614,13 +618,15 @@ impl LoopClosure {
             let rebuilt_chunks = plan.keys.len();
             let refused = plan.apply(map, &self.frames, self.intrinsics)?;
             corrected_from_old = self.adopt(&poses) * corrected_from_old;
+            let ms = t.elapsed().as_secs_f64() * 1e3;
             self.report.reintegrations.push(ReintegrationRecord {
                 frame,
                 started_at: frame,
                 moved_frames,
                 refused_frames: refused,
                 rebuilt_chunks,
-                ms: t.elapsed().as_secs_f64() * 1e3,
+                ms,
+                longest_keyframe_ms: ms,
             });
         }
         Ok((corrected_from_old, self.estimates()))

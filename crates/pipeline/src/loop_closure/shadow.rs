@@ -121,6 +121,10 @@ pub(super) struct Shadow {
     pub started_at: usize,
     /// Time spent on it, ms (the copy and the fusions).
     pub ms: f64,
+    /// The most time it took at one keyframe, ms (its start included in the first).
+    pub longest_ms: f64,
+    /// Time of the start not yet counted in a keyframe's share, ms.
+    pub start_ms: f64,
 }
 
 impl Shadow {
@@ -146,6 +150,8 @@ impl Shadow {
             window_frames: 0,
             started_at,
             ms: 0.0,
+            longest_ms: 0.0,
+            start_ms: 0.0,
         }
     }
 
@@ -180,7 +186,9 @@ impl Shadow {
             self.fused += usize::from(Plan::fuse(&mut self.map, &self.rebuild, frames, intrinsics, pose, work)?);
             left -= 1;
         }
-        self.ms += t.elapsed().as_secs_f64() * 1e3;
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        self.ms += ms;
+        self.longest_ms = self.longest_ms.max(ms + std::mem::take(&mut self.start_ms));
         Ok(self.queue.is_empty())
     }
 
