@@ -20,7 +20,9 @@
 //!
 //! Everything runs on the front end's thread at keyframes, in a fixed order: the output is
 //! the same for any thread count. Detection and optimisation cost milliseconds; the
-//! re-integration after a correction costs about a fusion per frame re-fused.
+//! re-integration after a correction costs about a fusion per frame re-fused, so it is built
+//! in a shadow copy of the map a bounded number of frames per keyframe and swapped in at the
+//! keyframe it completes (`shadow`), instead of stalling the front end for seconds.
 
 use std::collections::{BTreeSet, HashSet};
 
@@ -33,6 +35,7 @@ use semrecon_recon::{
 use serde::Serialize;
 
 use crate::error::{PipelineError, Result};
+use shadow::{Plan, Shadow};
 
 /// Depth units of the frame store: metres times this (0.2 mm steps, up to 13 m).
 const DEPTH_UNITS_PER_M: f32 = 5000.0;
@@ -71,6 +74,15 @@ pub struct LoopClosureConfig {
     /// loop_closure.md). Meanwhile the trajectory is corrected and the tracker stays in the
     /// map's frame.
     pub follow_every: usize,
+    /// Frames re-fused per keyframe while the map follows a correction: the corrected chunks
+    /// are built in a shadow copy of the map, this many stored frames per keyframe, while the
+    /// live map goes on; the shadow is swapped in at the first keyframe at which it holds every
+    /// frame (a count of frames: deterministic). Bounds the front end's stall per keyframe to
+    /// about this many fusions. Frames fused live meanwhile join the shadow's queue, so it
+    /// must exceed the keyframe interval (10 by default) for the shadow to catch up: with 20,
+    /// it gains 10 frames a keyframe. 0: re-fuse at once, stalling the front end for the whole
+    /// re-integration (seconds on 7-Scenes).
+    pub reintegration_frames_per_keyframe: usize,
 }
 
 impl Default for LoopClosureConfig {
@@ -85,6 +97,7 @@ impl Default for LoopClosureConfig {
             min_move: 0.008,
             frame_store_mb: 4096,
             follow_every: 10,
+            reintegration_frames_per_keyframe: 20,
         }
     }
 }
@@ -171,16 +184,20 @@ pub struct CorrectionRecord {
 /// One re-integration: the map brought to the corrected poses.
 #[derive(Debug, Clone, Serialize)]
 pub struct ReintegrationRecord {
-    /// The frame at which it happened.
+    /// The frame at which the map took it (the shadow's swap).
     pub frame: usize,
+    /// The frame at which it started (the same when done at once).
+    pub started_at: usize,
     /// Frames moved to their corrected pose (further than `min_move` from the map's).
     pub moved_frames: usize,
     /// Frames fused again (the moved ones and those sharing chunks with them).
     pub refused_frames: usize,
     /// Chunks cleared and rebuilt.
     pub rebuilt_chunks: usize,
-    /// Time, ms.
+    /// Time spent on it, ms (summed over the keyframes it was spread over).
     pub ms: f64,
+    /// The most of it done at one keyframe (the front end's longest stall for it), ms.
+    pub longest_keyframe_ms: f64,
 }
 
 /// What [`crate::Pipeline::loop_closure`] reports.
@@ -255,6 +272,8 @@ pub(crate) struct LoopClosure {
     /// Whether a correction awaits the map, and keyframes since the map last followed.
     behind: bool,
     keyframes_since_follow: usize,
+    /// The re-integration in progress, spread over keyframes.
+    shadow: Option<Shadow>,
 }
 
 fn to_f64(p: Affine3A) -> DAffine3 {
@@ -278,6 +297,7 @@ impl LoopClosure {
             tracked: Trajectory::default(),
             behind: false,
             keyframes_since_follow: 0,
+            shadow: None,
             config,
         }
     }
@@ -368,7 +388,11 @@ impl LoopClosure {
             color: frame.color.clone(),
         };
         self.store_bytes += stored.bytes();
+        let planned = self.shadow.is_some().then(|| self.planned_pose(&stored));
         self.frames.push(stored);
+        if let (Some(shadow), Some((pose, moved))) = (self.shadow.as_mut(), planned) {
+            shadow.push_live_frame(self.frames.len() - 1, pose, moved);
+        }
         if self.store_bytes > self.config.frame_store_mb << 20 {
             self.stop(format!(
                 "stopped at frame {}: the frame store reached {} MB (frame_store_mb)",
@@ -380,6 +404,8 @@ impl LoopClosure {
 
     fn stop(&mut self, why: String) {
         self.report.stopped = Some(why);
+        // The map keeps the poses it holds; the corrections stay in the trajectory.
+        self.shadow = None;
         self.frames = Vec::new();
         self.store_bytes = 0;
     }
@@ -483,72 +509,160 @@ impl LoopClosure {
         self.behind = true;
     }
 
-    /// Whether a correction has not reached the map yet.
+    /// Whether a correction has not reached the map yet (a re-integration in progress
+    /// included).
     pub fn is_behind(&self) -> bool {
-        self.behind
+        self.behind || self.shadow.is_some()
     }
 
     /// Called once per keyframe: whether the map should follow now.
-    pub fn follow_due(&mut self) -> bool {
+    fn follow_due(&mut self) -> bool {
         self.keyframes_since_follow += 1;
         self.behind && self.keyframes_since_follow >= self.config.follow_every
     }
 
-    /// Makes `map` follow the graph's estimates of the poses: the frames whose map
-    /// pose is more than [`LoopClosureConfig::min_move`] from their optimised one move to
-    /// it; every chunk such a frame touched or now touches is cleared, and every frame that
-    /// touched one of them is fused again, in capture order, at its (new) map pose. Returns
-    /// the move of the last frame's map pose (`corrected_from_old`, for the tracker) and the
-    /// estimates of every frame's pose (the corrected trajectory); records the
-    /// re-integration (at `frame`, timed from `started`). Nothing moves when loop closure
-    /// stopped (the store is gone).
-    pub fn follow(
+    /// Whether a re-integration is being built in a shadow.
+    pub fn is_rebuilding(&self) -> bool {
+        self.shadow.is_some()
+    }
+
+    /// At a keyframe (after [`LoopClosure::close_loops`]): advances the re-integration in
+    /// progress by the per-keyframe budget, or starts one when the map is due to follow a
+    /// correction (at once when the budget is 0). When one completes, `map` is its result and
+    /// this returns the move of the last frame's map pose (`corrected_from_old`, for the
+    /// tracker) and every frame's pose estimate (the corrected trajectory).
+    pub fn keyframe_follow(&mut self, map: &mut TsdfMap, frame: usize) -> Result<Option<(Affine3A, Vec<Affine3A>)>> {
+        let due = self.follow_due();
+        if self.shadow.is_none() {
+            if !due {
+                return Ok(None);
+            }
+            if self.config.reintegration_frames_per_keyframe == 0 {
+                return self.follow(map, frame).map(Some);
+            }
+            self.behind = false;
+            self.keyframes_since_follow = 0;
+            let t = std::time::Instant::now();
+            let plan = self.plan(map)?;
+            let mut shadow = Shadow::start(map, plan, frame);
+            shadow.start_ms = t.elapsed().as_secs_f64() * 1e3;
+            shadow.ms += shadow.start_ms;
+            self.shadow = Some(shadow);
+        }
+        self.advance(map, frame, Some(self.config.reintegration_frames_per_keyframe))
+    }
+
+    /// Fuses up to `budget` frames (all: `None`) into the shadow in progress and swaps it in
+    /// when complete.
+    fn advance(
         &mut self,
         map: &mut TsdfMap,
         frame: usize,
-        started: std::time::Instant,
-    ) -> Result<(Affine3A, Vec<Affine3A>)> {
-        self.behind = false;
-        self.keyframes_since_follow = 0;
-        let optimised = self.estimates();
-        let optimised = optimised.as_slice();
-        let old: Vec<Affine3A> = self.frames.iter().map(|f| f.map_pose).collect();
-        let moved: Vec<bool> =
-            old.iter().zip(optimised).map(|(a, b)| moved_by(&to_f64(*a), &to_f64(*b)) > self.config.min_move).collect();
-        let new: Vec<Affine3A> =
-            old.iter().zip(optimised).zip(&moved).map(|((o, n), m)| if *m { *n } else { *o }).collect();
-        let (refused, chunks) = self.reintegrate(map, &moved, &new)?;
-        for (f, p) in self.frames.iter_mut().zip(&new) {
-            f.map_pose = *p;
+        budget: Option<usize>,
+    ) -> Result<Option<(Affine3A, Vec<Affine3A>)>> {
+        let Some(shadow) = self.shadow.as_mut() else { return Ok(None) };
+        let budget = if shadow.must_finish() { None } else { budget };
+        if !shadow.step(&self.frames, self.intrinsics, budget)? {
+            return Ok(None);
         }
+        let Some(mut shadow) = self.shadow.take() else { return Ok(None) };
+        let poses = std::mem::take(&mut shadow.poses);
         self.report.reintegrations.push(ReintegrationRecord {
             frame,
-            moved_frames: moved.iter().filter(|m| **m).count(),
-            refused_frames: refused,
-            rebuilt_chunks: chunks,
-            ms: started.elapsed().as_secs_f64() * 1e3,
+            started_at: shadow.started_at,
+            moved_frames: shadow.moved,
+            refused_frames: shadow.fused,
+            rebuilt_chunks: shadow.rebuilt_chunks(),
+            ms: shadow.ms,
+            longest_keyframe_ms: shadow.longest_ms,
         });
-        let corrected_from_old = match (old.last(), new.last()) {
+        *map = shadow.into_map();
+        let corrected_from_old = self.adopt(&poses);
+        Ok(Some((corrected_from_old, self.estimates())))
+    }
+
+    /// The map holds the frames at `poses` now: returns the move of the last one.
+    fn adopt(&mut self, poses: &[Affine3A]) -> Affine3A {
+        let old = self.frames.last().map(|f| f.map_pose);
+        for (f, p) in self.frames.iter_mut().zip(poses) {
+            f.map_pose = *p;
+        }
+        match (old, poses.last()) {
             (Some(o), Some(n)) => *n * o.inverse(),
             _ => Affine3A::IDENTITY,
-        };
+        }
+    }
+
+    /// Makes `map` follow the graph's estimates of the poses now, in place: completes the
+    /// re-integration in progress, then re-integrates for a correction it did not include
+    /// (the end of a scan; every correction when the per-keyframe budget is 0). Returns what
+    /// [`LoopClosure::keyframe_follow`] does. Nothing moves when loop closure stopped (the
+    /// store is gone).
+    pub fn follow(&mut self, map: &mut TsdfMap, frame: usize) -> Result<(Affine3A, Vec<Affine3A>)> {
+        let mut corrected_from_old = Affine3A::IDENTITY;
+        if self.behind {
+            // A correction came after the shadow's start: one re-integration from the live
+            // map (which still holds every frame at its map pose) covers both, for less work
+            // than completing the shadow and re-integrating again.
+            self.shadow = None;
+        } else if let Some((c, _)) = self.advance(map, frame, None)? {
+            corrected_from_old = c;
+        }
+        if self.behind {
+            self.behind = false;
+            self.keyframes_since_follow = 0;
+            let t = std::time::Instant::now();
+            let plan = self.plan(map)?;
+            let poses = plan.poses.clone();
+            let moved_frames = plan.moved.iter().filter(|m| **m).count();
+            let rebuilt_chunks = plan.keys.len();
+            let refused = plan.apply(map, &self.frames, self.intrinsics)?;
+            corrected_from_old = self.adopt(&poses) * corrected_from_old;
+            let ms = t.elapsed().as_secs_f64() * 1e3;
+            self.report.reintegrations.push(ReintegrationRecord {
+                frame,
+                started_at: frame,
+                moved_frames,
+                refused_frames: refused,
+                rebuilt_chunks,
+                ms,
+                longest_keyframe_ms: ms,
+            });
+        }
         Ok((corrected_from_old, self.estimates()))
     }
 
     /// The graph's estimate of every stored frame's pose: its keyframe's pose times its
     /// fixed offset (keyframes added since the last optimisation extend the corrected chain).
     fn estimates(&self) -> Vec<Affine3A> {
-        self.frames.iter().map(|f| to_f32(self.graph.poses()[f.node] * f.node_from_camera)).collect()
+        self.frames.iter().map(|f| self.estimate(f)).collect()
     }
 
-    /// Clears the chunks the `moved` frames touched or touch at their `new` poses and fuses
-    /// every frame that touched them again at its `new` pose. Returns (frames fused, chunks
-    /// rebuilt).
-    fn reintegrate(&self, map: &mut TsdfMap, moved: &[bool], new: &[Affine3A]) -> Result<(usize, usize)> {
+    fn estimate(&self, f: &StoredFrame) -> Affine3A {
+        to_f32(self.graph.poses()[f.node] * f.node_from_camera)
+    }
+
+    /// The pose the map should hold stored frame `f` at: its estimate when that is more than
+    /// [`LoopClosureConfig::min_move`] from where the map holds it, else where it is; and
+    /// whether it moves.
+    fn planned_pose(&self, f: &StoredFrame) -> (Affine3A, bool) {
+        let estimate = self.estimate(f);
+        if moved_by(&to_f64(f.map_pose), &to_f64(estimate)) > self.config.min_move {
+            (estimate, true)
+        } else {
+            (f.map_pose, false)
+        }
+    }
+
+    /// What bringing `map` to the estimates changes: the frames that move; every chunk such a
+    /// frame touched or now touches (to clear); every frame that touched one of them (to
+    /// fuse again, in capture order, at its planned pose).
+    fn plan(&self, map: &TsdfMap) -> Result<Plan> {
+        let (poses, moved): (Vec<Affine3A>, Vec<bool>) = self.frames.iter().map(|f| self.planned_pose(f)).unzip();
         let moved_ids: BTreeSet<u32> =
-            self.frames.iter().zip(moved).filter(|(_, m)| **m).map(|(f, _)| f.index as u32).collect();
+            self.frames.iter().zip(&moved).filter(|(_, m)| **m).map(|(f, _)| f.index as u32).collect();
         if moved_ids.is_empty() {
-            return Ok((0, 0));
+            return Ok(Plan { moved, poses, keys: Vec::new(), rebuild: HashSet::new(), work: Vec::new() });
         }
         let touches =
             |runs: &[(u32, u32)], ids: &BTreeSet<u32>| runs.iter().any(|&(a, b)| ids.range(a..=b).next().is_some());
@@ -557,7 +671,7 @@ impl LoopClosure {
         let mut selections: Vec<Option<Vec<ChunkKey>>> = vec![None; self.frames.len()];
         for (i, f) in self.frames.iter().enumerate() {
             if moved[i] {
-                let keys = map.select_chunks(&f.frame(self.intrinsics), new[i])?;
+                let keys = map.select_chunks(&f.frame(self.intrinsics), poses[i])?;
                 rebuild.extend(keys.iter().copied());
                 selections[i] = Some(keys);
             }
@@ -574,34 +688,18 @@ impl LoopClosure {
             }
         }
         let mut depth = 0i64;
-        let touched: Vec<bool> = cover[..indices.len()]
+        let work = cover[..indices.len()]
             .iter()
-            .map(|d| {
+            .zip(selections)
+            .enumerate()
+            .filter_map(|(i, (d, selection))| {
                 depth += d;
-                depth > 0
+                (moved[i] || depth > 0).then_some((i, selection))
             })
             .collect();
         let mut keys: Vec<ChunkKey> = rebuild.iter().copied().collect();
         keys.sort_unstable_by_key(|k| (k.z, k.y, k.x));
-        map.reset_chunks(&keys);
-        let mut fused = 0;
-        for (i, f) in self.frames.iter().enumerate() {
-            if !(moved[i] || touched[i]) {
-                continue;
-            }
-            let frame = f.frame(self.intrinsics);
-            let selection = match selections[i].take() {
-                Some(s) => s,
-                None => map.select_chunks(&frame, new[i])?,
-            };
-            let mine: Vec<ChunkKey> = selection.into_iter().filter(|k| rebuild.contains(k)).collect();
-            if !mine.is_empty() {
-                map.integrate_chunks(&frame, new[i], &mine)?;
-                fused += 1;
-            }
-        }
-        map.free_unobserved(&keys);
-        Ok((fused, keys.len()))
+        Ok(Plan { moved, poses, keys, rebuild, work })
     }
 }
 
@@ -611,6 +709,8 @@ fn moved_by(a: &DAffine3, b: &DAffine3) -> f64 {
     let (t, r) = pose_distance(a, b);
     t + 2.0 * r
 }
+
+mod shadow;
 
 #[cfg(test)]
 mod tests;

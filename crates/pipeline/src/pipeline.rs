@@ -335,19 +335,32 @@ impl Pipeline {
                     .push("loop closure: frame store out of step with the trajectory; correction skipped".into());
             }
         }
-        if lc.follow_due() {
-            self.follow_poses(frame.index)?;
+        let t = Instant::now();
+        let rebuilding = lc.is_rebuilding();
+        let followed = lc.keyframe_follow(&mut self.map, frame.index)?;
+        if rebuilding || lc.is_rebuilding() || followed.is_some() {
+            // Per keyframe: the share of a re-integration it did (spread over keyframes).
+            self.times.record("map re-integration", t.elapsed());
+        }
+        if let Some(followed) = followed {
+            self.adopt_follow(followed);
         }
         Ok(())
     }
 
-    /// Makes the map follow the corrected trajectory (re-fusing where frames moved); the
-    /// tracker, which works in the map, moves with the last frame.
+    /// Makes the map follow the corrected trajectory now (re-fusing where frames moved).
     fn follow_poses(&mut self, frame: usize) -> Result<()> {
         let Some(lc) = &mut self.loop_closure else { return Ok(()) };
         let t = Instant::now();
-        let (corrected_from_old, estimates) = lc.follow(&mut self.map, frame, t)?;
+        let followed = lc.follow(&mut self.map, frame)?;
         self.times.record("map re-integration", t.elapsed());
+        self.adopt_follow(followed);
+        Ok(())
+    }
+
+    /// After the map followed a correction: the trajectory takes the estimates, and the
+    /// tracker, which works in the map, moves with the last frame.
+    fn adopt_follow(&mut self, (corrected_from_old, estimates): (Affine3A, Vec<Affine3A>)) {
         if estimates.len() == self.trajectory.poses.len() {
             self.trajectory.poses = estimates;
         }
@@ -360,7 +373,6 @@ impl Pipeline {
         if let Some(s) = &mut self.semantics {
             s.stale = true;
         }
-        Ok(())
     }
 
     fn remesh(&mut self) {

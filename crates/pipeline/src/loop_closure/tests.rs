@@ -31,7 +31,41 @@ fn rmse(a: &[Affine3A], b: &[Affine3A]) -> f64 {
 
 #[test]
 fn a_drifting_loop_is_closed_and_the_map_follows() {
-    close_a_drifting_loop(1);
+    close_a_drifting_loop(1, LoopClosureConfig::default());
+}
+
+/// The same, re-integrating at once (no shadow): as exact.
+#[test]
+fn a_drifting_loop_re_integrated_at_once() {
+    close_a_drifting_loop(
+        1,
+        LoopClosureConfig { reintegration_frames_per_keyframe: 0, ..LoopClosureConfig::default() },
+    );
+}
+
+/// The shadow swaps in at the same keyframes and the map has the same bits with 1, 2 and 4
+/// threads (40 frames per 10-frame keyframe: a re-integration spread over keyframes).
+#[test]
+fn the_shadow_swaps_at_the_same_keyframe_for_any_thread_count() {
+    let runs: Vec<_> = [1, 2, 4]
+        .iter()
+        .map(|&threads| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+            // The map follows the first correction at once, so that the shadow completes
+            // before the scan ends (later corrections wait for the swap).
+            let config = LoopClosureConfig {
+                follow_every: 1,
+                reintegration_frames_per_keyframe: 40,
+                ..LoopClosureConfig::default()
+            };
+            pool.install(|| close_a_drifting_loop(1, config))
+        })
+        .collect();
+    assert!(runs[0].1.iter().any(|(start, swap)| swap > start), "no re-integration was spread: {:?}", runs[0].1);
+    for r in &runs[1..] {
+        assert_eq!(r.1, runs[0].1, "swap keyframes");
+        assert!(r.0 == runs[0].0, "mesh bits differ");
+    }
 }
 
 /// The same on more scans (about 25 s each): `cargo test --release -p semrecon-pipeline --lib
@@ -40,11 +74,13 @@ fn a_drifting_loop_is_closed_and_the_map_follows() {
 #[ignore]
 fn more_drifting_loops() {
     for seed in 2..=5 {
-        close_a_drifting_loop(seed);
+        close_a_drifting_loop(seed, LoopClosureConfig::default());
     }
 }
 
-fn close_a_drifting_loop(seed: u64) {
+/// Runs the scan with loop closure configured by `lc_config`; returns the final mesh's vertex
+/// bits and each re-integration's (start, swap) frames.
+fn close_a_drifting_loop(seed: u64, lc_config: LoopClosureConfig) -> (Vec<[u32; 3]>, Vec<(usize, usize)>) {
     let mut config = SyntheticScanConfig::new(seed);
     config.frames = 300;
     config.intrinsics = config.intrinsics.scaled(320, 240);
@@ -74,7 +110,7 @@ fn close_a_drifting_loop(seed: u64) {
         .collect();
     let tsdf = TsdfConfig { truncation_voxels: 6.0, ..TsdfConfig::with_voxel_size(0.01).expect("config") };
     let mut map = TsdfMap::new(tsdf).expect("map");
-    let lc_config = LoopClosureConfig::default();
+    let budget = lc_config.reintegration_frames_per_keyframe;
     let mut lc = LoopClosure::new(lc_config, frames[0].intrinsics);
     // `correction`: how the tracker's frame moved with the map (the tracker gives the drifted
     // pose in the map frame); `estimate`: the pipeline's trajectory (optimised where
@@ -93,9 +129,11 @@ fn close_a_drifting_loop(seed: u64) {
                 lc.record_correction(update.record);
                 estimate = update.poses;
             }
-            if lc.follow_due() || (i + 1 == frames.len() && lc.is_behind()) {
-                let t = std::time::Instant::now();
-                let (corrected_from_old, estimates) = lc.follow(&mut map, f.index, t).expect("re-integration");
+            let mut followed = vec![lc.keyframe_follow(&mut map, f.index).expect("re-integration")];
+            if i + 1 == frames.len() && lc.is_behind() {
+                followed.push(Some(lc.follow(&mut map, f.index).expect("re-integration")));
+            }
+            for (corrected_from_old, estimates) in followed.into_iter().flatten() {
                 correction = corrected_from_old * correction;
                 estimate = estimates;
             }
@@ -119,10 +157,11 @@ fn close_a_drifting_loop(seed: u64) {
         }
         accuracy_mm(&room.mesh, &extract_mesh(&m))
     };
-    let followed = accuracy_mm(&room.mesh, &extract_mesh(&map));
+    let mesh = extract_mesh(&map);
+    let followed = accuracy_mm(&room.mesh, &mesh);
     let (fresh, drifting) = (fuse_all(&map_poses), fuse_all(&drifted));
     eprintln!(
-        "seed {seed}: ATE {:.1} mm drifted, {:.1} mm after; mesh accuracy {followed:.2} mm re-integrated, {fresh:.2} mm fused afresh, {drifting:.2} mm drifted; {} corrections, {} re-integrations",
+        "seed {seed}, budget {budget}: ATE {:.1} mm drifted, {:.1} mm after; mesh accuracy {followed:.2} mm re-integrated, {fresh:.2} mm fused afresh, {drifting:.2} mm drifted; {} corrections, {} re-integrations",
         before * 1e3,
         after * 1e3,
         lc.report.corrections.len(),
@@ -130,6 +169,8 @@ fn close_a_drifting_loop(seed: u64) {
     );
     assert!(followed <= fresh * 1.05 + 0.05, "re-integrated {followed} mm, fused afresh {fresh} mm");
     assert!(followed < drifting, "re-integrated {followed} mm, drifted {drifting} mm");
+    let bits = mesh.positions.iter().map(|p| p.to_array().map(f32::to_bits)).collect();
+    (bits, lc.report.reintegrations.iter().map(|r| (r.started_at, r.frame)).collect())
 }
 
 #[test]
