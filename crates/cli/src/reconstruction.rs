@@ -68,8 +68,9 @@ pub struct ReconArgs {
     #[arg(long, value_enum, default_value_t = PoseMode::Track)]
     pub poses: PoseMode,
     /// Close loops: find revisited places at keyframes, optimise the pose graph and re-fuse
-    /// the map where frames moved. Off by default: each re-fusion stalls the front end for
-    /// seconds and every fused frame is kept in memory (docs/loop_closure.md).
+    /// the map where frames moved (20 frames a keyframe into a shadow map, swapped in when
+    /// done). Off by default: the re-fusion's total work still halves the real-time factor on
+    /// 7-Scenes, and every fused frame is kept in memory (docs/loop_closure.md).
     #[arg(long)]
     pub loop_closure: bool,
 }

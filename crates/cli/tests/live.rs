@@ -74,10 +74,11 @@ fn the_simulated_camera_runs_in_real_time_dropping_what_the_pipeline_cannot_take
     assert!(count(&r, "fused_frames") > 5, "{r}");
     let period = r["frame_period_ms"].as_f64().expect("period");
     assert!((period - 33.33).abs() < 0.1, "30 fps: {period}");
-    // No frame waits for the pipeline longer than one frame period (a newer frame replaces
-    // it), with slack for a loaded machine's scheduling.
+    // No frame waits for the pipeline longer than about one frame period (a newer frame
+    // replaces it), with a period's slack for a loaded machine's scheduling: a frame kept
+    // for three periods fails.
     let max_wait = r["max_wait_ms"].as_f64().expect("max wait");
-    assert!(max_wait <= period + 25.0, "a frame waited {max_wait} ms: {r}");
+    assert!(max_wait <= 2.0 * period + 20.0, "a frame waited {max_wait} ms: {r}");
     assert!(r["realtime_factor"].as_f64().is_some_and(|f| f > 0.0), "{r}");
     assert!(r["ate_rmse_m"].as_f64().is_some_and(|a| a < 0.05), "tracking follows the simulated camera: {r}");
     assert!(stdout(&o).contains("finished (--max-frames reached): frames in 45"), "{}", stdout(&o));

@@ -246,10 +246,11 @@ mod tests {
         assert!(stats.dropped > 10, "a consumer 2.5x slower than the camera drops: {stats:?}");
         assert!(taken.windows(2).all(|w| w[0] < w[1]), "frames in order: {taken:?}");
         assert_eq!(taken.last(), Some(&39), "the newest frame is never lost at the end");
-        // One period, with slack for a loaded machine's scheduling; the stream's last frame has
-        // no successor to replace it and waits for the consumer.
+        // One period, with slack for a loaded machine's scheduling (39 ms was seen under a load
+        // average of 10); a frame held until the consumer's 200 ms timeout would still fail.
+        // The stream's last frame has no successor to replace it and waits for the consumer.
         let longest = waits[..waits.len() - 1].iter().max().copied().unwrap_or_default();
-        assert!(longest <= period + Duration::from_millis(15), "{longest:?} {stats:?}");
+        assert!(longest <= period + Duration::from_millis(75), "{longest:?} {stats:?}");
     }
 
     #[test]
