@@ -31,9 +31,9 @@
 //! lower faces of its three upper face neighbours: when a chunk changes, its points and those
 //! of its three lower face neighbours ([`readers_of`]) are re-made.
 
-use glam::{IVec3, Vec3, Vec4};
+use glam::{IVec3, Vec3};
 use semrecon_recon::map::{split_voxel, TSDF_SCALE};
-use semrecon_recon::marching_cubes::max_edge_jump;
+use semrecon_recon::marching_cubes::{edge_color, max_edge_jump};
 use semrecon_recon::{Chunk, ChunkKey, MeshConfig, TsdfConfig, TsdfMap, CHUNK_SIDE};
 use wide::{i16x16, u16x16};
 
@@ -326,21 +326,6 @@ fn crossing(
         axis: axis as u8,
         normal: gradient.normalize_or_zero(),
     })
-}
-
-/// Colour at fraction `s` of the way from a voxel of colour `ca` to one of `cb` (`[r, g, b,
-/// observation count]`), interpolated only between voxels that have a colour: the mesher's
-/// vertex colour.
-#[inline]
-fn edge_color(ca: [u8; 4], cb: [u8; 4], s: f32) -> [u8; 3] {
-    let (ca, cb) = match (ca[3], cb[3]) {
-        (0, 0) | (1.., 1..) => (ca, cb),
-        (0, _) => (cb, cb),
-        (_, 0) => (ca, ca),
-    };
-    let (a, b) = (Vec4::from(ca.map(f32::from)), Vec4::from(cb.map(f32::from)));
-    let c = (a + Vec4::splat(s) * (b - a) + Vec4::splat(0.5)).as_ivec4();
-    [c.x as u8, c.y as u8, c.z as u8]
 }
 
 /// [`for_each_chunk_point`] one voxel and one edge at a time, through global voxel

@@ -198,13 +198,14 @@ fn voxel_color(nb: &[Option<&Chunk>; 27], p: [usize; 3]) -> [u8; 4] {
 
 /// Colour of a vertex at fraction `s` (0 ..= 1) of the way from a voxel of colour `ca` to
 /// one of colour `cb` (`[r, g, b, count]`), interpolated only between voxels that have a
-/// colour (count not 0).
+/// colour (count not 0). The semantic pass's surface points take their colour from it too,
+/// so that they match the mesh's vertices.
 ///
 /// Four lanes at once with the operations, and their order, of the per-channel
 /// `(a + s (b - a) + 0.5) as u8` (the sum lies in 0 ..= 255.5, so truncating to `i32`
 /// then `u8` is that cast), which took twice the instructions.
 #[inline]
-fn edge_color(ca: [u8; 4], cb: [u8; 4], s: f32) -> [u8; 3] {
+pub fn edge_color(ca: [u8; 4], cb: [u8; 4], s: f32) -> [u8; 3] {
     let (ca, cb) = match (ca[3], cb[3]) {
         (0, 0) | (1.., 1..) => (ca, cb),
         (0, _) => (cb, cb),

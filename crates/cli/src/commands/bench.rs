@@ -196,18 +196,7 @@ fn conv(args: ConvArgs) -> anyhow::Result<()> {
             let report = run_conv_bench(&scene, &coords, voxel, c, c, &options)
                 .with_context(|| format!("benchmarking {scene} at {voxel} m, {c} channels"))?;
             for row in report.rows {
-                println!(
-                    "{:<26} {:>7} {:>6.2} {:>4} {:>9} {:>16} {:>9.2} {:>8.1} {:>6.0}%",
-                    format!("{} @ {} cm", row.scene, voxel * 100.0),
-                    row.n,
-                    row.mean_neighbours,
-                    row.c_in,
-                    row.kernel,
-                    row.pass,
-                    row.ms,
-                    row.gflops,
-                    100.0 * row.gflops / report.sgemm_gflops
-                );
+                print_conv_row(&row, voxel, Some(100.0 * row.gflops / report.sgemm_gflops));
                 rows.push(ConvRow {
                     row,
                     device: "cpu".into(),
@@ -219,6 +208,24 @@ fn conv(args: ConvArgs) -> anyhow::Result<()> {
         }
     }
     write_json(args.json.as_ref(), &rows)
+}
+
+/// One row of `bench conv`'s table; `percent_of_sgemm` is `None` where no roofline was
+/// measured (the GPU engine).
+fn print_conv_row(row: &BenchRow, voxel: f32, percent_of_sgemm: Option<f64>) {
+    let roofline = percent_of_sgemm.map_or_else(|| "-".to_string(), |p| format!("{p:.0}%"));
+    println!(
+        "{:<26} {:>7} {:>6.2} {:>4} {:>9} {:>16} {:>9.2} {:>8.1} {:>7}",
+        format!("{} @ {} cm", row.scene, voxel * 100.0),
+        row.n,
+        row.mean_neighbours,
+        row.c_in,
+        row.kernel,
+        row.pass,
+        row.ms,
+        row.gflops,
+        roofline
+    );
 }
 
 /// The GPU engine's rows (chunked and rulebook) of one voxel set and channel count.
@@ -236,18 +243,7 @@ fn gpu_conv(
         let bench = run_backend_bench(&engine, scene, coords, voxel, c, c, repeats)
             .with_context(|| format!("GPU benchmark of {scene} at {voxel} m, {c} channels"))?;
         for row in bench {
-            println!(
-                "{:<26} {:>7} {:>6.2} {:>4} {:>13} {:>16} {:>9.2} {:>8.1} {:>7}",
-                format!("{} @ {} cm", row.scene, voxel * 100.0),
-                row.n,
-                row.mean_neighbours,
-                row.c_in,
-                row.kernel,
-                row.pass,
-                row.ms,
-                row.gflops,
-                "-"
-            );
+            print_conv_row(&row, voxel, None);
             rows.push(ConvRow { row, device: ctx.adapter_name(), sgemm_gflops: 0.0, threads: 0, simd: String::new() });
         }
     }
