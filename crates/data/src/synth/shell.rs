@@ -157,16 +157,21 @@ pub(crate) fn add_structure(
 /// about a metre deep, where our cross beams are 0.25-0.5 m.
 const WALL_BEAM_MAX_DEPTH: f32 = 1.0;
 
+/// Lowest underside of a bulkhead: boxed-in ducts come down to about door-head height (the
+/// openings below are checked), lower than the cross beams' [`BEAM_CLEARANCE`]. A 3 m office
+/// then gets bulkheads up to the full metre deep, as real ones are.
+const WALL_BEAM_CLEARANCE: f32 = 2.05;
+
 /// Adds bulkheads: beams running the whole length of one or two walls, flush against them,
 /// 0.3-0.8 m into the room and 0.3-1.0 m below the ceiling (never lower than
-/// [`BEAM_CLEARANCE`]), labelled beam and painted like the structure. A wall whose openings
+/// [`WALL_BEAM_CLEARANCE`]), labelled beam and painted like the structure. A wall whose openings
 /// or earlier beams reach the bulkhead's underside gets a shallower one or none. Reserves
 /// the wall above the underside. Returns how many were added.
 ///
 /// Call after the openings are planned, so that window heads are known.
 pub(crate) fn add_wall_beams(b: &mut MeshBuilder, layout: &mut Layout, rng: &mut ChaCha8Rng, pal: &Palette) -> usize {
     let h = layout.height;
-    let max_depth = (h - BEAM_CLEARANCE).min(WALL_BEAM_MAX_DEPTH);
+    let max_depth = (h - WALL_BEAM_CLEARANCE).min(WALL_BEAM_MAX_DEPTH);
     if max_depth < 0.2 {
         return 0;
     }
@@ -655,6 +660,30 @@ mod tests {
             }
         }
         assert!(total >= 30, "only {total} bulkheads over 40 seeds");
+    }
+
+    /// Without openings in the way a tall office's bulkheads reach down to door-head height
+    /// (a metre deep), as the boxed-in ducts of real offices do, and never lower.
+    #[test]
+    fn wall_beams_reach_door_head_height_in_tall_rooms() {
+        let mut lowest = f32::MAX;
+        for seed in 0..40u64 {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let mut layout = Layout::new(6.0, 5.0, 3.1);
+            let pal = Palette::draw(&mut rng);
+            let mut b = MeshBuilder::new(0.12, seed);
+            add_wall_beams(&mut b, &mut layout, &mut rng, &pal);
+            let mesh = b.finish();
+            for (t, &l) in mesh.triangles.iter().zip(&mesh.triangle_labels) {
+                if l == SemanticClass::Beam as u8 {
+                    for i in t {
+                        lowest = lowest.min(mesh.positions[*i as usize].z);
+                    }
+                }
+            }
+        }
+        assert!(lowest >= WALL_BEAM_CLEARANCE - 1e-4, "a bulkhead comes down to {lowest} m");
+        assert!(lowest < 2.3, "no bulkhead deeper than 0.8 m in 40 rooms 3.1 m high (lowest {lowest} m)");
     }
 
     /// An open door's leaf stands in the room within reach of its hinge (never beyond the
