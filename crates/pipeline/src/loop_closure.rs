@@ -24,18 +24,16 @@
 //! in a shadow copy of the map a bounded number of frames per keyframe and swapped in at the
 //! keyframe it completes (`shadow`), instead of stalling the front end for seconds.
 
-use std::collections::{BTreeSet, HashSet};
-
 use glam::{Affine3A, DAffine3};
 use semrecon_data::{Frame, Intrinsics, Trajectory};
 use semrecon_recon::pose_graph::{isotropic_information, pose_distance};
 use semrecon_recon::{
-    ChunkKey, EdgeKind, LoopConfig, LoopDetector, LoopVerdict, PoseEdge, PoseGraph, PoseGraphConfig, TsdfMap,
+    EdgeKind, IntegrationStats, LoopConfig, LoopDetector, LoopVerdict, PoseEdge, PoseGraph, PoseGraphConfig, TsdfMap,
 };
 use serde::Serialize;
 
 use crate::error::{PipelineError, Result};
-use shadow::{Plan, Shadow};
+use shadow::Shadow;
 
 /// Depth units of the frame store: metres times this (0.2 mm steps, up to 13 m).
 const DEPTH_UNITS_PER_M: f32 = 5000.0;
@@ -66,6 +64,13 @@ pub struct LoopClosureConfig {
     /// 7-Scenes re-fusing every frame that moved by a millimetre cost seconds per correction
     /// for no visible change.
     pub min_move: f64,
+    /// The map follows a correction only where it moves the map by more than this many
+    /// voxels: a chunk is rebuilt when a frame recorded in it moves the chunk's centre further
+    /// than this (its pose change applied to the centre: the depth it saw the chunk at and its
+    /// turn both count); a correction that moves no chunk that far leaves the map alone. Half
+    /// a voxel: below the quantisation of the surface, and the map follows a frame's
+    /// correction only where the frame's view of the surface moved.
+    pub min_chunk_move_voxels: f32,
     /// Most megabytes of stored frames (1.5 MB each at 640x480); past it loop closure stops.
     pub frame_store_mb: usize,
     /// The map follows corrected poses at most every this many keyframes (and at the end
@@ -95,6 +100,7 @@ impl Default for LoopClosureConfig {
             loop_sigma: (0.004, 0.003),
             min_loop_chi2: 6.0,
             min_move: 0.008,
+            min_chunk_move_voxels: 0.5,
             frame_store_mb: 4096,
             follow_every: 10,
             reintegration_frames_per_keyframe: 20,
@@ -120,7 +126,9 @@ impl LoopClosureConfig {
         if !(self.min_move.is_finite()
             && self.min_move >= 0.0
             && self.min_loop_chi2.is_finite()
-            && self.min_loop_chi2 >= 0.0)
+            && self.min_loop_chi2 >= 0.0
+            && self.min_chunk_move_voxels.is_finite()
+            && self.min_chunk_move_voxels >= 0.0)
         {
             return bad("loop closure thresholds must be finite and >= 0".into());
         }
@@ -188,12 +196,17 @@ pub struct ReintegrationRecord {
     pub frame: usize,
     /// The frame at which it started (the same when done at once).
     pub started_at: usize,
-    /// Frames moved to their corrected pose (further than `min_move` from the map's).
+    /// Frames whose correction moves some point of the map by more than the threshold
+    /// ([`LoopClosureConfig::min_chunk_move_voxels`]; a bound over the map's extent).
     pub moved_frames: usize,
-    /// Frames fused again (the moved ones and those sharing chunks with them).
+    /// Frames fused again (into rebuilt chunks, or whole when fused live meanwhile).
     pub refused_frames: usize,
-    /// Chunks cleared and rebuilt.
+    /// Chunk integrations those fusions cost (a whole frame is a few thousand on 7-Scenes).
+    pub refused_chunks: usize,
+    /// Chunks rebuilt (cleared and fused again).
     pub rebuilt_chunks: usize,
+    /// Done at the end of the scan (in `finish`), not spread over keyframes.
+    pub at_end: bool,
     /// Time spent on it, ms (summed over the keyframes it was spread over).
     pub ms: f64,
     /// The most of it done at one keyframe (the front end's longest stall for it), ms.
@@ -215,6 +228,9 @@ pub struct LoopClosureReport {
     pub corrections: Vec<CorrectionRecord>,
     /// Every re-integration of the map.
     pub reintegrations: Vec<ReintegrationRecord>,
+    /// Times the map was due to follow a correction that moved no chunk by more than
+    /// [`LoopClosureConfig::min_chunk_move_voxels`] (nothing re-fused).
+    pub skipped_reintegrations: usize,
 }
 
 /// A fused frame kept for re-integration.
@@ -274,6 +290,10 @@ pub(crate) struct LoopClosure {
     keyframes_since_follow: usize,
     /// The re-integration in progress, spread over keyframes.
     shadow: Option<Shadow>,
+    /// Chunks selected by the frames fused live, and those frames: the mean is what a frame
+    /// costs, the unit of the per-keyframe budget.
+    live_chunks: usize,
+    live_frames: usize,
 }
 
 fn to_f64(p: Affine3A) -> DAffine3 {
@@ -298,6 +318,8 @@ impl LoopClosure {
             behind: false,
             keyframes_since_follow: 0,
             shadow: None,
+            live_chunks: 0,
+            live_frames: 0,
             config,
         }
     }
@@ -322,6 +344,18 @@ impl LoopClosure {
 
     pub fn tracked(&self) -> &Trajectory {
         &self.tracked
+    }
+
+    /// Fuses a tracked frame into the live map (what [`TsdfMap::integrate`] does), first
+    /// letting a re-integration in progress copy the chunks the frame is about to change.
+    pub fn fuse_live(&mut self, map: &mut TsdfMap, frame: &Frame, pose: Affine3A) -> Result<IntegrationStats> {
+        let keys = map.select_chunks(frame, pose)?;
+        self.live_chunks += keys.len();
+        self.live_frames += 1;
+        if let Some(shadow) = self.shadow.as_mut() {
+            shadow.before_live_fusion(map, &keys);
+        }
+        Ok(map.integrate_chunks(frame, pose, &keys)?)
     }
 
     /// Records a fused frame at its tracked pose; a keyframe (`keyframe`, and always the
@@ -388,10 +422,12 @@ impl LoopClosure {
             color: frame.color.clone(),
         };
         self.store_bytes += stored.bytes();
-        let planned = self.shadow.is_some().then(|| self.planned_pose(&stored));
+        // A frame fused live while a shadow is built joins it at its estimate, where the
+        // shadow puts every frame it fuses.
+        let planned = self.shadow.is_some().then(|| self.estimate(&stored));
         self.frames.push(stored);
-        if let (Some(shadow), Some((pose, moved))) = (self.shadow.as_mut(), planned) {
-            shadow.push_live_frame(self.frames.len() - 1, pose, moved);
+        if let (Some(shadow), Some(pose)) = (self.shadow.as_mut(), planned) {
+            shadow.push_live_frame(self.frames.len() - 1, pose);
         }
         if self.store_bytes > self.config.frame_store_mb << 20 {
             self.stop(format!(
@@ -538,18 +574,39 @@ impl LoopClosure {
                 return Ok(None);
             }
             if self.config.reintegration_frames_per_keyframe == 0 {
-                return self.follow(map, frame).map(Some);
+                return self.follow_now(map, frame, false).map(Some);
             }
-            self.behind = false;
-            self.keyframes_since_follow = 0;
-            let t = std::time::Instant::now();
-            let plan = self.plan(map)?;
-            let mut shadow = Shadow::start(map, plan, frame);
-            shadow.start_ms = t.elapsed().as_secs_f64() * 1e3;
-            shadow.ms += shadow.start_ms;
-            self.shadow = Some(shadow);
+            if !self.start(map, frame) {
+                return Ok(None);
+            }
         }
-        self.advance(map, frame, Some(self.config.reintegration_frames_per_keyframe))
+        let budget = self.config.reintegration_frames_per_keyframe * self.chunks_per_frame();
+        self.advance(map, frame, Some(budget), false)
+    }
+
+    /// A frame's worth of chunk integrations: the mean selection of the frames fused live
+    /// (a count, so the budget is deterministic), 1 before any.
+    fn chunks_per_frame(&self) -> usize {
+        self.live_chunks.checked_div(self.live_frames).unwrap_or(1).max(1)
+    }
+
+    /// Plans the map's following of the current estimates and starts a shadow for it;
+    /// false (and the correction counted as skipped) when it moves no chunk far enough.
+    fn start(&mut self, map: &TsdfMap, frame: usize) -> bool {
+        self.behind = false;
+        self.keyframes_since_follow = 0;
+        let t = std::time::Instant::now();
+        let tau = self.config.min_chunk_move_voxels * map.config().voxel_size;
+        let plan = plan::plan(map, &self.frames, &self.estimates(), tau);
+        if plan.is_empty() {
+            self.report.skipped_reintegrations += 1;
+            return false;
+        }
+        let mut shadow = Shadow::start(map, plan, frame);
+        shadow.start_ms = t.elapsed().as_secs_f64() * 1e3;
+        shadow.ms += shadow.start_ms;
+        self.shadow = Some(shadow);
+        true
     }
 
     /// Fuses up to `budget` frames (all: `None`) into the shadow in progress and swaps it in
@@ -559,10 +616,11 @@ impl LoopClosure {
         map: &mut TsdfMap,
         frame: usize,
         budget: Option<usize>,
+        at_end: bool,
     ) -> Result<Option<(Affine3A, Vec<Affine3A>)>> {
         let Some(shadow) = self.shadow.as_mut() else { return Ok(None) };
         let budget = if shadow.must_finish() { None } else { budget };
-        if !shadow.step(&self.frames, self.intrinsics, budget)? {
+        if !shadow.step(map, &self.frames, self.intrinsics, budget)? {
             return Ok(None);
         }
         let Some(mut shadow) = self.shadow.take() else { return Ok(None) };
@@ -572,11 +630,13 @@ impl LoopClosure {
             started_at: shadow.started_at,
             moved_frames: shadow.moved,
             refused_frames: shadow.fused,
+            refused_chunks: shadow.chunk_fusions,
             rebuilt_chunks: shadow.rebuilt_chunks(),
             ms: shadow.ms,
             longest_keyframe_ms: shadow.longest_ms,
+            at_end,
         });
-        *map = shadow.into_map();
+        shadow.swap_into(map);
         let corrected_from_old = self.adopt(&poses);
         Ok(Some((corrected_from_old, self.estimates())))
     }
@@ -594,40 +654,25 @@ impl LoopClosure {
     }
 
     /// Makes `map` follow the graph's estimates of the poses now, in place: completes the
-    /// re-integration in progress, then re-integrates for a correction it did not include
-    /// (the end of a scan; every correction when the per-keyframe budget is 0). Returns what
-    /// [`LoopClosure::keyframe_follow`] does. Nothing moves when loop closure stopped (the
-    /// store is gone).
+    /// re-integration in progress (what is pending of it), then re-integrates, at once, what
+    /// a later correction moved further (the end of a scan; every correction when the
+    /// per-keyframe budget is 0). Returns what [`LoopClosure::keyframe_follow`] does. Nothing
+    /// moves when loop closure stopped (the store is gone).
     pub fn follow(&mut self, map: &mut TsdfMap, frame: usize) -> Result<(Affine3A, Vec<Affine3A>)> {
+        self.follow_now(map, frame, true)
+    }
+
+    fn follow_now(&mut self, map: &mut TsdfMap, frame: usize, at_end: bool) -> Result<(Affine3A, Vec<Affine3A>)> {
         let mut corrected_from_old = Affine3A::IDENTITY;
-        if self.behind {
-            // A correction came after the shadow's start: one re-integration from the live
-            // map (which still holds every frame at its map pose) covers both, for less work
-            // than completing the shadow and re-integrating again.
-            self.shadow = None;
-        } else if let Some((c, _)) = self.advance(map, frame, None)? {
+        // A correction that came after the shadow's start is planned from the map the shadow
+        // leaves: only the chunks that correction moves further are rebuilt again.
+        if let Some((c, _)) = self.advance(map, frame, None, at_end)? {
             corrected_from_old = c;
         }
-        if self.behind {
-            self.behind = false;
-            self.keyframes_since_follow = 0;
-            let t = std::time::Instant::now();
-            let plan = self.plan(map)?;
-            let poses = plan.poses.clone();
-            let moved_frames = plan.moved.iter().filter(|m| **m).count();
-            let rebuilt_chunks = plan.keys.len();
-            let refused = plan.apply(map, &self.frames, self.intrinsics)?;
-            corrected_from_old = self.adopt(&poses) * corrected_from_old;
-            let ms = t.elapsed().as_secs_f64() * 1e3;
-            self.report.reintegrations.push(ReintegrationRecord {
-                frame,
-                started_at: frame,
-                moved_frames,
-                refused_frames: refused,
-                rebuilt_chunks,
-                ms,
-                longest_keyframe_ms: ms,
-            });
+        if self.behind && self.start(map, frame) {
+            if let Some((c, _)) = self.advance(map, frame, None, at_end)? {
+                corrected_from_old = c * corrected_from_old;
+            }
         }
         Ok((corrected_from_old, self.estimates()))
     }
@@ -641,66 +686,6 @@ impl LoopClosure {
     fn estimate(&self, f: &StoredFrame) -> Affine3A {
         to_f32(self.graph.poses()[f.node] * f.node_from_camera)
     }
-
-    /// The pose the map should hold stored frame `f` at: its estimate when that is more than
-    /// [`LoopClosureConfig::min_move`] from where the map holds it, else where it is; and
-    /// whether it moves.
-    fn planned_pose(&self, f: &StoredFrame) -> (Affine3A, bool) {
-        let estimate = self.estimate(f);
-        if moved_by(&to_f64(f.map_pose), &to_f64(estimate)) > self.config.min_move {
-            (estimate, true)
-        } else {
-            (f.map_pose, false)
-        }
-    }
-
-    /// What bringing `map` to the estimates changes: the frames that move; every chunk such a
-    /// frame touched or now touches (to clear); every frame that touched one of them (to
-    /// fuse again, in capture order, at its planned pose).
-    fn plan(&self, map: &TsdfMap) -> Result<Plan> {
-        let (poses, moved): (Vec<Affine3A>, Vec<bool>) = self.frames.iter().map(|f| self.planned_pose(f)).unzip();
-        let moved_ids: BTreeSet<u32> =
-            self.frames.iter().zip(&moved).filter(|(_, m)| **m).map(|(f, _)| f.index as u32).collect();
-        if moved_ids.is_empty() {
-            return Ok(Plan { moved, poses, keys: Vec::new(), rebuild: HashSet::new(), work: Vec::new() });
-        }
-        let touches =
-            |runs: &[(u32, u32)], ids: &BTreeSet<u32>| runs.iter().any(|&(a, b)| ids.range(a..=b).next().is_some());
-        let mut rebuild: HashSet<ChunkKey> =
-            map.chunks().filter(|c| touches(c.frames().runs(), &moved_ids)).map(|c| c.key()).collect();
-        let mut selections: Vec<Option<Vec<ChunkKey>>> = vec![None; self.frames.len()];
-        for (i, f) in self.frames.iter().enumerate() {
-            if moved[i] {
-                let keys = map.select_chunks(&f.frame(self.intrinsics), poses[i])?;
-                rebuild.extend(keys.iter().copied());
-                selections[i] = Some(keys);
-            }
-        }
-        // Frames that touched a rebuilt chunk (runs may over-approximate: a frame re-fused
-        // into a chunk it does not see changes nothing): a difference array over the stored
-        // frames, which are in capture order.
-        let indices: Vec<u32> = self.frames.iter().map(|f| f.index as u32).collect();
-        let mut cover = vec![0i64; indices.len() + 1];
-        for c in map.chunks().filter(|c| rebuild.contains(&c.key())) {
-            for &(a, b) in c.frames().runs() {
-                cover[indices.partition_point(|&i| i < a)] += 1;
-                cover[indices.partition_point(|&i| i <= b)] -= 1;
-            }
-        }
-        let mut depth = 0i64;
-        let work = cover[..indices.len()]
-            .iter()
-            .zip(selections)
-            .enumerate()
-            .filter_map(|(i, (d, selection))| {
-                depth += d;
-                (moved[i] || depth > 0).then_some((i, selection))
-            })
-            .collect();
-        let mut keys: Vec<ChunkKey> = rebuild.iter().copied().collect();
-        keys.sort_unstable_by_key(|k| (k.z, k.y, k.x));
-        Ok(Plan { moved, poses, keys, rebuild, work })
-    }
 }
 
 /// How far `a` to `b` moves a point 2 m in front of the camera, about: translation plus
@@ -710,6 +695,7 @@ fn moved_by(a: &DAffine3, b: &DAffine3) -> f64 {
     t + 2.0 * r
 }
 
+mod plan;
 mod shadow;
 
 #[cfg(test)]

@@ -120,7 +120,7 @@ fn close_a_drifting_loop(seed: u64, lc_config: LoopClosureConfig) -> (Vec<[u32; 
     let mut warnings = Vec::new();
     for (i, f) in frames.iter().enumerate() {
         let pose = correction * drifted[i];
-        map.integrate(f, pose).expect("fusion");
+        lc.fuse_live(&mut map, f, pose).expect("fusion");
         estimate.push(pose);
         let keyframe = (i + 1) % KEYFRAME_EVERY == 0;
         lc.add_frame(f, pose, keyframe).expect("stored");
