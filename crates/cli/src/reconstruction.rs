@@ -73,6 +73,11 @@ pub struct ReconArgs {
     /// 7-Scenes, and every fused frame is kept in memory (docs/loop_closure.md).
     #[arg(long)]
     pub loop_closure: bool,
+    /// With loop closure: re-fuse runs of up to this many consecutive stored frames as one
+    /// frame weighing as much (1: every frame, exact). Cuts a re-integration's work about
+    /// this many times for a little of the noise averaging (docs/loop_closure.md).
+    #[arg(long)]
+    pub reintegration_stride: Option<usize>,
 }
 
 /// Where the pose of each frame comes from.
@@ -168,6 +173,9 @@ pub fn pipeline_config(
     config.semantics.up = up;
     config.semantics.min_island_m2 = semantics.min_label_island;
     config.loop_closure.enabled = recon.loop_closure;
+    if let Some(stride) = recon.reintegration_stride {
+        config.loop_closure.reintegration_stride = stride;
+    }
     config.validate().context("pipeline options")?;
     Ok(config)
 }
@@ -367,6 +375,7 @@ pub fn loop_closure_json(pipeline: &Pipeline, gt: Option<&Trajectory>) -> serde_
         "loops": report.loops,
         "corrections": report.corrections,
         "reintegrations": report.reintegrations,
+        "skipped_reintegrations": report.skipped_reintegrations,
         "ate_rmse_before_m": ate(before),
         "ate_rmse_after_m": ate(pipeline.trajectory()),
         "trajectory_before": rows(before),

@@ -88,6 +88,13 @@ pub struct LoopClosureConfig {
     /// it gains 10 frames a keyframe. 0: re-fuse at once, stalling the front end for the whole
     /// re-integration (seconds on 7-Scenes).
     pub reintegration_frames_per_keyframe: usize,
+    /// Stored frames re-fused as one: runs of up to this many consecutive frames are re-fused
+    /// as their first, its observations weighing as much as the run. 1: every frame (the
+    /// rebuilt chunks are then what fusing afresh at the corrected poses gives). Consecutive
+    /// frames see nearly the same surface from nearly the same place, so a subsample loses
+    /// little besides the averaging of their noise (docs/loop_closure.md has the effect on
+    /// mesh accuracy); the work of a re-integration shrinks about this many times.
+    pub reintegration_stride: usize,
 }
 
 impl Default for LoopClosureConfig {
@@ -104,6 +111,7 @@ impl Default for LoopClosureConfig {
             frame_store_mb: 4096,
             follow_every: 10,
             reintegration_frames_per_keyframe: 20,
+            reintegration_stride: 1,
         }
     }
 }
@@ -132,8 +140,8 @@ impl LoopClosureConfig {
         {
             return bad("loop closure thresholds must be finite and >= 0".into());
         }
-        if self.follow_every == 0 {
-            return bad("follow_every must be at least 1".into());
+        if self.follow_every == 0 || self.reintegration_stride == 0 {
+            return bad("follow_every and reintegration_stride must be at least 1".into());
         }
         if self.detector.min_keyframe_gap == 0 || self.detector.candidates == 0 {
             return bad("loop detection needs a keyframe gap and candidates of at least 1".into());
@@ -211,6 +219,8 @@ pub struct ReintegrationRecord {
     pub ms: f64,
     /// The most of it done at one keyframe (the front end's longest stall for it), ms.
     pub longest_keyframe_ms: f64,
+    /// Its start (the plan), ms: part of the first keyframe's share.
+    pub start_ms: f64,
 }
 
 /// What [`crate::Pipeline::loop_closure`] reports.
@@ -602,8 +612,9 @@ impl LoopClosure {
             self.report.skipped_reintegrations += 1;
             return false;
         }
-        let mut shadow = Shadow::start(map, plan, frame);
+        let mut shadow = Shadow::start(map, plan, frame, self.config.reintegration_stride);
         shadow.start_ms = t.elapsed().as_secs_f64() * 1e3;
+        shadow.plan_ms = shadow.start_ms;
         shadow.ms += shadow.start_ms;
         self.shadow = Some(shadow);
         true
@@ -618,9 +629,11 @@ impl LoopClosure {
         budget: Option<usize>,
         at_end: bool,
     ) -> Result<Option<(Affine3A, Vec<Affine3A>)>> {
+        // A chunk selection costs about a sixth of a whole frame's fusion.
+        let selection_cost = self.chunks_per_frame() / 6;
         let Some(shadow) = self.shadow.as_mut() else { return Ok(None) };
         let budget = if shadow.must_finish() { None } else { budget };
-        if !shadow.step(map, &self.frames, self.intrinsics, budget)? {
+        if !shadow.step(map, &self.frames, self.intrinsics, budget, selection_cost)? {
             return Ok(None);
         }
         let Some(mut shadow) = self.shadow.take() else { return Ok(None) };
@@ -634,6 +647,7 @@ impl LoopClosure {
             rebuilt_chunks: shadow.rebuilt_chunks(),
             ms: shadow.ms,
             longest_keyframe_ms: shadow.longest_ms,
+            start_ms: shadow.plan_ms,
             at_end,
         });
         shadow.swap_into(map);
@@ -664,9 +678,12 @@ impl LoopClosure {
 
     fn follow_now(&mut self, map: &mut TsdfMap, frame: usize, at_end: bool) -> Result<(Affine3A, Vec<Affine3A>)> {
         let mut corrected_from_old = Affine3A::IDENTITY;
-        // A correction that came after the shadow's start is planned from the map the shadow
-        // leaves: only the chunks that correction moves further are rebuilt again.
-        if let Some((c, _)) = self.advance(map, frame, None, at_end)? {
+        if self.behind {
+            // A correction came after the shadow's start: one re-integration from the live
+            // map (which holds every frame where the map says) covers both, for less work
+            // than completing the shadow and then rebuilding what the later correction moved.
+            self.shadow = None;
+        } else if let Some((c, _)) = self.advance(map, frame, None, at_end)? {
             corrected_from_old = c;
         }
         if self.behind && self.start(map, frame) {

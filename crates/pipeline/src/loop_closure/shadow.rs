@@ -58,6 +58,8 @@ enum Origin {
 struct Work {
     /// Position in the frame store.
     frame: usize,
+    /// How many consecutive stored frames it stands for (its observations weigh that much).
+    weight: usize,
     /// Fused live since the start: fused whole. Otherwise into the rebuilt and absent chunks
     /// only.
     whole: bool,
@@ -88,17 +90,32 @@ pub(super) struct Shadow {
     pub longest_ms: f64,
     /// Time of the start not yet counted in a keyframe's share, ms.
     pub start_ms: f64,
+    /// Time of the start (the plan), ms.
+    pub plan_ms: f64,
 }
 
 impl Shadow {
     /// Starts an empty shadow of `live` for `plan`.
-    pub fn start(live: &TsdfMap, plan: Plan, started_at: usize) -> Self {
+    ///
+    /// With `stride` above 1, runs of up to `stride` consecutive stored frames are re-fused as
+    /// their first frame weighing as much as the run ([`super::LoopClosureConfig::
+    /// reintegration_stride`]); frames fused live meanwhile are always fused one by one.
+    pub fn start(live: &TsdfMap, plan: Plan, started_at: usize, stride: usize) -> Self {
         let rebuilt = plan.rebuild.len();
         let origin = plan.rebuild.into_iter().map(|k| (k, Origin::Rebuilt)).collect();
+        let mut queue: VecDeque<Work> = VecDeque::new();
+        let mut last = None;
+        for frame in plan.work {
+            match queue.back_mut() {
+                Some(w) if last == Some(frame.wrapping_sub(1)) && w.weight < stride.max(1) => w.weight += 1,
+                _ => queue.push_back(Work { frame, weight: 1, whole: false }),
+            }
+            last = Some(frame);
+        }
         Self {
             map: live.empty_successor(REVISION_GAP),
             origin,
-            queue: plan.work.into_iter().map(|frame| Work { frame, whole: false }).collect(),
+            queue,
             rebuilt,
             poses: plan.poses,
             moved: plan.moved,
@@ -109,6 +126,7 @@ impl Shadow {
             ms: 0.0,
             longest_ms: 0.0,
             start_ms: 0.0,
+            plan_ms: 0.0,
         }
     }
 
@@ -147,7 +165,7 @@ impl Shadow {
         debug_assert_eq!(frame, self.poses.len());
         self.poses.push(pose);
         self.window_frames += 1;
-        self.queue.push_back(Work { frame, whole: true });
+        self.queue.push_back(Work { frame, weight: 1, whole: true });
     }
 
     /// Whether it must complete now: the revision gap would run out (see [`REVISION_GAP`]).
@@ -156,19 +174,22 @@ impl Shadow {
     }
 
     /// Fuses queued frames until `budget` chunk integrations are spent (at least one frame;
-    /// all with `None`); returns whether the queue is empty.
+    /// all with `None`); returns whether the queue is empty. A frame also costs its chunk
+    /// selection, counted as `selection_cost` chunk integrations, so that frames fused into a
+    /// few chunks each do not run up seconds of selections at one keyframe.
     pub fn step(
         &mut self,
         live: &TsdfMap,
         frames: &[StoredFrame],
         intrinsics: Intrinsics,
         budget: Option<usize>,
+        selection_cost: usize,
     ) -> Result<bool> {
         let t = std::time::Instant::now();
         let mut spent = 0;
         while budget.is_none_or(|b| spent < b) {
             let Some(work) = self.queue.pop_front() else { break };
-            spent += self.fuse(live, frames, intrinsics, work)?;
+            spent += self.fuse(live, frames, intrinsics, work)? + selection_cost;
         }
         let ms = t.elapsed().as_secs_f64() * 1e3;
         self.ms += ms;
@@ -194,7 +215,7 @@ impl Shadow {
         if keys.is_empty() {
             return Ok(0);
         }
-        self.map.integrate_chunks(&frame, pose, &keys)?;
+        self.map.integrate_chunks_weighted(&frame, pose, &keys, work.weight as f32)?;
         self.fused += 1;
         self.chunk_fusions += keys.len();
         Ok(keys.len())
