@@ -78,6 +78,10 @@ pub struct ReconArgs {
     /// this many times for a little of the noise averaging (docs/loop_closure.md).
     #[arg(long)]
     pub reintegration_stride: Option<usize>,
+    /// With loop closure: weigh loop edges with one isotropic standard deviation (4 mm, 0.17
+    /// degree) instead of the shape of the loop alignment's Hessian (for comparisons).
+    #[arg(long)]
+    pub isotropic_loop_information: bool,
 }
 
 /// Where the pose of each frame comes from.
@@ -173,6 +177,7 @@ pub fn pipeline_config(
     config.semantics.up = up;
     config.semantics.min_island_m2 = semantics.min_label_island;
     config.loop_closure.enabled = recon.loop_closure;
+    config.loop_closure.loop_information_from_alignment = !recon.isotropic_loop_information;
     if let Some(stride) = recon.reintegration_stride {
         config.loop_closure.reintegration_stride = stride;
     }

@@ -26,7 +26,7 @@
 
 use glam::{Affine3A, DAffine3};
 use semrecon_data::{Frame, Intrinsics, Trajectory};
-use semrecon_recon::pose_graph::{isotropic_information, pose_distance};
+use semrecon_recon::pose_graph::{alignment_information, isotropic_information, pose_distance};
 use semrecon_recon::{
     EdgeKind, IntegrationStats, LoopConfig, LoopDetector, LoopVerdict, PoseEdge, PoseGraph, PoseGraphConfig, TsdfMap,
 };
@@ -53,8 +53,14 @@ pub struct LoopClosureConfig {
     /// Standard deviation of the odometry between consecutive keyframes: metres and radians
     /// per keyframe (frame-to-model tracking drifts a few millimetres per ten frames).
     pub odometry_sigma: (f64, f64),
-    /// Standard deviation of a loop alignment: metres and radians.
+    /// Standard deviation of a loop alignment: metres and radians (with
+    /// `loop_information_from_alignment`, the metres are those of the best-constrained
+    /// direction and the radians are not used).
     pub loop_sigma: (f64, f64),
+    /// A loop edge's information takes its shape from the alignment's Hessian `JᵀJ` (a loop
+    /// along a corridor constrains the motion along it little), scaled so that its
+    /// best-constrained translation has `loop_sigma`'s metres; off: isotropic `loop_sigma`.
+    pub loop_information_from_alignment: bool,
     /// The graph is optimised when a new loop edge's chi-square at the current poses exceeds
     /// this: a loop that agrees with the poses changes nothing worth re-fusing the map for.
     pub min_loop_chi2: f64,
@@ -105,6 +111,7 @@ impl Default for LoopClosureConfig {
             graph: PoseGraphConfig::default(),
             odometry_sigma: (0.005, 0.004),
             loop_sigma: (0.004, 0.003),
+            loop_information_from_alignment: true,
             min_loop_chi2: 6.0,
             min_move: 0.008,
             min_chunk_move_voxels: 0.5,
@@ -217,8 +224,8 @@ pub struct ReintegrationRecord {
     pub at_end: bool,
     /// Time spent on it, ms (summed over the keyframes it was spread over).
     pub ms: f64,
-    /// The most of it done at one keyframe (the front end's longest stall for it), ms.
-    pub longest_keyframe_ms: f64,
+    /// The most of it done at one frame (the front end's longest stall for it), ms.
+    pub longest_stall_ms: f64,
     /// Its start (the plan), ms: part of the first keyframe's share.
     pub start_ms: f64,
 }
@@ -304,6 +311,10 @@ pub(crate) struct LoopClosure {
     /// costs, the unit of the per-keyframe budget.
     live_chunks: usize,
     live_frames: usize,
+    /// Stored frames per keyframe (the last complete interval), over which a keyframe's
+    /// re-integration budget is spread; and the store's size at the last keyframe.
+    keyframe_interval: usize,
+    frames_at_keyframe: usize,
 }
 
 fn to_f64(p: Affine3A) -> DAffine3 {
@@ -330,6 +341,8 @@ impl LoopClosure {
             shadow: None,
             live_chunks: 0,
             live_frames: 0,
+            keyframe_interval: 10,
+            frames_at_keyframe: 0,
             config,
         }
     }
@@ -382,6 +395,11 @@ impl LoopClosure {
         };
         if !pose64.is_finite() {
             return Err(invalid(semrecon_recon::PoseGraphError::NonFinitePose(self.graph.poses().len())));
+        }
+        if keyframe && self.frames.len() > self.frames_at_keyframe {
+            // Counts of stored frames: deterministic.
+            self.keyframe_interval = self.frames.len() + 1 - self.frames_at_keyframe;
+            self.frames_at_keyframe = self.frames.len() + 1;
         }
         if keyframe || self.graph.poses().is_empty() {
             // Odometry is measured in the map frame, where the tracker works: from the map
@@ -483,11 +501,17 @@ impl LoopClosure {
             };
             if v.accepted() {
                 let (st, sr) = self.config.loop_sigma;
+                let information = self
+                    .config
+                    .loop_information_from_alignment
+                    .then(|| alignment_information(&v.old_from_new, &v.hessian, st))
+                    .flatten()
+                    .unwrap_or_else(|| isotropic_information(st, sr));
                 match self.graph.add_edge(PoseEdge {
                     from: v.old,
                     to: v.new,
                     from_from_to: v.old_from_new,
-                    information: isotropic_information(st, sr),
+                    information,
                     kind: EdgeKind::Loop,
                 }) {
                     Ok(e) => {
@@ -590,8 +614,20 @@ impl LoopClosure {
                 return Ok(None);
             }
         }
-        let budget = self.config.reintegration_frames_per_keyframe * self.chunks_per_frame();
-        self.advance(map, frame, Some(budget), false)
+        self.advance(map, frame, Some(self.frame_budget()), false, true)
+    }
+
+    /// At a fused frame that is not a keyframe, while a re-integration is in progress: fuses
+    /// this frame's share of it into the shadow (the swap waits for a keyframe). Spreading
+    /// over frames rather than keyframes keeps each stall to about two frame fusions.
+    pub fn frame_follow(&mut self, map: &mut TsdfMap, frame: usize) -> Result<()> {
+        self.advance(map, frame, Some(self.frame_budget()), false, false).map(|_| ())
+    }
+
+    /// Chunk integrations per fused frame: `reintegration_frames_per_keyframe` frames' worth
+    /// spread over the frames of a keyframe interval.
+    fn frame_budget(&self) -> usize {
+        (self.config.reintegration_frames_per_keyframe * self.chunks_per_frame()).div_ceil(self.keyframe_interval.max(1))
     }
 
     /// A frame's worth of chunk integrations: the mean selection of the frames fused live
@@ -628,12 +664,13 @@ impl LoopClosure {
         frame: usize,
         budget: Option<usize>,
         at_end: bool,
+        may_swap: bool,
     ) -> Result<Option<(Affine3A, Vec<Affine3A>)>> {
         // A chunk selection costs about a sixth of a whole frame's fusion.
         let selection_cost = self.chunks_per_frame() / 6;
         let Some(shadow) = self.shadow.as_mut() else { return Ok(None) };
         let budget = if shadow.must_finish() { None } else { budget };
-        if !shadow.step(map, &self.frames, self.intrinsics, budget, selection_cost)? {
+        if !shadow.step(map, &self.frames, self.intrinsics, budget, selection_cost)? || !may_swap {
             return Ok(None);
         }
         let Some(mut shadow) = self.shadow.take() else { return Ok(None) };
@@ -646,7 +683,7 @@ impl LoopClosure {
             refused_chunks: shadow.chunk_fusions,
             rebuilt_chunks: shadow.rebuilt_chunks(),
             ms: shadow.ms,
-            longest_keyframe_ms: shadow.longest_ms,
+            longest_stall_ms: shadow.longest_ms,
             start_ms: shadow.plan_ms,
             at_end,
         });
@@ -683,11 +720,11 @@ impl LoopClosure {
             // map (which holds every frame where the map says) covers both, for less work
             // than completing the shadow and then rebuilding what the later correction moved.
             self.shadow = None;
-        } else if let Some((c, _)) = self.advance(map, frame, None, at_end)? {
+        } else if let Some((c, _)) = self.advance(map, frame, None, at_end, true)? {
             corrected_from_old = c;
         }
         if self.behind && self.start(map, frame) {
-            if let Some((c, _)) = self.advance(map, frame, None, at_end)? {
+            if let Some((c, _)) = self.advance(map, frame, None, at_end, true)? {
                 corrected_from_old = c * corrected_from_old;
             }
         }

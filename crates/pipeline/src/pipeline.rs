@@ -325,6 +325,12 @@ impl Pipeline {
         let Some(lc) = &mut self.loop_closure else { return Ok(()) };
         lc.add_frame(frame, pose, keyframe)?;
         if !keyframe {
+            if lc.is_rebuilding() {
+                // The re-integration in progress goes on at every frame; it swaps at keyframes.
+                let t = Instant::now();
+                lc.frame_follow(&mut self.map, frame.index)?;
+                self.times.record("map re-integration", t.elapsed());
+            }
             return Ok(());
         }
         let t = Instant::now();

@@ -86,7 +86,7 @@ pub(super) struct Shadow {
     pub started_at: usize,
     /// Time spent on it, ms (the plan and the fusions).
     pub ms: f64,
-    /// The most time it took at one keyframe, ms (its start included in the first).
+    /// The most time it took at one frame, ms (its start included in the first).
     pub longest_ms: f64,
     /// Time of the start not yet counted in a keyframe's share, ms.
     pub start_ms: f64,
