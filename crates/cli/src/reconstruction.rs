@@ -68,9 +68,11 @@ pub struct ReconArgs {
     #[arg(long, value_enum, default_value_t = PoseMode::Track)]
     pub poses: PoseMode,
     /// Close loops: find revisited places at keyframes, optimise the pose graph and re-fuse
-    /// the map where frames moved (20 frames a keyframe into a shadow map, swapped in when
-    /// done). Off by default: the re-fusion's total work still halves the real-time factor on
-    /// 7-Scenes, and every fused frame is kept in memory (docs/loop_closure.md).
+    /// the map's chunks that a correction moves by more than half a voxel (in a shadow of
+    /// those chunks, spread over frames, swapped in at a keyframe). Off by default: on
+    /// 7-Scenes a correction moves nearly every chunk, so the re-fusion's total work still
+    /// costs much of the real-time factor, and every fused frame is kept in memory
+    /// (docs/loop_closure.md).
     #[arg(long)]
     pub loop_closure: bool,
     /// With loop closure: re-fuse runs of up to this many consecutive stored frames as one
