@@ -5,9 +5,9 @@
 //!
 //! Every fused frame is attached to the last keyframe before it (`keyframe_from_camera`,
 //! fixed), so a keyframe's corrected pose moves its frames with it. The map follows by
-//! re-integration: the chunks touched by a frame that moved (before or after the move) are
-//! cleared and every frame that touched them is fused again, in capture order, at its
-//! corrected pose. Fusion has no exact inverse here (capped weights, quantised distances,
+//! re-integration: the chunks that a recorded frame's correction moves by more than half a
+//! voxel (`plan`) are rebuilt from every frame recorded in them, in capture order, at the
+//! corrected poses. Fusion has no exact inverse here (capped weights, quantised distances,
 //! blended colours), so subtracting a frame ("de-integration") would leave residue; clearing
 //! and re-fusing gives exactly the map a scan with the corrected poses would have built,
 //! and chunks no moved frame touched are left alone (their meshes and semantic cells are not
@@ -18,11 +18,12 @@
 //! [`LoopClosureConfig::frame_store_mb`]; past it loop closure stops with a warning. Timings
 //! and memory in docs/loop_closure.md.
 //!
-//! Everything runs on the front end's thread at keyframes, in a fixed order: the output is
-//! the same for any thread count. Detection and optimisation cost milliseconds; the
+//! Everything runs on the front end's thread, in a fixed order: the output is the same for
+//! any thread count. Detection and optimisation cost milliseconds at keyframes; the
 //! re-integration after a correction costs about a fusion per frame re-fused, so it is built
-//! in a shadow copy of the map a bounded number of frames per keyframe and swapped in at the
-//! keyframe it completes (`shadow`), instead of stalling the front end for seconds.
+//! in a shadow holding only the chunks it changes, a bounded amount at every frame, and
+//! swapped in at the keyframe it completes (`shadow`), instead of stalling the front end for
+//! seconds.
 
 use glam::{Affine3A, DAffine3};
 use semrecon_data::{Frame, Intrinsics, Trajectory};
@@ -42,9 +43,10 @@ const DEPTH_UNITS_PER_M: f32 = 5000.0;
 #[derive(Debug, Clone, PartialEq)]
 pub struct LoopClosureConfig {
     /// On: keyframes and fused frames are kept, loops closed and the map re-fused
-    /// (`--loop-closure`). Off by default: re-fusing after a correction runs on the front end
-    /// (2-5 s on 7-Scenes, halving its real-time factor) and the frame store costs 1.5 MB a
-    /// frame, for 1.6 mm of ATE on 7-Scenes (docs/loop_closure.md).
+    /// (`--loop-closure`). Off by default: on 7-Scenes a correction moves nearly every chunk,
+    /// so re-fusing after it costs about a whole pass over the stored frames (spread over
+    /// frames now, but still a large part of the real-time factor), and the frame store costs
+    /// 1.5 MB a frame, for 1-2 mm of ATE on 7-Scenes (docs/loop_closure.md).
     pub enabled: bool,
     /// Candidate search and geometric acceptance.
     pub detector: LoopConfig,
@@ -67,11 +69,10 @@ pub struct LoopClosureConfig {
     /// The graph is optimised when a new loop edge's chi-square at the current poses exceeds
     /// this: a loop that agrees with the poses changes nothing worth re-fusing the map for.
     pub min_loop_chi2: f64,
-    /// Frames move with their keyframe; one whose points (at 2 m) would move less than this
-    /// many metres from where the map holds them stays there (the trajectory still reports
-    /// its optimised pose). 8 mm, under two 5 mm voxels and under the depth noise at 2 m: on
-    /// 7-Scenes re-fusing every frame that moved by a millimetre cost seconds per correction
-    /// for no visible change.
+    /// An optimisation counts as a correction only when it moves some keyframe's points (at
+    /// 2 m) by more than this many metres; smaller changes stay in the graph unreported. 8 mm,
+    /// under two 5 mm voxels and under the depth noise at 2 m. (Where the map follows is
+    /// decided per chunk: [`LoopClosureConfig::min_chunk_move_voxels`].)
     pub min_move: f64,
     /// The map follows a correction only where it moves the map by more than this many
     /// voxels: a chunk is rebuilt when a frame recorded in it moves the chunk's centre further
