@@ -631,7 +631,8 @@ impl LoopClosure {
     /// Chunk integrations per fused frame: `reintegration_frames_per_keyframe` frames' worth
     /// spread over the frames of a keyframe interval.
     fn frame_budget(&self) -> usize {
-        (self.config.reintegration_frames_per_keyframe * self.chunks_per_frame()).div_ceil(self.keyframe_interval.max(1))
+        (self.config.reintegration_frames_per_keyframe * self.chunks_per_frame())
+            .div_ceil(self.keyframe_interval.max(1))
     }
 
     /// A frame's worth of chunk integrations: the mean selection of the frames fused live

@@ -54,10 +54,7 @@ pub(super) fn plan(map: &TsdfMap, frames: &[StoredFrame], estimates: &[Affine3A]
     // A frame whose delta moves no point of the map by more than the threshold needs no
     // per-chunk check: |R c + t - c| <= |R - I| |c| + |t| (Frobenius norm) for |c| up to
     // the map's extent.
-    let reach = map
-        .chunks()
-        .map(|c| chunk_centre(map, c.key()).length())
-        .fold(0.0f32, f32::max);
+    let reach = map.chunks().map(|c| chunk_centre(map, c.key()).length()).fold(0.0f32, f32::max);
     let static_frame: Vec<bool> = deltas
         .iter()
         .map(|d| {

@@ -207,10 +207,16 @@ impl Shadow {
             selection
         } else {
             // Chunks neither rebuilt nor new keep what they hold (within the threshold).
-            let fresh: Vec<ChunkKey> =
-                selection.iter().copied().filter(|k| !self.origin.contains_key(k) && live.chunk(*k).is_none()).collect();
+            let fresh: Vec<ChunkKey> = selection
+                .iter()
+                .copied()
+                .filter(|k| !self.origin.contains_key(k) && live.chunk(*k).is_none())
+                .collect();
             self.claim(live, &fresh);
-            selection.into_iter().filter(|k| matches!(self.origin.get(k), Some(Origin::Rebuilt | Origin::Absent))).collect()
+            selection
+                .into_iter()
+                .filter(|k| matches!(self.origin.get(k), Some(Origin::Rebuilt | Origin::Absent)))
+                .collect()
         };
         if keys.is_empty() {
             return Ok(0);

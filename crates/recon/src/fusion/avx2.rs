@@ -172,7 +172,10 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 let t_old = _mm256_cvtepi32_ps(t_old_i);
                 let w_old_q = _mm256_cvtepi32_ps(w_old_i);
                 let obs = _mm256_min_ps(sdf, mu);
-                let w_obs = _mm256_and_ps(valid, _mm256_mul_ps(_mm256_min_ps(_mm256_div_ps(one, _mm256_mul_ps(d, d)), four), obs_scale));
+                let w_obs = _mm256_and_ps(
+                    valid,
+                    _mm256_mul_ps(_mm256_min_ps(_mm256_div_ps(one, _mm256_mul_ps(d, d)), four), obs_scale),
+                );
                 let w_old = _mm256_mul_ps(w_old_q, inv_wscale);
                 let w_sum = _mm256_add_ps(w_old, w_obs);
                 let inv = _mm256_div_ps(one, _mm256_max_ps(w_sum, tiny));

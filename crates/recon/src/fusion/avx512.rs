@@ -179,7 +179,10 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 let t_old = _mm512_cvtepi32_ps(t_old_i);
                 let w_old_q = _mm512_cvtepi32_ps(w_old_i);
                 let obs = _mm512_min_ps(sdf, mu);
-                let w_obs = _mm512_maskz_mov_ps(valid, _mm512_mul_ps(_mm512_min_ps(_mm512_div_ps(one, _mm512_mul_ps(d, d)), four), obs_scale));
+                let w_obs = _mm512_maskz_mov_ps(
+                    valid,
+                    _mm512_mul_ps(_mm512_min_ps(_mm512_div_ps(one, _mm512_mul_ps(d, d)), four), obs_scale),
+                );
                 let w_old = _mm512_mul_ps(w_old_q, inv_wscale);
                 let w_sum = _mm512_add_ps(w_old, w_obs);
                 let inv = _mm512_div_ps(one, _mm512_max_ps(w_sum, tiny));

@@ -104,10 +104,7 @@ mod tests {
     /// perturbation of the measurement.
     #[test]
     fn the_information_carries_the_hessian_into_the_edge_error() {
-        let z = DAffine3 {
-            matrix3: rotation_exp(DVec3::new(0.2, -0.4, 0.3)),
-            translation: DVec3::new(0.5, -0.2, 1.1),
-        };
+        let z = DAffine3 { matrix3: rotation_exp(DVec3::new(0.2, -0.4, 0.3)), translation: DVec3::new(0.5, -0.2, 1.1) };
         // A Hessian with a weak direction (translation along x) and coupling.
         let mut h = [[0.0; 6]; 6];
         let rows: [[f64; 6]; 7] = [
@@ -127,11 +124,13 @@ mod tests {
             }
         }
         let info = alignment_information(&z, &h, 0.004).expect("information");
-        let scale = 1.0 / (0.004f64.powi(2) * largest_eigenvalue(DMat3::from_cols_array_2d(&[
-            [h[0][0], h[1][0], h[2][0]],
-            [h[0][1], h[1][1], h[2][1]],
-            [h[0][2], h[1][2], h[2][2]],
-        ])));
+        let scale = 1.0
+            / (0.004f64.powi(2)
+                * largest_eigenvalue(DMat3::from_cols_array_2d(&[
+                    [h[0][0], h[1][0], h[2][0]],
+                    [h[0][1], h[1][1], h[2][1]],
+                    [h[0][2], h[1][2], h[2][2]],
+                ])));
         // Poses with Ti = I, Tj = Z' = exp(δ) Z: the edge error of measuring Z for them.
         let delta = [1e-4, -2e-4, 0.5e-4, 1e-4, 0.3e-4, -1e-4];
         let step = DAffine3 {
@@ -142,8 +141,11 @@ mod tests {
         let e = edge_error(&DAffine3::IDENTITY, &moved, &z);
         // The error of the measurement z against the truth `moved` is the alignment's
         // perturbation back: -δ, so both forms must agree.
-        let q_edge: f64 = (0..6).map(|a| (0..6).map(|b| e[a] * (info[a][b] - if a == b { 1.0 } else { 0.0 }) * e[b]).sum::<f64>()).sum();
-        let q_align: f64 = scale * (0..6).map(|a| (0..6).map(|b| delta[a] * h[a][b] * delta[b]).sum::<f64>()).sum::<f64>();
+        let q_edge: f64 = (0..6)
+            .map(|a| (0..6).map(|b| e[a] * (info[a][b] - if a == b { 1.0 } else { 0.0 }) * e[b]).sum::<f64>())
+            .sum();
+        let q_align: f64 =
+            scale * (0..6).map(|a| (0..6).map(|b| delta[a] * h[a][b] * delta[b]).sum::<f64>()).sum::<f64>();
         assert!((q_edge - q_align).abs() <= 1e-3 * q_align, "{q_edge} against {q_align}");
     }
 
