@@ -5,9 +5,9 @@
 //!
 //! Every fused frame is attached to the last keyframe before it (`keyframe_from_camera`,
 //! fixed), so a keyframe's corrected pose moves its frames with it. The map follows by
-//! re-integration: the chunks touched by a frame that moved (before or after the move) are
-//! cleared and every frame that touched them is fused again, in capture order, at its
-//! corrected pose. Fusion has no exact inverse here (capped weights, quantised distances,
+//! re-integration: the chunks that a recorded frame's correction moves by more than half a
+//! voxel (`plan`) are rebuilt from every frame recorded in them, in capture order, at the
+//! corrected poses. Fusion has no exact inverse here (capped weights, quantised distances,
 //! blended colours), so subtracting a frame ("de-integration") would leave residue; clearing
 //! and re-fusing gives exactly the map a scan with the corrected poses would have built,
 //! and chunks no moved frame touched are left alone (their meshes and semantic cells are not
@@ -18,24 +18,23 @@
 //! [`LoopClosureConfig::frame_store_mb`]; past it loop closure stops with a warning. Timings
 //! and memory in docs/loop_closure.md.
 //!
-//! Everything runs on the front end's thread at keyframes, in a fixed order: the output is
-//! the same for any thread count. Detection and optimisation cost milliseconds; the
+//! Everything runs on the front end's thread, in a fixed order: the output is the same for
+//! any thread count. Detection and optimisation cost milliseconds at keyframes; the
 //! re-integration after a correction costs about a fusion per frame re-fused, so it is built
-//! in a shadow copy of the map a bounded number of frames per keyframe and swapped in at the
-//! keyframe it completes (`shadow`), instead of stalling the front end for seconds.
-
-use std::collections::{BTreeSet, HashSet};
+//! in a shadow holding only the chunks it changes, a bounded amount at every frame, and
+//! swapped in at the keyframe it completes (`shadow`), instead of stalling the front end for
+//! seconds.
 
 use glam::{Affine3A, DAffine3};
 use semrecon_data::{Frame, Intrinsics, Trajectory};
-use semrecon_recon::pose_graph::{isotropic_information, pose_distance};
+use semrecon_recon::pose_graph::{alignment_information, isotropic_information, pose_distance};
 use semrecon_recon::{
-    ChunkKey, EdgeKind, LoopConfig, LoopDetector, LoopVerdict, PoseEdge, PoseGraph, PoseGraphConfig, TsdfMap,
+    EdgeKind, IntegrationStats, LoopConfig, LoopDetector, LoopVerdict, PoseEdge, PoseGraph, PoseGraphConfig, TsdfMap,
 };
 use serde::Serialize;
 
 use crate::error::{PipelineError, Result};
-use shadow::{Plan, Shadow};
+use shadow::Shadow;
 
 /// Depth units of the frame store: metres times this (0.2 mm steps, up to 13 m).
 const DEPTH_UNITS_PER_M: f32 = 5000.0;
@@ -44,9 +43,10 @@ const DEPTH_UNITS_PER_M: f32 = 5000.0;
 #[derive(Debug, Clone, PartialEq)]
 pub struct LoopClosureConfig {
     /// On: keyframes and fused frames are kept, loops closed and the map re-fused
-    /// (`--loop-closure`). Off by default: re-fusing after a correction runs on the front end
-    /// (2-5 s on 7-Scenes, halving its real-time factor) and the frame store costs 1.5 MB a
-    /// frame, for 1.6 mm of ATE on 7-Scenes (docs/loop_closure.md).
+    /// (`--loop-closure`). Off by default: on 7-Scenes a correction moves nearly every chunk,
+    /// so re-fusing after it costs about a whole pass over the stored frames (spread over
+    /// frames now, but still a large part of the real-time factor), and the frame store costs
+    /// 1.5 MB a frame, for 1-2 mm of ATE on 7-Scenes (docs/loop_closure.md).
     pub enabled: bool,
     /// Candidate search and geometric acceptance.
     pub detector: LoopConfig,
@@ -55,17 +55,32 @@ pub struct LoopClosureConfig {
     /// Standard deviation of the odometry between consecutive keyframes: metres and radians
     /// per keyframe (frame-to-model tracking drifts a few millimetres per ten frames).
     pub odometry_sigma: (f64, f64),
-    /// Standard deviation of a loop alignment: metres and radians.
+    /// Standard deviation of a loop alignment: metres and radians (with
+    /// `loop_information_from_alignment`, the metres are those of the best-constrained
+    /// direction and the radians are not used).
     pub loop_sigma: (f64, f64),
+    /// A loop edge's information takes its shape from the alignment's Hessian `JᵀJ` (a loop
+    /// along a corridor constrains the motion along it little), scaled so that its
+    /// best-constrained translation has `loop_sigma`'s metres; off: isotropic `loop_sigma`.
+    /// Off by default: on the rendered drifting loops it closed less of the drift (ATE after
+    /// 3.9-11.0 mm against 2.4-5.0 mm, seeds 1-5): its weaker directions trigger fewer
+    /// corrections and pull less against odometry (docs/loop_closure.md).
+    pub loop_information_from_alignment: bool,
     /// The graph is optimised when a new loop edge's chi-square at the current poses exceeds
     /// this: a loop that agrees with the poses changes nothing worth re-fusing the map for.
     pub min_loop_chi2: f64,
-    /// Frames move with their keyframe; one whose points (at 2 m) would move less than this
-    /// many metres from where the map holds them stays there (the trajectory still reports
-    /// its optimised pose). 8 mm, under two 5 mm voxels and under the depth noise at 2 m: on
-    /// 7-Scenes re-fusing every frame that moved by a millimetre cost seconds per correction
-    /// for no visible change.
+    /// An optimisation counts as a correction only when it moves some keyframe's points (at
+    /// 2 m) by more than this many metres; smaller changes stay in the graph unreported. 8 mm,
+    /// under two 5 mm voxels and under the depth noise at 2 m. (Where the map follows is
+    /// decided per chunk: [`LoopClosureConfig::min_chunk_move_voxels`].)
     pub min_move: f64,
+    /// The map follows a correction only where it moves the map by more than this many
+    /// voxels: a chunk is rebuilt when a frame recorded in it moves the chunk's centre further
+    /// than this (its pose change applied to the centre: the depth it saw the chunk at and its
+    /// turn both count); a correction that moves no chunk that far leaves the map alone. Half
+    /// a voxel: below the quantisation of the surface, and the map follows a frame's
+    /// correction only where the frame's view of the surface moved.
+    pub min_chunk_move_voxels: f32,
     /// Most megabytes of stored frames (1.5 MB each at 640x480); past it loop closure stops.
     pub frame_store_mb: usize,
     /// The map follows corrected poses at most every this many keyframes (and at the end
@@ -83,6 +98,13 @@ pub struct LoopClosureConfig {
     /// it gains 10 frames a keyframe. 0: re-fuse at once, stalling the front end for the whole
     /// re-integration (seconds on 7-Scenes).
     pub reintegration_frames_per_keyframe: usize,
+    /// Stored frames re-fused as one: runs of up to this many consecutive frames are re-fused
+    /// as their first, its observations weighing as much as the run. 1: every frame (the
+    /// rebuilt chunks are then what fusing afresh at the corrected poses gives). Consecutive
+    /// frames see nearly the same surface from nearly the same place, so a subsample loses
+    /// little besides the averaging of their noise (docs/loop_closure.md has the effect on
+    /// mesh accuracy); the work of a re-integration shrinks about this many times.
+    pub reintegration_stride: usize,
 }
 
 impl Default for LoopClosureConfig {
@@ -93,11 +115,14 @@ impl Default for LoopClosureConfig {
             graph: PoseGraphConfig::default(),
             odometry_sigma: (0.005, 0.004),
             loop_sigma: (0.004, 0.003),
+            loop_information_from_alignment: false,
             min_loop_chi2: 6.0,
             min_move: 0.008,
+            min_chunk_move_voxels: 0.5,
             frame_store_mb: 4096,
             follow_every: 10,
             reintegration_frames_per_keyframe: 20,
+            reintegration_stride: 1,
         }
     }
 }
@@ -120,12 +145,14 @@ impl LoopClosureConfig {
         if !(self.min_move.is_finite()
             && self.min_move >= 0.0
             && self.min_loop_chi2.is_finite()
-            && self.min_loop_chi2 >= 0.0)
+            && self.min_loop_chi2 >= 0.0
+            && self.min_chunk_move_voxels.is_finite()
+            && self.min_chunk_move_voxels >= 0.0)
         {
             return bad("loop closure thresholds must be finite and >= 0".into());
         }
-        if self.follow_every == 0 {
-            return bad("follow_every must be at least 1".into());
+        if self.follow_every == 0 || self.reintegration_stride == 0 {
+            return bad("follow_every and reintegration_stride must be at least 1".into());
         }
         if self.detector.min_keyframe_gap == 0 || self.detector.candidates == 0 {
             return bad("loop detection needs a keyframe gap and candidates of at least 1".into());
@@ -188,16 +215,23 @@ pub struct ReintegrationRecord {
     pub frame: usize,
     /// The frame at which it started (the same when done at once).
     pub started_at: usize,
-    /// Frames moved to their corrected pose (further than `min_move` from the map's).
+    /// Frames whose correction moves some point of the map by more than the threshold
+    /// ([`LoopClosureConfig::min_chunk_move_voxels`]; a bound over the map's extent).
     pub moved_frames: usize,
-    /// Frames fused again (the moved ones and those sharing chunks with them).
+    /// Frames fused again (into rebuilt chunks, or whole when fused live meanwhile).
     pub refused_frames: usize,
-    /// Chunks cleared and rebuilt.
+    /// Chunk integrations those fusions cost (a whole frame is a few thousand on 7-Scenes).
+    pub refused_chunks: usize,
+    /// Chunks rebuilt (cleared and fused again).
     pub rebuilt_chunks: usize,
+    /// Done at the end of the scan (in `finish`), not spread over keyframes.
+    pub at_end: bool,
     /// Time spent on it, ms (summed over the keyframes it was spread over).
     pub ms: f64,
-    /// The most of it done at one keyframe (the front end's longest stall for it), ms.
-    pub longest_keyframe_ms: f64,
+    /// The most of it done at one frame (the front end's longest stall for it), ms.
+    pub longest_stall_ms: f64,
+    /// Its start (the plan), ms: part of the first keyframe's share.
+    pub start_ms: f64,
 }
 
 /// What [`crate::Pipeline::loop_closure`] reports.
@@ -215,6 +249,9 @@ pub struct LoopClosureReport {
     pub corrections: Vec<CorrectionRecord>,
     /// Every re-integration of the map.
     pub reintegrations: Vec<ReintegrationRecord>,
+    /// Times the map was due to follow a correction that moved no chunk by more than
+    /// [`LoopClosureConfig::min_chunk_move_voxels`] (nothing re-fused).
+    pub skipped_reintegrations: usize,
 }
 
 /// A fused frame kept for re-integration.
@@ -274,6 +311,14 @@ pub(crate) struct LoopClosure {
     keyframes_since_follow: usize,
     /// The re-integration in progress, spread over keyframes.
     shadow: Option<Shadow>,
+    /// Chunks selected by the frames fused live, and those frames: the mean is what a frame
+    /// costs, the unit of the per-keyframe budget.
+    live_chunks: usize,
+    live_frames: usize,
+    /// Stored frames per keyframe (the last complete interval), over which a keyframe's
+    /// re-integration budget is spread; and the store's size at the last keyframe.
+    keyframe_interval: usize,
+    frames_at_keyframe: usize,
 }
 
 fn to_f64(p: Affine3A) -> DAffine3 {
@@ -298,6 +343,10 @@ impl LoopClosure {
             behind: false,
             keyframes_since_follow: 0,
             shadow: None,
+            live_chunks: 0,
+            live_frames: 0,
+            keyframe_interval: 10,
+            frames_at_keyframe: 0,
             config,
         }
     }
@@ -324,6 +373,18 @@ impl LoopClosure {
         &self.tracked
     }
 
+    /// Fuses a tracked frame into the live map (what [`TsdfMap::integrate`] does), first
+    /// letting a re-integration in progress copy the chunks the frame is about to change.
+    pub fn fuse_live(&mut self, map: &mut TsdfMap, frame: &Frame, pose: Affine3A) -> Result<IntegrationStats> {
+        let keys = map.select_chunks(frame, pose)?;
+        self.live_chunks += keys.len();
+        self.live_frames += 1;
+        if let Some(shadow) = self.shadow.as_mut() {
+            shadow.before_live_fusion(map, &keys);
+        }
+        Ok(map.integrate_chunks(frame, pose, &keys)?)
+    }
+
     /// Records a fused frame at its tracked pose; a keyframe (`keyframe`, and always the
     /// first frame) becomes a graph node with an odometry edge from the previous one.
     pub fn add_frame(&mut self, frame: &Frame, pose: Affine3A, keyframe: bool) -> Result<()> {
@@ -338,6 +399,11 @@ impl LoopClosure {
         };
         if !pose64.is_finite() {
             return Err(invalid(semrecon_recon::PoseGraphError::NonFinitePose(self.graph.poses().len())));
+        }
+        if keyframe && self.frames.len() > self.frames_at_keyframe {
+            // Counts of stored frames: deterministic.
+            self.keyframe_interval = self.frames.len() + 1 - self.frames_at_keyframe;
+            self.frames_at_keyframe = self.frames.len() + 1;
         }
         if keyframe || self.graph.poses().is_empty() {
             // Odometry is measured in the map frame, where the tracker works: from the map
@@ -388,10 +454,12 @@ impl LoopClosure {
             color: frame.color.clone(),
         };
         self.store_bytes += stored.bytes();
-        let planned = self.shadow.is_some().then(|| self.planned_pose(&stored));
+        // A frame fused live while a shadow is built joins it at its estimate, where the
+        // shadow puts every frame it fuses.
+        let planned = self.shadow.is_some().then(|| self.estimate(&stored));
         self.frames.push(stored);
-        if let (Some(shadow), Some((pose, moved))) = (self.shadow.as_mut(), planned) {
-            shadow.push_live_frame(self.frames.len() - 1, pose, moved);
+        if let (Some(shadow), Some(pose)) = (self.shadow.as_mut(), planned) {
+            shadow.push_live_frame(self.frames.len() - 1, pose);
         }
         if self.store_bytes > self.config.frame_store_mb << 20 {
             self.stop(format!(
@@ -437,11 +505,17 @@ impl LoopClosure {
             };
             if v.accepted() {
                 let (st, sr) = self.config.loop_sigma;
+                let information = self
+                    .config
+                    .loop_information_from_alignment
+                    .then(|| alignment_information(&v.old_from_new, &v.hessian, st))
+                    .flatten()
+                    .unwrap_or_else(|| isotropic_information(st, sr));
                 match self.graph.add_edge(PoseEdge {
                     from: v.old,
                     to: v.new,
                     from_from_to: v.old_from_new,
-                    information: isotropic_information(st, sr),
+                    information,
                     kind: EdgeKind::Loop,
                 }) {
                     Ok(e) => {
@@ -538,18 +612,53 @@ impl LoopClosure {
                 return Ok(None);
             }
             if self.config.reintegration_frames_per_keyframe == 0 {
-                return self.follow(map, frame).map(Some);
+                return self.follow_now(map, frame, false).map(Some);
             }
-            self.behind = false;
-            self.keyframes_since_follow = 0;
-            let t = std::time::Instant::now();
-            let plan = self.plan(map)?;
-            let mut shadow = Shadow::start(map, plan, frame);
-            shadow.start_ms = t.elapsed().as_secs_f64() * 1e3;
-            shadow.ms += shadow.start_ms;
-            self.shadow = Some(shadow);
+            if !self.start(map, frame) {
+                return Ok(None);
+            }
         }
-        self.advance(map, frame, Some(self.config.reintegration_frames_per_keyframe))
+        self.advance(map, frame, Some(self.frame_budget()), false, true)
+    }
+
+    /// At a fused frame that is not a keyframe, while a re-integration is in progress: fuses
+    /// this frame's share of it into the shadow (the swap waits for a keyframe). Spreading
+    /// over frames rather than keyframes keeps each stall to about two frame fusions.
+    pub fn frame_follow(&mut self, map: &mut TsdfMap, frame: usize) -> Result<()> {
+        self.advance(map, frame, Some(self.frame_budget()), false, false).map(|_| ())
+    }
+
+    /// Chunk integrations per fused frame: `reintegration_frames_per_keyframe` frames' worth
+    /// spread over the frames of a keyframe interval.
+    fn frame_budget(&self) -> usize {
+        (self.config.reintegration_frames_per_keyframe * self.chunks_per_frame())
+            .div_ceil(self.keyframe_interval.max(1))
+    }
+
+    /// A frame's worth of chunk integrations: the mean selection of the frames fused live
+    /// (a count, so the budget is deterministic), 1 before any.
+    fn chunks_per_frame(&self) -> usize {
+        self.live_chunks.checked_div(self.live_frames).unwrap_or(1).max(1)
+    }
+
+    /// Plans the map's following of the current estimates and starts a shadow for it;
+    /// false (and the correction counted as skipped) when it moves no chunk far enough.
+    fn start(&mut self, map: &TsdfMap, frame: usize) -> bool {
+        self.behind = false;
+        self.keyframes_since_follow = 0;
+        let t = std::time::Instant::now();
+        let tau = self.config.min_chunk_move_voxels * map.config().voxel_size;
+        let plan = plan::plan(map, &self.frames, &self.estimates(), tau);
+        if plan.is_empty() {
+            self.report.skipped_reintegrations += 1;
+            return false;
+        }
+        let mut shadow = Shadow::start(map, plan, frame, self.config.reintegration_stride);
+        shadow.start_ms = t.elapsed().as_secs_f64() * 1e3;
+        shadow.plan_ms = shadow.start_ms;
+        shadow.ms += shadow.start_ms;
+        self.shadow = Some(shadow);
+        true
     }
 
     /// Fuses up to `budget` frames (all: `None`) into the shadow in progress and swaps it in
@@ -559,10 +668,14 @@ impl LoopClosure {
         map: &mut TsdfMap,
         frame: usize,
         budget: Option<usize>,
+        at_end: bool,
+        may_swap: bool,
     ) -> Result<Option<(Affine3A, Vec<Affine3A>)>> {
+        // A chunk selection costs about a sixth of a whole frame's fusion.
+        let selection_cost = self.chunks_per_frame() / 6;
         let Some(shadow) = self.shadow.as_mut() else { return Ok(None) };
         let budget = if shadow.must_finish() { None } else { budget };
-        if !shadow.step(&self.frames, self.intrinsics, budget)? {
+        if !shadow.step(map, &self.frames, self.intrinsics, budget, selection_cost)? || !may_swap {
             return Ok(None);
         }
         let Some(mut shadow) = self.shadow.take() else { return Ok(None) };
@@ -572,11 +685,14 @@ impl LoopClosure {
             started_at: shadow.started_at,
             moved_frames: shadow.moved,
             refused_frames: shadow.fused,
+            refused_chunks: shadow.chunk_fusions,
             rebuilt_chunks: shadow.rebuilt_chunks(),
             ms: shadow.ms,
-            longest_keyframe_ms: shadow.longest_ms,
+            longest_stall_ms: shadow.longest_ms,
+            start_ms: shadow.plan_ms,
+            at_end,
         });
-        *map = shadow.into_map();
+        shadow.swap_into(map);
         let corrected_from_old = self.adopt(&poses);
         Ok(Some((corrected_from_old, self.estimates())))
     }
@@ -594,40 +710,28 @@ impl LoopClosure {
     }
 
     /// Makes `map` follow the graph's estimates of the poses now, in place: completes the
-    /// re-integration in progress, then re-integrates for a correction it did not include
-    /// (the end of a scan; every correction when the per-keyframe budget is 0). Returns what
-    /// [`LoopClosure::keyframe_follow`] does. Nothing moves when loop closure stopped (the
-    /// store is gone).
+    /// re-integration in progress (what is pending of it), then re-integrates, at once, what
+    /// a later correction moved further (the end of a scan; every correction when the
+    /// per-keyframe budget is 0). Returns what [`LoopClosure::keyframe_follow`] does. Nothing
+    /// moves when loop closure stopped (the store is gone).
     pub fn follow(&mut self, map: &mut TsdfMap, frame: usize) -> Result<(Affine3A, Vec<Affine3A>)> {
+        self.follow_now(map, frame, true)
+    }
+
+    fn follow_now(&mut self, map: &mut TsdfMap, frame: usize, at_end: bool) -> Result<(Affine3A, Vec<Affine3A>)> {
         let mut corrected_from_old = Affine3A::IDENTITY;
         if self.behind {
             // A correction came after the shadow's start: one re-integration from the live
-            // map (which still holds every frame at its map pose) covers both, for less work
-            // than completing the shadow and re-integrating again.
+            // map (which holds every frame where the map says) covers both, for less work
+            // than completing the shadow and then rebuilding what the later correction moved.
             self.shadow = None;
-        } else if let Some((c, _)) = self.advance(map, frame, None)? {
+        } else if let Some((c, _)) = self.advance(map, frame, None, at_end, true)? {
             corrected_from_old = c;
         }
-        if self.behind {
-            self.behind = false;
-            self.keyframes_since_follow = 0;
-            let t = std::time::Instant::now();
-            let plan = self.plan(map)?;
-            let poses = plan.poses.clone();
-            let moved_frames = plan.moved.iter().filter(|m| **m).count();
-            let rebuilt_chunks = plan.keys.len();
-            let refused = plan.apply(map, &self.frames, self.intrinsics)?;
-            corrected_from_old = self.adopt(&poses) * corrected_from_old;
-            let ms = t.elapsed().as_secs_f64() * 1e3;
-            self.report.reintegrations.push(ReintegrationRecord {
-                frame,
-                started_at: frame,
-                moved_frames,
-                refused_frames: refused,
-                rebuilt_chunks,
-                ms,
-                longest_keyframe_ms: ms,
-            });
+        if self.behind && self.start(map, frame) {
+            if let Some((c, _)) = self.advance(map, frame, None, at_end, true)? {
+                corrected_from_old = c * corrected_from_old;
+            }
         }
         Ok((corrected_from_old, self.estimates()))
     }
@@ -641,66 +745,6 @@ impl LoopClosure {
     fn estimate(&self, f: &StoredFrame) -> Affine3A {
         to_f32(self.graph.poses()[f.node] * f.node_from_camera)
     }
-
-    /// The pose the map should hold stored frame `f` at: its estimate when that is more than
-    /// [`LoopClosureConfig::min_move`] from where the map holds it, else where it is; and
-    /// whether it moves.
-    fn planned_pose(&self, f: &StoredFrame) -> (Affine3A, bool) {
-        let estimate = self.estimate(f);
-        if moved_by(&to_f64(f.map_pose), &to_f64(estimate)) > self.config.min_move {
-            (estimate, true)
-        } else {
-            (f.map_pose, false)
-        }
-    }
-
-    /// What bringing `map` to the estimates changes: the frames that move; every chunk such a
-    /// frame touched or now touches (to clear); every frame that touched one of them (to
-    /// fuse again, in capture order, at its planned pose).
-    fn plan(&self, map: &TsdfMap) -> Result<Plan> {
-        let (poses, moved): (Vec<Affine3A>, Vec<bool>) = self.frames.iter().map(|f| self.planned_pose(f)).unzip();
-        let moved_ids: BTreeSet<u32> =
-            self.frames.iter().zip(&moved).filter(|(_, m)| **m).map(|(f, _)| f.index as u32).collect();
-        if moved_ids.is_empty() {
-            return Ok(Plan { moved, poses, keys: Vec::new(), rebuild: HashSet::new(), work: Vec::new() });
-        }
-        let touches =
-            |runs: &[(u32, u32)], ids: &BTreeSet<u32>| runs.iter().any(|&(a, b)| ids.range(a..=b).next().is_some());
-        let mut rebuild: HashSet<ChunkKey> =
-            map.chunks().filter(|c| touches(c.frames().runs(), &moved_ids)).map(|c| c.key()).collect();
-        let mut selections: Vec<Option<Vec<ChunkKey>>> = vec![None; self.frames.len()];
-        for (i, f) in self.frames.iter().enumerate() {
-            if moved[i] {
-                let keys = map.select_chunks(&f.frame(self.intrinsics), poses[i])?;
-                rebuild.extend(keys.iter().copied());
-                selections[i] = Some(keys);
-            }
-        }
-        // Frames that touched a rebuilt chunk (runs may over-approximate: a frame re-fused
-        // into a chunk it does not see changes nothing): a difference array over the stored
-        // frames, which are in capture order.
-        let indices: Vec<u32> = self.frames.iter().map(|f| f.index as u32).collect();
-        let mut cover = vec![0i64; indices.len() + 1];
-        for c in map.chunks().filter(|c| rebuild.contains(&c.key())) {
-            for &(a, b) in c.frames().runs() {
-                cover[indices.partition_point(|&i| i < a)] += 1;
-                cover[indices.partition_point(|&i| i <= b)] -= 1;
-            }
-        }
-        let mut depth = 0i64;
-        let work = cover[..indices.len()]
-            .iter()
-            .zip(selections)
-            .enumerate()
-            .filter_map(|(i, (d, selection))| {
-                depth += d;
-                (moved[i] || depth > 0).then_some((i, selection))
-            })
-            .collect();
-        let mut keys: Vec<ChunkKey> = rebuild.iter().copied().collect();
-        keys.sort_unstable_by_key(|k| (k.z, k.y, k.x));
-        Ok(Plan { moved, poses, keys, rebuild, work })
-    }
 }
 
 /// How far `a` to `b` moves a point 2 m in front of the camera, about: translation plus
@@ -710,6 +754,7 @@ fn moved_by(a: &DAffine3, b: &DAffine3) -> f64 {
     t + 2.0 * r
 }
 
+mod plan;
 mod shadow;
 
 #[cfg(test)]

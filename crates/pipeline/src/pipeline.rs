@@ -42,11 +42,12 @@ const RELOCALISATION_EVERY: usize = 3;
 
 /// Stages the front end runs, and its waits for the back end (their sum is
 /// [`Pipeline::front_end_seconds`]).
-pub const FRONT_END_STAGES: [&str; 8] = [
+pub const FRONT_END_STAGES: [&str; 9] = [
     "tracking",
     "fusion",
     "global pose optimisation",
     "map re-integration",
+    "final map re-integration",
     "meshing",
     "final meshing",
     "semantic snapshot",
@@ -295,7 +296,11 @@ impl Pipeline {
             return Ok(result);
         };
         let t = Instant::now();
-        self.map.integrate(frame, pose)?;
+        match &mut self.loop_closure {
+            // A re-integration in progress copies the chunks the frame changes, first.
+            Some(lc) if lc.is_running() => lc.fuse_live(&mut self.map, frame, pose)?,
+            _ => self.map.integrate(frame, pose)?,
+        };
         self.times.record("fusion", t.elapsed());
         self.trajectory.push(frame.timestamp, pose);
         self.last_pose = Some(pose);
@@ -320,6 +325,12 @@ impl Pipeline {
         let Some(lc) = &mut self.loop_closure else { return Ok(()) };
         lc.add_frame(frame, pose, keyframe)?;
         if !keyframe {
+            if lc.is_rebuilding() {
+                // The re-integration in progress goes on at every frame; it swaps at keyframes.
+                let t = Instant::now();
+                lc.frame_follow(&mut self.map, frame.index)?;
+                self.times.record("map re-integration", t.elapsed());
+            }
             return Ok(());
         }
         let t = Instant::now();
@@ -353,7 +364,8 @@ impl Pipeline {
         let Some(lc) = &mut self.loop_closure else { return Ok(()) };
         let t = Instant::now();
         let followed = lc.follow(&mut self.map, frame)?;
-        self.times.record("map re-integration", t.elapsed());
+        // Apart from the keyframes' shares: what was still pending at the end of the scan.
+        self.times.record("final map re-integration", t.elapsed());
         self.adopt_follow(followed);
         Ok(())
     }

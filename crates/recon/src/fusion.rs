@@ -150,6 +150,10 @@ struct FrameView<'a> {
     /// surface takes the frame's colour; otherwise only those with fewer than
     /// [`COLOR_WARMUP`] colour observations.
     color_all: bool,
+    /// Factor on each observation's weight: 1 for a frame, n where one frame stands for n
+    /// similar ones (loop closure re-fusing a subsample). Multiplying by 1 is exact, so the
+    /// default changes no bit.
+    obs_weight: f32,
 }
 
 /// Per-chunk outcome of an integration task.
@@ -195,7 +199,28 @@ impl TsdfMap {
         world_from_camera: Affine3A,
         keys: &[ChunkKey],
     ) -> Result<IntegrationStats> {
-        self.integrate_chunks_with(kernel(), frame, world_from_camera, keys)
+        self.integrate_chunks_with(kernel(), frame, world_from_camera, keys, 1.0)
+    }
+
+    /// [`TsdfMap::integrate_chunks`] with each observation weighing `weight` times its usual
+    /// weight (still capped by [`TsdfConfig::max_weight`]): one frame standing for `weight`
+    /// similar ones, as when loop closure re-fuses every n-th stored frame. `weight` 1 gives
+    /// the same bits as [`TsdfMap::integrate_chunks`].
+    ///
+    /// # Errors
+    /// [`ReconError::InvalidConfig`] when `weight` is not finite and positive; what
+    /// [`TsdfMap::integrate_chunks`] returns.
+    pub fn integrate_chunks_weighted(
+        &mut self,
+        frame: &Frame,
+        world_from_camera: Affine3A,
+        keys: &[ChunkKey],
+        weight: f32,
+    ) -> Result<IntegrationStats> {
+        if !(weight.is_finite() && weight > 0.0) {
+            return Err(ReconError::InvalidConfig(format!("observation weight {weight} must be finite and positive")));
+        }
+        self.integrate_chunks_with(kernel(), frame, world_from_camera, keys, weight)
     }
 
     /// [`TsdfMap::integrate_chunks`] with the given kernel (tests compare the kernels).
@@ -205,6 +230,7 @@ impl TsdfMap {
         frame: &Frame,
         world_from_camera: Affine3A,
         keys: &[ChunkKey],
+        obs_weight: f32,
     ) -> Result<IntegrationStats> {
         check_frame(frame, &world_from_camera)?;
         // The intrinsics kernels form pixel indices in f32, exact below 2^24 pixels only, and
@@ -234,6 +260,7 @@ impl TsdfMap {
             max_depth: c.max_depth,
             weight_cap: (c.max_weight * WEIGHT_SCALE).round().clamp(1.0, u16::MAX as f32) as u16,
             color_all: c.is_color_frame(frame.index),
+            obs_weight,
         };
         let mut targets = select_mut(&mut self.chunks, &slots);
         // A fixed band (clamped to exactly 1 truncation) skips the band arithmetic.
@@ -619,7 +646,7 @@ fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> 
         let w_old_q = i32x8::from_u16x8(u16x8::new(*weight_row)).round_float();
         let (t_now, w_now) = if valid_bits != 0 {
             let obs = sdf.fast_min(mu);
-            let w_obs = valid.select((one / (d * d)).fast_min(splat(4.0)), zero);
+            let w_obs = valid.select((one / (d * d)).fast_min(splat(4.0)) * splat(f.obs_weight), zero);
             let w_old = w_old_q * splat(1.0 / WEIGHT_SCALE);
             let w_sum = w_old + w_obs;
             let inv = one / w_sum.fast_max(splat(1e-30));
@@ -711,7 +738,7 @@ mod tests {
                 continue;
             }
             let color = (sdf < mu && (f.color_all || vox.color_count < COLOR_WARMUP)).then_some(f.color[pix]);
-            vox.fuse(sdf.min(mu), depth_weight(d), color, f.weight_cap);
+            vox.fuse(sdf.min(mu), depth_weight(d) * f.obs_weight, color, f.weight_cap);
         }
     }
 
@@ -784,6 +811,8 @@ mod tests {
                 Vec3::new(rng.random_range(-0.01..0.01), 0.0, 0.0),
             );
             let keys = map.select_chunks(&frame, pose).expect("select");
+            // Every third frame stands for 3 (loop closure's subsampled re-fusion).
+            let obs_weight = if index % 3 == 2 { 3.0 } else { 1.0 };
             let camera_from_world = pose.inverse();
             let view = FrameView {
                 depth: &frame.depth,
@@ -802,6 +831,7 @@ mod tests {
                 max_depth: config.max_depth,
                 weight_cap: (config.max_weight * WEIGHT_SCALE) as u16,
                 color_all: config.is_color_frame(frame.index),
+                obs_weight,
             };
             for &key in &keys {
                 let entry = match spec.iter().position(|(k, _)| *k == key) {
@@ -813,7 +843,7 @@ mod tests {
                 };
                 scalar_integrate(&mut spec[entry].1, key, &view);
             }
-            map.integrate_chunks_with(kernel, &frame, pose, &keys).expect("fusion");
+            map.integrate_chunks_with(kernel, &frame, pose, &keys, obs_weight).expect("fusion");
             // The map frees new chunks that got nothing within the band; so does the spec.
             spec.retain(|(k, _)| map.chunk(*k).is_some());
         }
@@ -948,7 +978,7 @@ mod tests {
             // Stride 1: the default stride of 2 would not sample the last (odd) pixel.
             let mut map = TsdfMap::new(TsdfConfig { selection_stride: 1, ..TsdfConfig::default() }).expect("valid");
             let keys = map.select_chunks(&frame, Affine3A::IDENTITY).expect("select");
-            map.integrate_chunks_with(kernel, &frame, Affine3A::IDENTITY, &keys).expect("fusion");
+            map.integrate_chunks_with(kernel, &frame, Affine3A::IDENTITY, &keys, 1.0).expect("fusion");
             let mut seen: Vec<[u8; 3]> =
                 map.chunks().flat_map(|c| c.voxels()).filter(|v| v.color_count > 0).map(|v| v.color()).collect();
             assert!(!seen.is_empty(), "{kernel:?}: no voxel took a colour");

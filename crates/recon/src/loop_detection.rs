@@ -139,6 +139,11 @@ pub struct LoopVerdict {
     pub correction: (f64, f64),
     /// Thumbnail distance (smaller is more alike).
     pub appearance: f32,
+    /// The alignment's Gauss-Newton Hessian `JᵀJ` (Huber-weighted) at the final pose, finest
+    /// level: left perturbation `(δt, δφ)` of `old_from_new` in the old keyframe's frame, per
+    /// square metre of residual ([`crate::pose_graph::alignment_information`] makes an edge's
+    /// information of it).
+    pub hessian: [[f64; 6]; 6],
 }
 
 impl LoopVerdict {
@@ -308,6 +313,7 @@ impl LoopDetector {
             residual_rms,
             correction,
             appearance: 0.0,
+            hessian: stats.h,
         })
     }
 }

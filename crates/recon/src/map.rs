@@ -21,6 +21,8 @@ use rayon::prelude::*;
 
 use crate::error::{ReconError, Result};
 
+mod subset;
+
 /// Voxels along one side of a chunk.
 pub const CHUNK_SIDE: usize = 8;
 /// Voxels in one chunk.

@@ -644,5 +644,8 @@ fn reverse_cuthill_mckee(n: usize, pattern: &[(usize, usize)]) -> Vec<usize> {
     order
 }
 
+mod information;
+pub use information::alignment_information;
+
 #[cfg(test)]
 mod tests;

@@ -1,173 +1,171 @@
-//! A re-integration spread over keyframes: the map brought to corrected poses in a *shadow*
-//! copy while the live map goes on tracking and fusing, swapped in when complete.
+//! A re-integration spread over keyframes: the chunks to rebuild are built in a *shadow* map
+//! beside the live one, which goes on tracking and fusing, and handed to it when complete.
 //!
-//! Why: re-fusing every frame that touched the moved chunks costs 2-5 s on 7-Scenes; run at
-//! once it stalls the front end for that long. The shadow does a bounded number of frame
-//! fusions per keyframe ([`super::LoopClosureConfig::reintegration_frames_per_keyframe`]),
-//! so the stall per keyframe is bounded and the tracker keeps working on the live map (in
-//! the frame it was tracking in) meanwhile.
+//! Why: re-fusing the frames of the moved chunks costs seconds on 7-Scenes; run at once it
+//! stalls the front end for that long. The shadow fuses a bounded amount per keyframe
+//! ([`super::LoopClosureConfig::reintegration_frames_per_keyframe`] frames' worth of chunk
+//! integrations), so the stall per keyframe is bounded and the tracker keeps working on the
+//! live map (in the frame it was tracking in) meanwhile.
 //!
-//! How it stays exact: the shadow starts as a copy of the live map with the chunks to rebuild
-//! cleared. Its queue holds, in capture order, the stored frames that touched those chunks
-//! (fused into them only, at the corrected poses), then every frame fused live since the
-//! start (fused whole, at its corrected pose). Each chunk therefore receives its frames in
-//! capture order at the poses of the plan, which is what fusing the scan afresh at those poses
-//! gives, bit for bit. The swap happens at the first keyframe at which the queue is empty:
-//! a count of frames, never a clock, so the output does not depend on time or threads.
+//! What it holds, chunk by chunk (copy on write): the rebuilt chunks, which start empty; a
+//! copy of every other chunk the live map is about to change while the shadow lives, taken
+//! before the change (the live frames are fused into the shadow again at their corrected
+//! poses); and the chunks that did not exist when it started. Nothing else is copied: the start
+//! costs the plan, not a copy of the map (a whole-map copy was a 0.76 s stall on 7-Scenes and
+//! doubled the map's memory while it lived).
 //!
-//! Why a copy of the whole map and not of the rebuilt chunks only: the map has no way to
-//! move a chunk between maps from this crate, and swapping whole maps is one pointer swap.
-//! The copy costs a memcpy of the map at the start (tens of milliseconds for 7-Scenes'
-//! map) and a second map in memory while the shadow lives.
+//! How it stays exact for what it rebuilds: its queue holds, in capture order, the stored
+//! frames recorded in the rebuilt chunks (fused, at their corrected poses, into the rebuilt
+//! chunks and the chunks that did not exist at the start), then every frame fused live since
+//! the start (fused whole at its corrected pose, into the shadow's copies). Each rebuilt chunk
+//! therefore receives its frames in capture order at the corrected poses, which is what fusing
+//! the scan afresh at those poses gives. The swap happens at the first keyframe at which the
+//! queue is empty: a count of frames, never a clock, so the output does not depend on time or
+//! threads. What it approximates: a chunk that is not rebuilt keeps frames that moved less than
+//! the threshold there, and a frame whose corrected view newly reaches such a chunk is not
+//! added to it (see `plan`).
 
-use std::collections::{HashSet, VecDeque};
+use std::collections::{HashMap, VecDeque};
 
 use glam::Affine3A;
 use semrecon_data::Intrinsics;
 use semrecon_recon::{ChunkKey, TsdfMap};
 
+use super::plan::Plan;
 use super::StoredFrame;
 use crate::error::Result;
 
-/// Revisions the shadow skips at its start. The mesher notices a changed chunk by its
-/// revision differing from the one it meshed; the live map and the shadow each count
-/// revisions from the same copy, so without a gap a rebuilt chunk could carry the very
-/// revision the live map gave that chunk meanwhile, and the mesher would skip it. The live
-/// map takes one revision per fused frame, so a window shorter than this many frames is safe
-/// ([`Shadow::must_finish`]).
+/// Revisions the shadow skips at its start. The mesher and the semantic cells notice a changed
+/// chunk by its revision (the cells by comparing with the largest they saw); the shadow counts
+/// from this far above the live map, so a chunk it hands back carries a revision above any the
+/// live map gave meanwhile. The live map takes one revision per fused frame, so a window
+/// shorter than this many frames is safe ([`Shadow::must_finish`]).
 const REVISION_GAP: u64 = 1 << 20;
+
+/// Where a chunk of the shadow came from, which says what frames may go into it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Origin {
+    /// Rebuilt: cleared at the start, every frame recorded in it fused again.
+    Rebuilt,
+    /// Copied from the live map before a live frame changed it (or before the shadow fused a
+    /// live frame into it): only the frames fused live since the start go into it.
+    Copied,
+    /// Absent from the live map at the start: every frame that reaches it goes into it.
+    Absent,
+}
 
 /// One unit of the shadow's work: a stored frame to fuse.
 struct Work {
     /// Position in the frame store.
     frame: usize,
-    /// Fused into the rebuilt chunks only (frames from before the start), or whole (frames
-    /// fused live since the start).
-    rebuilt_only: bool,
-    /// Its chunk selection at the planned pose, when already known.
-    selection: Option<Vec<ChunkKey>>,
-}
-
-/// What a re-integration changes, planned at its start.
-pub(super) struct Plan {
-    /// Per stored frame, whether it moves to its corrected pose.
-    pub moved: Vec<bool>,
-    /// Per stored frame, the pose the map will hold it at.
-    pub poses: Vec<Affine3A>,
-    /// Chunks to clear and rebuild, sorted (z, y, x).
-    pub keys: Vec<ChunkKey>,
-    /// The same, for lookups.
-    pub rebuild: HashSet<ChunkKey>,
-    /// Stored frames that touched a rebuilt chunk, in capture order, with the selections
-    /// already computed (the moved frames').
-    pub work: Vec<(usize, Option<Vec<ChunkKey>>)>,
-}
-
-impl Plan {
-    /// Fuses stored frame `pos` of `frames` into `map` at its planned pose, into the rebuilt
-    /// chunks only or whole; returns whether it changed a chunk it was asked into.
-    fn fuse(
-        map: &mut TsdfMap,
-        rebuild: &HashSet<ChunkKey>,
-        frames: &[StoredFrame],
-        intrinsics: Intrinsics,
-        pose: Affine3A,
-        work: Work,
-    ) -> Result<bool> {
-        let frame = frames[work.frame].frame(intrinsics);
-        let selection = match work.selection {
-            Some(s) => s,
-            None => map.select_chunks(&frame, pose)?,
-        };
-        let mine: Vec<ChunkKey> =
-            if work.rebuilt_only { selection.into_iter().filter(|k| rebuild.contains(k)).collect() } else { selection };
-        if mine.is_empty() {
-            return Ok(false);
-        }
-        map.integrate_chunks(&frame, pose, &mine)?;
-        Ok(true)
-    }
-
-    /// Re-integrates in place: clears the chunks and fuses the work into them now (the end
-    /// of a scan, or no per-keyframe budget). Returns the frames fused.
-    pub fn apply(self, map: &mut TsdfMap, frames: &[StoredFrame], intrinsics: Intrinsics) -> Result<usize> {
-        map.reset_chunks(&self.keys);
-        let mut fused = 0;
-        for (frame, selection) in self.work {
-            let work = Work { frame, rebuilt_only: true, selection };
-            fused += usize::from(Self::fuse(map, &self.rebuild, frames, intrinsics, self.poses[frame], work)?);
-        }
-        map.free_unobserved(&self.keys);
-        Ok(fused)
-    }
+    /// How many consecutive stored frames it stands for (its observations weigh that much).
+    weight: usize,
+    /// Fused live since the start: fused whole. Otherwise into the rebuilt and absent chunks
+    /// only.
+    whole: bool,
 }
 
 /// A re-integration in progress. See the module documentation.
 pub(super) struct Shadow {
     map: TsdfMap,
-    rebuild: HashSet<ChunkKey>,
-    keys: Vec<ChunkKey>,
+    origin: HashMap<ChunkKey, Origin>,
     queue: VecDeque<Work>,
+    rebuilt: usize,
     /// Per stored frame (those stored since the start included), the pose the shadow fuses
     /// it at and the live map will hold it at after the swap.
     pub poses: Vec<Affine3A>,
-    /// Frames moved to a corrected pose.
+    /// Frames whose correction moves the map by more than the threshold somewhere.
     pub moved: usize,
     /// Frames fused into the shadow so far.
     pub fused: usize,
+    /// Chunk integrations so far.
+    pub chunk_fusions: usize,
     /// Frames fused live since the start.
     window_frames: usize,
     /// The frame at which it started.
     pub started_at: usize,
-    /// Time spent on it, ms (the copy and the fusions).
+    /// Time spent on it, ms (the plan and the fusions).
     pub ms: f64,
-    /// The most time it took at one keyframe, ms (its start included in the first).
+    /// The most time it took at one frame, ms (its start included in the first).
     pub longest_ms: f64,
     /// Time of the start not yet counted in a keyframe's share, ms.
     pub start_ms: f64,
+    /// Time of the start (the plan), ms.
+    pub plan_ms: f64,
 }
 
 impl Shadow {
-    /// Starts from a copy of `live` with the plan's chunks cleared.
-    pub fn start(live: &TsdfMap, plan: Plan, started_at: usize) -> Self {
-        let mut map = live.clone();
-        for _ in 0..REVISION_GAP {
-            map.reset_chunks(&[]);
+    /// Starts an empty shadow of `live` for `plan`.
+    ///
+    /// With `stride` above 1, runs of up to `stride` consecutive stored frames are re-fused as
+    /// their first frame weighing as much as the run ([`super::LoopClosureConfig::
+    /// reintegration_stride`]); frames fused live meanwhile are always fused one by one.
+    pub fn start(live: &TsdfMap, plan: Plan, started_at: usize, stride: usize) -> Self {
+        let rebuilt = plan.rebuild.len();
+        let origin = plan.rebuild.into_iter().map(|k| (k, Origin::Rebuilt)).collect();
+        let mut queue: VecDeque<Work> = VecDeque::new();
+        let mut last = None;
+        for frame in plan.work {
+            match queue.back_mut() {
+                Some(w) if last == Some(frame.wrapping_sub(1)) && w.weight < stride.max(1) => w.weight += 1,
+                _ => queue.push_back(Work { frame, weight: 1, whole: false }),
+            }
+            last = Some(frame);
         }
-        map.reset_chunks(&plan.keys);
         Self {
-            map,
-            rebuild: plan.rebuild,
-            keys: plan.keys,
-            queue: plan
-                .work
-                .into_iter()
-                .map(|(frame, selection)| Work { frame, rebuilt_only: true, selection })
-                .collect(),
+            map: live.empty_successor(REVISION_GAP),
+            origin,
+            queue,
+            rebuilt,
             poses: plan.poses,
-            moved: plan.moved.iter().filter(|m| **m).count(),
+            moved: plan.moved,
             fused: 0,
+            chunk_fusions: 0,
             window_frames: 0,
             started_at,
             ms: 0.0,
             longest_ms: 0.0,
             start_ms: 0.0,
+            plan_ms: 0.0,
         }
     }
 
     /// Chunks being rebuilt.
     pub fn rebuilt_chunks(&self) -> usize {
-        self.keys.len()
+        self.rebuilt
+    }
+
+    /// Before the live map fuses a frame into `keys`: copies those chunks the shadow does not
+    /// own yet, as they are before the change.
+    pub fn before_live_fusion(&mut self, live: &TsdfMap, keys: &[ChunkKey]) {
+        self.claim(live, keys);
+    }
+
+    /// Takes ownership of `keys` not owned yet: copies of the live map's chunks, or absent.
+    fn claim(&mut self, live: &TsdfMap, keys: &[ChunkKey]) {
+        let mut copy = Vec::new();
+        for &k in keys {
+            if let std::collections::hash_map::Entry::Vacant(e) = self.origin.entry(k) {
+                if live.chunk(k).is_some() {
+                    e.insert(Origin::Copied);
+                    copy.push(k);
+                } else {
+                    e.insert(Origin::Absent);
+                }
+            }
+        }
+        if !copy.is_empty() {
+            self.map.copy_chunks_from(live, &copy);
+        }
     }
 
     /// A frame fused live since the start (stored at `frame`): queued, to be fused whole at
     /// `pose` after everything before it.
-    pub fn push_live_frame(&mut self, frame: usize, pose: Affine3A, moved: bool) {
+    pub fn push_live_frame(&mut self, frame: usize, pose: Affine3A) {
         debug_assert_eq!(frame, self.poses.len());
         self.poses.push(pose);
-        self.moved += usize::from(moved);
         self.window_frames += 1;
-        self.queue.push_back(Work { frame, rebuilt_only: false, selection: None });
+        self.queue.push_back(Work { frame, weight: 1, whole: true });
     }
 
     /// Whether it must complete now: the revision gap would run out (see [`REVISION_GAP`]).
@@ -175,16 +173,23 @@ impl Shadow {
         self.window_frames as u64 >= REVISION_GAP / 2
     }
 
-    /// Fuses up to `budget` queued frames (all with `None`); returns whether the queue is
-    /// empty.
-    pub fn step(&mut self, frames: &[StoredFrame], intrinsics: Intrinsics, budget: Option<usize>) -> Result<bool> {
+    /// Fuses queued frames until `budget` chunk integrations are spent (at least one frame;
+    /// all with `None`); returns whether the queue is empty. A frame also costs its chunk
+    /// selection, counted as `selection_cost` chunk integrations, so that frames fused into a
+    /// few chunks each do not run up seconds of selections at one keyframe.
+    pub fn step(
+        &mut self,
+        live: &TsdfMap,
+        frames: &[StoredFrame],
+        intrinsics: Intrinsics,
+        budget: Option<usize>,
+        selection_cost: usize,
+    ) -> Result<bool> {
         let t = std::time::Instant::now();
-        let mut left = budget.unwrap_or(usize::MAX);
-        while left > 0 {
+        let mut spent = 0;
+        while budget.is_none_or(|b| spent < b) {
             let Some(work) = self.queue.pop_front() else { break };
-            let pose = self.poses[work.frame];
-            self.fused += usize::from(Plan::fuse(&mut self.map, &self.rebuild, frames, intrinsics, pose, work)?);
-            left -= 1;
+            spent += self.fuse(live, frames, intrinsics, work)? + selection_cost;
         }
         let ms = t.elapsed().as_secs_f64() * 1e3;
         self.ms += ms;
@@ -192,9 +197,40 @@ impl Shadow {
         Ok(self.queue.is_empty())
     }
 
-    /// The completed map, its emptied chunks freed.
-    pub fn into_map(mut self) -> TsdfMap {
-        self.map.free_unobserved(&self.keys);
-        self.map
+    /// Fuses one stored frame at its planned pose; returns the chunks it was fused into.
+    fn fuse(&mut self, live: &TsdfMap, frames: &[StoredFrame], intrinsics: Intrinsics, work: Work) -> Result<usize> {
+        let frame = frames[work.frame].frame(intrinsics);
+        let pose = self.poses[work.frame];
+        let selection = self.map.select_chunks(&frame, pose)?;
+        let keys: Vec<ChunkKey> = if work.whole {
+            self.claim(live, &selection);
+            selection
+        } else {
+            // Chunks neither rebuilt nor new keep what they hold (within the threshold).
+            let fresh: Vec<ChunkKey> = selection
+                .iter()
+                .copied()
+                .filter(|k| !self.origin.contains_key(k) && live.chunk(*k).is_none())
+                .collect();
+            self.claim(live, &fresh);
+            selection
+                .into_iter()
+                .filter(|k| matches!(self.origin.get(k), Some(Origin::Rebuilt | Origin::Absent)))
+                .collect()
+        };
+        if keys.is_empty() {
+            return Ok(0);
+        }
+        self.map.integrate_chunks_weighted(&frame, pose, &keys, work.weight as f32)?;
+        self.fused += 1;
+        self.chunk_fusions += keys.len();
+        Ok(keys.len())
+    }
+
+    /// Hands the completed shadow to `live`: every chunk it owns takes the shadow's version
+    /// (or is freed, where the shadow has none).
+    pub fn swap_into(self, live: &mut TsdfMap) {
+        let Self { map, origin, .. } = self;
+        live.adopt_chunks(map, origin.into_keys());
     }
 }

@@ -43,6 +43,14 @@ fn a_drifting_loop_re_integrated_at_once() {
     );
 }
 
+/// Re-fused from every fourth stored frame, weighing four: within half again of the exact
+/// re-fusion (3.27 against 2.25 mm on seed 1: fewer frames' noise averaged, and the frames
+/// between miss what only they saw), far better than the drifted map (33 mm).
+#[test]
+fn a_drifting_loop_re_fused_from_a_subsample() {
+    close_a_drifting_loop(1, LoopClosureConfig { reintegration_stride: 4, ..LoopClosureConfig::default() });
+}
+
 /// The shadow swaps in at the same keyframes and the map has the same bits with 1, 2 and 4
 /// threads (40 frames per 10-frame keyframe: a re-integration spread over keyframes).
 #[test]
@@ -111,6 +119,7 @@ fn close_a_drifting_loop(seed: u64, lc_config: LoopClosureConfig) -> (Vec<[u32; 
     let tsdf = TsdfConfig { truncation_voxels: 6.0, ..TsdfConfig::with_voxel_size(0.01).expect("config") };
     let mut map = TsdfMap::new(tsdf).expect("map");
     let budget = lc_config.reintegration_frames_per_keyframe;
+    let stride = lc_config.reintegration_stride;
     let mut lc = LoopClosure::new(lc_config, frames[0].intrinsics);
     // `correction`: how the tracker's frame moved with the map (the tracker gives the drifted
     // pose in the map frame); `estimate`: the pipeline's trajectory (optimised where
@@ -120,10 +129,13 @@ fn close_a_drifting_loop(seed: u64, lc_config: LoopClosureConfig) -> (Vec<[u32; 
     let mut warnings = Vec::new();
     for (i, f) in frames.iter().enumerate() {
         let pose = correction * drifted[i];
-        map.integrate(f, pose).expect("fusion");
+        lc.fuse_live(&mut map, f, pose).expect("fusion");
         estimate.push(pose);
         let keyframe = (i + 1) % KEYFRAME_EVERY == 0;
         lc.add_frame(f, pose, keyframe).expect("stored");
+        if !keyframe && lc.is_rebuilding() {
+            lc.frame_follow(&mut map, f.index).expect("re-integration");
+        }
         if keyframe {
             if let Some(update) = lc.close_loops(f.index, &mut warnings) {
                 lc.record_correction(update.record);
@@ -161,13 +173,15 @@ fn close_a_drifting_loop(seed: u64, lc_config: LoopClosureConfig) -> (Vec<[u32; 
     let followed = accuracy_mm(&room.mesh, &mesh);
     let (fresh, drifting) = (fuse_all(&map_poses), fuse_all(&drifted));
     eprintln!(
-        "seed {seed}, budget {budget}: ATE {:.1} mm drifted, {:.1} mm after; mesh accuracy {followed:.2} mm re-integrated, {fresh:.2} mm fused afresh, {drifting:.2} mm drifted; {} corrections, {} re-integrations",
+        "seed {seed}, budget {budget}, stride {stride}: ATE {:.1} mm drifted, {:.1} mm after; mesh accuracy {followed:.2} mm re-integrated, {fresh:.2} mm fused afresh, {drifting:.2} mm drifted; {} corrections, {} re-integrations",
         before * 1e3,
         after * 1e3,
         lc.report.corrections.len(),
         lc.report.reintegrations.len()
     );
-    assert!(followed <= fresh * 1.05 + 0.05, "re-integrated {followed} mm, fused afresh {fresh} mm");
+    // Exact re-fusion matches fusing afresh; a subsample averages fewer frames' noise.
+    let slack = if stride == 1 { (1.05, 0.05) } else { (1.5, 0.1) };
+    assert!(followed <= fresh * slack.0 + slack.1, "re-integrated {followed} mm, fused afresh {fresh} mm");
     assert!(followed < drifting, "re-integrated {followed} mm, drifted {drifting} mm");
     let bits = mesh.positions.iter().map(|p| p.to_array().map(f32::to_bits)).collect();
     (bits, lc.report.reintegrations.iter().map(|r| (r.started_at, r.frame)).collect())

@@ -82,6 +82,7 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
         let neg_half = splat(-0.5);
         let cap = splat(f.weight_cap as f32);
         let four = splat(4.0);
+        let obs_scale = splat(f.obs_weight);
         let tiny = splat(1e-30);
         let inv_wscale = splat(1.0 / WEIGHT_SCALE);
         let wscale = splat(WEIGHT_SCALE);
@@ -171,7 +172,10 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 let t_old = _mm256_cvtepi32_ps(t_old_i);
                 let w_old_q = _mm256_cvtepi32_ps(w_old_i);
                 let obs = _mm256_min_ps(sdf, mu);
-                let w_obs = _mm256_and_ps(valid, _mm256_min_ps(_mm256_div_ps(one, _mm256_mul_ps(d, d)), four));
+                let w_obs = _mm256_and_ps(
+                    valid,
+                    _mm256_mul_ps(_mm256_min_ps(_mm256_div_ps(one, _mm256_mul_ps(d, d)), four), obs_scale),
+                );
                 let w_old = _mm256_mul_ps(w_old_q, inv_wscale);
                 let w_sum = _mm256_add_ps(w_old, w_obs);
                 let inv = _mm256_div_ps(one, _mm256_max_ps(w_sum, tiny));
