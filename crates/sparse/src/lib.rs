@@ -75,6 +75,7 @@ pub use gemm::{simd_level, SimdLevel};
 pub use hash_map::{KeyHasher, VoxelHashMap};
 pub use kernel_map::{KernelMap, MapKind};
 pub use key::Coord;
+pub use resident::ResidentBackend;
 pub use tensor::SparseTensor;
 pub use voxelize::{voxelize, Voxelization};
 

@@ -7,7 +7,7 @@
 //!
 //! Sizes stay small (a few hundred rows): the GPU engine runs this on lavapipe in CI.
 
-use crate::backend::{BnRelu, ConvBackend};
+use crate::backend::BnRelu;
 use crate::backend_tests::{assert_close, surface_set, Rng};
 use crate::elementwise::GatherTable;
 use crate::resident::ResidentBackend;
