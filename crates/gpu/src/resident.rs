@@ -167,7 +167,14 @@ impl ResidentBackend for GpuEngine {
         ctx.enqueue(enc)
     }
 
-    fn gather_add(&self, table: &GpuGather, src: &GpuTensor, stride: usize, c: usize, dst: &mut GpuTensor) -> Result<()> {
+    fn gather_add(
+        &self,
+        table: &GpuGather,
+        src: &GpuTensor,
+        stride: usize,
+        c: usize,
+        dst: &mut GpuTensor,
+    ) -> Result<()> {
         if c > stride {
             return Err(SparseError::InvalidArgument(format!("gathering {c} channels from rows of {stride}")).into());
         }

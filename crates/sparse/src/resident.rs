@@ -200,7 +200,14 @@ impl ResidentBackend for CpuEngine {
         Ok(())
     }
 
-    fn gather_add(&self, table: &GatherTable, src: &Vec<f32>, stride: usize, c: usize, dst: &mut Vec<f32>) -> Result<()> {
+    fn gather_add(
+        &self,
+        table: &GatherTable,
+        src: &Vec<f32>,
+        stride: usize,
+        c: usize,
+        dst: &mut Vec<f32>,
+    ) -> Result<()> {
         elementwise::gather_add(table, src, stride, c, dst)
     }
 

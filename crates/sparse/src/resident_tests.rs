@@ -148,10 +148,8 @@ pub fn bias_and_argmax_match_plain_loops<B: ResidentBackend>(b: &B) {
         assert_close(&format!("{} bias rows {rows} k {k}", b.name()), &download(b, &yt, rows * k), &want);
         // Ties: quantised scores, the first of equal maxima wins.
         let scores: Vec<f32> = y.iter().map(|v| (v * 2.0).round()).collect();
-        let want: Vec<u32> = scores
-            .chunks(k)
-            .map(|r| (0..k).fold(0, |best, c| if r[c] > r[best] { c } else { best }) as u32)
-            .collect();
+        let want: Vec<u32> =
+            scores.chunks(k).map(|r| (0..k).fold(0, |best, c| if r[c] > r[best] { c } else { best }) as u32).collect();
         let st = padded(b, &scores, 3);
         assert_eq!(unwrap("argmax", b.argmax_rows(&st, rows, k)), want, "{} argmax rows {rows} k {k}", b.name());
     }
