@@ -363,7 +363,7 @@ impl Segmenter {
     }
 }
 
-/// Where the network's convolutions run.
+/// Where the network runs.
 #[derive(Debug, Clone, Default)]
 pub enum Device {
     /// The CPU engine (the default).
