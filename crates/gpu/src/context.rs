@@ -6,11 +6,19 @@
 //! installs its own handlers, which record validation errors and device loss, and every
 //! engine call checks them after waiting for the queue, so a lost device or a bad dispatch
 //! becomes a [`GpuError`] instead of a panic or a silently wrong result.
+//!
+//! Operations on resident tensors do not wait: their command buffers queue up here and go to
+//! the device together (every few dozen, or before the next read-back), so a network forward
+//! costs a handful of submissions, not one per layer. Data is written into a buffer through the
+//! queue only while nothing queued uses it (fresh buffers, or pooled ones after
+//! [`GpuContext::flush`]), because queue writes land before the commands of the submission
+//! they precede. Every transfer is counted ([`TransferCounts`]).
 
 use std::collections::HashMap;
 use std::sync::{mpsc, Arc, Mutex, MutexGuard};
 
 use crate::error::{GpuError, Result};
+use crate::transfers::TransferCounts;
 
 /// Threads per workgroup of the one-dimensional kernels (and of the chunked kernel).
 pub(crate) const WORKGROUP: u32 = 64;
@@ -19,6 +27,18 @@ const MAX_GROUPS: u32 = 65_535;
 /// Workgroup memory the chunked kernel uses: the region tile (176 rows x 16 channels) and four
 /// weight tiles (16 x 16), in bytes, plus a few words.
 const WORKGROUP_BYTES: u32 = (176 * 16 + 4 * 16 * 16 + 4) * 4;
+/// Command buffers queued before they are submitted without waiting for a read-back: few
+/// submissions per forward, without holding an unbounded backlog.
+const MAX_PENDING: usize = 32;
+
+/// Which counter a transfer goes to.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Transfer {
+    /// Features and weights.
+    Tensor,
+    /// Plans, pair lists, tables, coordinates.
+    Geometry,
+}
 
 /// The compute pipelines of the engine, compiled once per context.
 pub(crate) struct Pipelines {
@@ -30,6 +50,10 @@ pub(crate) struct Pipelines {
     pub scatter: wgpu::ComputePipeline,
     pub bn_relu: wgpu::ComputePipeline,
     pub weight_grad: wgpu::ComputePipeline,
+    pub gate: wgpu::ComputePipeline,
+    pub gather_add: wgpu::ComputePipeline,
+    pub add_bias: wgpu::ComputePipeline,
+    pub argmax: wgpu::ComputePipeline,
 }
 
 /// An opened GPU: device, queue, pipelines and the error state of the device.
@@ -49,6 +73,10 @@ pub struct GpuContext {
     pool: Mutex<HashMap<&'static str, wgpu::Buffer>>,
     /// Held for a whole engine call: pooled buffers are then never shared by two calls.
     call: Mutex<()>,
+    /// Recorded work of resident-tensor operations not yet submitted, in order.
+    pending: Mutex<Vec<wgpu::CommandBuffer>>,
+    /// Host-device transfers so far.
+    transfers: Mutex<TransferCounts>,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -132,6 +160,8 @@ impl GpuContext {
             lost,
             pool: Mutex::new(HashMap::new()),
             call: Mutex::new(()),
+            pending: Mutex::new(Vec::new()),
+            transfers: Mutex::new(TransferCounts::default()),
         };
         context.check()?;
         Ok(context)
@@ -202,24 +232,93 @@ impl GpuContext {
         Ok(())
     }
 
-    /// A storage buffer holding `data` (at least one word: empty bindings are invalid).
+    /// A new storage buffer holding layer geometry `data` (at least one word: empty bindings
+    /// are invalid).
+    pub(crate) fn upload<T: bytemuck::Pod>(&self, what: &'static str, data: &[T]) -> Result<wgpu::Buffer> {
+        self.upload_counted(what, data, Transfer::Geometry)
+    }
+
+    /// A new storage buffer holding `data`, counted as `kind`.
     ///
     /// Written through the queue, not mapped at creation: wgpu's mapped-at-creation path
-    /// panics on a lost device, the queue write reports an error.
-    pub(crate) fn upload<T: bytemuck::Pod>(&self, what: &'static str, data: &[T]) -> Result<wgpu::Buffer> {
+    /// panics on a lost device, the queue write reports an error. The buffer is new, so no
+    /// queued command can see the write land early.
+    pub(crate) fn upload_counted<T: bytemuck::Pod>(
+        &self,
+        what: &'static str,
+        data: &[T],
+        kind: Transfer,
+    ) -> Result<wgpu::Buffer> {
         let bytes: &[u8] = bytemuck::cast_slice(data);
         let buffer = self.zeroed(what, bytes.len() as u64)?;
         if !bytes.is_empty() {
             self.queue.write_buffer(&buffer, 0, bytes);
+            self.count(kind, bytes.len());
         }
         Ok(buffer)
     }
 
-    /// Exclusive use of the pooled buffers for one engine call.
+    /// Adds one transfer of `bytes` to the counters.
+    fn count(&self, kind: Transfer, bytes: usize) {
+        let mut t = self.transfers.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let bytes = bytes as u64;
+        match kind {
+            Transfer::Tensor => {
+                t.tensor_uploads += 1;
+                t.tensor_bytes += bytes;
+            }
+            Transfer::Geometry => {
+                t.geometry_uploads += 1;
+                t.geometry_bytes += bytes;
+            }
+        }
+    }
+
+    /// The host-device transfers since the context was opened (take two snapshots and
+    /// [`TransferCounts::since`] for one call's).
+    pub fn transfers(&self) -> TransferCounts {
+        *self.transfers.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// Exclusive use of the pooled buffers for one call of the host-slice interface, with the
+    /// queued resident work submitted first (the call then writes into pooled buffers that no
+    /// queued command may see).
     pub(crate) fn begin_call(&self) -> Result<MutexGuard<'_, ()>> {
+        let guard = self.begin_resident_call()?;
+        self.flush()?;
+        Ok(guard)
+    }
+
+    /// Exclusive use of the pooled buffers while one resident operation is recorded.
+    pub(crate) fn begin_resident_call(&self) -> Result<MutexGuard<'_, ()>> {
         self.check_lost()?;
         // A panic while holding the lock left no buffer in a state a later call relies on.
         Ok(self.call.lock().unwrap_or_else(std::sync::PoisonError::into_inner))
+    }
+
+    /// Queues the recorded work of one resident operation; submits the queue once it is long.
+    pub(crate) fn enqueue(&self, encoder: wgpu::CommandEncoder) -> Result<()> {
+        let full = {
+            let mut pending = self.pending.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            pending.push(encoder.finish());
+            pending.len() >= MAX_PENDING
+        };
+        if full {
+            self.flush()?;
+        }
+        Ok(())
+    }
+
+    /// Submits the queued work without waiting for it.
+    ///
+    /// # Errors
+    /// A lost device, validation errors recorded so far.
+    pub fn flush(&self) -> Result<()> {
+        let work = std::mem::take(&mut *self.pending.lock().unwrap_or_else(std::sync::PoisonError::into_inner));
+        if !work.is_empty() {
+            self.queue.submit(work);
+        }
+        self.check()
     }
 
     /// The pooled storage buffer of `role` with room for `bytes` (contents undefined), grown
@@ -252,6 +351,7 @@ impl GpuContext {
         let buffer = self.transient(role, bytes.len() as u64)?;
         if !bytes.is_empty() {
             self.queue.write_buffer(&buffer, 0, bytes);
+            self.count(Transfer::Tensor, bytes.len());
         }
         Ok(buffer)
     }
@@ -320,8 +420,8 @@ impl GpuContext {
         self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None })
     }
 
-    /// Submits `encoder` after appending a copy of the first `count` values of `buffer` to a
-    /// staging buffer, waits, and returns them.
+    /// Submits the queued work and `encoder` after appending a copy of the first `count`
+    /// values of `buffer` to a staging buffer, waits, and returns them.
     pub(crate) fn finish_and_read<T: bytemuck::Pod>(
         &self,
         mut encoder: wgpu::CommandEncoder,
@@ -338,7 +438,13 @@ impl GpuContext {
         if bytes > 0 {
             encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, bytes.next_multiple_of(4));
         }
-        self.queue.submit([encoder.finish()]);
+        let mut work = std::mem::take(&mut *self.pending.lock().unwrap_or_else(std::sync::PoisonError::into_inner));
+        work.push(encoder.finish());
+        self.queue.submit(work);
+        let mut t = self.transfers.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        t.readbacks += 1;
+        t.readback_bytes += bytes;
+        drop(t);
         let (tx, rx) = mpsc::channel();
         staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
             // The receiver waits below; a failed send only means it gave up.
@@ -377,6 +483,7 @@ impl Pipelines {
         let map = module("map", include_str!("shaders/map.wgsl"));
         let chunked = module("chunked", include_str!("shaders/chunked.wgsl"));
         let rulebook = module("rulebook", include_str!("shaders/rulebook.wgsl"));
+        let elementwise = module("elementwise", include_str!("shaders/elementwise.wgsl"));
         let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(entry),
@@ -396,6 +503,10 @@ impl Pipelines {
             scatter: pipeline(&rulebook, "scatter"),
             bn_relu: pipeline(&rulebook, "bn_relu"),
             weight_grad: pipeline(&rulebook, "weight_grad"),
+            gate: pipeline(&elementwise, "gate"),
+            gather_add: pipeline(&elementwise, "gather_add"),
+            add_bias: pipeline(&elementwise, "add_bias"),
+            argmax: pipeline(&elementwise, "argmax"),
         }
     }
 }

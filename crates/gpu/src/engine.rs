@@ -1,10 +1,11 @@
 //! The GPU engine: [`ConvBackend`] on wgpu, with the chunked kernel (Algorithm 2) or the
 //! rulebook baseline (Algorithm 1) on the same device geometry.
 //!
-//! A call copies its feature and weight buffers into the context's pooled device buffers
-//! (kept between calls and only grown), records every dispatch of the layer in one command
-//! buffer, submits it and reads the result back; layer geometry stays on the device between
-//! calls. The input gradient is the forward kernel on the transposed problem (the
+//! A call of the host-slice interface ([`ConvBackend`]) copies its feature and weight buffers
+//! into the context's pooled device buffers (kept between calls and only grown), records
+//! every dispatch of the layer in one command buffer, submits it and reads the result back;
+//! layer geometry stays on the device between calls. The same recording functions serve the
+//! resident-tensor interface (crate::resident), which skips the copies. The input gradient is the forward kernel on the transposed problem (the
 //! forward plan with mirrored offsets for submanifold layers, the plan over the inputs for
 //! strided ones, exactly as the CPU engine does it); the weight gradient runs one thread per
 //! weight over the offset's pair list.
@@ -43,7 +44,7 @@ fn transpose(w: &[f32], kv: usize, c_in: usize, c_out: usize, source: impl Fn(us
     t
 }
 
-fn count32(what: &'static str, n: usize) -> Result<u32> {
+pub(crate) fn count32(what: &'static str, n: usize) -> Result<u32> {
     u32::try_from(n).map_err(|_| GpuError::TooLarge { what, bytes: n as u64 * 4, limit: u32::MAX as u64 })
 }
 
@@ -81,7 +82,7 @@ impl GpuEngine {
     }
 
     /// The chunked kernel over `plan` into `y` (`[rows, c_out]`, with `accumulate` its
-    /// contents are added to).
+    /// contents are added to), host buffers in and out.
     #[allow(clippy::too_many_arguments)]
     fn run_chunked(
         &self,
@@ -98,13 +99,47 @@ impl GpuEngine {
         let ctx = &*self.ctx;
         let xb = ctx.transient_upload("features", x)?;
         let wb = ctx.transient_upload("weights", w)?;
-        let bnb = match bn {
-            Some(bn) => ctx.transient_upload("batch norm", &[bn.scale, bn.shift].concat())?,
-            None => ctx.transient("batch norm", 4)?,
-        };
+        let bnb = bn.map(|bn| ctx.transient_upload("batch norm", &[bn.scale, bn.shift].concat())).transpose()?;
         // Every output row belongs to one chunk and is written: no clearing needed.
         let yb =
             if accumulate { ctx.transient_upload("output", y)? } else { ctx.transient("output", y.len() as u64 * 4)? };
+        let mut enc = ctx.encoder();
+        self.encode_chunked(&mut enc, plan, kv, &xb, c_in, bnb.as_ref(), &wb, c_out, &yb, accumulate)?;
+        let out: Vec<f32> = ctx.finish_and_read(enc, &yb, y.len())?;
+        y.copy_from_slice(&out);
+        Ok(())
+    }
+
+    /// Records the chunked kernel over `plan` on device buffers: `y = conv(bn_relu(x), w)`
+    /// (or `+=`), `bn` the folded scale then shift.
+    ///
+    /// # Shapes
+    /// `x`: `[plan sources, c_in]`; `bn`: `[2, c_in]`; `w`: `[kv, c_in, c_out]`;
+    /// `y`: `[plan destinations, c_out]`.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn encode_chunked(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        plan: &DevicePlan,
+        kv: usize,
+        x: &wgpu::Buffer,
+        c_in: usize,
+        bn: Option<&wgpu::Buffer>,
+        w: &wgpu::Buffer,
+        c_out: usize,
+        y: &wgpu::Buffer,
+        accumulate: bool,
+    ) -> Result<()> {
+        let ctx = &*self.ctx;
+        // An unused binding still needs a buffer; the pooled one is never written by queue.
+        let unused;
+        let bnb = match bn {
+            Some(b) => b,
+            None => {
+                unused = ctx.transient("batch norm", 4)?;
+                &unused
+            }
+        };
         let flags = u32::from(bn.is_some()) | (u32::from(accumulate) << 1);
         let o = plan.offsets;
         let params = ctx.params(&[
@@ -119,23 +154,14 @@ impl GpuEngine {
             o[3],
             o[4],
         ]);
-        let mut enc = ctx.encoder();
-        let bindings = [(0, &params), (1, &xb), (2, &wb), (3, &bnb), (4, &plan.buffer), (5, &yb)];
-        ctx.dispatch(
-            &mut enc,
-            &ctx.pipelines.chunked,
-            &bindings,
-            plan.n_chunks,
-            count32("channels", c_out.div_ceil(16))?,
-        );
-        let out: Vec<f32> = ctx.finish_and_read(enc, &yb, y.len())?;
-        y.copy_from_slice(&out);
+        let bindings = [(0, &params), (1, x), (2, w), (3, bnb), (4, &plan.buffer), (5, y)];
+        ctx.dispatch(enc, &ctx.pipelines.chunked, &bindings, plan.n_chunks, count32("channels", c_out.div_ceil(16))?);
         Ok(())
     }
 
     /// The rulebook kernels over the layer's pairs: per offset gather, GEMM, scatter-add;
     /// `swap` reads from output rows and writes to input rows (the input gradient, with
-    /// weights `[kv, c_src, c_dst]` already transposed).
+    /// weights `[kv, c_src, c_dst]` already transposed). Host buffers in and out.
     #[allow(clippy::too_many_arguments)]
     fn run_rulebook(
         &self,
@@ -150,31 +176,62 @@ impl GpuEngine {
         accumulate: bool,
     ) -> Result<()> {
         let ctx = &*self.ctx;
+        let xb = ctx.transient_upload("features", x)?;
+        let wb = ctx.transient_upload("weights", w)?;
+        let bnb = bn.map(|bn| ctx.transient_upload("batch norm", &[bn.scale, bn.shift].concat())).transpose()?;
+        let y_bytes = y.len() as u64 * 4;
+        let yb = if accumulate { ctx.transient_upload("output", y)? } else { ctx.transient("output", y_bytes)? };
+        let mut enc = ctx.encoder();
+        let sizes = (x.len(), y.len());
+        self.encode_rulebook(&mut enc, layer, swap, &xb, c_src, bnb.as_ref(), &wb, c_dst, &yb, sizes, accumulate)?;
+        let out: Vec<f32> = ctx.finish_and_read(enc, &yb, y.len())?;
+        y.copy_from_slice(&out);
+        Ok(())
+    }
+
+    /// Records the rulebook kernels on device buffers (see [`Self::run_rulebook`]); `sizes`
+    /// are the values of `x` and `y` the layer reads and writes.
+    ///
+    /// # Shapes
+    /// `x`: `[n_src, c_src]`; `bn`: `[2, c_src]`; `w`: `[kv, c_src, c_dst]`;
+    /// `y`: `[n_dst, c_dst]`.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn encode_rulebook(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        layer: &GpuLayer,
+        swap: bool,
+        x: &wgpu::Buffer,
+        c_src: usize,
+        bn: Option<&wgpu::Buffer>,
+        w: &wgpu::Buffer,
+        c_dst: usize,
+        y: &wgpu::Buffer,
+        sizes: (usize, usize),
+        accumulate: bool,
+    ) -> Result<()> {
+        let ctx = &*self.ctx;
         let p = &ctx.pipelines;
         let (cs, cd) = (count32("channels", c_src)?, count32("channels", c_dst)?);
         let n_pairs = count32("pairs", layer.num_pairs())?;
         let most = layer.starts.windows(2).map(|s| s[1] - s[0]).max().unwrap_or(0) as u64;
-        let mut xb = ctx.transient_upload("features", x)?;
-        let wb = ctx.transient_upload("weights", w)?;
-        let y_bytes = y.len() as u64 * 4;
-        let yb = if accumulate { ctx.transient_upload("output", y)? } else { ctx.transient("output", y_bytes)? };
         // Written before they are read, within each offset.
         let gathered = ctx.transient("gathered rows", most * u64::from(cs) * 4)?;
         let products = ctx.transient("products", most * u64::from(cd) * 4)?;
-        let mut enc = ctx.encoder();
-        if !accumulate {
+        if !accumulate && sizes.1 > 0 {
             // The scatter adds: the output starts at zero.
-            enc.clear_buffer(&yb, 0, Some(y_bytes.next_multiple_of(4)));
+            enc.clear_buffer(y, 0, Some(sizes.1 as u64 * 4));
         }
-        if let Some(bn) = bn {
+        let normalised;
+        let mut src = x;
+        if let Some(bnb) = bn {
             // The standard algorithm's separate normalisation pass.
-            let bnb = ctx.transient_upload("batch norm", &[bn.scale, bn.shift].concat())?;
-            let normalised = ctx.transient("normalised features", x.len() as u64 * 4)?;
-            let n = count32("features", x.len())?;
+            normalised = ctx.transient("normalised features", sizes.0 as u64 * 4)?;
+            let n = count32("features", sizes.0)?;
             let params = ctx.params(&[n, cs, 0, 0, 0, 0, 0, 0]);
-            let b = [(0, &params), (1, &xb), (3, &bnb), (4, &normalised)];
-            ctx.dispatch(&mut enc, &p.bn_relu, &b, n.div_ceil(WORKGROUP), 1);
-            xb = normalised;
+            let b = [(0, &params), (1, x), (3, bnb), (4, &normalised)];
+            ctx.dispatch(enc, &p.bn_relu, &b, n.div_ceil(WORKGROUP), 1);
+            src = &normalised;
         }
         for k in 0..layer.kv {
             let (base, rows) = (layer.starts[k], layer.starts[k + 1] - layer.starts[k]);
@@ -183,21 +240,13 @@ impl GpuEngine {
             }
             let w_base = count32("weights", k * c_src * c_dst)?;
             let params = ctx.params(&[rows, cs, cd, base, n_pairs, u32::from(swap), w_base, layer.kv as u32]);
-            let g = [(0, &params), (1, &xb), (2, &layer.pairs), (4, &gathered)];
-            ctx.dispatch(
-                &mut enc,
-                &p.gather,
-                &g,
-                count32("gathered rows", rows as usize * c_src)?.div_ceil(WORKGROUP),
-                1,
-            );
-            let m = [(0, &params), (1, &gathered), (3, &wb), (4, &products)];
-            ctx.dispatch(&mut enc, &p.gemm, &m, rows.div_ceil(16), cd.div_ceil(16));
-            let s = [(0, &params), (1, &products), (2, &layer.pairs), (4, &yb)];
-            ctx.dispatch(&mut enc, &p.scatter, &s, count32("products", rows as usize * c_dst)?.div_ceil(WORKGROUP), 1);
+            let g = [(0, &params), (1, src), (2, &layer.pairs), (4, &gathered)];
+            ctx.dispatch(enc, &p.gather, &g, count32("gathered rows", rows as usize * c_src)?.div_ceil(WORKGROUP), 1);
+            let m = [(0, &params), (1, &gathered), (3, w), (4, &products)];
+            ctx.dispatch(enc, &p.gemm, &m, rows.div_ceil(16), cd.div_ceil(16));
+            let s = [(0, &params), (1, &products), (2, &layer.pairs), (4, y)];
+            ctx.dispatch(enc, &p.scatter, &s, count32("products", rows as usize * c_dst)?.div_ceil(WORKGROUP), 1);
         }
-        let out: Vec<f32> = ctx.finish_and_read(enc, &yb, y.len())?;
-        y.copy_from_slice(&out);
         Ok(())
     }
 }

@@ -8,6 +8,12 @@
 //! (gather-GEMM-scatter) baseline, and both gradients. Submanifold kernel maps are built on
 //! the device with a hash table; chunk plans come from the CPU planner (docs/gpu.md).
 //!
+//! It also implements `semrecon_sparse::ResidentBackend`: tensors on the device
+//! ([`GpuTensor`]), convolutions and the network's element-wise steps (attention gate,
+//! weighted row gather, bias, argmax) run on them without copies, so a whole network forward
+//! uploads its input once and reads back once; every transfer is counted
+//! ([`GpuContext::transfers`]).
+//!
 //! Without the `gpu` feature nothing of wgpu is compiled: the engine's constructor returns
 //! [`GpuError::NotBuilt`], so callers need no conditional code, and `cargo test --workspace`
 //! stays free of wgpu.
@@ -32,8 +38,11 @@ mod engine;
 pub mod error;
 #[cfg(feature = "gpu")]
 mod layer;
+#[cfg(feature = "gpu")]
+mod resident;
 #[cfg(not(feature = "gpu"))]
 mod stub;
+pub mod transfers;
 
 #[cfg(feature = "gpu")]
 pub use context::GpuContext;
@@ -42,8 +51,11 @@ pub use engine::GpuEngine;
 pub use error::{GpuError, Result};
 #[cfg(feature = "gpu")]
 pub use layer::GpuLayer;
+#[cfg(feature = "gpu")]
+pub use resident::{GpuGather, GpuTensor};
 #[cfg(not(feature = "gpu"))]
-pub use stub::{GpuContext, GpuEngine, GpuLayer};
+pub use stub::{GpuContext, GpuEngine, GpuGather, GpuLayer, GpuTensor};
+pub use transfers::TransferCounts;
 
 /// Whether this build has the GPU engine (the cargo feature `gpu`).
 pub const BUILT: bool = cfg!(feature = "gpu");

@@ -5,9 +5,10 @@
 use std::convert::Infallible;
 use std::sync::Arc;
 
-use semrecon_sparse::{BnRelu, ChunkedConv, ConvAlgorithm, ConvBackend, Coord};
+use semrecon_sparse::{BnRelu, ChunkedConv, ConvAlgorithm, ConvBackend, Coord, GatherTable, ResidentBackend};
 
 use crate::error::{GpuError, Result};
+use crate::transfers::TransferCounts;
 
 /// No device: this build has no GPU engine.
 #[derive(Debug)]
@@ -48,6 +49,31 @@ impl GpuContext {
     pub fn destroy(&self) {
         match self.never {}
     }
+
+    /// Never called (no value exists).
+    pub fn transfers(&self) -> TransferCounts {
+        match self.never {}
+    }
+
+    /// Never called (no value exists).
+    ///
+    /// # Errors
+    /// Never.
+    pub fn flush(&self) -> Result<()> {
+        match self.never {}
+    }
+}
+
+/// No tensors: this build has no GPU engine.
+#[derive(Debug)]
+pub struct GpuTensor {
+    never: Infallible,
+}
+
+/// No gather tables: this build has no GPU engine.
+#[derive(Debug)]
+pub struct GpuGather {
+    never: Infallible,
 }
 
 /// No layers: this build has no GPU engine.
@@ -136,5 +162,60 @@ impl ConvBackend for GpuEngine {
 
     fn backward_weight(&self, _: &GpuLayer, _: &[f32], _: usize, _: &[f32], _: usize) -> Result<Vec<f32>> {
         match *self.never {}
+    }
+}
+
+impl ResidentBackend for GpuEngine {
+    type Tensor = GpuTensor;
+    type Gather = GpuGather;
+
+    fn upload(&self, _: &[f32]) -> Result<GpuTensor> {
+        match *self.never {}
+    }
+
+    fn download(&self, t: &GpuTensor, _: usize) -> Result<Vec<f32>> {
+        match t.never {}
+    }
+
+    fn tensor_len(&self, t: &GpuTensor) -> usize {
+        match t.never {}
+    }
+
+    fn reserve(&self, t: &mut GpuTensor, _: usize) -> Result<()> {
+        match t.never {}
+    }
+
+    fn gather_table(&self, _: &GatherTable) -> Result<GpuGather> {
+        match *self.never {}
+    }
+
+    fn conv(
+        &self,
+        layer: &GpuLayer,
+        _: &GpuTensor,
+        _: usize,
+        _: Option<&GpuTensor>,
+        _: &GpuTensor,
+        _: usize,
+        _: &mut GpuTensor,
+        _: bool,
+    ) -> Result<()> {
+        match layer.never {}
+    }
+
+    fn gate(&self, g: &mut GpuTensor, _: usize, _: usize) -> Result<()> {
+        match g.never {}
+    }
+
+    fn gather_add(&self, table: &GpuGather, _: &GpuTensor, _: usize, _: usize, _: &mut GpuTensor) -> Result<()> {
+        match table.never {}
+    }
+
+    fn add_bias(&self, y: &mut GpuTensor, _: usize, _: &GpuTensor, _: usize) -> Result<()> {
+        match y.never {}
+    }
+
+    fn argmax_rows(&self, scores: &GpuTensor, _: usize, _: usize) -> Result<Vec<u32>> {
+        match scores.never {}
     }
 }

@@ -13,7 +13,7 @@
 //! (no hashing), pointwise layers from the row count alone.
 
 use rayon::prelude::*;
-use semrecon_sparse::{ChunkConfig, ChunkedConv, Coord, KernelMap};
+use semrecon_sparse::{ChunkConfig, ChunkedConv, Coord, GatherTable, KernelMap};
 
 use crate::config::NetConfig;
 use crate::error::{NetError, Result};
@@ -32,17 +32,12 @@ pub(crate) struct Level {
     pub(crate) down: Option<(ChunkedConv, ChunkedConv)>,
 }
 
-/// Trilinear interpolation from level `j` to level `t`: 8 `(row, weight)` per fine row.
-pub(crate) struct Interp {
-    pub(crate) rows: Vec<u32>,
-    pub(crate) weights: Vec<f32>,
-}
-
 /// Kernel maps, chunk plans and interpolation tables of every level of one input.
 pub struct NetGeometry {
     pub(crate) levels: Vec<Level>,
-    /// `interp[t][j - t - 1]`.
-    pub(crate) interp: Vec<Vec<Interp>>,
+    /// `interp[t][j - t - 1]`: trilinear interpolation from level `j` to level `t`, 8
+    /// `(row, weight)` per fine row.
+    pub(crate) interp: Vec<Vec<GatherTable>>,
 }
 
 impl NetGeometry {
@@ -85,7 +80,7 @@ impl NetGeometry {
             for j in t + 1..=l - 2 {
                 let par = &levels[j - 1].parent;
                 anc.iter_mut().for_each(|a| *a = par[*a as usize]);
-                per.push(interp_table(&levels[t].coords, &anc, &levels[j].nbr, (j - t) as u32));
+                per.push(interp_table(&levels[t].coords, &anc, &levels[j].nbr, (j - t) as u32)?);
             }
             interp.push(per);
         }
@@ -131,7 +126,7 @@ impl NetGeometry {
     /// `[n_t, 8]` each.
     pub fn interpolation(&self, t: usize, j: usize) -> Option<(&[u32], &[f32])> {
         let ip = self.interp.get(t)?.get(j.checked_sub(t + 1)?)?;
-        Some((&ip.rows, &ip.weights))
+        Some((ip.rows(), ip.weights()))
     }
 
     /// Voxels and neighbour pairs per level.
@@ -174,7 +169,7 @@ pub(crate) fn neighbour_table(map: &KernelMap) -> Vec<u32> {
 ///
 /// # Shapes
 /// `fine`: `[n]`; `ancestor`: `[n]` coarse rows; `nbr`: `[n_coarse, 27]`; result `[n, 8]`.
-pub(crate) fn interp_table(fine: &[Coord], ancestor: &[u32], nbr: &[u32], shift: u32) -> Interp {
+pub(crate) fn interp_table(fine: &[Coord], ancestor: &[u32], nbr: &[u32], shift: u32) -> Result<GatherTable> {
     let n = fine.len();
     let mut rows = vec![0u32; n * 8];
     let mut weights = vec![0f32; n * 8];
@@ -224,5 +219,5 @@ pub(crate) fn interp_table(fine: &[Coord], ancestor: &[u32], nbr: &[u32], shift:
             }
         }
     });
-    Interp { rows, weights }
+    Ok(GatherTable::new(rows, weights, 8)?)
 }

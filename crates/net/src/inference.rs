@@ -1,12 +1,14 @@
-//! The fused CPU forward of CBSCN on the sparse engine, for the live path (no training
-//! framework involved).
+//! Inference with CBSCN on the sparse engines, for the live path (no training framework
+//! involved): [`Segmenter`], on the CPU or the GPU ([`Device`]).
 //!
-//! Per input, the [`NetGeometry`] is built once (kernel maps and chunk plans per level, shared
-//! by every layer of the level, and the fusion's interpolation tables). Batch norm uses the
-//! running statistics folded into one scale and shift per channel, applied together with the
-//! ReLU: with the chunked kernels inside the convolution's gather (and residual sums inside
-//! its output), with the rulebook kernels in a separate pass as the standard algorithm does. Activation buffers live in a workspace that only grows, so repeated
-//! calls on rooms of similar size allocate nothing per layer.
+//! Per input, the [`NetGeometry`] is built once on the host (kernel maps and chunk plans per
+//! level, shared by every layer of the level, and the fusion's interpolation tables). The
+//! layers run in [`crate::forward`], one forward generic over the engine's
+//! [`ResidentBackend`]: this module only picks the engine and hands it its tensors. The CPU
+//! engine's tensors are the host parameters and a host workspace; the GPU engine's weights are
+//! uploaded on its first call and kept until the device changes, its activations stay on the
+//! device, and each call uploads the input and the geometry and reads back the logits (or, for
+//! [`Segmenter::segment_points`], only the labels).
 //!
 //! Voxels are processed in Z-order (the layout the chunked kernel is fastest with); inputs in
 //! any other order are permuted on the way in and the logits back on the way out. Every step
@@ -14,19 +16,18 @@
 
 use std::time::{Duration, Instant};
 
-use rayon::prelude::*;
-use semrecon_gpu::{GpuEngine, GpuLayer};
+use semrecon_gpu::{GpuEngine, GpuGather, GpuLayer, GpuTensor};
 use semrecon_sparse::morton::morton_order;
-use semrecon_sparse::{voxelize, BnRelu, ChunkConfig, ChunkedConv, ConvAlgorithm, ConvBackend, Coord, CpuEngine};
+use semrecon_sparse::{
+    voxelize, ChunkConfig, ConvAlgorithm, Coord, CpuEngine, GatherTable, ResidentBackend, Voxelization,
+};
 
 use crate::config::NetConfig;
 use crate::error::{NetError, Result};
-use crate::geometry::{Interp, NetGeometry};
-use crate::model::{bn_names, LevelStats};
+use crate::forward::{forward, LevelLayers, Params, Prepared, Readout, Scores, Workspace};
+use crate::geometry::NetGeometry;
+use crate::model::LevelStats;
 use crate::weights::Weights;
-
-/// Rows per parallel task in the element-wise passes.
-const ROWS_PER_TASK: usize = 256;
 
 /// Input features of colours: `c / 127.5 - 1` per channel (RGB in `[-1, 1]`), the
 /// preprocessing every trainer and caller of the network must share.
@@ -45,182 +46,6 @@ pub enum ConvKernel {
     Chunked,
     /// The gather-GEMM-scatter baseline on the same kernel maps (for comparisons).
     Rulebook,
-}
-
-/// Batch norm with running statistics, folded: `y = max(0, x * scale + shift)`.
-#[derive(Debug, Clone)]
-struct Affine {
-    scale: Vec<f32>,
-    shift: Vec<f32>,
-}
-
-impl Affine {
-    fn fold(w: &Weights, prefix: &str, eps: f32) -> Result<Self> {
-        let [g, b, m, v] = bn_names(prefix);
-        let (g, b, m, v) = (w.get(&g)?, w.get(&b)?, w.get(&m)?, w.get(&v)?);
-        let scale: Vec<f32> = g.iter().zip(v).map(|(g, v)| g / (v + eps).sqrt()).collect();
-        let shift = b.iter().zip(m).zip(&scale).map(|((b, m), s)| b - m * s).collect();
-        Ok(Self { scale, shift })
-    }
-
-    /// The folded batch norm as the engines take it.
-    fn bn(&self) -> BnRelu<'_> {
-        BnRelu { scale: &self.scale, shift: &self.shift }
-    }
-}
-
-/// `x + conv2(BN(conv1(BN(x))))`.
-#[derive(Debug, Clone)]
-struct ResBlock {
-    bn1: Affine,
-    conv1: Vec<f32>,
-    bn2: Affine,
-    conv2: Vec<f32>,
-}
-
-impl ResBlock {
-    fn load(w: &Weights, prefix: &str, eps: f32) -> Result<Self> {
-        Ok(Self {
-            bn1: Affine::fold(w, &format!("{prefix}.bn1"), eps)?,
-            conv1: w.get(&format!("{prefix}.conv1.weight"))?.to_vec(),
-            bn2: Affine::fold(w, &format!("{prefix}.bn2"), eps)?,
-            conv2: w.get(&format!("{prefix}.conv2.weight"))?.to_vec(),
-        })
-    }
-
-    /// Applies the block to `x` (`[n, c]`) in place; `a` is scratch. Both batch norms go
-    /// into the convolutions' reads (fused by the chunked kernels, a separate pass for the
-    /// rulebook), the residual sum into the second convolution's output.
-    fn run<B: ConvBackend>(&self, engine: &B, conv: &B::Layer, x: &mut [f32], c: usize, a: &mut Vec<f32>) -> Result<()>
-    where
-        NetError: From<B::Error>,
-    {
-        let a = sized(a, x.len());
-        engine.forward_into(conv, x, c, Some(self.bn1.bn()), &self.conv1, c, a, false)?;
-        engine.forward_into(conv, a, c, Some(self.bn2.bn()), &self.conv2, c, x, true)?;
-        Ok(())
-    }
-}
-
-/// Folded parameters of the whole network.
-#[derive(Debug, Clone)]
-struct Params {
-    input: Vec<f32>,
-    extract: Vec<ResBlock>,
-    /// `down[i]`: level `i` to `i + 1`.
-    down: Vec<(Affine, Vec<f32>)>,
-    /// `up[t]`: producing `D_t` from `D_(t+1)` and `E_t`.
-    up: Vec<Up>,
-    /// `fuse[t][j - t - 1]`: `[C_j, C_t + 1]`, the value map `b` then the attention column `a`.
-    fuse: Vec<Vec<Vec<f32>>>,
-    head_bn: Affine,
-    head_w: Vec<f32>,
-    head_b: Vec<f32>,
-}
-
-#[derive(Debug, Clone)]
-struct Up {
-    bn: Affine,
-    conv: Vec<f32>,
-    skip: Vec<f32>,
-    block: ResBlock,
-}
-
-impl Params {
-    fn fold(w: &Weights, cfg: &NetConfig) -> Result<Self> {
-        let l = cfg.levels;
-        let eps = cfg.bn_eps;
-        let mut fuse = Vec::new();
-        for t in 0..l.saturating_sub(2) {
-            let ct = cfg.channels(t);
-            let mut per = Vec::new();
-            for j in t + 1..=l - 2 {
-                let a = w.get(&format!("fuse.{t}.{j}.attention.weight"))?;
-                let b = w.get(&format!("fuse.{t}.{j}.value.weight"))?;
-                let mut m = Vec::with_capacity(cfg.channels(j) * (ct + 1));
-                for r in 0..cfg.channels(j) {
-                    m.extend_from_slice(&b[r * ct..(r + 1) * ct]);
-                    m.push(a[r]);
-                }
-                per.push(m);
-            }
-            fuse.push(per);
-        }
-        Ok(Self {
-            input: w.get("input.conv.weight")?.to_vec(),
-            extract: (0..l).map(|i| ResBlock::load(w, &format!("extract.{i}"), eps)).collect::<Result<_>>()?,
-            down: (0..l.saturating_sub(1))
-                .map(|i| {
-                    Ok((
-                        Affine::fold(w, &format!("down.{i}.bn"), eps)?,
-                        w.get(&format!("down.{i}.conv.weight"))?.to_vec(),
-                    ))
-                })
-                .collect::<Result<_>>()?,
-            up: (0..l.saturating_sub(1))
-                .map(|t| {
-                    Ok(Up {
-                        bn: Affine::fold(w, &format!("up.{t}.bn"), eps)?,
-                        conv: w.get(&format!("up.{t}.conv.weight"))?.to_vec(),
-                        skip: w.get(&format!("up.{t}.skip.weight"))?.to_vec(),
-                        block: ResBlock::load(w, &format!("up.{t}"), eps)?,
-                    })
-                })
-                .collect::<Result<_>>()?,
-            fuse,
-            head_bn: Affine::fold(w, "head.bn", eps)?,
-            head_w: w.get("head.linear.weight")?.to_vec(),
-            head_b: w.get("head.linear.bias")?.to_vec(),
-        })
-    }
-}
-
-/// `d[u] += sum_q w[u, q] g[row[u, q], ..c]` with `g` rows of `stride` values.
-fn interp_add(ip: &Interp, g: &[f32], stride: usize, c: usize, d: &mut [f32]) {
-    d.par_chunks_mut(c * ROWS_PER_TASK).enumerate().for_each(|(blk, dd)| {
-        for (r, drow) in dd.chunks_exact_mut(c).enumerate() {
-            let u = blk * ROWS_PER_TASK + r;
-            for q in 0..8 {
-                let w = ip.weights[u * 8 + q];
-                if w == 0.0 {
-                    continue;
-                }
-                let s = ip.rows[u * 8 + q] as usize * stride;
-                for (dv, &gv) in drow.iter_mut().zip(&g[s..s + c]) {
-                    *dv += w * gv;
-                }
-            }
-        }
-    });
-}
-
-/// `g[r, ..c] *= sigmoid(g[r, c])` for rows of `c + 1` values.
-fn gate(g: &mut [f32], c: usize) {
-    g.par_chunks_mut((c + 1) * ROWS_PER_TASK).for_each(|blk| {
-        for row in blk.chunks_exact_mut(c + 1) {
-            let s = 1.0 / (1.0 + (-row[c]).exp());
-            for v in &mut row[..c] {
-                *v *= s;
-            }
-        }
-    });
-}
-
-/// The first `len` values of a buffer that only grows.
-fn sized(v: &mut Vec<f32>, len: usize) -> &mut [f32] {
-    if v.len() < len {
-        v.resize(len, 0.0);
-    }
-    &mut v[..len]
-}
-
-/// Activation buffers kept between calls.
-#[derive(Default)]
-struct Workspace {
-    enc: Vec<Vec<f32>>,
-    dec: Vec<Vec<f32>>,
-    a: Vec<f32>,
-    g: Vec<f32>,
 }
 
 /// Wall time of the two phases of the last call.
@@ -249,16 +74,28 @@ pub struct PointScores {
     pub point_to_voxel: Vec<u32>,
 }
 
-/// The network ready for inference: folded weights, a chunk configuration and a workspace.
+/// The network ready for inference: folded weights, a chunk configuration and the engines'
+/// workspaces.
 pub struct Segmenter {
     config: NetConfig,
-    params: Params,
+    /// Folded weights on the host: the CPU engine's tensors, and what the GPU's come from.
+    params: Params<Vec<f32>>,
     chunk: ChunkConfig,
     kernel: ConvKernel,
-    ws: Workspace,
+    /// The CPU engine's activations (made on its first call).
+    cpu_ws: Option<Workspace<Vec<f32>>>,
     device: Device,
+    /// Weights and activations on the GPU of `device` (made on its first call, dropped when
+    /// the device changes).
+    gpu: Option<Resident<GpuTensor>>,
     stats: Vec<LevelStats>,
     timing: Timing,
+}
+
+/// The network's tensors on one device: weights uploaded once, activations kept.
+struct Resident<T> {
+    params: Params<T>,
+    ws: Workspace<T>,
 }
 
 impl std::fmt::Debug for Segmenter {
@@ -281,8 +118,9 @@ impl Segmenter {
             params,
             chunk: ChunkConfig::default(),
             kernel: ConvKernel::Chunked,
-            ws: Workspace::default(),
+            cpu_ws: None,
             device: Device::Cpu,
+            gpu: None,
             stats: Vec::new(),
             timing: Timing::default(),
         })
@@ -293,10 +131,12 @@ impl Segmenter {
         self.kernel = kernel;
     }
 
-    /// Runs the convolutions on `device` from now on (the CPU by default); the weights and
-    /// results are the same, within 1e-4 relative (summation order).
+    /// Runs the network on `device` from now on (the CPU by default); the weights and
+    /// results are the same, within 1e-4 relative (summation order). A GPU gets the weights
+    /// on its first call and keeps them until the device changes again.
     pub fn set_device(&mut self, device: Device) {
         self.device = device;
+        self.gpu = None;
     }
 
     /// Where the convolutions run.
@@ -340,14 +180,14 @@ impl Segmenter {
         let order = morton_order(coords)?;
         let identity = order.iter().enumerate().all(|(i, &o)| o as usize == i);
         if identity {
-            return self.forward_sorted(coords.to_vec(), features);
+            return Ok(self.forward_sorted(coords.to_vec(), features, Readout::Logits)?.logits);
         }
         let sorted: Vec<Coord> = order.iter().map(|&r| coords[r as usize]).collect();
         let mut feats = Vec::with_capacity(features.len());
         for &r in &order {
             feats.extend_from_slice(&features[r as usize * cin..(r as usize + 1) * cin]);
         }
-        let logits = self.forward_sorted(sorted, &feats)?;
+        let logits = self.forward_sorted(sorted, &feats, Readout::Logits)?.logits;
         let k = self.config.classes;
         let mut out = vec![0f32; logits.len()];
         for (i, &r) in order.iter().enumerate() {
@@ -366,10 +206,26 @@ impl Segmenter {
     /// [`NetError::InvalidInput`] when the lengths differ or the network does not take RGB
     /// (`in_channels != 3`); voxelisation errors (non-finite points) as [`NetError::Sparse`].
     pub fn segment_points(&mut self, points: &[[f32; 3]], colors: &[[u8; 3]]) -> Result<Vec<u8>> {
-        // `segment_points_scores` checks the inputs.
-        let scores = self.segment_points_scores(points, colors)?;
-        let voxel_class = argmax_rows(&scores.logits, self.config.classes);
-        Ok(scores.point_to_voxel.iter().map(|&r| voxel_class[r as usize]).collect())
+        let v = self.voxelize_points(points, colors)?;
+        let (coords, features) = v.tensor.into_parts();
+        // Only the labels come back from the engine (an argmax where the logits are).
+        let voxel_class = self.forward_sorted(coords, &features, Readout::Labels)?.labels;
+        // Labels are bytes throughout the pipeline, as `argmax_rows` makes them.
+        Ok(v.point_to_voxel.iter().map(|&r| voxel_class[r as usize] as u8).collect())
+    }
+
+    /// The voxels of a coloured point cloud at the configuration's voxel size.
+    fn voxelize_points(&self, points: &[[f32; 3]], colors: &[[u8; 3]]) -> Result<Voxelization> {
+        if points.len() != colors.len() {
+            return Err(NetError::InvalidInput(format!("{} points but {} colours", points.len(), colors.len())));
+        }
+        if self.config.in_channels != 3 {
+            return Err(NetError::InvalidInput(format!(
+                "configuration {} takes {} input channels, not RGB",
+                self.config.name, self.config.in_channels
+            )));
+        }
+        Ok(voxelize(points, &color_features(colors), 3, self.config.voxel_size, 0)?)
     }
 
     /// Voxelises a coloured point cloud at the configuration's voxel size and returns the
@@ -385,18 +241,9 @@ impl Segmenter {
     /// # Errors
     /// As [`segment_points`](Self::segment_points).
     pub fn segment_points_scores(&mut self, points: &[[f32; 3]], colors: &[[u8; 3]]) -> Result<PointScores> {
-        if points.len() != colors.len() {
-            return Err(NetError::InvalidInput(format!("{} points but {} colours", points.len(), colors.len())));
-        }
-        if self.config.in_channels != 3 {
-            return Err(NetError::InvalidInput(format!(
-                "configuration {} takes {} input channels, not RGB",
-                self.config.name, self.config.in_channels
-            )));
-        }
-        let v = voxelize(points, &color_features(colors), 3, self.config.voxel_size, 0)?;
+        let v = self.voxelize_points(points, colors)?;
         let (coords, features) = v.tensor.into_parts();
-        let logits = self.forward_sorted(coords.clone(), &features)?;
+        let logits = self.forward_sorted(coords.clone(), &features, Readout::Logits)?.logits;
         Ok(PointScores { coords, features, logits, point_to_voxel: v.point_to_voxel })
     }
 
@@ -427,21 +274,17 @@ impl Segmenter {
             )));
         }
         let t = Instant::now();
-        let mut logits = vec![0f32; n * self.config.classes];
-        if n > 0 {
-            self.run_layers(geometry, features, &mut logits)?;
-        }
+        let logits = if n > 0 { self.run_layers(geometry, features, Readout::Logits)?.logits } else { Vec::new() };
         self.timing = Timing { geometry: Duration::ZERO, forward: t.elapsed() };
         self.stats = geometry.stats();
         Ok(logits)
     }
 
     /// The forward pass on Z-ordered voxels.
-    fn forward_sorted(&mut self, coords: Vec<Coord>, feats: &[f32]) -> Result<Vec<f32>> {
-        let k = self.config.classes;
+    fn forward_sorted(&mut self, coords: Vec<Coord>, feats: &[f32], readout: Readout) -> Result<Scores> {
         if coords.is_empty() {
             self.stats.clear();
-            return Ok(Vec::new());
+            return Ok(Scores::default());
         }
         let t0 = Instant::now();
         let geo = NetGeometry::build(coords, &self.config, &self.chunk)?;
@@ -449,34 +292,48 @@ impl Segmenter {
             geo.build_maps();
         }
         let t1 = Instant::now();
-        let mut logits = vec![0f32; geo.levels[0].coords.len() * k];
-        self.run_layers(&geo, feats, &mut logits)?;
+        let scores = self.run_layers(&geo, feats, readout)?;
         self.timing = Timing { geometry: t1 - t0, forward: t1.elapsed() };
         self.stats = geo.stats();
-        Ok(logits)
+        Ok(scores)
     }
 
-    /// The layers on the chosen device: the CPU engine reads the geometry's layers in place,
-    /// the GPU engine gets them uploaded once per call (every layer of a level then shares
-    /// them). The layer code itself is one, generic over the engine.
-    fn run_layers(&mut self, geo: &NetGeometry, feats: &[f32], logits: &mut [f32]) -> Result<()> {
+    /// The layers on the chosen engine, with its tensors: the CPU engine reads the host
+    /// parameters and the geometry's layers in place; the GPU engine gets the weights on its
+    /// first call (kept), the geometry uploaded per call (every layer of a level then shares
+    /// it). The forward itself is one, generic over the engine.
+    fn run_layers(&mut self, geo: &NetGeometry, feats: &[f32], readout: Readout) -> Result<Scores> {
         let algorithm = match self.kernel {
             ConvKernel::Chunked => ConvAlgorithm::Chunked,
             ConvKernel::Rulebook => ConvAlgorithm::Rulebook,
         };
-        let Self { config, params, ws, device, chunk, .. } = self;
+        let Self { config, params, cpu_ws, device, gpu, chunk, .. } = self;
+        let rows: Vec<usize> = geo.levels.iter().map(|l| l.coords.len()).collect();
         match device {
             Device::Cpu => {
                 let engine = CpuEngine { algorithm, chunk: *chunk };
-                let levels: Vec<LevelLayers<'_, ChunkedConv>> = geo
+                let ws = match cpu_ws {
+                    Some(ws) => ws,
+                    None => cpu_ws.insert(Workspace::new(&engine, config.levels)?),
+                };
+                let levels = geo
                     .levels
                     .iter()
                     .map(|l| LevelLayers { subm: &l.subm, point: &l.point, down: l.down.as_ref().map(|(d, u)| (d, u)) })
                     .collect();
-                forward_layers(&engine, &levels, geo, config, params, ws, feats, logits)
+                let interp = geo.interp.iter().map(|per| per.iter().collect()).collect();
+                let prepared = Prepared::<CpuEngine> { levels, interp, rows };
+                forward(&engine, &prepared, config, params, ws, feats, readout)
             }
-            Device::Gpu(gpu) => {
-                let engine = gpu.with_algorithm(algorithm);
+            Device::Gpu(device) => {
+                let engine = device.with_algorithm(algorithm);
+                let resident = match gpu {
+                    Some(r) => r,
+                    None => gpu.insert(Resident {
+                        params: params.map(&mut |t| engine.upload(t))?,
+                        ws: Workspace::new(&engine, config.levels)?,
+                    }),
+                };
                 let mut owned = Vec::with_capacity(geo.levels.len());
                 for l in &geo.levels {
                     let down = match &l.down {
@@ -485,17 +342,28 @@ impl Segmenter {
                     };
                     owned.push((engine.import(&l.subm)?, engine.import(&l.point)?, down));
                 }
-                let levels: Vec<LevelLayers<'_, GpuLayer>> = owned
+                let tables: Vec<Vec<GpuGather>> = geo
+                    .interp
                     .iter()
-                    .map(|(subm, point, down)| LevelLayers { subm, point, down: down.as_ref().map(|(d, u)| (d, u)) })
+                    .map(|per| per.iter().map(|t: &GatherTable| engine.gather_table(t)).collect())
+                    .collect::<std::result::Result<_, _>>()?;
+                let levels = owned
+                    .iter()
+                    .map(|(subm, point, down): &(GpuLayer, GpuLayer, Option<(GpuLayer, GpuLayer)>)| LevelLayers {
+                        subm,
+                        point,
+                        down: down.as_ref().map(|(d, u)| (d, u)),
+                    })
                     .collect();
-                forward_layers(&engine, &levels, geo, config, params, ws, feats, logits)
+                let interp = tables.iter().map(|per| per.iter().collect()).collect();
+                let prepared = Prepared::<GpuEngine> { levels, interp, rows };
+                forward(&engine, &prepared, config, &resident.params, &mut resident.ws, feats, readout)
             }
         }
     }
 }
 
-/// Where the network's convolutions run.
+/// Where the network runs.
 #[derive(Debug, Clone, Default)]
 pub enum Device {
     /// The CPU engine (the default).
@@ -515,107 +383,13 @@ impl Device {
     }
 }
 
-/// The layers of one level on one engine.
-struct LevelLayers<'a, L> {
-    subm: &'a L,
-    point: &'a L,
-    /// The strided layer to the next level and its transpose back.
-    down: Option<(&'a L, &'a L)>,
-}
-
-/// The whole forward pass on `engine`: encoder, decoder with cross-scale fusion, head. The
-/// element-wise steps (attention gates, interpolation, bias) run on the host.
-#[allow(clippy::too_many_arguments)]
-fn forward_layers<B: ConvBackend>(
-    engine: &B,
-    levels: &[LevelLayers<'_, B::Layer>],
-    geo: &NetGeometry,
-    config: &NetConfig,
-    p: &Params,
-    ws: &mut Workspace,
-    feats: &[f32],
-    logits: &mut [f32],
-) -> Result<()>
-where
-    NetError: From<B::Error>,
-{
-    let l = config.levels;
-    let c = |i: usize| config.channels(i);
-    let n = |i: usize| geo.levels[i].coords.len();
-    ws.enc.resize_with(l, Vec::new);
-    ws.dec.resize_with(l, Vec::new);
-
-    // Encoder.
-    {
-        let e0 = sized(&mut ws.enc[0], n(0) * c(0));
-        engine.forward_into(levels[0].subm, feats, config.in_channels, None, &p.input, c(0), e0, false)?;
-        p.extract[0].run(engine, levels[0].subm, e0, c(0), &mut ws.a)?;
-    }
-    for i in 1..l {
-        let (prev, rest) = ws.enc.split_at_mut(i);
-        let (bn, w) = &p.down[i - 1];
-        let e = sized(&mut rest[0], n(i) * c(i));
-        if let Some((down, _)) = levels[i - 1].down {
-            let x = &prev[i - 1][..n(i - 1) * c(i - 1)];
-            engine.forward_into(down, x, c(i - 1), Some(bn.bn()), w, c(i), e, false)?;
-        }
-        p.extract[i].run(engine, levels[i].subm, e, c(i), &mut ws.a)?;
-    }
-
-    // Decoder, coarse to fine, with the cross-scale fusion.
-    for t in (0..l.saturating_sub(1)).rev() {
-        let up = &p.up[t];
-        let (lower, higher) = ws.dec.split_at_mut(t + 1);
-        let d = sized(&mut lower[t], n(t) * c(t));
-        if let Some((_, tconv)) = levels[t].down {
-            let src: &[f32] = if t + 1 == l - 1 { &ws.enc[l - 1] } else { &higher[0] };
-            let x = &src[..n(t + 1) * c(t + 1)];
-            engine.forward_into(tconv, x, c(t + 1), Some(up.bn.bn()), &up.conv, c(t), d, false)?;
-        }
-        // The skip connection, added to the upsampled features.
-        engine.forward_into(levels[t].point, &ws.enc[t][..n(t) * c(t)], c(t), None, &up.skip, c(t), d, true)?;
-        up.block.run(engine, levels[t].subm, d, c(t), &mut ws.a)?;
-        for (q, w) in p.fuse.get(t).into_iter().flatten().enumerate() {
-            let j = t + 1 + q;
-            let dj = &higher[j - t - 1][..n(j) * c(j)];
-            let g = sized(&mut ws.g, n(j) * (c(t) + 1));
-            engine.forward_into(levels[j].point, dj, c(j), None, w, c(t) + 1, g, false)?;
-            gate(g, c(t));
-            interp_add(&geo.interp[t][q], g, c(t) + 1, c(t), d);
-        }
-    }
-
-    // Head.
-    let d0: &[f32] = if l == 1 { &ws.enc[0] } else { &ws.dec[0] };
-    let x = &d0[..n(0) * c(0)];
-    engine.forward_into(levels[0].point, x, c(0), Some(p.head_bn.bn()), &p.head_w, config.classes, logits, false)?;
-    let k = config.classes;
-    logits.par_chunks_mut(k * ROWS_PER_TASK).for_each(|blk| {
-        for row in blk.chunks_exact_mut(k) {
-            row.iter_mut().zip(&p.head_b).for_each(|(v, b)| *v += b);
-        }
-    });
-    Ok(())
-}
-
 /// The index of the largest score of every row of `k` scores (the first on ties): the class
 /// of each voxel from its logits.
 ///
 /// # Shapes
 /// `scores`: rows x `k`, row-major; the result has one entry per row.
 pub(crate) fn argmax_rows(scores: &[f32], k: usize) -> Vec<u8> {
-    scores
-        .chunks_exact(k.max(1))
-        .map(|row| {
-            let mut best = 0;
-            for (c, &s) in row.iter().enumerate() {
-                if s > row[best] {
-                    best = c;
-                }
-            }
-            best as u8
-        })
-        .collect()
+    semrecon_sparse::elementwise::argmax_rows(scores, k).into_iter().map(|c| c as u8).collect()
 }
 
 #[cfg(test)]
@@ -638,9 +412,9 @@ mod tests {
         {
             let fine: Vec<Coord> = (0..expected.len() as i32).map(|x| [x, 1, 0, 0]).collect();
             let anc: Vec<u32> = fine.iter().map(|c| (c[0] >> shift) as u32).collect();
-            let ip = interp_table(&fine, &anc, &nbr, shift);
+            let ip = interp_table(&fine, &anc, &nbr, shift).unwrap();
             let mut d = vec![0f32; fine.len()];
-            interp_add(&ip, &values, 1, 1, &mut d);
+            semrecon_sparse::elementwise::gather_add(&ip, &values, 1, 1, &mut d).unwrap();
             for (got, want) in d.iter().zip(&expected) {
                 assert!((got - want).abs() < 1e-6, "shift {shift}: {d:?} vs {expected:?}");
             }

@@ -7,8 +7,9 @@
 //! - [`weights`]: named tensors, safetensors files with `f16` storage, seeded initialisation;
 //! - [`geometry`]: kernel maps, chunk plans and interpolation tables of one input;
 //! - [`metrics`]: confusion matrix, per-class IoU, mIoU, accuracy;
-//! - [`inference`]: the fused forward on the sparse engine ([`Segmenter`]), on the CPU or,
-//!   with the cargo feature `gpu`, on the GPU engine ([`Device`]);
+//! - [`inference`]: inference on the sparse engines ([`Segmenter`]), on the CPU or, with the
+//!   cargo feature `gpu`, on the GPU engine ([`Device`]); the fused forward itself is one,
+//!   generic over the engine's tensors (`forward`, private);
 //! - [`reference`](mod@reference): a plain, unfused forward, the oracle of the tests;
 //! - [`surface`]: coloured, labelled point samples of a mesh surface (network input);
 //! - [`sample`]: voxelised, labelled rooms ([`VoxelSample`]), the unit of training and evaluation;
@@ -36,6 +37,7 @@ pub mod camera_colours;
 pub mod config;
 pub mod dataset;
 pub mod error;
+mod forward;
 pub mod geometry;
 pub mod inference;
 pub mod metrics;

@@ -64,6 +64,18 @@ pub enum SparseError {
     /// More rows than 32-bit row indices can address.
     #[error("{0} rows exceed the supported maximum of 2^32 - 2")]
     TooManyRows(usize),
+    /// An engine-owned tensor shorter than the shape an operation reads or writes.
+    #[error("{what}: a tensor of {len} values is shorter than the {rows} x {channels} an operation needs")]
+    TensorTooShort {
+        /// Which operand (`x`, `y`, `weights`, ...).
+        what: &'static str,
+        /// The tensor's length.
+        len: usize,
+        /// Rows the operation needs.
+        rows: usize,
+        /// Values per row.
+        channels: usize,
+    },
     /// A bad parameter (voxel size, chunk side, point coordinates, ...).
     #[error("invalid argument: {0}")]
     InvalidArgument(String),

@@ -13,7 +13,10 @@
 //!
 //! [`ConvBackend`] is the one kernel interface of every engine: [`CpuEngine`] here, the GPU
 //! engine in crate `semrecon-gpu`; the shared suite `backend_tests` (cargo feature
-//! `test-suite`) holds each to the reference.
+//! `test-suite`) holds each to the reference. [`ResidentBackend`] extends it with tensors the
+//! engine owns (host vectors on the CPU, device buffers on a GPU) and the element-wise steps
+//! of a network ([`elementwise`]), so that a whole network runs without leaving the device;
+//! `resident_tests` is its shared suite.
 //!
 //! All kernels are deterministic: the same bits for any number of rayon threads.
 //!
@@ -48,6 +51,7 @@ pub mod backend_tests;
 pub mod bench;
 mod block_index;
 pub mod chunked;
+pub mod elementwise;
 pub mod error;
 mod gemm;
 pub mod hash_map;
@@ -55,6 +59,9 @@ pub mod kernel_map;
 pub mod key;
 pub mod morton;
 pub mod reference;
+pub mod resident;
+#[cfg(any(test, feature = "test-suite"))]
+pub mod resident_tests;
 pub mod rulebook;
 mod scatter;
 pub mod tensor;
@@ -62,11 +69,13 @@ pub mod voxelize;
 
 pub use backend::{BnRelu, ConvAlgorithm, ConvBackend, CpuEngine};
 pub use chunked::{ChunkConfig, ChunkPlan, ChunkPlanArrays, ChunkedConv};
+pub use elementwise::GatherTable;
 pub use error::{Result, SparseError};
 pub use gemm::{simd_level, SimdLevel};
 pub use hash_map::{KeyHasher, VoxelHashMap};
 pub use kernel_map::{KernelMap, MapKind};
 pub use key::Coord;
+pub use resident::ResidentBackend;
 pub use tensor::SparseTensor;
 pub use voxelize::{voxelize, Voxelization};
 
@@ -78,5 +87,11 @@ mod cpu_suite {
     }
     mod rulebook {
         crate::backend_test_suite!(Some(crate::CpuEngine::new(crate::ConvAlgorithm::Rulebook)));
+    }
+    mod resident_chunked {
+        crate::resident_test_suite!(Some(crate::CpuEngine::new(crate::ConvAlgorithm::Chunked)));
+    }
+    mod resident_rulebook {
+        crate::resident_test_suite!(Some(crate::CpuEngine::new(crate::ConvAlgorithm::Rulebook)));
     }
 }
