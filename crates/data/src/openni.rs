@@ -799,6 +799,13 @@ impl Drop for OniCamera {
     fn drop(&mut self) {
         let api = self.api;
         let _serial = device_lock();
+        // A recording's player thread may still be handing over a frame it read on its own
+        // (at the streams' start, or ahead of a read): OpenNI 2.2's file driver crashed in that
+        // thread when `device_close` joined it mid-frame (about one close in ten under load).
+        // Giving it a few frame periods to come to rest first costs a recording's close 0.1 s.
+        if self.recorded_frames.is_some() {
+            std::thread::sleep(std::time::Duration::from_millis(100));
+        }
         // The streams are stopped and the device closed, but the streams are not destroyed:
         // destroying a recording's streams raced its player thread in OpenNI 2.2 (a crash about
         // one close in ten under load). Closing the device stops and joins that thread; the
