@@ -211,6 +211,9 @@ impl TsdfMap {
         // gather without bounds checks: larger images take the portable kernel.
         let kernel = if frame.intrinsics.pixel_count() >= 1 << 24 { Kernel::Portable } else { kernel };
         let mut stats = IntegrationStats::default();
+        // The camera came back to spilled chunks: read them (and their neighbours, which
+        // meshing will read) back before anything touches them.
+        self.restore_spilled(keys)?;
         let old_len = self.chunks.len();
         let unsorted = self.allocate_all(keys);
         // Chunks allocated above are the new ones.

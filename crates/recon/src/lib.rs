@@ -35,7 +35,10 @@ pub mod tracking;
 pub use error::{ReconError, Result};
 pub use fusion::{depth_weight, IntegrationStats};
 pub use loop_detection::{LoopConfig, LoopDetector, LoopRejection, LoopVerdict};
-pub use map::{Chunk, ChunkKey, TsdfConfig, TsdfMap, Voxel, CHUNK_SIDE, CHUNK_VOXELS};
+pub use map::{
+    Chunk, ChunkKey, Compaction, MapMemory, PackError, SpillError, SpillFile, TsdfConfig, TsdfMap, Voxel, CHUNK_SIDE,
+    CHUNK_VOXELS,
+};
 pub use marching_cubes::{
     extract_mesh, extract_mesh_with, mesh_chunk, mesh_chunk_with, ChunkMesh, IncrementalMesher, MeshConfig,
     MeshingStats, RemeshTolerance,

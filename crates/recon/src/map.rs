@@ -21,6 +21,16 @@ use rayon::prelude::*;
 
 use crate::error::{ReconError, Result};
 
+mod compressed;
+mod memory;
+mod spill;
+mod storage;
+
+pub use compressed::PackError;
+pub use memory::{Compaction, MapMemory};
+pub use spill::{SpillError, SpillFile};
+use storage::VoxelStore;
+
 /// Voxels along one side of a chunk.
 pub const CHUNK_SIDE: usize = 8;
 /// Voxels in one chunk.
@@ -441,7 +451,7 @@ impl VoxelBlock {
         signs.bits()
     }
 
-    fn empty() -> Box<Self> {
+    pub(crate) fn empty() -> Box<Self> {
         Box::new(Self { tsdf: [0; CHUNK_VOXELS], weight: [0; CHUNK_VOXELS], color: [[0; 4]; CHUNK_VOXELS] })
     }
 
@@ -463,7 +473,8 @@ impl VoxelBlock {
 #[derive(Debug, Clone)]
 pub struct Chunk {
     pub(crate) key: ChunkKey,
-    pub(crate) voxels: Box<VoxelBlock>,
+    /// The voxels, a plain block or packed when cold (reads see the same bits either way).
+    pub(crate) voxels: VoxelStore,
     pub(crate) dirty: bool,
     pub(crate) revision: u64,
     pub(crate) frames: FrameRuns,
@@ -474,7 +485,7 @@ pub struct Chunk {
 
 impl Chunk {
     fn new(key: ChunkKey) -> Self {
-        Self { key, voxels: VoxelBlock::empty(), dirty: false, revision: 0, signs: 0, frames: FrameRuns::default() }
+        Self { key, voxels: VoxelStore::Hot(VoxelBlock::empty()), dirty: false, revision: 0, signs: 0, frames: FrameRuns::default() }
     }
 
     /// The chunk's coordinates.
@@ -588,13 +599,21 @@ pub struct TsdfMap {
     /// disjoint chunks through `par_iter_mut`).
     pub(crate) chunks: Vec<Chunk>,
     pub(crate) next_revision: u64,
+    /// Spill file, budget and what happened to them.
+    pub(crate) memory: memory::MemoryState,
 }
 
 impl TsdfMap {
     /// An empty map; fails on an invalid configuration.
     pub fn new(config: TsdfConfig) -> Result<Self> {
         config.validate()?;
-        Ok(Self { config, index: HashMap::default(), chunks: Vec::new(), next_revision: 1 })
+        Ok(Self {
+            config,
+            index: HashMap::default(),
+            chunks: Vec::new(),
+            next_revision: 1,
+            memory: memory::MemoryState::default(),
+        })
     }
 
     /// The configuration.
@@ -613,13 +632,11 @@ impl TsdfMap {
         std::mem::size_of::<VoxelBlock>() + std::mem::size_of::<Chunk>() + std::mem::size_of::<(ChunkKey, u32)>() + 1
     }
 
-    /// Approximate heap bytes held by the map (voxels, chunk records with their frame runs,
-    /// hash table).
+    /// Approximate heap bytes held by the map in memory (hot voxel blocks, packed cold
+    /// chunks and unpacked copies of them, chunk records with their frame runs, hash table;
+    /// not the spill file): [`MapMemory::in_memory`] of [`TsdfMap::memory`].
     pub fn memory_bytes(&self) -> usize {
-        let voxels = self.chunks.len() * std::mem::size_of::<VoxelBlock>();
-        let records = self.chunks.capacity() * std::mem::size_of::<Chunk>();
-        let table = self.index.capacity() * (std::mem::size_of::<(ChunkKey, u32)>() + 1);
-        voxels + records + table
+        self.memory().in_memory()
     }
 
     /// The chunk at `key`, if allocated.
@@ -691,9 +708,8 @@ impl TsdfMap {
         for key in keys {
             if let Some(&slot) = self.index.get(key) {
                 let c = &mut self.chunks[slot as usize];
-                c.voxels.tsdf.fill(0);
-                c.voxels.weight.fill(0);
-                c.voxels.color.fill([0; 4]);
+                // A fresh block: a cold chunk is not unpacked only to be cleared.
+                c.voxels = VoxelStore::Hot(VoxelBlock::empty());
                 c.frames = FrameRuns::default();
                 c.signs = 0;
                 c.dirty = true;
@@ -794,7 +810,8 @@ mod tests {
     fn voxel_is_eight_bytes_and_chunk_four_kib() {
         assert_eq!(std::mem::size_of::<Voxel>(), 8);
         assert_eq!(std::mem::size_of::<VoxelBlock>(), 4096);
-        assert!(TsdfMap::bytes_per_chunk() < 4096 + 128);
+        // The record grew by 8 bytes with hot/cold storage (a tag beside the block pointer).
+        assert!(TsdfMap::bytes_per_chunk() < 4096 + 136, "{}", TsdfMap::bytes_per_chunk());
     }
 
     #[test]
