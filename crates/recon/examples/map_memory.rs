@@ -123,7 +123,9 @@ fn run(a: Args) -> Result<(), String> {
         for c in plain.chunks() {
             for i in 0..512 {
                 let w = c.stored_weights()[i];
-                if w == 0 { continue; }
+                if w == 0 {
+                    continue;
+                }
                 obs += 1;
                 let t = c.stored_tsdf()[i];
                 sat += (t.abs() >= 32767) as usize;
@@ -134,7 +136,13 @@ fn run(a: Args) -> Result<(), String> {
         }
         let entropy = |counts: Vec<usize>| -> f64 {
             let n: usize = counts.iter().sum();
-            counts.iter().map(|&c| { let p = c as f64 / n as f64; -p * p.log2() }).sum()
+            counts
+                .iter()
+                .map(|&c| {
+                    let p = c as f64 / n as f64;
+                    -p * p.log2()
+                })
+                .sum()
         };
         println!("observed {obs}: |tsdf| saturated {:.1}%, weight capped {:.1}%, weight entropy {:.2} bits, tsdf entropy {:.2} bits",
             100.0 * sat as f64 / obs as f64, 100.0 * capped as f64 / obs as f64,

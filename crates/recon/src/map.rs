@@ -485,7 +485,14 @@ pub struct Chunk {
 
 impl Chunk {
     fn new(key: ChunkKey) -> Self {
-        Self { key, voxels: VoxelStore::Hot(VoxelBlock::empty()), dirty: false, revision: 0, signs: 0, frames: FrameRuns::default() }
+        Self {
+            key,
+            voxels: VoxelStore::Hot(VoxelBlock::empty()),
+            dirty: false,
+            revision: 0,
+            signs: 0,
+            frames: FrameRuns::default(),
+        }
     }
 
     /// The chunk's coordinates.

@@ -353,3 +353,38 @@ mod tests {
         assert_eq!(unpack_into(&[0xff], &mut out), Err(PackError::Malformed("unknown flags")));
     }
 }
+
+#[cfg(test)]
+mod speed {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    #[ignore = "timing probe, run by hand"]
+    fn pack_unpack_speed() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let mut b = VoxelBlock::empty();
+        for i in 0..CHUNK_VOXELS {
+            if rng.random_range(0..4) > 0 {
+                b.tsdf[i] = rng.random_range(-2000..2000) + (i as i16) * 40;
+                b.weight[i] = rng.random_range(1..16000);
+                b.color[i] = [rng.random_range(100..120), 50, 60, rng.random_range(10..40)];
+            }
+        }
+        let n = 2000;
+        let t = std::time::Instant::now();
+        let mut p = pack(&b);
+        for _ in 0..n {
+            p = pack(std::hint::black_box(&b));
+        }
+        let pack_us = t.elapsed().as_secs_f64() * 1e6 / n as f64;
+        let mut out = VoxelBlock::empty();
+        let t = std::time::Instant::now();
+        for _ in 0..n {
+            unpack_into(std::hint::black_box(&p), &mut out).expect("decodes");
+        }
+        let unpack_us = t.elapsed().as_secs_f64() * 1e6 / n as f64;
+        println!("pack {pack_us:.1} us, unpack {unpack_us:.1} us, {} bytes", p.len());
+    }
+}

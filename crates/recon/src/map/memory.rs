@@ -270,9 +270,16 @@ impl TsdfMap {
             // kept as the read cache, as fusion or meshing is about to read it.
             let mut block = super::VoxelBlock::empty();
             super::compressed::unpack_into(&bytes, &mut block).map_err(|e| file.corrupt(record, e))?;
-            **cold = ColdVoxels { packed: Packed::Memory(bytes.into_boxed_slice()), thawed: OnceLock::from(block) };
+            **cold = ColdVoxels::new(Packed::Memory(bytes.into_boxed_slice()), OnceLock::from(block));
         }
         Ok(slots.len())
+    }
+
+    /// Drops every unpacked copy of a packed chunk that readers made (at the end of a scan,
+    /// when the readers are done; [`TsdfMap::compact`] keeps those read since the previous
+    /// compaction).
+    pub fn release_caches(&mut self) {
+        self.chunks.par_iter_mut().for_each(|c| c.voxels.drop_cache());
     }
 
     /// Reads every spilled chunk back into memory (before handing the map to code that

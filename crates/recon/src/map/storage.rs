@@ -7,8 +7,14 @@
 //! on first read into a cache that the next compaction drops again, so readers see exactly
 //! the bits of the hot chunk and need no change. A write (`DerefMut`: fusion, tests) turns
 //! the chunk hot for good. Hot chunks pay one predictable branch per access.
+//!
+//! Caches get a second chance (the CLOCK rule): a read marks the chunk, and a compaction
+//! drops the cache of a chunk only when no read marked it since the previous compaction.
+//! Readers that come back every keyframe (meshing the border of the view, the semantic
+//! context around changed chunks) would otherwise unpack the same chunks again and again.
 
 use std::ops::{Deref, DerefMut};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
 
 use super::compressed::{pack, unpack_into};
@@ -25,11 +31,26 @@ pub(crate) enum VoxelStore {
 }
 
 /// A packed chunk and the block it unpacks to when read.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub(crate) struct ColdVoxels {
     pub(crate) packed: Packed,
-    /// The unpacked block, made by the first read since the last compaction.
+    /// The unpacked block, made by the first read since the cache was last dropped.
     pub(crate) thawed: OnceLock<Box<VoxelBlock>>,
+    /// Set by reads, cleared by compactions (the cache's second chance).
+    pub(crate) read: AtomicBool,
+}
+
+impl ColdVoxels {
+    /// Packed bytes in memory, no cache yet.
+    pub(crate) fn new(packed: Packed, thawed: OnceLock<Box<VoxelBlock>>) -> Self {
+        Self { packed, thawed, read: AtomicBool::new(false) }
+    }
+}
+
+impl Clone for ColdVoxels {
+    fn clone(&self) -> Self {
+        Self { packed: self.packed.clone(), thawed: self.thawed.clone(), read: AtomicBool::new(false) }
+    }
 }
 
 /// Where the packed bytes are.
@@ -42,16 +63,27 @@ pub(crate) enum Packed {
 }
 
 impl VoxelStore {
-    /// Packs a hot block (cold ones stay as they are, their cache dropped).
+    /// Packs a hot block; a cold one drops its cache unless a read marked it since the last
+    /// call (then only the mark is cleared).
     pub(crate) fn freeze(&mut self) {
         match self {
             Self::Hot(b) => {
                 let packed = pack(b);
-                *self = Self::Cold(Box::new(ColdVoxels { packed: Packed::Memory(packed), thawed: OnceLock::new() }));
+                *self = Self::Cold(Box::new(ColdVoxels::new(Packed::Memory(packed), OnceLock::new())));
             }
             Self::Cold(c) => {
-                c.thawed.take();
+                if !std::mem::take(c.read.get_mut()) {
+                    c.thawed.take();
+                }
             }
+        }
+    }
+
+    /// Drops the unpacked cache of a cold chunk, read or not.
+    pub(crate) fn drop_cache(&mut self) {
+        if let Self::Cold(c) = self {
+            c.thawed.take();
+            *c.read.get_mut() = false;
         }
     }
 
@@ -91,7 +123,13 @@ impl VoxelStore {
     fn block(&self) -> &VoxelBlock {
         match self {
             Self::Hot(b) => b,
-            Self::Cold(c) => c.thawed.get_or_init(|| c.unpack()),
+            Self::Cold(c) => {
+                // Load before store: most reads find the mark set and leave the line shared.
+                if !c.read.load(Ordering::Relaxed) {
+                    c.read.store(true, Ordering::Relaxed);
+                }
+                c.thawed.get_or_init(|| c.unpack())
+            }
         }
     }
 
@@ -116,10 +154,10 @@ impl ColdVoxels {
         let mut block = VoxelBlock::empty();
         let result = match &self.packed {
             Packed::Memory(bytes) => unpack_into(bytes, &mut block).map_err(|e| e.to_string()),
-            Packed::Spilled(file, record) => {
-                file.read(record).and_then(|bytes| unpack_into(&bytes, &mut block).map_err(|e| file.corrupt(record, e)))
-                    .map_err(|e| e.to_string())
-            }
+            Packed::Spilled(file, record) => file
+                .read(record)
+                .and_then(|bytes| unpack_into(&bytes, &mut block).map_err(|e| file.corrupt(record, e)))
+                .map_err(|e| e.to_string()),
         };
         if let Err(e) = result {
             // No caller to hand an error to (a `&Chunk` read): this is an invariant broken
