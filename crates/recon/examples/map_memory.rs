@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 
 use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
 use semrecon_data::{FrameSource, LabeledMesh};
-use semrecon_recon::{extract_mesh, TsdfConfig, TsdfMap};
+use semrecon_recon::{extract_mesh, IncrementalMesher, MeshConfig, RemeshTolerance, TsdfConfig, TsdfMap};
 
 use flags::Flags;
 
@@ -79,7 +79,17 @@ fn run(a: Args) -> Result<(), String> {
         packed.set_memory_budget(budget, &dir.path().join("map.spill")).map_err(|e| e.to_string())?;
     }
     let (mut t_plain, mut t_packed, mut t_compact) = (Duration::ZERO, Duration::ZERO, Duration::ZERO);
+    // Keyframe meshing as the pipeline runs it (every 10 frames, at most 3072 chunks, right
+    // after a compaction): the reader that meets packed chunks most.
+    let mesher = || {
+        IncrementalMesher::with_config(MeshConfig::RECOMMENDED, RemeshTolerance::EXACT)
+            .map(|m| m.with_budget(std::num::NonZeroUsize::new(3072)))
+            .map_err(|e| e.to_string())
+    };
+    let (mut mesh_plain, mut mesh_packed) = (mesher()?, mesher()?);
+    let (mut tm_plain, mut tm_packed, mut keyframes) = (Duration::ZERO, Duration::ZERO, 0);
     let mut peak = 0;
+    let mut packs = 0;
     for i in 0..scan.len() {
         let frame = scan.frame(i).map_err(|e| e.to_string())?;
         let pose = frame.world_from_camera.ok_or("synthetic frames carry their pose")?;
@@ -97,11 +107,25 @@ fn run(a: Args) -> Result<(), String> {
                     let t = Instant::now();
                     let out = packed.compact(frame.index as u32, a.cold_after);
                     t_compact += t.elapsed();
+                    packs += out.packed;
                     for w in out.warnings {
                         eprintln!("warning: {w}");
                     }
                 }
                 peak = peak.max(packed.memory_bytes());
+            }
+        }
+        if i % 10 == 0 {
+            keyframes += 1;
+            for first in [i % 20 == 0, i % 20 != 0] {
+                let t = Instant::now();
+                if first {
+                    mesh_plain.update(&plain);
+                    tm_plain += t.elapsed();
+                } else {
+                    mesh_packed.update(&packed);
+                    tm_packed += t.elapsed();
+                }
             }
         }
     }
@@ -189,11 +213,12 @@ fn run(a: Args) -> Result<(), String> {
         end.cache_bytes
     );
     println!(
-        "fusion ms/frame: plain {:.2}, packed map {:.2} (+ compaction {:.2})",
+        "fusion ms/frame: plain {:.2}, packed map {:.2} (+ compaction {:.2}: {packs} chunks packed in all)",
         ms(t_plain, n),
         ms(t_packed, n),
         ms(t_compact, n)
     );
+    println!("keyframe meshing ms: plain {:.2}, packed map {:.2}", ms(tm_plain, keyframes), ms(tm_packed, keyframes));
     if a.check {
         packed.restore_all().map_err(|e| e.to_string())?;
         let same_voxels = plain.sorted_keys() == packed.sorted_keys()

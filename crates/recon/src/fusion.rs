@@ -253,6 +253,7 @@ impl TsdfMap {
             .map(|(chunk, &slot)| {
                 let is_new = slot as usize >= old_len;
                 let out = integrate_chunk_with(kernel, chunk, &view, fixed);
+                chunk.touched = chunk.touched.max(frame_id);
                 // A new chunk without a voxel in the band is freed below: no bookkeeping.
                 let kept = !is_new || out.near;
                 if out.updated > 0 && kept {

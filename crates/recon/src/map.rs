@@ -481,6 +481,10 @@ pub struct Chunk {
     /// Signs of the observed voxels, see [`SignSummary`]; meshing skips a chunk whose cells
     /// cannot see both signs.
     pub(crate) signs: u8,
+    /// The latest frame whose fusion selected the chunk, changed or not: compaction packs
+    /// only chunks that fusion has left alone for a while, since fusion unpacks every chunk
+    /// it selects (frame runs record only the frames that changed a voxel).
+    pub(crate) touched: u32,
 }
 
 impl Chunk {
@@ -492,6 +496,7 @@ impl Chunk {
             revision: 0,
             signs: 0,
             frames: FrameRuns::default(),
+            touched: 0,
         }
     }
 

@@ -15,7 +15,8 @@
 //! Lossless for every input: a chunk with an unobserved voxel that is not all zeros (which
 //! fusion never makes, but a caller of the map could) is packed densely, all 512 voxels.
 //!
-//! Layout: `[flags u8] [mask 64 bytes, sparse only] [stream length u16] [stream, LZ4 or raw]`.
+//! Layout: `[flags u8] [mask 64 bytes, sparse only] [stream length u16] [stream, LZ4 or raw]`;
+//! the stream is described at `residuals`.
 
 use super::{VoxelBlock, CHUNK_SIDE, CHUNK_VOXELS};
 
@@ -37,8 +38,9 @@ const LZ4: u8 = 1;
 const DENSE: u8 = 2;
 /// Bytes of the observed mask.
 const MASK_BYTES: usize = CHUNK_VOXELS / 8;
-/// Longest residual stream: per voxel at most 3 bytes of distance, 3 of weight, 4 of colour.
-const MAX_STREAM: usize = CHUNK_VOXELS * 10;
+/// Longest residual stream: two section lengths, then per voxel at most 3 bytes of
+/// distance, 3 of weight, 4 of colour.
+const MAX_STREAM: usize = 4 + CHUNK_VOXELS * 10;
 
 /// Packs `block` losslessly (see the module documentation).
 pub(crate) fn pack(block: &VoxelBlock) -> Box<[u8]> {
@@ -205,60 +207,86 @@ fn get_varint(s: &[u8], pos: &mut usize) -> Result<u16, PackError> {
     Err(PackError::Malformed("residual longer than 3 bytes"))
 }
 
-/// The residual stream: distances, then weights, then the four colour bytes, each section
-/// over the coded voxels in index order (sections apart, so equal residuals sit together).
+/// The residual stream: the byte lengths of the distance and weight sections (u16 each),
+/// then distances, weights and the four colour bytes, each section over the coded voxels in
+/// index order (sections apart, so equal residuals sit together for LZ4). One pass over the
+/// voxels fills all six sections.
 fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64]) -> Vec<u8> {
-    let coded_voxels: Vec<(usize, Neighbours)> =
-        (0..CHUNK_VOXELS).filter(|&i| coded(mask, i)).map(|i| (i, Neighbours::of(mask, i))).collect();
-    let mut out = Vec::with_capacity(coded_voxels.len() * 5);
-    for &(i, n) in &coded_voxels {
-        put_varint(&mut out, zigzag(block.tsdf[i].wrapping_sub(predict_tsdf(&block.tsdf, n))));
-    }
-    for &(i, n) in &coded_voxels {
-        let p = predict_weight(&block.weight, n);
-        put_varint(&mut out, zigzag(block.weight[i].wrapping_sub(p) as i16));
-    }
-    for k in 0..4 {
-        for &(i, n) in &coded_voxels {
-            let p = n.nearest().map_or(0, |j| block.color[j][k]);
-            out.push(block.color[i][k].wrapping_sub(p));
+    let n = mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
+    let mut tsdf = Vec::with_capacity(2 * n);
+    let mut weight = Vec::with_capacity(2 * n);
+    let mut color = [Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n)];
+    for (w, &word) in mask.iter().enumerate() {
+        let mut bits = word;
+        while bits != 0 {
+            let i = w * 64 + bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            let nb = Neighbours::of(mask, i);
+            put_varint(&mut tsdf, zigzag(block.tsdf[i].wrapping_sub(predict_tsdf(&block.tsdf, nb))));
+            put_varint(&mut weight, zigzag(block.weight[i].wrapping_sub(predict_weight(&block.weight, nb)) as i16));
+            let near = nb.nearest().map_or([0; 4], |j| block.color[j]);
+            for k in 0..4 {
+                color[k].push(block.color[i][k].wrapping_sub(near[k]));
+            }
         }
+    }
+    let mut out = Vec::with_capacity(4 + tsdf.len() + weight.len() + 4 * n);
+    // Each section is at most 3 bytes a voxel, 1536 bytes: the lengths fit in u16.
+    out.extend_from_slice(&(tsdf.len() as u16).to_le_bytes());
+    out.extend_from_slice(&(weight.len() as u16).to_le_bytes());
+    out.extend_from_slice(&tsdf);
+    out.extend_from_slice(&weight);
+    for c in &color {
+        out.extend_from_slice(c);
     }
     out
 }
 
 /// Inverts [`residuals`] into `block`; voxels outside `mask` become all zeros.
 fn decode(s: &[u8], mask: &[u64; CHUNK_VOXELS / 64], block: &mut VoxelBlock) -> Result<(), PackError> {
+    let short = PackError::Malformed("residual stream ends early");
+    let n = mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
+    let (lens, rest) = s.split_at_checked(4).ok_or(short.clone())?;
+    let (tsdf_len, weight_len) =
+        (u16::from_le_bytes([lens[0], lens[1]]) as usize, u16::from_le_bytes([lens[2], lens[3]]) as usize);
+    let (tsdf, rest) = rest.split_at_checked(tsdf_len).ok_or(short.clone())?;
+    let (weight, colors) = rest.split_at_checked(weight_len).ok_or(short.clone())?;
+    if colors.len() != 4 * n {
+        return Err(if colors.len() < 4 * n {
+            short
+        } else {
+            PackError::Malformed("residual stream longer than its voxels")
+        });
+    }
+    let color: [&[u8]; 4] = [&colors[..n], &colors[n..2 * n], &colors[2 * n..3 * n], &colors[3 * n..]];
     block.tsdf.fill(0);
     block.weight.fill(0);
     block.color.fill([0; 4]);
-    let coded_voxels: Vec<(usize, Neighbours)> =
-        (0..CHUNK_VOXELS).filter(|&i| coded(mask, i)).map(|i| (i, Neighbours::of(mask, i))).collect();
-    let mut pos = 0;
-    for &(i, n) in &coded_voxels {
-        let r = unzigzag(get_varint(s, &mut pos)?);
-        block.tsdf[i] = r.wrapping_add(predict_tsdf(&block.tsdf, n));
-    }
-    for &(i, n) in &coded_voxels {
-        let r = unzigzag(get_varint(s, &mut pos)?);
-        let p = predict_weight(&block.weight, n);
-        block.weight[i] = (r as u16).wrapping_add(p);
-    }
-    for k in 0..4 {
-        for &(i, n) in &coded_voxels {
-            let r = *s.get(pos).ok_or(PackError::Malformed("residual stream ends early"))?;
-            pos += 1;
-            let p = n.nearest().map_or(0, |j| block.color[j][k]);
-            block.color[i][k] = r.wrapping_add(p);
+    let dense = mask == &[u64::MAX; CHUNK_VOXELS / 64];
+    let (mut pt, mut pw, mut c) = (0, 0, 0);
+    for (w, &word) in mask.iter().enumerate() {
+        let mut bits = word;
+        while bits != 0 {
+            let i = w * 64 + bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            let nb = Neighbours::of(mask, i);
+            let r = unzigzag(get_varint(tsdf, &mut pt)?);
+            block.tsdf[i] = r.wrapping_add(predict_tsdf(&block.tsdf, nb));
+            let r = unzigzag(get_varint(weight, &mut pw)?);
+            block.weight[i] = (r as u16).wrapping_add(predict_weight(&block.weight, nb));
+            if !dense && block.weight[i] == 0 {
+                // A sparse chunk codes observed voxels only: the bytes were altered.
+                return Err(PackError::Malformed("an observed voxel decoded with weight 0"));
+            }
+            let near = nb.nearest().map_or([0; 4], |j| block.color[j]);
+            for k in 0..4 {
+                block.color[i][k] = color[k][c].wrapping_add(near[k]);
+            }
+            c += 1;
         }
     }
-    if pos != s.len() {
-        return Err(PackError::Malformed("residual stream longer than its voxels"));
-    }
-    if mask != &[u64::MAX; CHUNK_VOXELS / 64] && (0..CHUNK_VOXELS).any(|i| coded(mask, i) && block.weight[i] == 0) {
-        // A sparse chunk codes observed voxels only: a zero weight means the bytes were
-        // altered (a valid pack never produces it).
-        return Err(PackError::Malformed("an observed voxel decoded with weight 0"));
+    if pt != tsdf.len() || pw != weight.len() {
+        return Err(PackError::Malformed("residual sections longer than their voxels"));
     }
     Ok(())
 }

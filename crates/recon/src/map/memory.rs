@@ -80,9 +80,11 @@ pub struct Compaction {
 }
 
 impl Chunk {
-    /// The latest frame that changed the chunk (`None`: never, or cleared for re-fusion).
+    /// The latest frame that changed or selected the chunk (`None`: none yet, or frame 0
+    /// only).
     fn last_changed(&self) -> Option<u32> {
-        self.frames.runs().iter().map(|r| r.1).max()
+        let changed = self.frames.runs().iter().map(|r| r.1).max();
+        changed.max((self.touched > 0).then_some(self.touched))
     }
 
     /// Whether the voxels are packed (in memory or in the spill file).
@@ -115,7 +117,8 @@ impl TsdfMap {
         Ok(())
     }
 
-    /// The budget as asked and, when the chunks in view needed more, what it was raised to.
+    /// The budget as asked and, when the chunks in view needed more, the most they needed
+    /// (spilling still aims at the budget as asked once the view needs less).
     pub fn memory_budget(&self) -> Option<(usize, Option<usize>)> {
         self.memory.budget.map(|b| (b, self.memory.raised_to))
     }
@@ -175,7 +178,8 @@ impl TsdfMap {
             })
             .sum();
         let mut out = Compaction { packed, ..Compaction::default() };
-        if let Some(budget) = self.memory.raised_to.or(self.memory.budget) {
+        // Always aimed at the budget as asked: a raise lasts only while the view needs it.
+        if let Some(budget) = self.memory.budget {
             self.spill_over(budget, now, cold_after, &mut out);
         }
         out
@@ -230,12 +234,14 @@ impl TsdfMap {
         }
         if excess > 0 {
             // What is left is near the camera or recently fused: the budget must hold it.
+            // Reported at its largest; said again only when the need grows.
             let needed = self.memory().in_memory();
-            self.memory.raised_to = Some(needed.max(self.memory.raised_to.unwrap_or(0)));
-            out.warnings.push(format!(
-                "map memory budget of {} bytes is smaller than the chunks near the camera need; raised to {needed} bytes",
-                self.memory.budget.unwrap_or(budget)
-            ));
+            if self.memory.raised_to.is_none_or(|r| needed > r) {
+                self.memory.raised_to = Some(needed);
+                out.warnings.push(format!(
+                    "map memory budget of {budget} bytes is smaller than the chunks near the camera need; raised to {needed} bytes"
+                ));
+            }
         }
     }
 
