@@ -152,7 +152,7 @@ fn run(a: Args) -> Result<(), String> {
                 }
                 obs += 1;
                 let t = c.stored_tsdf()[i];
-                sat += (t.abs() >= 32767) as usize;
+                sat += (t.unsigned_abs() >= 32767) as usize;
                 capped += (w == 64 * 256) as usize;
                 *wh.entry(w).or_default() += 1;
                 *th.entry(t).or_default() += 1;

@@ -12,6 +12,9 @@
 //! observation count, so a
 //! chunk's voxels are exactly 4 KiB. Quantisation error is below 1e-4 of the truncation
 //! distance (0.002 mm at 5 mm voxels), far under sensor noise.
+//!
+//! Chunks fusion has left alone can be packed losslessly in memory or spilled to a file
+//! (submodules `compressed`, `storage`, `memory`, `spill`); readers see the same voxels.
 
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
