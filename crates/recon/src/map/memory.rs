@@ -298,3 +298,40 @@ impl TsdfMap {
         self.restore_spilled(&keys)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::map::TsdfConfig;
+
+    /// A spill file on a full disk: a warning naming the file, spilling stops, every chunk
+    /// stays (packed) in memory and reads as before.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_failing_spill_file_keeps_the_map_in_memory() {
+        let mut map = TsdfMap::new(TsdfConfig::default()).expect("valid");
+        for x in 0..20 {
+            let (slot, _) = map.allocate(IVec3::new(x, 0, 0));
+            let c = &mut map.chunks[slot as usize];
+            c.voxels.tsdf[x as usize] = 1000 + x as i16;
+            c.voxels.weight[x as usize] = 256;
+        }
+        let before: Vec<Vec<crate::Voxel>> = map.chunks().map(|c| c.voxels().collect()).collect();
+        let full = std::fs::OpenOptions::new().read(true).write(true).open("/dev/full").expect("/dev/full");
+        let file = Arc::new(SpillFile::for_test(std::path::PathBuf::from("/dev/full"), full));
+        // One reference is never dropped: dropping the last would delete the "file".
+        let keep = std::mem::ManuallyDrop::new(file.clone());
+        map.memory.spill = Some(file);
+        map.memory.budget = Some(1);
+        let out = map.compact(100, 1);
+        assert_eq!(out.packed, 20);
+        assert_eq!(out.spilled, 0);
+        assert!(out.warnings.iter().any(|w| w.contains("/dev/full") && w.contains("stays in memory")), "{out:?}");
+        assert_eq!(map.memory().packed_chunks, 20);
+        let after: Vec<Vec<crate::Voxel>> = map.chunks().map(|c| c.voxels().collect()).collect();
+        assert!(before == after);
+        // Spilling stays off: no second warning.
+        assert!(map.compact(200, 1).warnings.is_empty());
+        let _ = keep;
+    }
+}

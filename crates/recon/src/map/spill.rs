@@ -167,6 +167,15 @@ impl SpillFile {
     }
 }
 
+#[cfg(test)]
+impl SpillFile {
+    /// A spill file over an already open file (tests: `/dev/full`). Dropping the result
+    /// deletes `path`: keep a reference alive where `path` is not a temporary.
+    pub(crate) fn for_test(path: PathBuf, file: File) -> Self {
+        Self { path, file: Mutex::new((file, 0)) }
+    }
+}
+
 impl Drop for SpillFile {
     fn drop(&mut self) {
         // A temporary: nothing in it outlives the map.
@@ -205,6 +214,19 @@ mod tests {
         assert!(matches!(e, SpillError::Corrupt { .. }), "{e}");
         drop(f);
         assert!(!path.exists(), "deleted with the map");
+    }
+
+    /// A full disk: the write fails with an error naming the file, and nothing is indexed.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_full_disk_is_an_error_naming_the_file() {
+        let full = OpenOptions::new().read(true).write(true).open("/dev/full").expect("/dev/full");
+        // Never dropped, not even when an assertion fails: dropping deletes the file.
+        let f =
+            std::mem::ManuallyDrop::new(SpillFile { path: PathBuf::from("/dev/full"), file: Mutex::new((full, 0)) });
+        let e = f.append(IVec3::ZERO, &[1u8; 4096]).expect_err("no space");
+        assert!(e.to_string().contains("/dev/full") && e.to_string().contains("write"), "{e}");
+        assert_eq!(f.len(), 0);
     }
 
     #[test]
