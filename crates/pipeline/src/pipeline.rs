@@ -400,9 +400,14 @@ impl Pipeline {
         let t = Instant::now();
         let out = self.map.compact(frame.min(u32::MAX as usize) as u32, m.cold_after_frames);
         self.times.record("map compaction", t.elapsed());
-        for w in out.warnings {
-            // A budget raised again as the view grows: one warning, the latest figure.
-            const RAISED: &str = "map memory budget";
+        self.add_map_warnings(out.warnings);
+    }
+
+    /// Adds the map's warnings to the pipeline's; a budget raised again as the view grows
+    /// stays one warning, with the latest figure.
+    fn add_map_warnings(&mut self, warnings: Vec<String>) {
+        const RAISED: &str = "map memory budget";
+        for w in warnings {
             match self.warnings.iter_mut().find(|old| w.starts_with(RAISED) && old.starts_with(RAISED)) {
                 Some(old) => *old = w,
                 None => self.warnings.push(w),
@@ -562,14 +567,15 @@ impl Pipeline {
         }
         let mesh = self.mesh();
         if self.config.memory.cold_after_frames > 0 {
-            // The readers are done: the map goes back to its compact form (a compaction at
-            // the last frame, and no unpacked copies kept for readers that will not come).
+            // The readers are done: the map goes back to its compact form (no unpacked
+            // copies kept for readers that will not come, then a compaction at the last
+            // frame, which then sees only what the map itself holds).
             let t = Instant::now();
             let last = self.last_fused_index.min(u32::MAX as usize) as u32;
-            let out = self.map.compact(last, self.config.memory.cold_after_frames);
             self.map.release_caches();
+            let out = self.map.compact(last, self.config.memory.cold_after_frames);
             self.times.record("map compaction", t.elapsed());
-            self.warnings.extend(out.warnings);
+            self.add_map_warnings(out.warnings);
         }
         Ok(mesh)
     }
