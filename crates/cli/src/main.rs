@@ -7,6 +7,7 @@ mod commands;
 mod device;
 mod interrupt;
 mod live_view;
+mod map_report;
 mod progress;
 mod reconstruction;
 mod timing;

@@ -90,6 +90,16 @@ pub struct ReconArgs {
     /// change moves by more than this many voxels (default 0.5).
     #[arg(long)]
     pub min_chunk_move_voxels: Option<f32>,
+    /// Memory the TSDF map may use, e.g. 512M or 2G: past it the coldest chunks (packed, far
+    /// from the camera) are written to a spill file in the output folder and read back when
+    /// the camera returns; the output is the same. A budget below what the chunks near the
+    /// camera need is raised, with a warning, and report.json says so. Default: no budget.
+    #[arg(long, value_parser = crate::cli_values::parse_bytes)]
+    pub max_memory: Option<usize>,
+    /// Chunks that no frame changed for this many frames are packed in memory (lossless:
+    /// the output is the same bits); 0 keeps every chunk plain (4 KiB each).
+    #[arg(long, default_value_t = semrecon_pipeline::MapMemoryConfig::default().cold_after_frames)]
+    pub cold_after: u32,
 }
 
 /// Where the pose of each frame comes from.
@@ -192,8 +202,16 @@ pub fn pipeline_config(
     if let Some(stride) = recon.reintegration_stride {
         config.loop_closure.reintegration_stride = stride;
     }
+    config.memory.cold_after_frames = recon.cold_after;
+    config.memory.budget_bytes = recon.max_memory;
     config.validate().context("pipeline options")?;
     Ok(config)
+}
+
+/// Puts the map's spill file (used only under `--max-memory`) in the output folder `out`, as
+/// a hidden temporary named after the process (deleted when the map is).
+pub fn spill_in(config: &mut PipelineConfig, out: &Path) {
+    config.memory.spill_path = Some(out.join(format!(".semrecon-map-{}.spill", std::process::id())));
 }
 
 /// The network of `--model` (or the shipped model, or an untrained s20 when that is missing), `None` with `--semantics off`; with a

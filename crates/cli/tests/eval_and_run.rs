@@ -93,6 +93,32 @@ fn run_reconstructs_a_few_synthetic_frames() {
     assert_eq!(report["realtime"], false);
 }
 
+/// `--max-memory` spills packed chunks and changes no output byte; a budget below the
+/// chunks in view is raised and said so in report.json; the spill file does not outlive the
+/// run.
+#[test]
+fn run_within_a_memory_budget_writes_the_same_mesh() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let common = ["--frames", "0..12", "--voxel", "0.02", "--keyframe-every", "3", "--semantics", "off"];
+    let plain = dir.path().join("plain");
+    let budget = dir.path().join("budget");
+    run_ok("synth:3", &[&common[..], &["--cold-after", "0"]].concat(), &plain);
+    let out = run_ok("synth:3", &[&common[..], &["--cold-after", "1", "--max-memory", "1K"]].concat(), &budget);
+    let read = |d: &Path, f: &str| std::fs::read(d.join(f)).expect("output");
+    assert!(read(&plain, "mesh.ply") == read(&budget, "mesh.ply"), "same mesh bytes");
+    assert!(read(&plain, "trajectory.txt") == read(&budget, "trajectory.txt"), "same trajectory");
+    let report = read_report(&budget);
+    let m = &report["map_memory"];
+    assert_eq!(m["budget_bytes"], 1024, "{m}");
+    assert!(m["budget_raised_to"].as_u64().is_some_and(|r| r > 1024), "{m}");
+    assert!(m["surface_m2"].as_f64().is_some_and(|a| a > 0.1) && m["bytes_per_m2"].is_number(), "{m}");
+    assert!(m["packed_chunks"].as_u64().unwrap_or(0) + m["spilled_chunks"].as_u64().unwrap_or(0) > 0, "{m}");
+    assert_eq!(read_report(&plain)["map_memory"]["packed_chunks"], 0);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("raised to"), "summary line");
+    let left: Vec<_> = std::fs::read_dir(&budget).expect("dir").flatten().map(|e| e.file_name()).collect();
+    assert!(!left.iter().any(|n| n.to_string_lossy().ends_with(".spill")), "{left:?}");
+}
+
 #[test]
 fn run_in_real_time_keeps_every_frame_and_reports_the_lag() {
     let dir = tempfile::tempdir().expect("temp dir");

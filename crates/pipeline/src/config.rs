@@ -1,6 +1,7 @@
 //! Configuration of the live pipeline: the map, tracking, keyframes, and how semantics run.
 
 use std::num::NonZeroUsize;
+use std::path::PathBuf;
 
 use glam::{Affine3A, Vec3};
 use semrecon_recon::{MeshConfig, TrackerConfig, TsdfConfig};
@@ -87,6 +88,30 @@ impl Default for SemanticConfig {
     }
 }
 
+/// How the map keeps its memory down ([`semrecon_recon::TsdfMap::compact`]): chunks that no
+/// frame changed for a while are packed losslessly in memory, and past a budget the coldest
+/// are spilled to a file. The output is the same bits with any of these settings.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct MapMemoryConfig {
+    /// Chunks no fused frame changed for this many frames are packed (0: never pack). A
+    /// second at 30 Hz: the chunks in view stay plain, so fusion does not unpack them again.
+    pub cold_after_frames: u32,
+    /// Compaction runs every this many fused frames (at least 1).
+    pub compact_every: usize,
+    /// Bytes the map may hold in memory; past it the coldest packed chunks go to the spill
+    /// file (`None`: no budget, nothing spilled).
+    pub budget_bytes: Option<usize>,
+    /// The spill file (created new, deleted at the end); `None` puts it in the system's
+    /// temporary folder.
+    pub spill_path: Option<PathBuf>,
+}
+
+impl Default for MapMemoryConfig {
+    fn default() -> Self {
+        Self { cold_after_frames: 30, compact_every: 10, budget_bytes: None, spill_path: None }
+    }
+}
+
 /// Everything [`crate::Pipeline::new`] needs besides the camera and the network.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PipelineConfig {
@@ -119,6 +144,8 @@ pub struct PipelineConfig {
     /// Loop closure and global pose optimisation (tracking only: ground-truth poses need
     /// none).
     pub loop_closure: LoopClosureConfig,
+    /// Packing cold chunks and the memory budget.
+    pub memory: MapMemoryConfig,
 }
 
 impl Default for PipelineConfig {
@@ -133,6 +160,7 @@ impl Default for PipelineConfig {
             keyframe_every: 10,
             semantics: SemanticConfig::default(),
             loop_closure: LoopClosureConfig::default(),
+            memory: MapMemoryConfig::default(),
         }
     }
 }
@@ -151,6 +179,9 @@ impl PipelineConfig {
         let bad = |m: String| Err(PipelineError::InvalidConfig(m));
         if self.keyframe_every == 0 {
             return bad("keyframe_every must be at least 1".into());
+        }
+        if self.memory.compact_every == 0 {
+            return bad("memory.compact_every must be at least 1".into());
         }
         let s = &self.semantics;
         if !(s.tile_m.is_finite() && (0.05..=10.0).contains(&s.tile_m)) {

@@ -62,7 +62,7 @@ pub mod semantic_map;
 pub mod surface_cells;
 pub mod timing;
 
-pub use config::{PipelineConfig, PoseMode, SemanticConfig, SemanticMode, DEFAULT_MESH_BUDGET};
+pub use config::{MapMemoryConfig, PipelineConfig, PoseMode, SemanticConfig, SemanticMode, DEFAULT_MESH_BUDGET};
 pub use error::{PipelineError, Result};
 pub use gravity::{UpEstimate, UpSource};
 pub use live::{FeedStats, LiveFeed, LiveFrame};

@@ -42,9 +42,10 @@ const RELOCALISATION_EVERY: usize = 3;
 
 /// Stages the front end runs, and its waits for the back end (their sum is
 /// [`Pipeline::front_end_seconds`]).
-pub const FRONT_END_STAGES: [&str; 9] = [
+pub const FRONT_END_STAGES: [&str; 10] = [
     "tracking",
     "fusion",
+    "map compaction",
     "global pose optimisation",
     "map re-integration",
     "final map re-integration",
@@ -140,6 +141,8 @@ pub struct Pipeline {
     frames: usize,
     lost: usize,
     last_pose: Option<Affine3A>,
+    /// Index of the last fused frame (the clock of map compaction).
+    last_fused_index: usize,
     semantics: Option<Semantics>,
     /// Keyframe graph, loop detection and the frame store (tracking with loop closure on).
     loop_closure: Option<LoopClosure>,
@@ -160,7 +163,15 @@ impl Pipeline {
     /// An invalid configuration; a network that does not output the 13 classes.
     pub fn new(config: PipelineConfig, intrinsics: Intrinsics, net: Option<Segmenter>) -> Result<Self> {
         config.validate()?;
-        let map = TsdfMap::new(config.tsdf)?;
+        let mut map = TsdfMap::new(config.tsdf)?;
+        if let Some(budget) = config.memory.budget_bytes {
+            let path = config
+                .memory
+                .spill_path
+                .clone()
+                .unwrap_or_else(|| std::env::temp_dir().join(format!("semrecon-map-{}.spill", std::process::id())));
+            map.set_memory_budget(budget, &path).map_err(semrecon_recon::ReconError::from)?;
+        }
         let semantics = match net {
             None => None,
             Some(net) => {
@@ -211,6 +222,7 @@ impl Pipeline {
             frames: 0,
             lost: 0,
             last_pose: None,
+            last_fused_index: 0,
             semantics,
             loop_closure,
             warnings: Vec::new(),
@@ -302,6 +314,8 @@ impl Pipeline {
             _ => self.map.integrate(frame, pose)?,
         };
         self.times.record("fusion", t.elapsed());
+        self.last_fused_index = frame.index;
+        self.compact_map(frame.index);
         self.trajectory.push(frame.timestamp, pose);
         self.last_pose = Some(pose);
         self.fused += 1;
@@ -384,6 +398,32 @@ impl Pipeline {
         }
         if let Some(s) = &mut self.semantics {
             s.stale = true;
+        }
+    }
+
+    /// Every few fused frames: packs the chunks fusion left alone (lossless) and keeps the
+    /// map within its memory budget; the map's warnings (budget raised, spill file failed)
+    /// join the pipeline's, the latest of each kind kept.
+    fn compact_map(&mut self, frame: usize) {
+        let m = &self.config.memory;
+        if m.cold_after_frames == 0 || !self.fused.is_multiple_of(m.compact_every) {
+            return;
+        }
+        let t = Instant::now();
+        let out = self.map.compact(frame.min(u32::MAX as usize) as u32, m.cold_after_frames);
+        self.times.record("map compaction", t.elapsed());
+        self.add_map_warnings(out.warnings);
+    }
+
+    /// Adds the map's warnings to the pipeline's; a budget raised again as the view grows
+    /// stays one warning, with the latest figure.
+    fn add_map_warnings(&mut self, warnings: Vec<String>) {
+        const RAISED: &str = "map memory budget";
+        for w in warnings {
+            match self.warnings.iter_mut().find(|old| w.starts_with(RAISED) && old.starts_with(RAISED)) {
+                Some(old) => *old = w,
+                None => self.warnings.push(w),
+            }
         }
     }
 
@@ -537,7 +577,19 @@ impl Pipeline {
                 break;
             }
         }
-        Ok(self.mesh())
+        let mesh = self.mesh();
+        if self.config.memory.cold_after_frames > 0 {
+            // The readers are done: the map goes back to its compact form (no unpacked
+            // copies kept for readers that will not come, then a compaction at the last
+            // frame, which then sees only what the map itself holds).
+            let t = Instant::now();
+            let last = self.last_fused_index.min(u32::MAX as usize) as u32;
+            self.map.release_caches();
+            let out = self.map.compact(last, self.config.memory.cold_after_frames);
+            self.times.record("map compaction", t.elapsed());
+            self.add_map_warnings(out.warnings);
+        }
+        Ok(mesh)
     }
 
     /// Loop closure's account: loops tried (accepted and rejected, with their frames and

@@ -19,4 +19,7 @@ pub enum ReconError {
         /// What is wrong.
         message: String,
     },
+    /// The spill file of a map under a memory budget failed (see [`crate::map::SpillError`]).
+    #[error(transparent)]
+    Spill(#[from] crate::map::SpillError),
 }

@@ -237,6 +237,9 @@ impl TsdfMap {
         // gather without bounds checks: larger images take the portable kernel.
         let kernel = if frame.intrinsics.pixel_count() >= 1 << 24 { Kernel::Portable } else { kernel };
         let mut stats = IntegrationStats::default();
+        // The camera came back to spilled chunks: read them (and their neighbours, which
+        // meshing will read) back before anything touches them.
+        self.restore_spilled(keys)?;
         let old_len = self.chunks.len();
         let unsorted = self.allocate_all(keys);
         // Chunks allocated above are the new ones.
@@ -277,6 +280,7 @@ impl TsdfMap {
             .map(|(chunk, &slot)| {
                 let is_new = slot as usize >= old_len;
                 let out = integrate_chunk_with(kernel, chunk, &view, fixed);
+                chunk.touched = chunk.touched.max(frame_id);
                 // A new chunk without a voxel in the band is freed below: no bookkeeping.
                 let kept = !is_new || out.near;
                 if out.updated > 0 && kept {

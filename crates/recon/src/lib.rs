@@ -16,7 +16,9 @@
 //!
 //! Memory: a chunk costs [`TsdfMap::bytes_per_chunk`] bytes (4096 for its 512 voxels of 8
 //! bytes, the rest for its record, with up to 8 runs of the frames that touched it inline,
-//! and its hash entry). Revisiting a surface adds no chunks and no bytes. An [`IncrementalMesher`] with a
+//! and its hash entry) while plain; [`TsdfMap::compact`] packs chunks fusion has left alone
+//! (about 2.2 KB on the demo, lossless) and, past [`TsdfMap::set_memory_budget`], spills the
+//! coldest to a file ([`TsdfMap::memory`] says where the bytes are). Revisiting a surface adds no chunks and no bytes. An [`IncrementalMesher`] with a
 //! non-zero [`RemeshTolerance`] adds a 2112-byte snapshot per chunk with both signs.
 #![warn(missing_docs)]
 
@@ -35,7 +37,10 @@ pub mod tracking;
 pub use error::{ReconError, Result};
 pub use fusion::{depth_weight, IntegrationStats};
 pub use loop_detection::{LoopConfig, LoopDetector, LoopRejection, LoopVerdict};
-pub use map::{Chunk, ChunkKey, TsdfConfig, TsdfMap, Voxel, CHUNK_SIDE, CHUNK_VOXELS};
+pub use map::{
+    Chunk, ChunkKey, Compaction, MapMemory, PackError, SpillError, SpillFile, TsdfConfig, TsdfMap, Voxel, CHUNK_SIDE,
+    CHUNK_VOXELS,
+};
 pub use marching_cubes::{
     extract_mesh, extract_mesh_with, mesh_chunk, mesh_chunk_with, ChunkMesh, IncrementalMesher, MeshConfig,
     MeshingStats, RemeshTolerance,

@@ -12,6 +12,9 @@
 //! observation count, so a
 //! chunk's voxels are exactly 4 KiB. Quantisation error is below 1e-4 of the truncation
 //! distance (0.002 mm at 5 mm voxels), far under sensor noise.
+//!
+//! Chunks fusion has left alone can be packed losslessly in memory or spilled to a file
+//! (submodules `compressed`, `storage`, `memory`, `spill`); readers see the same voxels.
 
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
@@ -22,6 +25,15 @@ use rayon::prelude::*;
 use crate::error::{ReconError, Result};
 
 mod subset;
+mod compressed;
+mod memory;
+mod spill;
+mod storage;
+
+pub use compressed::PackError;
+pub use memory::{Compaction, MapMemory};
+pub use spill::{SpillError, SpillFile};
+use storage::VoxelStore;
 
 /// Voxels along one side of a chunk.
 pub const CHUNK_SIDE: usize = 8;
@@ -443,7 +455,7 @@ impl VoxelBlock {
         signs.bits()
     }
 
-    fn empty() -> Box<Self> {
+    pub(crate) fn empty() -> Box<Self> {
         Box::new(Self { tsdf: [0; CHUNK_VOXELS], weight: [0; CHUNK_VOXELS], color: [[0; 4]; CHUNK_VOXELS] })
     }
 
@@ -465,18 +477,31 @@ impl VoxelBlock {
 #[derive(Debug, Clone)]
 pub struct Chunk {
     pub(crate) key: ChunkKey,
-    pub(crate) voxels: Box<VoxelBlock>,
+    /// The voxels, a plain block or packed when cold (reads see the same bits either way).
+    pub(crate) voxels: VoxelStore,
     pub(crate) dirty: bool,
     pub(crate) revision: u64,
     pub(crate) frames: FrameRuns,
     /// Signs of the observed voxels, see [`SignSummary`]; meshing skips a chunk whose cells
     /// cannot see both signs.
     pub(crate) signs: u8,
+    /// The latest frame whose fusion selected the chunk, changed or not: compaction packs
+    /// only chunks that fusion has left alone for a while, since fusion unpacks every chunk
+    /// it selects (frame runs record only the frames that changed a voxel).
+    pub(crate) touched: u32,
 }
 
 impl Chunk {
     fn new(key: ChunkKey) -> Self {
-        Self { key, voxels: VoxelBlock::empty(), dirty: false, revision: 0, signs: 0, frames: FrameRuns::default() }
+        Self {
+            key,
+            voxels: VoxelStore::Hot(VoxelBlock::empty()),
+            dirty: false,
+            revision: 0,
+            signs: 0,
+            frames: FrameRuns::default(),
+            touched: 0,
+        }
     }
 
     /// The chunk's coordinates.
@@ -590,13 +615,21 @@ pub struct TsdfMap {
     /// disjoint chunks through `par_iter_mut`).
     pub(crate) chunks: Vec<Chunk>,
     pub(crate) next_revision: u64,
+    /// Spill file, budget and what happened to them.
+    pub(crate) memory: memory::MemoryState,
 }
 
 impl TsdfMap {
     /// An empty map; fails on an invalid configuration.
     pub fn new(config: TsdfConfig) -> Result<Self> {
         config.validate()?;
-        Ok(Self { config, index: HashMap::default(), chunks: Vec::new(), next_revision: 1 })
+        Ok(Self {
+            config,
+            index: HashMap::default(),
+            chunks: Vec::new(),
+            next_revision: 1,
+            memory: memory::MemoryState::default(),
+        })
     }
 
     /// The configuration.
@@ -615,13 +648,11 @@ impl TsdfMap {
         std::mem::size_of::<VoxelBlock>() + std::mem::size_of::<Chunk>() + std::mem::size_of::<(ChunkKey, u32)>() + 1
     }
 
-    /// Approximate heap bytes held by the map (voxels, chunk records with their frame runs,
-    /// hash table).
+    /// Approximate heap bytes held by the map in memory (hot voxel blocks, packed cold
+    /// chunks and unpacked copies of them, chunk records with their frame runs, hash table;
+    /// not the spill file): [`MapMemory::in_memory`] of [`TsdfMap::memory`].
     pub fn memory_bytes(&self) -> usize {
-        let voxels = self.chunks.len() * std::mem::size_of::<VoxelBlock>();
-        let records = self.chunks.capacity() * std::mem::size_of::<Chunk>();
-        let table = self.index.capacity() * (std::mem::size_of::<(ChunkKey, u32)>() + 1);
-        voxels + records + table
+        self.memory().in_memory()
     }
 
     /// The chunk at `key`, if allocated.
@@ -693,9 +724,8 @@ impl TsdfMap {
         for key in keys {
             if let Some(&slot) = self.index.get(key) {
                 let c = &mut self.chunks[slot as usize];
-                c.voxels.tsdf.fill(0);
-                c.voxels.weight.fill(0);
-                c.voxels.color.fill([0; 4]);
+                // A fresh block: a cold chunk is not unpacked only to be cleared.
+                c.voxels = VoxelStore::Hot(VoxelBlock::empty());
                 c.frames = FrameRuns::default();
                 c.signs = 0;
                 c.dirty = true;
@@ -796,7 +826,8 @@ mod tests {
     fn voxel_is_eight_bytes_and_chunk_four_kib() {
         assert_eq!(std::mem::size_of::<Voxel>(), 8);
         assert_eq!(std::mem::size_of::<VoxelBlock>(), 4096);
-        assert!(TsdfMap::bytes_per_chunk() < 4096 + 128);
+        // The record grew by 8 bytes with hot/cold storage (a tag beside the block pointer).
+        assert!(TsdfMap::bytes_per_chunk() < 4096 + 136, "{}", TsdfMap::bytes_per_chunk());
     }
 
     #[test]

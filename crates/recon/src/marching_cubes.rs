@@ -39,7 +39,8 @@ mod incremental;
 mod reader_marks;
 mod triangles;
 use crate::map::{
-    key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, CHUNK_SIDE, CHUNK_VOXELS, TSDF_SCALE, WEIGHT_SCALE,
+    key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, VoxelBlock, CHUNK_SIDE, CHUNK_VOXELS, TSDF_SCALE,
+    WEIGHT_SCALE,
 };
 pub use incremental::{IncrementalMesher, MeshingStats, RemeshTolerance};
 use reader_marks::{ALL_READERS, CELL_READERS};
@@ -188,10 +189,10 @@ const SPLIT: [(u8, u8); PAD] = {
 /// one), read from the chunk that holds it; unobserved black when it is not allocated (the
 /// reference for [`PaddedBlock::color`]).
 #[cfg(test)]
-fn voxel_color(nb: &[Option<&Chunk>; 27], p: [usize; 3]) -> [u8; 4] {
+fn voxel_color(nb: &[Option<&VoxelBlock>; 27], p: [usize; 3]) -> [u8; 4] {
     let ((ox, ix), (oy, iy), (oz, iz)) = (SPLIT[p[0]], SPLIT[p[1]], SPLIT[p[2]]);
     match nb[ox as usize + 3 * oy as usize + 9 * oz as usize] {
-        Some(c) => c.voxels.color[ix as usize + CHUNK_SIDE * (iy as usize + CHUNK_SIDE * iz as usize)],
+        Some(c) => c.color[ix as usize + CHUNK_SIDE * (iy as usize + CHUNK_SIDE * iz as usize)],
         None => [0; 4],
     }
 }
@@ -253,10 +254,12 @@ const EDGE_KEY: [usize; 12] = {
 /// Bit of an observed voxel in [`PaddedBlock`]'s packed flags (bit 0: negative and observed).
 const OBSERVED: u8 = 2;
 
-/// The chunk and its 26 neighbours at `(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`, or None when
-/// the chunk's cells cannot hold a surface ([`PaddedBlock::may_have_surface`]). The chunk and
-/// its 7 upper neighbours are looked up first: most chunks stop there.
-fn neighbours_if_surface(map: &TsdfMap, key: ChunkKey) -> Option<[Option<&Chunk>; 27]> {
+/// The voxels of the chunk and its 26 neighbours at `(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`, or
+/// None when the chunk's cells cannot hold a surface ([`PaddedBlock::may_have_surface`]). The
+/// chunk and its 7 upper neighbours are looked up first: most chunks stop there. Each chunk's
+/// voxels are reached once here (a packed chunk unpacks, or its cache is found), not at every
+/// row the gathers copy.
+fn neighbours_if_surface(map: &TsdfMap, key: ChunkKey) -> Option<[Option<&VoxelBlock>; 27]> {
     let mut nb: [Option<&Chunk>; 27] = [None; 27];
     for &i in &UPPER {
         nb[i] = map.chunk(key + NEIGHBOUR_OFFSET[i]);
@@ -267,7 +270,7 @@ fn neighbours_if_surface(map: &TsdfMap, key: ChunkKey) -> Option<[Option<&Chunk>
     for &i in &OTHERS {
         nb[i] = map.chunk(key + NEIGHBOUR_OFFSET[i]);
     }
-    Some(nb)
+    Some(nb.map(|c| c.map(|c| &*c.voxels)))
 }
 
 /// Neighbour `i`'s offset `(i % 3, i / 3 % 3, i / 9) - 1`.
@@ -396,7 +399,7 @@ impl PaddedBlock {
     #[inline(never)]
     fn gather(
         &mut self,
-        nb: &[Option<&Chunk>; 27],
+        nb: &[Option<&VoxelBlock>; 27],
         min_weight: u16,
         weight: &mut [u16; PAD * PAD2],
         masks: &mut [(u16, u16); PAD2],
@@ -425,16 +428,16 @@ impl PaddedBlock {
                 let (t_row, w_row) = (&mut b.tsdf[dst + 1..dst + 1 + N], &mut weight[dst + 1..dst + 1 + N]);
                 match nb[nb_row + 1] {
                     Some(c) => {
-                        t_row.copy_from_slice(&c.voxels.tsdf[src..src + N]);
-                        w_row.copy_from_slice(&c.voxels.weight[src..src + N]);
+                        t_row.copy_from_slice(&c.tsdf[src..src + N]);
+                        w_row.copy_from_slice(&c.weight[src..src + N]);
                     }
                     None => w_row.fill(0),
                 }
                 // Padded x 9: local x 0 of the upper neighbour.
                 match nb[nb_row + 2] {
                     Some(c) => {
-                        b.tsdf[dst + 1 + N] = c.voxels.tsdf[src];
-                        weight[dst + 1 + N] = c.voxels.weight[src];
+                        b.tsdf[dst + 1 + N] = c.tsdf[src];
+                        weight[dst + 1 + N] = c.weight[src];
                     }
                     None => weight[dst + 1 + N] = 0,
                 }
@@ -459,7 +462,7 @@ impl PaddedBlock {
     /// the 19 other neighbours too. Row pieces are copied as in [`PaddedBlock::gather`]; only
     /// the x faces are read voxel by voxel.
     #[inline(never)]
-    fn gather_shell(&mut self, nb: &[Option<&Chunk>; 27], weight: &[u16; PAD * PAD2]) {
+    fn gather_shell(&mut self, nb: &[Option<&VoxelBlock>; 27], weight: &[u16; PAD * PAD2]) {
         const N: usize = CHUNK_SIDE;
         let min_weight = self.min_weight;
         // The gathered rows, padded x 1 ..= 8 and 2 ..= 9 (eight lanes twice, overlapping):
@@ -473,8 +476,8 @@ impl PaddedBlock {
                 }
             }
         }
-        let one = |c: Option<&Chunk>, j: usize| match c {
-            Some(c) => packed_voxel(c.voxels.tsdf[j], c.voxels.weight[j], min_weight),
+        let one = |c: Option<&VoxelBlock>, j: usize| match c {
+            Some(c) => packed_voxel(c.tsdf[j], c.weight[j], min_weight),
             None => 0,
         };
         // Rows of corners: their x faces (local -1 and 9) and their colours.
@@ -489,10 +492,10 @@ impl PaddedBlock {
                 let nb_row = 3 * oy as usize + 9 * oz as usize;
                 self.packed[dst] = one(nb[nb_row], src + N - 1);
                 self.packed[dst + PAD - 1] = one(nb[nb_row + 2], src + 1);
-                self.color[dst + PAD - 2] = nb[nb_row + 2].map_or([0; 4], |c| c.voxels.color[src]);
+                self.color[dst + PAD - 2] = nb[nb_row + 2].map_or([0; 4], |c| c.color[src]);
                 let row = &mut self.color[dst + 1..dst + 1 + N];
                 match nb[nb_row + 1] {
-                    Some(c) => row.copy_from_slice(&c.voxels.color[src..src + N]),
+                    Some(c) => row.copy_from_slice(&c.color[src..src + N]),
                     None => row.fill([0; 4]),
                 }
             }
@@ -509,8 +512,8 @@ impl PaddedBlock {
                     match nb[nb_row + 1] {
                         Some(c) => {
                             // Whole rows of the chunk as arrays: the loop vectorises.
-                            let t = &c.voxels.tsdf.as_chunks::<N>().0[row / N];
-                            let w = &c.voxels.weight.as_chunks::<N>().0[row / N];
+                            let t = &c.tsdf.as_chunks::<N>().0[row / N];
+                            let w = &c.weight.as_chunks::<N>().0[row / N];
                             let mut packed = [0i32; N];
                             for k in 0..N {
                                 packed[k] = packed_voxel(t[k], w[k], min_weight);
@@ -536,12 +539,12 @@ impl PaddedBlock {
     /// the reference for [`PaddedBlock::inner_gradient`] after
     /// [`PaddedBlock::gather_shell`].
     #[cfg(test)]
-    fn gradient(&self, nb: &[Option<&Chunk>; 27], i: usize, p: [usize; 3]) -> Vec3 {
+    fn gradient(&self, nb: &[Option<&VoxelBlock>; 27], i: usize, p: [usize; 3]) -> Vec3 {
         let outer = |q: [usize; 3]| -> Option<f32> {
             let ((ox, ix), (oy, iy), (oz, iz)) = (SPLIT[q[0]], SPLIT[q[1]], SPLIT[q[2]]);
             let c = nb[ox as usize + 3 * oy as usize + 9 * oz as usize]?;
             let j = ix as usize + CHUNK_SIDE * (iy as usize + CHUNK_SIDE * iz as usize);
-            (c.voxels.weight[j] >= self.min_weight).then_some(c.voxels.tsdf[j] as f32)
+            (c.weight[j] >= self.min_weight).then_some(c.tsdf[j] as f32)
         };
         let t = self.tsdf[i] as f32;
         let mut g = [0.0f32; 3];

@@ -26,7 +26,7 @@ use glam::{Affine3A, IVec3, Vec3};
 use rayon::prelude::*;
 use semrecon_data::Intrinsics;
 
-use crate::map::{depth_noise, split_voxel, BandModel, ChunkKey, TsdfMap, VoxelBlock, CHUNK_SIDE, TSDF_SCALE};
+use crate::map::{depth_noise, split_voxel, BandModel, Chunk, ChunkKey, TsdfMap, VoxelBlock, CHUNK_SIDE, TSDF_SCALE};
 
 /// A predicted view of the map from one camera pose.
 ///
@@ -70,7 +70,9 @@ struct ChunkGrid<'a> {
     /// The voxels of the chunk per cell (one pointer to follow, not slab record, then
     /// chunk record, then voxel box: each a likely cache miss on a large map); empty when
     /// falling back.
-    slots: Vec<Option<&'a VoxelBlock>>,
+    /// The chunk record, not its voxels: a packed (cold) chunk unpacks only when a ray
+    /// reaches it.
+    slots: Vec<Option<&'a Chunk>>,
     /// One bit per cell, set where a chunk is allocated: most lookups of a march are in
     /// empty space, and this 64x smaller array stays in cache where `slots` (megabytes)
     /// costs a memory access per lookup.
@@ -98,7 +100,7 @@ impl<'a> ChunkGrid<'a> {
         for c in &map.chunks {
             let l = c.key - min;
             let i = (l.x + dims.x * (l.y + dims.y * l.z)) as usize;
-            slots[i] = Some(&*c.voxels);
+            slots[i] = Some(c);
             occupied[i / 64] |= 1 << (i % 64);
         }
         Self { min, dims, slots, occupied }
@@ -143,7 +145,7 @@ impl<'a> VoxelReader<'a> {
         if self.grid.occupied[i / 64] & (1 << (i % 64)) == 0 {
             None
         } else {
-            self.grid.slots[i]
+            self.grid.slots[i].map(|c| &*c.voxels)
         }
     }
 

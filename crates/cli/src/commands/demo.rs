@@ -20,10 +20,11 @@ use semrecon_eval::{evaluate_mesh, evaluate_trajectory, MeshEvalConfig, Trajecto
 use semrecon_pipeline::{FrameStatus, Pipeline};
 use serde::Serialize;
 
+use crate::map_report::MapMemoryReport;
 use crate::progress::{progress_bar, spinner};
 use crate::reconstruction::{
     labelled_share, load_network, loop_closure_json, loop_closure_summary, pipeline_config, prepare_output_dir,
-    semantic_score, write_outputs, ReconArgs, SemanticArgs,
+    semantic_score, spill_in, write_outputs, ReconArgs, SemanticArgs,
 };
 use crate::timing::{print_table, stages_json};
 
@@ -94,6 +95,8 @@ struct Report {
     stages: serde_json::Value,
     chunks: usize,
     memory_mb: f64,
+    /// Where the map's bytes are, bytes per square metre of surface, the memory budget.
+    map_memory: MapMemoryReport,
     mesh_vertices: usize,
     mesh_triangles: usize,
 }
@@ -103,7 +106,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let command_start = Instant::now();
     anyhow::ensure!(args.frames > 0, "--frames must be at least 1");
     prepare_output_dir(&args.out)?;
-    let config = pipeline_config(&args.recon, &args.semantics, false, None)?;
+    let mut config = pipeline_config(&args.recon, &args.semantics, false, None)?;
+    spill_in(&mut config, &args.out);
     let mut scan_config = SyntheticScanConfig::new(args.seed);
     scan_config.frames = args.frames;
     scan_config.vertical_sweep_deg = args.sweep;
@@ -201,6 +205,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         stages: stages_json(&times),
         chunks: map.chunk_count(),
         memory_mb: map.memory_bytes() as f64 / 1e6,
+        map_memory: MapMemoryReport::new(map, &mesh),
         mesh_vertices: mesh.vertex_count(),
         mesh_triangles: mesh.triangle_count(),
     };
@@ -237,10 +242,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         "wall time {wall:.1} s for the scan (includes rendering the synthetic input), {:.1} s in all with the evaluation and outputs",
         command_start.elapsed().as_secs_f64()
     );
-    println!(
-        "map: {} chunks, {:.0} MB; mesh: {} vertices, {} triangles",
-        report.chunks, report.memory_mb, report.mesh_vertices, report.mesh_triangles
-    );
+    println!("mesh: {} vertices, {} triangles", report.mesh_vertices, report.mesh_triangles);
+    println!("{}", report.map_memory.summary());
     println!("{}", loop_closure_summary(&report.loop_closure));
     for w in pipeline.warnings() {
         eprintln!("warning: {w}");

@@ -39,10 +39,11 @@ use semrecon_pipeline::{FrameStatus, Pipeline, UpEstimate};
 use serde::Serialize;
 
 use crate::live_view::{LiveView, ServeArgs};
+use crate::map_report::MapMemoryReport;
 use crate::progress::progress_bar;
 use crate::reconstruction::{
     dataset_up, finish_session, labelled_share, load_network, loop_closure_json, loop_closure_summary, pipeline_config,
-    prepare_output_dir, semantic_score, vertex_accuracy_mm, ReconArgs, SemanticArgs, MAX_WARNINGS,
+    prepare_output_dir, semantic_score, spill_in, vertex_accuracy_mm, ReconArgs, SemanticArgs, MAX_WARNINGS,
 };
 use crate::timing::{print_table, stages_json};
 
@@ -176,6 +177,8 @@ struct Report {
     labelled_vertices: f64,
     up: Option<UpJson>,
     memory_mb: f64,
+    /// Where the map's bytes are, bytes per square metre of surface, the memory budget.
+    map_memory: MapMemoryReport,
     chunks: usize,
     mesh_vertices: usize,
     mesh_triangles: usize,
@@ -201,7 +204,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         DatasetSpec::SevenScenes(dir) if source.has_ground_truth() => dataset_up(Some(dir))?,
         _ => None,
     };
-    let config = pipeline_config(&args.recon, &args.semantics, args.realtime, up)?;
+    let mut config = pipeline_config(&args.recon, &args.semantics, args.realtime, up)?;
+    spill_in(&mut config, &args.out);
     let (net, network) = load_network(&args.semantics, &args.device)?;
     let k = source.intrinsics();
     println!(
@@ -362,6 +366,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         labelled_vertices: labelled_share(&mesh),
         up: pipeline.up().map(UpJson::from),
         memory_mb: map.memory_bytes() as f64 / 1e6,
+        map_memory: MapMemoryReport::new(map, &mesh),
         chunks: map.chunk_count(),
         mesh_vertices: mesh.vertex_count(),
         mesh_triangles: mesh.triangle_count(),
@@ -404,10 +409,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         report.labelled_vertices * 100.0,
         miou.map_or(String::new(), |m| format!(", mIoU {:.1}% against the synthetic room", m * 100.0))
     );
-    println!(
-        "map: {} chunks, {:.1} MB; mesh: {} vertices, {} triangles",
-        report.chunks, report.memory_mb, report.mesh_vertices, report.mesh_triangles
-    );
+    println!("mesh: {} vertices, {} triangles", report.mesh_vertices, report.mesh_triangles);
+    println!("{}", report.map_memory.summary());
     if let Some(ate) = ate_rmse_m {
         println!("ATE rmse {:.4} m against the dataset's ground truth", ate);
     }

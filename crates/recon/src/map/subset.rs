@@ -27,6 +27,8 @@ impl TsdfMap {
             index: Default::default(),
             chunks: Vec::new(),
             next_revision: self.next_revision.saturating_add(revision_gap),
+            // No budget and no spill file: a successor holds a few chunks for a while.
+            memory: Default::default(),
         }
     }
 
