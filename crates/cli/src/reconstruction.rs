@@ -97,9 +97,12 @@ pub struct ReconArgs {
     #[arg(long, value_parser = crate::cli_values::parse_bytes)]
     pub max_memory: Option<usize>,
     /// Chunks that no frame changed for this many frames are packed in memory (lossless:
-    /// the output is the same bits); 0 keeps every chunk plain (4 KiB each).
-    #[arg(long, default_value_t = semrecon_pipeline::MapMemoryConfig::default().cold_after_frames)]
-    pub cold_after: u32,
+    /// the output is the same bits); 0 keeps every chunk plain (4 KiB each). Default: 30 with
+    /// `--max-memory`, else 0: packing saves about a fifth of a room scan's map (a third of
+    /// a whole home's) for about 3 ms a frame of compaction and slower final meshing
+    /// (docs/benchmarks_log.md, "Compact and out-of-core maps").
+    #[arg(long)]
+    pub cold_after: Option<u32>,
 }
 
 /// Where the pose of each frame comes from.
@@ -202,7 +205,11 @@ pub fn pipeline_config(
     if let Some(stride) = recon.reintegration_stride {
         config.loop_closure.reintegration_stride = stride;
     }
-    config.memory.cold_after_frames = recon.cold_after;
+    config.memory.cold_after_frames = recon.cold_after.unwrap_or(if recon.max_memory.is_some() {
+        semrecon_pipeline::MapMemoryConfig::default().cold_after_frames
+    } else {
+        0
+    });
     config.memory.budget_bytes = recon.max_memory;
     config.validate().context("pipeline options")?;
     Ok(config)
