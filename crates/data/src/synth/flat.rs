@@ -186,6 +186,10 @@ impl SyntheticFlat {
 /// Thickness of interior walls, metres.
 const WALL: f32 = 0.12;
 
+/// Width of the ways kept free of furniture from doorways to the middle of each room (and
+/// along a hall), metres: wide enough for a walk keeping 0.25 m from everything.
+const WALKWAY: f32 = 1.0;
+
 /// A room of the plan (world frame), with the walls that have daylight behind them.
 struct RoomPlan {
     name: &'static str,
@@ -462,7 +466,17 @@ fn build_room(
         let reach = if leaf.is_some() { 1.0 } else { 0.7 };
         let wall = layout.walls[k];
         keepouts.push(footprint(wall.point(s, reach * 0.5), d.width + 0.2, reach, wall.yaw));
+        // And a way in, from the doorway to the middle of the room: furnished rooms this size
+        // leave no other way through that is sure to be wide enough.
+        let middle = if k % 2 == 0 { plan.size.y * 0.5 } else { plan.size.x * 0.5 };
+        keepouts.push(footprint(wall.point(s, middle * 0.5), WALKWAY, middle, wall.yaw));
         passages.push((openings.len() - 1, side == 0, leaf));
+    }
+    // A narrow room (the hall) keeps a way along its middle, from end to end.
+    if plan.size.min_element() < 2.5 {
+        let (len, centre) = (plan.size.max_element() - 0.6, plan.size * 0.5);
+        let yaw = if plan.size.x >= plan.size.y { 0.0 } else { std::f32::consts::FRAC_PI_2 };
+        keepouts.push(footprint(centre, len, WALKWAY, yaw));
     }
     for r in keepouts {
         layout.add_keepout(r);
