@@ -148,7 +148,7 @@ impl SensorModel {
     /// The Kinect-like sensor uncalibrated and noisier, so that frame-to-model tracking
     /// drifts as it does on real scans (a few centimetres a minute) rather than by
     /// millimetres: [`SensorModel::kinect`] with 1.5 times the axial noise and a radial depth
-    /// bias of 1.5 % in the image corners ([`DepthBias`]). Zero-mean noise averages out in the
+    /// bias of 0.5 % in the image corners ([`DepthBias`]). Zero-mean noise averages out in the
     /// map; a bias that depends on where in the image a surface is seen does not, and bends
     /// each view differently, which is what makes the tracker drift (the depth scale stays
     /// exact: a scale error changes the size of the map, not its consistency, and loop
@@ -157,7 +157,7 @@ impl SensorModel {
         let mut model = Self::kinect();
         model.axial_noise =
             model.axial_noise.map(|a| AxialNoise { base: a.base * 1.5, quadratic: a.quadratic * 1.5, ..a });
-        model.depth_bias = Some(DepthBias { scale: 1.0, radial: 0.015 });
+        model.depth_bias = Some(DepthBias { scale: 1.0, radial: 0.005 });
         model
     }
 
