@@ -391,7 +391,7 @@ fn wall_s(plan: &RoomPlan, k: usize, at: f32) -> f32 {
 fn doorway_floor(plans: &[RoomPlan], d: &DoorPlan) -> Doorway {
     let (a, b) = (&plans[d.rooms[0]], &plans[d.rooms[1]]);
     let (lo, hi) = (d.at - d.width * 0.5, d.at + d.width * 0.5);
-    let (min, max) = if d.walls[0] % 2 == 0 {
+    let (min, max) = if d.walls[0].is_multiple_of(2) {
         // Walls along x: the gap is in y, between the two rooms' facing walls.
         let (y0, y1) = if a.min.y < b.min.y { (a.min.y + a.size.y, b.min.y) } else { (b.min.y + b.size.y, a.min.y) };
         (Vec2::new(lo, y0), Vec2::new(hi, y1))
@@ -468,7 +468,7 @@ fn build_room(
         keepouts.push(footprint(wall.point(s, reach * 0.5), d.width + 0.2, reach, wall.yaw));
         // And a way in, from the doorway to the middle of the room: furnished rooms this size
         // leave no other way through that is sure to be wide enough.
-        let middle = if k % 2 == 0 { plan.size.y * 0.5 } else { plan.size.x * 0.5 };
+        let middle = if k.is_multiple_of(2) { plan.size.y * 0.5 } else { plan.size.x * 0.5 };
         keepouts.push(footprint(wall.point(s, middle * 0.5), WALKWAY, middle, wall.yaw));
         passages.push((openings.len() - 1, side == 0, leaf));
     }
