@@ -57,6 +57,13 @@ fn info_reports_json_keys_for_a_synthetic_dataset() {
     }
     assert_eq!(v["width"], 640);
     assert_eq!(v["has_gt"], true);
+    // The flat and the two-room loop open too, with their default lengths.
+    for (spec, frames) in [("synth-flat:1:noisy", 9000), ("synth-loop:2", 1800), ("synth-loop:2:90s", 2700)] {
+        let o = semrecon(&["info", "--dataset", spec, "--json", "--depth-samples", "1"]);
+        assert!(o.status.success(), "{spec}: {}", stderr(&o));
+        let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("json");
+        assert_eq!(v["frames"], frames, "{spec}");
+    }
 }
 
 #[test]
@@ -142,6 +149,9 @@ fn bad_input_gives_errors_not_panics() {
     assert_clean_failure(&semrecon(&["info", "--dataset", "7scenes:/definitely/not/here"]), "/definitely/not/here");
     assert_clean_failure(&semrecon(&["info", "--dataset", "kinect:/x"]), "unknown dataset kind");
     assert_clean_failure(&semrecon(&["info", "--dataset", "synth:abc"]), "synth");
+    assert_clean_failure(&semrecon(&["info", "--dataset", "synth-flat:-3"]), "not a seed");
+    assert_clean_failure(&semrecon(&["info", "--dataset", "synth-loop:2:loud"]), "unknown option `loud`");
+    assert_clean_failure(&semrecon(&["info", "--dataset", "synth-loop:2:0s"]), "between 1 s");
     let dir = tempfile::tempdir().expect("tempdir");
     let empty = dir.path().to_str().expect("utf-8");
     assert_clean_failure(&semrecon(&["info", "--dataset", &format!("7scenes:{empty}")]), empty);

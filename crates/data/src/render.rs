@@ -780,6 +780,14 @@ impl RenderedScan {
     }
 }
 
+impl RenderedScan {
+    /// The same scan under another name (what [`FrameSource::name`] reports).
+    pub fn renamed(mut self, name: impl Into<String>) -> Self {
+        self.name = name.into();
+        self
+    }
+}
+
 impl FrameSource for RenderedScan {
     fn name(&self) -> String {
         self.name.clone()

@@ -80,6 +80,21 @@ pub struct EdgeDropout {
     pub probability: f32,
 }
 
+/// A systematic depth error of an uncalibrated sensor: every measured depth is multiplied by
+/// `scale * (1 + radial * r^2)`, `r` the distance of the pixel from the image centre over
+/// the half diagonal (1 in the corners). Structured-light cameras have both: a depth scale off
+/// by up to a percent or two and a low-frequency bias that bends a flat wall into a shallow
+/// bowl, largest towards the corners (Smisek, Jancosek and Pajdla 2011; Herrera, Kannala and
+/// Heikkila 2012). Unlike the noise it is the same in every frame, so it does not average
+/// out: each view sees the scene slightly differently bent, and the tracker drifts.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct DepthBias {
+    /// Factor on every depth (1 = exact).
+    pub scale: f32,
+    /// Relative depth error in the image corners (0 = none; positive: farther).
+    pub radial: f32,
+}
+
 /// Depth-sensor model: configuration of the errors added to a rendered frame.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SensorModel {
@@ -100,6 +115,9 @@ pub struct SensorModel {
     pub edge_dropout: Option<EdgeDropout>,
     /// Standard deviation of the colour noise per channel, in 0..255 units; 0 = none.
     pub color_sigma: f32,
+    /// Systematic depth error (calibration); `None` = none.
+    #[serde(default)]
+    pub depth_bias: Option<DepthBias>,
 }
 
 impl Default for SensorModel {
@@ -123,7 +141,24 @@ impl SensorModel {
             grazing_dropout: Some(GrazingDropout { cos_missing: 0.17, cos_kept: 0.34 }),
             edge_dropout: Some(EdgeDropout { relative_jump: 0.05, probability: 0.5 }),
             color_sigma: 2.0,
+            depth_bias: None,
         }
+    }
+
+    /// The Kinect-like sensor uncalibrated and noisier, so that frame-to-model tracking
+    /// drifts as it does on real scans (a few centimetres a minute) rather than by
+    /// millimetres: [`SensorModel::kinect`] with 1.5 times the axial noise and a radial depth
+    /// bias of 0.5 % in the image corners ([`DepthBias`]). Zero-mean noise averages out in the
+    /// map; a bias that depends on where in the image a surface is seen does not, and bends
+    /// each view differently, which is what makes the tracker drift (the depth scale stays
+    /// exact: a scale error changes the size of the map, not its consistency, and loop
+    /// closure could not correct it).
+    pub fn kinect_uncalibrated() -> Self {
+        let mut model = Self::kinect();
+        model.axial_noise =
+            model.axial_noise.map(|a| AxialNoise { base: a.base * 1.5, quadratic: a.quadratic * 1.5, ..a });
+        model.depth_bias = Some(DepthBias { scale: 1.0, radial: 0.005 });
+        model
     }
 
     /// A perfect sensor: [`SensorModel::apply`] changes nothing.
@@ -137,6 +172,7 @@ impl SensorModel {
             grazing_dropout: None,
             edge_dropout: None,
             color_sigma: 0.0,
+            depth_bias: None,
         }
     }
 
@@ -168,11 +204,21 @@ impl SensorModel {
                 .collect()
         });
         let color_noise = &color_noise;
+        // The bias's factor at (x, y), from the image centre's squared distance.
+        let (cx, cy) = ((w as f32 - 1.0) * 0.5, (h as f32 - 1.0) * 0.5);
+        let corner_sq = (cx * cx + cy * cy).max(1.0);
+        let bias = |x: usize, y: usize| match self.depth_bias {
+            Some(b) => {
+                let (dx, dy) = (x as f32 - cx, y as f32 - cy);
+                b.scale * (1.0 + b.radial * (dx * dx + dy * dy) / corner_sq)
+            }
+            None => 1.0,
+        };
         out.depth.par_chunks_mut(w).zip(out.color.par_chunks_mut(w)).enumerate().for_each(|(y, (depth, color))| {
             let mut rng = PixelNoise::new(row_seed(self.seed, frame_index as u64, y as u64));
             let image = Image { depth: clean, incidence, w, h };
             for x in 0..w {
-                depth[x] = self.measure(&image, lateral, x, y, &mut rng);
+                depth[x] = self.measure(&image, lateral, x, y, &mut rng) * bias(x, y);
                 if let Some(table) = &color_noise {
                     // One draw for the three channels, 21 bits each.
                     let bits = rng.next_u64();
@@ -371,6 +417,26 @@ mod tests {
             labels: vec![2; n],
             incidence: vec![cos; n],
         }
+    }
+
+    #[test]
+    fn depth_bias_bends_a_flat_wall_into_a_bowl() {
+        let model = SensorModel { depth_bias: Some(DepthBias { scale: 1.01, radial: 0.02 }), ..SensorModel::ideal() };
+        let mut out = flat(65, 49, 2.0, 1.0);
+        model.apply(&mut out, 0);
+        let at = |x: usize, y: usize| out.depth[y * 65 + x];
+        assert!((at(32, 24) - 2.02).abs() < 1e-5, "centre {}", at(32, 24));
+        assert!((at(0, 0) - 2.02 * 1.02).abs() < 1e-4, "corner {}", at(0, 0));
+        assert!(at(16, 24) > at(32, 24) && at(16, 24) < at(0, 24));
+        // The uncalibrated sensor differs from the calibrated one, deterministically.
+        let mut a = flat(64, 48, 2.0, 0.9);
+        let mut b = a.clone();
+        let mut c = a.clone();
+        SensorModel::kinect_uncalibrated().apply(&mut a, 2);
+        SensorModel::kinect_uncalibrated().apply(&mut b, 2);
+        SensorModel::kinect().apply(&mut c, 2);
+        assert_eq!(a, b);
+        assert_ne!(a.depth, c.depth);
     }
 
     #[test]

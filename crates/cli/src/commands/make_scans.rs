@@ -59,6 +59,11 @@ pub struct MakeScansArgs {
     /// from each seed, among the trained styles, when absent.
     #[arg(long)]
     style: Option<RoomStyle>,
+    /// Render through the uncalibrated sensor (more depth noise and a radial depth bias,
+    /// `SensorModel::kinect_uncalibrated`): reconstructions with the bent walls of an
+    /// uncalibrated camera, as `synth:SEED:noisy` sources give.
+    #[arg(long)]
+    noisy: bool,
     /// Rendered image size WxH (depth and colour).
     #[arg(long, default_value = "320x240", value_parser = parse_size)]
     size: (u32, u32),
@@ -181,6 +186,9 @@ fn make_room(
     config.frames = args.frames;
     config.style = args.style;
     config.intrinsics = config.intrinsics.scaled(args.size.0, args.size.1);
+    if args.noisy {
+        config.sensor = semrecon_data::SensorModel::kinect_uncalibrated().with_seed(seed);
+    }
     let (room, scan, style) = match library {
         Some(library) => {
             let split = if args.held_out { Split::HeldOut } else { Split::Train };

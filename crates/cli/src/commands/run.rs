@@ -32,7 +32,6 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use semrecon_data::atomic_file::write_atomic;
 use semrecon_data::datasets::{open_dataset, DatasetSpec};
-use semrecon_data::synth::{generate_room, RoomConfig};
 use semrecon_data::Trajectory;
 use semrecon_eval::{evaluate_trajectory, TrajectoryEvalConfig};
 use semrecon_pipeline::{FrameStatus, Pipeline, UpEstimate};
@@ -53,7 +52,11 @@ pub const MAX_CONSECUTIVE_FAILED_LOADS: usize = 30;
 /// Arguments of `semrecon run`.
 #[derive(clap::Args)]
 pub struct RunArgs {
-    /// Dataset as KIND:PATH (7scenes:, tum:, redwood:, scannet:, replica:, oni:FILE, bag:FILE, synth:SEED).
+    /// Dataset as KIND:PATH (7scenes:, tum:, redwood:, scannet:, replica:, oni:FILE, bag:FILE),
+    /// or a generated scene: synth:SEED (one room, 10 s), synth-loop:SEED (two rooms, a 60 s
+    /// loop through both), synth-flat:SEED (five rooms, a 5 min walk through all); options
+    /// after the seed: :noisy (uncalibrated sensor: tracking drifts by centimetres a minute),
+    /// :SECONDSs (length), e.g. synth-loop:3:noisy, synth-flat:1:600s.
     #[arg(long)]
     dataset: DatasetSpec,
     /// Frames to process as A..B (B excluded; either end may be left out): all by default.
@@ -322,10 +325,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     };
     // A synthetic dataset's labelled room is the geometric and semantic ground truth.
     let (mesh_accuracy_mm, miou) = match &args.dataset {
-        DatasetSpec::Synth(seed) if !mesh.triangles.is_empty() => {
-            let room = generate_room(&RoomConfig { seed: *seed, style: None });
-            let accuracy = vertex_accuracy_mm(&room.mesh, &mesh)?;
-            let miou = if pipeline.has_semantics() { semantic_score(&room.mesh, &mesh)?.map(|s| s.0) } else { None };
+        DatasetSpec::Synth(synthetic) if !mesh.triangles.is_empty() => {
+            let truth = synthetic.ground_truth()?;
+            let accuracy = vertex_accuracy_mm(&truth, &mesh)?;
+            let miou = if pipeline.has_semantics() { semantic_score(&truth, &mesh)?.map(|s| s.0) } else { None };
             (accuracy, miou)
         }
         _ => (None, None),

@@ -16,6 +16,8 @@ pub mod scannet;
 pub mod seven_scenes;
 pub mod spec;
 pub mod synthetic;
+pub mod synthetic_flat;
+pub mod synthetic_source;
 pub mod tum;
 
 pub use oni::Oni;
@@ -26,6 +28,8 @@ pub use scannet::ScanNet;
 pub use seven_scenes::{SevenScenes, SevenScenesWriter};
 pub use spec::{open_dataset, DatasetSpec};
 pub use synthetic::{synthetic_scan, synthetic_scan_of, SyntheticScanConfig};
+pub use synthetic_flat::{flat_layout, flat_scan_plan, synthetic_flat_scan};
+pub use synthetic_source::{SyntheticScene, SyntheticSource};
 pub use tum::Tum;
 
 use std::path::{Path, PathBuf};

@@ -1,18 +1,21 @@
 //! `KIND:PATH` dataset specifications (`7scenes:/data/redkitchen`, `tum:...`, `redwood:...`,
-//! `scannet:...`, `replica:...`, `oni:FILE`, `bag:FILE`, `synth:SEED`) as typed on the command line, and the one
-//! function that opens any of them as a boxed [`FrameSource`].
+//! `scannet:...`, `replica:...`, `oni:FILE`, `bag:FILE`, and the generated scenes `synth:SEED`,
+//! `synth-loop:SEED`, `synth-flat:SEED` with their options, see [`SyntheticSource`]) as typed
+//! on the command line, and the one function that opens any of them as a boxed
+//! [`FrameSource`].
 
 use std::fmt;
 use std::path::PathBuf;
 use std::str::FromStr;
 
-use crate::datasets::synthetic::{synthetic_scan, SyntheticScanConfig};
+use crate::datasets::synthetic_source::{SyntheticScene, SyntheticSource};
 use crate::datasets::{Oni, RealSenseBag, Redwood, Replica, ScanNet, SevenScenes, Tum};
 use crate::error::{DataError, Result};
 use crate::frame::FrameSource;
 
 /// The accepted kinds, for error messages.
-const KINDS: &str = "7scenes:PATH, tum:PATH, redwood:PATH, scannet:PATH, replica:PATH, oni:FILE, bag:FILE, synth:SEED";
+const KINDS: &str = "7scenes:PATH, tum:PATH, redwood:PATH, scannet:PATH, replica:PATH, oni:FILE, bag:FILE, \
+                     synth:SEED, synth-loop:SEED, synth-flat:SEED (options :noisy, :SECONDSs)";
 
 /// Which dataset reader to use on which folder (or which synthetic scene).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -31,8 +34,8 @@ pub enum DatasetSpec {
     Oni(PathBuf),
     /// A RealSense `.bag` recording (ROS 1 bag).
     Bag(PathBuf),
-    /// A procedurally generated room, rendered, from a seed.
-    Synth(u64),
+    /// A generated scene (a room, two rooms, a flat), rendered, from a seed and options.
+    Synth(SyntheticSource),
 }
 
 impl FromStr for DatasetSpec {
@@ -57,10 +60,17 @@ impl FromStr for DatasetSpec {
             "replica" => Self::Replica(path()),
             "oni" => Self::Oni(path()),
             "bag" => Self::Bag(path()),
-            "synth" => Self::Synth(rest.parse().map_err(|_| {
-                DataError::dataset(s, format!("`{rest}` is not a seed (a non-negative integer) for synth:SEED"))
-            })?),
-            _ => return Err(DataError::dataset(s, format!("unknown dataset kind `{kind}`; expected one of {KINDS}"))),
+            other => match SyntheticScene::from_kind(other) {
+                Some(scene) => {
+                    Self::Synth(SyntheticSource::parse(scene, rest).map_err(|why| DataError::dataset(s, why))?)
+                }
+                None => {
+                    return Err(DataError::dataset(
+                        s,
+                        format!("unknown dataset kind `{kind}`; expected one of {KINDS}"),
+                    ))
+                }
+            },
         })
     }
 }
@@ -75,7 +85,7 @@ impl fmt::Display for DatasetSpec {
             Self::Replica(p) => write!(f, "replica:{}", p.display()),
             Self::Oni(p) => write!(f, "oni:{}", p.display()),
             Self::Bag(p) => write!(f, "bag:{}", p.display()),
-            Self::Synth(seed) => write!(f, "synth:{seed}"),
+            Self::Synth(source) => write!(f, "{source}"),
         }
     }
 }
@@ -90,7 +100,7 @@ pub fn open_dataset(spec: &DatasetSpec) -> Result<Box<dyn FrameSource>> {
         DatasetSpec::Replica(p) => Box::new(Replica::open(p)?),
         DatasetSpec::Oni(p) => Box::new(Oni::open(p)?),
         DatasetSpec::Bag(p) => Box::new(RealSenseBag::open(p)?),
-        DatasetSpec::Synth(seed) => Box::new(synthetic_scan(&SyntheticScanConfig::new(*seed))?.1),
+        DatasetSpec::Synth(source) => Box::new(source.open()?.1),
     })
 }
 
@@ -109,6 +119,8 @@ mod tests {
             "oni:a.oni",
             "bag:/r/b.bag",
             "synth:42",
+            "synth-loop:3:noisy",
+            "synth-flat:1:600s",
         ] {
             let spec: DatasetSpec = s.parse().expect("valid");
             assert_eq!(spec.to_string(), s);
@@ -118,7 +130,7 @@ mod tests {
 
     #[test]
     fn bad_specs_list_the_kinds() {
-        for s in ["kinect:/x", "/just/a/path", "tum:", "synth:-1"] {
+        for s in ["kinect:/x", "/just/a/path", "tum:", "synth:-1", "synth-flat:2:loud", "synth-loop:x"] {
             let e = s.parse::<DatasetSpec>().expect_err(s).to_string();
             assert!(e.contains(s), "{e}");
         }
@@ -131,7 +143,7 @@ mod tests {
 
     #[test]
     fn synth_opens_a_rendered_scan() {
-        let source = open_dataset(&DatasetSpec::Synth(1)).expect("synth source");
+        let source = open_dataset(&DatasetSpec::Synth(SyntheticSource::room(1))).expect("synth source");
         assert_eq!(source.name(), "synth:1");
         assert!(source.has_ground_truth() && !source.is_empty());
     }

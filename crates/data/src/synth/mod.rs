@@ -13,15 +13,18 @@
 //!
 //! Inside: `shapes` (mesh builders), `shell` (the room's structure), `furniture`,
 //! `clutter`, `layout` (occupancy of floor and walls), `styles` (per-style recipes),
-//! `palette` (colours).
+//! `palette` (colours); [`flat`] puts several rooms together into a flat joined by doorways.
 
 pub(crate) mod clutter;
+pub mod flat;
 pub(crate) mod furniture;
 pub(crate) mod layout;
 pub(crate) mod palette;
 pub(crate) mod shapes;
 pub(crate) mod shell;
 mod styles;
+
+pub use flat::{generate_flat, FlatConfig, FlatKind, SyntheticFlat};
 
 use glam::{Vec2, Vec3};
 use rand::{Rng, SeedableRng};

@@ -249,7 +249,6 @@ pub(crate) fn add_pilaster(
 /// front of doors). At least one door and one window.
 pub(crate) fn plan_openings(layout: &mut Layout, rng: &mut ChaCha8Rng, style: RoomStyle) -> Vec<Opening> {
     let mut openings = Vec::new();
-    let h = layout.height;
     // A classroom has its windows along one long wall and its doors in the other.
     let classroom_walls = (style == RoomStyle::Classroom).then(|| {
         let long = if layout.width >= layout.depth { [0, 2] } else { [1, 3] };
@@ -325,26 +324,45 @@ pub(crate) fn plan_openings(layout: &mut Layout, rng: &mut ChaCha8Rng, style: Ro
             }
         }
     };
+    add_windows(layout, &mut openings, rng, &outside, style == RoomStyle::Classroom, true);
+    openings
+}
+
+/// Adds windows (one sill and head height for all) on the walls `outside`: 3-5 of them
+/// when `many`, else 1-4, at least one. When `any_wall` and the outside walls have no room
+/// left, any wall will do; rooms of a flat pass `false` (an inside wall has a neighbour
+/// behind it, not daylight).
+pub(crate) fn add_windows(
+    layout: &mut Layout,
+    openings: &mut Vec<Opening>,
+    rng: &mut ChaCha8Rng,
+    outside: &[usize],
+    many: bool,
+    any_wall: bool,
+) {
+    if outside.is_empty() {
+        return;
+    }
+    let h = layout.height;
     let sill = uniform(rng, 0.8, 1.0);
     let head = uniform(rng, 2.0, 2.2).min(h - 0.4);
     let mut windows = 0;
     let mut tries = 0;
-    let wanted = if style == RoomStyle::Classroom { rng.random_range(3..=5) } else { rng.random_range(1..=4) };
+    let wanted = if many { rng.random_range(3..=5) } else { rng.random_range(1..=4) };
     while (windows < wanted && tries < 60) || (windows == 0 && tries < 400) {
         tries += 1;
         let k = outside[rng.random_range(0..outside.len())];
-        let k = if tries > 200 { rng.random_range(0..4) } else { k };
+        let k = if tries > 200 && any_wall { rng.random_range(0..4) } else { k };
         let len = layout.walls[k].length;
         let ww = uniform(rng, 0.8, 1.8).min(len - 1.0);
         if ww < 0.6 {
             continue;
         }
         let s = uniform(rng, 0.4 + ww * 0.5, len - 0.4 - ww * 0.5);
-        if try_add_opening(layout, &mut openings, k, s, ww, sill, head, OpeningKind::Window, uniform(rng, 0.08, 0.2)) {
+        if try_add_opening(layout, openings, k, s, ww, sill, head, OpeningKind::Window, uniform(rng, 0.08, 0.2)) {
             windows += 1;
         }
     }
-    openings
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -404,6 +422,28 @@ pub(crate) fn build_shell(
     rng: &mut ChaCha8Rng,
     pal: &Palette,
 ) {
+    build_surfaces(b, layout, openings, rng, pal);
+    for o in openings {
+        let wall = layout.walls[o.wall];
+        b.place(wall.start.extend(0.0), wall.yaw);
+        match o.kind {
+            OpeningKind::Window => window(b, o, rng, pal),
+            OpeningKind::Door => door(b, o, rng, pal),
+        }
+    }
+    b.set_noise(0.06);
+}
+
+/// Emits floor, ceiling (with its light panels) and the four walls with holes for the
+/// `openings`, but nothing in the holes: [`build_shell`] fills them with panes and leaves, a
+/// flat's rooms fill some with passages to the next room instead.
+pub(crate) fn build_surfaces(
+    b: &mut MeshBuilder,
+    layout: &Layout,
+    openings: &[Opening],
+    rng: &mut ChaCha8Rng,
+    pal: &Palette,
+) {
     let (w, d, h) = (layout.width, layout.depth, layout.height);
     b.place(Vec3::ZERO, 0.0);
     b.set_noise(0.05);
@@ -427,15 +467,6 @@ pub(crate) fn build_shell(
     for k in 0..4 {
         wall_with_openings(b, layout, k, openings, pal.wall);
     }
-    for o in openings {
-        let wall = layout.walls[o.wall];
-        b.place(wall.start.extend(0.0), wall.yaw);
-        match o.kind {
-            OpeningKind::Window => window(b, o, rng, pal),
-            OpeningKind::Door => door(b, o, rng, pal),
-        }
-    }
-    b.set_noise(0.06);
 }
 
 /// Reveals of an opening (wall frame): the four sides of the hole between the wall plane
@@ -619,6 +650,69 @@ pub(crate) fn open_door(b: &mut MeshBuilder, o: &Opening, rng: &mut ChaCha8Rng, 
         }
         b.pop(saved);
     }
+}
+
+/// A door leaf standing open in a doorway of a flat: hinged at the opening's `s0` edge
+/// (`at_start`) or its `s1` edge, turned `angle` radians into the room from the wall.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Leaf {
+    pub(crate) at_start: bool,
+    pub(crate) angle: f32,
+}
+
+/// One side of a doorway between two rooms of a flat (b placed in the wall's frame, as for
+/// [`door`]): the casing around the opening on this side, the reveals lining the hole through
+/// the wall's `thickness` when `reveals` (one of the two rooms draws them, so that they are
+/// not doubled), and the leaf when it swings into this room. Unlike [`open_door`] nothing is
+/// made up behind the wall: the next room is really there. Returns the leaf's footprint in
+/// the wall frame (along the wall, into the room), for the scan planner to walk around.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn passage(
+    b: &mut MeshBuilder,
+    o: &Opening,
+    rng: &mut ChaCha8Rng,
+    pal: &Palette,
+    thickness: f32,
+    reveals_here: bool,
+    leaf: Option<Leaf>,
+) -> Option<Rect2> {
+    let casing_color = if rng.random_bool(0.5) { jitter(rng, pal.door, 0.02) } else { jitter(rng, pal.frame, 0.03) };
+    if reveals_here {
+        let through = Opening { recess: thickness, ..*o };
+        reveals(b, &through, SemanticClass::Door, SemanticClass::Floor, casing_color, pal.floor);
+    }
+    let (cw, ct) = (uniform(rng, 0.05, 0.09), uniform(rng, 0.01, 0.025));
+    for (s0, s1, z0, z1) in
+        [(o.s0 - cw, o.s0, 0.0, o.z1 + cw), (o.s1, o.s1 + cw, 0.0, o.z1 + cw), (o.s0, o.s1, o.z1, o.z1 + cw)]
+    {
+        b.cuboid(Vec3::new(s0, 0.0, z0), Vec3::new(s1, ct, z1), SKIP_NEG_Y, SemanticClass::Door, casing_color);
+    }
+    let leaf = leaf?;
+    let w = o.s1 - o.s0;
+    let leaf_color = jitter(rng, pal.door, 0.03);
+    let hinge = if leaf.at_start { o.s0 } else { o.s1 };
+    let yaw = if leaf.at_start { leaf.angle } else { std::f32::consts::PI - leaf.angle };
+    let saved = b.push(Vec3::new(hinge, 0.0, 0.0), yaw);
+    let (y_lo, y_hi) = if leaf.at_start { (-0.04, 0.0) } else { (0.0, 0.04) };
+    b.cuboid(
+        Vec3::new(0.01, y_lo, o.z0 + 0.01),
+        Vec3::new(w - 0.01, y_hi, o.z1 - 0.01),
+        0,
+        SemanticClass::Door,
+        leaf_color,
+    );
+    let metal = pal.neutral(rng);
+    for (a, c) in [(y_hi, y_hi + 0.05), (y_lo - 0.05, y_lo)] {
+        b.cuboid(Vec3::new(w - 0.14, a, 0.98), Vec3::new(w - 0.06, c, 1.02), 0, SemanticClass::Door, metal);
+    }
+    b.pop(saved);
+    // The leaf's box (handles included) turned about the hinge, as a floor footprint.
+    let (sin, cos) = yaw.sin_cos();
+    let corners = [(0.0, y_lo - 0.05), (w, y_lo - 0.05), (0.0, y_hi + 0.05), (w, y_hi + 0.05)]
+        .map(|(x, y): (f32, f32)| Vec2::new(hinge + x * cos - y * sin, x * sin + y * cos));
+    let lo = corners.iter().fold(Vec2::splat(f32::INFINITY), |a, c| a.min(*c));
+    let hi = corners.iter().fold(Vec2::splat(f32::NEG_INFINITY), |a, c| a.max(*c));
+    Some(Rect2::new(lo, hi.max(lo)))
 }
 
 #[cfg(test)]

@@ -5,12 +5,12 @@
 //! back to the start pose at the end so that loop closure can be tested. Speeds stay within
 //! what frame-to-frame tracking at 30 fps handles (below 40 degrees/s).
 //!
-//! The walk: a clearance grid of the floor (distance to walls and obstacle footprints),
-//! waypoints on an ellipse around the room centre snapped into free space, shortest grid
-//! paths between them, then smoothing that never gives up the clearance.
+//! The walk: a clearance grid of the floor (distance to walls and obstacle footprints,
+//! `grid`), waypoints on an ellipse around the room centre snapped into free space, shortest
+//! grid paths between them, then smoothing that never gives up the clearance (`walk`). A
+//! scan through a flat ([`ScanPlan::rooms`]) walks such a loop in every room in turn and
+//! passes from room to room through the doorways.
 
-use std::cmp::Reverse;
-use std::collections::BinaryHeap;
 use std::f32::consts::{PI, TAU};
 
 use glam::{Affine3A, Mat3, Vec2, Vec3};
@@ -19,6 +19,13 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::mesh::LabeledMesh;
+
+mod grid;
+mod walk;
+
+#[cfg(test)]
+use grid::clearance_at;
+use grid::ClearanceGrid;
 
 /// What a scan planner needs to know about a room (world frame, z up).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -61,6 +68,14 @@ pub struct ScanPlan {
     /// room sweeps the walls from floor to ceiling. Casual scans (the default) look level or down and rarely
     /// see the top third of a wall, where doors and boards end.
     pub vertical_sweep_deg: f32,
+    /// Rooms to walk through, in this order, as floor rectangles `(min, max)`; empty for a
+    /// single room. With rooms, [`Self::room`] describes the whole floor plan (its
+    /// rectangle bounds every room; walls between rooms are among its obstacles), the walk
+    /// goes round each room in turn and from room to room through the doorways the free
+    /// space leaves, then back to its start, and the gaze picks points in the room the
+    /// camera is in (see the `walk` module).
+    #[serde(default)]
+    pub rooms: Vec<(Vec2, Vec2)>,
 }
 
 /// Steepest gaze below the horizon, radians (50 degrees).
@@ -88,6 +103,7 @@ impl ScanPlan {
             max_turn_rate_deg: 22.0,
             jitter: 1.0,
             vertical_sweep_deg: 0.0,
+            rooms: Vec::new(),
         }
     }
 
@@ -264,42 +280,6 @@ impl ScanPlan {
             .collect())
     }
 
-    /// The closed walking loop through free space.
-    fn walk(&self, grid: &ClearanceGrid) -> crate::Result<Polyline> {
-        let room = &self.room;
-        let centre = (room.floor_min + room.floor_max) * 0.5;
-        let half = (room.floor_max - room.floor_min) * 0.5;
-        // Planned with a margin, so that smoothing has room to cut corners.
-        let want = self.clearance + 2.0 * CELL;
-        let semi = (half * 0.5).min(half - Vec2::splat(want)).max(Vec2::ZERO);
-        let mut waypoints = Vec::new();
-        for i in 0..12 {
-            let a = i as f32 / 12.0 * TAU;
-            let p = centre + semi * Vec2::new(a.cos(), a.sin());
-            if let Some(cell) = grid.nearest_with(p, want).or_else(|| grid.nearest_with(p, self.clearance)) {
-                if waypoints.last() != Some(&cell) {
-                    waypoints.push(cell);
-                }
-            }
-        }
-        let Some(&start) = waypoints.first() else {
-            return Err(crate::DataError::InvalidArgument(format!(
-                "no floor space {} m away from walls and obstacles in {:?}..{:?}",
-                self.clearance, room.floor_min, room.floor_max
-            )));
-        };
-        let mut cells = vec![start];
-        let mut from = start;
-        for &to in waypoints.iter().skip(1).chain(std::iter::once(&start)) {
-            if let Some(route) = grid.route(from, to, self.clearance) {
-                cells.extend(route.into_iter().skip(1));
-                from = to;
-            }
-        }
-        let raw: Vec<Vec2> = cells.iter().map(|&c| grid.centre(c)).collect();
-        Ok(Polyline::closed(smooth_loop(&raw, grid, self.clearance)))
-    }
-
     /// Gaze targets: (start time, point), each held for a few seconds; the last is the
     /// first again so that the scan ends looking where it began.
     fn gaze_targets(&self, rng: &mut ChaCha8Rng, eye: &[Vec3], heading: &[Vec2], duration: f32) -> Vec<(f32, Vec3)> {
@@ -325,9 +305,29 @@ impl ScanPlan {
             }
         }
         let at = |t: f32| ((t * self.frame_rate) as usize).min(eye.len() - 1);
+        // In a flat, only the room the camera is in can be seen (the doorway aside): the room
+        // holding the eye (its floor grown so that a camera in a doorway still counts), and
+        // the points on that room's floor or walls.
+        let room_of = |p: Vec2, margin: f32| {
+            self.rooms.iter().position(|(lo, hi)| {
+                p.cmpge(*lo - Vec2::splat(margin)).all() && p.cmple(*hi + Vec2::splat(margin)).all()
+            })
+        };
         let choose = |rng: &mut ChaCha8Rng, t: f32| -> Vec3 {
             let e = eye[at(t)];
             let h = heading[at(t)];
+            let here = room_of(e.truncate(), 0.35);
+            let visible = |p: &Vec3| match here {
+                Some(r) => {
+                    let (lo, hi) = self.rooms[r];
+                    p.truncate().cmpge(lo - Vec2::splat(0.06)).all() && p.truncate().cmple(hi + Vec2::splat(0.06)).all()
+                }
+                None => true,
+            };
+            let centre = match here {
+                Some(r) => ((self.rooms[r].0 + self.rooms[r].1) * 0.5).extend(floor + 0.8),
+                None => centre,
+            };
             let roll: f32 = rng.random();
             if roll < 0.15 {
                 // Down at a table or the floor ahead.
@@ -341,7 +341,7 @@ impl ScanPlan {
             // Prefer points ahead, not too close.
             let mut best = centre;
             let mut best_score = f32::NEG_INFINITY;
-            for p in &points {
+            for p in points.iter().filter(|p| visible(p)) {
                 let d = (*p - e).truncate();
                 let dist = d.length();
                 if dist < 0.5 {
@@ -366,10 +366,28 @@ impl ScanPlan {
             let z = p.z.clamp(e.z - reach * MAX_PITCH_DOWN.tan(), e.z + reach * MAX_PITCH_UP.tan());
             p.truncate().extend(z)
         };
+        // Walking into another room, look round it at once rather than at the last room's
+        // point, now behind a wall.
+        let mut entries = Vec::new();
+        if !self.rooms.is_empty() {
+            let mut current = room_of(eye[0].truncate(), 0.0);
+            for (i, e) in eye.iter().enumerate() {
+                let r = room_of(e.truncate(), 0.0);
+                if r.is_some() && r != current {
+                    current = r;
+                    // Once a little way in, so that the choice sees this room.
+                    entries.push(i as f32 / self.frame_rate + 0.3);
+                }
+            }
+        }
+        let mut entries = entries.into_iter().peekable();
         let first = choose(rng, 0.0);
         let mut targets = vec![(0.0, first)];
         let mut t = rng.random_range(3.0..5.0);
         while t < duration {
+            while let Some(e) = entries.next_if(|&e| e < t) {
+                targets.push((e, choose(rng, e)));
+            }
             targets.push((t, choose(rng, t)));
             t += rng.random_range(3.0..5.0);
         }
@@ -449,174 +467,6 @@ impl PeriodicNoise {
             let phase = *w * t + *p;
             acc + *a * Vec3::new(phase.x.sin(), phase.y.sin(), phase.z.sin())
         })
-    }
-}
-
-/// Distance to walls and obstacle footprints on a floor grid.
-struct ClearanceGrid {
-    origin: Vec2,
-    nx: usize,
-    ny: usize,
-    clearance: Vec<f32>,
-}
-
-impl ClearanceGrid {
-    fn new(room: &RoomLayout) -> Self {
-        let size = room.floor_max - room.floor_min;
-        let nx = ((size.x / CELL).ceil() as usize).max(1);
-        let ny = ((size.y / CELL).ceil() as usize).max(1);
-        let mut clearance = Vec::with_capacity(nx * ny);
-        for j in 0..ny {
-            for i in 0..nx {
-                let p = room.floor_min + Vec2::new((i as f32 + 0.5) * CELL, (j as f32 + 0.5) * CELL);
-                clearance.push(clearance_at(room, p));
-            }
-        }
-        Self { origin: room.floor_min, nx, ny, clearance }
-    }
-
-    fn centre(&self, c: usize) -> Vec2 {
-        self.origin + Vec2::new(((c % self.nx) as f32 + 0.5) * CELL, ((c / self.nx) as f32 + 0.5) * CELL)
-    }
-
-    /// The cell nearest to `p` with at least `min_clearance`.
-    fn nearest_with(&self, p: Vec2, min_clearance: f32) -> Option<usize> {
-        (0..self.clearance.len())
-            .filter(|&c| self.clearance[c] >= min_clearance)
-            .min_by(|&a, &b| self.centre(a).distance_squared(p).total_cmp(&self.centre(b).distance_squared(p)))
-    }
-
-    /// Shortest 8-connected route between two cells through cells with at least
-    /// `min_clearance`, preferring more clearance; `None` when unreachable.
-    fn route(&self, from: usize, to: usize, min_clearance: f32) -> Option<Vec<usize>> {
-        let n = self.clearance.len();
-        let mut cost = vec![f32::INFINITY; n];
-        let mut prev = vec![usize::MAX; n];
-        let mut heap = BinaryHeap::new();
-        cost[from] = 0.0;
-        heap.push(Reverse((0u64, from)));
-        while let Some(Reverse((c_bits, c))) = heap.pop() {
-            let c_cost = f32::from_bits(c_bits as u32);
-            if c == to {
-                break;
-            }
-            if c_cost > cost[c] {
-                continue;
-            }
-            let (ci, cj) = ((c % self.nx) as i64, (c / self.nx) as i64);
-            for (di, dj) in [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)] {
-                let (i, j) = (ci + di, cj + dj);
-                if i < 0 || j < 0 || i >= self.nx as i64 || j >= self.ny as i64 {
-                    continue;
-                }
-                let nb = j as usize * self.nx + i as usize;
-                if self.clearance[nb] < min_clearance {
-                    continue;
-                }
-                let step = if di != 0 && dj != 0 { std::f32::consts::SQRT_2 } else { 1.0 };
-                // Slightly cheaper far from obstacles, so routes keep to the middle.
-                let new_cost = c_cost + step * (1.0 + 0.3 / (1.0 + self.clearance[nb]));
-                if new_cost < cost[nb] {
-                    cost[nb] = new_cost;
-                    prev[nb] = c;
-                    // Non-negative floats order like their bit patterns.
-                    heap.push(Reverse((new_cost.to_bits() as u64, nb)));
-                }
-            }
-        }
-        if !cost[to].is_finite() {
-            return None;
-        }
-        let mut route = vec![to];
-        let mut c = to;
-        while c != from {
-            c = prev[c];
-            route.push(c);
-        }
-        route.reverse();
-        Some(route)
-    }
-
-    /// Clearance at `p`, from the nearest cell.
-    fn at(&self, p: Vec2) -> f32 {
-        let q = (p - self.origin) / CELL;
-        let i = (q.x.max(0.0) as usize).min(self.nx - 1);
-        let j = (q.y.max(0.0) as usize).min(self.ny - 1);
-        self.clearance[j * self.nx + i]
-    }
-}
-
-/// Distance from `p` to the walls and the nearest obstacle footprint (0 inside one).
-fn clearance_at(room: &RoomLayout, p: Vec2) -> f32 {
-    let wall = (p - room.floor_min).min(room.floor_max - p).min_element();
-    room.obstacles.iter().fold(wall, |acc, (lo, hi)| {
-        let d = (*lo - p).max(p - *hi).max(Vec2::ZERO);
-        acc.min(d.length())
-    })
-}
-
-/// Smooths a closed polyline by repeated circular averaging over about half a metre, then
-/// pulls back towards the unsmoothed route wherever the clearance would drop below
-/// `min_clearance` - one cell (the grid's resolution).
-fn smooth_loop(raw: &[Vec2], grid: &ClearanceGrid, min_clearance: f32) -> Vec<Vec2> {
-    let n = raw.len();
-    if n < 3 {
-        return raw.to_vec();
-    }
-    let half_window = 5usize.min((n - 1) / 2);
-    let mut pts = raw.to_vec();
-    for _ in 0..3 {
-        pts = (0..n)
-            .map(|i| {
-                let sum = (0..=2 * half_window).fold(Vec2::ZERO, |acc, k| acc + pts[(i + n + k - half_window) % n]);
-                sum / (2 * half_window + 1) as f32
-            })
-            .collect();
-    }
-    let limit = min_clearance - CELL;
-    for (p, &r) in pts.iter_mut().zip(raw) {
-        let mut t = 1.0;
-        while t > 0.0 && grid.at(r.lerp(*p, t)) < limit {
-            t -= 0.25;
-        }
-        *p = r.lerp(*p, t.max(0.0));
-    }
-    pts
-}
-
-/// A closed polyline with arc-length lookup.
-struct Polyline {
-    points: Vec<Vec2>,
-    /// Distance from the start to each point; the last entry closes the loop.
-    arc: Vec<f32>,
-}
-
-impl Polyline {
-    fn closed(mut points: Vec<Vec2>) -> Self {
-        points.dedup_by(|a, b| a.distance(*b) < 1e-4);
-        if let Some(&first) = points.first() {
-            points.push(first);
-        }
-        let mut arc = vec![0.0];
-        for w in points.windows(2) {
-            arc.push(arc.last().copied().unwrap_or(0.0) + w[0].distance(w[1]));
-        }
-        Self { points, arc }
-    }
-
-    fn length(&self) -> f32 {
-        self.arc.last().copied().unwrap_or(0.0)
-    }
-
-    fn at(&self, s: f32) -> Vec2 {
-        if self.points.len() < 2 {
-            return self.points.first().copied().unwrap_or(Vec2::ZERO);
-        }
-        let s = s.clamp(0.0, self.length());
-        let i = self.arc.partition_point(|&a| a <= s).clamp(1, self.points.len() - 1);
-        let (a, b) = (self.arc[i - 1], self.arc[i]);
-        let t = if b > a { (s - a) / (b - a) } else { 0.0 };
-        self.points[i - 1].lerp(self.points[i], t)
     }
 }
 
