@@ -33,6 +33,19 @@ impl ClearanceGrid {
         Self { origin: room.floor_min, nx, ny, clearance }
     }
 
+    /// The 8-connected neighbours of cell `c` inside the grid, each with whether the step
+    /// to it is diagonal.
+    fn neighbours(&self, c: usize) -> impl Iterator<Item = (usize, bool)> + '_ {
+        let (ci, cj) = ((c % self.nx) as i64, (c / self.nx) as i64);
+        [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)].into_iter().filter_map(
+            move |(di, dj): (i64, i64)| {
+                let (i, j) = (ci + di, cj + dj);
+                let inside = i >= 0 && j >= 0 && i < self.nx as i64 && j < self.ny as i64;
+                inside.then(|| (j as usize * self.nx + i as usize, di != 0 && dj != 0))
+            },
+        )
+    }
+
     pub(super) fn centre(&self, c: usize) -> Vec2 {
         self.origin + Vec2::new(((c % self.nx) as f32 + 0.5) * CELL, ((c / self.nx) as f32 + 0.5) * CELL)
     }
@@ -60,13 +73,7 @@ impl ClearanceGrid {
             stack.push(seed);
             while let Some(c) = stack.pop() {
                 size += 1;
-                let (ci, cj) = ((c % self.nx) as i64, (c / self.nx) as i64);
-                for (di, dj) in [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)] {
-                    let (i, j) = (ci + di, cj + dj);
-                    if i < 0 || j < 0 || i >= self.nx as i64 || j >= self.ny as i64 {
-                        continue;
-                    }
-                    let nb = j as usize * self.nx + i as usize;
+                for (nb, _) in self.neighbours(c) {
                     if label[nb] == usize::MAX && self.clearance[nb] >= min_clearance {
                         label[nb] = seed;
                         stack.push(nb);
@@ -104,17 +111,11 @@ impl ClearanceGrid {
             if c_cost > cost[c] {
                 continue;
             }
-            let (ci, cj) = ((c % self.nx) as i64, (c / self.nx) as i64);
-            for (di, dj) in [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)] {
-                let (i, j) = (ci + di, cj + dj);
-                if i < 0 || j < 0 || i >= self.nx as i64 || j >= self.ny as i64 {
-                    continue;
-                }
-                let nb = j as usize * self.nx + i as usize;
+            for (nb, diagonal) in self.neighbours(c) {
                 if self.clearance[nb] < min_clearance {
                     continue;
                 }
-                let step = if di != 0 && dj != 0 { std::f32::consts::SQRT_2 } else { 1.0 };
+                let step = if diagonal { std::f32::consts::SQRT_2 } else { 1.0 };
                 // Slightly cheaper far from obstacles, so routes keep to the middle.
                 let new_cost = c_cost + step * (1.0 + 0.3 / (1.0 + self.clearance[nb]));
                 if new_cost < cost[nb] {
