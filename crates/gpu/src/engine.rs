@@ -96,15 +96,38 @@ impl GpuEngine {
         y: &mut [f32],
         accumulate: bool,
     ) -> Result<()> {
+        self.on_host_buffers(x, bn, w, y, accumulate, |enc, xb, bnb, wb, yb| {
+            self.encode_chunked(enc, plan, kv, xb, c_in, bnb, wb, c_out, yb, accumulate)
+        })
+    }
+
+    /// Uploads `x`, `bn` (scale then shift), `w` and, with `accumulate`, `y` into transient
+    /// device buffers, records `encode` on them and reads the output back into `y`. Without
+    /// `accumulate` the output buffer is left as allocated: the chunked kernel writes every
+    /// row and the rulebook encoder clears it first.
+    fn on_host_buffers(
+        &self,
+        x: &[f32],
+        bn: Option<BnRelu<'_>>,
+        w: &[f32],
+        y: &mut [f32],
+        accumulate: bool,
+        encode: impl FnOnce(
+            &mut wgpu::CommandEncoder,
+            &wgpu::Buffer,
+            Option<&wgpu::Buffer>,
+            &wgpu::Buffer,
+            &wgpu::Buffer,
+        ) -> Result<()>,
+    ) -> Result<()> {
         let ctx = &*self.ctx;
         let xb = ctx.transient_upload("features", x)?;
         let wb = ctx.transient_upload("weights", w)?;
         let bnb = bn.map(|bn| ctx.transient_upload("batch norm", &[bn.scale, bn.shift].concat())).transpose()?;
-        // Every output row belongs to one chunk and is written: no clearing needed.
         let yb =
             if accumulate { ctx.transient_upload("output", y)? } else { ctx.transient("output", y.len() as u64 * 4)? };
         let mut enc = ctx.encoder();
-        self.encode_chunked(&mut enc, plan, kv, &xb, c_in, bnb.as_ref(), &wb, c_out, &yb, accumulate)?;
+        encode(&mut enc, &xb, bnb.as_ref(), &wb, &yb)?;
         let out: Vec<f32> = ctx.finish_and_read(enc, &yb, y.len())?;
         y.copy_from_slice(&out);
         Ok(())
@@ -175,18 +198,10 @@ impl GpuEngine {
         y: &mut [f32],
         accumulate: bool,
     ) -> Result<()> {
-        let ctx = &*self.ctx;
-        let xb = ctx.transient_upload("features", x)?;
-        let wb = ctx.transient_upload("weights", w)?;
-        let bnb = bn.map(|bn| ctx.transient_upload("batch norm", &[bn.scale, bn.shift].concat())).transpose()?;
-        let y_bytes = y.len() as u64 * 4;
-        let yb = if accumulate { ctx.transient_upload("output", y)? } else { ctx.transient("output", y_bytes)? };
-        let mut enc = ctx.encoder();
         let sizes = (x.len(), y.len());
-        self.encode_rulebook(&mut enc, layer, swap, &xb, c_src, bnb.as_ref(), &wb, c_dst, &yb, sizes, accumulate)?;
-        let out: Vec<f32> = ctx.finish_and_read(enc, &yb, y.len())?;
-        y.copy_from_slice(&out);
-        Ok(())
+        self.on_host_buffers(x, bn, w, y, accumulate, |enc, xb, bnb, wb, yb| {
+            self.encode_rulebook(enc, layer, swap, xb, c_src, bnb, wb, c_dst, yb, sizes, accumulate)
+        })
     }
 
     /// Records the rulebook kernels on device buffers (see [`Self::run_rulebook`]); `sizes`
