@@ -721,6 +721,23 @@ mod tests {
 
     use super::*;
 
+    /// Bulkheads added to `layout` with a palette drawn from `rng`: how many, and the
+    /// vertices of their beam-labelled triangles.
+    fn wall_beam_vertices(rng: &mut ChaCha8Rng, layout: &mut Layout, seed: u64) -> (usize, Vec<Vec3>) {
+        let pal = Palette::draw(rng);
+        let mut b = MeshBuilder::new(0.12, seed);
+        let added = add_wall_beams(&mut b, layout, rng, &pal);
+        let mesh = b.finish();
+        let vertices = mesh
+            .triangles
+            .iter()
+            .zip(&mesh.triangle_labels)
+            .filter(|(_, &l)| l == SemanticClass::Beam as u8)
+            .flat_map(|(t, _)| t.map(|i| mesh.positions[i as usize]))
+            .collect();
+        (added, vertices)
+    }
+
     /// Bulkheads hang from the ceiling against a wall, never below the clearance, and a
     /// window whose head reaches the drawn underside makes that wall's bulkhead shallower
     /// or leaves it out, never cut through.
@@ -734,18 +751,8 @@ mod tests {
             for k in 0..4 {
                 layout.reserve_wall(k, 1.0, 2.5, 0.8, 2.6);
             }
-            let pal = Palette::draw(&mut rng);
-            let mut b = MeshBuilder::new(0.12, seed);
-            let added = add_wall_beams(&mut b, &mut layout, &mut rng, &pal);
-            let mesh = b.finish();
+            let (added, beam_vertices) = wall_beam_vertices(&mut rng, &mut layout, seed);
             total += added;
-            let beam_vertices: Vec<Vec3> = mesh
-                .triangles
-                .iter()
-                .zip(&mesh.triangle_labels)
-                .filter(|(_, &l)| l == SemanticClass::Beam as u8)
-                .flat_map(|(t, _)| t.map(|i| mesh.positions[i as usize]))
-                .collect();
             assert_eq!(beam_vertices.is_empty(), added == 0, "seed {seed}");
             for p in beam_vertices {
                 assert!(p.z >= 2.65 - 1e-4 && p.z <= 3.2 + 1e-4, "seed {seed}: beam vertex at {p}");
@@ -764,17 +771,8 @@ mod tests {
         for seed in 0..40u64 {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
             let mut layout = Layout::new(6.0, 5.0, 3.1);
-            let pal = Palette::draw(&mut rng);
-            let mut b = MeshBuilder::new(0.12, seed);
-            add_wall_beams(&mut b, &mut layout, &mut rng, &pal);
-            let mesh = b.finish();
-            for (t, &l) in mesh.triangles.iter().zip(&mesh.triangle_labels) {
-                if l == SemanticClass::Beam as u8 {
-                    for i in t {
-                        lowest = lowest.min(mesh.positions[*i as usize].z);
-                    }
-                }
-            }
+            let (_, beam_vertices) = wall_beam_vertices(&mut rng, &mut layout, seed);
+            lowest = beam_vertices.iter().fold(lowest, |low, p| low.min(p.z));
         }
         assert!(lowest >= WALL_BEAM_CLEARANCE - 1e-4, "a bulkhead comes down to {lowest} m");
         assert!(lowest < 2.3, "no bulkhead deeper than 0.8 m in 40 rooms 3.1 m high (lowest {lowest} m)");
