@@ -14,7 +14,8 @@
 # sizes, e.g. VOXEL=0.25 CHANNELS=16 REPEATS=1 CROP=1.0).
 # Usage: bench/run_gpu_bench.sh [OUT_DIR]     (default target/gpu_bench)
 # Environment: VOXEL (0.05,0.02), CHANNELS (32,64,128), REPEATS (5), CONFIG (s20), CROP (metres
-#   of the room's corner for `bench net`; default the whole room), PYTHON (bench/.venv/bin/python
+#   of the room's corner for `bench net`; default the whole room), BIN (a semrecon binary
+#   built with `--features gpu` elsewhere, for a machine without cargo: no build), PYTHON (bench/.venv/bin/python
 #   when it exists, else python3; needs numpy, optionally torch with CUDA and spconv-cu12x).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -35,8 +36,12 @@ if [ -z "${XDG_RUNTIME_DIR:-}" ] || [ ! -d "${XDG_RUNTIME_DIR}" ]; then
 fi
 export WGPU_DEBUG=${WGPU_DEBUG:-0}
 mkdir -p "$OUT"
-cargo build --release -p semrecon --features gpu
-bin=./target/release/semrecon
+if [ -n "${BIN:-}" ]; then
+  bin=$BIN
+else
+  cargo build --release -p semrecon --features gpu
+  bin=./target/release/semrecon
+fi
 command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv || true
 crop=()
 [ -n "$CROP" ] && crop=(--crop "$CROP")

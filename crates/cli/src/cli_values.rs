@@ -1,6 +1,7 @@
 //! Parsers for command-line values shared by several subcommands (clap `value_parser`s).
 
 use glam::Vec3;
+use semrecon_sparse::ChunkConfig;
 
 /// `x,y,z` as three finite numbers.
 pub fn parse_vec3(s: &str) -> Result<Vec3, String> {
@@ -37,6 +38,27 @@ pub fn parse_bytes(s: &str) -> Result<usize, String> {
     Ok(bytes as usize)
 }
 
+/// A chunk shape `SIDE/LEVELS/REGION_ROWS` of the chunked kernels (see [`ChunkConfig`]), e.g.
+/// `16/2/512`: the side a power of two up to 64, 1 to 4 splitting levels, 1 to 65,536 rows.
+pub fn parse_chunk_shape(s: &str) -> Result<ChunkConfig, String> {
+    let bad = || format!("`{s}`: expected SIDE/LEVELS/REGION_ROWS, e.g. 16/2/512");
+    let parts: Vec<&str> = s.trim().split('/').collect();
+    let [side, levels, rows] = parts.as_slice() else { return Err(bad()) };
+    let side: u32 = side.parse().map_err(|_| bad())?;
+    let levels: u32 = levels.parse().map_err(|_| bad())?;
+    let rows: usize = rows.parse().map_err(|_| bad())?;
+    if !side.is_power_of_two() || side > 64 {
+        return Err(format!("`{s}`: the side must be a power of two up to 64"));
+    }
+    if !(1..=4).contains(&levels) || side >> (levels - 1) == 0 {
+        return Err(format!("`{s}`: 1 to 4 levels, and the smallest chunk at least 1 voxel wide"));
+    }
+    if !(1..=65_536).contains(&rows) {
+        return Err(format!("`{s}`: region rows must be 1 to 65536"));
+    }
+    Ok(ChunkConfig { chunk_side: side, levels, max_region_rows: rows })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -60,5 +82,14 @@ mod tests {
         assert!(parse_vec3("1,2").is_err());
         assert!(parse_vec3("1,2,nan").is_err());
         assert!(parse_vec3("a,b,c").is_err());
+    }
+
+    #[test]
+    fn chunk_shapes_parse_and_reject_nonsense() {
+        let shape = parse_chunk_shape("16/2/512").expect("valid");
+        assert_eq!((shape.chunk_side, shape.levels, shape.max_region_rows), (16, 2, 512));
+        for bad in ["16/2", "12/2/512", "128/1/512", "4/4/512", "8/0/256", "8/3/0", "a/b/c", ""] {
+            assert!(parse_chunk_shape(bad).is_err(), "{bad} accepted");
+        }
     }
 }

@@ -131,6 +131,13 @@ impl Segmenter {
         self.kernel = kernel;
     }
 
+    /// Cuts the chunked kernels' outputs into chunks of this shape from now on (default
+    /// [`ChunkConfig::default`], sized for CPU caches). Outputs are the same within summation
+    /// order; only the speed changes.
+    pub fn set_chunk(&mut self, chunk: ChunkConfig) {
+        self.chunk = chunk;
+    }
+
     /// Runs the network on `device` from now on (the CPU by default); the weights and
     /// results are the same, within 1e-4 relative (summation order). A GPU gets the weights
     /// on its first call and keeps them until the device changes again.

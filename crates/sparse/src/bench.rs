@@ -15,6 +15,7 @@ use crate::error::Result;
 use crate::gemm::gemm_rows;
 use crate::kernel_map::KernelMap;
 use crate::key::Coord;
+use crate::resident::ResidentBackend;
 use crate::rulebook;
 use crate::voxelize::voxelize;
 
@@ -345,6 +346,65 @@ pub fn run_conv_bench(
     })
 }
 
+/// Times the submanifold forward on an engine's own tensors (pass `forward_resident`): the
+/// layer prepared, input and weights uploaded once, then `batch` forwards recorded back to back
+/// and one read-back of a single value to wait for them, the fastest of `repeats` such rounds
+/// per forward. This is what a peer that keeps its tensors on the device measures (spconv's
+/// `SubMConv3d` timed between two `torch.cuda.synchronize()`), unlike [`run_backend_bench`]'s
+/// whole calls, which copy features in and out every time. On the CPU engine both are the same
+/// work. Returns `None` for an empty voxel set.
+///
+/// # Errors
+/// The engine's errors.
+#[allow(clippy::too_many_arguments)]
+pub fn run_resident_forward_bench<B: ResidentBackend>(
+    engine: &B,
+    scene: &str,
+    coords: &[Coord],
+    voxel_size: f32,
+    c_in: usize,
+    c_out: usize,
+    repeats: usize,
+    batch: usize,
+) -> std::result::Result<Option<BenchRow>, B::Error> {
+    let n = coords.len();
+    if n == 0 {
+        return Ok(None);
+    }
+    let layer = engine.submanifold(coords, 3)?;
+    let x = engine.upload(&fill(n * c_in, 3))?;
+    let w = engine.upload(&fill(27 * c_in * c_out, 5))?;
+    let mut y = engine.upload(&[])?;
+    engine.reserve(&mut y, n * c_out)?;
+    let pairs = KernelMap::submanifold(coords, 3)?.num_pairs();
+    let flop = 2.0 * pairs as f64 * (c_in * c_out) as f64;
+    let batch = batch.max(1);
+    let mut best = f64::INFINITY;
+    // The first round is a warm-up (pipelines compiled, workspaces grown).
+    for round in 0..=repeats.max(1) {
+        let t = Instant::now();
+        for _ in 0..batch {
+            engine.conv(&layer, &x, c_in, None, &w, c_out, &mut y, false)?;
+        }
+        engine.download(&y, 1)?;
+        if round > 0 {
+            best = best.min(t.elapsed().as_secs_f64() * 1e3 / batch as f64);
+        }
+    }
+    Ok(Some(BenchRow {
+        scene: scene.to_string(),
+        voxel_size,
+        n,
+        mean_neighbours: pairs as f64 / n as f64,
+        c_in,
+        c_out,
+        kernel: engine.name(),
+        pass: "forward_resident".to_string(),
+        ms: best,
+        gflops: flop / (best * 1e6),
+    }))
+}
+
 /// Times any [`ConvBackend`] on a voxel set: the submanifold layer's preparation (kernel map
 /// and plans, reported as pass `prepare`), then forward, input and weight gradient, each the
 /// fastest of `repeats` rounds after a warm-up. Times are whole calls as a caller sees them
@@ -398,4 +458,24 @@ pub fn run_backend_bench<B: ConvBackend>(
         rows.push(row(pass, ms, flop / (ms * 1e6)));
     }
     Ok(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{ConvAlgorithm, CpuEngine};
+
+    #[test]
+    fn resident_forward_row_counts_the_layers_work() {
+        let coords = room_voxels(0.4).expect("room");
+        let engine = CpuEngine::new(ConvAlgorithm::Chunked);
+        let row = run_resident_forward_bench(&engine, "room", &coords, 0.4, 5, 7, 1, 2)
+            .expect("bench")
+            .expect("a row");
+        let pairs = KernelMap::submanifold(&coords, 3).expect("map").num_pairs();
+        assert_eq!((row.n, row.c_in, row.c_out, row.pass.as_str()), (coords.len(), 5, 7, "forward_resident"));
+        assert!((row.mean_neighbours - pairs as f64 / coords.len() as f64).abs() < 1e-12);
+        assert!(row.ms > 0.0 && row.gflops > 0.0);
+        assert_eq!(run_resident_forward_bench(&engine, "empty", &[], 0.4, 5, 7, 1, 2).expect("bench"), None);
+    }
 }

@@ -19,8 +19,8 @@ use semrecon_data::shared_data::shared_data_path;
 use semrecon_data::synth::{generate_room, RoomConfig, RoomStyle};
 use semrecon_data::{read_ply, Intrinsics, LabeledMesh, PreparedMesh, Renderer, ScanPlan, SensorModel};
 use semrecon_gpu::GpuEngine;
-use semrecon_sparse::bench::{run_backend_bench, run_conv_bench, BenchOptions, BenchRow};
-use semrecon_sparse::{ConvAlgorithm, KernelMap};
+use semrecon_sparse::bench::{run_backend_bench, run_conv_bench, run_resident_forward_bench, BenchOptions, BenchRow};
+use semrecon_sparse::{ChunkConfig, ConvAlgorithm, KernelMap};
 use serde::Serialize;
 
 /// Arguments of `semrecon bench`.
@@ -77,6 +77,11 @@ struct ConvArgs {
     /// of the CPU's: whole calls, uploads and read-back included.
     #[command(flatten)]
     device: crate::device::DeviceArgs,
+    /// With the GPU: also time the chunked kernel with these chunk shapes, each
+    /// `SIDE/LEVELS/REGION_ROWS` (comma-separated; e.g. `16/2/512`), to tune the CPU planner's
+    /// cache-sized chunks for a GPU. Rows are named `gpu-chunked SIDE/LEVELS/ROWS`.
+    #[arg(long, value_delimiter = ',', value_parser = crate::cli_values::parse_chunk_shape)]
+    gpu_chunks: Vec<ChunkConfig>,
 }
 
 /// Runs the command.
@@ -175,6 +180,8 @@ fn conv(args: ConvArgs) -> anyhow::Result<()> {
     let room = generate_room(&RoomConfig { seed: args.seed, style: None });
     let options = BenchOptions { repeats: args.repeats.max(1), ..BenchOptions::default() };
     let gpu = args.device.gpu_context()?;
+    let chunk_shapes = args.gpu_chunks;
+    anyhow::ensure!(chunk_shapes.is_empty() || gpu.is_some(), "--gpu-chunks needs the GPU (--device gpu)");
     let mut rows = Vec::new();
     println!(
         "{:<26} {:>7} {:>6} {:>4} {:>9} {:>16} {:>9} {:>8} {:>7}",
@@ -190,7 +197,7 @@ fn conv(args: ConvArgs) -> anyhow::Result<()> {
         for &c in &args.channels {
             anyhow::ensure!((1..=1024).contains(&c), "--channels {c}: must be 1..=1024");
             if let Some(ctx) = &gpu {
-                rows.extend(gpu_conv(ctx, &scene, &coords, voxel, c, options.repeats)?);
+                rows.extend(gpu_conv(ctx, &scene, &coords, voxel, c, options.repeats, &chunk_shapes)?);
                 continue;
             }
             let report = run_conv_bench(&scene, &coords, voxel, c, c, &options)
@@ -228,7 +235,11 @@ fn print_conv_row(row: &BenchRow, voxel: f32, percent_of_sgemm: Option<f64>) {
     );
 }
 
-/// The GPU engine's rows (chunked and rulebook) of one voxel set and channel count.
+/// Forwards per timed round of the resident rows: enough to hide one submission's latency.
+const RESIDENT_BATCH: usize = 10;
+
+/// The GPU engine's rows (chunked and rulebook) of one voxel set and channel count: whole calls
+/// (uploads, dispatches, read-back) and the forward on device-resident tensors.
 fn gpu_conv(
     ctx: &std::sync::Arc<semrecon_gpu::GpuContext>,
     scene: &str,
@@ -236,13 +247,24 @@ fn gpu_conv(
     voxel: f32,
     c: usize,
     repeats: usize,
+    chunk_shapes: &[ChunkConfig],
 ) -> anyhow::Result<Vec<ConvRow>> {
     let mut rows = Vec::new();
-    for algorithm in [ConvAlgorithm::Chunked, ConvAlgorithm::Rulebook] {
-        let engine = GpuEngine::with_context(std::sync::Arc::clone(ctx), algorithm);
+    let default_runs = [(ConvAlgorithm::Chunked, None), (ConvAlgorithm::Rulebook, None)];
+    let shape_runs = chunk_shapes.iter().map(|&shape| (ConvAlgorithm::Chunked, Some(shape)));
+    for (algorithm, shape) in default_runs.into_iter().chain(shape_runs) {
+        let mut engine = GpuEngine::with_context(std::sync::Arc::clone(ctx), algorithm);
+        if let Some(shape) = shape {
+            engine.chunk = shape;
+        }
         let bench = run_backend_bench(&engine, scene, coords, voxel, c, c, repeats)
             .with_context(|| format!("GPU benchmark of {scene} at {voxel} m, {c} channels"))?;
-        for row in bench {
+        let resident = run_resident_forward_bench(&engine, scene, coords, voxel, c, c, repeats, RESIDENT_BATCH)
+            .with_context(|| format!("GPU resident benchmark of {scene} at {voxel} m, {c} channels"))?;
+        for mut row in bench.into_iter().chain(resident) {
+            if let Some(shape) = shape {
+                row.kernel = format!("{} {}/{}/{}", row.kernel, shape.chunk_side, shape.levels, shape.max_region_rows);
+            }
             print_conv_row(&row, voxel, None);
             rows.push(ConvRow { row, device: ctx.adapter_name(), sgemm_gflops: 0.0, threads: 0, simd: String::new() });
         }

@@ -49,6 +49,10 @@ pub struct NetArgs {
     /// e.g. on a software GPU driver); default: the whole room.
     #[arg(long)]
     crop: Option<f32>,
+    /// Chunk shape of the chunked kernels, `SIDE/LEVELS/REGION_ROWS` (default 8/3/256, sized
+    /// for CPU caches), to tune it for a GPU.
+    #[arg(long, value_parser = crate::cli_values::parse_chunk_shape)]
+    chunk: Option<ChunkConfig>,
     #[command(flatten)]
     device: crate::device::DeviceArgs,
 }
@@ -117,6 +121,9 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
     for (_, k) in kernels {
         let mut net = Segmenter::new(weights.clone(), config.clone())?;
         net.set_kernel(k);
+        if let Some(chunk) = args.chunk {
+            net.set_chunk(chunk);
+        }
         net.set_device(device.clone());
         // Warm-up: workspace buffers allocated, caches and thread pool up.
         net.segment(&sample.coords, &sample.features)?;
@@ -195,7 +202,7 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
     );
 
     if let Some(dir) = &args.export {
-        let geometry = NetGeometry::build(sample.coords.clone(), &config, &ChunkConfig::default())?;
+        let geometry = NetGeometry::build(sample.coords.clone(), &config, &args.chunk.unwrap_or_default())?;
         export(dir, &config, &weights, &sample, &geometry, &logits, &rows)?;
     }
     if let Some(path) = &args.json {
