@@ -24,9 +24,12 @@ use crate::transfers::TransferCounts;
 pub(crate) const WORKGROUP: u32 = 64;
 /// Largest workgroup count of one grid dimension (the WebGPU minimum every device offers).
 const MAX_GROUPS: u32 = 65_535;
-/// Workgroup memory the chunked kernel uses: the region tile (176 rows x 16 channels) and four
-/// weight tiles (16 x 16), in bytes, plus a few words.
-const WORKGROUP_BYTES: u32 = (176 * 16 + 4 * 16 * 16 + 4) * 4;
+/// Destinations and output channels of one workgroup's tile in the chunked kernel
+/// (shaders/chunked.wgsl: `TR`, `TO`).
+pub(crate) const CHUNKED_TILE: u32 = 64;
+/// Workgroup memory the chunked kernel uses, in bytes: the gathered input tile and the weight
+/// tile (16 channels x 64 each) and the tile's 64 source rows, plus two words.
+const WORKGROUP_BYTES: u32 = (2 * 16 * 64 + 64 + 2) * 4;
 /// Command buffers queued before they are submitted without waiting for a read-back: few
 /// submissions per forward, without holding an unbounded backlog.
 const MAX_PENDING: usize = 32;

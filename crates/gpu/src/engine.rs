@@ -15,9 +15,9 @@ use std::sync::Arc;
 use semrecon_sparse::backend::check_forward;
 use semrecon_sparse::{BnRelu, ChunkConfig, ChunkedConv, ConvAlgorithm, ConvBackend, Coord, MapKind};
 
-use crate::context::{GpuContext, WORKGROUP};
+use crate::context::{GpuContext, CHUNKED_TILE, WORKGROUP};
 use crate::error::{GpuError, Result};
-use crate::layer::{DevicePlan, GpuLayer};
+use crate::layer::{DevicePlan, GpuLayer, LayerParts};
 
 /// The GPU engine: an opened device and the algorithm of its convolutions.
 #[derive(Debug, Clone)]
@@ -73,12 +73,14 @@ impl GpuEngine {
     }
 
     /// A layer of a CPU geometry (kernel map and chunk plans built on the host, as the
-    /// network's geometry builds them) uploaded for this engine.
+    /// network's geometry builds them) uploaded for this engine's forward: only what this
+    /// engine's algorithm reads (the other algorithm and the gradients return
+    /// [`GpuError::LayerPart`] on it). Inference pays this for every new input.
     ///
     /// # Errors
     /// Buffers over the device's limits, a lost device.
     pub fn import(&self, layer: &ChunkedConv) -> Result<GpuLayer> {
-        GpuLayer::from_cpu(&self.ctx, layer)
+        GpuLayer::from_cpu(&self.ctx, layer, LayerParts::Forward(self.algorithm))
     }
 
     /// The chunked kernel over `plan` into `y` (`[rows, c_out]`, with `accumulate` its
@@ -169,16 +171,21 @@ impl GpuEngine {
             count32("channels", c_in)?,
             count32("channels", c_out)?,
             kv as u32,
-            plan.n_chunks,
+            plan.n_dst,
             flags,
             o[0],
             o[1],
-            o[2],
-            o[3],
-            o[4],
         ]);
         let bindings = [(0, &params), (1, x), (2, w), (3, bnb), (4, &plan.buffer), (5, y)];
-        ctx.dispatch(enc, &ctx.pipelines.chunked, &bindings, plan.n_chunks, count32("channels", c_out.div_ceil(16))?);
+        // One workgroup per tile of CHUNKED_TILE destinations by CHUNKED_TILE output channels.
+        let tiles = plan.n_dst.div_ceil(CHUNKED_TILE);
+        ctx.dispatch(
+            enc,
+            &ctx.pipelines.chunked,
+            &bindings,
+            tiles,
+            count32("channels", c_out.div_ceil(CHUNKED_TILE as usize))?,
+        );
         Ok(())
     }
 
@@ -229,7 +236,8 @@ impl GpuEngine {
         let p = &ctx.pipelines;
         let (cs, cd) = (count32("channels", c_src)?, count32("channels", c_dst)?);
         let n_pairs = count32("pairs", layer.num_pairs())?;
-        let most = layer.starts.windows(2).map(|s| s[1] - s[0]).max().unwrap_or(0) as u64;
+        let pairs = layer.pairs()?;
+        let most = pairs.starts.windows(2).map(|s| s[1] - s[0]).max().unwrap_or(0) as u64;
         // Written before they are read, within each offset.
         let gathered = ctx.transient("gathered rows", most * u64::from(cs) * 4)?;
         let products = ctx.transient("products", most * u64::from(cd) * 4)?;
@@ -249,17 +257,17 @@ impl GpuEngine {
             src = &normalised;
         }
         for k in 0..layer.kv {
-            let (base, rows) = (layer.starts[k], layer.starts[k + 1] - layer.starts[k]);
+            let (base, rows) = (pairs.starts[k], pairs.starts[k + 1] - pairs.starts[k]);
             if rows == 0 {
                 continue;
             }
             let w_base = count32("weights", k * c_src * c_dst)?;
             let params = ctx.params(&[rows, cs, cd, base, n_pairs, u32::from(swap), w_base, layer.kv as u32]);
-            let g = [(0, &params), (1, src), (2, &layer.pairs), (4, &gathered)];
+            let g = [(0, &params), (1, src), (2, &pairs.buffer), (4, &gathered)];
             ctx.dispatch(enc, &p.gather, &g, count32("gathered rows", rows as usize * c_src)?.div_ceil(WORKGROUP), 1);
             let m = [(0, &params), (1, &gathered), (3, w), (4, &products)];
             ctx.dispatch(enc, &p.gemm, &m, rows.div_ceil(16), cd.div_ceil(16));
-            let s = [(0, &params), (1, &products), (2, &layer.pairs), (4, y)];
+            let s = [(0, &params), (1, &products), (2, &pairs.buffer), (4, y)];
             ctx.dispatch(enc, &p.scatter, &s, count32("products", rows as usize * c_dst)?.div_ceil(WORKGROUP), 1);
         }
         Ok(())
@@ -311,7 +319,9 @@ impl ConvBackend for GpuEngine {
         }
         let _call = self.ctx.begin_call()?;
         match self.algorithm {
-            ConvAlgorithm::Chunked => self.run_chunked(&layer.forward, layer.kv, x, c_in, bn, w, c_out, y, accumulate),
+            ConvAlgorithm::Chunked => {
+                self.run_chunked(layer.forward_plan()?, layer.kv, x, c_in, bn, w, c_out, y, accumulate)
+            }
             ConvAlgorithm::Rulebook => self.run_rulebook(layer, false, x, c_in, bn, w, c_out, y, accumulate),
         }
     }
@@ -340,7 +350,7 @@ impl ConvBackend for GpuEngine {
                 }
                 // Submanifold: the pairs of offset k, swapped, are those of its mirror.
                 let wt = transpose(w, kv, c_in, c_out, |k| kv - 1 - k);
-                self.run_chunked(&layer.forward, kv, dy, c_out, None, &wt, c_in, &mut dx, false)?;
+                self.run_chunked(layer.forward_plan()?, kv, dy, c_out, None, &wt, c_in, &mut dx, false)?;
             }
         }
         Ok(dx)
@@ -363,7 +373,7 @@ impl ConvBackend for GpuEngine {
         let (cs, cd) = (count32("channels", c_in)?, count32("channels", c_out)?);
         let params = ctx.params(&[0, cs, cd, 0, n_pairs, 0, 0, kv as u32]);
         let mut enc = ctx.encoder();
-        let b = [(0, &params), (1, &xb), (2, &layer.pairs), (4, &dwb), (5, &dyb)];
+        let b = [(0, &params), (1, &xb), (2, &layer.pairs()?.buffer), (4, &dwb), (5, &dyb)];
         ctx.dispatch(&mut enc, &ctx.pipelines.weight_grad, &b, count32("weights", dw.len())?.div_ceil(WORKGROUP), 1);
         ctx.finish_and_read(enc, &dwb, dw.len())
     }

@@ -51,6 +51,9 @@ pub enum GpuError {
     /// Reading a result back from the device failed.
     #[error("reading back from the GPU failed: {0}")]
     Readback(String),
+    /// A pass needs a part of the layer that its import left out.
+    #[error("the layer was imported for the other algorithm's forward and lacks {0} (make it with the engine, or import it with this algorithm)")]
+    LayerPart(&'static str),
     /// Bad shapes, coordinates or kernel sizes.
     #[error(transparent)]
     Sparse(#[from] SparseError),

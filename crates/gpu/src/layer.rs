@@ -9,9 +9,10 @@
 //! (down and transposed) are built on the host by `semrecon_sparse::KernelMap`, which they
 //! share with the CPU engine. Planning on the device is left for later (docs/gpu.md).
 
+use rayon::prelude::*;
 use semrecon_sparse::chunked::ChunkPlan;
 use semrecon_sparse::key::pack_key;
-use semrecon_sparse::{ChunkConfig, ChunkedConv, Coord, KernelMap, MapKind, SparseError};
+use semrecon_sparse::{ChunkConfig, ChunkedConv, ConvAlgorithm, Coord, KernelMap, MapKind, SparseError};
 
 use crate::context::{GpuContext, WORKGROUP};
 use crate::error::{GpuError, Result};
@@ -19,40 +20,61 @@ use crate::error::{GpuError, Result};
 /// Marks a missing neighbour in tables.
 pub(crate) const EMPTY: u32 = u32::MAX;
 
-/// A chunk plan on the device: the index arrays of the chunked kernel in one buffer.
+/// A chunk plan on the device, as the chunked kernel reads it: the destinations in plan
+/// order and their source rows at every offset, in one buffer.
 #[derive(Debug)]
 pub(crate) struct DevicePlan {
     pub buffer: wgpu::Buffer,
-    pub n_chunks: u32,
-    /// Word offsets of dst_start, dst_rows, src_start, src_rows and the local table.
-    pub offsets: [u32; 5],
+    /// Destinations (rows of the plan's order).
+    pub n_dst: u32,
+    /// Word offsets of the destination rows (`[n_dst]`) and of the neighbour table
+    /// (`[n_dst, kv]`, the source row of every destination at every offset, or EMPTY).
+    pub offsets: [u32; 2],
 }
 
 impl DevicePlan {
-    /// Uploads `plan` with its chunk-local neighbour table.
+    /// Uploads `plan`'s destinations and its neighbour table in plan order (chunks in
+    /// parallel: on the host this is the per-call cost of a new geometry).
     fn upload(ctx: &GpuContext, plan: &ChunkPlan) -> Result<Self> {
         let a = plan.arrays();
         let kv = plan.kernel_volume();
         let n_dst = a.dst_rows.len();
         let mut table = vec![EMPTY; n_dst * kv];
+        // Each chunk owns the table rows of its destinations: disjoint slices.
+        let mut parts = Vec::with_capacity(plan.num_chunks());
+        let mut rest = table.as_mut_slice();
         for c in 0..plan.num_chunks() {
-            let d0 = a.dst_start[c] as usize;
+            let rows = (a.dst_start[c + 1] - a.dst_start[c]) as usize;
+            let (part, tail) = rest.split_at_mut(rows * kv);
+            parts.push((c, part));
+            rest = tail;
+        }
+        parts.into_par_iter().for_each(|(c, part)| {
+            let s0 = a.src_start[c] as usize;
             for k in 0..kv {
                 let (ps, pd) = plan.chunk_pairs(c, k);
                 for (&s, &d) in ps.iter().zip(pd) {
-                    table[(d0 + d as usize) * kv + k] = s;
+                    part[d as usize * kv + k] = a.src_rows[s0 + s as usize];
                 }
             }
-        }
-        let mut words = Vec::with_capacity(a.dst_start.len() * 2 + n_dst + a.src_rows.len() + table.len());
-        let mut offsets = [0u32; 5];
-        for (i, part) in [a.dst_start, a.dst_rows, a.src_start, a.src_rows, &table].into_iter().enumerate() {
-            offsets[i] = word_offset(words.len())?;
-            words.extend_from_slice(part);
-        }
-        let n_chunks = u32::try_from(plan.num_chunks()).map_err(|_| SparseError::TooManyRows(plan.num_chunks()))?;
-        Ok(Self { buffer: ctx.upload("chunk plan", &words)?, n_chunks, offsets })
+        });
+        let mut words = Vec::with_capacity(n_dst + table.len());
+        words.extend_from_slice(a.dst_rows);
+        let offsets = [0, word_offset(n_dst)?];
+        words.extend_from_slice(&table);
+        word_offset(words.len())?;
+        let n_dst = u32::try_from(n_dst).map_err(|_| SparseError::TooManyRows(n_dst))?;
+        Ok(Self { buffer: ctx.upload("chunk plan", &words)?, n_dst, offsets })
     }
+}
+
+/// The rulebook kernels' per-offset pair lists on the device.
+#[derive(Debug)]
+pub(crate) struct DevicePairs {
+    /// `[in rows | out rows | offset starts]`.
+    pub buffer: wgpu::Buffer,
+    /// Host copy of the offset starts, `[kv + 1]`.
+    pub starts: Vec<u32>,
 }
 
 /// A word index as `u32`, or a size error.
@@ -65,21 +87,34 @@ fn word_offset(n: usize) -> Result<u32> {
 }
 
 /// A layer prepared on the device for the [`GpuEngine`](crate::GpuEngine).
+///
+/// A layer made by the engine (`submanifold`, `downsample`, `upsample`) holds what every
+/// pass of both algorithms needs; one imported for inference
+/// ([`GpuEngine::import`](crate::GpuEngine::import)) holds only what its algorithm's forward
+/// reads, and the other passes return [`GpuError::LayerPart`].
 #[derive(Debug)]
 pub struct GpuLayer {
     pub(crate) kind: MapKind,
     pub(crate) kv: usize,
     pub(crate) n_in: usize,
     pub(crate) n_out: usize,
-    /// The plan over the outputs.
-    pub(crate) forward: DevicePlan,
+    n_pairs: usize,
+    /// The plan over the outputs (chunked kernels).
+    forward: Option<DevicePlan>,
     /// The plan over the inputs (input gradient of strided maps; submanifold maps reuse the
     /// forward plan with mirrored offsets).
     pub(crate) backward: Option<DevicePlan>,
-    /// `[in rows | out rows | offset starts]` of the rulebook kernels.
-    pub(crate) pairs: wgpu::Buffer,
-    /// Host copy of the offset starts, `[kv + 1]`.
-    pub(crate) starts: Vec<u32>,
+    /// The rulebook kernels' pairs (and the weight gradient's).
+    pairs: Option<DevicePairs>,
+}
+
+/// What [`GpuLayer::from_cpu`] uploads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum LayerParts {
+    /// Everything: both algorithms, every pass.
+    All,
+    /// The forward of one algorithm.
+    Forward(ConvAlgorithm),
 }
 
 impl GpuLayer {
@@ -90,28 +125,44 @@ impl GpuLayer {
 
     /// Number of (input, output) pairs.
     pub fn num_pairs(&self) -> usize {
-        self.starts.last().copied().unwrap_or(0) as usize
+        self.n_pairs
     }
 
-    /// The layer of a CPU geometry: its plans and pairs uploaded as they are.
+    /// The plan over the outputs.
+    pub(crate) fn forward_plan(&self) -> Result<&DevicePlan> {
+        self.forward.as_ref().ok_or(GpuError::LayerPart("the chunked kernels' plan"))
+    }
+
+    /// The pair lists.
+    pub(crate) fn pairs(&self) -> Result<&DevicePairs> {
+        self.pairs.as_ref().ok_or(GpuError::LayerPart("the rulebook kernels' pair lists"))
+    }
+
+    /// The layer of a CPU geometry: its plans and pairs uploaded as they are (`parts` says
+    /// which).
     ///
     /// # Errors
     /// Buffers over the device's limits, device errors.
-    pub fn from_cpu(ctx: &GpuContext, layer: &ChunkedConv) -> Result<Self> {
+    pub(crate) fn from_cpu(ctx: &GpuContext, layer: &ChunkedConv, parts: LayerParts) -> Result<Self> {
         let plan = layer.forward_plan();
-        let table = plan.neighbour_table();
-        let forward = DevicePlan::upload(ctx, plan)?;
-        let backward = layer.backward_plan().map(|p| DevicePlan::upload(ctx, p)).transpose()?;
-        let (pairs, starts) = upload_pairs(ctx, &table, plan.kernel_volume())?;
+        let kv = plan.kernel_volume();
+        let (chunked, rulebook, all) = match parts {
+            LayerParts::All => (true, true, true),
+            LayerParts::Forward(ConvAlgorithm::Chunked) => (true, false, false),
+            LayerParts::Forward(ConvAlgorithm::Rulebook) => (false, true, false),
+        };
+        let forward = chunked.then(|| DevicePlan::upload(ctx, plan)).transpose()?;
+        let backward = if all { layer.backward_plan().map(|p| DevicePlan::upload(ctx, p)).transpose()? } else { None };
+        let pairs = rulebook.then(|| upload_pairs(ctx, &plan.neighbour_table(), kv)).transpose()?;
         Ok(Self {
             kind: layer.kind(),
-            kv: plan.kernel_volume(),
+            kv,
             n_in: layer.n_in(),
             n_out: layer.n_out(),
+            n_pairs: plan.num_pairs(),
             forward,
             backward,
             pairs,
-            starts,
         })
     }
 
@@ -130,16 +181,16 @@ impl GpuLayer {
         let table = neighbour_table(ctx, coords, kernel_size)?;
         let plan = ChunkPlan::from_table(&table, kv, Some(kv / 2), n, coords, chunk)?;
         let forward = DevicePlan::upload(ctx, &plan)?;
-        let (pairs, starts) = upload_pairs(ctx, &table, kv)?;
+        let pairs = upload_pairs(ctx, &table, kv)?;
         Ok(Self {
             kind: MapKind::Submanifold { kernel_size },
             kv,
             n_in: n,
             n_out: n,
-            forward,
+            n_pairs: plan.num_pairs(),
+            forward: Some(forward),
             backward: None,
-            pairs,
-            starts,
+            pairs: Some(pairs),
         })
     }
 
@@ -147,19 +198,19 @@ impl GpuLayer {
     pub(crate) fn downsample(ctx: &GpuContext, fine: &[Coord], chunk: &ChunkConfig) -> Result<(Vec<Coord>, Self)> {
         let (coarse, map) = KernelMap::downsample(fine)?;
         let layer = ChunkedConv::new(map, fine, &coarse, chunk)?;
-        Ok((coarse, Self::from_cpu(ctx, &layer)?))
+        Ok((coarse, Self::from_cpu(ctx, &layer, LayerParts::All)?))
     }
 
     /// The transposed layer from `coarse` to `fine`.
     pub(crate) fn upsample(ctx: &GpuContext, coarse: &[Coord], fine: &[Coord], chunk: &ChunkConfig) -> Result<Self> {
         let layer = ChunkedConv::new(KernelMap::upsample(coarse, fine)?, coarse, fine, chunk)?;
-        Self::from_cpu(ctx, &layer)
+        Self::from_cpu(ctx, &layer, LayerParts::All)
     }
 }
 
 /// The per-offset pair lists of an `[n_out, kv]` neighbour table (sorted by output row within
 /// an offset, as `KernelMap` keeps them), uploaded as `[in | out | starts]`.
-fn upload_pairs(ctx: &GpuContext, table: &[u32], kv: usize) -> Result<(wgpu::Buffer, Vec<u32>)> {
+fn upload_pairs(ctx: &GpuContext, table: &[u32], kv: usize) -> Result<DevicePairs> {
     let n_out = table.len().checked_div(kv).unwrap_or(0);
     let mut per: Vec<(Vec<u32>, Vec<u32>)> = vec![(Vec::new(), Vec::new()); kv];
     for u in 0..n_out {
@@ -184,7 +235,7 @@ fn upload_pairs(ctx: &GpuContext, table: &[u32], kv: usize) -> Result<(wgpu::Buf
     }
     words.extend_from_slice(&starts);
     word_offset(words.len())?;
-    Ok((ctx.upload("pair lists", &words)?, starts))
+    Ok(DevicePairs { buffer: ctx.upload("pair lists", &words)?, starts })
 }
 
 /// The `[n, K^3]` submanifold neighbour table of `coords`, built on the device.

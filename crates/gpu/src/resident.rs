@@ -127,7 +127,7 @@ impl ResidentBackend for GpuEngine {
             match self.algorithm {
                 ConvAlgorithm::Chunked => self.encode_chunked(
                     &mut enc,
-                    &layer.forward,
+                    layer.forward_plan()?,
                     layer.kv,
                     &x.buffer,
                     c_in,

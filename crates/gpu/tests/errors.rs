@@ -53,3 +53,36 @@ fn a_lost_device_is_an_error() {
     assert!(r.is_err(), "a forward on a destroyed device returned {r:?}");
     eprintln!("forward after destroy: {}", r.err().map(|e| e.to_string()).unwrap_or_default());
 }
+
+/// A layer imported for one algorithm's forward runs that forward exactly as an engine-made
+/// layer does, and the passes it was not imported for are errors naming the missing part.
+#[test]
+fn imported_layers_hold_their_algorithms_forward_only() {
+    let Some(ctx) = context() else { return };
+    let ctx = Arc::new(ctx);
+    let coords = surface_set(5);
+    let map = semrecon_sparse::KernelMap::submanifold(&coords, 3).expect("map");
+    let cpu_layer = semrecon_sparse::ChunkedConv::new(map, &coords, &coords, &semrecon_sparse::ChunkConfig::default())
+        .expect("plan");
+    let (c_in, c_out) = (3, 5);
+    let x: Vec<f32> = (0..coords.len() * c_in).map(|i| ((i * 7919) % 23) as f32 / 23.0 - 0.5).collect();
+    let w: Vec<f32> = (0..27 * c_in * c_out).map(|i| ((i * 104_729) % 31) as f32 / 31.0 - 0.5).collect();
+    for (algorithm, other) in
+        [(ConvAlgorithm::Chunked, ConvAlgorithm::Rulebook), (ConvAlgorithm::Rulebook, ConvAlgorithm::Chunked)]
+    {
+        let gpu = GpuEngine::with_context(Arc::clone(&ctx), algorithm);
+        let imported = gpu.import(&cpu_layer).expect("import");
+        let made = gpu.submanifold(&coords, 3).expect("layer");
+        let a = gpu.forward(&imported, &x, c_in, &w, c_out).expect("forward on the import");
+        let b = gpu.forward(&made, &x, c_in, &w, c_out).expect("forward on the made layer");
+        let scale = b.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-6);
+        let diff = a.iter().zip(&b).fold(0f32, |m, (p, q)| m.max((p - q).abs()));
+        assert!(diff <= 1e-5 * scale, "{algorithm:?}: {diff} of {scale}");
+        let r = gpu.with_algorithm(other).forward(&imported, &x, c_in, &w, c_out);
+        assert!(matches!(r, Err(GpuError::LayerPart(_))), "{other:?} on a {algorithm:?} import: {r:?}");
+        let r = gpu.backward_weight(&imported, &x, c_in, &b, c_out);
+        if algorithm == ConvAlgorithm::Chunked {
+            assert!(matches!(r, Err(GpuError::LayerPart(_))), "weight gradient on a chunked import: {r:?}");
+        }
+    }
+}

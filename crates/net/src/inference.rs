@@ -55,6 +55,9 @@ pub struct Timing {
     pub geometry: Duration,
     /// The layers.
     pub forward: Duration,
+    /// Of `forward`: the geometry prepared for and copied to the device (maps, plans and
+    /// tables uploaded); zero on the CPU, which reads the geometry in place.
+    pub upload: Duration,
 }
 
 /// A voxelised point cloud with the network's scores ([`Segmenter::segment_points_scores`]).
@@ -281,8 +284,13 @@ impl Segmenter {
             )));
         }
         let t = Instant::now();
-        let logits = if n > 0 { self.run_layers(geometry, features, Readout::Logits)?.logits } else { Vec::new() };
-        self.timing = Timing { geometry: Duration::ZERO, forward: t.elapsed() };
+        let (logits, upload) = if n > 0 {
+            let (scores, upload) = self.run_layers(geometry, features, Readout::Logits)?;
+            (scores.logits, upload)
+        } else {
+            (Vec::new(), Duration::ZERO)
+        };
+        self.timing = Timing { geometry: Duration::ZERO, forward: t.elapsed(), upload };
         self.stats = geometry.stats();
         Ok(logits)
     }
@@ -299,8 +307,8 @@ impl Segmenter {
             geo.build_maps();
         }
         let t1 = Instant::now();
-        let scores = self.run_layers(&geo, feats, readout)?;
-        self.timing = Timing { geometry: t1 - t0, forward: t1.elapsed() };
+        let (scores, upload) = self.run_layers(&geo, feats, readout)?;
+        self.timing = Timing { geometry: t1 - t0, forward: t1.elapsed(), upload };
         self.stats = geo.stats();
         Ok(scores)
     }
@@ -308,8 +316,9 @@ impl Segmenter {
     /// The layers on the chosen engine, with its tensors: the CPU engine reads the host
     /// parameters and the geometry's layers in place; the GPU engine gets the weights on its
     /// first call (kept), the geometry uploaded per call (every layer of a level then shares
-    /// it). The forward itself is one, generic over the engine.
-    fn run_layers(&mut self, geo: &NetGeometry, feats: &[f32], readout: Readout) -> Result<Scores> {
+    /// it). The forward itself is one, generic over the engine. Also returns the time spent
+    /// uploading the geometry.
+    fn run_layers(&mut self, geo: &NetGeometry, feats: &[f32], readout: Readout) -> Result<(Scores, Duration)> {
         let algorithm = match self.kernel {
             ConvKernel::Chunked => ConvAlgorithm::Chunked,
             ConvKernel::Rulebook => ConvAlgorithm::Rulebook,
@@ -330,7 +339,7 @@ impl Segmenter {
                     .collect();
                 let interp = geo.interp.iter().map(|per| per.iter().collect()).collect();
                 let prepared = Prepared::<CpuEngine> { levels, interp, rows };
-                forward(&engine, &prepared, config, params, ws, feats, readout)
+                Ok((forward(&engine, &prepared, config, params, ws, feats, readout)?, Duration::ZERO))
             }
             Device::Gpu(device) => {
                 let engine = device.with_algorithm(algorithm);
@@ -341,6 +350,7 @@ impl Segmenter {
                         ws: Workspace::new(&engine, config.levels)?,
                     }),
                 };
+                let t = Instant::now();
                 let mut owned = Vec::with_capacity(geo.levels.len());
                 for l in &geo.levels {
                     let down = match &l.down {
@@ -363,8 +373,9 @@ impl Segmenter {
                     })
                     .collect();
                 let interp = tables.iter().map(|per| per.iter().collect()).collect();
+                let upload = t.elapsed();
                 let prepared = Prepared::<GpuEngine> { levels, interp, rows };
-                forward(&engine, &prepared, config, &resident.params, &mut resident.ws, feats, readout)
+                Ok((forward(&engine, &prepared, config, &resident.params, &mut resident.ws, feats, readout)?, upload))
             }
         }
     }

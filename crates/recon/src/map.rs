@@ -24,11 +24,11 @@ use rayon::prelude::*;
 
 use crate::error::{ReconError, Result};
 
-mod subset;
 mod compressed;
 mod memory;
 mod spill;
 mod storage;
+mod subset;
 
 pub use compressed::PackError;
 pub use memory::{Compaction, MapMemory};

@@ -469,9 +469,7 @@ mod tests {
     fn resident_forward_row_counts_the_layers_work() {
         let coords = room_voxels(0.4).expect("room");
         let engine = CpuEngine::new(ConvAlgorithm::Chunked);
-        let row = run_resident_forward_bench(&engine, "room", &coords, 0.4, 5, 7, 1, 2)
-            .expect("bench")
-            .expect("a row");
+        let row = run_resident_forward_bench(&engine, "room", &coords, 0.4, 5, 7, 1, 2).expect("bench").expect("a row");
         let pairs = KernelMap::submanifold(&coords, 3).expect("map").num_pairs();
         assert_eq!((row.n, row.c_in, row.c_out, row.pass.as_str()), (coords.len(), 5, 7, "forward_resident"));
         assert!((row.mean_neighbours - pairs as f64 / coords.len() as f64).abs() < 1e-12);

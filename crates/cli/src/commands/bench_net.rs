@@ -76,6 +76,8 @@ struct NetRow {
     /// Geometry and layers of the fastest round.
     geometry_ms: f64,
     forward_ms: f64,
+    /// Of `forward_ms`: the geometry's upload to the device (0 on the CPU).
+    upload_ms: f64,
     /// Useful multiply-add FLOPs (2 per multiply-add) of one forward.
     flops: u64,
     /// `flops` over the layers' time.
@@ -131,7 +133,7 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
     }
     let rounds = args.repeats.max(1);
     // Per kernel: (total, geometry, forward) of every round.
-    let mut times: Vec<Vec<(f64, f64, f64)>> = vec![Vec::new(); kernels.len()];
+    let mut times: Vec<Vec<(f64, f64, f64, f64)>> = vec![Vec::new(); kernels.len()];
     let mut logits = Vec::new();
     for _ in 0..rounds {
         for (q, net) in nets.iter_mut().enumerate() {
@@ -139,7 +141,8 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
             let out = net.segment(&sample.coords, &sample.features)?;
             let total = t.elapsed().as_secs_f64() * 1e3;
             let timing = net.last_timing();
-            times[q].push((total, timing.geometry.as_secs_f64() * 1e3, timing.forward.as_secs_f64() * 1e3));
+            let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
+            times[q].push((total, ms(timing.geometry), ms(timing.forward), ms(timing.upload)));
             if q == 0 {
                 logits = out;
             }
@@ -147,13 +150,13 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
     }
     let stats = nets[0].level_stats().to_vec();
     let flops = forward_flops(&config, &stats);
-    let best: Vec<(f64, f64, f64)> =
+    let best: Vec<(f64, f64, f64, f64)> =
         times.iter().map(|t| t.iter().copied().min_by(|a, b| a.0.total_cmp(&b.0)).unwrap_or_default()).collect();
     let rows: Vec<NetRow> = kernels
         .iter()
         .enumerate()
         .map(|(q, (name, _))| {
-            let (total, geometry, forward) = best[q];
+            let (total, geometry, forward, upload) = best[q];
             NetRow {
                 config: config.name.clone(),
                 scene: scene.clone(),
@@ -166,6 +169,7 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
                 mean_ms_per_room: times[q].iter().map(|t| t.0).sum::<f64>() / times[q].len() as f64,
                 geometry_ms: geometry,
                 forward_ms: forward,
+                upload_ms: upload,
                 flops,
                 gflops: flops as f64 / (forward * 1e6),
                 slowdown_vs_chunked: total / best[0].0,
@@ -186,13 +190,20 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
         rows[0].threads
     );
     println!(
-        "{:<10} {:>12} {:>10} {:>12} {:>11} {:>9} {:>9}",
-        "kernel", "ms per room", "mean ms", "geometry ms", "layers ms", "GFLOP/s", "slowdown"
+        "{:<10} {:>12} {:>10} {:>12} {:>11} {:>10} {:>9} {:>9}",
+        "kernel", "ms per room", "mean ms", "geometry ms", "layers ms", "upload ms", "GFLOP/s", "slowdown"
     );
     for r in &rows {
         println!(
-            "{:<10} {:>12.1} {:>10.1} {:>12.1} {:>11.1} {:>9.1} {:>8.2}x",
-            r.kernel, r.ms_per_room, r.mean_ms_per_room, r.geometry_ms, r.forward_ms, r.gflops, r.slowdown_vs_chunked
+            "{:<10} {:>12.1} {:>10.1} {:>12.1} {:>11.1} {:>10.1} {:>9.1} {:>8.2}x",
+            r.kernel,
+            r.ms_per_room,
+            r.mean_ms_per_room,
+            r.geometry_ms,
+            r.forward_ms,
+            r.upload_ms,
+            r.gflops,
+            r.slowdown_vs_chunked
         );
     }
     println!(

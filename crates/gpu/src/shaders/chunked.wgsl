@@ -1,43 +1,40 @@
-// The chunk-based convolution (the paper's Algorithm 2) on the device: one workgroup per chunk
-// and block of 16 output channels. The chunk's input region (the distinct input rows its
-// outputs read, planned on the host by crates/sparse ChunkPlan) is copied into workgroup
-// memory 16 channels at a time, with the folded batch norm and ReLU applied on the way in;
-// then, per group of 4 kernel offsets, their 16 x 16 weight tiles join it in workgroup memory
-// (one pair of barriers per group: barriers are what small chunks pay most for) and every thread
-// accumulates 8 output rows of one channel from the region (32 rows a pass, each pass
-// reloading the region and weight tiles). The 8 accumulators are separate variables: a
-// dynamically indexed array would live in slow per-thread memory on GPUs (and on lavapipe). Each output row belongs to one
-// chunk, so it is written once, by one thread: no atomics, and a fixed summation order
-// (channel tiles, then offsets, then channels), the same bits on every run.
+// The chunk-based convolution on the device, shaped for a GPU: the host's chunk plan fixes the
+// order of the destinations (chunks of nearby voxels, Z-order within a chunk, chunk after
+// chunk), and one workgroup computes a tile of 64 consecutive destinations of that order by 64
+// output channels. Per kernel offset, the tile's 64 source rows (a global neighbour table in
+// plan order) are gathered 16 channels at a time into workgroup memory with the folded batch
+// norm + ReLU applied on the way in, next to a 16 x 64 weight tile; each of the 256 threads
+// then accumulates a 4 x 4 block (4 destinations x 4 channels) in registers: 16 multiply-adds
+// per two vec4 reads of workgroup memory. An offset that no destination of the tile has is
+// skipped as a whole; plan order keeps neighbours together, so flat surfaces skip about a third
+// of the offsets and the gathered rows are mostly in the L2 cache.
 //
-// Regions larger than the tile (176 rows; the planner keeps them near its 256-row budget)
-// read their remaining rows straight from global memory: slower, never wrong.
+// The first version of this kernel staged each chunk's input region in workgroup memory and
+// gave every thread one output channel of 8 rows (two workgroup reads per multiply-add, 64
+// threads): on an H100 it ran at 0.5 TFLOP/s, a third of the rulebook kernel's speed
+// (docs/gpu.md, "H100").
 //
-// Plan buffer (u32): dst_start [chunks + 1] | dst_rows | src_start [chunks + 1] | src_rows |
-// local table [n_dst, kv] (chunk-local region index of every destination's input at every
-// offset, or EMPTY), destinations in plan order.
+// Every destination belongs to one tile and is written once, by one thread: no atomics, a fixed
+// summation order (offsets, then channel tiles, then channels), the same bits on every run.
+//
+// Plan buffer (u32): dst_rows [n_dst] | table [n_dst, kv] (the source row of every
+// destination at every offset, or EMPTY), destinations in plan order.
 
 struct Params {
     c_in: u32,
     c_out: u32,
     kv: u32,
-    n_chunks: u32,
+    n_dst: u32,
     flags: u32,        // bit 0: batch norm + ReLU on the input; bit 1: add to y
-    o_dst_start: u32,
     o_dst_rows: u32,
-    o_src_start: u32,
-    o_src_rows: u32,
     o_table: u32,
-    _pad0: u32,
-    _pad1: u32,
+    _pad: u32,
 }
 
 const EMPTY: u32 = 0xffffffffu;
-const CT: u32 = 16u;   // channels per region tile
-const OT: u32 = 16u;   // output channels per workgroup
-const CAP: u32 = 176u; // region rows in workgroup memory
-const KG: u32 = 4u;    // offsets whose weight tiles share one pair of barriers
-const ROWS: u32 = 32u; // output rows per pass: 4 row lanes x 8 accumulators
+const TR: u32 = 64u; // destinations per tile
+const TO: u32 = 64u; // output channels per tile
+const CT: u32 = 16u; // input channels per step
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> x: array<f32>;
@@ -46,9 +43,11 @@ const ROWS: u32 = 32u; // output rows per pass: 4 row lanes x 8 accumulators
 @group(0) @binding(4) var<storage, read> plan: array<u32>;
 @group(0) @binding(5) var<storage, read_write> y: array<f32>;
 
-var<workgroup> region: array<f32, 2816>; // CAP x CT
-var<workgroup> wt: array<f32, 1024>;     // KG x CT x OT
-var<workgroup> chunk_meta: vec4<u32>;    // d0, m, s0, n_region
+var<workgroup> a_tile: array<vec4<f32>, 256>; // [CT][TR / 4]: channel c, destinations 4q..4q+3
+var<workgroup> w_tile: array<vec4<f32>, 256>; // [CT][TO / 4]: channel c, outputs 4q..4q+3
+var<workgroup> src: array<u32, 64>;           // the tile's source rows at the current offset
+var<workgroup> hits: atomic<u32>;
+var<workgroup> live: u32;
 
 fn load_x(row: u32, c: u32) -> f32 {
     let v = x[row * p.c_in + c];
@@ -58,125 +57,111 @@ fn load_x(row: u32, c: u32) -> f32 {
     return v;
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(256)
 fn forward(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(local_invocation_index) lid: u32,
     @builtin(num_workgroups) nwg: vec3<u32>,
 ) {
-    let chunk = wid.x + wid.y * nwg.x;
-    if (chunk >= p.n_chunks) {
+    let t0 = (wid.x + wid.y * nwg.x) * TR;
+    if (t0 >= p.n_dst) {
         return;
     }
-    if (lid == 0u) {
-        let d0 = plan[p.o_dst_start + chunk];
-        let s0 = plan[p.o_src_start + chunk];
-        chunk_meta = vec4<u32>(d0, plan[p.o_dst_start + chunk + 1u] - d0, s0, plan[p.o_src_start + chunk + 1u] - s0);
-    }
-    // Chunk sizes come from memory: make them provably uniform for the barriers below.
-    let cm = workgroupUniformLoad(&chunk_meta);
-    let d0 = cm.x;
-    let m = cm.y;
-    let s0 = cm.z;
-    let n_region = cm.w;
-    let in_tile = min(n_region, CAP);
-    let oc = lid % OT;
-    let lane = lid / OT; // 0..4: rows lane, lane + 4, ..., lane + 28 of a pass
-    let o = wid.z * OT + oc;
-
-    for (var rp = 0u; rp < m; rp += ROWS) {
-        var a0 = 0.0;
-        var a1 = 0.0;
-        var a2 = 0.0;
-        var a3 = 0.0;
-        var a4 = 0.0;
-        var a5 = 0.0;
-        var a6 = 0.0;
-        var a7 = 0.0;
-        let j0 = rp + lane;
+    let o0 = wid.z * TO;
+    // Compute roles: destinations 4 tr .. 4 tr + 3, channels o0 + 4 tc .. + 3.
+    let tr = lid / 16u;
+    let tc = lid % 16u;
+    // Load roles: destination lr, channels lc .. lc + 3 of the step; weight row wc, outputs
+    // wo .. wo + 3.
+    let lr = lid / 4u;
+    let lc = (lid % 4u) * 4u;
+    let wc = lid / 16u;
+    let wo = o0 + (lid % 16u) * 4u;
+    var acc0 = vec4<f32>(0.0);
+    var acc1 = vec4<f32>(0.0);
+    var acc2 = vec4<f32>(0.0);
+    var acc3 = vec4<f32>(0.0);
+    for (var k = 0u; k < p.kv; k++) {
+        if (lid < TR) {
+            var s = EMPTY;
+            if (t0 + lid < p.n_dst) {
+                s = plan[p.o_table + (t0 + lid) * p.kv + k];
+            }
+            src[lid] = s;
+            if (s != EMPTY) {
+                atomicOr(&hits, 1u);
+            }
+        }
+        workgroupBarrier();
+        if (lid == 0u) {
+            live = atomicLoad(&hits);
+            atomicStore(&hits, 0u);
+        }
+        // Offsets no destination of the tile has are skipped by the whole workgroup.
+        if (workgroupUniformLoad(&live) == 0u) {
+            continue;
+        }
+        let s = src[lr];
         for (var c0 = 0u; c0 < p.c_in; c0 += CT) {
-            workgroupBarrier();
-            for (var e = lid; e < in_tile * CT; e += 64u) {
-                let c = c0 + e % CT;
+            for (var j = 0u; j < 4u; j++) {
+                let c = c0 + lc + j;
                 var v = 0.0;
-                if (c < p.c_in) {
-                    v = load_x(plan[p.o_src_rows + s0 + e / CT], c);
+                if (s != EMPTY && c < p.c_in) {
+                    v = load_x(s, c);
                 }
-                region[e] = v;
+                a_tile[(lc + j) * 16u + lr / 4u][lr % 4u] = v;
             }
-            for (var kb = 0u; kb < p.kv; kb += KG) {
-                workgroupBarrier();
-                for (var e = lid; e < KG * CT * OT; e += 64u) {
-                    let k = kb + e / (CT * OT);
-                    let c = c0 + (e / OT) % CT;
-                    let oo = wid.z * OT + e % OT;
-                    var v = 0.0;
-                    if (k < p.kv && c < p.c_in && oo < p.c_out) {
-                        v = w[(k * p.c_in + c) * p.c_out + oo];
-                    }
-                    wt[e] = v;
+            let c = c0 + wc;
+            var wv = vec4<f32>(0.0);
+            if (c < p.c_in) {
+                let base = (k * p.c_in + c) * p.c_out;
+                if (wo < p.c_out) {
+                    wv.x = w[base + wo];
                 }
-                workgroupBarrier();
-                for (var g = 0u; g < min(KG, p.kv - kb); g++) {
-                    a0 += row_sum(j0, m, d0, s0, c0, kb, g, oc);
-                    a1 += row_sum(j0 + 4u, m, d0, s0, c0, kb, g, oc);
-                    a2 += row_sum(j0 + 8u, m, d0, s0, c0, kb, g, oc);
-                    a3 += row_sum(j0 + 12u, m, d0, s0, c0, kb, g, oc);
-                    a4 += row_sum(j0 + 16u, m, d0, s0, c0, kb, g, oc);
-                    a5 += row_sum(j0 + 20u, m, d0, s0, c0, kb, g, oc);
-                    a6 += row_sum(j0 + 24u, m, d0, s0, c0, kb, g, oc);
-                    a7 += row_sum(j0 + 28u, m, d0, s0, c0, kb, g, oc);
+                if (wo + 1u < p.c_out) {
+                    wv.y = w[base + wo + 1u];
+                }
+                if (wo + 2u < p.c_out) {
+                    wv.z = w[base + wo + 2u];
+                }
+                if (wo + 3u < p.c_out) {
+                    wv.w = w[base + wo + 3u];
                 }
             }
-        }
-        if (o < p.c_out) {
-            store(j0, m, d0, o, a0);
-            store(j0 + 4u, m, d0, o, a1);
-            store(j0 + 8u, m, d0, o, a2);
-            store(j0 + 12u, m, d0, o, a3);
-            store(j0 + 16u, m, d0, o, a4);
-            store(j0 + 20u, m, d0, o, a5);
-            store(j0 + 24u, m, d0, o, a6);
-            store(j0 + 28u, m, d0, o, a7);
+            w_tile[wc * 16u + (lid % 16u)] = wv;
+            workgroupBarrier();
+            for (var cc = 0u; cc < CT; cc++) {
+                let a = a_tile[cc * 16u + tr];
+                let b = w_tile[cc * 16u + tc];
+                acc0 += a.x * b;
+                acc1 += a.y * b;
+                acc2 += a.z * b;
+                acc3 += a.w * b;
+            }
+            workgroupBarrier();
         }
     }
+    let o = o0 + 4u * tc;
+    store(t0 + 4u * tr, o, acc0);
+    store(t0 + 4u * tr + 1u, o, acc1);
+    store(t0 + 4u * tr + 2u, o, acc2);
+    store(t0 + 4u * tr + 3u, o, acc3);
 }
 
-// The contribution of the current channel tile and offset kb + g (weight tile g) to chunk row
-// j, channel oc.
-fn row_sum(j: u32, m: u32, d0: u32, s0: u32, c0: u32, kb: u32, g: u32, oc: u32) -> f32 {
-    if (j >= m) {
-        return 0.0;
-    }
-    let s = plan[p.o_table + (d0 + j) * p.kv + kb + g];
-    if (s == EMPTY) {
-        return 0.0;
-    }
-    var acc = 0.0;
-    if (s < CAP) {
-        for (var c = 0u; c < CT; c++) {
-            acc += region[s * CT + c] * wt[(g * CT + c) * OT + oc];
-        }
-    } else {
-        let row = plan[p.o_src_rows + s0 + s];
-        for (var c = 0u; c < CT; c++) {
-            if (c0 + c < p.c_in) {
-                acc += load_x(row, c0 + c) * wt[(g * CT + c) * OT + oc];
-            }
-        }
-    }
-    return acc;
-}
-
-// Writes (or, with the accumulate flag, adds) one output value of chunk row j.
-fn store(j: u32, m: u32, d0: u32, o: u32, v: f32) {
-    if (j >= m) {
+// Writes (or, with the accumulate flag, adds) channels o .. o + 3 of destination t (plan
+// order).
+fn store(t: u32, o: u32, v: vec4<f32>) {
+    if (t >= p.n_dst) {
         return;
     }
-    let at = plan[p.o_dst_rows + d0 + j] * p.c_out + o;
-    if ((p.flags & 2u) != 0u) {
-        y[at] = y[at] + v;
-    } else {
-        y[at] = v;
+    let base = plan[p.o_dst_rows + t] * p.c_out;
+    for (var j = 0u; j < 4u; j++) {
+        if (o + j < p.c_out) {
+            if ((p.flags & 2u) != 0u) {
+                y[base + o + j] = y[base + o + j] + v[j];
+            } else {
+                y[base + o + j] = v[j];
+            }
+        }
     }
 }
