@@ -67,6 +67,11 @@ impl GpuEngine {
         &self.ctx
     }
 
+    /// The same device and algorithm with outputs cut into chunks of `chunk`'s shape.
+    pub fn with_chunk(&self, chunk: ChunkConfig) -> Self {
+        Self { chunk, ..self.clone() }
+    }
+
     /// The same device running `algorithm`.
     pub fn with_algorithm(&self, algorithm: ConvAlgorithm) -> Self {
         Self { algorithm, ..self.clone() }

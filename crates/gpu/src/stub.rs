@@ -5,7 +5,9 @@
 use std::convert::Infallible;
 use std::sync::Arc;
 
-use semrecon_sparse::{BnRelu, ChunkedConv, ConvAlgorithm, ConvBackend, Coord, GatherTable, ResidentBackend};
+use semrecon_sparse::{
+    BnRelu, ChunkConfig, ChunkedConv, ConvAlgorithm, ConvBackend, Coord, GatherTable, ResidentBackend,
+};
 
 use crate::error::{GpuError, Result};
 use crate::transfers::TransferCounts;
@@ -114,6 +116,11 @@ impl GpuEngine {
 
     /// Never called (no value exists).
     pub fn import(&self, _layer: &ChunkedConv) -> Result<GpuLayer> {
+        match *self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn with_chunk(&self, _chunk: ChunkConfig) -> Self {
         match *self.never {}
     }
 }

@@ -255,7 +255,7 @@ fn gpu_conv(
     for (algorithm, shape) in default_runs.into_iter().chain(shape_runs) {
         let mut engine = GpuEngine::with_context(std::sync::Arc::clone(ctx), algorithm);
         if let Some(shape) = shape {
-            engine.chunk = shape;
+            engine = engine.with_chunk(shape);
         }
         let bench = run_backend_bench(&engine, scene, coords, voxel, c, c, repeats)
             .with_context(|| format!("GPU benchmark of {scene} at {voxel} m, {c} channels"))?;
