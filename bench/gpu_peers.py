@@ -13,9 +13,10 @@ Reads what bench/run_gpu_bench.sh makes:
 Peers, when PyTorch with CUDA is installed (otherwise they are skipped with a message and
 only our rows are printed):
 
-- `spconv-cuda`: spconv 2.x `SubMConv3d` on the GPU on every exported voxel set, forward and
-  backward (both gradients in one call; compare with our input + weight gradients together),
-  its own kernel map built once in a warm-up (not timed), results checked against a plain
+- `spconv-cuda`: spconv 2.x `SubMConv3d` on the GPU on every exported voxel set: the forward
+  with its kernel map built in the call (a new `SparseConvTensor`) and with the map cached on
+  the tensor (compare with our `forward_resident` rows), and the backward (both gradients in
+  one call; compare with our input + weight gradients together), results checked against a plain
   gather-mm-scatter on our pairs first. Timed with `torch.cuda.synchronize()` around each call
   (the fastest of `--repeats`), inputs already on the device: it does less work per call
   than ours, whose timings include the host-device copies.
