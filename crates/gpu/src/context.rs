@@ -24,12 +24,12 @@ use crate::transfers::TransferCounts;
 pub(crate) const WORKGROUP: u32 = 64;
 /// Largest workgroup count of one grid dimension (the WebGPU minimum every device offers).
 const MAX_GROUPS: u32 = 65_535;
-/// Destinations and output channels of one workgroup's tile in the chunked kernel
-/// (shaders/chunked.wgsl: `TR`, `TO`).
-pub(crate) const CHUNKED_TILE: u32 = 64;
-/// Workgroup memory the chunked kernel uses, in bytes: the gathered input tile and the weight
-/// tile (16 channels x 64 each) and the tile's 64 source rows, plus two words.
-const WORKGROUP_BYTES: u32 = (2 * 16 * 64 + 64 + 2) * 4;
+/// The chunked kernel's tile shapes (destinations, output channels; shaders/chunked.wgsl `TR`,
+/// `TO`): the wide one, and the narrow one for layers of at most 32 output channels.
+pub(crate) const CHUNKED_TILES: [(u32, u32); 2] = [(64, 64), (128, 32)];
+/// Workgroup memory the chunked kernel uses at most, in bytes: the gathered input tile
+/// (16 channels x 128 destinations), the weight tile and the tile's source rows, plus two words.
+const WORKGROUP_BYTES: u32 = (16 * 128 + 16 * 32 + 128 + 2) * 4;
 /// Command buffers queued before they are submitted without waiting for a read-back: few
 /// submissions per forward, without holding an unbounded backlog.
 const MAX_PENDING: usize = 32;
@@ -47,7 +47,8 @@ pub(crate) enum Transfer {
 pub(crate) struct Pipelines {
     pub map_insert: wgpu::ComputePipeline,
     pub map_lookup: wgpu::ComputePipeline,
-    pub chunked: wgpu::ComputePipeline,
+    /// The chunked kernel, one per tile shape of `CHUNKED_TILES`.
+    pub chunked: [wgpu::ComputePipeline; 2],
     pub gather: wgpu::ComputePipeline,
     pub gemm: wgpu::ComputePipeline,
     pub scatter: wgpu::ComputePipeline,
@@ -484,7 +485,13 @@ impl Pipelines {
             })
         };
         let map = module("map", include_str!("shaders/map.wgsl"));
-        let chunked = module("chunked", include_str!("shaders/chunked.wgsl"));
+        let chunked_source = include_str!("shaders/chunked.wgsl");
+        let chunked_tiles = CHUNKED_TILES.map(|(tr, to)| {
+            let source = chunked_source
+                .replace("const TR: u32 = 64u;", &format!("const TR: u32 = {tr}u;"))
+                .replace("const TO: u32 = 64u;", &format!("const TO: u32 = {to}u;"));
+            module("chunked", &source)
+        });
         let rulebook = module("rulebook", include_str!("shaders/rulebook.wgsl"));
         let elementwise = module("elementwise", include_str!("shaders/elementwise.wgsl"));
         let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
@@ -500,7 +507,7 @@ impl Pipelines {
         Self {
             map_insert: pipeline(&map, "insert"),
             map_lookup: pipeline(&map, "lookup"),
-            chunked: pipeline(&chunked, "forward"),
+            chunked: chunked_tiles.each_ref().map(|m| pipeline(m, "forward")),
             gather: pipeline(&rulebook, "gather"),
             gemm: pipeline(&rulebook, "gemm"),
             scatter: pipeline(&rulebook, "scatter"),

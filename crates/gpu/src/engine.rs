@@ -15,7 +15,7 @@ use std::sync::Arc;
 use semrecon_sparse::backend::check_forward;
 use semrecon_sparse::{BnRelu, ChunkConfig, ChunkedConv, ConvAlgorithm, ConvBackend, Coord, MapKind};
 
-use crate::context::{GpuContext, CHUNKED_TILE, WORKGROUP};
+use crate::context::{GpuContext, CHUNKED_TILES, WORKGROUP};
 use crate::error::{GpuError, Result};
 use crate::layer::{DevicePlan, GpuLayer, LayerParts};
 
@@ -182,15 +182,13 @@ impl GpuEngine {
             o[1],
         ]);
         let bindings = [(0, &params), (1, x), (2, w), (3, bnb), (4, &plan.buffer), (5, y)];
-        // One workgroup per tile of CHUNKED_TILE destinations by CHUNKED_TILE output channels.
-        let tiles = plan.n_dst.div_ceil(CHUNKED_TILE);
-        ctx.dispatch(
-            enc,
-            &ctx.pipelines.chunked,
-            &bindings,
-            tiles,
-            count32("channels", c_out.div_ceil(CHUNKED_TILE as usize))?,
-        );
+        // One workgroup per tile of destinations x output channels; narrow layers take the
+        // narrow tile.
+        let which = usize::from(c_out <= CHUNKED_TILES[1].1 as usize);
+        let (tile_rows, tile_channels) = CHUNKED_TILES[which];
+        let tiles = plan.n_dst.div_ceil(tile_rows);
+        let channel_tiles = count32("channels", c_out.div_ceil(tile_channels as usize))?;
+        ctx.dispatch(enc, &ctx.pipelines.chunked[which], &bindings, tiles, channel_tiles);
         Ok(())
     }
 

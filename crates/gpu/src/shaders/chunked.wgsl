@@ -1,13 +1,14 @@
 // The chunk-based convolution on the device, shaped for a GPU: the host's chunk plan fixes the
 // order of the destinations (chunks of nearby voxels, Z-order within a chunk, chunk after
-// chunk), and one workgroup computes a tile of 64 consecutive destinations of that order by 64
-// output channels. Per kernel offset, the tile's 64 source rows (a global neighbour table in
-// plan order) are gathered 16 channels at a time into workgroup memory with the folded batch
-// norm + ReLU applied on the way in, next to a 16 x 64 weight tile; each of the 256 threads
-// then accumulates a 4 x 4 block (4 destinations x 4 channels) in registers: 16 multiply-adds
-// per two vec4 reads of workgroup memory. An offset that no destination of the tile has is
-// skipped as a whole; plan order keeps neighbours together, so flat surfaces skip about a third
-// of the offsets and the gathered rows are mostly in the L2 cache.
+// chunk), and one workgroup of 256 threads computes a tile of TR consecutive destinations of
+// that order by TO output channels (64 x 64, or 128 x 32 for narrow layers). Per kernel offset,
+// the tile's source rows (a global neighbour table in plan order) are gathered 16 channels at a
+// time into workgroup memory with the folded batch norm + ReLU applied on the way in, next to a
+// 16 x TO weight tile; each thread then accumulates a 4 x 4 block (4 destinations x 4 channels)
+// in registers: 16 multiply-adds per two vec4 reads of workgroup memory. An offset that no
+// destination of the tile has is skipped as a whole; plan order keeps neighbours together, so
+// flat surfaces skip about a third of the offsets and the gathered rows are mostly in the L2
+// cache.
 //
 // The first version of this kernel staged each chunk's input region in workgroup memory and
 // gave every thread one output channel of 8 rows (two workgroup reads per multiply-add, 64
@@ -32,9 +33,16 @@ struct Params {
 }
 
 const EMPTY: u32 = 0xffffffffu;
-const TR: u32 = 64u; // destinations per tile
-const TO: u32 = 64u; // output channels per tile
-const CT: u32 = 16u; // input channels per step
+// Tile shape: TR destinations x TO output channels over 256 threads, each a 4 x 4 block. The
+// host compiles this source twice: 64 x 64, and 128 x 32 for layers of at most 32 output
+// channels (replacing the two lines below), so that narrow layers do not idle half a tile.
+const TR: u32 = 64u;
+const TO: u32 = 64u;
+const CT: u32 = 16u;          // input channels per step
+const TCOLS: u32 = TO / 4u;   // thread columns of the compute layout
+const A_LANES: u32 = 256u / TR; // threads loading one destination's CT channels
+const A_VALS: u32 = CT / A_LANES; // values each of them loads
+const W_VALS: u32 = TO / 16u; // weights each thread loads per step
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> x: array<f32>;
@@ -43,9 +51,9 @@ const CT: u32 = 16u; // input channels per step
 @group(0) @binding(4) var<storage, read> plan: array<u32>;
 @group(0) @binding(5) var<storage, read_write> y: array<f32>;
 
-var<workgroup> a_tile: array<vec4<f32>, 256>; // [CT][TR / 4]: channel c, destinations 4q..4q+3
-var<workgroup> w_tile: array<vec4<f32>, 256>; // [CT][TO / 4]: channel c, outputs 4q..4q+3
-var<workgroup> src: array<u32, 64>;           // the tile's source rows at the current offset
+var<workgroup> a_tile: array<vec4<f32>, 4u * TR>; // [CT][TR / 4]: channel c, destinations 4q..4q+3
+var<workgroup> w_tile: array<vec4<f32>, 4u * TO>; // [CT][TO / 4]: channel c, outputs 4q..4q+3
+var<workgroup> src: array<u32, TR>;               // the tile's source rows at the current offset
 var<workgroup> hits: atomic<u32>;
 var<workgroup> live: u32;
 
@@ -69,14 +77,14 @@ fn forward(
     }
     let o0 = wid.z * TO;
     // Compute roles: destinations 4 tr .. 4 tr + 3, channels o0 + 4 tc .. + 3.
-    let tr = lid / 16u;
-    let tc = lid % 16u;
-    // Load roles: destination lr, channels lc .. lc + 3 of the step; weight row wc, outputs
-    // wo .. wo + 3.
-    let lr = lid / 4u;
-    let lc = (lid % 4u) * 4u;
+    let tr = lid / TCOLS;
+    let tc = lid % TCOLS;
+    // Load roles: destination lr, channels lc .. lc + A_VALS - 1 of the step; weight row wc,
+    // tile outputs wq .. wq + W_VALS - 1.
+    let lr = lid / A_LANES;
+    let lc = (lid % A_LANES) * A_VALS;
     let wc = lid / 16u;
-    let wo = o0 + (lid % 16u) * 4u;
+    let wq = (lid % 16u) * W_VALS;
     var acc0 = vec4<f32>(0.0);
     var acc1 = vec4<f32>(0.0);
     var acc2 = vec4<f32>(0.0);
@@ -103,36 +111,27 @@ fn forward(
         }
         let s = src[lr];
         for (var c0 = 0u; c0 < p.c_in; c0 += CT) {
-            for (var j = 0u; j < 4u; j++) {
+            for (var j = 0u; j < A_VALS; j++) {
                 let c = c0 + lc + j;
                 var v = 0.0;
                 if (s != EMPTY && c < p.c_in) {
                     v = load_x(s, c);
                 }
-                a_tile[(lc + j) * 16u + lr / 4u][lr % 4u] = v;
+                a_tile[(lc + j) * (TR / 4u) + lr / 4u][lr % 4u] = v;
             }
             let c = c0 + wc;
-            var wv = vec4<f32>(0.0);
-            if (c < p.c_in) {
-                let base = (k * p.c_in + c) * p.c_out;
-                if (wo < p.c_out) {
-                    wv.x = w[base + wo];
+            for (var j = 0u; j < W_VALS; j++) {
+                let q = wq + j;
+                var v = 0.0;
+                if (c < p.c_in && o0 + q < p.c_out) {
+                    v = w[(k * p.c_in + c) * p.c_out + o0 + q];
                 }
-                if (wo + 1u < p.c_out) {
-                    wv.y = w[base + wo + 1u];
-                }
-                if (wo + 2u < p.c_out) {
-                    wv.z = w[base + wo + 2u];
-                }
-                if (wo + 3u < p.c_out) {
-                    wv.w = w[base + wo + 3u];
-                }
+                w_tile[wc * TCOLS + q / 4u][q % 4u] = v;
             }
-            w_tile[wc * 16u + (lid % 16u)] = wv;
             workgroupBarrier();
             for (var cc = 0u; cc < CT; cc++) {
-                let a = a_tile[cc * 16u + tr];
-                let b = w_tile[cc * 16u + tc];
+                let a = a_tile[cc * (TR / 4u) + tr];
+                let b = w_tile[cc * TCOLS + tc];
                 acc0 += a.x * b;
                 acc1 += a.y * b;
                 acc2 += a.z * b;
