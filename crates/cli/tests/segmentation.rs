@@ -301,6 +301,40 @@ fn eval_seg_reports_the_table_and_json_keys() {
     assert_clean_failure(&semrecon(&["eval", "seg", "--model", s(&cut), "--data", "synth:0..1"]), &["truncated"]);
 }
 
+/// `--tta` on both commands: 1 is the default output, 2, 4 and 8 run, anything else is a
+/// clear error.
+#[test]
+fn tta_runs_on_segment_and_eval_seg_and_rejects_other_view_counts() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let model = tiny_model(dir.path());
+    let input = dir.path().join("room.ply");
+    room_ply(&input, |p| p, true);
+    let segment = |out: &Path, extra: &[&str]| {
+        let mut args = vec!["segment", "--input", s(&input), "--out", s(out), "--model", s(&model)];
+        args.extend_from_slice(extra);
+        semrecon(&args)
+    };
+    let (plain, one, eight) = (dir.path().join("plain.ply"), dir.path().join("one.ply"), dir.path().join("eight.ply"));
+    for (out, extra) in
+        [(&plain, &[][..]), (&one, &["--tta", "1"][..]), (&eight, &["--tta", "8", "--tta-mean", "logits"])]
+    {
+        let o = segment(out, extra);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    assert_eq!(labels_of(&one), labels_of(&plain));
+    assert_eq!(labels_of(&eight).len(), labels_of(&plain).len());
+    assert_clean_failure(&segment(&one, &["--tta", "3"]), &["--tta", "1, 2, 4 or 8"]);
+
+    let json = dir.path().join("tta.json");
+    let o = semrecon(&["eval", "seg", "--model", s(&model), "--data", "synth:0..1", "--tta", "4", "--json", s(&json)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("json");
+    assert_eq!((v["tta"].as_u64(), v["tta_mean"].as_str()), (Some(4), Some("probabilities")));
+    let data = ["eval", "seg", "--model", s(&model), "--data", "synth:0..1", "--tta"];
+    assert_clean_failure(&semrecon(&[&data[..], &["0"]].concat()), &["1, 2, 4 or 8"]);
+    assert_clean_failure(&semrecon(&[&data[..], &["2", "--tta-mean", "max"]].concat()), &["probabilities or logits"]);
+}
+
 #[test]
 fn bench_net_compares_the_kernels_and_exports_for_the_peer() {
     let dir = tempfile::tempdir().expect("tempdir");

@@ -86,6 +86,12 @@ pub enum NetError {
     /// Input buffers that do not fit the network (shape, channels).
     #[error("invalid input: {0}")]
     InvalidInput(String),
+    /// A number of test-time augmentation views other than 1, 2, 4 or 8 ([`crate::tta::Tta`]).
+    #[error(
+        "test-time augmentation takes 1, 2, 4 or 8 views (1 = off, 2 = half turn, 4 = the four 90-degree yaws, \
+         8 = the four yaws x a mirror), not {0}"
+    )]
+    TtaViews(usize),
     /// An error reading training or evaluation data (names the file).
     #[error(transparent)]
     Data(#[from] semrecon_data::DataError),

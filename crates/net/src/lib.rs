@@ -16,7 +16,9 @@
 //! - [`dataset`]: data sources (`synth:`, `s3dis:`, `scannet:`, `ply:`), loading and augmentation;
 //! - [`shipped`]: the shipped default model and the checked loading of model files;
 //! - [`structure`]: room structure after the network (segment votes, floor and ceiling
-//!   planes, test-time augmentation);
+//!   planes);
+//! - [`tta`]: test-time augmentation ([`Tta`]), the network averaged over turned and
+//!   mirrored copies of a room;
 //! - `train` (cargo feature `train`): training with burn (custom sparse-convolution operation,
 //!   the network in burn, the training loop); see docs/model.md.
 //!
@@ -50,6 +52,7 @@ pub mod structure;
 pub mod surface;
 #[cfg(feature = "train")]
 pub mod train;
+pub mod tta;
 pub mod weights;
 
 pub use config::NetConfig;
@@ -59,4 +62,5 @@ pub use inference::{color_features, ConvKernel, Device, PointScores, Segmenter, 
 pub use metrics::ConfusionMatrix;
 pub use model::{forward_flops, parameter_count, LevelStats};
 pub use sample::VoxelSample;
+pub use tta::{GridSymmetry, Tta, TtaMean};
 pub use weights::{Tensor, Weights};

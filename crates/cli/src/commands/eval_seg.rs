@@ -89,8 +89,10 @@ struct SegReport {
     ms_per_room: f64,
     /// `--structure`.
     structure: String,
-    /// `--tta`.
+    /// `--tta`: views of test-time augmentation (1: off).
     tta: u32,
+    /// `--tta-mean`: what was averaged over the views (probabilities or logits).
+    tta_mean: String,
     /// Mean milliseconds of the structure step per room.
     structure_ms_per_room: f64,
     rooms: usize,
@@ -161,6 +163,7 @@ pub fn run(args: SegArgs) -> anyhow::Result<()> {
         ms_per_room: per_room.iter().map(|r| r.ms).sum::<f64>() / per_room.len() as f64,
         structure: args.structure.structure.to_string(),
         tta: args.structure.tta,
+        tta_mean: args.structure.tta_mean.to_string(),
         structure_ms_per_room: per_room.iter().map(|r| r.structure_ms).sum::<f64>() / per_room.len() as f64,
         rooms: per_room.len(),
         voxels: per_room.iter().map(|r| r.voxels).sum(),
@@ -190,10 +193,11 @@ pub fn run(args: SegArgs) -> anyhow::Result<()> {
     println!("{line}{:>9.1}{:>9.1}", 100.0 * report.miou, 100.0 * report.accuracy);
     let part = |i: usize| report.per_room.iter().map(|r| r.structure_ms_parts[i]).sum::<f64>() / report.rooms as f64;
     println!(
-        "mean time per room: {:.1} ms (network call, kernel maps included, tta {}), structure {}: {:.1} ms \
+        "mean time per room: {:.1} ms (network call, kernel maps included, tta {} {}), structure {}: {:.1} ms \
          (normals {:.1}, planes {:.1}, segments {:.1})",
         report.ms_per_room,
         report.tta,
+        report.tta_mean,
         report.structure,
         report.structure_ms_per_room,
         part(0),

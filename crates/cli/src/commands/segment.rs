@@ -11,7 +11,8 @@
 //!
 //! `--structure` refines the network's voxel labels with the room's geometry (segment votes,
 //! floor and ceiling planes; `semrecon_net::structure`) and `--tta N` averages the network
-//! over N rotations and mirrors of the room about z; docs/model.md measures both.
+//! over N turns and mirrors of the room about z (`semrecon_net::tta`); docs/model.md
+//! measures both.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -21,11 +22,9 @@ use glam::Vec3;
 use semrecon_data::ply::{mesh_from_ply, Column, PlyFile, PlyFormat, Property, PropertyData};
 use semrecon_data::{LabeledMesh, PlyEncoding};
 use semrecon_net::dataset::points_per_m2;
-use semrecon_net::structure::{
-    refine, tta_probabilities, PlaneParams, Refinement, SegmentParams, StructureConfig, StructureMode,
-};
+use semrecon_net::structure::{refine, PlaneParams, Refinement, SegmentParams, StructureConfig, StructureMode};
 use semrecon_net::surface::sample_surface;
-use semrecon_net::{shipped, NetConfig, Segmenter};
+use semrecon_net::{shipped, NetConfig, Segmenter, Tta, TtaMean};
 
 /// Arguments of `semrecon segment`.
 #[derive(clap::Args)]
@@ -60,10 +59,14 @@ pub struct StructureArgs {
     /// and ceiling from the big horizontal planes, z up) or all.
     #[arg(long, default_value = DEFAULT_STRUCTURE, value_parser = parse_structure)]
     pub structure: StructureMode,
-    /// Test-time augmentation: average the class probabilities over N (1-8) rotations and
-    /// mirrors of the room about z (N network calls).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=8))]
+    /// Test-time augmentation: average the network over N views of the room about z (N
+    /// network calls): 1 (off), 2 (half turn), 4 (the four 90-degree yaws) or 8 (the four
+    /// yaws x a mirror in x).
+    #[arg(long, default_value_t = 1, value_parser = parse_tta)]
     pub tta: u32,
+    /// Test-time augmentation: average the views' probabilities or their logits.
+    #[arg(long, default_value_t = TtaMean::Probabilities, value_parser = parse_tta_mean)]
+    pub tta_mean: TtaMean,
     /// Segments: Felzenszwalb-Huttenlocher's k (larger: larger segments).
     #[arg(long, default_value_t = SegmentParams::default().k)]
     pub segment_k: f32,
@@ -85,7 +88,27 @@ pub fn parse_structure(s: &str) -> Result<StructureMode, String> {
     s.parse()
 }
 
+/// Parses `--tta`: 1, 2, 4 or 8.
+pub fn parse_tta(s: &str) -> Result<u32, String> {
+    let n: u32 = s.trim().parse().map_err(|_| format!("`{s}`: expected a number of views, 1, 2, 4 or 8"))?;
+    Tta::new(n as usize).map_err(|e| e.to_string())?;
+    Ok(n)
+}
+
+/// Parses `--tta-mean`: probabilities or logits.
+pub fn parse_tta_mean(s: &str) -> Result<TtaMean, String> {
+    s.parse()
+}
+
 impl StructureArgs {
+    /// The test-time augmentation these options describe.
+    ///
+    /// # Errors
+    /// A number of views other than 1, 2, 4 or 8 (which `--tta` already rejects).
+    pub fn tta(&self) -> anyhow::Result<Tta> {
+        Ok(Tta::new(self.tta as usize)?.with_mean(self.tta_mean))
+    }
+
     /// The structure configuration these options describe.
     pub fn config(&self) -> StructureConfig {
         StructureConfig {
@@ -116,7 +139,7 @@ pub fn voxel_labels(
 ) -> anyhow::Result<(Refinement, f64, f64)> {
     let k = net.config().classes;
     let t = Instant::now();
-    let probs = tta_probabilities(net, coords, features, options.tta as usize, logits)?;
+    let probs = options.tta()?.probabilities(net, coords, features, logits)?;
     let network_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let refinement = refine(coords, features, &probs, k, net.config().voxel_size, &options.config())?;
@@ -295,9 +318,10 @@ pub fn run(args: SegmentArgs) -> anyhow::Result<()> {
     let opts = &args.structure;
     let height = |z: Option<f32>| z.map_or_else(|| "none".to_string(), |z| format!("{z:.2} m"));
     println!(
-        "network {:.0} ms (tta {}), structure {} {:.0} ms: {} segments, floor {}, ceiling {}, {} voxels changed",
+        "network {:.0} ms (tta {} {}), structure {} {:.0} ms: {} segments, floor {}, ceiling {}, {} voxels changed",
         network_s * 1e3,
         opts.tta,
+        opts.tta_mean,
         opts.structure,
         structure_s * 1e3,
         refinement.segments,
@@ -324,5 +348,18 @@ mod tests {
             assert!(x.cross(y).abs_diff_eq(z, 0.0), "{name}");
         }
         assert!(parse_up("w").is_err());
+    }
+
+    #[test]
+    fn tta_takes_one_two_four_or_eight_views() {
+        for n in [1, 2, 4, 8] {
+            assert_eq!(parse_tta(&n.to_string()), Ok(n));
+        }
+        for bad in ["0", "3", "5", "16", "-1", "four"] {
+            let e = parse_tta(bad).expect_err("rejected");
+            assert!(e.contains("1, 2, 4 or 8"), "{bad}: {e}");
+        }
+        assert_eq!(parse_tta_mean("logits"), Ok(TtaMean::Logits));
+        assert!(parse_tta_mean("max").is_err());
     }
 }

@@ -20,37 +20,32 @@
 //!    fragment of this repository holds only walls, a door, a beam, a board, a chair and
 //!    clutter): planes smaller than a share of the footprint are not acted on.
 //!
-//! Plus test-time augmentation ([`tta_probabilities`]): the network on the room rotated by
-//! multiples of 90 degrees about z and mirrored, exactly on the voxel grid (no resampling),
-//! the class probabilities averaged.
+//! Test-time augmentation, which the probabilities given here may come from, is
+//! [`crate::tta`].
 //!
 //! What each step buys on real and generated data, and what it costs against the network
 //! call, is measured in docs/model.md ("Structure at inference"): the segment vote raised the
 //! real S3DIS fragment's accuracy from 47.1 to 55.7 % at about a tenth of the network's time
 //! and is the default of `semrecon segment` and `eval seg`; the planes are right but change
-//! almost nothing the network had wrong, and test-time augmentation costs a network call per
-//! symmetry, so both are opt-in. Everything here is
+//! almost nothing the network had wrong, so they are opt-in. Everything here is
 //! deterministic: the same labels for any number of rayon threads (parallel steps map each
 //! voxel on its own; sorting breaks ties by index; the union-find and the sums run in
 //! order).
 //!
 //! The steps live in submodules by concept, re-exported here: `neighbours` (the
 //! 26-neighbourhood of the occupied voxels), `normals` (their PCA normals and the 3x3 eigen
-//! solver), `segments` (the graph segmentation and the vote), `planes` (floor and ceiling) and
-//! `tta` (test-time augmentation). This file holds the configuration and [`refine`], which
-//! runs them in order.
+//! solver), `segments` (the graph segmentation and the vote) and `planes` (floor and
+//! ceiling). This file holds the configuration and [`refine`], which runs them in order.
 
 mod neighbours;
 mod normals;
 mod planes;
 mod segments;
-mod tta;
 
 pub use neighbours::{voxel_neighbours, NEIGHBOUR_OFFSETS, NO_NEIGHBOUR};
 pub use normals::{symmetric_eigen3, voxel_normals};
 pub use planes::{find_planes, plane_corrections, Plane, PlaneCorrections, PlaneMember, PlaneParams, Planes};
 pub use segments::{edge_order, felzenszwalb, vote, voxel_edges, Edge, SegmentParams};
-pub use tta::{grid_symmetry, tta_probabilities};
 
 use std::fmt;
 use std::str::FromStr;
