@@ -18,18 +18,26 @@ use std::collections::HashMap;
 use std::sync::{mpsc, Arc, Mutex, MutexGuard};
 
 use crate::error::{GpuError, Result};
+use crate::tile::CHUNKED_TILES;
 use crate::transfers::TransferCounts;
 
 /// Threads per workgroup of the one-dimensional kernels (and of the chunked kernel).
 pub(crate) const WORKGROUP: u32 = 64;
 /// Largest workgroup count of one grid dimension (the WebGPU minimum every device offers).
 const MAX_GROUPS: u32 = 65_535;
-/// The chunked kernel's tile shapes (destinations, output channels; shaders/chunked.wgsl `TR`,
-/// `TO`): the wide one, and the narrow one for layers of at most 32 output channels.
-pub(crate) const CHUNKED_TILES: [(u32, u32); 2] = [(64, 64), (128, 32)];
-/// Workgroup memory the chunked kernel uses at most, in bytes: the gathered input tile
-/// (16 channels x 128 destinations), the weight tile and the tile's source rows, plus two words.
-const WORKGROUP_BYTES: u32 = (16 * 128 + 16 * 32 + 128 + 2) * 4;
+/// Workgroup memory the chunked kernel uses at most, in bytes (within WebGPU's 16 KiB minimum).
+const WORKGROUP_BYTES: u32 = {
+    let mut most = 0;
+    let mut i = 0;
+    while i < CHUNKED_TILES.len() {
+        let b = CHUNKED_TILES[i].workgroup_bytes();
+        if b > most {
+            most = b;
+        }
+        i += 1;
+    }
+    most
+};
 /// Command buffers queued before they are submitted without waiting for a read-back: few
 /// submissions per forward, without holding an unbounded backlog.
 const MAX_PENDING: usize = 32;
@@ -48,7 +56,7 @@ pub(crate) struct Pipelines {
     pub map_insert: wgpu::ComputePipeline,
     pub map_lookup: wgpu::ComputePipeline,
     /// The chunked kernel, one per tile shape of `CHUNKED_TILES`.
-    pub chunked: [wgpu::ComputePipeline; 2],
+    pub chunked: [wgpu::ComputePipeline; CHUNKED_TILES.len()],
     pub gather: wgpu::ComputePipeline,
     pub gemm: wgpu::ComputePipeline,
     pub scatter: wgpu::ComputePipeline,
@@ -486,10 +494,12 @@ impl Pipelines {
         };
         let map = module("map", include_str!("shaders/map.wgsl"));
         let chunked_source = include_str!("shaders/chunked.wgsl");
-        let chunked_tiles = CHUNKED_TILES.map(|(tr, to)| {
+        let chunked_tiles = CHUNKED_TILES.map(|t| {
             let source = chunked_source
-                .replace("const TR: u32 = 64u;", &format!("const TR: u32 = {tr}u;"))
-                .replace("const TO: u32 = 64u;", &format!("const TO: u32 = {to}u;"));
+                .replace("const TR: u32 = 64u;", &format!("const TR: u32 = {}u;", t.rows))
+                .replace("const TO: u32 = 64u;", &format!("const TO: u32 = {}u;", t.channels))
+                .replace("const RQ: u32 = 1u;", &format!("const RQ: u32 = {}u;", t.row_quads))
+                .replace("const CQ: u32 = 1u;", &format!("const CQ: u32 = {}u;", t.channel_quads));
             module("chunked", &source)
         });
         let rulebook = module("rulebook", include_str!("shaders/rulebook.wgsl"));

@@ -15,9 +15,10 @@ use std::sync::Arc;
 use semrecon_sparse::backend::check_forward;
 use semrecon_sparse::{BnRelu, ChunkConfig, ChunkedConv, ConvAlgorithm, ConvBackend, Coord, MapKind};
 
-use crate::context::{GpuContext, CHUNKED_TILES, WORKGROUP};
+use crate::context::{GpuContext, WORKGROUP};
 use crate::error::{GpuError, Result};
 use crate::layer::{DevicePlan, GpuLayer, LayerParts};
+use crate::tile::{TileShape, CHUNKED_TILES};
 
 /// The GPU engine: an opened device and the algorithm of its convolutions.
 #[derive(Debug, Clone)]
@@ -27,6 +28,9 @@ pub struct GpuEngine {
     pub algorithm: ConvAlgorithm,
     /// How outputs are cut into chunks (the same planner as the CPU engine).
     pub chunk: ChunkConfig,
+    /// The chunked kernel's tile shape, an index in [`CHUNKED_TILES`]; `None` picks by the
+    /// layer's width ([`TileShape::for_channels`]). For benchmarks.
+    tile: Option<usize>,
 }
 
 /// Weights `[kv, c_in, c_out]` transposed per offset to `[kv, c_out, c_in]`, offset `k` taken
@@ -59,7 +63,7 @@ impl GpuEngine {
 
     /// An engine on an already opened device (engines of both algorithms can share one).
     pub fn with_context(ctx: Arc<GpuContext>, algorithm: ConvAlgorithm) -> Self {
-        Self { ctx, algorithm, chunk: ChunkConfig::default() }
+        Self { ctx, algorithm, chunk: ChunkConfig::default(), tile: None }
     }
 
     /// The device.
@@ -70,6 +74,18 @@ impl GpuEngine {
     /// The same device and algorithm with outputs cut into chunks of `chunk`'s shape.
     pub fn with_chunk(&self, chunk: ChunkConfig) -> Self {
         Self { chunk, ..self.clone() }
+    }
+
+    /// The same engine with the chunked kernel's tile shape fixed to `CHUNKED_TILES[tile]`
+    /// (`None`: by the layer's width, the default), for benchmarks.
+    ///
+    /// # Errors
+    /// [`GpuError::Device`] for an index past the table.
+    pub fn with_tile(&self, tile: Option<usize>) -> Result<Self> {
+        if tile.is_some_and(|t| t >= CHUNKED_TILES.len()) {
+            return Err(GpuError::Device(format!("no tile shape {tile:?}: there are {}", CHUNKED_TILES.len())));
+        }
+        Ok(Self { tile, ..self.clone() })
     }
 
     /// The same device running `algorithm`.
@@ -182,12 +198,11 @@ impl GpuEngine {
             o[1],
         ]);
         let bindings = [(0, &params), (1, x), (2, w), (3, bnb), (4, &plan.buffer), (5, y)];
-        // One workgroup per tile of destinations x output channels; narrow layers take the
-        // narrow tile.
-        let which = usize::from(c_out <= CHUNKED_TILES[1].1 as usize);
-        let (tile_rows, tile_channels) = CHUNKED_TILES[which];
-        let tiles = plan.n_dst.div_ceil(tile_rows);
-        let channel_tiles = count32("channels", c_out.div_ceil(tile_channels as usize))?;
+        // One workgroup per tile of destinations x output channels, the shape by the width.
+        let which = self.tile.unwrap_or_else(|| TileShape::for_channels(c_out));
+        let shape = CHUNKED_TILES[which];
+        let tiles = plan.n_dst.div_ceil(shape.rows);
+        let channel_tiles = count32("channels", c_out.div_ceil(shape.channels as usize))?;
         ctx.dispatch(enc, &ctx.pipelines.chunked[which], &bindings, tiles, channel_tiles);
         Ok(())
     }

@@ -42,6 +42,7 @@ mod layer;
 mod resident;
 #[cfg(not(feature = "gpu"))]
 mod stub;
+mod tile;
 pub mod transfers;
 
 #[cfg(feature = "gpu")]
@@ -55,6 +56,7 @@ pub use layer::GpuLayer;
 pub use resident::{GpuGather, GpuTensor};
 #[cfg(not(feature = "gpu"))]
 pub use stub::{GpuContext, GpuEngine, GpuGather, GpuLayer, GpuTensor};
+pub use tile::{TileShape, CHUNKED_TILES};
 pub use transfers::TransferCounts;
 
 /// Whether this build has the GPU engine (the cargo feature `gpu`).

@@ -123,6 +123,11 @@ impl GpuEngine {
     pub fn with_chunk(&self, _chunk: ChunkConfig) -> Self {
         match *self.never {}
     }
+
+    /// Never called (no value exists).
+    pub fn with_tile(&self, _tile: Option<usize>) -> Result<Self> {
+        match *self.never {}
+    }
 }
 
 impl ConvBackend for GpuEngine {

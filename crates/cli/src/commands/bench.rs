@@ -18,7 +18,7 @@ use semrecon_data::datasets::synthetic::room_scan_poses;
 use semrecon_data::shared_data::shared_data_path;
 use semrecon_data::synth::{generate_room, RoomConfig, RoomStyle};
 use semrecon_data::{read_ply, Intrinsics, LabeledMesh, PreparedMesh, Renderer, ScanPlan, SensorModel};
-use semrecon_gpu::GpuEngine;
+use semrecon_gpu::{GpuEngine, CHUNKED_TILES};
 use semrecon_sparse::bench::{run_backend_bench, run_conv_bench, run_resident_forward_bench, BenchOptions, BenchRow};
 use semrecon_sparse::{ChunkConfig, ConvAlgorithm, KernelMap};
 use serde::Serialize;
@@ -82,6 +82,12 @@ struct ConvArgs {
     /// cache-sized chunks for a GPU. Rows are named `gpu-chunked SIDE/LEVELS/ROWS`.
     #[arg(long, value_delimiter = ',', value_parser = crate::cli_values::parse_chunk_shape)]
     gpu_chunks: Vec<ChunkConfig>,
+    /// With the GPU: also time the chunked kernel with each of these tile shapes forced
+    /// (indices into `semrecon_gpu::CHUNKED_TILES`: 0 = 64x64, 1 = 128x32, 2 = 128x64,
+    /// 3 = 64x128; by default the shape follows the layer's width). Rows are named
+    /// `gpu-chunked tile ROWSxCHANNELS`.
+    #[arg(long, value_delimiter = ',')]
+    gpu_tiles: Vec<usize>,
 }
 
 /// Runs the command.
@@ -182,6 +188,15 @@ fn conv(args: ConvArgs) -> anyhow::Result<()> {
     let gpu = args.device.gpu_context()?;
     let chunk_shapes = args.gpu_chunks;
     anyhow::ensure!(chunk_shapes.is_empty() || gpu.is_some(), "--gpu-chunks needs the GPU (--device gpu)");
+    anyhow::ensure!(args.gpu_tiles.is_empty() || gpu.is_some(), "--gpu-tiles needs the GPU (--device gpu)");
+    if let Some(bad) = args.gpu_tiles.iter().find(|&&t| t >= CHUNKED_TILES.len()) {
+        anyhow::bail!("--gpu-tiles {bad}: the shapes are 0..{}", CHUNKED_TILES.len() - 1);
+    }
+    let variants: Vec<GpuVariant> = chunk_shapes
+        .iter()
+        .map(|&c| GpuVariant::Chunk(c))
+        .chain(args.gpu_tiles.iter().map(|&t| GpuVariant::Tile(t)))
+        .collect();
     let mut rows = Vec::new();
     println!(
         "{:<26} {:>7} {:>6} {:>4} {:>9} {:>16} {:>9} {:>8} {:>7}",
@@ -197,7 +212,7 @@ fn conv(args: ConvArgs) -> anyhow::Result<()> {
         for &c in &args.channels {
             anyhow::ensure!((1..=1024).contains(&c), "--channels {c}: must be 1..=1024");
             if let Some(ctx) = &gpu {
-                rows.extend(gpu_conv(ctx, &scene, &coords, voxel, c, options.repeats, &chunk_shapes)?);
+                rows.extend(gpu_conv(ctx, &scene, &coords, voxel, c, options.repeats, &variants)?);
                 continue;
             }
             let report = run_conv_bench(&scene, &coords, voxel, c, c, &options)
@@ -235,6 +250,15 @@ fn print_conv_row(row: &BenchRow, voxel: f32, percent_of_sgemm: Option<f64>) {
     );
 }
 
+/// A variant of the GPU chunked kernel timed beside the defaults.
+#[derive(Clone, Copy)]
+enum GpuVariant {
+    /// Another chunk shape (`--gpu-chunks`).
+    Chunk(ChunkConfig),
+    /// A forced tile shape (`--gpu-tiles`).
+    Tile(usize),
+}
+
 /// Forwards per timed round of the resident rows: enough to hide one submission's latency.
 const RESIDENT_BATCH: usize = 10;
 
@@ -247,23 +271,31 @@ fn gpu_conv(
     voxel: f32,
     c: usize,
     repeats: usize,
-    chunk_shapes: &[ChunkConfig],
+    variants: &[GpuVariant],
 ) -> anyhow::Result<Vec<ConvRow>> {
     let mut rows = Vec::new();
     let default_runs = [(ConvAlgorithm::Chunked, None), (ConvAlgorithm::Rulebook, None)];
-    let shape_runs = chunk_shapes.iter().map(|&shape| (ConvAlgorithm::Chunked, Some(shape)));
-    for (algorithm, shape) in default_runs.into_iter().chain(shape_runs) {
+    let variant_runs = variants.iter().map(|&v| (ConvAlgorithm::Chunked, Some(v)));
+    for (algorithm, variant) in default_runs.into_iter().chain(variant_runs) {
         let mut engine = GpuEngine::with_context(std::sync::Arc::clone(ctx), algorithm);
-        if let Some(shape) = shape {
-            engine = engine.with_chunk(shape);
-        }
+        let label = match variant {
+            None => None,
+            Some(GpuVariant::Chunk(shape)) => {
+                engine = engine.with_chunk(shape);
+                Some(format!("{}/{}/{}", shape.chunk_side, shape.levels, shape.max_region_rows))
+            }
+            Some(GpuVariant::Tile(t)) => {
+                engine = engine.with_tile(Some(t))?;
+                Some(format!("tile {}x{}", CHUNKED_TILES[t].rows, CHUNKED_TILES[t].channels))
+            }
+        };
         let bench = run_backend_bench(&engine, scene, coords, voxel, c, c, repeats)
             .with_context(|| format!("GPU benchmark of {scene} at {voxel} m, {c} channels"))?;
         let resident = run_resident_forward_bench(&engine, scene, coords, voxel, c, c, repeats, RESIDENT_BATCH)
             .with_context(|| format!("GPU resident benchmark of {scene} at {voxel} m, {c} channels"))?;
         for mut row in bench.into_iter().chain(resident) {
-            if let Some(shape) = shape {
-                row.kernel = format!("{} {}/{}/{}", row.kernel, shape.chunk_side, shape.levels, shape.max_region_rows);
+            if let Some(label) = &label {
+                row.kernel = format!("{} {label}", row.kernel);
             }
             print_conv_row(&row, voxel, None);
             rows.push(ConvRow { row, device: ctx.adapter_name(), sgemm_gflops: 0.0, threads: 0, simd: String::new() });

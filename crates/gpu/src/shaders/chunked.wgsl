@@ -33,16 +33,20 @@ struct Params {
 }
 
 const EMPTY: u32 = 0xffffffffu;
-// Tile shape: TR destinations x TO output channels over 256 threads, each a 4 x 4 block. The
-// host compiles this source twice: 64 x 64, and 128 x 32 for layers of at most 32 output
-// channels (replacing the two lines below), so that narrow layers do not idle half a tile.
+// Tile shape: TR destinations x TO output channels over 256 threads, each a block of 4 RQ
+// destinations x 4 CQ channels. The host compiles this source once per shape of
+// `CHUNKED_TILES` (replacing the four lines below) and picks by the layer's output channels,
+// so that narrow layers do not idle half a tile and wide ones reuse each value read from
+// workgroup memory for more multiply-adds.
 const TR: u32 = 64u;
 const TO: u32 = 64u;
-const CT: u32 = 16u;          // input channels per step
-const TCOLS: u32 = TO / 4u;   // thread columns of the compute layout
-const A_LANES: u32 = 256u / TR; // threads loading one destination's CT channels
-const A_VALS: u32 = CT / A_LANES; // values each of them loads
-const W_VALS: u32 = TO / 16u; // weights each thread loads per step
+const RQ: u32 = 1u;
+const CQ: u32 = 1u;
+const CT: u32 = 16u;               // input channels per step
+const TCOLS: u32 = TO / (4u * CQ); // thread columns of the compute layout
+const A_LANES: u32 = 256u / TR;    // threads loading one destination's CT channels
+const A_VALS: u32 = CT / A_LANES;  // values each of them loads
+const W_VALS: u32 = TO / 16u;      // weights each thread loads per step
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> x: array<f32>;
@@ -76,7 +80,7 @@ fn forward(
         return;
     }
     let o0 = wid.z * TO;
-    // Compute roles: destinations 4 tr .. 4 tr + 3, channels o0 + 4 tc .. + 3.
+    // Compute roles: destinations 4 RQ tr .. + 4 RQ - 1, channels o0 + 4 CQ tc .. + 4 CQ - 1.
     let tr = lid / TCOLS;
     let tc = lid % TCOLS;
     // Load roles: destination lr, channels lc .. lc + A_VALS - 1 of the step; weight row wc,
@@ -85,10 +89,24 @@ fn forward(
     let lc = (lid % A_LANES) * A_VALS;
     let wc = lid / 16u;
     let wq = (lid % 16u) * W_VALS;
-    var acc0 = vec4<f32>(0.0);
-    var acc1 = vec4<f32>(0.0);
-    var acc2 = vec4<f32>(0.0);
-    var acc3 = vec4<f32>(0.0);
+    // acc<row><channel quad>: separate variables, not an array (an indexed array may live in
+    // slow per-thread memory); the unused ones of smaller shapes fold away.
+    var acc00 = vec4<f32>(0.0);
+    var acc10 = vec4<f32>(0.0);
+    var acc20 = vec4<f32>(0.0);
+    var acc30 = vec4<f32>(0.0);
+    var acc40 = vec4<f32>(0.0);
+    var acc50 = vec4<f32>(0.0);
+    var acc60 = vec4<f32>(0.0);
+    var acc70 = vec4<f32>(0.0);
+    var acc01 = vec4<f32>(0.0);
+    var acc11 = vec4<f32>(0.0);
+    var acc21 = vec4<f32>(0.0);
+    var acc31 = vec4<f32>(0.0);
+    var acc41 = vec4<f32>(0.0);
+    var acc51 = vec4<f32>(0.0);
+    var acc61 = vec4<f32>(0.0);
+    var acc71 = vec4<f32>(0.0);
     for (var k = 0u; k < p.kv; k++) {
         if (lid < TR) {
             var s = EMPTY;
@@ -126,25 +144,65 @@ fn forward(
                 if (c < p.c_in && o0 + q < p.c_out) {
                     v = w[(k * p.c_in + c) * p.c_out + o0 + q];
                 }
-                w_tile[wc * TCOLS + q / 4u][q % 4u] = v;
+                w_tile[wc * (TO / 4u) + q / 4u][q % 4u] = v;
             }
             workgroupBarrier();
             for (var cc = 0u; cc < CT; cc++) {
-                let a = a_tile[cc * (TR / 4u) + tr];
-                let b = w_tile[cc * TCOLS + tc];
-                acc0 += a.x * b;
-                acc1 += a.y * b;
-                acc2 += a.z * b;
-                acc3 += a.w * b;
+                let a0 = a_tile[cc * (TR / 4u) + tr * RQ];
+                let b0 = w_tile[cc * (TO / 4u) + tc * CQ];
+                acc00 += a0.x * b0;
+                acc10 += a0.y * b0;
+                acc20 += a0.z * b0;
+                acc30 += a0.w * b0;
+                var b1 = vec4<f32>(0.0);
+                if (CQ > 1u) {
+                    b1 = w_tile[cc * (TO / 4u) + tc * CQ + 1u];
+                    acc01 += a0.x * b1;
+                    acc11 += a0.y * b1;
+                    acc21 += a0.z * b1;
+                    acc31 += a0.w * b1;
+                }
+                if (RQ > 1u) {
+                    let a1 = a_tile[cc * (TR / 4u) + tr * RQ + 1u];
+                    acc40 += a1.x * b0;
+                    acc50 += a1.y * b0;
+                    acc60 += a1.z * b0;
+                    acc70 += a1.w * b0;
+                    if (CQ > 1u) {
+                        acc41 += a1.x * b1;
+                        acc51 += a1.y * b1;
+                        acc61 += a1.z * b1;
+                        acc71 += a1.w * b1;
+                    }
+                }
             }
             workgroupBarrier();
         }
     }
-    let o = o0 + 4u * tc;
-    store(t0 + 4u * tr, o, acc0);
-    store(t0 + 4u * tr + 1u, o, acc1);
-    store(t0 + 4u * tr + 2u, o, acc2);
-    store(t0 + 4u * tr + 3u, o, acc3);
+    let r = t0 + 4u * RQ * tr;
+    let o = o0 + 4u * CQ * tc;
+    store(r, o, acc00);
+    store(r + 1u, o, acc10);
+    store(r + 2u, o, acc20);
+    store(r + 3u, o, acc30);
+    if (CQ > 1u) {
+        store(r, o + 4u, acc01);
+        store(r + 1u, o + 4u, acc11);
+        store(r + 2u, o + 4u, acc21);
+        store(r + 3u, o + 4u, acc31);
+    }
+    if (RQ > 1u) {
+        store(r + 4u, o, acc40);
+        store(r + 5u, o, acc50);
+        store(r + 6u, o, acc60);
+        store(r + 7u, o, acc70);
+        if (CQ > 1u) {
+            store(r + 4u, o + 4u, acc41);
+            store(r + 5u, o + 4u, acc51);
+            store(r + 6u, o + 4u, acc61);
+            store(r + 7u, o + 4u, acc71);
+        }
+    }
 }
 
 // Writes (or, with the accumulate flag, adds) channels o .. o + 3 of destination t (plan

@@ -1,0 +1,51 @@
+//! Every tile shape of the chunked kernel (`CHUNKED_TILES`), forced, against the rulebook
+//! kernel (itself held to the plain reference by the shared suite): the default policy only
+//! reaches each shape at some widths, so each is checked here at widths below, at and above
+//! its tile, with a fused batch norm and a residual.
+
+#![cfg(feature = "gpu")]
+
+use std::sync::Arc;
+
+use semrecon_gpu::{GpuContext, GpuEngine, CHUNKED_TILES};
+use semrecon_sparse::backend_tests::surface_set;
+use semrecon_sparse::{BnRelu, ConvAlgorithm, ConvBackend};
+
+fn values(n: usize, seed: usize) -> Vec<f32> {
+    (0..n).map(|i| (((i + seed) * 7919) % 101) as f32 / 101.0 - 0.5).collect()
+}
+
+#[test]
+fn every_tile_shape_matches_the_rulebook_kernel() {
+    let ctx = match GpuContext::new() {
+        Ok(c) => Arc::new(c),
+        Err(e) => {
+            eprintln!("skipping a GPU test: {e}");
+            return;
+        }
+    };
+    let coords = surface_set(5);
+    let n = coords.len();
+    let rulebook = GpuEngine::with_context(Arc::clone(&ctx), ConvAlgorithm::Rulebook);
+    let layer = rulebook.submanifold(&coords, 3).expect("layer");
+    for (c_in, c_out) in [(3, 5), (17, 33), (33, 70), (20, 131)] {
+        let x = values(n * c_in, 1);
+        let w = values(27 * c_in * c_out, 2);
+        let (scale, shift) = (values(c_in, 3), values(c_in, 4));
+        let bn = Some(BnRelu { scale: &scale, shift: &shift });
+        let mut expected = values(n * c_out, 5);
+        rulebook.forward_into(&layer, &x, c_in, bn, &w, c_out, &mut expected, true).expect("rulebook");
+        let top = expected.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-6);
+        for (t, shape) in CHUNKED_TILES.iter().enumerate() {
+            let chunked = GpuEngine::with_context(Arc::clone(&ctx), ConvAlgorithm::Chunked)
+                .with_tile(Some(t))
+                .expect("tile");
+            let mut got = values(n * c_out, 5);
+            chunked.forward_into(&layer, &x, c_in, bn, &w, c_out, &mut got, true).expect("chunked");
+            let diff = got.iter().zip(&expected).fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+            assert!(diff <= 1e-4 * top, "tile {shape:?}, {c_in} -> {c_out}: {diff} of {top}");
+        }
+    }
+    let gpu = GpuEngine::with_context(ctx, ConvAlgorithm::Chunked);
+    assert!(gpu.with_tile(Some(CHUNKED_TILES.len())).is_err());
+}
