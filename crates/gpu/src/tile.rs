@@ -17,8 +17,11 @@ pub struct TileShape {
 }
 
 /// The chunked kernel's tile shapes, compiled once per device: 64 x 64 (4 x 4 a thread),
-/// 128 x 32 for layers of at most 32 output channels, 128 x 64 (8 x 4 a thread) and 64 x 128
-/// (4 x 8 a thread) for wider ones. [`TileShape::for_channels`] picks one.
+/// 128 x 32 for layers of at most 32 output channels, 128 x 64 (8 x 4 a thread) for wider
+/// ones, and 64 x 128 (4 x 8 a thread), kept for benchmarks. [`TileShape::for_channels`]
+/// picks one; on an H100 (docs/gpu.md, run 6) 128 x 32 was the fastest at 32 channels and
+/// 128 x 64 at 64 and 128 (10-13 % ahead of 64 x 64 at 2 cm, 64 x 128 within 3 % at 128
+/// channels and 1.9x slower at 64).
 pub const CHUNKED_TILES: [TileShape; 4] = [
     TileShape { rows: 64, channels: 64, row_quads: 1, channel_quads: 1 },
     TileShape { rows: 128, channels: 32, row_quads: 1, channel_quads: 1 },
@@ -28,12 +31,12 @@ pub const CHUNKED_TILES: [TileShape; 4] = [
 
 impl TileShape {
     /// The index in [`CHUNKED_TILES`] of the shape for a layer of `c_out` output channels:
-    /// the narrow tile up to 32, 128 x 64 up to 64, 64 x 128 beyond.
+    /// the narrow tile up to 32, 128 x 64 beyond.
     pub fn for_channels(c_out: usize) -> usize {
-        match c_out {
-            0..=32 => 1,
-            33..=64 => 2,
-            _ => 3,
+        if c_out <= 32 {
+            1
+        } else {
+            2
         }
     }
 

@@ -37,9 +37,8 @@ fn every_tile_shape_matches_the_rulebook_kernel() {
         rulebook.forward_into(&layer, &x, c_in, bn, &w, c_out, &mut expected, true).expect("rulebook");
         let top = expected.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-6);
         for (t, shape) in CHUNKED_TILES.iter().enumerate() {
-            let chunked = GpuEngine::with_context(Arc::clone(&ctx), ConvAlgorithm::Chunked)
-                .with_tile(Some(t))
-                .expect("tile");
+            let chunked =
+                GpuEngine::with_context(Arc::clone(&ctx), ConvAlgorithm::Chunked).with_tile(Some(t)).expect("tile");
             let mut got = values(n * c_out, 5);
             chunked.forward_into(&layer, &x, c_in, bn, &w, c_out, &mut got, true).expect("chunked");
             let diff = got.iter().zip(&expected).fold(0f32, |m, (a, b)| m.max((a - b).abs()));
