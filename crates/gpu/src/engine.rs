@@ -76,6 +76,18 @@ impl GpuEngine {
         Self { chunk, ..self.clone() }
     }
 
+    /// A layer of a neighbour table (`[n_out, kv]`, the input row of every output at every
+    /// offset or `u32::MAX`, outputs in the order the work should follow: Z-order) for this
+    /// engine's forward, without the host's chunk plans: what the network's GPU path imports
+    /// ([`GpuError::LayerPart`] for the other algorithm and the gradients).
+    ///
+    /// # Errors
+    /// A table that is not whole rows or names a row past `n_in`; buffers over the device's
+    /// limits, a lost device.
+    pub fn import_table(&self, kind: MapKind, n_in: usize, table: &[u32]) -> Result<GpuLayer> {
+        GpuLayer::from_table(&self.ctx, kind, n_in, table, self.algorithm)
+    }
+
     /// The same engine with the chunked kernel's tile shape fixed to `CHUNKED_TILES[tile]`
     /// (`None`: by the layer's width, the default), for benchmarks.
     ///

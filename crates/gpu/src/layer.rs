@@ -68,6 +68,19 @@ impl DevicePlan {
     }
 }
 
+impl DevicePlan {
+    /// The plan of a neighbour table taken as it is: destinations in row order (the table's
+    /// rows are Z-ordered by whoever built them), no chunks.
+    fn upload_table(ctx: &GpuContext, table: &[u32], n_dst: usize) -> Result<Self> {
+        let n = u32::try_from(n_dst).map_err(|_| SparseError::TooManyRows(n_dst))?;
+        let mut words = Vec::with_capacity(n_dst + table.len());
+        words.extend(0..n);
+        words.extend_from_slice(table);
+        word_offset(words.len())?;
+        Ok(Self { buffer: ctx.upload("neighbour table", &words)?, n_dst: n, offsets: [0, n] })
+    }
+}
+
 /// The rulebook kernels' per-offset pair lists on the device.
 #[derive(Debug)]
 pub(crate) struct DevicePairs {
@@ -164,6 +177,50 @@ impl GpuLayer {
             backward,
             pairs,
         })
+    }
+
+    /// The layer of a `[n_out, kv]` neighbour table (entry `(u, k)`: the input row of output
+    /// `u` at offset `k`, or EMPTY), for `algorithm`'s forward only, as
+    /// [`LayerParts::Forward`]: the chunked kernel reads the table itself, the rulebook kernels
+    /// its pair lists.
+    ///
+    /// # Errors
+    /// A table that is not `n_out` rows of `kv` entries or names a row past `n_in`; buffers
+    /// over the device's limits.
+    pub(crate) fn from_table(
+        ctx: &GpuContext,
+        kind: MapKind,
+        n_in: usize,
+        table: &[u32],
+        algorithm: ConvAlgorithm,
+    ) -> Result<Self> {
+        let kv = match kind {
+            MapKind::Submanifold { kernel_size } => kernel_size.pow(3),
+            MapKind::Down | MapKind::Up => 8,
+        };
+        if !table.len().is_multiple_of(kv) {
+            return Err(SparseError::InvalidArgument(format!(
+                "a neighbour table of {} entries is not whole rows of {kv}",
+                table.len()
+            ))
+            .into());
+        }
+        let n_out = table.len() / kv;
+        let (bad, n_pairs) = table
+            .par_iter()
+            .map(|&r| (usize::from(r != EMPTY && r as usize >= n_in), usize::from(r != EMPTY)))
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        if bad > 0 {
+            return Err(SparseError::InvalidArgument(format!(
+                "{bad} neighbour table entries name rows past the {n_in} input rows"
+            ))
+            .into());
+        }
+        let (forward, pairs) = match algorithm {
+            ConvAlgorithm::Chunked => (Some(DevicePlan::upload_table(ctx, table, n_out)?), None),
+            ConvAlgorithm::Rulebook => (None, Some(upload_pairs(ctx, table, kv)?)),
+        };
+        Ok(Self { kind, kv, n_in, n_out, n_pairs, forward, backward: None, pairs })
     }
 
     /// A submanifold layer with its neighbour table built on the device.

@@ -6,7 +6,7 @@ use std::convert::Infallible;
 use std::sync::Arc;
 
 use semrecon_sparse::{
-    BnRelu, ChunkConfig, ChunkedConv, ConvAlgorithm, ConvBackend, Coord, GatherTable, ResidentBackend,
+    BnRelu, ChunkConfig, ChunkedConv, ConvAlgorithm, ConvBackend, Coord, GatherTable, MapKind, ResidentBackend,
 };
 
 use crate::error::{GpuError, Result};
@@ -116,6 +116,11 @@ impl GpuEngine {
 
     /// Never called (no value exists).
     pub fn import(&self, _layer: &ChunkedConv) -> Result<GpuLayer> {
+        match *self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn import_table(&self, _kind: MapKind, _n_in: usize, _table: &[u32]) -> Result<GpuLayer> {
         match *self.never {}
     }
 

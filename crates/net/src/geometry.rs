@@ -73,17 +73,10 @@ impl NetGeometry {
             };
             levels.push(Level { coords: std::mem::replace(&mut current, next), subm, point, nbr, parent, down });
         }
-        let mut interp = Vec::new();
-        for t in 0..l.saturating_sub(2) {
-            let mut per = Vec::new();
-            let mut anc: Vec<u32> = (0..levels[t].coords.len() as u32).collect();
-            for j in t + 1..=l - 2 {
-                let par = &levels[j - 1].parent;
-                anc.iter_mut().for_each(|a| *a = par[*a as usize]);
-                per.push(interp_table(&levels[t].coords, &anc, &levels[j].nbr, (j - t) as u32)?);
-            }
-            interp.push(per);
-        }
+        let coords: Vec<&[Coord]> = levels.iter().map(|v| v.coords.as_slice()).collect();
+        let parents: Vec<&[u32]> = levels.iter().map(|v| v.parent.as_slice()).collect();
+        let nbrs: Vec<&[u32]> = levels.iter().map(|v| v.nbr.as_slice()).collect();
+        let interp = interpolation_tables(&coords, &parents, &nbrs)?;
         Ok(Self { levels, interp })
     }
 
@@ -141,6 +134,32 @@ impl NetGeometry {
             l.subm.map();
         });
     }
+}
+
+/// The cross-scale fusion's trilinear tables of every pair of levels `t < j <= L - 2`:
+/// `result[t][j - t - 1]` interpolates level `j` onto level `t`.
+///
+/// # Shapes
+/// Per level `i`: `coords[i]`: `[n_i]`; `parents[i]`: `[n_i]` rows of level `i + 1`;
+/// `nbrs[i]`: `[n_i, 27]` (needed for the fusion sources `1 ..= L - 2` only).
+pub(crate) fn interpolation_tables(
+    coords: &[&[Coord]],
+    parents: &[&[u32]],
+    nbrs: &[&[u32]],
+) -> Result<Vec<Vec<GatherTable>>> {
+    let l = coords.len();
+    let mut interp = Vec::new();
+    for (t, fine) in coords.iter().enumerate().take(l.saturating_sub(2)) {
+        let mut per = Vec::new();
+        let mut anc: Vec<u32> = (0..fine.len() as u32).collect();
+        for j in t + 1..=l - 2 {
+            let par = parents[j - 1];
+            anc.iter_mut().for_each(|a| *a = par[*a as usize]);
+            per.push(interp_table(fine, &anc, nbrs[j], (j - t) as u32)?);
+        }
+        interp.push(per);
+    }
+    Ok(interp)
 }
 
 /// `[n, 27]` neighbour rows of a submanifold map (`u32::MAX` where absent): the input of

@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 use semrecon_gpu::{GpuEngine, GpuGather, GpuLayer, GpuTensor};
 use semrecon_sparse::morton::morton_order;
 use semrecon_sparse::{
-    voxelize, ChunkConfig, ConvAlgorithm, Coord, CpuEngine, GatherTable, ResidentBackend, Voxelization,
+    voxelize, ChunkConfig, ConvAlgorithm, Coord, CpuEngine, GatherTable, MapKind, ResidentBackend, Voxelization,
 };
 
 use crate::config::NetConfig;
@@ -27,6 +27,7 @@ use crate::error::{NetError, Result};
 use crate::forward::{forward, LevelLayers, Params, Prepared, Readout, Scores, Workspace};
 use crate::geometry::NetGeometry;
 use crate::model::LevelStats;
+use crate::table_geometry::TableGeometry;
 use crate::weights::Weights;
 
 /// Input features of colours: `c / 127.5 - 1` per channel (RGB in `[-1, 1]`), the
@@ -302,6 +303,16 @@ impl Segmenter {
             return Ok(Scores::default());
         }
         let t0 = Instant::now();
+        if let Device::Gpu(engine) = &self.device {
+            // The GPU's kernels walk rows in Z-order themselves: tables, no chunk plans.
+            let engine = engine.clone();
+            let geo = TableGeometry::build(coords, &self.config)?;
+            let t1 = Instant::now();
+            let (scores, upload) = self.run_table_layers(&engine, &geo, feats, readout)?;
+            self.timing = Timing { geometry: t1 - t0, forward: t1.elapsed(), upload };
+            self.stats = geo.stats();
+            return Ok(scores);
+        }
         let geo = NetGeometry::build(coords, &self.config, &self.chunk)?;
         if self.kernel == ConvKernel::Rulebook {
             geo.build_maps();
@@ -378,6 +389,67 @@ impl Segmenter {
                 Ok((forward(&engine, &prepared, config, &resident.params, &mut resident.ws, feats, readout)?, upload))
             }
         }
+    }
+}
+
+impl Segmenter {
+    /// The layers on the GPU engine from a [`TableGeometry`]: the weights on the device (kept
+    /// between calls), the tables uploaded per call, one forward. Also returns the time spent
+    /// uploading the geometry.
+    fn run_table_layers(
+        &mut self,
+        device: &GpuEngine,
+        geo: &TableGeometry,
+        feats: &[f32],
+        readout: Readout,
+    ) -> Result<(Scores, Duration)> {
+        let algorithm = match self.kernel {
+            ConvKernel::Chunked => ConvAlgorithm::Chunked,
+            ConvKernel::Rulebook => ConvAlgorithm::Rulebook,
+        };
+        let engine = device.with_algorithm(algorithm);
+        let Self { config, params, gpu, .. } = self;
+        let resident = match gpu {
+            Some(r) => r,
+            None => gpu.insert(Resident {
+                params: params.map(&mut |t| engine.upload(t))?,
+                ws: Workspace::new(&engine, config.levels)?,
+            }),
+        };
+        let t = Instant::now();
+        let sub = MapKind::Submanifold { kernel_size: 3 };
+        let point = MapKind::Submanifold { kernel_size: 1 };
+        let mut owned = Vec::with_capacity(geo.levels.len());
+        for (i, l) in geo.levels.iter().enumerate() {
+            let n = l.coords.len();
+            let identity: Vec<u32> = (0..n as u32).collect();
+            let down = match &l.down {
+                Some((d, u)) => {
+                    let n_next = geo.levels.get(i + 1).map_or(0, |next| next.coords.len());
+                    Some((engine.import_table(MapKind::Down, n, d)?, engine.import_table(MapKind::Up, n_next, u)?))
+                }
+                None => None,
+            };
+            owned.push((engine.import_table(sub, n, &l.subm)?, engine.import_table(point, n, &identity)?, down));
+        }
+        let tables: Vec<Vec<GpuGather>> = geo
+            .interp
+            .iter()
+            .map(|per| per.iter().map(|t: &GatherTable| engine.gather_table(t)).collect())
+            .collect::<std::result::Result<_, _>>()?;
+        let levels = owned
+            .iter()
+            .map(|(subm, point, down): &(GpuLayer, GpuLayer, Option<(GpuLayer, GpuLayer)>)| LevelLayers {
+                subm,
+                point,
+                down: down.as_ref().map(|(d, u)| (d, u)),
+            })
+            .collect();
+        let interp = tables.iter().map(|per| per.iter().collect()).collect();
+        let rows = geo.levels.iter().map(|l| l.coords.len()).collect();
+        let upload = t.elapsed();
+        let prepared = Prepared::<GpuEngine> { levels, interp, rows };
+        Ok((forward(&engine, &prepared, config, &resident.params, &mut resident.ws, feats, readout)?, upload))
     }
 }
 

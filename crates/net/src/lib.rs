@@ -50,6 +50,7 @@ pub mod scan_imitation;
 pub mod shipped;
 pub mod structure;
 pub mod surface;
+mod table_geometry;
 #[cfg(feature = "train")]
 pub mod train;
 pub mod tta;

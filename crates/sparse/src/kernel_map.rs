@@ -115,8 +115,13 @@ impl KernelMap {
         Ok((map, table))
     }
 
-    /// The `[n, K^3]` neighbour table of [`Self::submanifold_with_table`] alone.
-    fn submanifold_table(coords: &[Coord], kernel_size: usize) -> Result<Vec<u32>> {
+    /// The `[n, K^3]` neighbour table of [`Self::submanifold_with_table`] alone: what an
+    /// engine that orders its work by rows needs (the GPU engine's tiles), without pair lists
+    /// or a chunk plan.
+    ///
+    /// # Errors
+    /// As [`Self::submanifold`].
+    pub fn submanifold_table(coords: &[Coord], kernel_size: usize) -> Result<Vec<u32>> {
         let index = Self::submanifold_index(coords, kernel_size)?;
         Ok(if kernel_size == 1 {
             (0..coords.len() as u32).collect()
