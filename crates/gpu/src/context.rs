@@ -62,6 +62,10 @@ pub(crate) struct Pipelines {
     pub scatter: wgpu::ComputePipeline,
     pub bn_relu: wgpu::ComputePipeline,
     pub weight_grad: wgpu::ComputePipeline,
+    /// The chunked algorithm's weight gradient (shaders/weight_grad.wgsl).
+    pub weight_grad_tiled: wgpu::ComputePipeline,
+    /// Sums its segments' partial weight gradients.
+    pub reduce_segments: wgpu::ComputePipeline,
     pub gate: wgpu::ComputePipeline,
     pub gather_add: wgpu::ComputePipeline,
     pub add_bias: wgpu::ComputePipeline,
@@ -503,6 +507,7 @@ impl Pipelines {
             module("chunked", &source)
         });
         let rulebook = module("rulebook", include_str!("shaders/rulebook.wgsl"));
+        let weight_grad = module("weight_grad", include_str!("shaders/weight_grad.wgsl"));
         let elementwise = module("elementwise", include_str!("shaders/elementwise.wgsl"));
         let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
@@ -523,6 +528,8 @@ impl Pipelines {
             scatter: pipeline(&rulebook, "scatter"),
             bn_relu: pipeline(&rulebook, "bn_relu"),
             weight_grad: pipeline(&rulebook, "weight_grad"),
+            weight_grad_tiled: pipeline(&weight_grad, "weight_grad"),
+            reduce_segments: pipeline(&weight_grad, "reduce_segments"),
             gate: pipeline(&elementwise, "gate"),
             gather_add: pipeline(&elementwise, "gather_add"),
             add_bias: pipeline(&elementwise, "add_bias"),

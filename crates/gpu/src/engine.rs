@@ -33,6 +33,11 @@ pub struct GpuEngine {
     tile: Option<usize>,
 }
 
+/// Destinations per block of the chunked weight gradient (shaders/weight_grad.wgsl `RB`).
+const WEIGHT_GRAD_ROWS: u32 = 32;
+/// Workgroups the chunked weight gradient aims for (segments of rows times weight blocks).
+const WEIGHT_GRAD_GROUPS: u32 = 512;
+
 /// Weights `[kv, c_in, c_out]` transposed per offset to `[kv, c_out, c_in]`, offset `k` taken
 /// from `source(k)`.
 fn transpose(w: &[f32], kv: usize, c_in: usize, c_out: usize, source: impl Fn(usize) -> usize) -> Vec<f32> {
@@ -399,12 +404,55 @@ impl ConvBackend for GpuEngine {
         let dyb = ctx.transient_upload("output gradient", dy)?;
         // Every weight is written by the kernel.
         let dwb = ctx.transient("weight gradient", dw.len() as u64 * 4)?;
-        let n_pairs = count32("pairs", layer.num_pairs())?;
         let (cs, cd) = (count32("channels", c_in)?, count32("channels", c_out)?);
-        let params = ctx.params(&[0, cs, cd, 0, n_pairs, 0, 0, kv as u32]);
         let mut enc = ctx.encoder();
-        let b = [(0, &params), (1, &xb), (2, &layer.pairs()?.buffer), (4, &dwb), (5, &dyb)];
-        ctx.dispatch(&mut enc, &ctx.pipelines.weight_grad, &b, count32("weights", dw.len())?.div_ceil(WORKGROUP), 1);
+        match self.algorithm {
+            ConvAlgorithm::Chunked => {
+                // Blocks of 16 input x 64 output channels per offset, each over a segment of
+                // the plan's rows; the segment count depends on the sizes alone (same bits on
+                // every device) and gives a GPU some hundreds of workgroups.
+                let plan = layer.forward_plan()?;
+                let (c_blocks, o_blocks) = (cs.div_ceil(16), cd.div_ceil(64));
+                let blocks = kv as u32 * c_blocks * o_blocks;
+                let most = plan.n_dst.div_ceil(WEIGHT_GRAD_ROWS).max(1);
+                let wanted = WEIGHT_GRAD_GROUPS.div_ceil(blocks).clamp(1, most);
+                let segment_rows = plan.n_dst.div_ceil(wanted).next_multiple_of(WEIGHT_GRAD_ROWS).max(WEIGHT_GRAD_ROWS);
+                let segments = plan.n_dst.div_ceil(segment_rows).max(1);
+                let params = ctx.params(&[
+                    cs,
+                    cd,
+                    kv as u32,
+                    plan.n_dst,
+                    plan.offsets[0],
+                    plan.offsets[1],
+                    c_blocks,
+                    segments,
+                    segment_rows,
+                ]);
+                let partial;
+                let out = if segments == 1 {
+                    &dwb
+                } else {
+                    partial = ctx.transient("weight gradient parts", u64::from(segments) * dw.len() as u64 * 4)?;
+                    &partial
+                };
+                let b = [(0, &params), (1, &xb), (2, &dyb), (3, &plan.buffer), (4, out)];
+                let groups = count32("weight blocks", (segments * kv as u32 * c_blocks) as usize)?;
+                ctx.dispatch(&mut enc, &ctx.pipelines.weight_grad_tiled, &b, groups, o_blocks);
+                if segments > 1 {
+                    let r = [(0, &params), (5, out), (6, &dwb)];
+                    let threads = count32("weights", dw.len())?.div_ceil(WORKGROUP);
+                    ctx.dispatch(&mut enc, &ctx.pipelines.reduce_segments, &r, threads, 1);
+                }
+            }
+            ConvAlgorithm::Rulebook => {
+                let n_pairs = count32("pairs", layer.num_pairs())?;
+                let params = ctx.params(&[0, cs, cd, 0, n_pairs, 0, 0, kv as u32]);
+                let b = [(0, &params), (1, &xb), (2, &layer.pairs()?.buffer), (4, &dwb), (5, &dyb)];
+                let threads = count32("weights", dw.len())?.div_ceil(WORKGROUP);
+                ctx.dispatch(&mut enc, &ctx.pipelines.weight_grad, &b, threads, 1);
+            }
+        }
         ctx.finish_and_read(enc, &dwb, dw.len())
     }
 }

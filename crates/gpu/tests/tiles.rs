@@ -1,7 +1,8 @@
 //! Every tile shape of the chunked kernel (`CHUNKED_TILES`), forced, against the rulebook
 //! kernel (itself held to the plain reference by the shared suite): the default policy only
 //! reaches each shape at some widths, so each is checked here at widths below, at and above
-//! its tile, with a fused batch norm and a residual.
+//! its tile, with a fused batch norm and a residual. Likewise the chunked weight gradient's
+//! channel blocks.
 
 #![cfg(feature = "gpu")]
 
@@ -47,4 +48,38 @@ fn every_tile_shape_matches_the_rulebook_kernel() {
     }
     let gpu = GpuEngine::with_context(ctx, ConvAlgorithm::Chunked);
     assert!(gpu.with_tile(Some(CHUNKED_TILES.len())).is_err());
+}
+
+/// The chunked weight gradient (blocks of 16 input x 64 output channels) against the
+/// rulebook's, at widths that cut partial blocks both ways, on submanifold and strided layers.
+#[test]
+fn chunked_weight_gradient_matches_the_rulebook_kernel() {
+    let ctx = match GpuContext::new() {
+        Ok(c) => Arc::new(c),
+        Err(e) => {
+            eprintln!("skipping a GPU test: {e}");
+            return;
+        }
+    };
+    let coords = surface_set(5);
+    let rulebook = GpuEngine::with_context(Arc::clone(&ctx), ConvAlgorithm::Rulebook);
+    let chunked = GpuEngine::with_context(ctx, ConvAlgorithm::Chunked);
+    let (coarse, _) = chunked.downsample(&coords).expect("coarse set");
+    for (c_in, c_out) in [(3, 5), (17, 33), (33, 70), (20, 131)] {
+        let layers = [
+            (chunked.submanifold(&coords, 3).expect("layer"), rulebook.submanifold(&coords, 3).expect("layer")),
+            (chunked.downsample(&coords).expect("down").1, rulebook.downsample(&coords).expect("down").1),
+            (chunked.upsample(&coarse, &coords).expect("up"), rulebook.upsample(&coarse, &coords).expect("up")),
+        ];
+        for (a, b) in &layers {
+            let (n_in, n_out) = chunked.layer_rows(a);
+            let x = values(n_in * c_in, 6);
+            let dy = values(n_out * c_out, 7);
+            let got = chunked.backward_weight(a, &x, c_in, &dy, c_out).expect("chunked");
+            let expected = rulebook.backward_weight(b, &x, c_in, &dy, c_out).expect("rulebook");
+            let top = expected.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-6);
+            let diff = got.iter().zip(&expected).fold(0f32, |m, (p, q)| m.max((p - q).abs()));
+            assert!(diff <= 1e-4 * top, "{:?}, {c_in} -> {c_out}: {diff} of {top}", a.kind());
+        }
+    }
 }
