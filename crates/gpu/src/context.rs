@@ -497,7 +497,9 @@ impl Pipelines {
             })
         };
         let map = module("map", include_str!("shaders/map.wgsl"));
-        let chunked_source = include_str!("shaders/chunked.wgsl");
+        // WGSL has no includes: the shared helper goes after each kernel that calls it.
+        let workgroup_any = include_str!("shaders/workgroup_any.wgsl");
+        let chunked_source = [include_str!("shaders/chunked.wgsl"), workgroup_any].concat();
         let chunked_tiles = CHUNKED_TILES.map(|t| {
             let source = chunked_source
                 .replace("const TR: u32 = 64u;", &format!("const TR: u32 = {}u;", t.rows))
@@ -507,7 +509,7 @@ impl Pipelines {
             module("chunked", &source)
         });
         let rulebook = module("rulebook", include_str!("shaders/rulebook.wgsl"));
-        let weight_grad = module("weight_grad", include_str!("shaders/weight_grad.wgsl"));
+        let weight_grad = module("weight_grad", &[include_str!("shaders/weight_grad.wgsl"), workgroup_any].concat());
         let elementwise = module("elementwise", include_str!("shaders/elementwise.wgsl"));
         let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {

@@ -204,15 +204,14 @@ impl GpuEngine {
             }
         };
         let flags = u32::from(bn.is_some()) | (u32::from(accumulate) << 1);
-        let o = plan.offsets;
         let params = ctx.params(&[
             count32("channels", c_in)?,
             count32("channels", c_out)?,
             kv as u32,
             plan.n_dst,
             flags,
-            o[0],
-            o[1],
+            0,
+            plan.table_offset(),
         ]);
         let bindings = [(0, &params), (1, x), (2, w), (3, bnb), (4, &plan.buffer), (5, y)];
         // One workgroup per tile of destinations x output channels, the shape by the width.
@@ -423,8 +422,8 @@ impl ConvBackend for GpuEngine {
                     cd,
                     kv as u32,
                     plan.n_dst,
-                    plan.offsets[0],
-                    plan.offsets[1],
+                    0,
+                    plan.table_offset(),
                     c_blocks,
                     segments,
                     segment_rows,

@@ -21,18 +21,21 @@ use crate::error::{GpuError, Result};
 pub(crate) const EMPTY: u32 = u32::MAX;
 
 /// A chunk plan on the device, as the chunked kernel reads it: the destinations in plan
-/// order and their source rows at every offset, in one buffer.
+/// order (`[n_dst]`, from word 0) and then their source rows at every offset (`[n_dst, kv]`,
+/// or EMPTY; from word [`Self::table_offset`]), in one buffer.
 #[derive(Debug)]
 pub(crate) struct DevicePlan {
     pub buffer: wgpu::Buffer,
     /// Destinations (rows of the plan's order).
     pub n_dst: u32,
-    /// Word offsets of the destination rows (`[n_dst]`) and of the neighbour table
-    /// (`[n_dst, kv]`, the source row of every destination at every offset, or EMPTY).
-    pub offsets: [u32; 2],
 }
 
 impl DevicePlan {
+    /// The word where the neighbour table starts (after the destination rows).
+    pub(crate) fn table_offset(&self) -> u32 {
+        self.n_dst
+    }
+
     /// Uploads `plan`'s destinations and its neighbour table in plan order (chunks in
     /// parallel: on the host this is the per-call cost of a new geometry).
     fn upload(ctx: &GpuContext, plan: &ChunkPlan) -> Result<Self> {
@@ -58,26 +61,25 @@ impl DevicePlan {
                 }
             }
         });
-        let mut words = Vec::with_capacity(n_dst + table.len());
-        words.extend_from_slice(a.dst_rows);
-        let offsets = [0, word_offset(n_dst)?];
-        words.extend_from_slice(&table);
-        word_offset(words.len())?;
-        let n_dst = u32::try_from(n_dst).map_err(|_| SparseError::TooManyRows(n_dst))?;
-        Ok(Self { buffer: ctx.upload("chunk plan", &words)?, n_dst, offsets })
+        Self::from_parts(ctx, a.dst_rows.iter().copied(), &table)
     }
-}
 
-impl DevicePlan {
     /// The plan of a neighbour table taken as it is: destinations in row order (the table's
     /// rows are Z-ordered by whoever built them), no chunks.
     fn upload_table(ctx: &GpuContext, table: &[u32], n_dst: usize) -> Result<Self> {
         let n = u32::try_from(n_dst).map_err(|_| SparseError::TooManyRows(n_dst))?;
+        Self::from_parts(ctx, 0..n, table)
+    }
+
+    /// One buffer of the destination rows then the table.
+    fn from_parts(ctx: &GpuContext, dst_rows: impl ExactSizeIterator<Item = u32>, table: &[u32]) -> Result<Self> {
+        let n_dst = dst_rows.len();
         let mut words = Vec::with_capacity(n_dst + table.len());
-        words.extend(0..n);
+        words.extend(dst_rows);
         words.extend_from_slice(table);
         word_offset(words.len())?;
-        Ok(Self { buffer: ctx.upload("neighbour table", &words)?, n_dst: n, offsets: [0, n] })
+        let n_dst = u32::try_from(n_dst).map_err(|_| SparseError::TooManyRows(n_dst))?;
+        Ok(Self { buffer: ctx.upload("chunk plan", &words)?, n_dst })
     }
 }
 

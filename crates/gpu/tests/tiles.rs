@@ -12,19 +12,24 @@ use semrecon_gpu::{GpuContext, GpuEngine, CHUNKED_TILES};
 use semrecon_sparse::backend_tests::surface_set;
 use semrecon_sparse::{BnRelu, ConvAlgorithm, ConvBackend};
 
+/// The device, or `None` after saying why the test is skipped.
+fn context() -> Option<Arc<GpuContext>> {
+    match GpuContext::new() {
+        Ok(c) => Some(Arc::new(c)),
+        Err(e) => {
+            eprintln!("skipping a GPU test: {e}");
+            None
+        }
+    }
+}
+
 fn values(n: usize, seed: usize) -> Vec<f32> {
     (0..n).map(|i| (((i + seed) * 7919) % 101) as f32 / 101.0 - 0.5).collect()
 }
 
 #[test]
 fn every_tile_shape_matches_the_rulebook_kernel() {
-    let ctx = match GpuContext::new() {
-        Ok(c) => Arc::new(c),
-        Err(e) => {
-            eprintln!("skipping a GPU test: {e}");
-            return;
-        }
-    };
+    let Some(ctx) = context() else { return };
     let coords = surface_set(5);
     let n = coords.len();
     let rulebook = GpuEngine::with_context(Arc::clone(&ctx), ConvAlgorithm::Rulebook);
@@ -54,13 +59,7 @@ fn every_tile_shape_matches_the_rulebook_kernel() {
 /// rulebook's, at widths that cut partial blocks both ways, on submanifold and strided layers.
 #[test]
 fn chunked_weight_gradient_matches_the_rulebook_kernel() {
-    let ctx = match GpuContext::new() {
-        Ok(c) => Arc::new(c),
-        Err(e) => {
-            eprintln!("skipping a GPU test: {e}");
-            return;
-        }
-    };
+    let Some(ctx) = context() else { return };
     let coords = surface_set(5);
     let rulebook = GpuEngine::with_context(Arc::clone(&ctx), ConvAlgorithm::Rulebook);
     let chunked = GpuEngine::with_context(ctx, ConvAlgorithm::Chunked);

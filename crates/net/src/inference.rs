@@ -324,16 +324,21 @@ impl Segmenter {
         Ok(scores)
     }
 
+    /// The engines' algorithm of the chosen kernel.
+    fn algorithm(&self) -> ConvAlgorithm {
+        match self.kernel {
+            ConvKernel::Chunked => ConvAlgorithm::Chunked,
+            ConvKernel::Rulebook => ConvAlgorithm::Rulebook,
+        }
+    }
+
     /// The layers on the chosen engine, with its tensors: the CPU engine reads the host
     /// parameters and the geometry's layers in place; the GPU engine gets the weights on its
     /// first call (kept), the geometry uploaded per call (every layer of a level then shares
     /// it). The forward itself is one, generic over the engine. Also returns the time spent
     /// uploading the geometry.
     fn run_layers(&mut self, geo: &NetGeometry, feats: &[f32], readout: Readout) -> Result<(Scores, Duration)> {
-        let algorithm = match self.kernel {
-            ConvKernel::Chunked => ConvAlgorithm::Chunked,
-            ConvKernel::Rulebook => ConvAlgorithm::Rulebook,
-        };
+        let algorithm = self.algorithm();
         let Self { config, params, cpu_ws, device, gpu, chunk, .. } = self;
         let rows: Vec<usize> = geo.levels.iter().map(|l| l.coords.len()).collect();
         match device {
@@ -354,13 +359,7 @@ impl Segmenter {
             }
             Device::Gpu(device) => {
                 let engine = device.with_algorithm(algorithm);
-                let resident = match gpu {
-                    Some(r) => r,
-                    None => gpu.insert(Resident {
-                        params: params.map(&mut |t| engine.upload(t))?,
-                        ws: Workspace::new(&engine, config.levels)?,
-                    }),
-                };
+                let resident = gpu_resident(gpu, &engine, config, params)?;
                 let t = Instant::now();
                 let mut owned = Vec::with_capacity(geo.levels.len());
                 for l in &geo.levels {
@@ -370,23 +369,7 @@ impl Segmenter {
                     };
                     owned.push((engine.import(&l.subm)?, engine.import(&l.point)?, down));
                 }
-                let tables: Vec<Vec<GpuGather>> = geo
-                    .interp
-                    .iter()
-                    .map(|per| per.iter().map(|t: &GatherTable| engine.gather_table(t)).collect())
-                    .collect::<std::result::Result<_, _>>()?;
-                let levels = owned
-                    .iter()
-                    .map(|(subm, point, down): &(GpuLayer, GpuLayer, Option<(GpuLayer, GpuLayer)>)| LevelLayers {
-                        subm,
-                        point,
-                        down: down.as_ref().map(|(d, u)| (d, u)),
-                    })
-                    .collect();
-                let interp = tables.iter().map(|per| per.iter().collect()).collect();
-                let upload = t.elapsed();
-                let prepared = Prepared::<GpuEngine> { levels, interp, rows };
-                Ok((forward(&engine, &prepared, config, &resident.params, &mut resident.ws, feats, readout)?, upload))
+                gpu_forward(&engine, &owned, &geo.interp, rows, t, config, resident, feats, readout)
             }
         }
     }
@@ -403,19 +386,9 @@ impl Segmenter {
         feats: &[f32],
         readout: Readout,
     ) -> Result<(Scores, Duration)> {
-        let algorithm = match self.kernel {
-            ConvKernel::Chunked => ConvAlgorithm::Chunked,
-            ConvKernel::Rulebook => ConvAlgorithm::Rulebook,
-        };
-        let engine = device.with_algorithm(algorithm);
+        let engine = device.with_algorithm(self.algorithm());
         let Self { config, params, gpu, .. } = self;
-        let resident = match gpu {
-            Some(r) => r,
-            None => gpu.insert(Resident {
-                params: params.map(&mut |t| engine.upload(t))?,
-                ws: Workspace::new(&engine, config.levels)?,
-            }),
-        };
+        let resident = gpu_resident(gpu, &engine, config, params)?;
         let t = Instant::now();
         let sub = MapKind::Submanifold { kernel_size: 3 };
         let point = MapKind::Submanifold { kernel_size: 1 };
@@ -432,25 +405,57 @@ impl Segmenter {
             };
             owned.push((engine.import_table(sub, n, &l.subm)?, engine.import_table(point, n, &identity)?, down));
         }
-        let tables: Vec<Vec<GpuGather>> = geo
-            .interp
-            .iter()
-            .map(|per| per.iter().map(|t: &GatherTable| engine.gather_table(t)).collect())
-            .collect::<std::result::Result<_, _>>()?;
-        let levels = owned
-            .iter()
-            .map(|(subm, point, down): &(GpuLayer, GpuLayer, Option<(GpuLayer, GpuLayer)>)| LevelLayers {
-                subm,
-                point,
-                down: down.as_ref().map(|(d, u)| (d, u)),
-            })
-            .collect();
-        let interp = tables.iter().map(|per| per.iter().collect()).collect();
         let rows = geo.levels.iter().map(|l| l.coords.len()).collect();
-        let upload = t.elapsed();
-        let prepared = Prepared::<GpuEngine> { levels, interp, rows };
-        Ok((forward(&engine, &prepared, config, &resident.params, &mut resident.ws, feats, readout)?, upload))
+        gpu_forward(&engine, &owned, &geo.interp, rows, t, config, resident, feats, readout)
     }
+}
+
+/// One level's layers on the GPU: submanifold, pointwise, and the strided pair to the next.
+type GpuLevel = (GpuLayer, GpuLayer, Option<(GpuLayer, GpuLayer)>);
+
+/// The network's weights and workspace on the GPU of `engine`: uploaded on the first call,
+/// kept until the device changes.
+fn gpu_resident<'a>(
+    gpu: &'a mut Option<Resident<GpuTensor>>,
+    engine: &GpuEngine,
+    config: &NetConfig,
+    params: &Params<Vec<f32>>,
+) -> Result<&'a mut Resident<GpuTensor>> {
+    Ok(match gpu {
+        Some(r) => r,
+        None => gpu.insert(Resident {
+            params: params.map(&mut |t| engine.upload(t))?,
+            ws: Workspace::new(engine, config.levels)?,
+        }),
+    })
+}
+
+/// The forward on the GPU over layers already uploaded (since `t`): uploads the interpolation
+/// tables, then runs; returns the scores and the geometry's upload time (from `t`).
+#[allow(clippy::too_many_arguments)]
+fn gpu_forward(
+    engine: &GpuEngine,
+    owned: &[GpuLevel],
+    interp: &[Vec<GatherTable>],
+    rows: Vec<usize>,
+    t: Instant,
+    config: &NetConfig,
+    resident: &mut Resident<GpuTensor>,
+    feats: &[f32],
+    readout: Readout,
+) -> Result<(Scores, Duration)> {
+    let tables: Vec<Vec<GpuGather>> = interp
+        .iter()
+        .map(|per| per.iter().map(|t: &GatherTable| engine.gather_table(t)).collect())
+        .collect::<std::result::Result<_, _>>()?;
+    let levels = owned
+        .iter()
+        .map(|(subm, point, down)| LevelLayers { subm, point, down: down.as_ref().map(|(d, u)| (d, u)) })
+        .collect();
+    let interp = tables.iter().map(|per| per.iter().collect()).collect();
+    let upload = t.elapsed();
+    let prepared = Prepared::<GpuEngine> { levels, interp, rows };
+    Ok((forward(engine, &prepared, config, &resident.params, &mut resident.ws, feats, readout)?, upload))
 }
 
 /// Where the network runs.

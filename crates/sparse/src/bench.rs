@@ -346,6 +346,35 @@ pub fn run_conv_bench(
     })
 }
 
+/// The benchmarked layer of [`run_backend_bench`] and [`run_resident_forward_bench`]: what
+/// every row of it repeats.
+struct LayerShape<'a> {
+    scene: &'a str,
+    voxel_size: f32,
+    n: usize,
+    pairs: usize,
+    c_in: usize,
+    c_out: usize,
+}
+
+impl LayerShape<'_> {
+    /// One row of the layer.
+    fn row(&self, kernel: String, pass: &str, ms: f64, gflops: f64) -> BenchRow {
+        BenchRow {
+            scene: self.scene.to_string(),
+            voxel_size: self.voxel_size,
+            n: self.n,
+            mean_neighbours: self.pairs as f64 / self.n.max(1) as f64,
+            c_in: self.c_in,
+            c_out: self.c_out,
+            kernel,
+            pass: pass.to_string(),
+            ms,
+            gflops,
+        }
+    }
+}
+
 /// Times the submanifold forward on an engine's own tensors (pass `forward_resident`): the
 /// layer prepared, input and weights uploaded once, then `batch` forwards recorded back to back
 /// and one read-back of a single value to wait for them, the fastest of `repeats` such rounds
@@ -391,18 +420,8 @@ pub fn run_resident_forward_bench<B: ResidentBackend>(
             best = best.min(t.elapsed().as_secs_f64() * 1e3 / batch as f64);
         }
     }
-    Ok(Some(BenchRow {
-        scene: scene.to_string(),
-        voxel_size,
-        n,
-        mean_neighbours: pairs as f64 / n as f64,
-        c_in,
-        c_out,
-        kernel: engine.name(),
-        pass: "forward_resident".to_string(),
-        ms: best,
-        gflops: flop / (best * 1e6),
-    }))
+    let shape = LayerShape { scene, voxel_size, n, pairs, c_in, c_out };
+    Ok(Some(shape.row(engine.name(), "forward_resident", best, flop / (best * 1e6))))
 }
 
 /// Times any [`ConvBackend`] on a voxel set: the submanifold layer's preparation (kernel map
@@ -441,18 +460,8 @@ pub fn run_backend_bench<B: ConvBackend>(
         engine.backward_weight(&layer, &x, c_in, &dy, c_out)?;
         best[2] = best[2].min(t.elapsed().as_secs_f64() * 1e3);
     }
-    let row = |pass: &str, ms: f64, gflops: f64| BenchRow {
-        scene: scene.to_string(),
-        voxel_size,
-        n,
-        mean_neighbours: pairs as f64 / n.max(1) as f64,
-        c_in,
-        c_out,
-        kernel: engine.name(),
-        pass: pass.to_string(),
-        ms,
-        gflops,
-    };
+    let shape = LayerShape { scene, voxel_size, n, pairs, c_in, c_out };
+    let row = |pass: &str, ms: f64, gflops: f64| shape.row(engine.name(), pass, ms, gflops);
     let mut rows = vec![row("prepare", prepare_ms, 0.0)];
     for (pass, ms) in ["forward", "backward_input", "backward_weight"].into_iter().zip(best) {
         rows.push(row(pass, ms, flop / (ms * 1e6)));

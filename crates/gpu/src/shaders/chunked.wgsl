@@ -58,8 +58,6 @@ const W_VALS: u32 = TO / 16u;      // weights each thread loads per step
 var<workgroup> a_tile: array<vec4<f32>, 4u * TR>; // [CT][TR / 4]: channel c, destinations 4q..4q+3
 var<workgroup> w_tile: array<vec4<f32>, 4u * TO>; // [CT][TO / 4]: channel c, outputs 4q..4q+3
 var<workgroup> src: array<u32, TR>;               // the tile's source rows at the current offset
-var<workgroup> hits: atomic<u32>;
-var<workgroup> live: u32;
 
 fn load_x(row: u32, c: u32) -> f32 {
     let v = x[row * p.c_in + c];
@@ -108,23 +106,15 @@ fn forward(
     var acc61 = vec4<f32>(0.0);
     var acc71 = vec4<f32>(0.0);
     for (var k = 0u; k < p.kv; k++) {
+        var found = EMPTY;
         if (lid < TR) {
-            var s = EMPTY;
             if (t0 + lid < p.n_dst) {
-                s = plan[p.o_table + (t0 + lid) * p.kv + k];
+                found = plan[p.o_table + (t0 + lid) * p.kv + k];
             }
-            src[lid] = s;
-            if (s != EMPTY) {
-                atomicOr(&hits, 1u);
-            }
-        }
-        workgroupBarrier();
-        if (lid == 0u) {
-            live = atomicLoad(&hits);
-            atomicStore(&hits, 0u);
+            src[lid] = found;
         }
         // Offsets no destination of the tile has are skipped by the whole workgroup.
-        if (workgroupUniformLoad(&live) == 0u) {
+        if (!workgroup_any(found != EMPTY, lid)) {
             continue;
         }
         let s = src[lr];

@@ -40,8 +40,6 @@ var<workgroup> xt: array<f32, 512>;        // [16 channels][RB rows]
 var<workgroup> dyt: array<vec4<f32>, 512>; // [RB rows][16 quads of output channels]
 var<workgroup> src: array<u32, 32>;
 var<workgroup> dst: array<u32, 32>;
-var<workgroup> hits: atomic<u32>;
-var<workgroup> live: u32;
 
 @compute @workgroup_size(256)
 fn weight_grad(
@@ -67,25 +65,17 @@ fn weight_grad(
     let lx = lid % 8u;
     var acc = vec4<f32>(0.0);
     for (var t0 = first; t0 < end; t0 += RB) {
+        var found = EMPTY;
         if (lid < RB) {
-            var s = EMPTY;
             var d = 0u;
             if (t0 + lid < end) {
-                s = plan[p.o_table + (t0 + lid) * p.kv + k];
+                found = plan[p.o_table + (t0 + lid) * p.kv + k];
                 d = plan[p.o_dst_rows + t0 + lid];
             }
-            src[lid] = s;
+            src[lid] = found;
             dst[lid] = d;
-            if (s != EMPTY) {
-                atomicOr(&hits, 1u);
-            }
         }
-        workgroupBarrier();
-        if (lid == 0u) {
-            live = atomicLoad(&hits);
-            atomicStore(&hits, 0u);
-        }
-        if (workgroupUniformLoad(&live) == 0u) {
+        if (!workgroup_any(found != EMPTY, lid)) {
             continue;
         }
         let s = src[lr];
