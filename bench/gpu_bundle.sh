@@ -18,7 +18,7 @@ cargo build --release -p semrecon --features gpu
 xz -9e -T0 -c target/release/semrecon > "$OUT/semrecon.xz"
 # The test binaries' paths, from cargo's own listing.
 cargo test --release -p semrecon-gpu -p semrecon-net --features semrecon-gpu/gpu,semrecon-net/gpu --no-run 2>&1 |
-  sed -n 's/.*Executable tests\/\(suite\|errors\|gpu\|tiles\)\.rs (\(.*\))/\1 \2/p' |
+  sed -n 's/.*Executable tests\/\(suite\|errors\|gpu\|tiles\|hierarchy\)\.rs (\(.*\))/\1 \2/p' |
   while read -r name path; do xz -6 -T0 -c "$path" > "$OUT/t/$name.xz"; done
 if [ "${GL:-0}" = 1 ]; then
   mkdir -p "$OUT/gl" /tmp/gpu-bundle-apt/partial

@@ -15,9 +15,13 @@
 //! they precede. Every transfer is counted ([`TransferCounts`]).
 
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex, MutexGuard};
+use std::time::Instant;
 
 use crate::error::{GpuError, Result};
+use crate::kernel_time::KernelTime;
+use crate::profile::Profiler;
 use crate::tile::CHUNKED_TILES;
 use crate::transfers::TransferCounts;
 
@@ -70,6 +74,24 @@ pub(crate) struct Pipelines {
     pub gather_add: wgpu::ComputePipeline,
     pub add_bias: wgpu::ComputePipeline,
     pub argmax: wgpu::ComputePipeline,
+    /// The device voxel hierarchy's kernels (shaders/hierarchy.wgsl).
+    pub hierarchy: HierarchyPipelines,
+    /// Every pipeline's name, for the profiler.
+    names: HashMap<wgpu::ComputePipeline, &'static str>,
+}
+
+/// The entry points of shaders/hierarchy.wgsl.
+pub(crate) struct HierarchyPipelines {
+    pub insert: wgpu::ComputePipeline,
+    pub first_child: wgpu::ComputePipeline,
+    pub scan_blocks: wgpu::ComputePipeline,
+    pub scan_totals: wgpu::ComputePipeline,
+    pub scan_add: wgpu::ComputePipeline,
+    pub emit: wgpu::ComputePipeline,
+    pub fill: wgpu::ComputePipeline,
+    pub rows: wgpu::ComputePipeline,
+    pub ancestor: wgpu::ComputePipeline,
+    pub interp: wgpu::ComputePipeline,
 }
 
 /// An opened GPU: device, queue, pipelines and the error state of the device.
@@ -93,6 +115,11 @@ pub struct GpuContext {
     pending: Mutex<Vec<wgpu::CommandBuffer>>,
     /// Host-device transfers so far.
     transfers: Mutex<TransferCounts>,
+    /// Dispatches recorded so far, and the host's nanoseconds recording them (parameters,
+    /// bind group, pass): the per-dispatch overhead a network of many small layers pays.
+    recorded: (AtomicU64, AtomicU64),
+    /// Device time per kernel (`SEMRECON_GPU_PROFILE=1`), absent otherwise.
+    profiler: Option<Mutex<Profiler>>,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -137,10 +164,15 @@ impl GpuContext {
             limits.max_compute_workgroup_storage_size.into(),
             WORKGROUP_BYTES.into(),
         )?;
-        need(&info, "storage buffers per shader stage", limits.max_storage_buffers_per_shader_stage.into(), 5)?;
+        // The hierarchy's emit kernel binds eight (the WebGPU minimum).
+        need(&info, "storage buffers per shader stage", limits.max_storage_buffers_per_shader_stage.into(), 8)?;
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("semrecon-gpu"),
-            required_features: wgpu::Features::empty(),
+            required_features: if Profiler::wanted() {
+                adapter.features() & wgpu::Features::TIMESTAMP_QUERY
+            } else {
+                wgpu::Features::empty()
+            },
             required_limits: limits.clone(),
             experimental_features: wgpu::ExperimentalFeatures::disabled(),
             memory_hints: wgpu::MemoryHints::Performance,
@@ -165,6 +197,7 @@ impl GpuContext {
             });
         }
         let pipelines = Pipelines::new(&device);
+        let profiler = Profiler::new(&device, &queue).map(Mutex::new);
         let context = Self {
             device,
             queue,
@@ -178,6 +211,8 @@ impl GpuContext {
             call: Mutex::new(()),
             pending: Mutex::new(Vec::new()),
             transfers: Mutex::new(TransferCounts::default()),
+            recorded: (AtomicU64::new(0), AtomicU64::new(0)),
+            profiler,
         };
         context.check()?;
         Ok(context)
@@ -296,6 +331,26 @@ impl GpuContext {
         *self.transfers.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
+    /// Dispatches recorded since the context was opened, and the host's seconds spent
+    /// recording them (kernel parameters, bind groups, passes; not the device's work).
+    pub fn dispatches(&self) -> (u64, f64) {
+        (self.recorded.0.load(Ordering::Relaxed), self.recorded.1.load(Ordering::Relaxed) as f64 * 1e-9)
+    }
+
+    /// Whether kernels are being timed on the device (`SEMRECON_GPU_PROFILE=1` and an adapter
+    /// with timestamp queries).
+    pub fn profiling(&self) -> bool {
+        self.profiler.is_some()
+    }
+
+    /// Device seconds per kernel since the last call (longest first), from the dispatches
+    /// whose work has been read back; empty when not [`profiling`](Self::profiling).
+    pub fn kernel_times(&self) -> Vec<KernelTime> {
+        self.profiler
+            .as_ref()
+            .map_or_else(Vec::new, |p| p.lock().unwrap_or_else(std::sync::PoisonError::into_inner).take())
+    }
+
     /// Exclusive use of the pooled buffers for one call of the host-slice interface, with the
     /// queued resident work submitted first (the call then writes into pooled buffers that no
     /// queued command may see).
@@ -388,6 +443,7 @@ impl GpuContext {
 
     /// A uniform buffer of kernel parameters (`u32` words, padded to 16 bytes).
     pub(crate) fn params(&self, words: &[u32]) -> wgpu::Buffer {
+        let start = Instant::now();
         let mut w = words.to_vec();
         w.resize(words.len().next_multiple_of(4).max(4), 0);
         let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
@@ -397,6 +453,7 @@ impl GpuContext {
             mapped_at_creation: false,
         });
         self.queue.write_buffer(&buffer, 0, bytemuck::cast_slice(&w));
+        self.recorded.1.fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
         buffer
     }
 
@@ -414,6 +471,7 @@ impl GpuContext {
         if groups == 0 || z == 0 {
             return;
         }
+        let start = Instant::now();
         let layout = pipeline.get_bind_group_layout(0);
         let entries: Vec<wgpu::BindGroupEntry<'_>> = bindings
             .iter()
@@ -425,10 +483,22 @@ impl GpuContext {
             entries: &entries,
         });
         let (x, y) = grid(groups);
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes: None });
+        let timed = self.profiler.as_ref().and_then(|p| {
+            let name = self.pipelines.names.get(pipeline).copied().unwrap_or("unnamed");
+            p.lock().unwrap_or_else(std::sync::PoisonError::into_inner).next(name)
+        });
+        let timestamp_writes = timed.as_ref().map(|(query_set, i)| wgpu::ComputePassTimestampWrites {
+            query_set,
+            beginning_of_pass_write_index: Some(*i),
+            end_of_pass_write_index: Some(i + 1),
+        });
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes });
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, &group, &[]);
         pass.dispatch_workgroups(x, y, z);
+        drop(pass);
+        self.recorded.0.fetch_add(1, Ordering::Relaxed);
+        self.recorded.1.fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
     }
 
     /// A new command encoder.
@@ -440,9 +510,30 @@ impl GpuContext {
     /// values of `buffer` to a staging buffer, waits, and returns them.
     pub(crate) fn finish_and_read<T: bytemuck::Pod>(
         &self,
+        encoder: wgpu::CommandEncoder,
+        buffer: &wgpu::Buffer,
+        count: usize,
+    ) -> Result<Vec<T>> {
+        self.submit_and_read(encoder, buffer, count, false)
+    }
+
+    /// As [`Self::finish_and_read`], for a few status words the host needs before it can go
+    /// on (counted as a status read, not a read-back of data).
+    pub(crate) fn finish_and_read_status(
+        &self,
+        encoder: wgpu::CommandEncoder,
+        buffer: &wgpu::Buffer,
+        count: usize,
+    ) -> Result<Vec<u32>> {
+        self.submit_and_read(encoder, buffer, count, true)
+    }
+
+    fn submit_and_read<T: bytemuck::Pod>(
+        &self,
         mut encoder: wgpu::CommandEncoder,
         buffer: &wgpu::Buffer,
         count: usize,
+        status: bool,
     ) -> Result<Vec<T>> {
         let bytes = (count * std::mem::size_of::<T>()) as u64;
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
@@ -454,18 +545,46 @@ impl GpuContext {
         if bytes > 0 {
             encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, bytes.next_multiple_of(4));
         }
+        // The kernels timed so far, resolved behind everything they timed.
+        let timed = match &self.profiler {
+            Some(p) => {
+                let mut p = p.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+                let size = p.staging_bytes();
+                (size > 0).then(|| {
+                    let ticks = self.device.create_buffer(&wgpu::BufferDescriptor {
+                        label: Some("timestamps read-back"),
+                        size,
+                        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                        mapped_at_creation: false,
+                    });
+                    let kernels = p.resolve(&mut encoder, &ticks);
+                    (ticks, kernels)
+                })
+            }
+            None => None,
+        };
         let mut work = std::mem::take(&mut *self.pending.lock().unwrap_or_else(std::sync::PoisonError::into_inner));
         work.push(encoder.finish());
         self.queue.submit(work);
         let mut t = self.transfers.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-        t.readbacks += 1;
-        t.readback_bytes += bytes;
+        if status {
+            t.status_reads += 1;
+        } else {
+            t.readbacks += 1;
+            t.readback_bytes += bytes;
+        }
         drop(t);
         let (tx, rx) = mpsc::channel();
         staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
             // The receiver waits below; a failed send only means it gave up.
             let _ = tx.send(r);
         });
+        let (ttx, trx) = mpsc::channel();
+        if let Some((ticks, _)) = &timed {
+            ticks.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+                let _ = ttx.send(r);
+            });
+        }
         self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Readback(e.to_string()))?;
         self.check()?;
         match rx.recv() {
@@ -477,6 +596,14 @@ impl GpuContext {
         let out: Vec<T> = bytemuck::pod_collect_to_vec(&view[..bytes as usize]);
         drop(view);
         staging.unmap();
+        if let (Some((ticks, kernels)), Some(p)) = (timed, &self.profiler) {
+            if let Ok(Ok(())) = trx.recv() {
+                let view = ticks.slice(..).get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
+                let values: Vec<u64> = bytemuck::pod_collect_to_vec(&view);
+                drop(view);
+                p.lock().unwrap_or_else(std::sync::PoisonError::into_inner).add(&kernels, &values);
+            }
+        }
         Ok(out)
     }
 }
@@ -496,7 +623,9 @@ impl Pipelines {
                 source: wgpu::ShaderSource::Wgsl(source.into()),
             })
         };
-        let map = module("map", include_str!("shaders/map.wgsl"));
+        let hash = include_str!("shaders/hash.wgsl");
+        let map = module("map", &[include_str!("shaders/map.wgsl"), hash].concat());
+        let hierarchy = module("hierarchy", &[include_str!("shaders/hierarchy.wgsl"), hash].concat());
         // WGSL has no includes: the shared helper goes after each kernel that calls it.
         let workgroup_any = include_str!("shaders/workgroup_any.wgsl");
         let chunked_source = [include_str!("shaders/chunked.wgsl"), workgroup_any].concat();
@@ -521,7 +650,7 @@ impl Pipelines {
                 cache: None,
             })
         };
-        Self {
+        let mut pipelines = Self {
             map_insert: pipeline(&map, "insert"),
             map_lookup: pipeline(&map, "lookup"),
             chunked: chunked_tiles.each_ref().map(|m| pipeline(m, "forward")),
@@ -536,6 +665,55 @@ impl Pipelines {
             gather_add: pipeline(&elementwise, "gather_add"),
             add_bias: pipeline(&elementwise, "add_bias"),
             argmax: pipeline(&elementwise, "argmax"),
+            hierarchy: HierarchyPipelines {
+                insert: pipeline(&hierarchy, "insert"),
+                first_child: pipeline(&hierarchy, "first_child"),
+                scan_blocks: pipeline(&hierarchy, "scan_blocks"),
+                scan_totals: pipeline(&hierarchy, "scan_totals"),
+                scan_add: pipeline(&hierarchy, "scan_add"),
+                emit: pipeline(&hierarchy, "emit"),
+                fill: pipeline(&hierarchy, "fill"),
+                rows: pipeline(&hierarchy, "rows"),
+                ancestor: pipeline(&hierarchy, "ancestor"),
+                interp: pipeline(&hierarchy, "interp"),
+            },
+            names: HashMap::new(),
+        };
+        let h = &pipelines.hierarchy;
+        let mut names: Vec<(&wgpu::ComputePipeline, &'static str)> = vec![
+            (&pipelines.map_insert, "map insert"),
+            (&pipelines.map_lookup, "map lookup"),
+            (&pipelines.gather, "rulebook gather"),
+            (&pipelines.gemm, "rulebook gemm"),
+            (&pipelines.scatter, "rulebook scatter"),
+            (&pipelines.bn_relu, "bn relu"),
+            (&pipelines.weight_grad, "rulebook weight gradient"),
+            (&pipelines.weight_grad_tiled, "chunked weight gradient"),
+            (&pipelines.reduce_segments, "weight gradient reduce"),
+            (&pipelines.gate, "gate"),
+            (&pipelines.gather_add, "gather add"),
+            (&pipelines.add_bias, "add bias"),
+            (&pipelines.argmax, "argmax"),
+            (&h.insert, "hierarchy insert"),
+            (&h.first_child, "hierarchy first child"),
+            (&h.scan_blocks, "hierarchy scan blocks"),
+            (&h.scan_totals, "hierarchy scan totals"),
+            (&h.scan_add, "hierarchy scan add"),
+            (&h.emit, "hierarchy emit"),
+            (&h.fill, "hierarchy fill"),
+            (&h.rows, "hierarchy rows"),
+            (&h.ancestor, "hierarchy ancestor"),
+            (&h.interp, "hierarchy interpolation"),
+        ];
+        const TILE_NAMES: [&str; CHUNKED_TILES.len()] =
+            ["chunked 64x64", "chunked 128x32", "chunked 128x64", "chunked 64x128"];
+        for (p, name) in pipelines.chunked.iter().zip(TILE_NAMES) {
+            names.push((p, name));
         }
+        // wgpu hashes and compares pipelines by identity: the interior state is not the key.
+        #[allow(clippy::mutable_key_type)]
+        let names = names.into_iter().map(|(p, n)| (p.clone(), n)).collect();
+        pipelines.names = names;
+        pipelines
     }
 }

@@ -196,10 +196,7 @@ impl GpuLayer {
         table: &[u32],
         algorithm: ConvAlgorithm,
     ) -> Result<Self> {
-        let kv = match kind {
-            MapKind::Submanifold { kernel_size } => kernel_size.pow(3),
-            MapKind::Down | MapKind::Up => 8,
-        };
+        let kv = kernel_volume(kind);
         if !table.len().is_multiple_of(kv) {
             return Err(SparseError::InvalidArgument(format!(
                 "a neighbour table of {} entries is not whole rows of {kv}",
@@ -223,6 +220,14 @@ impl GpuLayer {
             ConvAlgorithm::Rulebook => (None, Some(upload_pairs(ctx, table, kv)?)),
         };
         Ok(Self { kind, kv, n_in, n_out, n_pairs, forward, backward: None, pairs })
+    }
+
+    /// The layer of a plan built on the device ([`crate::DeviceHierarchy`]): the chunked
+    /// forward only (the rulebook kernels and the gradients return [`GpuError::LayerPart`]).
+    pub(crate) fn of_device_plan(kind: MapKind, n_in: usize, n_pairs: usize, plan: DevicePlan) -> Self {
+        let kv = kernel_volume(kind);
+        let n_out = plan.n_dst as usize;
+        Self { kind, kv, n_in, n_out, n_pairs, forward: Some(plan), backward: None, pairs: None }
     }
 
     /// A submanifold layer with its neighbour table built on the device.
@@ -264,6 +269,14 @@ impl GpuLayer {
     pub(crate) fn upsample(ctx: &GpuContext, coarse: &[Coord], fine: &[Coord], chunk: &ChunkConfig) -> Result<Self> {
         let layer = ChunkedConv::new(KernelMap::upsample(coarse, fine)?, coarse, fine, chunk)?;
         Self::from_cpu(ctx, &layer, LayerParts::All)
+    }
+}
+
+/// Offsets of a layer of `kind`: `K^3` for submanifold maps, 8 for strided ones.
+fn kernel_volume(kind: MapKind) -> usize {
+    match kind {
+        MapKind::Submanifold { kernel_size } => kernel_size.pow(3),
+        MapKind::Down | MapKind::Up => 8,
     }
 }
 
@@ -313,9 +326,9 @@ fn neighbour_table(ctx: &GpuContext, coords: &[Coord], kernel_size: usize) -> Re
     let cap32 = u32::try_from(capacity).map_err(|_| SparseError::TooManyRows(n))?;
     let coords_buf = ctx.upload("coordinates", coords)?;
     let slots = ctx.upload("hash slots", &vec![EMPTY; capacity])?;
-    let status = ctx.zeroed("map status", 8)?;
+    let status = ctx.zeroed("map status", 12)?;
     let table = ctx.zeroed("neighbour table", entries as u64 * 4)?;
-    let params = ctx.params(&[n as u32, cap32 - 1, kernel_size as u32, kv as u32]);
+    let params = ctx.params(&[n as u32, cap32 - 1, kernel_size as u32, kv as u32, 0]);
     let mut enc = ctx.encoder();
     let p = &ctx.pipelines;
     ctx.dispatch(
@@ -328,7 +341,7 @@ fn neighbour_table(ctx: &GpuContext, coords: &[Coord], kernel_size: usize) -> Re
     ctx.dispatch(
         &mut enc,
         &p.map_lookup,
-        &[(0, &params), (1, &coords_buf), (2, &slots), (4, &table)],
+        &[(0, &params), (1, &coords_buf), (2, &slots), (3, &status), (4, &table)],
         (entries as u32).div_ceil(WORKGROUP),
         1,
     );

@@ -37,7 +37,13 @@ mod context;
 mod engine;
 pub mod error;
 #[cfg(feature = "gpu")]
+mod hierarchy;
+mod host_level;
+mod kernel_time;
+#[cfg(feature = "gpu")]
 mod layer;
+#[cfg(feature = "gpu")]
+mod profile;
 #[cfg(feature = "gpu")]
 mod resident;
 #[cfg(not(feature = "gpu"))]
@@ -51,11 +57,15 @@ pub use context::GpuContext;
 pub use engine::GpuEngine;
 pub use error::{GpuError, Result};
 #[cfg(feature = "gpu")]
+pub use hierarchy::{DeviceHierarchy, DeviceLevel};
+pub use host_level::HostLevel;
+pub use kernel_time::KernelTime;
+#[cfg(feature = "gpu")]
 pub use layer::GpuLayer;
 #[cfg(feature = "gpu")]
 pub use resident::{GpuGather, GpuTensor};
 #[cfg(not(feature = "gpu"))]
-pub use stub::{GpuContext, GpuEngine, GpuGather, GpuLayer, GpuTensor};
+pub use stub::{DeviceHierarchy, DeviceLevel, GpuContext, GpuEngine, GpuGather, GpuLayer, GpuTensor};
 pub use tile::{TileShape, CHUNKED_TILES};
 pub use transfers::TransferCounts;
 

@@ -33,6 +33,32 @@ pub struct GpuGather {
     source_rows: usize,
 }
 
+impl GpuGather {
+    /// A table already on the device (`[rows | weight bits]`, `rows x per_row` each).
+    pub(crate) fn on_device(buffer: wgpu::Buffer, rows: usize, per_row: usize, source_rows: usize) -> Self {
+        Self { buffer, rows, per_row, source_rows }
+    }
+
+    /// Rows of the table.
+    pub fn len(&self) -> usize {
+        self.rows
+    }
+
+    /// Whether the table has no rows.
+    pub fn is_empty(&self) -> bool {
+        self.rows == 0
+    }
+
+    /// Entries per row.
+    pub fn per_row(&self) -> usize {
+        self.per_row
+    }
+
+    pub(crate) fn buffer(&self) -> &wgpu::Buffer {
+        &self.buffer
+    }
+}
+
 impl GpuEngine {
     /// Records one element-wise kernel over `threads` threads.
     fn elementwise(

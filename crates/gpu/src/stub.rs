@@ -10,6 +10,8 @@ use semrecon_sparse::{
 };
 
 use crate::error::{GpuError, Result};
+use crate::host_level::HostLevel;
+use crate::kernel_time::KernelTime;
 use crate::transfers::TransferCounts;
 
 /// No device: this build has no GPU engine.
@@ -53,6 +55,21 @@ impl GpuContext {
     }
 
     /// Never called (no value exists).
+    pub fn profiling(&self) -> bool {
+        match self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn kernel_times(&self) -> Vec<KernelTime> {
+        match self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn dispatches(&self) -> (u64, f64) {
+        match self.never {}
+    }
+
+    /// Never called (no value exists).
     pub fn transfers(&self) -> TransferCounts {
         match self.never {}
     }
@@ -76,6 +93,54 @@ pub struct GpuTensor {
 #[derive(Debug)]
 pub struct GpuGather {
     never: Infallible,
+}
+
+/// No hierarchies: this build has no GPU engine.
+#[derive(Debug)]
+pub struct DeviceHierarchy {
+    /// Always empty (no level exists).
+    pub levels: Vec<DeviceLevel>,
+}
+
+/// No hierarchy levels: this build has no GPU engine.
+#[derive(Debug)]
+pub struct DeviceLevel {
+    /// Never populated (no value exists).
+    pub subm: GpuLayer,
+    /// Never populated (no value exists).
+    pub point: GpuLayer,
+    /// Never populated (no value exists).
+    pub down: Option<(GpuLayer, GpuLayer)>,
+    never: Infallible,
+}
+
+impl DeviceLevel {
+    /// Never called (no value exists).
+    pub fn rows(&self) -> usize {
+        match self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn neighbour_pairs(&self) -> usize {
+        match self.never {}
+    }
+}
+
+impl GpuGather {
+    /// Never called (no value exists).
+    pub fn len(&self) -> usize {
+        match self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn is_empty(&self) -> bool {
+        match self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn per_row(&self) -> usize {
+        match self.never {}
+    }
 }
 
 /// No layers: this build has no GPU engine.
@@ -131,6 +196,26 @@ impl GpuEngine {
 
     /// Never called (no value exists).
     pub fn with_tile(&self, _tile: Option<usize>) -> Result<Self> {
+        match *self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn build_hierarchy(&self, _coords: &[Coord], _levels: usize) -> Result<DeviceHierarchy> {
+        match *self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn interpolation(&self, _h: &DeviceHierarchy, _t: usize, _j: usize) -> Result<GpuGather> {
+        match *self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn download_level(&self, _h: &DeviceHierarchy, _i: usize) -> Result<HostLevel> {
+        match *self.never {}
+    }
+
+    /// Never called (no value exists).
+    pub fn download_gather(&self, _g: &GpuGather) -> Result<(Vec<u32>, Vec<f32>)> {
         match *self.never {}
     }
 }

@@ -22,6 +22,8 @@ pub struct TransferCounts {
     pub readbacks: u64,
     /// Bytes of those.
     pub readback_bytes: u64,
+    /// Waits for a few status words (the device hierarchy's voxel counts, one per level).
+    pub status_reads: u64,
 }
 
 impl TransferCounts {
@@ -34,6 +36,7 @@ impl TransferCounts {
             geometry_bytes: self.geometry_bytes.saturating_sub(earlier.geometry_bytes),
             readbacks: self.readbacks.saturating_sub(earlier.readbacks),
             readback_bytes: self.readback_bytes.saturating_sub(earlier.readback_bytes),
+            status_reads: self.status_reads.saturating_sub(earlier.status_reads),
         }
     }
 }

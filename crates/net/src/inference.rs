@@ -49,10 +49,24 @@ pub enum ConvKernel {
     Rulebook,
 }
 
+/// Where the GPU path builds an input's geometry (kernel maps, strided tables, interpolation
+/// tables).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum GpuGeometry {
+    /// On the device (`semrecon_gpu::DeviceHierarchy`): only the coordinates go up. The
+    /// default for the chunked kernel.
+    #[default]
+    Device,
+    /// Neighbour tables on the host ([`TableGeometry`]), uploaded per call: what the rulebook
+    /// kernel always uses (it needs pair lists), and a comparison for benchmarks.
+    Host,
+}
+
 /// Wall time of the two phases of the last call.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Timing {
-    /// Kernel maps, chunk plans and interpolation tables.
+    /// Kernel maps, chunk plans and interpolation tables (on the GPU with
+    /// [`GpuGeometry::Device`]: the coordinates' upload and the device's build, waited for).
     pub geometry: Duration,
     /// The layers.
     pub forward: Duration,
@@ -92,6 +106,7 @@ pub struct Segmenter {
     /// Weights and activations on the GPU of `device` (made on its first call, dropped when
     /// the device changes).
     gpu: Option<Resident<GpuTensor>>,
+    gpu_geometry: GpuGeometry,
     stats: Vec<LevelStats>,
     timing: Timing,
 }
@@ -125,6 +140,7 @@ impl Segmenter {
             cpu_ws: None,
             device: Device::Cpu,
             gpu: None,
+            gpu_geometry: GpuGeometry::Device,
             stats: Vec::new(),
             timing: Timing::default(),
         })
@@ -148,6 +164,13 @@ impl Segmenter {
     pub fn set_device(&mut self, device: Device) {
         self.device = device;
         self.gpu = None;
+    }
+
+    /// Where the GPU path builds each input's geometry from now on (on the device by default;
+    /// the rulebook kernel always builds it on the host). Outputs are the same within 1e-6
+    /// relative (the interpolation weights' rounding).
+    pub fn set_gpu_geometry(&mut self, geometry: GpuGeometry) {
+        self.gpu_geometry = geometry;
     }
 
     /// Where the convolutions run.
@@ -304,8 +327,11 @@ impl Segmenter {
         }
         let t0 = Instant::now();
         if let Device::Gpu(engine) = &self.device {
-            // The GPU's kernels walk rows in Z-order themselves: tables, no chunk plans.
             let engine = engine.clone();
+            if self.kernel == ConvKernel::Chunked && self.gpu_geometry == GpuGeometry::Device {
+                return self.run_device_geometry(&engine, &coords, feats, readout, t0);
+            }
+            // The GPU's kernels walk rows in Z-order themselves: tables, no chunk plans.
             let geo = TableGeometry::build(coords, &self.config)?;
             let t1 = Instant::now();
             let (scores, upload) = self.run_table_layers(&engine, &geo, feats, readout)?;
@@ -407,6 +433,46 @@ impl Segmenter {
         }
         let rows = geo.levels.iter().map(|l| l.coords.len()).collect();
         gpu_forward(&engine, &owned, &geo.interp, rows, t, config, resident, feats, readout)
+    }
+}
+
+impl Segmenter {
+    /// The chunked forward on the GPU with the geometry built on the device: the coordinates
+    /// go up, the levels and interpolation tables are made there, the weights are resident.
+    fn run_device_geometry(
+        &mut self,
+        device: &GpuEngine,
+        coords: &[Coord],
+        feats: &[f32],
+        readout: Readout,
+        t0: Instant,
+    ) -> Result<Scores> {
+        let engine = device.with_algorithm(ConvAlgorithm::Chunked);
+        let Self { config, params, gpu, .. } = self;
+        let resident = gpu_resident(gpu, &engine, config, params)?;
+        let l = config.levels;
+        let h = engine.build_hierarchy(coords, l)?;
+        // The fusion's tables: level j onto level t, t < j <= L - 2 (as `interpolation_tables`).
+        let mut tables = Vec::new();
+        for t in 0..l.saturating_sub(2) {
+            tables.push(
+                (t + 1..=l - 2).map(|j| engine.interpolation(&h, t, j)).collect::<std::result::Result<Vec<_>, _>>()?,
+            );
+        }
+        let t1 = Instant::now();
+        let levels = h
+            .levels
+            .iter()
+            .map(|v| LevelLayers { subm: &v.subm, point: &v.point, down: v.down.as_ref().map(|(d, u)| (d, u)) })
+            .collect();
+        let interp = tables.iter().map(|per| per.iter().collect()).collect();
+        let rows = h.levels.iter().map(|v| v.rows()).collect();
+        let prepared = Prepared::<GpuEngine> { levels, interp, rows };
+        let scores = forward(&engine, &prepared, config, &resident.params, &mut resident.ws, feats, readout)?;
+        self.timing = Timing { geometry: t1 - t0, forward: t1.elapsed(), upload: Duration::ZERO };
+        self.stats =
+            h.levels.iter().map(|v| LevelStats { voxels: v.rows(), neighbour_pairs: v.neighbour_pairs() }).collect();
+        Ok(scores)
     }
 }
 

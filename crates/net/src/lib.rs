@@ -59,7 +59,7 @@ pub mod weights;
 pub use config::NetConfig;
 pub use error::{NetError, Result};
 pub use geometry::NetGeometry;
-pub use inference::{color_features, ConvKernel, Device, PointScores, Segmenter, Timing};
+pub use inference::{color_features, ConvKernel, Device, GpuGeometry, PointScores, Segmenter, Timing};
 pub use metrics::ConfusionMatrix;
 pub use model::{forward_flops, parameter_count, LevelStats};
 pub use sample::VoxelSample;

@@ -9,7 +9,7 @@
 
 use semrecon_data::synth::{generate_room, RoomConfig};
 use semrecon_net::inference::Device;
-use semrecon_net::{reference, ConvKernel, NetConfig, Segmenter, Weights};
+use semrecon_net::{reference, ConvKernel, GpuGeometry, NetConfig, Segmenter, Weights};
 use semrecon_sparse::backend_tests::{random_set, Rng};
 use semrecon_sparse::ConvAlgorithm;
 
@@ -59,12 +59,20 @@ fn gpu_network_matches_the_cpu_and_the_reference() {
         let mut net = Segmenter::new(w, config).unwrap();
         let cpu = net.segment(&coords, &feats).unwrap();
         net.set_device(device.clone());
-        for kernel in [ConvKernel::Chunked, ConvKernel::Rulebook] {
+        for (kernel, geometry) in [
+            (ConvKernel::Chunked, GpuGeometry::Device),
+            (ConvKernel::Chunked, GpuGeometry::Host),
+            (ConvKernel::Rulebook, GpuGeometry::Host),
+        ] {
             net.set_kernel(kernel);
+            net.set_gpu_geometry(geometry);
             let got = net.segment(&coords, &feats).unwrap();
-            compare(&format!("L={levels} M={width} {kernel:?} vs reference"), &got, &want);
-            compare(&format!("L={levels} M={width} {kernel:?} vs cpu"), &got, &cpu);
+            compare(&format!("L={levels} M={width} {kernel:?} {geometry:?} vs reference"), &got, &want);
+            compare(&format!("L={levels} M={width} {kernel:?} {geometry:?} vs cpu"), &got, &cpu);
+            assert_eq!(net.level_stats().len(), levels, "stats of every level");
         }
+        net.set_kernel(ConvKernel::Chunked);
+        net.set_gpu_geometry(GpuGeometry::Device);
         // Empty input on the GPU too.
         assert!(net.segment(&[], &[]).unwrap().is_empty());
     }
@@ -133,6 +141,9 @@ fn weights_go_up_once_and_each_forward_uploads_once_and_reads_back_once() {
         assert_eq!(c.readbacks, 1, "call {i}: one read-back");
         assert_eq!(c.readback_bytes, cpu.len() as u64 * 4, "call {i}: the logits' bytes");
         assert!(c.geometry_uploads > 0, "call {i}: the geometry of the input goes up");
+        // Building the geometry on the device waits once per level for its voxel count.
+        let waits = if i < 2 { 4 } else { 0 };
+        assert_eq!(c.status_reads, waits, "call {i}: status reads");
     }
     // The labels-only path reads back one word per voxel.
     let before = ctx.transfers();

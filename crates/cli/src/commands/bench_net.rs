@@ -17,8 +17,9 @@ use anyhow::Context;
 use semrecon_data::atomic_file::write_atomic;
 use semrecon_data::synth::{generate_room, RoomConfig};
 use semrecon_net::dataset::points_per_m2;
+use semrecon_net::inference::Device;
 use semrecon_net::surface::sample_surface;
-use semrecon_net::{forward_flops, ConvKernel, NetConfig, NetGeometry, Segmenter, VoxelSample, Weights};
+use semrecon_net::{forward_flops, ConvKernel, GpuGeometry, NetConfig, NetGeometry, Segmenter, VoxelSample, Weights};
 use semrecon_sparse::{ChunkConfig, KernelMap};
 use serde::Serialize;
 
@@ -78,6 +79,12 @@ struct NetRow {
     forward_ms: f64,
     /// Of `forward_ms`: the geometry's upload to the device (0 on the CPU).
     upload_ms: f64,
+    /// GPU: kernel dispatches per call, and the host's milliseconds recording them (the
+    /// per-dispatch overhead; 0 on the CPU).
+    dispatches: u64,
+    record_ms: f64,
+    /// Device milliseconds per kernel of one call (`SEMRECON_GPU_PROFILE=1` only).
+    kernel_times: Vec<KernelMs>,
     /// Useful multiply-add FLOPs (2 per multiply-add) of one forward.
     flops: u64,
     /// `flops` over the layers' time.
@@ -86,6 +93,14 @@ struct NetRow {
     slowdown_vs_chunked: f64,
     threads: usize,
     simd: String,
+}
+
+/// Device time of one kernel in one call.
+#[derive(Serialize, Clone)]
+struct KernelMs {
+    kernel: String,
+    dispatches: u64,
+    ms: f64,
 }
 
 /// Runs `semrecon bench net`.
@@ -118,11 +133,18 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
     let device = args.device.network_device()?;
     anyhow::ensure!(!sample.is_empty(), "the room has no voxels");
 
-    let kernels = [("chunked", ConvKernel::Chunked), ("rulebook", ConvKernel::Rulebook)];
+    // On a GPU the chunked kernel runs twice: geometry built on the device (the default) and
+    // on the host (neighbour tables uploaded per call), side by side.
+    let mut kernels = vec![("chunked", ConvKernel::Chunked, GpuGeometry::Device)];
+    if matches!(device, Device::Gpu(_)) {
+        kernels.push(("chunked, host geometry", ConvKernel::Chunked, GpuGeometry::Host));
+    }
+    kernels.push(("rulebook", ConvKernel::Rulebook, GpuGeometry::Host));
     let mut nets = Vec::new();
-    for (_, k) in kernels {
+    for &(_, k, g) in &kernels {
         let mut net = Segmenter::new(weights.clone(), config.clone())?;
         net.set_kernel(k);
+        net.set_gpu_geometry(g);
         if let Some(chunk) = args.chunk {
             net.set_chunk(chunk);
         }
@@ -134,17 +156,41 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
     let rounds = args.repeats.max(1);
     // Per kernel: (total, geometry, forward) of every round.
     let mut times: Vec<Vec<(f64, f64, f64, f64)>> = vec![Vec::new(); kernels.len()];
+    let mut recorded = vec![(0u64, 0f64); kernels.len()];
+    let dispatches = || match &device {
+        Device::Gpu(g) => g.context().dispatches(),
+        Device::Cpu => (0, 0.0),
+    };
     let mut logits = Vec::new();
     for _ in 0..rounds {
         for (q, net) in nets.iter_mut().enumerate() {
+            let before = dispatches();
             let t = Instant::now();
             let out = net.segment(&sample.coords, &sample.features)?;
             let total = t.elapsed().as_secs_f64() * 1e3;
+            let after = dispatches();
+            recorded[q] = (after.0 - before.0, (after.1 - before.1) * 1e3);
             let timing = net.last_timing();
             let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
             times[q].push((total, ms(timing.geometry), ms(timing.forward), ms(timing.upload)));
             if q == 0 {
                 logits = out;
+            }
+        }
+    }
+    // With SEMRECON_GPU_PROFILE=1: one more call per row, timed per kernel on the device.
+    let mut kernel_times = vec![Vec::new(); kernels.len()];
+    if let Device::Gpu(g) = &device {
+        if g.context().profiling() {
+            for (q, net) in nets.iter_mut().enumerate() {
+                g.context().kernel_times();
+                net.segment(&sample.coords, &sample.features)?;
+                kernel_times[q] = g
+                    .context()
+                    .kernel_times()
+                    .into_iter()
+                    .map(|k| KernelMs { kernel: k.kernel, dispatches: k.dispatches, ms: k.seconds * 1e3 })
+                    .collect();
             }
         }
     }
@@ -155,7 +201,7 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
     let rows: Vec<NetRow> = kernels
         .iter()
         .enumerate()
-        .map(|(q, (name, _))| {
+        .map(|(q, (name, _, _))| {
             let (total, geometry, forward, upload) = best[q];
             NetRow {
                 config: config.name.clone(),
@@ -170,6 +216,9 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
                 geometry_ms: geometry,
                 forward_ms: forward,
                 upload_ms: upload,
+                dispatches: recorded[q].0,
+                record_ms: recorded[q].1,
+                kernel_times: kernel_times[q].clone(),
                 flops,
                 gflops: flops as f64 / (forward * 1e6),
                 slowdown_vs_chunked: total / best[0].0,
@@ -190,12 +239,21 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
         rows[0].threads
     );
     println!(
-        "{:<10} {:>12} {:>10} {:>12} {:>11} {:>10} {:>9} {:>9}",
-        "kernel", "ms per room", "mean ms", "geometry ms", "layers ms", "upload ms", "GFLOP/s", "slowdown"
+        "{:<22} {:>12} {:>10} {:>12} {:>11} {:>10} {:>9} {:>9} {:>11} {:>10}",
+        "kernel",
+        "ms per room",
+        "mean ms",
+        "geometry ms",
+        "layers ms",
+        "upload ms",
+        "GFLOP/s",
+        "slowdown",
+        "dispatches",
+        "record ms"
     );
     for r in &rows {
         println!(
-            "{:<10} {:>12.1} {:>10.1} {:>12.1} {:>11.1} {:>10.1} {:>9.1} {:>8.2}x",
+            "{:<22} {:>12.1} {:>10.1} {:>12.1} {:>11.1} {:>10.1} {:>9.1} {:>8.2}x {:>11} {:>10.1}",
             r.kernel,
             r.ms_per_room,
             r.mean_ms_per_room,
@@ -203,14 +261,30 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
             r.forward_ms,
             r.upload_ms,
             r.gflops,
-            r.slowdown_vs_chunked
+            r.slowdown_vs_chunked,
+            r.dispatches,
+            r.record_ms
         );
     }
+    for r in rows.iter().filter(|r| !r.kernel_times.is_empty()) {
+        let total: f64 = r.kernel_times.iter().map(|k| k.ms).sum();
+        println!("device time per kernel, {} ({total:.2} ms in all):", r.kernel);
+        for k in &r.kernel_times {
+            println!("  {:<28} {:>6} dispatches {:>9.3} ms", k.kernel, k.dispatches, k.ms);
+        }
+    }
+    let rulebook = &rows[rows.len() - 1];
     println!(
         "chunked is {:.2}x faster than rulebook per room ({:.2}x on the layers alone)",
-        rows[1].ms_per_room / rows[0].ms_per_room,
-        rows[1].forward_ms / rows[0].forward_ms
+        rulebook.ms_per_room / rows[0].ms_per_room,
+        rulebook.forward_ms / rows[0].forward_ms
     );
+    if rows.len() == 3 {
+        println!(
+            "geometry on the device: {:.2}x faster per room than on the host",
+            rows[1].ms_per_room / rows[0].ms_per_room
+        );
+    }
 
     if let Some(dir) = &args.export {
         let geometry = NetGeometry::build(sample.coords.clone(), &config, &args.chunk.unwrap_or_default())?;
