@@ -74,6 +74,8 @@ pub(crate) struct Pipelines {
     pub gather_add: wgpu::ComputePipeline,
     pub add_bias: wgpu::ComputePipeline,
     pub argmax: wgpu::ComputePipeline,
+    /// Adds the chunked kernel's partial sums of split offsets.
+    pub split_sum: wgpu::ComputePipeline,
     /// The device voxel hierarchy's kernels (shaders/hierarchy.wgsl).
     pub hierarchy: HierarchyPipelines,
     /// Every pipeline's name, for the profiler.
@@ -468,6 +470,20 @@ impl GpuContext {
         groups: u32,
         z: u32,
     ) {
+        self.dispatch_shaped(encoder, pipeline, bindings, groups, z, String::new);
+    }
+
+    /// [`Self::dispatch`] with the problem's shape for the profiler (`shape` is only called
+    /// when profiling): its times are then kept per kernel and shape.
+    pub(crate) fn dispatch_shaped(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        pipeline: &wgpu::ComputePipeline,
+        bindings: &[(u32, &wgpu::Buffer)],
+        groups: u32,
+        z: u32,
+        shape: impl FnOnce() -> String,
+    ) {
         if groups == 0 || z == 0 {
             return;
         }
@@ -485,7 +501,9 @@ impl GpuContext {
         let (x, y) = grid(groups);
         let timed = self.profiler.as_ref().and_then(|p| {
             let name = self.pipelines.names.get(pipeline).copied().unwrap_or("unnamed");
-            p.lock().unwrap_or_else(std::sync::PoisonError::into_inner).next(name)
+            let shape = shape();
+            let label = if shape.is_empty() { name.to_string() } else { format!("{name} {shape}") };
+            p.lock().unwrap_or_else(std::sync::PoisonError::into_inner).next(label)
         });
         let timestamp_writes = timed.as_ref().map(|(query_set, i)| wgpu::ComputePassTimestampWrites {
             query_set,
@@ -601,7 +619,7 @@ impl GpuContext {
                 let view = ticks.slice(..).get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
                 let values: Vec<u64> = bytemuck::pod_collect_to_vec(&view);
                 drop(view);
-                p.lock().unwrap_or_else(std::sync::PoisonError::into_inner).add(&kernels, &values);
+                p.lock().unwrap_or_else(std::sync::PoisonError::into_inner).add(kernels, &values);
             }
         }
         Ok(out)
@@ -665,6 +683,7 @@ impl Pipelines {
             gather_add: pipeline(&elementwise, "gather_add"),
             add_bias: pipeline(&elementwise, "add_bias"),
             argmax: pipeline(&elementwise, "argmax"),
+            split_sum: pipeline(&elementwise, "split_sum"),
             hierarchy: HierarchyPipelines {
                 insert: pipeline(&hierarchy, "insert"),
                 first_child: pipeline(&hierarchy, "first_child"),
@@ -694,6 +713,7 @@ impl Pipelines {
             (&pipelines.gather_add, "gather add"),
             (&pipelines.add_bias, "add bias"),
             (&pipelines.argmax, "argmax"),
+            (&pipelines.split_sum, "split sum"),
             (&h.insert, "hierarchy insert"),
             (&h.first_child, "hierarchy first child"),
             (&h.scan_blocks, "hierarchy scan blocks"),

@@ -18,7 +18,7 @@ use semrecon_sparse::{BnRelu, ChunkConfig, ChunkedConv, ConvAlgorithm, ConvBacke
 use crate::context::{GpuContext, WORKGROUP};
 use crate::error::{GpuError, Result};
 use crate::layer::{DevicePlan, GpuLayer, LayerParts};
-use crate::tile::{TileShape, CHUNKED_TILES};
+use crate::tile::{TileShape, CHANNEL_STEP, CHUNKED_TILES};
 
 /// The GPU engine: an opened device and the algorithm of its convolutions.
 #[derive(Debug, Clone)]
@@ -29,8 +29,11 @@ pub struct GpuEngine {
     /// How outputs are cut into chunks (the same planner as the CPU engine).
     pub chunk: ChunkConfig,
     /// The chunked kernel's tile shape, an index in [`CHUNKED_TILES`]; `None` picks by the
-    /// layer's width ([`TileShape::for_channels`]). For benchmarks.
+    /// layer's size ([`TileShape::for_layer`]). For benchmarks.
     tile: Option<usize>,
+    /// Ranges of (offset, channel step) pairs the chunked kernel splits every layer into;
+    /// `None` picks by the layer's size ([`TileShape::splits`]). For benchmarks and tests.
+    splits: Option<u32>,
 }
 
 /// Destinations per block of the chunked weight gradient (shaders/weight_grad.wgsl `RB`).
@@ -68,7 +71,7 @@ impl GpuEngine {
 
     /// An engine on an already opened device (engines of both algorithms can share one).
     pub fn with_context(ctx: Arc<GpuContext>, algorithm: ConvAlgorithm) -> Self {
-        Self { ctx, algorithm, chunk: ChunkConfig::default(), tile: None }
+        Self { ctx, algorithm, chunk: ChunkConfig::default(), tile: None, splits: None }
     }
 
     /// The device.
@@ -103,6 +106,19 @@ impl GpuEngine {
             return Err(GpuError::Device(format!("no tile shape {tile:?}: there are {}", CHUNKED_TILES.len())));
         }
         Ok(Self { tile, ..self.clone() })
+    }
+
+    /// The same engine with the chunked kernel's (offset, channel step) sequence split into
+    /// `splits` ranges in every layer (`None`: by the layer's size, the default), for
+    /// benchmarks and tests; more splits than steps count as one per step.
+    ///
+    /// # Errors
+    /// [`GpuError::Device`] for zero splits.
+    pub fn with_splits(&self, splits: Option<u32>) -> Result<Self> {
+        if splits == Some(0) {
+            return Err(GpuError::Device("zero offset splits".into()));
+        }
+        Ok(Self { splits, ..self.clone() })
     }
 
     /// The same device running `algorithm`.
@@ -203,23 +219,51 @@ impl GpuEngine {
                 &unused
             }
         };
-        let flags = u32::from(bn.is_some()) | (u32::from(accumulate) << 1);
+        // One workgroup per tile of destinations x output channels; the shape by the layer's
+        // size, and small layers split over ranges of their steps (`TileShape::splits`).
+        let which = self.tile.unwrap_or_else(|| TileShape::for_layer(plan.n_dst, c_out));
+        let tile = CHUNKED_TILES[which];
+        let tiles = plan.n_dst.div_ceil(tile.rows);
+        let channel_tiles = count32("channels", c_out.div_ceil(tile.channels as usize))?;
+        let kv32 = kv as u32;
+        let c_in32 = count32("channels", c_in)?;
+        let steps = kv32.saturating_mul(c_in32.div_ceil(CHANNEL_STEP));
+        let splits = self
+            .splits
+            .unwrap_or_else(|| TileShape::splits(tiles.saturating_mul(channel_tiles), kv32, c_in32))
+            .clamp(1, steps.max(1));
+        let slice = count32("split partial sums", plan.n_dst as usize * c_out)?;
+        let partial = if splits > 1 {
+            count32("split partial sums", splits as usize * slice as usize)?;
+            Some(ctx.transient("split partial sums", u64::from(splits) * u64::from(slice) * 4)?)
+        } else {
+            None
+        };
+        let shape = || format!("rows {} kv {kv} {c_in}->{c_out}", plan.n_dst);
+        // Splits write their own slices; only the whole layer adds to y.
+        let adds = accumulate && partial.is_none();
+        let flags = u32::from(bn.is_some()) | (u32::from(adds) << 1);
         let params = ctx.params(&[
             count32("channels", c_in)?,
             count32("channels", c_out)?,
-            kv as u32,
+            kv32,
             plan.n_dst,
             flags,
             0,
             plan.table_offset(),
+            splits,
+            channel_tiles,
+            slice,
         ]);
-        let bindings = [(0, &params), (1, x), (2, w), (3, bnb), (4, &plan.buffer), (5, y)];
-        // One workgroup per tile of destinations x output channels, the shape by the width.
-        let which = self.tile.unwrap_or_else(|| TileShape::for_channels(c_out));
-        let shape = CHUNKED_TILES[which];
-        let tiles = plan.n_dst.div_ceil(shape.rows);
-        let channel_tiles = count32("channels", c_out.div_ceil(shape.channels as usize))?;
-        ctx.dispatch(enc, &ctx.pipelines.chunked[which], &bindings, tiles, channel_tiles);
+        let out = partial.as_ref().unwrap_or(y);
+        let bindings = [(0, &params), (1, x), (2, w), (3, bnb), (4, &plan.buffer), (5, out)];
+        let z = channel_tiles.saturating_mul(splits);
+        ctx.dispatch_shaped(enc, &ctx.pipelines.chunked[which], &bindings, tiles, z, shape);
+        if let Some(partial) = &partial {
+            let params = ctx.params(&[slice, splits, u32::from(accumulate), 0]);
+            let bindings = [(0, &params), (1, partial), (3, y)];
+            ctx.dispatch(enc, &ctx.pipelines.split_sum, &bindings, slice.div_ceil(WORKGROUP), 1);
+        }
         Ok(())
     }
 

@@ -66,7 +66,7 @@ pub use layer::GpuLayer;
 pub use resident::{GpuGather, GpuTensor};
 #[cfg(not(feature = "gpu"))]
 pub use stub::{DeviceHierarchy, DeviceLevel, GpuContext, GpuEngine, GpuGather, GpuLayer, GpuTensor};
-pub use tile::{TileShape, CHUNKED_TILES};
+pub use tile::{TileShape, CHANNEL_STEP, CHUNKED_TILES};
 pub use transfers::TransferCounts;
 
 /// Whether this build has the GPU engine (the cargo feature `gpu`).

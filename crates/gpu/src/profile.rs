@@ -20,8 +20,8 @@ pub(crate) struct Profiler {
     /// Nanoseconds per timestamp tick.
     period: f64,
     /// The kernel of each timed dispatch, in query order (pair `i`: queries `2i`, `2i + 1`).
-    pending: Vec<&'static str>,
-    totals: BTreeMap<&'static str, (u64, f64)>,
+    pending: Vec<String>,
+    totals: BTreeMap<String, (u64, f64)>,
 }
 
 impl Profiler {
@@ -57,7 +57,7 @@ impl Profiler {
     }
 
     /// The timestamp writes of the next dispatch of `kernel` (none once the set is full).
-    pub(crate) fn next(&mut self, kernel: &'static str) -> Option<(wgpu::QuerySet, u32)> {
+    pub(crate) fn next(&mut self, kernel: String) -> Option<(wgpu::QuerySet, u32)> {
         let i = u32::try_from(self.pending.len()).ok().filter(|&i| i < CAPACITY)?;
         self.pending.push(kernel);
         Some((self.query_set.clone(), 2 * i))
@@ -65,7 +65,7 @@ impl Profiler {
 
     /// Records the resolve of the pending timestamps into `staging` (a mappable buffer of
     /// [`Self::staging_bytes`]); returns the kernels it holds, in order.
-    pub(crate) fn resolve(&mut self, encoder: &mut wgpu::CommandEncoder, staging: &wgpu::Buffer) -> Vec<&'static str> {
+    pub(crate) fn resolve(&mut self, encoder: &mut wgpu::CommandEncoder, staging: &wgpu::Buffer) -> Vec<String> {
         let n = self.pending.len() as u32;
         if n > 0 {
             encoder.resolve_query_set(&self.query_set, 0..2 * n, &self.resolve, 0);
@@ -80,8 +80,8 @@ impl Profiler {
     }
 
     /// Adds resolved timestamps (`[2 n]` ticks) of `kernels` to the totals.
-    pub(crate) fn add(&mut self, kernels: &[&'static str], ticks: &[u64]) {
-        for (k, pair) in kernels.iter().zip(ticks.chunks_exact(2)) {
+    pub(crate) fn add(&mut self, kernels: Vec<String>, ticks: &[u64]) {
+        for (k, pair) in kernels.into_iter().zip(ticks.chunks_exact(2)) {
             let e = self.totals.entry(k).or_insert((0, 0.0));
             e.0 += 1;
             e.1 += pair[1].saturating_sub(pair[0]) as f64 * self.period * 1e-9;
@@ -92,7 +92,7 @@ impl Profiler {
     pub(crate) fn take(&mut self) -> Vec<KernelTime> {
         let mut out: Vec<KernelTime> = std::mem::take(&mut self.totals)
             .into_iter()
-            .map(|(k, (d, s))| KernelTime { kernel: k.to_string(), dispatches: d, seconds: s })
+            .map(|(k, (d, s))| KernelTime { kernel: k, dispatches: d, seconds: s })
             .collect();
         out.sort_by(|a, b| b.seconds.total_cmp(&a.seconds));
         out

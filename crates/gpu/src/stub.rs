@@ -200,6 +200,11 @@ impl GpuEngine {
     }
 
     /// Never called (no value exists).
+    pub fn with_splits(&self, _splits: Option<u32>) -> Result<Self> {
+        match *self.never {}
+    }
+
+    /// Never called (no value exists).
     pub fn build_hierarchy(&self, _coords: &[Coord], _levels: usize) -> Result<DeviceHierarchy> {
         match *self.never {}
     }

@@ -55,6 +55,39 @@ fn every_tile_shape_matches_the_rulebook_kernel() {
     assert!(gpu.with_tile(Some(CHUNKED_TILES.len())).is_err());
 }
 
+/// Splits (partial sums over ranges of (offset, channel step) pairs, added in order) against
+/// the rulebook kernel: forced to one, to two, to an uneven five, to 27, to one split per step
+/// and more, and by size; with a fused batch norm, a residual, and on strided layers.
+#[test]
+fn splits_match_the_rulebook_kernel() {
+    let Some(ctx) = context() else { return };
+    let fine = surface_set(6);
+    let rulebook = GpuEngine::with_context(Arc::clone(&ctx), ConvAlgorithm::Rulebook);
+    let sub = rulebook.submanifold(&fine, 3).expect("layer");
+    let (_, down) = rulebook.downsample(&fine).expect("down");
+    for (name, layer, kv) in [("submanifold", &sub, 27), ("down", &down, 8)] {
+        let (n_in, n_out) = rulebook.layer_rows(layer);
+        let (c_in, c_out) = (13, 37);
+        let x = values(n_in * c_in, 1);
+        let w = values(kv * c_in * c_out, 2);
+        let (scale, shift) = (values(c_in, 3), values(c_in, 4));
+        let bn = Some(BnRelu { scale: &scale, shift: &shift });
+        let mut expected = values(n_out * c_out, 5);
+        rulebook.forward_into(layer, &x, c_in, bn, &w, c_out, &mut expected, true).expect("rulebook");
+        let top = expected.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-6);
+        for splits in [Some(1), Some(2), Some(5), Some(27), Some(1000), None] {
+            let chunked =
+                GpuEngine::with_context(Arc::clone(&ctx), ConvAlgorithm::Chunked).with_splits(splits).expect("splits");
+            let mut got = values(n_out * c_out, 5);
+            chunked.forward_into(layer, &x, c_in, bn, &w, c_out, &mut got, true).expect("chunked");
+            let diff = got.iter().zip(&expected).fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+            assert!(diff <= 1e-4 * top, "{name}, {splits:?} splits: {diff} of {top}");
+        }
+    }
+    let gpu = GpuEngine::with_context(ctx, ConvAlgorithm::Chunked);
+    assert!(gpu.with_splits(Some(0)).is_err());
+}
+
 /// The chunked weight gradient (blocks of 16 input x 64 output channels) against the
 /// rulebook's, at widths that cut partial blocks both ways, on submanifold and strided layers.
 #[test]

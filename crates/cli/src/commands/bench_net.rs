@@ -54,6 +54,10 @@ pub struct NetArgs {
     /// for CPU caches), to tune it for a GPU.
     #[arg(long, value_parser = crate::cli_values::parse_chunk_shape)]
     chunk: Option<ChunkConfig>,
+    /// GPU: run every chunked layer with this tile shape (an index in
+    /// `semrecon_gpu::CHUNKED_TILES`) instead of the width's default, for tuning.
+    #[arg(long)]
+    gpu_tile: Option<usize>,
     #[command(flatten)]
     device: crate::device::DeviceArgs,
 }
@@ -130,7 +134,11 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
         Some(c) => format!("synthetic {} seed {} ({c} m corner)", room.style, args.seed),
         None => format!("synthetic {} seed {}", room.style, args.seed),
     };
-    let device = args.device.network_device()?;
+    let device = match (args.device.network_device()?, args.gpu_tile) {
+        (Device::Gpu(g), Some(t)) => Device::Gpu(g.with_tile(Some(t))?),
+        (_, Some(_)) => anyhow::bail!("--gpu-tile needs --device gpu"),
+        (d, None) => d,
+    };
     anyhow::ensure!(!sample.is_empty(), "the room has no voxels");
 
     // On a GPU the chunked kernel runs twice: geometry built on the device (the default) and
@@ -270,7 +278,7 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
         let total: f64 = r.kernel_times.iter().map(|k| k.ms).sum();
         println!("device time per kernel, {} ({total:.2} ms in all):", r.kernel);
         for k in &r.kernel_times {
-            println!("  {:<28} {:>6} dispatches {:>9.3} ms", k.kernel, k.dispatches, k.ms);
+            println!("  {:<44} {:>6} dispatches {:>9.3} ms", k.kernel, k.dispatches, k.ms);
         }
     }
     let rulebook = &rows[rows.len() - 1];

@@ -17,6 +17,10 @@
 //
 // Every destination belongs to one tile and is written once, by one thread: no atomics, a fixed
 // summation order (offsets, then channel tiles, then channels), the same bits on every run.
+// Layers too small to fill the GPU split their (offset, channel step) sequence into ranges
+// (one range per group of workgroups along z, into its own slice of partial sums), and
+// elementwise.wgsl's split_sum adds the slices in order: more workgroups, each with a shorter
+// serial loop, still one dispatch.
 //
 // Plan buffer (u32): dst_rows [n_dst] | table [n_dst, kv] (the source row of every
 // destination at every offset, or EMPTY), destinations in plan order.
@@ -29,7 +33,14 @@ struct Params {
     flags: u32,        // bit 0: batch norm + ReLU on the input; bit 1: add to y
     o_dst_rows: u32,
     o_table: u32,
-    _pad: u32,
+    // Ranges of the (kernel offset, input-channel step) sequence (1: all of it; else the
+    // workgroup's range, from its z index, writes its own slice of partial sums, `slice`
+    // values apart), and output-channel tiles.
+    splits: u32,
+    channel_tiles: u32,
+    slice: u32,
+    _pad0: u32,
+    _pad1: u32,
 }
 
 const EMPTY: u32 = 0xffffffffu;
@@ -77,7 +88,15 @@ fn forward(
     if (t0 >= p.n_dst) {
         return;
     }
-    let o0 = wid.z * TO;
+    let split = wid.z / p.channel_tiles;
+    let o0 = (wid.z % p.channel_tiles) * TO;
+    // A split owns a range of the (offset, input-channel step) sequence.
+    let csteps = (p.c_in + CT - 1u) / CT;
+    let s_begin = split * p.kv * csteps / p.splits;
+    let s_end = (split + 1u) * p.kv * csteps / p.splits;
+    let k_begin = s_begin / csteps;
+    let k_end = (s_end + csteps - 1u) / csteps;
+    let y_offset = split * p.slice;
     // Compute roles: destinations 4 RQ tr .. + 4 RQ - 1, channels o0 + 4 CQ tc .. + 4 CQ - 1.
     let tr = lid / TCOLS;
     let tc = lid % TCOLS;
@@ -105,7 +124,7 @@ fn forward(
     var acc51 = vec4<f32>(0.0);
     var acc61 = vec4<f32>(0.0);
     var acc71 = vec4<f32>(0.0);
-    for (var k = 0u; k < p.kv; k++) {
+    for (var k = k_begin; k < k_end; k++) {
         var found = EMPTY;
         if (lid < TR) {
             if (t0 + lid < p.n_dst) {
@@ -118,7 +137,9 @@ fn forward(
             continue;
         }
         let s = src[lr];
-        for (var c0 = 0u; c0 < p.c_in; c0 += CT) {
+        let c_first = (max(s_begin, k * csteps) - k * csteps) * CT;
+        let c_last = (min(s_end, (k + 1u) * csteps) - k * csteps) * CT;
+        for (var c0 = c_first; c0 < c_last; c0 += CT) {
             for (var j = 0u; j < A_VALS; j++) {
                 let c = c0 + lc + j;
                 var v = 0.0;
@@ -171,37 +192,37 @@ fn forward(
     }
     let r = t0 + 4u * RQ * tr;
     let o = o0 + 4u * CQ * tc;
-    store(r, o, acc00);
-    store(r + 1u, o, acc10);
-    store(r + 2u, o, acc20);
-    store(r + 3u, o, acc30);
+    store(r, o, acc00, y_offset);
+    store(r + 1u, o, acc10, y_offset);
+    store(r + 2u, o, acc20, y_offset);
+    store(r + 3u, o, acc30, y_offset);
     if (CQ > 1u) {
-        store(r, o + 4u, acc01);
-        store(r + 1u, o + 4u, acc11);
-        store(r + 2u, o + 4u, acc21);
-        store(r + 3u, o + 4u, acc31);
+        store(r, o + 4u, acc01, y_offset);
+        store(r + 1u, o + 4u, acc11, y_offset);
+        store(r + 2u, o + 4u, acc21, y_offset);
+        store(r + 3u, o + 4u, acc31, y_offset);
     }
     if (RQ > 1u) {
-        store(r + 4u, o, acc40);
-        store(r + 5u, o, acc50);
-        store(r + 6u, o, acc60);
-        store(r + 7u, o, acc70);
+        store(r + 4u, o, acc40, y_offset);
+        store(r + 5u, o, acc50, y_offset);
+        store(r + 6u, o, acc60, y_offset);
+        store(r + 7u, o, acc70, y_offset);
         if (CQ > 1u) {
-            store(r + 4u, o + 4u, acc41);
-            store(r + 5u, o + 4u, acc51);
-            store(r + 6u, o + 4u, acc61);
-            store(r + 7u, o + 4u, acc71);
+            store(r + 4u, o + 4u, acc41, y_offset);
+            store(r + 5u, o + 4u, acc51, y_offset);
+            store(r + 6u, o + 4u, acc61, y_offset);
+            store(r + 7u, o + 4u, acc71, y_offset);
         }
     }
 }
 
 // Writes (or, with the accumulate flag, adds) channels o .. o + 3 of destination t (plan
-// order).
-fn store(t: u32, o: u32, v: vec4<f32>) {
+// order), `y_offset` values into y.
+fn store(t: u32, o: u32, v: vec4<f32>, y_offset: u32) {
     if (t >= p.n_dst) {
         return;
     }
-    let base = plan[p.o_dst_rows + t] * p.c_out;
+    let base = y_offset + plan[p.o_dst_rows + t] * p.c_out;
     for (var j = 0u; j < 4u; j++) {
         if (o + j < p.c_out) {
             if ((p.flags & 2u) != 0u) {

@@ -84,3 +84,22 @@ fn argmax(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups
     }
     labels[r] = best;
 }
+
+// dst[i] = (stride != 0 ? dst[i] : 0) + sum over the splits s in order of src[s n + i]: the
+// chunked kernel's partial sums over ranges of kernel offsets (c: splits; stride: 1 to add to
+// the output's contents).
+@compute @workgroup_size(64)
+fn split_sum(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let e = flat_index(gid, nwg);
+    if (e >= p.n) {
+        return;
+    }
+    var acc = 0.0;
+    if (p.stride != 0u) {
+        acc = dst[e];
+    }
+    for (var s = 0u; s < p.c; s++) {
+        acc += src[s * p.n + e];
+    }
+    dst[e] = acc;
+}
