@@ -76,8 +76,6 @@ pub(crate) struct Pipelines {
     pub argmax: wgpu::ComputePipeline,
     /// Adds the chunked kernel's partial sums of split offsets.
     pub split_sum: wgpu::ComputePipeline,
-    /// Kernel parameters from device-side counts (shaders/derive.wgsl).
-    pub derive: wgpu::ComputePipeline,
     /// The device voxel hierarchy's kernels (shaders/hierarchy.wgsl).
     pub hierarchy: HierarchyPipelines,
     /// Every pipeline's name, for the profiler.
@@ -461,40 +459,6 @@ impl GpuContext {
         buffer
     }
 
-    /// Kernel parameters written on the device: `words` (at most 8) from the `counts` buffer,
-    /// each `counts[sel] * mul + add` or a constant (shaders/derive.wgsl), recorded into
-    /// `encoder` and usable as the uniform parameters of later dispatches.
-    pub(crate) fn derived_params(
-        &self,
-        encoder: &mut wgpu::CommandEncoder,
-        counts: &wgpu::Buffer,
-        words: &[DerivedWord],
-    ) -> wgpu::Buffer {
-        let mut spec = [0u32; 24];
-        for (j, w) in words.iter().take(8).enumerate() {
-            let (sel, mul, add) = match *w {
-                DerivedWord::Const(v) => (u32::MAX, 0, v),
-                DerivedWord::Count { index, mul, add } => (index, mul, add),
-            };
-            spec[j] = sel;
-            spec[8 + j] = mul;
-            spec[16 + j] = add;
-        }
-        // Words past `words` stay constant zeros.
-        for sel in spec.iter_mut().take(8).skip(words.len()) {
-            *sel = u32::MAX;
-        }
-        let spec = self.params(&spec);
-        let out = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("derived params"),
-            size: 32,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::STORAGE,
-            mapped_at_creation: false,
-        });
-        self.dispatch(encoder, &self.pipelines.derive, &[(0, &spec), (1, counts), (2, &out)], 1, 1);
-        out
-    }
-
     /// Records one dispatch of `pipeline` with `bindings` (binding number, buffer) over a
     /// grid of `groups` workgroups (folded into x and y past the per-dimension limit) times
     /// `z` in the third dimension.
@@ -662,15 +626,6 @@ impl GpuContext {
     }
 }
 
-/// One word of [`GpuContext::derived_params`].
-#[derive(Debug, Clone, Copy)]
-pub(crate) enum DerivedWord {
-    /// A value known on the host.
-    Const(u32),
-    /// `counts[index] * mul + add`.
-    Count { index: u32, mul: u32, add: u32 },
-}
-
 /// `groups` workgroups as an `(x, y)` grid within the per-dimension limit; kernels recover the
 /// flat index as `x + y * num_workgroups.x` and skip the tail.
 pub(crate) fn grid(groups: u32) -> (u32, u32) {
@@ -729,7 +684,6 @@ impl Pipelines {
             add_bias: pipeline(&elementwise, "add_bias"),
             argmax: pipeline(&elementwise, "argmax"),
             split_sum: pipeline(&elementwise, "split_sum"),
-            derive: pipeline(&module("derive", include_str!("shaders/derive.wgsl")), "derive"),
             hierarchy: HierarchyPipelines {
                 insert: pipeline(&hierarchy, "insert"),
                 first_child: pipeline(&hierarchy, "first_child"),
@@ -760,7 +714,6 @@ impl Pipelines {
             (&pipelines.add_bias, "add bias"),
             (&pipelines.argmax, "argmax"),
             (&pipelines.split_sum, "split sum"),
-            (&pipelines.derive, "derive parameters"),
             (&h.insert, "hierarchy insert"),
             (&h.first_child, "hierarchy first child"),
             (&h.scan_blocks, "hierarchy scan blocks"),

@@ -11,12 +11,10 @@
 //! `crates/net` geometry.rs builds them on the host.
 //!
 //! Why: on an H100 the host's geometry and its upload took 45 of the network's 61-68 ms per
-//! room (docs/gpu.md). Here the host uploads the coordinates only and waits once: the coarser
-//! levels' voxel counts stay on the device until the end, buffers are sized by the input's
-//! count (no level has more voxels), and each kernel's parameters are written on the device
-//! from the counts (shaders/derive.wgsl). Every table is the same as the host's, bit for bit
-//! (integer work, fixed orders), except the interpolation weights, whose division rounds on
-//! the device (within an ulp or two).
+//! room (docs/gpu.md). Here the host uploads the coordinates only, and waits once per level
+//! for the coarse voxel count (buffers are sized exactly; the forward needs the counts anyway).
+//! Every table is the same as the host's, bit for bit (integer work, fixed orders), except the
+//! interpolation weights, whose division rounds on the device (within an ulp or two).
 //!
 //! The layers are the chunked kernel's forward only (the network's inference path); the
 //! rulebook kernels and the gradients return [`GpuError::LayerPart`] on them.
@@ -24,7 +22,7 @@
 use semrecon_sparse::key::pack_key;
 use semrecon_sparse::{Coord, MapKind, SparseError};
 
-use crate::context::{DerivedWord, GpuContext, WORKGROUP};
+use crate::context::{GpuContext, WORKGROUP};
 use crate::engine::{count32, GpuEngine};
 use crate::error::{GpuError, Result};
 use crate::host_level::HostLevel;
@@ -87,92 +85,71 @@ impl GpuEngine {
         }
         let ctx = &**self.context();
         let _call = ctx.begin_call()?;
-        // Every level has at most the input's voxels: buffers are sized by that bound, and the
-        // kernels read their level's true count from `counts` (derived parameters).
-        let bound = count32("voxels", coords.len())?;
-        let bound_entries = |per: u32| count32("hierarchy tables", bound as usize * per as usize);
-        let capacity = count32("hash slots", (2 * bound as usize).next_power_of_two().max(64))?;
-        let mut initial = vec![0u32; levels];
-        initial[0] = bound;
-        let counts = ctx.upload("voxel counts", &initial)?;
-        // Report: counts [levels] | map status [levels, 3] | parents' overflow [levels].
-        let report = ctx.zeroed("hierarchy report", 5 * levels as u64 * 4)?;
+        let mut rows = coords.len();
         let mut coords_buf = ctx.upload("coordinates", coords)?;
+        let mut out = Vec::with_capacity(levels);
         let mut enc = ctx.encoder();
-        let p = &ctx.pipelines;
-        let mut built: Vec<Built> = Vec::with_capacity(levels);
         for level in 0..levels {
-            let count = |mul: u32, add: u32| DerivedWord::Count { index: level as u32, mul, add };
+            let n = count32("voxels", rows)?;
+            let entries = count32("neighbour table", rows.checked_mul(28).ok_or(SparseError::TooManyRows(rows))?)?;
+            let capacity = count32("hash slots", (2 * rows).next_power_of_two().max(64))?;
             let slots = ctx.zeroed("hash slots", u64::from(capacity) * 4)?;
             fill(ctx, &mut enc, &slots, capacity, EMPTY);
             // [destination rows | table]: the chunked kernel's plan layout.
-            let subm_plan = ctx.zeroed("submanifold plan", u64::from(bound_entries(28)?) * 4)?;
+            let subm_plan = ctx.zeroed("submanifold plan", u64::from(entries) * 4)?;
             let map_status = ctx.zeroed("map status", 12)?;
-            let mask = DerivedWord::Const(capacity - 1);
-            let (three, kv) = (DerivedWord::Const(3), DerivedWord::Const(27));
-            let insert = ctx.derived_params(&mut enc, &counts, &[count(1, 0), mask, three, kv, DerivedWord::Const(0)]);
+            let p = &ctx.pipelines;
+            let insert = ctx.params(&[n, capacity - 1, 3, 27, 0]);
             let b = [(0, &insert), (1, &coords_buf), (2, &slots), (3, &map_status)];
-            ctx.dispatch(&mut enc, &p.map_insert, &b, bound.div_ceil(WORKGROUP), 1);
-            let lookup = ctx.derived_params(&mut enc, &counts, &[count(1, 0), mask, three, kv, DerivedWord::Const(1)]);
+            ctx.dispatch(&mut enc, &p.map_insert, &b, n.div_ceil(WORKGROUP), 1);
+            let lookup = ctx.params(&[n, capacity - 1, 3, 27, 1]);
             let b = [(0, &lookup), (1, &coords_buf), (2, &slots), (3, &map_status), (4, &subm_plan)];
-            ctx.dispatch(&mut enc, &p.map_lookup, &b, bound_entries(27)?.div_ceil(WORKGROUP), 1);
-            let point_plan = ctx.zeroed("pointwise plan", u64::from(bound) * 8)?;
-            let zero = DerivedWord::Const(0);
-            let rows = ctx.derived_params(&mut enc, &counts, &[count(2, 0), zero, zero, count(1, 0)]);
-            ctx.dispatch(
-                &mut enc,
-                &p.hierarchy.rows,
-                &[(0, &rows), (9, &point_plan)],
-                (2 * bound).div_ceil(WORKGROUP),
-                1,
-            );
-            enc.copy_buffer_to_buffer(&map_status, 0, &report, (levels as u64 + 3 * level as u64) * 4, 12);
-            if level + 1 < levels {
-                let next = Parents::record(ctx, &mut enc, &counts, level, &coords_buf, bound, capacity)?;
-                enc.copy_buffer_to_buffer(&next.status, 4, &report, (4 * levels + level) as u64 * 4, 4);
-                let coarse = next.coarse;
-                built.push((coords_buf, subm_plan, point_plan, Some((next.parent, next.down, next.up))));
-                coords_buf = coarse;
-            } else {
-                built.push((coords_buf, subm_plan, point_plan, None));
-                break;
+            ctx.dispatch(&mut enc, &p.map_lookup, &b, count32("neighbour table", rows * 27)?.div_ceil(WORKGROUP), 1);
+            let point_plan = ctx.zeroed("pointwise plan", u64::from(n) * 8)?;
+            row_numbers(ctx, &mut enc, &point_plan, 2 * n, n);
+            let coarser = (level + 1 < levels).then(|| Parents::count(ctx, &mut enc, &coords_buf, n)).transpose()?;
+
+            // One wait per level: the statuses, the pair count and the coarse voxel count.
+            let report = ctx.zeroed("hierarchy report", 20)?;
+            enc.copy_buffer_to_buffer(&map_status, 0, &report, 0, 12);
+            if let Some(parents) = &coarser {
+                enc.copy_buffer_to_buffer(&parents.status, 0, &report, 12, 8);
             }
-        }
-        enc.copy_buffer_to_buffer(&counts, 0, &report, 0, levels as u64 * 4);
-        // The one wait: every level's count, statuses and pair count.
-        let r = ctx.finish_and_read_status(enc, &report, 5 * levels)?;
-        if r[levels] != 0 {
-            let row = r[levels] as usize - 1;
-            return Err(SparseError::InvalidArgument(format!(
-                "duplicate coordinate {:?} at row {row} (build a SparseTensor to merge duplicates)",
-                coords.get(row).copied().unwrap_or_default()
-            ))
-            .into());
-        }
-        if (0..levels).any(|l| r[levels + 3 * l + 1] != 0 || r[4 * levels + l] != 0) {
-            return Err(GpuError::Device("the voxel hash table overflowed".into()));
-        }
-        let mut out = Vec::with_capacity(levels);
-        for (level, (coords, subm_plan, point_plan, strided)) in built.into_iter().enumerate() {
-            let n = r[level];
-            let rows = n as usize;
-            let pairs = r[levels + 3 * level + 2] as usize;
+            let r = ctx.finish_and_read_status(std::mem::replace(&mut enc, ctx.encoder()), &report, 5)?;
+            if r[0] != 0 {
+                let row = r[0] as usize - 1;
+                return Err(SparseError::InvalidArgument(format!(
+                    "duplicate coordinate {:?} at row {row} (build a SparseTensor to merge duplicates)",
+                    coords.get(row).copied().unwrap_or_default()
+                ))
+                .into());
+            }
+            if r[1] != 0 || r[4] != 0 {
+                return Err(GpuError::Device("the voxel hash table overflowed".into()));
+            }
             let sub = MapKind::Submanifold { kernel_size: 3 };
-            let subm = GpuLayer::of_device_plan(sub, rows, pairs, DevicePlan { buffer: subm_plan, n_dst: n });
+            let subm = GpuLayer::of_device_plan(sub, rows, r[2] as usize, DevicePlan { buffer: subm_plan, n_dst: n });
             let point_kind = MapKind::Submanifold { kernel_size: 1 };
             let point = GpuLayer::of_device_plan(point_kind, rows, rows, DevicePlan { buffer: point_plan, n_dst: n });
-            let (parent, down) = match strided {
-                Some((parent, down, up)) => {
-                    let m = r[level + 1];
-                    let down_layer =
-                        GpuLayer::of_device_plan(MapKind::Down, rows, rows, DevicePlan { buffer: down, n_dst: m });
-                    let up_layer =
-                        GpuLayer::of_device_plan(MapKind::Up, m as usize, rows, DevicePlan { buffer: up, n_dst: n });
-                    (Some(parent), Some((down_layer, up_layer)))
+            let (next, parent, down) = match coarser {
+                Some(parents) => {
+                    let (coarse, parent, down, up) = parents.emit(ctx, &mut enc, &coords_buf, n, r[3])?;
+                    let down_layer = GpuLayer::of_device_plan(MapKind::Down, rows, rows, down);
+                    let up_layer = GpuLayer::of_device_plan(MapKind::Up, r[3] as usize, rows, up);
+                    (Some((coarse, r[3] as usize)), Some(parent), Some((down_layer, up_layer)))
                 }
-                None => (None, None),
+                None => (None, None, None),
             };
-            out.push(DeviceLevel { rows, neighbour_pairs: pairs, coords, parent, subm, point, down });
+            let this =
+                DeviceLevel { rows, neighbour_pairs: r[2] as usize, coords: coords_buf, parent, subm, point, down };
+            out.push(this);
+            match next {
+                Some((c, m)) => {
+                    coords_buf = c;
+                    rows = m;
+                }
+                None => break,
+            }
         }
         Ok(DeviceHierarchy { levels: out })
     }
@@ -263,85 +240,71 @@ impl GpuEngine {
     }
 }
 
-/// One level's buffers while the hierarchy is recorded: coordinates, submanifold plan,
-/// pointwise plan, and (below the coarsest) parents, down plan and up plan.
-type Built = (wgpu::Buffer, wgpu::Buffer, wgpu::Buffer, Option<(wgpu::Buffer, wgpu::Buffer, wgpu::Buffer)>);
-
-/// The parents of one level, recorded on the device: numbered, the coarse voxels, the parent
-/// rows and the strided layer's plans (down: `[coarse | coarse x 8]`, up: `[fine | fine x 8]`),
-/// all sized by the input's voxel count and filled up to the device's counts.
+/// The parents of a level being numbered (until the coarse count is read back).
 struct Parents {
-    coarse: wgpu::Buffer,
-    parent: wgpu::Buffer,
-    down: wgpu::Buffer,
-    up: wgpu::Buffer,
+    slots: wgpu::Buffer,
+    slot_of: wgpu::Buffer,
+    rank: wgpu::Buffer,
     /// `[coarse voxels, overflow]`.
     status: wgpu::Buffer,
 }
 
 impl Parents {
-    /// Records the parents of level `level` (its count in `counts[level]`, at most `bound`):
-    /// the hash table of parents, the first-child flags and their prefix sum (the coarse
-    /// count goes to `counts[level + 1]`), then the coarse voxels and both strided plans.
-    fn record(
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
-        counts: &wgpu::Buffer,
-        level: usize,
-        coords: &wgpu::Buffer,
-        bound: u32,
-        capacity: u32,
-    ) -> Result<Self> {
+    /// Records the parents' hash table, the first-child flags and their prefix sum.
+    fn count(ctx: &GpuContext, enc: &mut wgpu::CommandEncoder, coords: &wgpu::Buffer, n: u32) -> Result<Self> {
+        let capacity = count32("hash slots", (2 * n as usize).next_power_of_two().max(64))?;
         let slots = ctx.zeroed("parent slots", u64::from(capacity) * 4)?;
         fill(ctx, enc, &slots, capacity, EMPTY);
-        let slot_of = ctx.zeroed("parent slot of rows", u64::from(bound) * 4)?;
-        let rank = ctx.zeroed("parent ranks", u64::from(bound) * 4)?;
-        let blocks = bound.div_ceil(SCAN);
+        let slot_of = ctx.zeroed("parent slot of rows", u64::from(n) * 4)?;
+        let rank = ctx.zeroed("parent ranks", u64::from(n) * 4)?;
+        let blocks = n.div_ceil(SCAN);
         let block_sums = ctx.zeroed("prefix sum blocks", u64::from(blocks) * 4)?;
         let status = ctx.zeroed("parent status", 8)?;
         let p = &ctx.pipelines.hierarchy;
-        let fine = |mul: u32, add: u32| DerivedWord::Count { index: level as u32, mul, add };
-        let coarse_count = |mul: u32, add: u32| DerivedWord::Count { index: level as u32 + 1, mul, add };
-        let zero = DerivedWord::Const(0);
-        // Blocks past the level's rows scan zeros: harmless.
-        let params = ctx.derived_params(
-            enc,
-            counts,
-            &[fine(1, 0), DerivedWord::Const(capacity - 1), DerivedWord::Const(blocks), zero],
-        );
-        let groups = bound.div_ceil(WORKGROUP);
+        let params = ctx.params(&[n, capacity - 1, blocks, 0]);
+        let groups = n.div_ceil(WORKGROUP);
         ctx.dispatch(enc, &p.insert, &[(0, &params), (1, coords), (2, &slots), (3, &slot_of), (6, &status)], groups, 1);
         ctx.dispatch(enc, &p.first_child, &[(0, &params), (2, &slots), (3, &slot_of), (4, &rank)], groups, 1);
         ctx.dispatch(enc, &p.scan_blocks, &[(0, &params), (4, &rank), (5, &block_sums)], blocks, 1);
         ctx.dispatch(enc, &p.scan_totals, &[(0, &params), (5, &block_sums), (6, &status)], 1, 1);
         ctx.dispatch(enc, &p.scan_add, &[(0, &params), (4, &rank), (5, &block_sums)], blocks, 1);
-        enc.copy_buffer_to_buffer(&status, 0, counts, (level as u64 + 1) * 4, 4);
+        Ok(Self { slots, slot_of, rank, status })
+    }
 
-        let coarse = ctx.zeroed("coordinates", u64::from(bound) * 16)?;
-        let parent = ctx.zeroed("parents", u64::from(bound) * 4)?;
-        let plan_words = count32("strided plan", bound as usize * 9)?;
-        let down = ctx.zeroed("strided plan", u64::from(plan_words) * 4)?;
-        let up = ctx.zeroed("strided plan", u64::from(plan_words) * 4)?;
-        fill(ctx, enc, &down, plan_words, EMPTY);
-        fill(ctx, enc, &up, plan_words, EMPTY);
-        let down_rows = ctx.derived_params(enc, counts, &[coarse_count(1, 0), zero, zero, coarse_count(1, 0)]);
-        ctx.dispatch(enc, &p.rows, &[(0, &down_rows), (9, &down)], groups, 1);
-        let up_rows = ctx.derived_params(enc, counts, &[fine(1, 0), zero, zero, fine(1, 0)]);
-        ctx.dispatch(enc, &p.rows, &[(0, &up_rows), (9, &up)], groups, 1);
-        let emit = ctx.derived_params(enc, counts, &[fine(1, 0), coarse_count(1, 0), zero, zero]);
+    /// Records the coarse voxels, the parent rows and the strided layer's plans (down:
+    /// `[coarse | coarse x 8]`, up: `[fine | fine x 8]`), now that there are `nc` parents.
+    fn emit(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        coords: &wgpu::Buffer,
+        n: u32,
+        nc: u32,
+    ) -> Result<(wgpu::Buffer, wgpu::Buffer, DevicePlan, DevicePlan)> {
+        let coarse = ctx.zeroed("coordinates", u64::from(nc) * 16)?;
+        let parent = ctx.zeroed("parents", u64::from(n) * 4)?;
+        let down_words = count32("strided plan", nc as usize * 9)?;
+        let up_words = count32("strided plan", n as usize * 9)?;
+        let down = ctx.zeroed("strided plan", u64::from(down_words) * 4)?;
+        let up = ctx.zeroed("strided plan", u64::from(up_words) * 4)?;
+        fill(ctx, enc, &down, down_words, EMPTY);
+        fill(ctx, enc, &up, up_words, EMPTY);
+        row_numbers(ctx, enc, &down, nc, nc);
+        row_numbers(ctx, enc, &up, n, n);
+        let params = ctx.params(&[n, nc, 0, 0]);
         let b = [
-            (0, &emit),
+            (0, &params),
             (1, coords),
-            (2, &slots),
-            (3, &slot_of),
-            (4, &rank),
+            (2, &self.slots),
+            (3, &self.slot_of),
+            (4, &self.rank),
             (7, &parent),
             (8, &coarse),
             (9, &down),
             (10, &up),
         ];
-        ctx.dispatch(enc, &p.emit, &b, groups, 1);
-        Ok(Self { coarse, parent, down, up, status })
+        ctx.dispatch(enc, &ctx.pipelines.hierarchy.emit, &b, n.div_ceil(WORKGROUP), 1);
+        Ok((coarse, parent, DevicePlan { buffer: down, n_dst: nc }, DevicePlan { buffer: up, n_dst: n }))
     }
 }
 
@@ -349,4 +312,10 @@ impl Parents {
 fn fill(ctx: &GpuContext, enc: &mut wgpu::CommandEncoder, buffer: &wgpu::Buffer, n: u32, value: u32) {
     let params = ctx.params(&[n, 0, 0, value]);
     ctx.dispatch(enc, &ctx.pipelines.hierarchy.fill, &[(0, &params), (9, buffer)], n.div_ceil(WORKGROUP), 1);
+}
+
+/// Records `buffer[i] = i % modulus` for `i < n` (plans' destination rows).
+fn row_numbers(ctx: &GpuContext, enc: &mut wgpu::CommandEncoder, buffer: &wgpu::Buffer, n: u32, modulus: u32) {
+    let params = ctx.params(&[n, 0, 0, modulus.max(1)]);
+    ctx.dispatch(enc, &ctx.pipelines.hierarchy.rows, &[(0, &params), (9, buffer)], n.div_ceil(WORKGROUP), 1);
 }
