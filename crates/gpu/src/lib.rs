@@ -6,7 +6,10 @@
 //! chunk-based submanifold kernel (a chunk's input region and a weight tile in workgroup
 //! memory), strided and transposed convolutions through the same kernel, the rulebook
 //! (gather-GEMM-scatter) baseline, and both gradients. Submanifold kernel maps are built on
-//! the device with a hash table; chunk plans come from the CPU planner (docs/gpu.md).
+//! the device with a hash table; chunk plans come from the CPU planner (docs/gpu.md). A whole
+//! voxel hierarchy (every level's tables, the strided layers, the interpolation between levels)
+//! can be built on the device too ([`DeviceHierarchy`]), which is what the network's GPU path
+//! uses.
 //!
 //! It also implements `semrecon_sparse::ResidentBackend`: tensors on the device
 //! ([`GpuTensor`]), convolutions and the network's element-wise steps (attention gate,
