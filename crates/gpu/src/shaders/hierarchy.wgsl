@@ -97,6 +97,21 @@ fn first_child(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     rank[i] = select(0u, 1u, atomicLoad(&slots[slot_of[i]]) == i);
 }
 
+// `partial` (filled by every thread, then a barrier) to its inclusive prefix sum, Hillis-Steele:
+// after the step of `d`, entry j holds the sum of the 2d entries up to j. Every thread of the
+// workgroup calls it (it holds barriers).
+fn scan_partial(lid: u32) {
+    for (var d = 1u; d < SCAN; d *= 2u) {
+        var add = 0u;
+        if (lid >= d) {
+            add = partial[lid - d];
+        }
+        workgroupBarrier();
+        partial[lid] += add;
+        workgroupBarrier();
+    }
+}
+
 // Prefix sum, step 1: each block of SCAN flags scanned in workgroup memory (exclusive), its
 // total kept.
 @compute @workgroup_size(256)
@@ -113,16 +128,7 @@ fn scan_blocks(
     }
     partial[lid] = v;
     workgroupBarrier();
-    // Hillis-Steele: after the step of `d`, entry j holds the sum of the 2d entries up to j.
-    for (var d = 1u; d < SCAN; d *= 2u) {
-        var add = 0u;
-        if (lid >= d) {
-            add = partial[lid - d];
-        }
-        workgroupBarrier();
-        partial[lid] += add;
-        workgroupBarrier();
-    }
+    scan_partial(lid);
     if (i < p.n) {
         rank[i] = partial[lid] - v;
     }
@@ -144,15 +150,7 @@ fn scan_totals(@builtin(local_invocation_index) lid: u32) {
     }
     partial[lid] = own;
     workgroupBarrier();
-    for (var d = 1u; d < SCAN; d *= 2u) {
-        var add = 0u;
-        if (lid >= d) {
-            add = partial[lid - d];
-        }
-        workgroupBarrier();
-        partial[lid] += add;
-        workgroupBarrier();
-    }
+    scan_partial(lid);
     var running = partial[lid] - own;
     for (var j = first; j < last; j += 1u) {
         let v = block_sums[j];
