@@ -16,7 +16,7 @@ use anyhow::Context;
 use glam::Vec3;
 use rayon::prelude::*;
 use semrecon_data::class::UNLABELED;
-use semrecon_data::{write_ply, LabeledMesh, PlyEncoding, SemanticClass, Trajectory};
+use semrecon_data::{write_ply_recoloured, LabeledMesh, PlyEncoding, SemanticClass, Trajectory};
 use semrecon_eval::{evaluate_trajectory, TrajectoryEvalConfig};
 use semrecon_eval::{MeshEvalConfig, SurfaceIndex, SurfaceLabeler};
 use semrecon_net::{shipped, ConfusionMatrix, NetConfig, Segmenter, Weights};
@@ -269,18 +269,16 @@ fn load_network_on_cpu(args: &SemanticArgs) -> anyhow::Result<(Option<Segmenter>
     }
 }
 
-/// The mesh with every vertex coloured by its class ([`UNLABELED`] grey).
-pub fn class_colored(mesh: &LabeledMesh) -> LabeledMesh {
-    let mut m = mesh.clone();
-    m.colors = mesh
-        .vertex_labels
+/// The class colour of every vertex of `mesh` ([`UNLABELED`] and unknown ids grey; all grey
+/// when the mesh has no vertex labels).
+pub fn class_colors(mesh: &LabeledMesh) -> Vec<[u8; 3]> {
+    if mesh.vertex_labels.len() != mesh.positions.len() {
+        return vec![[160, 160, 160]; mesh.positions.len()];
+    }
+    mesh.vertex_labels
         .iter()
         .map(|&l| SemanticClass::from_id(l).map_or([160, 160, 160], SemanticClass::color))
-        .collect();
-    if m.colors.len() != m.positions.len() {
-        m.colors = vec![[160, 160, 160]; m.positions.len()];
-    }
-    m
+        .collect()
 }
 
 /// Creates the output folder `dir` before any work starts, so that a wrong path fails at once
@@ -325,8 +323,15 @@ pub fn finish_session(
 /// colours) and `dir/trajectory.txt` (TUM) into `dir`, which [`prepare_output_dir`] made
 /// before the run.
 pub fn write_outputs(dir: &Path, mesh: &LabeledMesh, trajectory: &Trajectory) -> anyhow::Result<()> {
-    write_ply(dir.join("mesh.ply"), mesh, PlyEncoding::BinaryLittleEndian)?;
-    write_ply(dir.join("semantic.ply"), &class_colored(mesh), PlyEncoding::BinaryLittleEndian)?;
+    // One PLY conversion for both files: a whole home's mesh is gigabytes.
+    let colors = class_colors(mesh);
+    write_ply_recoloured(
+        dir.join("mesh.ply"),
+        dir.join("semantic.ply"),
+        mesh,
+        &colors,
+        PlyEncoding::BinaryLittleEndian,
+    )?;
     trajectory.write_tum(dir.join("trajectory.txt"))?;
     Ok(())
 }

@@ -25,7 +25,7 @@ use std::ops::Range;
 use std::path::Path;
 
 mod mesh;
-pub use mesh::{mesh_from_ply, mesh_to_ply, read_ply, write_ply};
+pub use mesh::{mesh_from_ply, mesh_to_ply, read_ply, write_ply, write_ply_recoloured};
 
 use glam::Vec3;
 

@@ -19,6 +19,42 @@ pub fn write_ply(path: impl AsRef<Path>, mesh: &LabeledMesh, encoding: PlyEncodi
     ply.write(path, encoding)
 }
 
+/// Writes `mesh` as PLY to `path`, and again to `recoloured_path` with the vertex colours
+/// `colors` (e.g. class colours), both atomically, from one conversion: the same bytes as two
+/// [`write_ply`] calls with a recoloured copy of the mesh, without the copy (a whole home's
+/// mesh is gigabytes).
+///
+/// # Errors
+/// As [`write_ply`]; `colors` not one per vertex.
+pub fn write_ply_recoloured(
+    path: impl AsRef<Path>,
+    recoloured_path: impl AsRef<Path>,
+    mesh: &LabeledMesh,
+    colors: &[[u8; 3]],
+    encoding: PlyEncoding,
+) -> Result<()> {
+    let (path, recoloured_path) = (path.as_ref(), recoloured_path.as_ref());
+    if colors.len() != mesh.positions.len() {
+        return Err(DataError::InvalidArgument(format!(
+            "cannot write {}: {} colours for {} vertices",
+            recoloured_path.display(),
+            colors.len(),
+            mesh.positions.len()
+        )));
+    }
+    let mut ply =
+        mesh_to_ply(mesh).map_err(|m| DataError::InvalidArgument(format!("cannot write {}: {m}", path.display())))?;
+    ply.write(path, encoding)?;
+    if let Some(vertex) = ply.elements.iter_mut().find(|e| e.name == "vertex") {
+        for (k, name) in ["red", "green", "blue"].into_iter().enumerate() {
+            if let Some(p) = vertex.properties.iter_mut().find(|p| p.name == name) {
+                p.data = PropertyData::Scalar(Column::UChar(colors.iter().map(|c| c[k]).collect()));
+            }
+        }
+    }
+    ply.write(recoloured_path, encoding)
+}
+
 /// Converts a parsed PLY file into a [`LabeledMesh`]; `path` names the file in errors.
 ///
 /// - `vertex` element with scalar `x`, `y`, `z` (any numeric type) is required; every

@@ -144,3 +144,33 @@ fn writes_atomically_and_round_trips() {
     let names: Vec<_> = std::fs::read_dir(dir.path()).expect("dir").map(|e| e.map(|e| e.file_name())).collect();
     assert_eq!(names.len(), 1, "temporary file left behind: {names:?}");
 }
+
+/// Both files of `write_ply_recoloured` are the bytes of `write_ply` on the mesh and on a
+/// recoloured copy, in every encoding; colours not one per vertex are an error.
+#[test]
+fn recoloured_pair_equals_two_writes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mesh = mesh_of(QUAD).expect("parse");
+    let colors: Vec<[u8; 3]> = (0..mesh.positions.len()).map(|i| [i as u8, 200, 7 * i as u8]).collect();
+    let mut recoloured = mesh.clone();
+    recoloured.colors = colors.clone();
+    for enc in [PlyEncoding::Ascii, PlyEncoding::BinaryLittleEndian] {
+        let (a, b, c, d) = ["a", "b", "c", "d"].map(|n| dir.path().join(format!("{n}.ply"))).into();
+        write_ply_recoloured(&a, &b, &mesh, &colors, enc).expect("pair");
+        write_ply(&c, &mesh, enc).expect("mesh");
+        write_ply(&d, &recoloured, enc).expect("recoloured");
+        let read = |p: &std::path::Path| std::fs::read(p).expect("read");
+        assert_eq!(read(&a), read(&c), "{enc:?} mesh");
+        assert_eq!(read(&b), read(&d), "{enc:?} recoloured");
+    }
+    let e = write_ply_recoloured(
+        dir.path().join("e.ply"),
+        dir.path().join("f.ply"),
+        &mesh,
+        &colors[1..],
+        PlyEncoding::Ascii,
+    )
+    .expect_err("short colours")
+    .to_string();
+    assert!(e.contains("colours for"), "{e}");
+}
