@@ -150,6 +150,11 @@ struct FrameView<'a> {
     /// surface takes the frame's colour; otherwise only those with fewer than
     /// [`COLOR_WARMUP`] colour observations.
     color_all: bool,
+    /// Colour is blended only where `-color_band <= sdf < color_band` (truncation units;
+    /// [`TsdfConfig::color_band_voxels`]).
+    color_band: f32,
+    /// [`TsdfConfig::observe_free_space`].
+    observe_free_space: bool,
     /// Factor on each observation's weight: 1 for a frame, n where one frame stands for n
     /// similar ones (loop closure re-fusing a subsample). Multiplying by 1 is exact, so the
     /// default changes no bit.
@@ -263,6 +268,8 @@ impl TsdfMap {
             max_depth: c.max_depth,
             weight_cap: (c.max_weight * WEIGHT_SCALE).round().clamp(1.0, u16::MAX as f32) as u16,
             color_all: c.is_color_frame(frame.index),
+            color_band: c.color_band(),
+            observe_free_space: c.observe_free_space,
             obs_weight,
         };
         let mut targets = select_mut(&mut self.chunks, &slots);
@@ -612,6 +619,7 @@ fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> 
     let noise_offset = splat(NOISE_OFFSET);
     let (zero, half, one) = (f32x8::ZERO, f32x8::HALF, f32x8::ONE);
     let cap = splat(f.weight_cap as f32);
+    let color_band = splat(f.color_band);
     let has_color = !f.color.is_empty();
     let block = &mut *chunk.voxels;
     let (tsdf_rows, _) = block.tsdf.as_chunks_mut::<N>();
@@ -642,12 +650,14 @@ fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> 
         } else {
             one
         };
-        let valid = inside & d.simd_ge(min_d) & d.simd_le(max_d) & sdf.simd_ge(-mu);
-        let valid_bits = valid.to_bitmask();
         let tsdf_row = &mut tsdf_rows[r];
         let weight_row = &mut weight_rows[r];
         let t_old = i32x8::from_i16x8(i16x8::new(*tsdf_row)).round_float();
         let w_old_q = i32x8::from_u16x8(u16x8::new(*weight_row)).round_float();
+        let valid = inside & d.simd_ge(min_d) & d.simd_le(max_d) & sdf.simd_ge(-mu);
+        // Free space in front of the band updates only voxels already observed.
+        let valid = if f.observe_free_space { valid } else { valid & (sdf.simd_lt(mu) | w_old_q.simd_gt(zero)) };
+        let valid_bits = valid.to_bitmask();
         let (t_now, w_now) = if valid_bits != 0 {
             let obs = sdf.fast_min(mu);
             let w_obs = valid.select((one / (d * d)).fast_min(splat(4.0)) * splat(f.obs_weight), zero);
@@ -664,11 +674,12 @@ fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> 
             *tsdf_row = i16x8::from_i32x8_truncate(t_new.fast_trunc_int()).to_array();
             *weight_row = i16x8::from_i32x8_truncate(w_new.fast_trunc_int()).to_array().map(|w| w as u16);
             updated += valid_bits.count_ones();
-            let near_bits = (valid & sdf.simd_lt(mu)).to_bitmask();
-            if near_bits != 0 {
+            let near = valid & sdf.simd_lt(mu);
+            if near.any() {
                 near_any = true;
+                let colored = near & sdf.simd_lt(color_band) & sdf.simd_ge(-color_band);
                 if has_color {
-                    let mut bits = near_bits;
+                    let mut bits = colored.to_bitmask();
                     while bits != 0 {
                         let x = bits.trailing_zeros() as usize;
                         // Off colour frames only voxels still warming up take a colour.
@@ -741,7 +752,12 @@ mod tests {
             if !(d >= f.min_depth && d <= f.max_depth && sdf >= -mu) {
                 continue;
             }
-            let color = (sdf < mu && (f.color_all || vox.color_count < COLOR_WARMUP)).then_some(f.color[pix]);
+            if !f.observe_free_space && sdf >= mu && !vox.is_observed() {
+                continue;
+            }
+            let in_color_band = sdf < f.color_band && sdf >= -f.color_band;
+            let color = (sdf < mu && in_color_band && (f.color_all || vox.color_count < COLOR_WARMUP))
+                .then_some(f.color[pix]);
             vox.fuse(sdf.min(mu), depth_weight(d) * f.obs_weight, color, f.weight_cap);
         }
     }

@@ -82,6 +82,20 @@ pub struct TsdfConfig {
     /// blending every voxel of the band every frame was about a fifth of fusion's time
     /// (docs/fusion.md).
     pub color_every: usize,
+    /// Colour is blended only into voxels whose distance to the measured surface is below
+    /// this many voxels (0.5 to 64; at or above the band: the whole band, as before issue
+    /// 20). Meshing and the semantic surface cells read colour only at zero crossings, from
+    /// the two voxels of a crossed edge; colour further out is never read, but it is a third of
+    /// what a packed chunk stores and most of fusion's colour blends.
+    pub color_band_voxels: f32,
+    /// Whether an observation of free space in front of the band (the voxel is further in
+    /// front of the measured surface than the band) marks a never-observed voxel as
+    /// observed. False: free-space observations only update voxels already observed (they
+    /// still carve away surfaces that are not there), so the empty space in front of a
+    /// surface costs no voxels in packed chunks; the band itself, which meshing and averaging
+    /// need, is fused as before. True: every voxel in front of the surface in a selected
+    /// chunk is observed (before issue 20).
+    pub observe_free_space: bool,
 }
 
 impl Default for TsdfConfig {
@@ -96,6 +110,8 @@ impl Default for TsdfConfig {
             max_depth: 5.0,
             selection_stride: 2,
             color_every: 3,
+            color_band_voxels: 2.0,
+            observe_free_space: false,
         }
     }
 }
@@ -132,6 +148,9 @@ impl TsdfConfig {
         if !(1..=64).contains(&self.selection_stride) {
             return bad(format!("selection stride {} is outside 1..64", self.selection_stride));
         }
+        if !(0.5..=64.0).contains(&self.color_band_voxels) {
+            return bad(format!("colour band {} voxels is outside 0.5..64", self.color_band_voxels));
+        }
         if !(1..=64).contains(&self.color_every) {
             return bad(format!("colour rate 1/{} is outside 1/1..1/64", self.color_every));
         }
@@ -162,6 +181,11 @@ impl TsdfConfig {
             1.0
         };
         BandModel { constant: k * NOISE_CONSTANT, quadratic: k * NOISE_QUADRATIC, min_relative }
+    }
+
+    /// Half-width of the colour band in truncation units (the unit of stored distances).
+    pub(crate) fn color_band(&self) -> f32 {
+        self.color_band_voxels / self.truncation_voxels
     }
 
     /// Whether frame `index` is a colour frame (see [`TsdfConfig::color_every`]).
@@ -952,5 +976,25 @@ mod tests {
         assert_eq!(fixed.narrowest_band_voxels(), 10.0);
         let d = TsdfConfig::default();
         assert!([0.5f32, 2.0, 4.5].iter().all(|&z| d.band(z) == d.truncation()));
+    }
+}
+
+impl TsdfMap {
+    /// EXPERIMENT (temporary): total packed bytes after transforming each block's fields.
+    #[doc(hidden)]
+    pub fn experiment_packed_bytes(
+        &self,
+        transform: &(dyn Fn(ChunkKey, &mut [i16; CHUNK_VOXELS], &mut [u16; CHUNK_VOXELS], &mut [[u8; 4]; CHUNK_VOXELS]) + Sync),
+    ) -> usize {
+        self.chunks
+            .par_iter()
+            .map(|c| {
+                let mut b = VoxelBlock::empty();
+                *b = (*c.voxels).clone();
+                let VoxelBlock { tsdf, weight, color } = &mut *b;
+                transform(c.key, tsdf, weight, color);
+                compressed::pack(&b).len()
+            })
+            .sum()
     }
 }

@@ -84,6 +84,7 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
         let four = splat(4.0);
         let obs_scale = splat(f.obs_weight);
         let tiny = splat(1e-30);
+        let (color_band, neg_color_band) = (splat(f.color_band), splat(-f.color_band));
         let inv_wscale = splat(1.0 / WEIGHT_SCALE);
         let wscale = splat(WEIGHT_SCALE);
         let tscale = splat(TSDF_SCALE);
@@ -163,6 +164,13 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                     _mm256_cmp_ps::<_CMP_GE_OQ>(d, min_d),
                     _mm256_and_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(d, max_d), _mm256_cmp_ps::<_CMP_GE_OQ>(sdf, neg_mu)),
                 );
+                // Free space in front of the band updates only voxels already observed.
+                let valid = if f.observe_free_space {
+                    valid
+                } else {
+                    let observed = _mm256_castsi256_ps(_mm256_cmpgt_epi32(w_old_i, _mm256_setzero_si256()));
+                    _mm256_and_ps(valid, _mm256_or_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(sdf, mu), observed))
+                };
                 // With the gathers done in the first pass, branching on the outcome pays: a
                 // quarter of the rows see no valid observation and keep their voxels.
                 let valid_bits = _mm256_movemask_ps(valid) as u32;
@@ -204,12 +212,19 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                     let row_ptr = color_rows.add(r * N * 4) as *mut __m256i;
                     let cur = _mm256_loadu_si256(row_ptr);
                     // Off colour frames only voxels still warming up take a colour.
+                    let colored = _mm256_and_ps(
+                        near,
+                        _mm256_and_ps(
+                            _mm256_cmp_ps::<_CMP_LT_OQ>(sdf, color_band),
+                            _mm256_cmp_ps::<_CMP_GE_OQ>(sdf, neg_color_band),
+                        ),
+                    );
                     let near_i = if f.color_all {
-                        _mm256_castps_si256(near)
+                        _mm256_castps_si256(colored)
                     } else {
                         let uncoloured =
                             _mm256_cmpgt_epi32(_mm256_set1_epi32(COLOR_WARMUP as i32), _mm256_srli_epi32::<24>(cur));
-                        _mm256_and_si256(_mm256_castps_si256(near), uncoloured)
+                        _mm256_and_si256(_mm256_castps_si256(colored), uncoloured)
                     };
                     if _mm256_testz_si256(near_i, near_i) == 0 {
                         // The observed colours, `[r, g, b, x]` per lane.

@@ -96,6 +96,7 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
         let four = splat(4.0);
         let obs_scale = splat(f.obs_weight);
         let tiny = splat(1e-30);
+        let (color_band, neg_color_band) = (splat(f.color_band), splat(-f.color_band));
         let inv_wscale = splat(1.0 / WEIGHT_SCALE);
         let wscale = splat(WEIGHT_SCALE);
         let tscale = splat(TSDF_SCALE);
@@ -172,6 +173,14 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
             let valid = _mm512_cmp_ps_mask::<_CMP_GE_OQ>(d, min_d)
                 & _mm512_cmp_ps_mask::<_CMP_LE_OQ>(d, max_d)
                 & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(sdf, neg_mu);
+            // Free space in front of the band updates only voxels already observed.
+            let valid = if f.observe_free_space {
+                valid
+            } else {
+                valid
+                    & (_mm512_cmp_ps_mask::<_CMP_LT_OQ>(sdf, mu)
+                        | _mm512_cmpgt_epi32_mask(w_old_i, _mm512_setzero_si512()))
+            };
             // A quarter of the row pairs see no valid observation: they keep their voxels.
             let (t_i, w_i) = if valid == 0 {
                 (t_old_i, w_old_i)
@@ -215,6 +224,9 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 // Half the row pairs have no voxel near the surface: their colours stay as they are.
                 let row_ptr = color_rows.add(r * N * 4) as *mut __m512i;
                 let cur = if has_color && near != 0 { _mm512_loadu_si512(row_ptr as *const _) } else { zero_i };
+                let near = near
+                    & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(sdf, color_band)
+                    & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(sdf, neg_color_band);
                 // Off colour frames only voxels still warming up take a colour.
                 let near = if f.color_all {
                     near
