@@ -56,8 +56,8 @@ fn run() -> Result<(), String> {
     }
     let mesh = extract_mesh_with(&map, MeshConfig::RECOMMENDED).map_err(|e| e.to_string())?;
     let a = area(&mesh);
-    let min_w = (0.25 * 256.0) as u16;
-    let per_voxel = truncation * 32767.0f32.recip();
+    let min_w = (0.25 * semrecon_recon::map::WEIGHT_SCALE) as u16;
+    let per_voxel = truncation / semrecon_recon::map::TSDF_SCALE;
     // Voxel classes: |distance| in voxels.
     let edges = [0.5f32, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 10.1];
     let mut hist = vec![0usize; edges.len()];

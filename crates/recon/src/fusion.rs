@@ -790,6 +790,61 @@ mod tests {
     }
 
     #[test]
+    fn colour_band_and_free_space_settings_equal_the_scalar_specification() {
+        // Colour over the whole band and free space observed (as before issue 20), a colour
+        // band wider than the narrowest band, and the defaults with a depth-dependent band.
+        let base = TsdfConfig {
+            max_weight: 3.0,
+            truncation_voxels: 8.0,
+            min_truncation_voxels: 2.0,
+            truncation_noise_factor: 20.0,
+            ..TsdfConfig::default()
+        };
+        for (color_band_voxels, observe_free_space) in [(64.0, true), (64.0, false), (3.0, true), (1.0, false)] {
+            let config = TsdfConfig { color_band_voxels, observe_free_space, ..base };
+            for kernel in kernels() {
+                check_kernel_against_scalar(kernel, config, 8);
+            }
+        }
+    }
+
+    #[test]
+    fn free_space_observes_only_voxels_already_observed() {
+        // One frame of a wall 0.51 m away: the chunks in front of the band hold no observed
+        // voxel further in front than the band unless free space is observed.
+        let k = Intrinsics::new(64, 48, 50.0, 50.0, 31.5, 23.5).expect("valid camera");
+        let frame = Frame {
+            index: 0,
+            timestamp: 0.0,
+            depth: vec![0.51; k.pixel_count()],
+            color: vec![[200, 100, 50]; k.pixel_count()],
+            intrinsics: k,
+            world_from_camera: None,
+            labels: None,
+        };
+        let far_in_front = |observe_free_space: bool| {
+            let config = TsdfConfig { observe_free_space, ..TsdfConfig::default() };
+            let mut map = TsdfMap::new(config).expect("valid");
+            map.integrate(&frame, Affine3A::IDENTITY).expect("fusion");
+            let band = config.truncation();
+            let mut n = 0;
+            for c in map.chunks() {
+                for (i, v) in c.voxels().enumerate() {
+                    let z = (c.key().z * 8 + (i / 64) as i32) as f32 * config.voxel_size;
+                    n += (v.is_observed() && 0.51 - z > band + 1e-4) as usize;
+                    // Colour only within the colour band of the surface.
+                    if v.color_count > 0 {
+                        assert!((0.51 - z).abs() <= config.color_band_voxels * config.voxel_size + 1e-4, "z {z}");
+                    }
+                }
+            }
+            n
+        };
+        assert_eq!(far_in_front(false), 0);
+        assert!(far_in_front(true) > 0);
+    }
+
+    #[test]
     fn fixed_band_kernel_equals_the_scalar_specification_bit_for_bit() {
         let config = TsdfConfig { max_weight: 3.0, truncation_noise_factor: 0.0, ..TsdfConfig::default() };
         check_simd_against_scalar(config);
@@ -851,6 +906,8 @@ mod tests {
                 max_depth: config.max_depth,
                 weight_cap: (config.max_weight * WEIGHT_SCALE) as u16,
                 color_all: config.is_color_frame(frame.index),
+                color_band: config.color_band(),
+                observe_free_space: config.observe_free_space,
                 obs_weight,
             };
             for &key in &keys {

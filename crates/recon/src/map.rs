@@ -44,9 +44,9 @@ pub const CHUNK_VOXELS: usize = CHUNK_SIDE * CHUNK_SIDE * CHUNK_SIDE;
 pub type ChunkKey = IVec3;
 
 /// Fixed-point scale of [`Voxel`] weights: a stored weight of 256 is a weight of 1.
-pub const WEIGHT_SCALE: f32 = 256.0;
+pub const WEIGHT_SCALE: f32 = 16.0;
 /// Scale of the quantised truncated signed distance: `i16::MAX` is +1 truncation.
-pub const TSDF_SCALE: f32 = i16::MAX as f32;
+pub const TSDF_SCALE: f32 = 2047.0;
 
 /// Parameters of the map and of fusion.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -865,11 +865,12 @@ mod tests {
         let mut v = Voxel::default();
         v.fuse(0.5, 1.0, Some([100, 0, 0]), 2000);
         v.fuse(-0.5, 3.0, Some([200, 0, 0]), 2000);
-        assert!((v.tsdf() - (-0.25)).abs() < 1e-4);
+        // Within half a step of the stored distance's quantisation.
+        assert!((v.tsdf() - (-0.25)).abs() <= 0.5 / TSDF_SCALE);
         assert_eq!(v.weight(), 4.0);
         assert_eq!(v.color()[0], 150);
-        v.fuse(1.0, 100.0, None, 2000);
-        assert_eq!(v.weight as u32, 2000);
+        v.fuse(1.0, 100.0, None, 1000);
+        assert_eq!(v.weight as u32, 1000);
     }
 
     #[test]
