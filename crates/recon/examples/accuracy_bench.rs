@@ -5,7 +5,7 @@
 //! cargo run --release -p semrecon-recon --example accuracy_bench -- SOURCE [--frames N]
 //!     [--size WxH] [--voxel M] [--trunc VOXELS] [--band-factor K] [--min-band VOXELS]
 //!     [--max-depth M] [--min-weight W[,W...]] [--min-component N[,N...]] [--ideal]
-//!     [--skip-tracking] [--color-band VOXELS] [--observe-free-space]
+//!     [--skip-tracking] [--color-band VOXELS]
 //! ```
 //!
 //! `SOURCE` is `synth:SEED` (a generated room along its generated handheld path) or
@@ -55,7 +55,6 @@ struct Args {
     min_weights: Vec<f32>,
     min_components: Vec<usize>,
     color_band: f32,
-    observe_free_space: bool,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -73,7 +72,6 @@ fn parse_args() -> Result<Args, String> {
         min_weights: vec![0.0],
         min_components: vec![0],
         color_band: TsdfConfig::default().color_band_voxels,
-        observe_free_space: TsdfConfig::default().observe_free_space,
     };
     let mut flags = Flags::from_env();
     while let Some(flag) = flags.next_flag() {
@@ -88,7 +86,6 @@ fn parse_args() -> Result<Args, String> {
             "--min-component" => a.min_components = comma_list(&flag, &flags.value::<String>(&flag)?)?,
             "--ideal" => a.ideal = true,
             "--color-band" => a.color_band = flags.value(&flag)?,
-            "--observe-free-space" => a.observe_free_space = true,
             "--skip-tracking" => a.skip_tracking = true,
             "--size" => a.size = flags.size(&flag)?,
             s if !s.starts_with("--") && a.source.is_empty() => a.source = s.to_string(),
@@ -185,7 +182,6 @@ fn run(a: Args) -> Result<(), String> {
         min_truncation_voxels: a.min_band,
         max_depth: a.max_depth,
         color_band_voxels: a.color_band,
-        observe_free_space: a.observe_free_space,
         ..TsdfConfig::with_voxel_size(a.voxel).map_err(|e| e.to_string())?
     };
     println!(

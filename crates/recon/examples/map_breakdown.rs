@@ -3,12 +3,14 @@
 //!
 //! ```text
 //! cargo run --release -p semrecon-recon --example map_breakdown -- [--seed S] [--frames N]
-//!     [--truncation T]
+//!     [--truncation T] [--color-band V]
 //! ```
 //!
 //! Fuses synthetic scan `S` (the demo's room and path, 640x480) at the true poses with the
 //! pipeline's band (truncation `T` voxels far away, 10 by default, down to 4 near) and
-//! prints counts per square metre of the mesh (meshing's recommended settings).
+//! prints counts per square metre of the mesh (meshing's recommended settings), and the
+//! bytes with every chunk packed. `--color-band V` sets
+//! [`TsdfConfig::color_band_voxels`] ([`TsdfConfig`]).
 
 #[path = "common/flags.rs"]
 mod flags;
@@ -40,7 +42,6 @@ fn run() -> Result<(), String> {
             "--frames" => frames = flags.value(&flag)?,
             "--truncation" => truncation = flags.value(&flag)?,
             "--color-band" => tsdf.color_band_voxels = flags.value(&flag)?,
-            "--observe-free-space" => tsdf.observe_free_space = true,
             other => return Err(format!("unknown argument {other}")),
         }
     }
@@ -136,61 +137,17 @@ fn run() -> Result<(), String> {
         lo = *e;
     }
     println!("map bytes {} ({:.2} MB/m2)", map.memory_bytes(), map.memory_bytes() as f64 / a / 1e6);
-    let pv = per_voxel;
-    let report = |name: &str, bytes: usize| {
-        println!("{name:<60} packed {:>11} B, {:>6.0} B/chunk, {:.2} MB/m2", bytes, bytes as f64 / total as f64, bytes as f64 / a / 1e6)
-    };
-    type F = dyn Fn(glam::IVec3, &mut [i16; 512], &mut [u16; 512], &mut [[u8; 4]; 512]) + Sync;
-    let q_weight = |w: &mut [u16; 512]| {
-        for x in w.iter_mut() {
-            if *x != 0 {
-                *x = ((*x as u32 + 32) / 64).clamp(1, 255) as u16;
-            }
-        }
-    };
-    let variants: Vec<(&str, Box<F>)> = vec![
-        ("lossless", Box::new(|_, _, _, _| {})),
-        ("w8 (w/64), no colour count", Box::new(move |_, _, w, c| {
-            q_weight(w);
-            c.iter_mut().for_each(|c| c[3] = 0);
-        })),
-        ("w8, no colour at all", Box::new(move |_, _, w, c| {
-            q_weight(w);
-            c.iter_mut().for_each(|c| *c = [0; 4]);
-        })),
-        ("w8, colour only |d|<2", Box::new(move |_, t, w, c| {
-            q_weight(w);
-            for i in 0..512 {
-                c[i][3] = 0;
-                if (t[i] as f32 * pv).abs() >= 2.0 { c[i] = [0; 4]; }
-            }
-        })),
-        ("w8, colour |d|<2, tsdf >=4 vox clamped to 4, weight const", Box::new(move |_, t, w, c| {
-            q_weight(w);
-            for i in 0..512 {
-                c[i][3] = 0;
-                if (t[i] as f32 * pv).abs() >= 2.0 { c[i] = [0; 4]; }
-                if w[i] != 0 && t[i] as f32 * pv >= 4.0 { t[i] = (4.0 / pv) as i16; w[i] = 255; }
-            }
-        })),
-        ("w8, colour |d|<2, |d|>=4 dropped", Box::new(move |_, t, w, c| {
-            q_weight(w);
-            for i in 0..512 {
-                c[i][3] = 0;
-                if (t[i] as f32 * pv).abs() >= 2.0 { c[i] = [0; 4]; }
-                if (t[i] as f32 * pv).abs() >= 4.0 { t[i] = 0; w[i] = 0; }
-            }
-        })),
-        ("lossless tsdf+weight, no colour", Box::new(|_, _, _, c| { c.iter_mut().for_each(|c| *c = [0; 4]); })),
-        ("w8, tsdf>>4, no colour", Box::new(move |_, t, w, c| {
-            q_weight(w);
-            t.iter_mut().for_each(|t| *t >>= 4);
-            c.iter_mut().for_each(|c| *c = [0; 4]);
-        })),
-    ];
-    for (name, f) in &variants {
-        report(name, map.experiment_packed_bytes(&**f));
-    }
+    // Every chunk packed (losslessly): what the map costs once the camera has left.
+    let mut packed = map.clone();
+    packed.compact(u32::MAX, 0);
+    let m = packed.memory();
+    println!(
+        "every chunk packed: {} bytes ({:.0} B/chunk of voxels, records {:.0} B/chunk), {:.2} MB/m2",
+        m.in_memory(),
+        m.packed_bytes as f64 / total as f64,
+        m.record_bytes as f64 / total as f64,
+        m.in_memory() as f64 / a / 1e6
+    );
     Ok(())
 }
 

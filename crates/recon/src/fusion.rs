@@ -153,8 +153,6 @@ struct FrameView<'a> {
     /// Colour is blended only where `-color_band <= sdf < color_band` (truncation units;
     /// [`TsdfConfig::color_band_voxels`]).
     color_band: f32,
-    /// [`TsdfConfig::observe_free_space`].
-    observe_free_space: bool,
     /// Factor on each observation's weight: 1 for a frame, n where one frame stands for n
     /// similar ones (loop closure re-fusing a subsample). Multiplying by 1 is exact, so the
     /// default changes no bit.
@@ -269,7 +267,6 @@ impl TsdfMap {
             weight_cap: (c.max_weight * WEIGHT_SCALE).round().clamp(1.0, u16::MAX as f32) as u16,
             color_all: c.is_color_frame(frame.index),
             color_band: c.color_band(),
-            observe_free_space: c.observe_free_space,
             obs_weight,
         };
         let mut targets = select_mut(&mut self.chunks, &slots);
@@ -655,8 +652,6 @@ fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> 
         let t_old = i32x8::from_i16x8(i16x8::new(*tsdf_row)).round_float();
         let w_old_q = i32x8::from_u16x8(u16x8::new(*weight_row)).round_float();
         let valid = inside & d.simd_ge(min_d) & d.simd_le(max_d) & sdf.simd_ge(-mu);
-        // Free space in front of the band updates only voxels already observed.
-        let valid = if f.observe_free_space { valid } else { valid & (sdf.simd_lt(mu) | w_old_q.simd_gt(zero)) };
         let valid_bits = valid.to_bitmask();
         let (t_now, w_now) = if valid_bits != 0 {
             let obs = sdf.fast_min(mu);
@@ -752,9 +747,6 @@ mod tests {
             if !(d >= f.min_depth && d <= f.max_depth && sdf >= -mu) {
                 continue;
             }
-            if !f.observe_free_space && sdf >= mu && !vox.is_observed() {
-                continue;
-            }
             let in_color_band = sdf < f.color_band && sdf >= -f.color_band;
             let color = (sdf < mu && in_color_band && (f.color_all || vox.color_count < COLOR_WARMUP))
                 .then_some(f.color[pix]);
@@ -790,9 +782,9 @@ mod tests {
     }
 
     #[test]
-    fn colour_band_and_free_space_settings_equal_the_scalar_specification() {
-        // Colour over the whole band and free space observed (as before issue 20), a colour
-        // band wider than the narrowest band, and the defaults with a depth-dependent band.
+    fn colour_band_settings_equal_the_scalar_specification() {
+        // Colour over the whole band (as before issue 20), a colour band wider than the
+        // narrowest band and one narrower, with a depth-dependent band.
         let base = TsdfConfig {
             max_weight: 3.0,
             truncation_voxels: 8.0,
@@ -800,8 +792,8 @@ mod tests {
             truncation_noise_factor: 20.0,
             ..TsdfConfig::default()
         };
-        for (color_band_voxels, observe_free_space) in [(64.0, true), (64.0, false), (3.0, true), (1.0, false)] {
-            let config = TsdfConfig { color_band_voxels, observe_free_space, ..base };
+        for color_band_voxels in [64.0, 3.0, 1.0] {
+            let config = TsdfConfig { color_band_voxels, ..base };
             for kernel in kernels() {
                 check_kernel_against_scalar(kernel, config, 8);
             }
@@ -809,9 +801,9 @@ mod tests {
     }
 
     #[test]
-    fn free_space_observes_only_voxels_already_observed() {
-        // One frame of a wall 0.51 m away: the chunks in front of the band hold no observed
-        // voxel further in front than the band unless free space is observed.
+    fn colour_stays_within_the_colour_band() {
+        // One frame of a wall 0.51 m away: voxels further from it than the colour band take no
+        // colour; with the band as wide as the truncation, voxels outside the colour band do.
         let k = Intrinsics::new(64, 48, 50.0, 50.0, 31.5, 23.5).expect("valid camera");
         let frame = Frame {
             index: 0,
@@ -822,26 +814,22 @@ mod tests {
             world_from_camera: None,
             labels: None,
         };
-        let far_in_front = |observe_free_space: bool| {
-            let config = TsdfConfig { observe_free_space, ..TsdfConfig::default() };
+        let coloured_outside = |color_band_voxels: f32| {
+            let config = TsdfConfig { color_band_voxels, ..TsdfConfig::default() };
             let mut map = TsdfMap::new(config).expect("valid");
             map.integrate(&frame, Affine3A::IDENTITY).expect("fusion");
-            let band = config.truncation();
+            let limit = 2.0 * config.voxel_size + 1e-4;
             let mut n = 0;
             for c in map.chunks() {
                 for (i, v) in c.voxels().enumerate() {
                     let z = (c.key().z * 8 + (i / 64) as i32) as f32 * config.voxel_size;
-                    n += (v.is_observed() && 0.51 - z > band + 1e-4) as usize;
-                    // Colour only within the colour band of the surface.
-                    if v.color_count > 0 {
-                        assert!((0.51 - z).abs() <= config.color_band_voxels * config.voxel_size + 1e-4, "z {z}");
-                    }
+                    n += (v.color_count > 0 && (0.51 - z).abs() > limit) as usize;
                 }
             }
             n
         };
-        assert_eq!(far_in_front(false), 0);
-        assert!(far_in_front(true) > 0);
+        assert_eq!(coloured_outside(2.0), 0);
+        assert!(coloured_outside(64.0) > 0);
     }
 
     #[test]
@@ -907,7 +895,6 @@ mod tests {
                 weight_cap: (config.max_weight * WEIGHT_SCALE) as u16,
                 color_all: config.is_color_frame(frame.index),
                 color_band: config.color_band(),
-                observe_free_space: config.observe_free_space,
                 obs_weight,
             };
             for &key in &keys {

@@ -7,11 +7,14 @@
 //! chunk `k` holds voxels `8k .. 8k + 7` on every axis; inside a chunk voxel `(x, y, z)`
 //! is stored at `x + 8 y + 64 z`.
 //!
-//! Each voxel is 8 bytes (see [`Voxel`]): the signed distance quantised to `i16` in units of
-//! the truncation distance, the weight as `u16` fixed point (1/256), an sRGB colour and its
-//! observation count, so a
-//! chunk's voxels are exactly 4 KiB. Quantisation error is below 1e-4 of the truncation
-//! distance (0.002 mm at 5 mm voxels), far under sensor noise.
+//! Each voxel is 8 bytes (see [`Voxel`]): the signed distance in steps of 1/2047 of the
+//! truncation distance in an `i16`, the weight in steps of 1/16 in a `u16`, an sRGB colour
+//! and its observation count, so a chunk's voxels are exactly 4 KiB. The steps are as coarse
+//! as accuracy allows (issue 20): a step of the distance is 0.024 mm at 5 mm voxels and a
+//! truncation of 10 voxels, far under sensor noise, and the finer steps before (1/32767,
+//! 1/256) only stored noise, which packed chunks ([`compressed`]) paid for in bits: packed
+//! chunks are a quarter smaller, with the same mesh accuracy on rendered scans
+//! (docs/benchmarks_log.md, "A compact voxel").
 //!
 //! Chunks fusion has left alone can be packed losslessly in memory or spilled to a file
 //! (submodules `compressed`, `storage`, `memory`, `spill`); readers see the same voxels.
@@ -43,9 +46,13 @@ pub const CHUNK_VOXELS: usize = CHUNK_SIDE * CHUNK_SIDE * CHUNK_SIDE;
 /// Integer coordinates of a chunk (chunk `k` covers voxels `8k .. 8k + 7` per axis).
 pub type ChunkKey = IVec3;
 
-/// Fixed-point scale of [`Voxel`] weights: a stored weight of 256 is a weight of 1.
+/// Fixed-point scale of [`Voxel`] weights: a stored weight of 16 is a weight of 1. One
+/// observation weighs at least 1/25 (5 m, the farthest fused depth), above half a step, so
+/// every observation still counts (a far one a little more than its weight); the cap of 64
+/// is 1024 steps.
 pub const WEIGHT_SCALE: f32 = 16.0;
-/// Scale of the quantised truncated signed distance: `i16::MAX` is +1 truncation.
+/// Scale of the quantised truncated signed distance: 2047 is +1 truncation (12 bits with the
+/// sign, stored in an `i16`).
 pub const TSDF_SCALE: f32 = 2047.0;
 
 /// Parameters of the map and of fusion.
@@ -88,14 +95,6 @@ pub struct TsdfConfig {
     /// the two voxels of a crossed edge; colour further out is never read, but it is a third of
     /// what a packed chunk stores and most of fusion's colour blends.
     pub color_band_voxels: f32,
-    /// Whether an observation of free space in front of the band (the voxel is further in
-    /// front of the measured surface than the band) marks a never-observed voxel as
-    /// observed. False: free-space observations only update voxels already observed (they
-    /// still carve away surfaces that are not there), so the empty space in front of a
-    /// surface costs no voxels in packed chunks; the band itself, which meshing and averaging
-    /// need, is fused as before. True: every voxel in front of the surface in a selected
-    /// chunk is observed (before issue 20).
-    pub observe_free_space: bool,
 }
 
 impl Default for TsdfConfig {
@@ -111,7 +110,6 @@ impl Default for TsdfConfig {
             selection_stride: 2,
             color_every: 3,
             color_band_voxels: 2.0,
-            observe_free_space: false,
         }
     }
 }
@@ -242,7 +240,7 @@ impl BandModel {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[repr(C)]
 pub struct Voxel {
-    /// Truncated signed distance in units of the truncation distance, times `i16::MAX`.
+    /// Truncated signed distance in units of the truncation distance, times [`TSDF_SCALE`].
     pub(crate) tsdf: i16,
     /// Fusion weight times [`WEIGHT_SCALE`].
     pub(crate) weight: u16,
@@ -977,25 +975,5 @@ mod tests {
         assert_eq!(fixed.narrowest_band_voxels(), 10.0);
         let d = TsdfConfig::default();
         assert!([0.5f32, 2.0, 4.5].iter().all(|&z| d.band(z) == d.truncation()));
-    }
-}
-
-impl TsdfMap {
-    /// EXPERIMENT (temporary): total packed bytes after transforming each block's fields.
-    #[doc(hidden)]
-    pub fn experiment_packed_bytes(
-        &self,
-        transform: &(dyn Fn(ChunkKey, &mut [i16; CHUNK_VOXELS], &mut [u16; CHUNK_VOXELS], &mut [[u8; 4]; CHUNK_VOXELS]) + Sync),
-    ) -> usize {
-        self.chunks
-            .par_iter()
-            .map(|c| {
-                let mut b = VoxelBlock::empty();
-                *b = (*c.voxels).clone();
-                let VoxelBlock { tsdf, weight, color } = &mut *b;
-                transform(c.key, tsdf, weight, color);
-                compressed::pack(&b).len()
-            })
-            .sum()
     }
 }

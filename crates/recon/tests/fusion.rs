@@ -79,10 +79,6 @@ impl DenseTsdf {
                         continue;
                     }
                     let i = self.index(v).expect("inside");
-                    // Free space in front of the band updates only voxels already observed.
-                    if !c.observe_free_space && sdf >= mu && self.weight[i] == 0.0 {
-                        continue;
-                    }
                     let w = depth_weight(d);
                     let t = (sdf / trunc).min(mu / trunc);
                     // Stored as the map stores them: the distance in steps of 1 / TSDF_SCALE,

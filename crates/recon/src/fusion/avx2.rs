@@ -164,13 +164,6 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                     _mm256_cmp_ps::<_CMP_GE_OQ>(d, min_d),
                     _mm256_and_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(d, max_d), _mm256_cmp_ps::<_CMP_GE_OQ>(sdf, neg_mu)),
                 );
-                // Free space in front of the band updates only voxels already observed.
-                let valid = if f.observe_free_space {
-                    valid
-                } else {
-                    let observed = _mm256_castsi256_ps(_mm256_cmpgt_epi32(w_old_i, _mm256_setzero_si256()));
-                    _mm256_and_ps(valid, _mm256_or_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(sdf, mu), observed))
-                };
                 // With the gathers done in the first pass, branching on the outcome pays: a
                 // quarter of the rows see no valid observation and keep their voxels.
                 let valid_bits = _mm256_movemask_ps(valid) as u32;
@@ -211,7 +204,8 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 if has_color && _mm256_movemask_ps(near) != 0 {
                     let row_ptr = color_rows.add(r * N * 4) as *mut __m256i;
                     let cur = _mm256_loadu_si256(row_ptr);
-                    // Off colour frames only voxels still warming up take a colour.
+                    // Colour only within the colour band; off colour frames only voxels still
+                    // warming up take a colour.
                     let colored = _mm256_and_ps(
                         near,
                         _mm256_and_ps(

@@ -173,14 +173,6 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
             let valid = _mm512_cmp_ps_mask::<_CMP_GE_OQ>(d, min_d)
                 & _mm512_cmp_ps_mask::<_CMP_LE_OQ>(d, max_d)
                 & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(sdf, neg_mu);
-            // Free space in front of the band updates only voxels already observed.
-            let valid = if f.observe_free_space {
-                valid
-            } else {
-                valid
-                    & (_mm512_cmp_ps_mask::<_CMP_LT_OQ>(sdf, mu)
-                        | _mm512_cmpgt_epi32_mask(w_old_i, _mm512_setzero_si512()))
-            };
             // A quarter of the row pairs see no valid observation: they keep their voxels.
             let (t_i, w_i) = if valid == 0 {
                 (t_old_i, w_old_i)
