@@ -8,9 +8,13 @@
 //! Each field is predicted from already-coded neighbours and only the residual is stored as a
 //! variable-length integer: the signed distance is nearly linear in position near a surface,
 //! so the planar predictor `left + below - below-left` leaves sensor noise only; weights and
-//! colours change little between neighbours, so the left neighbour predicts them. The
-//! residual stream then goes through LZ4 (fast, pure Rust), which folds the long runs of equal
-//! residuals (capped weights, saturated colour counts, flat colours).
+//! colours change little between neighbours, so the left neighbour predicts them. Fusion
+//! colours only the voxels near the surface ([`crate::TsdfConfig::color_band_voxels`]), so a
+//! bit per observed voxel says which have a colour, and only those are coded, each predicted
+//! from a coloured neighbour: an uncoloured voxel costs a bit instead of four residuals, and
+//! the edge of the coloured layer no jump from or to zero. The residual stream then goes
+//! through LZ4 (fast, pure Rust), which folds the long runs of equal residuals (capped
+//! weights, saturated colour counts, flat colours).
 //!
 //! Lossless for every input: a chunk with an unobserved voxel that is not all zeros (which
 //! fusion never makes, but a caller of the map could) is packed densely, all 512 voxels.
@@ -39,8 +43,8 @@ const DENSE: u8 = 2;
 /// Bytes of the observed mask.
 const MASK_BYTES: usize = CHUNK_VOXELS / 8;
 /// Longest residual stream: two section lengths, then per voxel at most 3 bytes of
-/// distance, 3 of weight, 4 of colour.
-const MAX_STREAM: usize = 4 + CHUNK_VOXELS * 10;
+/// distance, 3 of weight, a bit saying whether it has a colour and 4 bytes of colour.
+const MAX_STREAM: usize = 4 + CHUNK_VOXELS * 10 + CHUNK_VOXELS / 8;
 
 /// Packs `block` losslessly (see the module documentation).
 pub(crate) fn pack(block: &VoxelBlock) -> Box<[u8]> {
@@ -182,6 +186,14 @@ fn unzigzag(u: u16) -> i16 {
     ((u >> 1) as i16) ^ -((u & 1) as i16)
 }
 
+/// The colour that predicts voxel `i`'s (coloured) colour: its nearest coloured coded
+/// neighbour's (left, below, behind), else `last`, the colour of the previous coloured voxel
+/// in coding order.
+#[inline]
+fn predict_color(c: &[[u8; 4]; CHUNK_VOXELS], n: Neighbours, last: [u8; 4]) -> [u8; 4] {
+    [n.left, n.below, n.behind].into_iter().flatten().map(|j| c[j]).find(|&c| c != [0; 4]).unwrap_or(last)
+}
+
 /// Appends `v` in 7-bit groups, low first, the top bit saying "more follows".
 #[inline]
 fn put_varint(out: &mut Vec<u8>, mut v: u16) {
@@ -208,14 +220,17 @@ fn get_varint(s: &[u8], pos: &mut usize) -> Result<u16, PackError> {
 }
 
 /// The residual stream: the byte lengths of the distance and weight sections (u16 each),
-/// then distances, weights and the four colour bytes, each section over the coded voxels in
-/// index order (sections apart, so equal residuals sit together for LZ4). One pass over the
-/// voxels fills all six sections.
+/// then distances and weights over the coded voxels in index order, a bit per coded voxel
+/// (low bit first) set when its colour is not all zeros, and the four colour bytes of those
+/// voxels (sections apart, so equal residuals sit together for LZ4). One pass over the
+/// voxels fills all seven sections.
 fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64]) -> Vec<u8> {
     let n = mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
     let mut tsdf = Vec::with_capacity(2 * n);
     let mut weight = Vec::with_capacity(2 * n);
+    let mut coloured = vec![0u8; n.div_ceil(8)];
     let mut color = [Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n)];
+    let (mut k, mut last) = (0, [0u8; 4]);
     for (w, &word) in mask.iter().enumerate() {
         let mut bits = word;
         while bits != 0 {
@@ -224,18 +239,26 @@ fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64]) -> Vec<u8> {
             let nb = Neighbours::of(mask, i);
             put_varint(&mut tsdf, zigzag(block.tsdf[i].wrapping_sub(predict_tsdf(&block.tsdf, nb))));
             put_varint(&mut weight, zigzag(block.weight[i].wrapping_sub(predict_weight(&block.weight, nb)) as i16));
-            let near = nb.nearest().map_or([0; 4], |j| block.color[j]);
-            for k in 0..4 {
-                color[k].push(block.color[i][k].wrapping_sub(near[k]));
+            let c = block.color[i];
+            if c != [0; 4] {
+                coloured[k / 8] |= 1 << (k % 8);
+                let p = predict_color(&block.color, nb, last);
+                for (plane, (&c, p)) in color.iter_mut().zip(c.iter().zip(p)) {
+                    plane.push(c.wrapping_sub(p));
+                }
+                last = c;
             }
+            k += 1;
         }
     }
-    let mut out = Vec::with_capacity(4 + tsdf.len() + weight.len() + 4 * n);
+    let m = color[0].len();
+    let mut out = Vec::with_capacity(4 + tsdf.len() + weight.len() + coloured.len() + 4 * m);
     // Each section is at most 3 bytes a voxel, 1536 bytes: the lengths fit in u16.
     out.extend_from_slice(&(tsdf.len() as u16).to_le_bytes());
     out.extend_from_slice(&(weight.len() as u16).to_le_bytes());
     out.extend_from_slice(&tsdf);
     out.extend_from_slice(&weight);
+    out.extend_from_slice(&coloured);
     for c in &color {
         out.extend_from_slice(c);
     }
@@ -250,20 +273,22 @@ fn decode(s: &[u8], mask: &[u64; CHUNK_VOXELS / 64], block: &mut VoxelBlock) -> 
     let (tsdf_len, weight_len) =
         (u16::from_le_bytes([lens[0], lens[1]]) as usize, u16::from_le_bytes([lens[2], lens[3]]) as usize);
     let (tsdf, rest) = rest.split_at_checked(tsdf_len).ok_or(short.clone())?;
-    let (weight, colors) = rest.split_at_checked(weight_len).ok_or(short.clone())?;
-    if colors.len() != 4 * n {
-        return Err(if colors.len() < 4 * n {
+    let (weight, rest) = rest.split_at_checked(weight_len).ok_or(short.clone())?;
+    let (coloured, colors) = rest.split_at_checked(n.div_ceil(8)).ok_or(short.clone())?;
+    let m = coloured.iter().map(|b| b.count_ones() as usize).sum::<usize>();
+    if colors.len() != 4 * m {
+        return Err(if colors.len() < 4 * m {
             short
         } else {
             PackError::Malformed("residual stream longer than its voxels")
         });
     }
-    let color: [&[u8]; 4] = [&colors[..n], &colors[n..2 * n], &colors[2 * n..3 * n], &colors[3 * n..]];
+    let color: [&[u8]; 4] = [&colors[..m], &colors[m..2 * m], &colors[2 * m..3 * m], &colors[3 * m..]];
     block.tsdf.fill(0);
     block.weight.fill(0);
     block.color.fill([0; 4]);
     let dense = mask == &[u64::MAX; CHUNK_VOXELS / 64];
-    let (mut pt, mut pw, mut c) = (0, 0, 0);
+    let (mut pt, mut pw, mut k, mut c, mut last) = (0, 0, 0, 0, [0u8; 4]);
     for (w, &word) in mask.iter().enumerate() {
         let mut bits = word;
         while bits != 0 {
@@ -278,12 +303,22 @@ fn decode(s: &[u8], mask: &[u64; CHUNK_VOXELS / 64], block: &mut VoxelBlock) -> 
                 // A sparse chunk codes observed voxels only: the bytes were altered.
                 return Err(PackError::Malformed("an observed voxel decoded with weight 0"));
             }
-            let near = nb.nearest().map_or([0; 4], |j| block.color[j]);
-            for k in 0..4 {
-                block.color[i][k] = color[k][c].wrapping_add(near[k]);
+            if coloured[k / 8] & (1 << (k % 8)) != 0 {
+                let p = predict_color(&block.color, nb, last);
+                let v: [u8; 4] = std::array::from_fn(|ch| color[ch][c].wrapping_add(p[ch]));
+                if v == [0; 4] {
+                    // A colour marked present decodes to none: the bytes were altered.
+                    return Err(PackError::Malformed("a coloured voxel decoded without colour"));
+                }
+                block.color[i] = v;
+                last = v;
+                c += 1;
             }
-            c += 1;
+            k += 1;
         }
+    }
+    if n % 8 != 0 && coloured.last().is_some_and(|&b| b >> (n % 8) != 0) {
+        return Err(PackError::Malformed("colour bits past the last voxel"));
     }
     if pt != tsdf.len() || pw != weight.len() {
         return Err(PackError::Malformed("residual sections longer than their voxels"));
@@ -362,6 +397,23 @@ mod tests {
         let observed = b.weight.iter().filter(|&&w| w != 0).count();
         let size = round_trip(&b);
         assert!(size < 8 * observed, "{size} bytes for {observed} observed voxels");
+    }
+
+    #[test]
+    fn uncoloured_voxels_cost_a_bit_and_colours_need_no_neighbour() {
+        // Fusion colours only a layer at the surface: voxels outside it are not coded.
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let mut b = banded(&mut rng);
+        let with_all = round_trip(&b);
+        b.color.iter_mut().for_each(|c| *c = [0; 4]);
+        let with_none = round_trip(&b);
+        let observed = b.weight.iter().filter(|&&w| w != 0).count();
+        // Colour of every observed voxel costs more than a bit each; none costs about a bit.
+        assert!(with_all > with_none + observed / 8, "{with_all} vs {with_none}");
+        // A lone coloured voxel, no coloured neighbour: predicted from zero, still exact.
+        b.color[200] = [9, 8, 7, 1];
+        b.weight[200] = 5;
+        round_trip(&b);
     }
 
     #[test]
