@@ -29,6 +29,7 @@ use crate::error::{ReconError, Result};
 
 mod compressed;
 mod memory;
+mod rice;
 mod spill;
 mod storage;
 mod subset;

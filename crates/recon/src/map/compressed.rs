@@ -5,16 +5,16 @@
 //! Why this layout: in a scan most voxels of an allocated chunk are never observed (the band
 //! around a surface crosses a chunk obliquely), and an unobserved voxel is all zeros. So a
 //! packed chunk is a 512-bit observed mask plus only the observed voxels, field by field.
-//! Each field is predicted from already-coded neighbours and only the residual is stored as a
-//! variable-length integer: the signed distance is nearly linear in position near a surface,
+//! Each field is predicted from already-coded neighbours and only the residual is stored, in
+//! a Rice code ([`super::rice`]) fitted to each field of each chunk: the signed distance is nearly linear in position near a surface,
 //! so the planar predictor `left + below - below-left` leaves sensor noise only; weights and
 //! colours change little between neighbours, so the left neighbour predicts them. Fusion
 //! colours only the voxels near the surface ([`crate::TsdfConfig::color_band_voxels`]), so a
 //! bit per observed voxel says which have a colour, and only those are coded, each predicted
 //! from a coloured neighbour: an uncoloured voxel costs a bit instead of four residuals, and
 //! the edge of the coloured layer no jump from or to zero. The residual stream then goes
-//! through LZ4 (fast, pure Rust), which folds the long runs of equal residuals (capped
-//! weights, saturated colour counts, flat colours).
+//! through LZ4 (fast, pure Rust) when that shrinks it, which folds long runs of equal
+//! residuals (capped weights, saturated colour counts, flat colours).
 //!
 //! Lossless for every input: a chunk with an unobserved voxel that is not all zeros (which
 //! fusion never makes, but a caller of the map could) is packed densely, all 512 voxels.
@@ -22,6 +22,7 @@
 //! Layout: `[flags u8] [mask 64 bytes, sparse only] [stream length u16] [stream, LZ4 or raw]`;
 //! the stream is described at `residuals`.
 
+use super::rice::{self, BitReader, BitWriter};
 use super::{VoxelBlock, CHUNK_SIDE, CHUNK_VOXELS};
 
 /// What a packed chunk can be wrong about when read back (only bytes from outside the
@@ -42,9 +43,10 @@ const LZ4: u8 = 1;
 const DENSE: u8 = 2;
 /// Bytes of the observed mask.
 const MASK_BYTES: usize = CHUNK_VOXELS / 8;
-/// Longest residual stream: two section lengths, then per voxel at most 3 bytes of
-/// distance, 3 of weight, a bit saying whether it has a colour and 4 bytes of colour.
-const MAX_STREAM: usize = 4 + CHUNK_VOXELS * 10 + CHUNK_VOXELS / 8;
+/// Longest residual stream: per voxel a bit saying whether it has a colour and six values
+/// (distance, weight, four colour bytes) of at most [`rice::MAX_VALUE_BITS`] each, and six
+/// section headers. Below 2^16, so its length fits the `u16` of the layout.
+const MAX_STREAM: usize = (CHUNK_VOXELS * (1 + 6 * rice::MAX_VALUE_BITS) + 6 * rice::SECTION_BITS).div_ceil(8);
 
 /// Packs `block` losslessly (see the module documentation).
 pub(crate) fn pack(block: &VoxelBlock) -> Box<[u8]> {
@@ -194,118 +196,93 @@ fn predict_color(c: &[[u8; 4]; CHUNK_VOXELS], n: Neighbours, last: [u8; 4]) -> [
     [n.left, n.below, n.behind].into_iter().flatten().map(|j| c[j]).find(|&c| c != [0; 4]).unwrap_or(last)
 }
 
-/// Appends `v` in 7-bit groups, low first, the top bit saying "more follows".
-#[inline]
-fn put_varint(out: &mut Vec<u8>, mut v: u16) {
-    while v >= 0x80 {
-        out.push(v as u8 | 0x80);
-        v >>= 7;
-    }
-    out.push(v as u8);
-}
-
-/// Reads what [`put_varint`] wrote.
-#[inline]
-fn get_varint(s: &[u8], pos: &mut usize) -> Result<u16, PackError> {
-    let mut v = 0u32;
-    for shift in [0, 7, 14] {
-        let b = *s.get(*pos).ok_or(PackError::Malformed("residual stream ends early"))?;
-        *pos += 1;
-        v |= ((b & 0x7f) as u32) << shift;
-        if b & 0x80 == 0 {
-            return u16::try_from(v).map_err(|_| PackError::Malformed("residual out of range"));
-        }
-    }
-    Err(PackError::Malformed("residual longer than 3 bytes"))
-}
-
-/// The residual stream: the byte lengths of the distance and weight sections (u16 each),
-/// then distances and weights over the coded voxels in index order, a bit per coded voxel
-/// (low bit first) set when its colour is not all zeros, and the four colour bytes of those
-/// voxels (sections apart, so equal residuals sit together for LZ4). One pass over the
-/// voxels fills all seven sections.
+/// The residual stream, a bit stream ([`rice`]): a bit per coded voxel (in index order) set
+/// when its colour is not all zeros, then six Rice-coded sections of zigzagged residuals:
+/// distances and weights of the coded voxels, then the red, green, blue and count bytes of
+/// the coloured ones (sections apart, each with its own parameter). One pass over the voxels
+/// fills all sections.
 fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64]) -> Vec<u8> {
     let n = mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
-    let mut tsdf = Vec::with_capacity(2 * n);
-    let mut weight = Vec::with_capacity(2 * n);
-    let mut coloured = vec![0u8; n.div_ceil(8)];
-    let mut color = [Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n)];
-    let (mut k, mut last) = (0, [0u8; 4]);
+    let mut tsdf = Vec::with_capacity(n);
+    let mut weight = Vec::with_capacity(n);
+    let mut coloured = BitWriter::with_capacity(n.div_ceil(8));
+    let mut color: [Vec<u16>; 4] = std::array::from_fn(|_| Vec::with_capacity(n));
+    let mut last = [0u8; 4];
     for (w, &word) in mask.iter().enumerate() {
         let mut bits = word;
         while bits != 0 {
             let i = w * 64 + bits.trailing_zeros() as usize;
             bits &= bits - 1;
             let nb = Neighbours::of(mask, i);
-            put_varint(&mut tsdf, zigzag(block.tsdf[i].wrapping_sub(predict_tsdf(&block.tsdf, nb))));
-            put_varint(&mut weight, zigzag(block.weight[i].wrapping_sub(predict_weight(&block.weight, nb)) as i16));
+            tsdf.push(zigzag(block.tsdf[i].wrapping_sub(predict_tsdf(&block.tsdf, nb))));
+            weight.push(zigzag(block.weight[i].wrapping_sub(predict_weight(&block.weight, nb)) as i16));
             let c = block.color[i];
+            coloured.put((c != [0; 4]) as u64, 1);
             if c != [0; 4] {
-                coloured[k / 8] |= 1 << (k % 8);
                 let p = predict_color(&block.color, nb, last);
                 for (plane, (&c, p)) in color.iter_mut().zip(c.iter().zip(p)) {
-                    plane.push(c.wrapping_sub(p));
+                    plane.push(zigzag(c.wrapping_sub(p) as i8 as i16));
                 }
                 last = c;
             }
-            k += 1;
         }
     }
-    let m = color[0].len();
-    let mut out = Vec::with_capacity(4 + tsdf.len() + weight.len() + coloured.len() + 4 * m);
-    // Each section is at most 3 bytes a voxel, 1536 bytes: the lengths fit in u16.
-    out.extend_from_slice(&(tsdf.len() as u16).to_le_bytes());
-    out.extend_from_slice(&(weight.len() as u16).to_le_bytes());
-    out.extend_from_slice(&tsdf);
-    out.extend_from_slice(&weight);
-    out.extend_from_slice(&coloured);
-    for c in &color {
-        out.extend_from_slice(c);
+    let mut out = coloured;
+    for section in [&tsdf, &weight, &color[0], &color[1], &color[2], &color[3]] {
+        rice::put_section(&mut out, section);
     }
-    out
+    out.finish()
 }
 
 /// Inverts [`residuals`] into `block`; voxels outside `mask` become all zeros.
 fn decode(s: &[u8], mask: &[u64; CHUNK_VOXELS / 64], block: &mut VoxelBlock) -> Result<(), PackError> {
-    let short = PackError::Malformed("residual stream ends early");
     let n = mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
-    let (lens, rest) = s.split_at_checked(4).ok_or(short.clone())?;
-    let (tsdf_len, weight_len) =
-        (u16::from_le_bytes([lens[0], lens[1]]) as usize, u16::from_le_bytes([lens[2], lens[3]]) as usize);
-    let (tsdf, rest) = rest.split_at_checked(tsdf_len).ok_or(short.clone())?;
-    let (weight, rest) = rest.split_at_checked(weight_len).ok_or(short.clone())?;
-    let (coloured, colors) = rest.split_at_checked(n.div_ceil(8)).ok_or(short.clone())?;
-    let m = coloured.iter().map(|b| b.count_ones() as usize).sum::<usize>();
-    if colors.len() != 4 * m {
-        return Err(if colors.len() < 4 * m {
-            short
-        } else {
-            PackError::Malformed("residual stream longer than its voxels")
-        });
+    let mut r = BitReader::new(s);
+    let mut coloured = [false; CHUNK_VOXELS];
+    for group in coloured[..n].chunks_mut(32) {
+        let bits = r.get(group.len() as u32)?;
+        for (j, c) in group.iter_mut().enumerate() {
+            *c = (bits >> j) & 1 == 1;
+        }
     }
-    let color: [&[u8]; 4] = [&colors[..m], &colors[m..2 * m], &colors[2 * m..3 * m], &colors[3 * m..]];
+    let m = coloured.iter().filter(|&&c| c).count();
+    let (mut tsdf, mut weight) = ([0u16; CHUNK_VOXELS], [0u16; CHUNK_VOXELS]);
+    let mut color = [[0u16; CHUNK_VOXELS]; 4];
+    rice::get_section(&mut r, &mut tsdf[..n])?;
+    rice::get_section(&mut r, &mut weight[..n])?;
+    for plane in &mut color {
+        rice::get_section(&mut r, &mut plane[..m])?;
+    }
+    if !r.at_end() {
+        return Err(PackError::Malformed("residual stream longer than its voxels"));
+    }
     block.tsdf.fill(0);
     block.weight.fill(0);
     block.color.fill([0; 4]);
     let dense = mask == &[u64::MAX; CHUNK_VOXELS / 64];
-    let (mut pt, mut pw, mut k, mut c, mut last) = (0, 0, 0, 0, [0u8; 4]);
+    let (mut k, mut c, mut last) = (0, 0, [0u8; 4]);
     for (w, &word) in mask.iter().enumerate() {
         let mut bits = word;
         while bits != 0 {
             let i = w * 64 + bits.trailing_zeros() as usize;
             bits &= bits - 1;
             let nb = Neighbours::of(mask, i);
-            let r = unzigzag(get_varint(tsdf, &mut pt)?);
-            block.tsdf[i] = r.wrapping_add(predict_tsdf(&block.tsdf, nb));
-            let r = unzigzag(get_varint(weight, &mut pw)?);
-            block.weight[i] = (r as u16).wrapping_add(predict_weight(&block.weight, nb));
+            block.tsdf[i] = unzigzag(tsdf[k]).wrapping_add(predict_tsdf(&block.tsdf, nb));
+            block.weight[i] = (unzigzag(weight[k]) as u16).wrapping_add(predict_weight(&block.weight, nb));
             if !dense && block.weight[i] == 0 {
                 // A sparse chunk codes observed voxels only: the bytes were altered.
                 return Err(PackError::Malformed("an observed voxel decoded with weight 0"));
             }
-            if coloured[k / 8] & (1 << (k % 8)) != 0 {
+            if coloured[k] {
                 let p = predict_color(&block.color, nb, last);
-                let v: [u8; 4] = std::array::from_fn(|ch| color[ch][c].wrapping_add(p[ch]));
+                let mut v = [0u8; 4];
+                for (ch, v) in v.iter_mut().enumerate() {
+                    let r = unzigzag(color[ch][c]);
+                    if !(-128..=127).contains(&r) {
+                        return Err(PackError::Malformed("colour residual out of range"));
+                    }
+                    *v = (r as i8 as u8).wrapping_add(p[ch]);
+                }
                 if v == [0; 4] {
                     // A colour marked present decodes to none: the bytes were altered.
                     return Err(PackError::Malformed("a coloured voxel decoded without colour"));
@@ -316,12 +293,6 @@ fn decode(s: &[u8], mask: &[u64; CHUNK_VOXELS / 64], block: &mut VoxelBlock) -> 
             }
             k += 1;
         }
-    }
-    if n % 8 != 0 && coloured.last().is_some_and(|&b| b >> (n % 8) != 0) {
-        return Err(PackError::Malformed("colour bits past the last voxel"));
-    }
-    if pt != tsdf.len() || pw != weight.len() {
-        return Err(PackError::Malformed("residual sections longer than their voxels"));
     }
     Ok(())
 }
