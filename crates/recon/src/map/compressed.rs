@@ -19,8 +19,8 @@
 //! Lossless for every input: a chunk with an unobserved voxel that is not all zeros (which
 //! fusion never makes, but a caller of the map could) is packed densely, all 512 voxels.
 //!
-//! Layout: `[flags u8] [mask 64 bytes, sparse only] [stream length u16] [stream, LZ4 or raw]`;
-//! the stream is described at `residuals`.
+//! Layout: `[flags u8] [stream length u16] [stream, LZ4 or raw]`; the stream, which holds
+//! the observed mask as run lengths (sparse chunks only), is described at `residuals`.
 
 use super::rice::{self, BitReader, BitWriter};
 use super::{VoxelBlock, CHUNK_SIDE, CHUNK_VOXELS};
@@ -41,12 +41,16 @@ pub enum PackError {
 const LZ4: u8 = 1;
 /// Flag bit: all 512 voxels are coded (no mask).
 const DENSE: u8 = 2;
-/// Bytes of the observed mask.
-const MASK_BYTES: usize = CHUNK_VOXELS / 8;
-/// Longest residual stream: per voxel a bit saying whether it has a colour and six values
-/// (distance, weight, four colour bytes) of at most [`rice::MAX_VALUE_BITS`] each, and six
-/// section headers. Below 2^16, so its length fits the `u16` of the layout.
-const MAX_STREAM: usize = (CHUNK_VOXELS * (1 + 6 * rice::MAX_VALUE_BITS) + 6 * rice::SECTION_BITS).div_ceil(8);
+/// Bits of the number of runs of the observed mask (at most 512).
+const RUN_COUNT_BITS: u32 = 10;
+/// Longest residual stream: the mask's runs (one per voxel at most) and per voxel a bit
+/// saying whether it has a colour and six values (distance, weight, four colour bytes), each
+/// value of at most [`rice::MAX_VALUE_BITS`], and seven section headers. Below 2^16, so its
+/// length fits the `u16` of the layout.
+const MAX_STREAM: usize = (RUN_COUNT_BITS as usize
+    + CHUNK_VOXELS * (1 + 7 * rice::MAX_VALUE_BITS)
+    + 7 * rice::SECTION_BITS)
+    .div_ceil(8);
 
 /// Packs `block` losslessly (see the module documentation).
 pub(crate) fn pack(block: &VoxelBlock) -> Box<[u8]> {
@@ -62,17 +66,12 @@ pub(crate) fn pack(block: &VoxelBlock) -> Box<[u8]> {
     if dense {
         mask = [u64::MAX; CHUNK_VOXELS / 64];
     }
-    let stream = residuals(block, &mask);
+    let stream = residuals(block, &mask, dense);
     let compressed = lz4_flex::block::compress(&stream);
     let (flags, body) = if compressed.len() < stream.len() { (LZ4, &compressed) } else { (0, &stream) };
     let flags = flags | if dense { DENSE } else { 0 };
-    let mut out = Vec::with_capacity(1 + MASK_BYTES + 2 + body.len());
+    let mut out = Vec::with_capacity(1 + 2 + body.len());
     out.push(flags);
-    if !dense {
-        for w in mask {
-            out.extend_from_slice(&w.to_le_bytes());
-        }
-    }
     // MAX_STREAM < 2^16, so the raw length always fits.
     out.extend_from_slice(&(stream.len() as u16).to_le_bytes());
     out.extend_from_slice(body);
@@ -86,18 +85,6 @@ pub(crate) fn unpack_into(bytes: &[u8], block: &mut VoxelBlock) -> Result<(), Pa
     if flags & !(LZ4 | DENSE) != 0 {
         return Err(PackError::Malformed("unknown flags"));
     }
-    let (mask, rest) = if flags & DENSE != 0 {
-        ([u64::MAX; CHUNK_VOXELS / 64], rest)
-    } else {
-        let (m, rest) = rest.split_at_checked(MASK_BYTES).ok_or_else(truncated)?;
-        let mut mask = [0u64; CHUNK_VOXELS / 64];
-        for (w, b) in mask.iter_mut().zip(m.chunks_exact(8)) {
-            let mut word = [0u8; 8];
-            word.copy_from_slice(b);
-            *w = u64::from_le_bytes(word);
-        }
-        (mask, rest)
-    };
     let (len, body) = rest.split_at_checked(2).ok_or_else(truncated)?;
     let len = u16::from_le_bytes([len[0], len[1]]) as usize;
     if len > MAX_STREAM {
@@ -117,7 +104,7 @@ pub(crate) fn unpack_into(bytes: &[u8], block: &mut VoxelBlock) -> Result<(), Pa
         }
         body
     };
-    decode(stream, &mask, block)
+    decode(stream, flags & DENSE != 0, block)
 }
 
 /// Whether voxel `i` is coded.
@@ -156,11 +143,16 @@ impl Neighbours {
     }
 }
 
-/// Planar prediction of a distance: exact for a field linear in x and y.
+/// Prediction of a distance: exact for a field linear in x and y.
 #[inline]
 fn predict_tsdf(t: &[i16; CHUNK_VOXELS], n: Neighbours) -> i16 {
+    // The median of the left, the below and the planar prediction (LOCO-I's): planar on a
+    // plane, and the nearer neighbour across the kink where the band saturates.
     match (n.left, n.below, n.below_left) {
-        (Some(a), Some(b), Some(c)) => (t[a] as i32 + t[b] as i32 - t[c] as i32) as i16,
+        (Some(a), Some(b), Some(c)) => {
+            let (a, b, c) = (t[a] as i32, t[b] as i32, t[c] as i32);
+            (if c >= a.max(b) { a.min(b) } else if c <= a.min(b) { a.max(b) } else { a + b - c }) as i16
+        }
         _ => n.nearest().map_or(0, |j| t[j]),
     }
 }
@@ -196,16 +188,24 @@ fn predict_color(c: &[[u8; 4]; CHUNK_VOXELS], n: Neighbours, last: [u8; 4]) -> [
     [n.left, n.below, n.behind].into_iter().flatten().map(|j| c[j]).find(|&c| c != [0; 4]).unwrap_or(last)
 }
 
-/// The residual stream, a bit stream ([`rice`]): a bit per coded voxel (in index order) set
+/// The residual stream, a bit stream ([`rice`]): for a sparse chunk the observed mask as the
+/// lengths of its alternating runs in index order (unobserved first; the number of runs in
+/// 10 bits, then a Rice-coded section of the first run's length and the others' minus one:
+/// the band makes a few long runs, cheaper than a 64-byte mask), a bit per coded voxel set
 /// when its colour is not all zeros, then six Rice-coded sections of zigzagged residuals:
 /// distances and weights of the coded voxels, then the red, green, blue and count bytes of
 /// the coloured ones (sections apart, each with its own parameter). One pass over the voxels
 /// fills all sections.
-fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64]) -> Vec<u8> {
+fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64], dense: bool) -> Vec<u8> {
     let n = mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
+    let mut out = BitWriter::with_capacity(n.div_ceil(8) + 64);
+    if !dense {
+        let runs = mask_runs(mask);
+        out.put(runs.len() as u64, RUN_COUNT_BITS);
+        rice::put_section(&mut out, &runs);
+    }
     let mut tsdf = Vec::with_capacity(n);
     let mut weight = Vec::with_capacity(n);
-    let mut coloured = BitWriter::with_capacity(n.div_ceil(8));
     let mut color: [Vec<u16>; 4] = std::array::from_fn(|_| Vec::with_capacity(n));
     let mut last = [0u8; 4];
     for (w, &word) in mask.iter().enumerate() {
@@ -217,7 +217,7 @@ fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64]) -> Vec<u8> {
             tsdf.push(zigzag(block.tsdf[i].wrapping_sub(predict_tsdf(&block.tsdf, nb))));
             weight.push(zigzag(block.weight[i].wrapping_sub(predict_weight(&block.weight, nb)) as i16));
             let c = block.color[i];
-            coloured.put((c != [0; 4]) as u64, 1);
+            out.put((c != [0; 4]) as u64, 1);
             if c != [0; 4] {
                 let p = predict_color(&block.color, nb, last);
                 for (plane, (&c, p)) in color.iter_mut().zip(c.iter().zip(p)) {
@@ -227,17 +227,67 @@ fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64]) -> Vec<u8> {
             }
         }
     }
-    let mut out = coloured;
     for section in [&tsdf, &weight, &color[0], &color[1], &color[2], &color[3]] {
         rice::put_section(&mut out, section);
     }
     out.finish()
 }
 
-/// Inverts [`residuals`] into `block`; voxels outside `mask` become all zeros.
-fn decode(s: &[u8], mask: &[u64; CHUNK_VOXELS / 64], block: &mut VoxelBlock) -> Result<(), PackError> {
-    let n = mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
+/// The observed mask's runs as [`residuals`] codes them: the lengths of alternating runs of
+/// unobserved and observed voxels in index order, the first (unobserved, maybe empty) as is,
+/// the others minus one.
+fn mask_runs(mask: &[u64; CHUNK_VOXELS / 64]) -> Vec<u16> {
+    let mut runs = Vec::new();
+    let (mut state, mut len) = (false, 0u16);
+    for i in 0..CHUNK_VOXELS {
+        if coded(mask, i) != state {
+            runs.push(if runs.is_empty() { len } else { len - 1 });
+            (state, len) = (!state, 0);
+        }
+        len += 1;
+    }
+    runs.push(if runs.is_empty() { len } else { len - 1 });
+    runs
+}
+
+/// Inverts [`mask_runs`].
+fn mask_from_runs(runs: &[u16]) -> Result<[u64; CHUNK_VOXELS / 64], PackError> {
+    let mut mask = [0u64; CHUNK_VOXELS / 64];
+    let mut at = 0usize;
+    for (k, &r) in runs.iter().enumerate() {
+        let len = r as usize + (k > 0) as usize;
+        if at + len > CHUNK_VOXELS {
+            return Err(PackError::Malformed("mask runs longer than a chunk"));
+        }
+        if k % 2 == 1 {
+            for i in at..at + len {
+                mask[i / 64] |= 1 << (i % 64);
+            }
+        }
+        at += len;
+    }
+    if at != CHUNK_VOXELS {
+        return Err(PackError::Malformed("mask runs shorter than a chunk"));
+    }
+    Ok(mask)
+}
+
+/// Inverts [`residuals`] into `block`; voxels outside the mask become all zeros.
+fn decode(s: &[u8], dense: bool, block: &mut VoxelBlock) -> Result<(), PackError> {
     let mut r = BitReader::new(s);
+    let mask = if dense {
+        [u64::MAX; CHUNK_VOXELS / 64]
+    } else {
+        let count = r.get(RUN_COUNT_BITS)? as usize;
+        if count == 0 || count > CHUNK_VOXELS {
+            return Err(PackError::Malformed("mask run count out of range"));
+        }
+        let mut runs = [0u16; CHUNK_VOXELS];
+        rice::get_section(&mut r, &mut runs[..count])?;
+        mask_from_runs(&runs[..count])?
+    };
+    let mask = &mask;
+    let n = mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
     let mut coloured = [false; CHUNK_VOXELS];
     for group in coloured[..n].chunks_mut(32) {
         let bits = r.get(group.len() as u32)?;
@@ -259,7 +309,6 @@ fn decode(s: &[u8], mask: &[u64; CHUNK_VOXELS / 64], block: &mut VoxelBlock) -> 
     block.tsdf.fill(0);
     block.weight.fill(0);
     block.color.fill([0; 4]);
-    let dense = mask == &[u64::MAX; CHUNK_VOXELS / 64];
     let (mut k, mut c, mut last) = (0, 0, [0u8; 4]);
     for (w, &word) in mask.iter().enumerate() {
         let mut bits = word;
