@@ -94,9 +94,9 @@ fn run() -> Result<(), String> {
             // A sign change to a heavy enough 6-neighbour: meshing needs this voxel.
             let l = IVec3::new(i as i32 % n, (i as i32 / n) % n, i as i32 / (n * n));
             let v = k * n + l;
-            let crossing = [IVec3::X, IVec3::Y, IVec3::Z, -IVec3::X, -IVec3::Y, -IVec3::Z].iter().any(|&o| {
-                map.voxel(v + o).is_some_and(|u| u.weight() >= 0.25 && (u.tsdf() < 0.0) != (t < 0))
-            });
+            let crossing = [IVec3::X, IVec3::Y, IVec3::Z, -IVec3::X, -IVec3::Y, -IVec3::Z]
+                .iter()
+                .any(|&o| map.voxel(v + o).is_some_and(|u| u.weight() >= 0.25 && (u.tsdf() < 0.0) != (t < 0)));
             if crossing {
                 surface_voxels += 1;
                 any = true;
@@ -108,9 +108,8 @@ fn run() -> Result<(), String> {
         }
     }
     for &k in &keys {
-        let near = (-1..=1).any(|z| {
-            (-1..=1).any(|y| (-1..=1).any(|x| surface_chunk.contains(&(k + IVec3::new(x, y, z)))))
-        });
+        let near =
+            (-1..=1).any(|z| (-1..=1).any(|y| (-1..=1).any(|x| surface_chunk.contains(&(k + IVec3::new(x, y, z))))));
         chunks_near_surface += near as usize;
     }
     let total = keys.len();
@@ -130,7 +129,10 @@ fn run() -> Result<(), String> {
         100.0 * light as f64 / observed as f64,
         surface_voxels as f64 / a
     );
-    println!("in front at >= 4 voxels (saturated near band): {:.1}% of observed", 100.0 * sat_pos as f64 / observed as f64);
+    println!(
+        "in front at >= 4 voxels (saturated near band): {:.1}% of observed",
+        100.0 * sat_pos as f64 / observed as f64
+    );
     let mut lo = 0.0;
     for (e, h) in edges.iter().zip(&hist) {
         println!("|d| {lo:>4}..{e:<4} voxels: {:5.1}% of observed", 100.0 * *h as f64 / observed as f64);

@@ -748,8 +748,8 @@ mod tests {
                 continue;
             }
             let in_color_band = sdf < f.color_band && sdf >= -f.color_band;
-            let color = (sdf < mu && in_color_band && (f.color_all || vox.color_count < COLOR_WARMUP))
-                .then_some(f.color[pix]);
+            let color =
+                (sdf < mu && in_color_band && (f.color_all || vox.color_count < COLOR_WARMUP)).then_some(f.color[pix]);
             vox.fuse(sdf.min(mu), depth_weight(d) * f.obs_weight, color, f.weight_cap);
         }
     }

@@ -47,10 +47,8 @@ const RUN_COUNT_BITS: u32 = 10;
 /// saying whether it has a colour and six values (distance, weight, four colour bytes), each
 /// value of at most [`rice::MAX_VALUE_BITS`], and seven section headers. Below 2^16, so its
 /// length fits the `u16` of the layout.
-const MAX_STREAM: usize = (RUN_COUNT_BITS as usize
-    + CHUNK_VOXELS * (1 + 7 * rice::MAX_VALUE_BITS)
-    + 7 * rice::SECTION_BITS)
-    .div_ceil(8);
+const MAX_STREAM: usize =
+    (RUN_COUNT_BITS as usize + CHUNK_VOXELS * (1 + 7 * rice::MAX_VALUE_BITS) + 7 * rice::SECTION_BITS).div_ceil(8);
 
 /// Packs `block` losslessly (see the module documentation).
 pub(crate) fn pack(block: &VoxelBlock) -> Box<[u8]> {
@@ -151,7 +149,13 @@ fn predict_tsdf(t: &[i16; CHUNK_VOXELS], n: Neighbours) -> i16 {
     match (n.left, n.below, n.below_left) {
         (Some(a), Some(b), Some(c)) => {
             let (a, b, c) = (t[a] as i32, t[b] as i32, t[c] as i32);
-            (if c >= a.max(b) { a.min(b) } else if c <= a.min(b) { a.max(b) } else { a + b - c }) as i16
+            (if c >= a.max(b) {
+                a.min(b)
+            } else if c <= a.min(b) {
+                a.max(b)
+            } else {
+                a + b - c
+            }) as i16
         }
         _ => n.nearest().map_or(0, |j| t[j]),
     }
