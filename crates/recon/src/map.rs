@@ -139,7 +139,7 @@ impl TsdfConfig {
             return bad(format!("narrowest truncation {} voxels is outside 1..64", self.min_truncation_voxels));
         }
         if !(1.0 / WEIGHT_SCALE..=255.0).contains(&self.max_weight) {
-            return bad(format!("weight cap {} is outside 1/256..255", self.max_weight));
+            return bad(format!("weight cap {} is outside 1/{WEIGHT_SCALE}..255", self.max_weight));
         }
         if !(self.min_depth >= 0.0 && self.min_depth < self.max_depth && self.max_depth.is_finite()) {
             return bad(format!("depth range {}..{} m is empty or not finite", self.min_depth, self.max_depth));
