@@ -12,9 +12,9 @@
 //! and its observation count, so a chunk's voxels are exactly 4 KiB. The steps are as coarse
 //! as accuracy allows (issue 20): a step of the distance is 0.024 mm at 5 mm voxels and a
 //! truncation of 10 voxels, far under sensor noise, and the finer steps before (1/32767,
-//! 1/256) only stored noise, which packed chunks ([`compressed`]) paid for in bits: packed
-//! chunks are a quarter smaller, with the same mesh accuracy on rendered scans
-//! (docs/benchmarks_log.md, "A compact voxel").
+//! 1/256) only stored noise, which packed chunks (submodule `compressed`) paid for in bits:
+//! packed chunks are a sixth smaller, mesh accuracy on rendered scans 1.37 -> 1.38 mm
+//! (docs/benchmarks_log.md, "A compact voxel and denser packing").
 //!
 //! Chunks fusion has left alone can be packed losslessly in memory or spilled to a file
 //! (submodules `compressed`, `storage`, `memory`, `spill`); readers see the same voxels.
@@ -99,7 +99,8 @@ pub struct TsdfConfig {
     /// voxels only. Narrower colour bands leave some crossings of surfaces seen only at
     /// grazing angles (where the distance along the optical axis overstates the distance to
     /// the surface) with two uncoloured ends, black vertices: 0.25 % of the demo's at 2
-    /// voxels, 0.05 % at 3, 0.007 % at 4 (docs/benchmarks_log.md, "A compact voxel").
+    /// voxels, 0.05 % at 3, 0.007 % at 4 (docs/benchmarks_log.md, "A compact voxel and
+    /// denser packing").
     pub color_band_voxels: f32,
 }
 
