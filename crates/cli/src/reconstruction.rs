@@ -98,9 +98,10 @@ pub struct ReconArgs {
     pub max_memory: Option<usize>,
     /// Chunks that no frame changed for this many frames are packed in memory (lossless:
     /// the output is the same bits); 0 keeps every chunk plain (4 KiB each). Default: 30 with
-    /// `--max-memory`, else 0: packing saves about a fifth of a room scan's map (a third of
-    /// a whole home's) for about 3 ms a frame of compaction and slower final meshing
-    /// (docs/benchmarks_log.md, "Compact and out-of-core maps").
+    /// `--max-memory`, else 0: a packed chunk takes about 1 KB, so packing saves a third of
+    /// a room scan's map at its end (the view stays plain) and three quarters of what the
+    /// camera left, for compaction every 10th frame (about 17 ms on the demo) and slower
+    /// final meshing (docs/benchmarks_log.md, "A compact voxel and denser packing").
     #[arg(long)]
     pub cold_after: Option<u32>,
 }

@@ -463,21 +463,27 @@ mod tests {
                 let config = MeshConfig { min_weight, min_component_triangles: 0 };
                 let rule = SurfaceRule::new(map.config(), &config);
                 let mesh = extract_mesh_with(&map, config).expect("mesh");
-                let mut points = std::collections::HashMap::new();
+                // Colours by position: crossings exactly at a voxel (distance 0, frequent at
+                // 1/2047 steps) share a position across edges, and an edge with an uncoloured
+                // end takes the other end's colour, so one position can carry several colours.
+                let mut points = std::collections::HashMap::<_, Vec<[u8; 3]>>::new();
                 for key in map.sorted_keys() {
                     for_each_chunk_point(&map, key, &rule, |p| {
-                        points.insert(p.position.to_array().map(f32::to_bits), p.color);
+                        points.entry(p.position.to_array().map(f32::to_bits)).or_default().push(p.color);
                     });
                 }
                 assert!(mesh.positions.len() > 1000);
                 let mut shared = 0;
                 for (p, c) in mesh.positions.iter().zip(&mesh.colors) {
                     if let Some(found) = points.get(&p.to_array().map(f32::to_bits)) {
-                        assert_eq!(found, c, "seed {seed}: the point at vertex {p} has another colour");
+                        assert!(
+                            found.contains(c),
+                            "seed {seed}: the point at vertex {p} has another colour: {found:?} {c:?}"
+                        );
                         shared += 1;
                     }
                 }
-                let (missing, extra) = (mesh.positions.len() - shared, points.len() - shared);
+                let (missing, extra) = (mesh.positions.len() - shared, points.len().saturating_sub(shared));
                 eprintln!(
                     "seed {seed}, min weight {min_weight}: {} vertices, {missing} not points, {extra} points not vertices",
                     mesh.positions.len()
@@ -496,8 +502,9 @@ mod tests {
     fn point_normals_are_the_planes() {
         let rule = SurfaceRule { min_stored_weight: 1, max_jump: 1.0, voxel_size: 0.01 };
         let n = Vec3::new(0.3, -0.5, 0.8).normalize();
-        // Distance in stored units at voxel v of the plane n . v = 0.4 (voxels).
-        let d = |v: IVec3| ((n.dot(v.as_vec3()) - 0.4) * 3000.0).round() as i16;
+        // Distance in stored units at voxel v of the plane n . v = 0.4 (voxels), with a
+        // truncation of 11 voxels.
+        let d = |v: IVec3| ((n.dot(v.as_vec3()) - 0.4) * (TSDF_SCALE / 11.0)).round() as i16;
         let mut points = 0;
         for low in [IVec3::ZERO, IVec3::new(-1, 1, 0), IVec3::new(1, 1, 0), IVec3::new(0, 0, 1)] {
             for (axis, step) in AXES.iter().enumerate() {

@@ -5,7 +5,7 @@
 //! cargo run --release -p semrecon-recon --example accuracy_bench -- SOURCE [--frames N]
 //!     [--size WxH] [--voxel M] [--trunc VOXELS] [--band-factor K] [--min-band VOXELS]
 //!     [--max-depth M] [--min-weight W[,W...]] [--min-component N[,N...]] [--ideal]
-//!     [--skip-tracking]
+//!     [--skip-tracking] [--color-band VOXELS]
 //! ```
 //!
 //! `SOURCE` is `synth:SEED` (a generated room along its generated handheld path) or
@@ -54,6 +54,7 @@ struct Args {
     max_depth: f32,
     min_weights: Vec<f32>,
     min_components: Vec<usize>,
+    color_band: f32,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -70,6 +71,7 @@ fn parse_args() -> Result<Args, String> {
         max_depth: TsdfConfig::default().max_depth,
         min_weights: vec![0.0],
         min_components: vec![0],
+        color_band: TsdfConfig::default().color_band_voxels,
     };
     let mut flags = Flags::from_env();
     while let Some(flag) = flags.next_flag() {
@@ -83,6 +85,7 @@ fn parse_args() -> Result<Args, String> {
             "--min-weight" => a.min_weights = comma_list(&flag, &flags.value::<String>(&flag)?)?,
             "--min-component" => a.min_components = comma_list(&flag, &flags.value::<String>(&flag)?)?,
             "--ideal" => a.ideal = true,
+            "--color-band" => a.color_band = flags.value(&flag)?,
             "--skip-tracking" => a.skip_tracking = true,
             "--size" => a.size = flags.size(&flag)?,
             s if !s.starts_with("--") && a.source.is_empty() => a.source = s.to_string(),
@@ -178,6 +181,7 @@ fn run(a: Args) -> Result<(), String> {
         truncation_noise_factor: a.band_factor,
         min_truncation_voxels: a.min_band,
         max_depth: a.max_depth,
+        color_band_voxels: a.color_band,
         ..TsdfConfig::with_voxel_size(a.voxel).map_err(|e| e.to_string())?
     };
     println!(

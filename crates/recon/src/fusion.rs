@@ -150,6 +150,9 @@ struct FrameView<'a> {
     /// surface takes the frame's colour; otherwise only those with fewer than
     /// [`COLOR_WARMUP`] colour observations.
     color_all: bool,
+    /// Colour is blended only where `-color_band <= sdf < color_band` (truncation units;
+    /// [`TsdfConfig::color_band_voxels`]).
+    color_band: f32,
     /// Factor on each observation's weight: 1 for a frame, n where one frame stands for n
     /// similar ones (loop closure re-fusing a subsample). Multiplying by 1 is exact, so the
     /// default changes no bit.
@@ -263,6 +266,7 @@ impl TsdfMap {
             max_depth: c.max_depth,
             weight_cap: (c.max_weight * WEIGHT_SCALE).round().clamp(1.0, u16::MAX as f32) as u16,
             color_all: c.is_color_frame(frame.index),
+            color_band: c.color_band(),
             obs_weight,
         };
         let mut targets = select_mut(&mut self.chunks, &slots);
@@ -612,6 +616,7 @@ fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> 
     let noise_offset = splat(NOISE_OFFSET);
     let (zero, half, one) = (f32x8::ZERO, f32x8::HALF, f32x8::ONE);
     let cap = splat(f.weight_cap as f32);
+    let color_band = splat(f.color_band);
     let has_color = !f.color.is_empty();
     let block = &mut *chunk.voxels;
     let (tsdf_rows, _) = block.tsdf.as_chunks_mut::<N>();
@@ -642,12 +647,12 @@ fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> 
         } else {
             one
         };
-        let valid = inside & d.simd_ge(min_d) & d.simd_le(max_d) & sdf.simd_ge(-mu);
-        let valid_bits = valid.to_bitmask();
         let tsdf_row = &mut tsdf_rows[r];
         let weight_row = &mut weight_rows[r];
         let t_old = i32x8::from_i16x8(i16x8::new(*tsdf_row)).round_float();
         let w_old_q = i32x8::from_u16x8(u16x8::new(*weight_row)).round_float();
+        let valid = inside & d.simd_ge(min_d) & d.simd_le(max_d) & sdf.simd_ge(-mu);
+        let valid_bits = valid.to_bitmask();
         let (t_now, w_now) = if valid_bits != 0 {
             let obs = sdf.fast_min(mu);
             let w_obs = valid.select((one / (d * d)).fast_min(splat(4.0)) * splat(f.obs_weight), zero);
@@ -664,11 +669,12 @@ fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> 
             *tsdf_row = i16x8::from_i32x8_truncate(t_new.fast_trunc_int()).to_array();
             *weight_row = i16x8::from_i32x8_truncate(w_new.fast_trunc_int()).to_array().map(|w| w as u16);
             updated += valid_bits.count_ones();
-            let near_bits = (valid & sdf.simd_lt(mu)).to_bitmask();
-            if near_bits != 0 {
+            let near = valid & sdf.simd_lt(mu);
+            if near.any() {
                 near_any = true;
+                let colored = near & sdf.simd_lt(color_band) & sdf.simd_ge(-color_band);
                 if has_color {
-                    let mut bits = near_bits;
+                    let mut bits = colored.to_bitmask();
                     while bits != 0 {
                         let x = bits.trailing_zeros() as usize;
                         // Off colour frames only voxels still warming up take a colour.
@@ -741,7 +747,9 @@ mod tests {
             if !(d >= f.min_depth && d <= f.max_depth && sdf >= -mu) {
                 continue;
             }
-            let color = (sdf < mu && (f.color_all || vox.color_count < COLOR_WARMUP)).then_some(f.color[pix]);
+            let in_color_band = sdf < f.color_band && sdf >= -f.color_band;
+            let color =
+                (sdf < mu && in_color_band && (f.color_all || vox.color_count < COLOR_WARMUP)).then_some(f.color[pix]);
             vox.fuse(sdf.min(mu), depth_weight(d) * f.obs_weight, color, f.weight_cap);
         }
     }
@@ -771,6 +779,57 @@ mod tests {
                 check_kernel_against_scalar(kernel, config, 20);
             }
         }
+    }
+
+    #[test]
+    fn colour_band_settings_equal_the_scalar_specification() {
+        // Colour over the whole band (as before issue 20), a colour band wider than the
+        // narrowest band and one narrower, with a depth-dependent band.
+        let base = TsdfConfig {
+            max_weight: 3.0,
+            truncation_voxels: 8.0,
+            min_truncation_voxels: 2.0,
+            truncation_noise_factor: 20.0,
+            ..TsdfConfig::default()
+        };
+        for color_band_voxels in [64.0, 3.0, 1.0] {
+            let config = TsdfConfig { color_band_voxels, ..base };
+            for kernel in kernels() {
+                check_kernel_against_scalar(kernel, config, 8);
+            }
+        }
+    }
+
+    #[test]
+    fn colour_stays_within_the_colour_band() {
+        // One frame of a wall 0.51 m away: voxels further from it than the colour band take no
+        // colour; with the band as wide as the truncation, voxels outside the colour band do.
+        let k = Intrinsics::new(64, 48, 50.0, 50.0, 31.5, 23.5).expect("valid camera");
+        let frame = Frame {
+            index: 0,
+            timestamp: 0.0,
+            depth: vec![0.51; k.pixel_count()],
+            color: vec![[200, 100, 50]; k.pixel_count()],
+            intrinsics: k,
+            world_from_camera: None,
+            labels: None,
+        };
+        let coloured_outside = |color_band_voxels: f32| {
+            let config = TsdfConfig { color_band_voxels, ..TsdfConfig::default() };
+            let mut map = TsdfMap::new(config).expect("valid");
+            map.integrate(&frame, Affine3A::IDENTITY).expect("fusion");
+            let limit = 2.0 * config.voxel_size + 1e-4;
+            let mut n = 0;
+            for c in map.chunks() {
+                for (i, v) in c.voxels().enumerate() {
+                    let z = (c.key().z * 8 + (i / 64) as i32) as f32 * config.voxel_size;
+                    n += (v.color_count > 0 && (0.51 - z).abs() > limit) as usize;
+                }
+            }
+            n
+        };
+        assert_eq!(coloured_outside(2.0), 0);
+        assert!(coloured_outside(64.0) > 0);
     }
 
     #[test]
@@ -835,6 +894,7 @@ mod tests {
                 max_depth: config.max_depth,
                 weight_cap: (config.max_weight * WEIGHT_SCALE) as u16,
                 color_all: config.is_color_frame(frame.index),
+                color_band: config.color_band(),
                 obs_weight,
             };
             for &key in &keys {

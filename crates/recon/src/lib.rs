@@ -17,7 +17,7 @@
 //! Memory: a chunk costs [`TsdfMap::bytes_per_chunk`] bytes (4096 for its 512 voxels of 8
 //! bytes, the rest for its record, with up to 8 runs of the frames that touched it inline,
 //! and its hash entry) while plain; [`TsdfMap::compact`] packs chunks fusion has left alone
-//! (about 2.2 KB on the demo, lossless) and, past [`TsdfMap::set_memory_budget`], spills the
+//! (about 1 KB on the demo, lossless) and, past [`TsdfMap::set_memory_budget`], spills the
 //! coldest to a file ([`TsdfMap::memory`] says where the bytes are). Revisiting a surface adds no chunks and no bytes. An [`IncrementalMesher`] with a
 //! non-zero [`RemeshTolerance`] adds a 2112-byte snapshot per chunk with both signs.
 #![warn(missing_docs)]

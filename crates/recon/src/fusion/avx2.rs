@@ -84,6 +84,7 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
         let four = splat(4.0);
         let obs_scale = splat(f.obs_weight);
         let tiny = splat(1e-30);
+        let (color_band, neg_color_band) = (splat(f.color_band), splat(-f.color_band));
         let inv_wscale = splat(1.0 / WEIGHT_SCALE);
         let wscale = splat(WEIGHT_SCALE);
         let tscale = splat(TSDF_SCALE);
@@ -203,13 +204,21 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 if has_color && _mm256_movemask_ps(near) != 0 {
                     let row_ptr = color_rows.add(r * N * 4) as *mut __m256i;
                     let cur = _mm256_loadu_si256(row_ptr);
-                    // Off colour frames only voxels still warming up take a colour.
+                    // Colour only within the colour band; off colour frames only voxels still
+                    // warming up take a colour.
+                    let colored = _mm256_and_ps(
+                        near,
+                        _mm256_and_ps(
+                            _mm256_cmp_ps::<_CMP_LT_OQ>(sdf, color_band),
+                            _mm256_cmp_ps::<_CMP_GE_OQ>(sdf, neg_color_band),
+                        ),
+                    );
                     let near_i = if f.color_all {
-                        _mm256_castps_si256(near)
+                        _mm256_castps_si256(colored)
                     } else {
                         let uncoloured =
                             _mm256_cmpgt_epi32(_mm256_set1_epi32(COLOR_WARMUP as i32), _mm256_srli_epi32::<24>(cur));
-                        _mm256_and_si256(_mm256_castps_si256(near), uncoloured)
+                        _mm256_and_si256(_mm256_castps_si256(colored), uncoloured)
                     };
                     if _mm256_testz_si256(near_i, near_i) == 0 {
                         // The observed colours, `[r, g, b, x]` per lane.

@@ -96,6 +96,7 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
         let four = splat(4.0);
         let obs_scale = splat(f.obs_weight);
         let tiny = splat(1e-30);
+        let (color_band, neg_color_band) = (splat(f.color_band), splat(-f.color_band));
         let inv_wscale = splat(1.0 / WEIGHT_SCALE);
         let wscale = splat(WEIGHT_SCALE);
         let tscale = splat(TSDF_SCALE);
@@ -215,6 +216,9 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 // Half the row pairs have no voxel near the surface: their colours stay as they are.
                 let row_ptr = color_rows.add(r * N * 4) as *mut __m512i;
                 let cur = if has_color && near != 0 { _mm512_loadu_si512(row_ptr as *const _) } else { zero_i };
+                let near = near
+                    & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(sdf, color_band)
+                    & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(sdf, neg_color_band);
                 // Off colour frames only voxels still warming up take a colour.
                 let near = if f.color_all {
                     near

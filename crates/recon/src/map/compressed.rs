@@ -5,19 +5,24 @@
 //! Why this layout: in a scan most voxels of an allocated chunk are never observed (the band
 //! around a surface crosses a chunk obliquely), and an unobserved voxel is all zeros. So a
 //! packed chunk is a 512-bit observed mask plus only the observed voxels, field by field.
-//! Each field is predicted from already-coded neighbours and only the residual is stored as a
-//! variable-length integer: the signed distance is nearly linear in position near a surface,
+//! Each field is predicted from already-coded neighbours and only the residual is stored, in
+//! a Rice code ([`super::rice`]) fitted to each field of each chunk: the signed distance is nearly linear in position near a surface,
 //! so the planar predictor `left + below - below-left` leaves sensor noise only; weights and
-//! colours change little between neighbours, so the left neighbour predicts them. The
-//! residual stream then goes through LZ4 (fast, pure Rust), which folds the long runs of equal
+//! colours change little between neighbours, so the left neighbour predicts them. Fusion
+//! colours only the voxels near the surface ([`crate::TsdfConfig::color_band_voxels`]), so a
+//! bit per observed voxel says which have a colour, and only those are coded, each predicted
+//! from a coloured neighbour: an uncoloured voxel costs a bit instead of four residuals, and
+//! the edge of the coloured layer no jump from or to zero. The residual stream then goes
+//! through LZ4 (fast, pure Rust) when that shrinks it, which folds long runs of equal
 //! residuals (capped weights, saturated colour counts, flat colours).
 //!
 //! Lossless for every input: a chunk with an unobserved voxel that is not all zeros (which
 //! fusion never makes, but a caller of the map could) is packed densely, all 512 voxels.
 //!
-//! Layout: `[flags u8] [mask 64 bytes, sparse only] [stream length u16] [stream, LZ4 or raw]`;
-//! the stream is described at `residuals`.
+//! Layout: `[flags u8] [stream length u16] [stream, LZ4 or raw]`; the stream, which holds
+//! the observed mask as run lengths (sparse chunks only), is described at `residuals`.
 
+use super::rice::{self, BitReader, BitWriter};
 use super::{VoxelBlock, CHUNK_SIDE, CHUNK_VOXELS};
 
 /// What a packed chunk can be wrong about when read back (only bytes from outside the
@@ -36,11 +41,14 @@ pub enum PackError {
 const LZ4: u8 = 1;
 /// Flag bit: all 512 voxels are coded (no mask).
 const DENSE: u8 = 2;
-/// Bytes of the observed mask.
-const MASK_BYTES: usize = CHUNK_VOXELS / 8;
-/// Longest residual stream: two section lengths, then per voxel at most 3 bytes of
-/// distance, 3 of weight, 4 of colour.
-const MAX_STREAM: usize = 4 + CHUNK_VOXELS * 10;
+/// Bits of the number of runs of the observed mask (at most 512).
+const RUN_COUNT_BITS: u32 = 10;
+/// Longest residual stream: the mask's runs (one per voxel at most) and per voxel a bit
+/// saying whether it has a colour and six values (distance, weight, four colour bytes), each
+/// value of at most [`rice::MAX_VALUE_BITS`], and seven section headers. Below 2^16, so its
+/// length fits the `u16` of the layout.
+const MAX_STREAM: usize =
+    (RUN_COUNT_BITS as usize + CHUNK_VOXELS * (1 + 7 * rice::MAX_VALUE_BITS) + 7 * rice::SECTION_BITS).div_ceil(8);
 
 /// Packs `block` losslessly (see the module documentation).
 pub(crate) fn pack(block: &VoxelBlock) -> Box<[u8]> {
@@ -56,17 +64,12 @@ pub(crate) fn pack(block: &VoxelBlock) -> Box<[u8]> {
     if dense {
         mask = [u64::MAX; CHUNK_VOXELS / 64];
     }
-    let stream = residuals(block, &mask);
+    let stream = residuals(block, &mask, dense);
     let compressed = lz4_flex::block::compress(&stream);
     let (flags, body) = if compressed.len() < stream.len() { (LZ4, &compressed) } else { (0, &stream) };
     let flags = flags | if dense { DENSE } else { 0 };
-    let mut out = Vec::with_capacity(1 + MASK_BYTES + 2 + body.len());
+    let mut out = Vec::with_capacity(1 + 2 + body.len());
     out.push(flags);
-    if !dense {
-        for w in mask {
-            out.extend_from_slice(&w.to_le_bytes());
-        }
-    }
     // MAX_STREAM < 2^16, so the raw length always fits.
     out.extend_from_slice(&(stream.len() as u16).to_le_bytes());
     out.extend_from_slice(body);
@@ -80,18 +83,6 @@ pub(crate) fn unpack_into(bytes: &[u8], block: &mut VoxelBlock) -> Result<(), Pa
     if flags & !(LZ4 | DENSE) != 0 {
         return Err(PackError::Malformed("unknown flags"));
     }
-    let (mask, rest) = if flags & DENSE != 0 {
-        ([u64::MAX; CHUNK_VOXELS / 64], rest)
-    } else {
-        let (m, rest) = rest.split_at_checked(MASK_BYTES).ok_or_else(truncated)?;
-        let mut mask = [0u64; CHUNK_VOXELS / 64];
-        for (w, b) in mask.iter_mut().zip(m.chunks_exact(8)) {
-            let mut word = [0u8; 8];
-            word.copy_from_slice(b);
-            *w = u64::from_le_bytes(word);
-        }
-        (mask, rest)
-    };
     let (len, body) = rest.split_at_checked(2).ok_or_else(truncated)?;
     let len = u16::from_le_bytes([len[0], len[1]]) as usize;
     if len > MAX_STREAM {
@@ -111,7 +102,7 @@ pub(crate) fn unpack_into(bytes: &[u8], block: &mut VoxelBlock) -> Result<(), Pa
         }
         body
     };
-    decode(stream, &mask, block)
+    decode(stream, flags & DENSE != 0, block)
 }
 
 /// Whether voxel `i` is coded.
@@ -150,11 +141,22 @@ impl Neighbours {
     }
 }
 
-/// Planar prediction of a distance: exact for a field linear in x and y.
+/// Prediction of a distance: exact for a field linear in x and y.
 #[inline]
 fn predict_tsdf(t: &[i16; CHUNK_VOXELS], n: Neighbours) -> i16 {
+    // The median of the left, the below and the planar prediction (LOCO-I's): planar on a
+    // plane, and the nearer neighbour across the kink where the band saturates.
     match (n.left, n.below, n.below_left) {
-        (Some(a), Some(b), Some(c)) => (t[a] as i32 + t[b] as i32 - t[c] as i32) as i16,
+        (Some(a), Some(b), Some(c)) => {
+            let (a, b, c) = (t[a] as i32, t[b] as i32, t[c] as i32);
+            (if c >= a.max(b) {
+                a.min(b)
+            } else if c <= a.min(b) {
+                a.max(b)
+            } else {
+                a + b - c
+            }) as i16
+        }
         _ => n.nearest().map_or(0, |j| t[j]),
     }
 }
@@ -182,111 +184,168 @@ fn unzigzag(u: u16) -> i16 {
     ((u >> 1) as i16) ^ -((u & 1) as i16)
 }
 
-/// Appends `v` in 7-bit groups, low first, the top bit saying "more follows".
+/// The colour that predicts voxel `i`'s (coloured) colour: its nearest coloured coded
+/// neighbour's (left, below, behind), else `last`, the colour of the previous coloured voxel
+/// in coding order.
 #[inline]
-fn put_varint(out: &mut Vec<u8>, mut v: u16) {
-    while v >= 0x80 {
-        out.push(v as u8 | 0x80);
-        v >>= 7;
-    }
-    out.push(v as u8);
+fn predict_color(c: &[[u8; 4]; CHUNK_VOXELS], n: Neighbours, last: [u8; 4]) -> [u8; 4] {
+    [n.left, n.below, n.behind].into_iter().flatten().map(|j| c[j]).find(|&c| c != [0; 4]).unwrap_or(last)
 }
 
-/// Reads what [`put_varint`] wrote.
-#[inline]
-fn get_varint(s: &[u8], pos: &mut usize) -> Result<u16, PackError> {
-    let mut v = 0u32;
-    for shift in [0, 7, 14] {
-        let b = *s.get(*pos).ok_or(PackError::Malformed("residual stream ends early"))?;
-        *pos += 1;
-        v |= ((b & 0x7f) as u32) << shift;
-        if b & 0x80 == 0 {
-            return u16::try_from(v).map_err(|_| PackError::Malformed("residual out of range"));
-        }
-    }
-    Err(PackError::Malformed("residual longer than 3 bytes"))
-}
-
-/// The residual stream: the byte lengths of the distance and weight sections (u16 each),
-/// then distances, weights and the four colour bytes, each section over the coded voxels in
-/// index order (sections apart, so equal residuals sit together for LZ4). One pass over the
-/// voxels fills all six sections.
-fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64]) -> Vec<u8> {
+/// The residual stream, a bit stream ([`rice`]): for a sparse chunk the observed mask as the
+/// lengths of its alternating runs in index order (unobserved first; the number of runs in
+/// 10 bits, then a Rice-coded section of the first run's length and the others' minus one:
+/// the band makes a few long runs, cheaper than a 64-byte mask), a bit per coded voxel set
+/// when its colour is not all zeros, then six Rice-coded sections of zigzagged residuals:
+/// distances and weights of the coded voxels, then the red, green, blue and count bytes of
+/// the coloured ones (sections apart, each with its own parameter). One pass over the voxels
+/// fills all sections.
+fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64], dense: bool) -> Vec<u8> {
     let n = mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
-    let mut tsdf = Vec::with_capacity(2 * n);
-    let mut weight = Vec::with_capacity(2 * n);
-    let mut color = [Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n)];
+    let mut out = BitWriter::with_capacity(n.div_ceil(8) + 64);
+    if !dense {
+        let runs = mask_runs(mask);
+        out.put(runs.len() as u64, RUN_COUNT_BITS);
+        rice::put_section(&mut out, &runs);
+    }
+    let mut tsdf = Vec::with_capacity(n);
+    let mut weight = Vec::with_capacity(n);
+    let mut color: [Vec<u16>; 4] = std::array::from_fn(|_| Vec::with_capacity(n));
+    let mut last = [0u8; 4];
     for (w, &word) in mask.iter().enumerate() {
         let mut bits = word;
         while bits != 0 {
             let i = w * 64 + bits.trailing_zeros() as usize;
             bits &= bits - 1;
             let nb = Neighbours::of(mask, i);
-            put_varint(&mut tsdf, zigzag(block.tsdf[i].wrapping_sub(predict_tsdf(&block.tsdf, nb))));
-            put_varint(&mut weight, zigzag(block.weight[i].wrapping_sub(predict_weight(&block.weight, nb)) as i16));
-            let near = nb.nearest().map_or([0; 4], |j| block.color[j]);
-            for k in 0..4 {
-                color[k].push(block.color[i][k].wrapping_sub(near[k]));
+            tsdf.push(zigzag(block.tsdf[i].wrapping_sub(predict_tsdf(&block.tsdf, nb))));
+            weight.push(zigzag(block.weight[i].wrapping_sub(predict_weight(&block.weight, nb)) as i16));
+            let c = block.color[i];
+            out.put((c != [0; 4]) as u64, 1);
+            if c != [0; 4] {
+                let p = predict_color(&block.color, nb, last);
+                for (plane, (&c, p)) in color.iter_mut().zip(c.iter().zip(p)) {
+                    plane.push(zigzag(c.wrapping_sub(p) as i8 as i16));
+                }
+                last = c;
             }
         }
     }
-    let mut out = Vec::with_capacity(4 + tsdf.len() + weight.len() + 4 * n);
-    // Each section is at most 3 bytes a voxel, 1536 bytes: the lengths fit in u16.
-    out.extend_from_slice(&(tsdf.len() as u16).to_le_bytes());
-    out.extend_from_slice(&(weight.len() as u16).to_le_bytes());
-    out.extend_from_slice(&tsdf);
-    out.extend_from_slice(&weight);
-    for c in &color {
-        out.extend_from_slice(c);
+    for section in [&tsdf, &weight, &color[0], &color[1], &color[2], &color[3]] {
+        rice::put_section(&mut out, section);
     }
-    out
+    out.finish()
 }
 
-/// Inverts [`residuals`] into `block`; voxels outside `mask` become all zeros.
-fn decode(s: &[u8], mask: &[u64; CHUNK_VOXELS / 64], block: &mut VoxelBlock) -> Result<(), PackError> {
-    let short = PackError::Malformed("residual stream ends early");
-    let n = mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
-    let (lens, rest) = s.split_at_checked(4).ok_or(short.clone())?;
-    let (tsdf_len, weight_len) =
-        (u16::from_le_bytes([lens[0], lens[1]]) as usize, u16::from_le_bytes([lens[2], lens[3]]) as usize);
-    let (tsdf, rest) = rest.split_at_checked(tsdf_len).ok_or(short.clone())?;
-    let (weight, colors) = rest.split_at_checked(weight_len).ok_or(short.clone())?;
-    if colors.len() != 4 * n {
-        return Err(if colors.len() < 4 * n {
-            short
-        } else {
-            PackError::Malformed("residual stream longer than its voxels")
-        });
+/// The observed mask's runs as [`residuals`] codes them: the lengths of alternating runs of
+/// unobserved and observed voxels in index order, the first (unobserved, maybe empty) as is,
+/// the others minus one.
+fn mask_runs(mask: &[u64; CHUNK_VOXELS / 64]) -> Vec<u16> {
+    let mut runs = Vec::new();
+    let (mut state, mut len) = (false, 0u16);
+    for i in 0..CHUNK_VOXELS {
+        if coded(mask, i) != state {
+            runs.push(if runs.is_empty() { len } else { len - 1 });
+            (state, len) = (!state, 0);
+        }
+        len += 1;
     }
-    let color: [&[u8]; 4] = [&colors[..n], &colors[n..2 * n], &colors[2 * n..3 * n], &colors[3 * n..]];
+    runs.push(if runs.is_empty() { len } else { len - 1 });
+    runs
+}
+
+/// Inverts [`mask_runs`].
+fn mask_from_runs(runs: &[u16]) -> Result<[u64; CHUNK_VOXELS / 64], PackError> {
+    let mut mask = [0u64; CHUNK_VOXELS / 64];
+    let mut at = 0usize;
+    for (k, &r) in runs.iter().enumerate() {
+        let len = r as usize + (k > 0) as usize;
+        if at + len > CHUNK_VOXELS {
+            return Err(PackError::Malformed("mask runs longer than a chunk"));
+        }
+        if k % 2 == 1 {
+            for i in at..at + len {
+                mask[i / 64] |= 1 << (i % 64);
+            }
+        }
+        at += len;
+    }
+    if at != CHUNK_VOXELS {
+        return Err(PackError::Malformed("mask runs shorter than a chunk"));
+    }
+    Ok(mask)
+}
+
+/// Inverts [`residuals`] into `block`; voxels outside the mask become all zeros.
+fn decode(s: &[u8], dense: bool, block: &mut VoxelBlock) -> Result<(), PackError> {
+    let mut r = BitReader::new(s);
+    let mask = if dense {
+        [u64::MAX; CHUNK_VOXELS / 64]
+    } else {
+        let count = r.get(RUN_COUNT_BITS)? as usize;
+        if count == 0 || count > CHUNK_VOXELS {
+            return Err(PackError::Malformed("mask run count out of range"));
+        }
+        let mut runs = [0u16; CHUNK_VOXELS];
+        rice::get_section(&mut r, &mut runs[..count])?;
+        mask_from_runs(&runs[..count])?
+    };
+    let mask = &mask;
+    let n = mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
+    let mut coloured = [false; CHUNK_VOXELS];
+    for group in coloured[..n].chunks_mut(32) {
+        let bits = r.get(group.len() as u32)?;
+        for (j, c) in group.iter_mut().enumerate() {
+            *c = (bits >> j) & 1 == 1;
+        }
+    }
+    let m = coloured.iter().filter(|&&c| c).count();
+    let (mut tsdf, mut weight) = ([0u16; CHUNK_VOXELS], [0u16; CHUNK_VOXELS]);
+    let mut color = [[0u16; CHUNK_VOXELS]; 4];
+    rice::get_section(&mut r, &mut tsdf[..n])?;
+    rice::get_section(&mut r, &mut weight[..n])?;
+    for plane in &mut color {
+        rice::get_section(&mut r, &mut plane[..m])?;
+    }
+    if !r.at_end() {
+        return Err(PackError::Malformed("residual stream longer than its voxels"));
+    }
     block.tsdf.fill(0);
     block.weight.fill(0);
     block.color.fill([0; 4]);
-    let dense = mask == &[u64::MAX; CHUNK_VOXELS / 64];
-    let (mut pt, mut pw, mut c) = (0, 0, 0);
+    let (mut k, mut c, mut last) = (0, 0, [0u8; 4]);
     for (w, &word) in mask.iter().enumerate() {
         let mut bits = word;
         while bits != 0 {
             let i = w * 64 + bits.trailing_zeros() as usize;
             bits &= bits - 1;
             let nb = Neighbours::of(mask, i);
-            let r = unzigzag(get_varint(tsdf, &mut pt)?);
-            block.tsdf[i] = r.wrapping_add(predict_tsdf(&block.tsdf, nb));
-            let r = unzigzag(get_varint(weight, &mut pw)?);
-            block.weight[i] = (r as u16).wrapping_add(predict_weight(&block.weight, nb));
+            block.tsdf[i] = unzigzag(tsdf[k]).wrapping_add(predict_tsdf(&block.tsdf, nb));
+            block.weight[i] = (unzigzag(weight[k]) as u16).wrapping_add(predict_weight(&block.weight, nb));
             if !dense && block.weight[i] == 0 {
                 // A sparse chunk codes observed voxels only: the bytes were altered.
                 return Err(PackError::Malformed("an observed voxel decoded with weight 0"));
             }
-            let near = nb.nearest().map_or([0; 4], |j| block.color[j]);
-            for k in 0..4 {
-                block.color[i][k] = color[k][c].wrapping_add(near[k]);
+            if coloured[k] {
+                let p = predict_color(&block.color, nb, last);
+                let mut v = [0u8; 4];
+                for (ch, v) in v.iter_mut().enumerate() {
+                    let r = unzigzag(color[ch][c]);
+                    if !(-128..=127).contains(&r) {
+                        return Err(PackError::Malformed("colour residual out of range"));
+                    }
+                    *v = (r as i8 as u8).wrapping_add(p[ch]);
+                }
+                if v == [0; 4] {
+                    // A colour marked present decodes to none: the bytes were altered.
+                    return Err(PackError::Malformed("a coloured voxel decoded without colour"));
+                }
+                block.color[i] = v;
+                last = v;
+                c += 1;
             }
-            c += 1;
+            k += 1;
         }
-    }
-    if pt != tsdf.len() || pw != weight.len() {
-        return Err(PackError::Malformed("residual sections longer than their voxels"));
     }
     Ok(())
 }
@@ -362,6 +421,23 @@ mod tests {
         let observed = b.weight.iter().filter(|&&w| w != 0).count();
         let size = round_trip(&b);
         assert!(size < 8 * observed, "{size} bytes for {observed} observed voxels");
+    }
+
+    #[test]
+    fn uncoloured_voxels_cost_a_bit_and_colours_need_no_neighbour() {
+        // Fusion colours only a layer at the surface: voxels outside it are not coded.
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let mut b = banded(&mut rng);
+        let with_all = round_trip(&b);
+        b.color.iter_mut().for_each(|c| *c = [0; 4]);
+        let with_none = round_trip(&b);
+        let observed = b.weight.iter().filter(|&&w| w != 0).count();
+        // Colour of every observed voxel costs more than a bit each; none costs about a bit.
+        assert!(with_all > with_none + observed / 8, "{with_all} vs {with_none}");
+        // A lone coloured voxel, no coloured neighbour: predicted from zero, still exact.
+        b.color[200] = [9, 8, 7, 1];
+        b.weight[200] = 5;
+        round_trip(&b);
     }
 
     #[test]
