@@ -17,20 +17,10 @@ mod flags;
 
 use glam::IVec3;
 use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
-use semrecon_data::{FrameSource, LabeledMesh};
+use semrecon_data::FrameSource;
 use semrecon_recon::{extract_mesh_with, MeshConfig, TsdfConfig, TsdfMap, CHUNK_SIDE};
 
 use flags::Flags;
-
-fn area(mesh: &LabeledMesh) -> f64 {
-    mesh.triangles
-        .iter()
-        .map(|t| {
-            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-            0.5 * (b - a).cross(c - a).length() as f64
-        })
-        .sum()
-}
 
 fn run() -> Result<(), String> {
     let (mut seed, mut frames, mut truncation) = (1u64, 300usize, 10.0f32);
@@ -56,7 +46,7 @@ fn run() -> Result<(), String> {
         map.integrate(&frame, pose).map_err(|e| e.to_string())?;
     }
     let mesh = extract_mesh_with(&map, MeshConfig::RECOMMENDED).map_err(|e| e.to_string())?;
-    let a = area(&mesh);
+    let a = f64::from(mesh.surface_area());
     let min_w = (0.25 * semrecon_recon::map::WEIGHT_SCALE) as u16;
     let per_voxel = truncation / semrecon_recon::map::TSDF_SCALE;
     // Voxel classes: |distance| in voxels.

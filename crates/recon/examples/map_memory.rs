@@ -20,7 +20,7 @@ mod flags;
 use std::time::{Duration, Instant};
 
 use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
-use semrecon_data::{FrameSource, LabeledMesh};
+use semrecon_data::FrameSource;
 use semrecon_recon::{extract_mesh, IncrementalMesher, MeshConfig, RemeshTolerance, TsdfConfig, TsdfMap};
 
 use flags::Flags;
@@ -52,16 +52,6 @@ fn parse_args() -> Result<Args, String> {
         return Err("--every must be positive".into());
     }
     Ok(a)
-}
-
-fn area(mesh: &LabeledMesh) -> f64 {
-    mesh.triangles
-        .iter()
-        .map(|t| {
-            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-            0.5 * (b - a).cross(c - a).length() as f64
-        })
-        .sum()
 }
 
 fn ms(d: Duration, n: usize) -> f64 {
@@ -132,7 +122,7 @@ fn run(a: Args) -> Result<(), String> {
     let n = scan.len();
     let end = packed.memory();
     let mesh = extract_mesh(&plain);
-    let area_m2 = area(&mesh);
+    let area_m2 = f64::from(mesh.surface_area());
     let (mut observed, mut voxels) = (0usize, 0usize);
     for c in plain.chunks() {
         observed += c.stored_weights().iter().filter(|&&w| w != 0).count();
