@@ -597,12 +597,13 @@ impl GpuContext {
             // The receiver waits below; a failed send only means it gave up.
             let _ = tx.send(r);
         });
-        let (ttx, trx) = mpsc::channel();
-        if let Some((ticks, _)) = &timed {
+        let timed = timed.map(|(ticks, kernels)| {
+            let (ttx, trx) = mpsc::channel();
             ticks.slice(..).map_async(wgpu::MapMode::Read, move |r| {
                 let _ = ttx.send(r);
             });
-        }
+            (ticks, kernels, trx)
+        });
         self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Readback(e.to_string()))?;
         self.check()?;
         match rx.recv() {
@@ -614,7 +615,7 @@ impl GpuContext {
         let out: Vec<T> = bytemuck::pod_collect_to_vec(&view[..bytes as usize]);
         drop(view);
         staging.unmap();
-        if let (Some((ticks, kernels)), Some(p)) = (timed, &self.profiler) {
+        if let (Some((ticks, kernels, trx)), Some(p)) = (timed, &self.profiler) {
             if let Ok(Ok(())) = trx.recv() {
                 let view = ticks.slice(..).get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
                 let values: Vec<u64> = bytemuck::pod_collect_to_vec(&view);

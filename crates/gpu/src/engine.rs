@@ -234,8 +234,9 @@ impl GpuEngine {
             .clamp(1, steps.max(1));
         let slice = count32("split partial sums", plan.n_dst as usize * c_out)?;
         let partial = if splits > 1 {
-            count32("split partial sums", splits as usize * slice as usize)?;
-            Some(ctx.transient("split partial sums", u64::from(splits) * u64::from(slice) * 4)?)
+            // Slices are addressed by u32 offsets in the kernel.
+            let words = count32("split partial sums", splits as usize * slice as usize)?;
+            Some(ctx.transient("split partial sums", u64::from(words) * 4)?)
         } else {
             None
         };
@@ -244,7 +245,7 @@ impl GpuEngine {
         let adds = accumulate && partial.is_none();
         let flags = u32::from(bn.is_some()) | (u32::from(adds) << 1);
         let params = ctx.params(&[
-            count32("channels", c_in)?,
+            c_in32,
             count32("channels", c_out)?,
             kv32,
             plan.n_dst,
