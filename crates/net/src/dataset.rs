@@ -452,6 +452,10 @@ pub struct Augment {
     /// Probability of dropping every floor point (class 1): furniture without the floor it
     /// stands on, as in an object-level fragment or a scan that never looked down.
     pub floor_drop_probability: f32,
+    /// Probability, per class of [`crate::repaint::REPAINTED_CLASSES`], of repainting all of
+    /// the class's points in another material ([`crate::repaint::repaint_classes`]), before
+    /// the camera colours.
+    pub repaint_probability: f32,
 }
 
 impl Augment {
@@ -478,6 +482,7 @@ impl Augment {
             camera_colour_probability: 0.0,
             ceiling_drop_probability: 0.0,
             floor_drop_probability: 0.0,
+            repaint_probability: 0.0,
         }
     }
 
@@ -506,6 +511,7 @@ impl Augment {
             camera_colour_probability: 0.0,
             ceiling_drop_probability: 0.0,
             floor_drop_probability: 0.0,
+            repaint_probability: 0.0,
         }
     }
 
@@ -545,8 +551,16 @@ impl Augment {
         Self { ceiling_drop_probability: 0.5, floor_drop_probability: 0.15, ..Self::real_rooms() }
     }
 
+    /// [`Augment::real_scans`] with whole classes repainted in other materials now and then
+    /// (walls, doors, tables, bookcases, chairs, sofas; each 15 % of the samples): wood or
+    /// brick walls, white doors and furniture, as real homes have (the eighteenth leg).
+    pub fn real_homes() -> Self {
+        Self { repaint_probability: 0.15, ..Self::real_scans() }
+    }
+
     /// Names of the recipes [`Augment::from_recipe`] knows (`semrecon train --augment`).
-    pub const RECIPES: [&'static str; 5] = ["training", "live-maps", "casual-scans", "real-rooms", "real-scans"];
+    pub const RECIPES: [&'static str; 6] =
+        ["training", "live-maps", "casual-scans", "real-rooms", "real-scans", "real-homes"];
 
     /// The recipe of a name in [`Augment::RECIPES`]; `None` for any other name.
     pub fn from_recipe(name: &str) -> Option<Self> {
@@ -556,6 +570,7 @@ impl Augment {
             "casual-scans" => Some(Self::casual_scans()),
             "real-rooms" => Some(Self::real_rooms()),
             "real-scans" => Some(Self::real_scans()),
+            "real-homes" => Some(Self::real_homes()),
             _ => None,
         }
     }
@@ -674,6 +689,11 @@ impl Augment {
                 i += 1;
                 keep[i - 1]
             });
+        }
+        // Own stream: the other choices of a seed stay as they were.
+        if self.repaint_probability > 0.0 {
+            let mut repaint_rng = ChaCha8Rng::seed_from_u64(seed ^ 0x4E9A_1A75);
+            crate::repaint::repaint_classes(cloud, self.repaint_probability, &mut repaint_rng);
         }
         // Own stream: the other choices of a seed stay those of the seventh leg.
         let mut camera_rng = ChaCha8Rng::seed_from_u64(seed ^ 0xCA3E_4A00);

@@ -45,6 +45,7 @@ pub mod inference;
 pub mod metrics;
 pub mod model;
 pub mod reference;
+pub mod repaint;
 pub mod sample;
 pub mod scan_imitation;
 pub mod shipped;

@@ -56,8 +56,10 @@ pub struct TrainArgs {
     /// crops, dropout, colour), `live-maps` (the same plus a short walk's view and rugs on
     /// the floor, to imitate the partial maps the live pipeline labels), `casual-scans`
     /// (`live-maps` plus cuts above 1.0-2.2 m, as a scan that rarely looks up) or
-    /// `real-rooms` (`casual-scans` plus a real camera's colours half of the time) or
-    /// `real-scans` (`real-rooms` with the ceiling dropped half of the time, the floor 15 %).
+    /// `real-rooms` (`casual-scans` plus a real camera's colours half of the time),
+    /// `real-scans` (`real-rooms` with the ceiling dropped half of the time, the floor 15 %)
+    /// or `real-homes` (`real-scans` with walls, doors and furniture repainted in other
+    /// materials, each class 15 % of the time).
     #[arg(long, default_value = "training", value_parser = semrecon_net::dataset::Augment::RECIPES)]
     augment: String,
     /// Worker threads (default: all cores).

@@ -49,6 +49,12 @@ pub(crate) struct MeshBuilder {
 pub(crate) struct SavedPlacement(Affine3A);
 
 impl MeshBuilder {
+    /// Sets the largest edge of a tessellation cell (metres) for what is emitted next;
+    /// returns the previous one.
+    pub(crate) fn set_patch(&mut self, patch: f32) -> f32 {
+        std::mem::replace(&mut self.patch, patch)
+    }
+
     /// Empty builder; `patch` is the largest edge of a tessellation cell (metres),
     /// `noise_seed` makes the per-vertex colour variation differ between rooms.
     pub(crate) fn new(patch: f32, noise_seed: u64) -> Self {

@@ -1,5 +1,6 @@
 //! The shell and its materials: the floor covering (planks, laminate, tiles with grout,
-//! carpet, plain), the ceiling, painted walls (sometimes an accent wall), tiles on the lower
+//! carpet, plain), the ceiling, walls (painted, sometimes an accent wall, or another finish:
+//! [`super::wall_finish`]), tiles on the lower
 //! walls of bathrooms and some kitchens, skirting boards; and the light baked into every
 //! colour once the room is furnished (darker in corners, brighter near windows and lamps,
 //! a white balance per room).
@@ -8,6 +9,7 @@ use glam::Vec3;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
+use super::wall_finish::{along_wall, draw_finishes};
 use super::{Home, HomeRoomKind, ModelSource};
 use crate::class::SemanticClass;
 use crate::synth::palette::{jitter, jitter_pick, pick, uniform};
@@ -43,12 +45,29 @@ impl<'a, S: ModelSource + ?Sized> Home<'a, S> {
             None
         };
         b.set_noise(0.025);
-        for k in 0..4 {
+        let finishes = draw_finishes(&mut self.finish_rng, kind, h);
+        for (k, finish) in finishes.iter().enumerate() {
             let color = match accent {
                 Some((a, c)) if a == k => c,
                 _ => paint,
             };
+            let first = b.mesh.positions.len();
+            let patch = finish.patch().map(|p| b.set_patch(p));
             shell::wall_with_openings(b, &self.layout, k, &self.openings, color);
+            if let Some(p) = patch {
+                b.set_patch(p);
+            }
+            let wall = self.layout.walls[k];
+            let m = &mut b.mesh;
+            for i in first..m.positions.len() {
+                let p = m.positions[i];
+                let s = along_wall(wall.start, wall.dir, p.truncate());
+                let hash =
+                    splitmix(((p * 1000.0).round().as_i64vec3().dot(glam::I64Vec3::new(1, 1 << 20, 1 << 40))) as u64);
+                if let Some(c) = finish.color_at(s, p.z, hash) {
+                    m.colors[i] = to_u8(c);
+                }
+            }
         }
         let shell_end = b.mesh.positions.len();
         // Tiles on the lower walls of bathrooms and some kitchens.

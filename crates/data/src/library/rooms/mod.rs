@@ -37,6 +37,7 @@ mod pieces;
 mod placement;
 #[cfg(test)]
 mod tests;
+mod wall_finish;
 mod workplaces;
 
 use std::collections::BTreeSet;
@@ -242,6 +243,7 @@ pub fn generate_library_room_detailed(
         opening_models: Vec::new(),
         lights: Vec::new(),
         extras_rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0x4255_4C4B_4845_4144),
+        finish_rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0x5741_4C4C_4649_4E31),
     };
     home.build()?;
     let Home { b, layout, used, .. } = home;
@@ -280,6 +282,8 @@ struct Home<'a, S: ModelSource + ?Sized> {
     /// The random stream of what session 14 added (bulkheads, open doors): adding them left
     /// every other choice of a seed's room as it was, so earlier evaluations stay comparable.
     extras_rng: ChaCha8Rng,
+    /// The random stream of the wall finishes (session 18), for the same reason.
+    finish_rng: ChaCha8Rng,
 }
 
 impl<'a, S: ModelSource + ?Sized> Home<'a, S> {
