@@ -35,6 +35,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod augment;
 pub mod camera_colours;
 pub mod config;
 pub mod dataset;
