@@ -2,7 +2,7 @@
 //! AVX-512 kernel's steps on two halves of eight lanes, with blends instead of mask
 //! registers.
 //!
-//! The arithmetic is [`super::vertex`]'s, operation for operation and in the same order (no
+//! The arithmetic is [`super::vertices::vertex`]'s, operation for operation and in the same order (no
 //! fused multiply-add), so all kernels give the same bits.
 
 use std::arch::x86_64::*;
@@ -12,7 +12,7 @@ use glam::IVec3;
 use super::{PaddedBlock, VertexLanes, LANES, PAD, PAD2};
 use crate::map::TSDF_SCALE;
 
-/// [`super::vertices_scalar`] with AVX2.
+/// [`super::vertices::vertices_scalar`] with AVX2.
 ///
 /// # Safety
 /// The CPU must support AVX2, and every job must name an edge between padded coordinates

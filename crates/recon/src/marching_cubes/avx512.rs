@@ -2,7 +2,7 @@
 //! sixteen vertices of a batch are made in the lanes of one register each, their distances,
 //! flags and colours gathered from the padded block.
 //!
-//! The arithmetic is [`super::vertex`]'s, operation for operation and in the same order (no
+//! The arithmetic is [`super::vertices::vertex`]'s, operation for operation and in the same order (no
 //! fused multiply-add, the same roundings), so both give the same bits; the central
 //! differences are exact (integers and halves), the rest is the same IEEE operations.
 
@@ -13,7 +13,7 @@ use glam::IVec3;
 use super::{PaddedBlock, VertexLanes, LANES, PAD, PAD2};
 use crate::map::TSDF_SCALE;
 
-/// [`super::vertices_scalar`] with AVX-512F.
+/// [`super::vertices::vertices_scalar`] with AVX-512F.
 ///
 /// # Safety
 /// The CPU must support AVX-512F, and every job must name an edge between padded
