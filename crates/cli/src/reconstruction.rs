@@ -145,6 +145,11 @@ pub struct SemanticArgs {
     /// around them (specks of a wrong class at boundaries and in clutter); 0 keeps them.
     #[arg(long, default_value_t = 0.06)]
     pub min_label_island: f32,
+    /// A changed chunk whose surface the labels already know is re-read for them at one
+    /// keyframe in this many (new surface at once, everything at the end); 1: every changed
+    /// chunk at every keyframe.
+    #[arg(long, default_value_t = semrecon_pipeline::SemanticConfig::default().surface_refresh_keyframes)]
+    pub surface_refresh: u32,
 }
 
 /// `--semantics`.
@@ -198,6 +203,8 @@ pub fn pipeline_config(
     config.semantics.realtime = realtime;
     config.semantics.up = up;
     config.semantics.min_island_m2 = semantics.min_label_island;
+    anyhow::ensure!(semantics.surface_refresh > 0, "--surface-refresh must be at least 1");
+    config.semantics.surface_refresh_keyframes = semantics.surface_refresh;
     config.loop_closure.enabled = recon.loop_closure;
     config.loop_closure.loop_information_from_alignment = recon.loop_information_from_alignment;
     if let Some(v) = recon.min_chunk_move_voxels {

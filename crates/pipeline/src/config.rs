@@ -73,6 +73,11 @@ pub struct SemanticConfig {
     /// 25 cm square, 24 cells of 5 cm), take the class of the cells around them: specks of
     /// a class at boundaries and in clutter (see [`crate::label_islands`]). 0 keeps them.
     pub min_island_m2: f32,
+    /// A changed chunk whose surface the cells already hold is re-read at one keyframe in
+    /// this many, staggered by chunk ([`crate::semantic_map::SurfaceCells::with_refresh_every`]);
+    /// new surface is read at once, and the scan's last pass reads everything. 1: every
+    /// changed chunk at every keyframe.
+    pub surface_refresh_keyframes: u32,
 }
 
 impl Default for SemanticConfig {
@@ -84,6 +89,7 @@ impl Default for SemanticConfig {
             realtime: false,
             up: None,
             min_island_m2: 0.06,
+            surface_refresh_keyframes: 1,
         }
     }
 }

@@ -117,6 +117,9 @@ struct Semantics {
     up: Option<UpEstimate>,
     /// Whether the map changed since the last snapshot.
     stale: bool,
+    /// The next snapshot reads every changed chunk still waiting for its turn (the scan's
+    /// last passes).
+    flush: bool,
 }
 
 /// The live pipeline. See the module documentation.
@@ -188,7 +191,8 @@ impl Pipeline {
                         c.name, c.in_channels
                     )));
                 }
-                let cells = SurfaceCells::new(c.voxel_size, SurfaceRule::new(&config.tsdf, &config.mesh));
+                let cells = SurfaceCells::new(c.voxel_size, SurfaceRule::new(&config.tsdf, &config.mesh))
+                    .with_refresh_every(config.semantics.surface_refresh_keyframes);
                 Some(Semantics {
                     cells,
                     labels: LabelStore::new(island_cells(config.semantics.min_island_m2, c.voxel_size)),
@@ -198,6 +202,7 @@ impl Pipeline {
                     skipped: 0,
                     up: None,
                     stale: false,
+                    flush: false,
                 })
             }
         };
@@ -461,7 +466,8 @@ impl Pipeline {
         }
         let t = Instant::now();
         // Straight from the map's changed chunks: the mesh may lag them under a budget.
-        let changed = s.cells.update(&self.map);
+        let flush = std::mem::take(&mut s.flush);
+        let changed = s.cells.update_with(&self.map, flush);
         s.stale = false;
         if changed.is_empty() || s.cells.is_empty() {
             return Ok(false);
@@ -562,6 +568,12 @@ impl Pipeline {
             // surface cells read the map, not the mesh, so this changes no label.
             self.times.record("final meshing", t.elapsed());
             self.meshed_at = self.fused;
+        }
+        if let Some(s) = &mut self.semantics {
+            if s.cells.has_pending() {
+                s.flush = true;
+                s.stale = true;
+            }
         }
         for _ in 0..2 {
             if let Some(s) = &self.semantics {
