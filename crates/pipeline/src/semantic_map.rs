@@ -652,6 +652,14 @@ mod tests {
         cells.cells()
     }
 
+    /// Clears a slab of chunks and frees those left unobserved, as loop closure's
+    /// re-integration does between two keyframes.
+    fn clear_a_slab(map: &mut TsdfMap) {
+        let keys: Vec<ChunkKey> = map.sorted_keys().into_iter().filter(|k| k.x % 3 == 0).collect();
+        map.reset_chunks(&keys);
+        assert!(map.free_unobserved(&keys) > 0);
+    }
+
     /// Cells kept up to date from the chunks that changed between keyframes equal the cells
     /// of the final map summed in one go from the reference points, also after chunks were
     /// reset and freed (loop closure's re-integration) between two updates.
@@ -664,10 +672,7 @@ mod tests {
             let cells = cells.get_or_insert_with(|| SurfaceCells::new(0.05, rule(map)));
             keyframes += 1;
             if keyframes == 3 {
-                // Clear a slab of chunks, free those left unobserved, and fuse on.
-                let keys: Vec<ChunkKey> = map.sorted_keys().into_iter().filter(|k| k.x % 3 == 0).collect();
-                map.reset_chunks(&keys);
-                assert!(map.free_unobserved(&keys) > 0);
+                clear_a_slab(map);
             }
             reported += cells.update(map).len();
             // A second call with nothing changed changes nothing.
@@ -700,9 +705,7 @@ mod tests {
             let cells = cells.get_or_insert_with(|| SurfaceCells::new(0.05, rule(map)).with_refresh_every(3));
             keyframes += 1;
             if keyframes == 3 {
-                let keys: Vec<ChunkKey> = map.sorted_keys().into_iter().filter(|k| k.x % 3 == 0).collect();
-                map.reset_chunks(&keys);
-                assert!(map.free_unobserved(&keys) > 0);
+                clear_a_slab(map);
             }
             cells.update(map);
             waited += cells.pending.len();
