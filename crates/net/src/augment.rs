@@ -124,20 +124,11 @@ impl Augment {
             elastic_spacing: 0.5,
             crop_probability: 0.5,
             crop_size: [3.0, 5.0],
-            view_probability: 0.0,
-            rug_probability: 0.0,
-            floor_cover_probability: 0.0,
             dropout_max: 0.2,
             color_gain: 0.08,
             brightness: 20.0,
             color_noise: 6.0,
-            translate: [0.0; 3],
-            height_cut_probability: 0.0,
-            height_cut: [2.0, 2.0],
-            camera_colour_probability: 0.0,
-            ceiling_drop_probability: 0.0,
-            floor_drop_probability: 0.0,
-            repaint_probability: 0.0,
+            ..Self::none()
         }
     }
 

@@ -159,6 +159,30 @@ struct FrameView<'a> {
     obs_weight: f32,
 }
 
+impl<'a> FrameView<'a> {
+    /// The view of `frame` seen from `world_from_camera`, fused into a map of `config`, each
+    /// observation weighing `obs_weight` frames.
+    fn new(frame: &'a Frame, world_from_camera: Affine3A, config: &TsdfConfig, obs_weight: f32) -> Self {
+        let camera_from_world = world_from_camera.inverse();
+        Self {
+            depth: &frame.depth,
+            color: &frame.color,
+            k: frame.intrinsics,
+            rot: [camera_from_world.matrix3.x_axis, camera_from_world.matrix3.y_axis, camera_from_world.matrix3.z_axis],
+            trans: camera_from_world.translation,
+            voxel_size: config.voxel_size,
+            truncation: config.truncation(),
+            band: config.band_model(),
+            min_depth: config.min_depth,
+            max_depth: config.max_depth,
+            weight_cap: (config.max_weight * WEIGHT_SCALE).round().clamp(1.0, u16::MAX as f32) as u16,
+            color_all: config.is_color_frame(frame.index),
+            color_band: config.color_band(),
+            obs_weight,
+        }
+    }
+}
+
 /// Per-chunk outcome of an integration task.
 #[derive(Clone, Copy, Default)]
 struct ChunkOutcome {
@@ -251,24 +275,7 @@ impl TsdfMap {
         if slots.is_empty() {
             return Ok(stats);
         }
-        let c = self.config;
-        let camera_from_world = world_from_camera.inverse();
-        let view = FrameView {
-            depth: &frame.depth,
-            color: &frame.color,
-            k: frame.intrinsics,
-            rot: [camera_from_world.matrix3.x_axis, camera_from_world.matrix3.y_axis, camera_from_world.matrix3.z_axis],
-            trans: camera_from_world.translation,
-            voxel_size: c.voxel_size,
-            truncation: c.truncation(),
-            band: c.band_model(),
-            min_depth: c.min_depth,
-            max_depth: c.max_depth,
-            weight_cap: (c.max_weight * WEIGHT_SCALE).round().clamp(1.0, u16::MAX as f32) as u16,
-            color_all: c.is_color_frame(frame.index),
-            color_band: c.color_band(),
-            obs_weight,
-        };
+        let view = FrameView::new(frame, world_from_camera, &self.config, obs_weight);
         let mut targets = select_mut(&mut self.chunks, &slots);
         // A fixed band (clamped to exactly 1 truncation) skips the band arithmetic.
         let fixed = view.band.min_relative >= 1.0;

@@ -179,23 +179,7 @@ fn check_kernel_against_scalar(kernel: Kernel, config: TsdfConfig, frames: usize
         let keys = map.select_chunks(&frame, pose).expect("select");
         // Every third frame stands for 3 (loop closure's subsampled re-fusion).
         let obs_weight = if index % 3 == 2 { 3.0 } else { 1.0 };
-        let camera_from_world = pose.inverse();
-        let view = FrameView {
-            depth: &frame.depth,
-            color: &frame.color,
-            k: frame.intrinsics,
-            rot: [camera_from_world.matrix3.x_axis, camera_from_world.matrix3.y_axis, camera_from_world.matrix3.z_axis],
-            trans: camera_from_world.translation,
-            voxel_size: config.voxel_size,
-            truncation: config.truncation(),
-            band: config.band_model(),
-            min_depth: config.min_depth,
-            max_depth: config.max_depth,
-            weight_cap: (config.max_weight * WEIGHT_SCALE) as u16,
-            color_all: config.is_color_frame(frame.index),
-            color_band: config.color_band(),
-            obs_weight,
-        };
+        let view = FrameView::new(&frame, pose, &config, obs_weight);
         for &key in &keys {
             let entry = match spec.iter().position(|(k, _)| *k == key) {
                 Some(i) => i,
