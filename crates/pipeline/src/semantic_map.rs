@@ -30,7 +30,7 @@ use semrecon_recon::{ChunkKey, TsdfMap, CHUNK_SIDE};
 
 use crate::gravity::SurfaceSample;
 use crate::label_islands::merge_small_islands;
-use crate::surface_cells::{for_each_chunk_point, prefetch_chunk, readers_of, SurfacePoint, SurfaceRule};
+use crate::surface_cells::{readers_of, SurfaceChunk, SurfacePoint, SurfaceRule};
 
 /// Number of classes of the labels kept here (the S3DIS set).
 pub const CLASSES: usize = semrecon_data::SemanticClass::COUNT;
@@ -278,17 +278,23 @@ impl SurfaceCells {
         }
         // The per-chunk sums in parallel, each worker over runs of neighbouring chunks, asking
         // for the next chunk's voxels while it reads one; only merging them is serial.
+        let this = &*self;
         let all_parts: Vec<ChunkCells> = reread
             .par_chunks(64)
             .flat_map_iter(|keys| {
-                keys.iter().enumerate().map(|(i, key)| {
-                    if let Some(next) = keys.get(i + 1) {
-                        prefetch_chunk(map, *next);
+                // Each chunk and its neighbours are looked up once, a chunk ahead.
+                let mut next = keys.first().and_then(|k| SurfaceChunk::find(map, *k));
+                (0..keys.len()).map(move |i| {
+                    let chunk = next;
+                    next = keys.get(i + 1).and_then(|k| SurfaceChunk::find(map, *k));
+                    if let Some(n) = &next {
+                        n.prefetch();
                     }
-                    self.chunk_cells(map, *key)
+                    chunk.map_or_else(Vec::new, |c| this.chunk_cells(&c))
                 })
             })
             .collect();
+        let t_cells = std::time::Instant::now();
         let mut changed = Vec::with_capacity(reread.len());
         for (key, parts) in reread.iter().zip(all_parts) {
             // A chunk re-read for its neighbour's sake often keeps its sums exactly.
@@ -309,11 +315,12 @@ impl SurfaceCells {
         self.ordered.sort_unstable_by_key(|k| order(*k));
         if std::env::var_os("SNAP_DEBUG").is_some() {
             eprintln!(
-                "  read {} pending {} with-sums {} changed {} par+merge {:.1} sort {:.1}",
+                "  read {} pending {} with-sums {} changed {} par {:.1} par+merge {:.1} sort {:.1}",
                 reread.len(),
                 self.pending.len(),
                 reread.iter().filter(|k| self.chunks.contains_key(*k)).count(),
                 changed.len(),
+                (t_cells - t_par).as_secs_f64() * 1e3,
                 (t_merge - t_par).as_secs_f64() * 1e3,
                 t_merge.elapsed().as_secs_f64() * 1e3
             );
@@ -328,9 +335,9 @@ impl SurfaceCells {
     /// Off its edge's axis a point sits exactly on its lower voxel's coordinate, so those
     /// coordinates' cells and fixed-point values are looked up from tables made once per
     /// chunk; only the coordinate along the edge is converted per point.
-    fn chunk_cells(&self, map: &TsdfMap, key: ChunkKey) -> ChunkCells {
+    fn chunk_cells(&self, chunk: &SurfaceChunk) -> ChunkCells {
         let side = CHUNK_SIDE as i32;
-        let first_voxel = key * side;
+        let first_voxel = chunk.key() * side;
         // Per axis and local voxel coordinate: the cell and the fixed-point coordinate.
         let mut tables: Option<[[(i32, i64); CHUNK_SIDE]; 3]> = None;
         // A chunk overlaps a handful of cells (at most 8 when cells are larger than chunks),
@@ -338,7 +345,7 @@ impl SurfaceCells {
         // the same cell, hence the last-hit shortcut.
         let mut parts: Vec<((i32, i32, i32), CellSum)> = Vec::new();
         let mut last = usize::MAX;
-        for_each_chunk_point(map, key, &self.rule, |point| {
+        chunk.for_each_point(&self.rule, |point| {
             let tables = tables.get_or_insert_with(|| {
                 std::array::from_fn(|k| {
                     std::array::from_fn(|i| {

@@ -82,6 +82,48 @@ pub fn readers_of(key: ChunkKey) -> [ChunkKey; 4] {
     [key, key - IVec3::X, key - IVec3::Y, key - IVec3::Z]
 }
 
+/// A chunk whose cells can hold a zero crossing, with the upper neighbours whose lower faces
+/// its cells read: what [`SurfaceChunk::for_each_point`] needs, looked up once.
+#[derive(Clone, Copy)]
+pub struct SurfaceChunk<'a> {
+    key: ChunkKey,
+    own: &'a Chunk,
+    upper: [Option<&'a Chunk>; 3],
+}
+
+impl<'a> SurfaceChunk<'a> {
+    /// Chunk `key` when its own voxels or its upper neighbours' lower faces have both signs
+    /// (from the sign summaries alone, [`Chunk::sign_bits`]); `None` when they cannot, or when
+    /// it is not allocated. Most chunks a fused frame touches are free space or lie behind
+    /// the surface and end here, without a voxel read.
+    #[inline]
+    pub fn find(map: &'a TsdfMap, key: ChunkKey) -> Option<Self> {
+        let own = map.chunk(key)?;
+        let mut signs = own.sign_bits() & 3;
+        let upper: [Option<&Chunk>; 3] = AXES.map(|a| map.chunk(key + a));
+        for (a, c) in upper.iter().enumerate() {
+            if let Some(c) = c {
+                signs |= (c.sign_bits() >> (2 + 2 * a)) & 3;
+            }
+        }
+        (signs == 3).then_some(Self { key, own, upper })
+    }
+
+    /// The chunk's key.
+    pub fn key(&self) -> ChunkKey {
+        self.key
+    }
+
+    /// Asks for the voxels [`SurfaceChunk::for_each_point`] reads first (the chunk's
+    /// distances and weights), so that a caller going through many chunks overlaps one
+    /// chunk's cache misses with the work on the one before: a hint, with no effect on
+    /// results.
+    pub fn prefetch(&self) {
+        prefetch(self.own.stored_tsdf(), 64, 2 * CHUNK_SIDE * CHUNK_SIDE);
+        prefetch(self.own.stored_weights(), 64, 2 * CHUNK_SIDE * CHUNK_SIDE);
+    }
+}
+
 /// Calls `visit` for every surface point on the edges chunk `key` owns (none when it is not
 /// allocated), in an order of its own.
 ///
@@ -91,167 +133,156 @@ pub fn readers_of(key: ChunkKey) -> [ChunkKey; 4] {
 /// whose upper neighbours' lower faces cannot have both signs are skipped from their sign
 /// summaries alone ([`Chunk::sign_bits`]). The points are those of
 /// [`chunk_points_reference`], the specification.
-pub fn for_each_chunk_point(map: &TsdfMap, key: ChunkKey, rule: &SurfaceRule, mut visit: impl FnMut(SurfacePoint)) {
-    const N: usize = CHUNK_SIDE;
-    let Some(own) = map.chunk(key) else { return };
-    let upper: [Option<&Chunk>; 3] = AXES.map(|a| map.chunk(key + a));
-    let mut signs = own.sign_bits() & 3;
-    for (a, c) in upper.iter().enumerate() {
-        if let Some(c) = c {
-            signs |= (c.sign_bits() >> (2 + 2 * a)) & 3;
-        }
-    }
-    if signs != 3 {
-        return;
-    }
-    let min_weight = rule.min_stored_weight;
-    let (tsdf, weight, color) = (own.stored_tsdf(), own.stored_weights(), own.stored_colors());
-    // The chunk's voxels, read in order, the hardware prefetches; the neighbours' faces (a
-    // voxel every 16 or 128 bytes) and the colours of the crossings (scattered) it does not,
-    // and their cache misses were most of the scan: asked for now, they arrive while the
-    // masks are made.
-    // Face x = 0: every line; y = 0: the first row of each z slice; z = 0: the first slice's rows.
-    for (c, (stride, count)) in upper.iter().zip([(64, 2 * N * N), (2 * N * N, N), (64, 2)]) {
-        if let Some(c) = c {
-            prefetch(c.stored_tsdf(), stride, count);
-            prefetch(c.stored_weights(), stride, count);
-        }
-    }
-    prefetch(color, 64, std::mem::size_of_val(color) / 64);
-    // Per row r = y + 8 z (voxels x + 8 r): bit x set for observed, and for observed negative,
-    // voxels; bit 8 is the +x neighbour's voxel (0, y, z).
-    let mut observed = [0u16; N * N];
-    let mut negative = [0u16; N * N];
-    // Two rows (16 voxels) at a time: two compares and a mask move each, where voxel by voxel
-    // the masks cost more than all the points of a chunk.
-    let min_lanes = u16x16::splat(min_weight);
-    for (r, (t, w)) in tsdf.as_chunks::<16>().0.iter().zip(weight.as_chunks::<16>().0).enumerate() {
-        let o = u16x16::from(*w).simd_ge(min_lanes);
-        let n: u16x16 = wide::bytemuck::cast(i16x16::from(*t).simd_lt(i16x16::ZERO));
-        let (o, n) = (o.to_bitmask(), (n & o).to_bitmask());
-        observed[2 * r] = (o & 0xff) as u16;
-        observed[2 * r + 1] = (o >> 8) as u16;
-        negative[2 * r] = (n & 0xff) as u16;
-        negative[2 * r + 1] = (n >> 8) as u16;
-    }
-    if let Some(c) = upper[0] {
-        let (t, w) = (c.stored_tsdf(), c.stored_weights());
-        for r in 0..N * N {
-            let i = r * N;
-            let o = (w[i] >= min_weight) as u16;
-            observed[r] |= o << N;
-            negative[r] |= (o & (t[i] < 0) as u16) << N;
-        }
-    }
-    // The +y neighbour's rows (y = 0, z) and the +z neighbour's rows (y, z = 0), bits x.
-    let face_rows = |c: Option<&Chunk>, row_of: fn(usize) -> usize| -> [(u16, u16); N] {
-        let mut rows = [(0u16, 0u16); N];
-        if let Some(c) = c {
-            let (t, w) = (c.stored_tsdf(), c.stored_weights());
-            for (j, row) in rows.iter_mut().enumerate() {
-                let s = row_of(j) * N;
-                *row = row_masks(&t[s..s + N], &w[s..s + N], min_weight);
-            }
-        }
-        rows
-    };
-    let face_y = face_rows(upper[1], |z| N * z);
-    let face_z = face_rows(upper[2], |y| y);
-    // Observed bits of the row (y, z), 0 ..= 8 each, over what the chunk reads.
-    let observed_row = |y: usize, z: usize| -> u16 {
-        match (y < N, z < N) {
-            (true, true) => observed[y + N * z],
-            (false, true) => face_y[z].0,
-            (true, false) => face_z[y].0,
-            (false, false) => 0,
-        }
-    };
-    // Per row of cells (y, z): bit x set when cell (x, y, z) has its 8 corners observed.
-    let mut full_cells = [0u16; N * N];
-    for (r, cells) in full_cells.iter_mut().enumerate() {
-        let (y, z) = (r % N, r / N);
-        let c = observed_row(y, z) & observed_row(y + 1, z) & observed_row(y, z + 1) & observed_row(y + 1, z + 1);
-        *cells = c & (c >> 1) & 0xff;
-    }
-    let cells_at = |y: usize, z: usize| full_cells[y + N * z];
-    // The distance of the observed voxel at local (x, y, z), 0 ..= 8 each, among those the
-    // chunk reads (at most one coordinate 8: the upper neighbours' lower faces).
-    let read = |[x, y, z]: [usize; 3]| -> Option<i16> {
-        let (c, i) = match (x < N, y < N, z < N) {
-            (true, true, true) => (own, x + N * (y + N * z)),
-            (false, true, true) => (upper[0]?, N * (y + N * z)),
-            (true, false, true) => (upper[1]?, x + N * N * z),
-            (true, true, false) => (upper[2]?, x + N * y),
-            _ => return None,
-        };
-        (c.stored_weights()[i] >= min_weight).then(|| c.stored_tsdf()[i])
-    };
-    let key_voxel = key * N as i32;
-    for r in 0..N * N {
-        let (y, z) = (r % N, r / N);
-        let (o, n) = (observed[r], negative[r]);
-        let (oy, ny) = if y + 1 < N { (observed[r + 1], negative[r + 1]) } else { face_y[z] };
-        let (oz, nz) = if z + 1 < N { (observed[r + N], negative[r + N]) } else { face_z[y] };
-        // Edges with a whole cell around them (of those the chunk owns): x edges have their
-        // cells at (x, y - 1 ..= y, z - 1 ..= z), y edges at (x - 1 ..= x, y, z - 1 ..= z), z
-        // edges at (x - 1 ..= x, y - 1 ..= y, z).
-        let below_y = if y > 0 { cells_at(y - 1, z) } else { 0 };
-        let below_z = if z > 0 { cells_at(y, z - 1) } else { 0 };
-        let below_yz = if y > 0 && z > 0 { cells_at(y - 1, z - 1) } else { 0 };
-        let own = cells_at(y, z);
-        let around_x = own | below_y | below_z | below_yz;
-        let around_y = (own | below_z) | (own | below_z) << 1;
-        let around_z = (own | below_y) | (own | below_y) << 1;
-        let crossings = [
-            o & (o >> 1) & (n ^ (n >> 1)) & around_x & 0xff,
-            o & oy & (n ^ ny) & around_y & 0xff,
-            o & oz & (n ^ nz) & around_z & 0xff,
-        ];
-        for (axis, mut bits) in crossings.into_iter().enumerate() {
-            while bits != 0 {
-                let x = bits.trailing_zeros() as usize;
-                bits &= bits - 1;
-                let ia = x + N * r;
-                // The far end: in this chunk, or on the upper neighbour's lower face.
-                let (tb, cb) = match axis {
-                    0 if x + 1 < N => (tsdf[ia + 1], color[ia + 1]),
-                    1 if y + 1 < N => (tsdf[ia + N], color[ia + N]),
-                    2 if z + 1 < N => (tsdf[ia + N * N], color[ia + N * N]),
-                    _ => {
-                        let Some(c) = upper[axis] else { continue };
-                        let j = match axis {
-                            0 => N * r,
-                            1 => x + N * N * z,
-                            _ => x + N * y,
-                        };
-                        (c.stored_tsdf()[j], c.stored_colors()[j])
-                    }
-                };
-                let low = key_voxel + IVec3::new(x as i32, y as i32, z as i32);
-                let (a, mut b) = ([x, y, z], [x, y, z]);
-                b[axis] += 1;
-                let across = [1, 2].map(|j| {
-                    let k = (axis + j) % 3;
-                    let (mut a, mut b) = (a, b);
-                    a[k] += 1;
-                    b[k] += 1;
-                    [read(a), read(b)]
-                });
-                if let Some(p) = crossing(rule, low, axis, (tsdf[ia], color[ia]), (tb, cb), across) {
-                    visit(p);
-                }
-            }
-        }
+pub fn for_each_chunk_point(map: &TsdfMap, key: ChunkKey, rule: &SurfaceRule, visit: impl FnMut(SurfacePoint)) {
+    if let Some(chunk) = SurfaceChunk::find(map, key) {
+        chunk.for_each_point(rule, visit);
     }
 }
 
-/// Asks for the voxels [`for_each_chunk_point`] reads first in chunk `key` (its distances
-/// and weights), so that a caller going through many chunks overlaps one chunk's cache misses
-/// with the work on the one before: a hint, with no effect on results.
-pub fn prefetch_chunk(map: &TsdfMap, key: ChunkKey) {
-    if let Some(c) = map.chunk(key) {
-        prefetch(c.stored_tsdf(), 64, 2 * CHUNK_SIDE * CHUNK_SIDE);
-        prefetch(c.stored_weights(), 64, 2 * CHUNK_SIDE * CHUNK_SIDE);
+impl SurfaceChunk<'_> {
+    /// [`for_each_chunk_point`] of this chunk.
+    pub fn for_each_point(&self, rule: &SurfaceRule, mut visit: impl FnMut(SurfacePoint)) {
+        const N: usize = CHUNK_SIDE;
+        let (key, own, upper) = (self.key, self.own, self.upper);
+        let min_weight = rule.min_stored_weight;
+        let (tsdf, weight, color) = (own.stored_tsdf(), own.stored_weights(), own.stored_colors());
+        // The chunk's voxels, read in order, the hardware prefetches; the neighbours' faces (a
+        // voxel every 16 or 128 bytes) and the colours of the crossings (scattered) it does not,
+        // and their cache misses were most of the scan: asked for now, they arrive while the
+        // masks are made.
+        // Face x = 0: every line; y = 0: the first row of each z slice; z = 0: the first slice's rows.
+        for (c, (stride, count)) in upper.iter().zip([(64, 2 * N * N), (2 * N * N, N), (64, 2)]) {
+            if let Some(c) = c {
+                prefetch(c.stored_tsdf(), stride, count);
+                prefetch(c.stored_weights(), stride, count);
+            }
+        }
+        prefetch(color, 64, std::mem::size_of_val(color) / 64);
+        // Per row r = y + 8 z (voxels x + 8 r): bit x set for observed, and for observed negative,
+        // voxels; bit 8 is the +x neighbour's voxel (0, y, z).
+        let mut observed = [0u16; N * N];
+        let mut negative = [0u16; N * N];
+        // Two rows (16 voxels) at a time: two compares and a mask move each, where voxel by voxel
+        // the masks cost more than all the points of a chunk.
+        let min_lanes = u16x16::splat(min_weight);
+        for (r, (t, w)) in tsdf.as_chunks::<16>().0.iter().zip(weight.as_chunks::<16>().0).enumerate() {
+            let o = u16x16::from(*w).simd_ge(min_lanes);
+            let n: u16x16 = wide::bytemuck::cast(i16x16::from(*t).simd_lt(i16x16::ZERO));
+            let (o, n) = (o.to_bitmask(), (n & o).to_bitmask());
+            observed[2 * r] = (o & 0xff) as u16;
+            observed[2 * r + 1] = (o >> 8) as u16;
+            negative[2 * r] = (n & 0xff) as u16;
+            negative[2 * r + 1] = (n >> 8) as u16;
+        }
+        if let Some(c) = upper[0] {
+            let (t, w) = (c.stored_tsdf(), c.stored_weights());
+            for r in 0..N * N {
+                let i = r * N;
+                let o = (w[i] >= min_weight) as u16;
+                observed[r] |= o << N;
+                negative[r] |= (o & (t[i] < 0) as u16) << N;
+            }
+        }
+        // The +y neighbour's rows (y = 0, z) and the +z neighbour's rows (y, z = 0), bits x.
+        let face_rows = |c: Option<&Chunk>, row_of: fn(usize) -> usize| -> [(u16, u16); N] {
+            let mut rows = [(0u16, 0u16); N];
+            if let Some(c) = c {
+                let (t, w) = (c.stored_tsdf(), c.stored_weights());
+                for (j, row) in rows.iter_mut().enumerate() {
+                    let s = row_of(j) * N;
+                    *row = row_masks(&t[s..s + N], &w[s..s + N], min_weight);
+                }
+            }
+            rows
+        };
+        let face_y = face_rows(upper[1], |z| N * z);
+        let face_z = face_rows(upper[2], |y| y);
+        // Observed bits of the row (y, z), 0 ..= 8 each, over what the chunk reads.
+        let observed_row = |y: usize, z: usize| -> u16 {
+            match (y < N, z < N) {
+                (true, true) => observed[y + N * z],
+                (false, true) => face_y[z].0,
+                (true, false) => face_z[y].0,
+                (false, false) => 0,
+            }
+        };
+        // Per row of cells (y, z): bit x set when cell (x, y, z) has its 8 corners observed.
+        let mut full_cells = [0u16; N * N];
+        for (r, cells) in full_cells.iter_mut().enumerate() {
+            let (y, z) = (r % N, r / N);
+            let c = observed_row(y, z) & observed_row(y + 1, z) & observed_row(y, z + 1) & observed_row(y + 1, z + 1);
+            *cells = c & (c >> 1) & 0xff;
+        }
+        let cells_at = |y: usize, z: usize| full_cells[y + N * z];
+        // The distance of the observed voxel at local (x, y, z), 0 ..= 8 each, among those the
+        // chunk reads (at most one coordinate 8: the upper neighbours' lower faces).
+        let read = |[x, y, z]: [usize; 3]| -> Option<i16> {
+            let (c, i) = match (x < N, y < N, z < N) {
+                (true, true, true) => (own, x + N * (y + N * z)),
+                (false, true, true) => (upper[0]?, N * (y + N * z)),
+                (true, false, true) => (upper[1]?, x + N * N * z),
+                (true, true, false) => (upper[2]?, x + N * y),
+                _ => return None,
+            };
+            (c.stored_weights()[i] >= min_weight).then(|| c.stored_tsdf()[i])
+        };
+        let key_voxel = key * N as i32;
+        for r in 0..N * N {
+            let (y, z) = (r % N, r / N);
+            let (o, n) = (observed[r], negative[r]);
+            let (oy, ny) = if y + 1 < N { (observed[r + 1], negative[r + 1]) } else { face_y[z] };
+            let (oz, nz) = if z + 1 < N { (observed[r + N], negative[r + N]) } else { face_z[y] };
+            // Edges with a whole cell around them (of those the chunk owns): x edges have their
+            // cells at (x, y - 1 ..= y, z - 1 ..= z), y edges at (x - 1 ..= x, y, z - 1 ..= z), z
+            // edges at (x - 1 ..= x, y - 1 ..= y, z).
+            let below_y = if y > 0 { cells_at(y - 1, z) } else { 0 };
+            let below_z = if z > 0 { cells_at(y, z - 1) } else { 0 };
+            let below_yz = if y > 0 && z > 0 { cells_at(y - 1, z - 1) } else { 0 };
+            let own = cells_at(y, z);
+            let around_x = own | below_y | below_z | below_yz;
+            let around_y = (own | below_z) | (own | below_z) << 1;
+            let around_z = (own | below_y) | (own | below_y) << 1;
+            let crossings = [
+                o & (o >> 1) & (n ^ (n >> 1)) & around_x & 0xff,
+                o & oy & (n ^ ny) & around_y & 0xff,
+                o & oz & (n ^ nz) & around_z & 0xff,
+            ];
+            for (axis, mut bits) in crossings.into_iter().enumerate() {
+                while bits != 0 {
+                    let x = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    let ia = x + N * r;
+                    // The far end: in this chunk, or on the upper neighbour's lower face.
+                    let (tb, cb) = match axis {
+                        0 if x + 1 < N => (tsdf[ia + 1], color[ia + 1]),
+                        1 if y + 1 < N => (tsdf[ia + N], color[ia + N]),
+                        2 if z + 1 < N => (tsdf[ia + N * N], color[ia + N * N]),
+                        _ => {
+                            let Some(c) = upper[axis] else { continue };
+                            let j = match axis {
+                                0 => N * r,
+                                1 => x + N * N * z,
+                                _ => x + N * y,
+                            };
+                            (c.stored_tsdf()[j], c.stored_colors()[j])
+                        }
+                    };
+                    let low = key_voxel + IVec3::new(x as i32, y as i32, z as i32);
+                    let (a, mut b) = ([x, y, z], [x, y, z]);
+                    b[axis] += 1;
+                    let across = [1, 2].map(|j| {
+                        let k = (axis + j) % 3;
+                        let (mut a, mut b) = (a, b);
+                        a[k] += 1;
+                        b[k] += 1;
+                        [read(a), read(b)]
+                    });
+                    if let Some(p) = crossing(rule, low, axis, (tsdf[ia], color[ia]), (tb, cb), across) {
+                        visit(p);
+                    }
+                }
+            }
+        }
     }
 }
 
