@@ -253,7 +253,7 @@ impl SurfaceCells {
                     let h = (k.x as u64).wrapping_mul(0x9E37_79B9)
                         ^ (k.y as u64).wrapping_mul(0x85EB_CA6B)
                         ^ (k.z as u64).wrapping_mul(0xC2B2_AE35);
-                    (h.wrapping_add(phase)) % every == 0
+                    h.wrapping_add(phase).is_multiple_of(every)
                 }
             };
             reread.extend(self.pending.iter().filter(|k| due(k)).copied());
