@@ -103,7 +103,16 @@ pub struct SemanticPass {
     pub snapshot_ms: f64,
     /// Back-end time (voxelising, network, softmax), ms.
     pub network_ms: f64,
+    /// Whether the pass labelled every cell again, its predecessors' labels dropped, because
+    /// the up direction moved (see `RELABEL_ANGLE_DEG`).
+    pub relabelled: bool,
 }
+
+/// An up direction that moves by more than this many degrees between passes invalidates the
+/// labels made so far (see `Pipeline::start_pass`). Estimates from the map's planes move by
+/// 0.1-3 degrees from pass to pass; a first estimate from a pitched camera alone was 37-50
+/// degrees off on three of the demo's first ten seeds.
+const RELABEL_ANGLE_DEG: f32 = 10.0;
 
 /// Semantic state: surface cells, labels, the back end.
 struct Semantics {
@@ -115,6 +124,10 @@ struct Semantics {
     passes: Vec<SemanticPass>,
     skipped: usize,
     up: Option<UpEstimate>,
+    /// The up direction of the gravity-aligned frame the stored labels were made in.
+    labels_up: Option<Vec3>,
+    /// The up direction of the pass in flight.
+    in_flight_up: Vec3,
     /// Whether the map changed since the last snapshot.
     stale: bool,
     /// The next snapshot reads every changed chunk still waiting for its turn (the scan's
@@ -201,6 +214,8 @@ impl Pipeline {
                     passes: Vec::new(),
                     skipped: 0,
                     up: None,
+                    labels_up: None,
+                    in_flight_up: Vec3::Z,
                     stale: false,
                     flush: false,
                 })
@@ -482,12 +497,18 @@ impl Pipeline {
             }
         };
         s.up = Some(up);
+        // Labels made in a frame tilted away from this one (an early estimate from a camera
+        // pitched at the floor, before the planes were found) are the network's view of a
+        // tilted room: dropped, and every cell is labelled again in the new frame.
+        let relabel = s.labels_up.is_some_and(|u| u.dot(up.up) < RELABEL_ANGLE_DEG.to_radians().cos());
+        s.labels_up = Some(up.up);
         let tile_cells = ((self.config.semantics.tile_m / s.cells.cell_size()).round() as i32).max(1);
         let changed_cells = s.cells.take_changed_cells(self.config.semantics.min_cell_change);
         let cells = &s.cells;
-        s.labels.retain(|k| cells.contains(k));
+        s.labels.retain(|k| !relabel && cells.contains(k));
         let selected = match self.config.semantics.mode {
             SemanticMode::Full => s.cells.select(None, tile_cells, 0),
+            SemanticMode::Incremental { .. } if relabel => s.cells.select(None, tile_cells, 0),
             SemanticMode::Incremental { context_m } => {
                 if changed_cells.is_empty() {
                     self.times.record("semantic snapshot", t.elapsed());
@@ -513,6 +534,7 @@ impl Pipeline {
             network_voxels: 0,
             snapshot_ms: t.elapsed().as_secs_f64() * 1e3,
             network_ms: 0.0,
+            relabelled: relabel,
         };
         if let Err(e) = s.backend.submit(job) {
             // The back end is gone (its thread panicked): go on without semantics.
@@ -521,6 +543,7 @@ impl Pipeline {
             return Ok(false);
         }
         s.in_flight = Some(record);
+        s.in_flight_up = up.up;
         self.times.record_ms("semantic snapshot", record.snapshot_ms);
         Ok(true)
     }
@@ -531,7 +554,10 @@ impl Pipeline {
         let Some(mut record) = s.in_flight.take() else { return };
         match r {
             Ok(r) => {
-                s.labels.accumulate(&r.keys, &r.probs);
+                // A pass started before the labels' frame changed (real-time mode) is stale.
+                if s.labels_up.is_none_or(|u| u.dot(s.in_flight_up) >= RELABEL_ANGLE_DEG.to_radians().cos()) {
+                    s.labels.accumulate(&r.keys, &r.probs);
+                }
                 record.network_voxels = r.network_voxels;
                 record.network_ms = r.total_ms;
                 s.passes.push(record);

@@ -11,9 +11,14 @@ use semrecon_pipeline::{FrameStatus, Pipeline, PipelineConfig, PoseMode, Semanti
 /// Frames of a 160x120 synthetic scan, re-expressed in the first camera's frame (as a SLAM
 /// system started at the identity sees them); also returns `map_from_world`.
 fn scan_in_first_camera_frame(seed: u64, frames: usize) -> (Vec<Frame>, Affine3A) {
+    scan_in_first_camera_frame_at(seed, frames, 160, 120)
+}
+
+/// [`scan_in_first_camera_frame`] at `width` x `height` pixels.
+fn scan_in_first_camera_frame_at(seed: u64, frames: usize, width: u32, height: u32) -> (Vec<Frame>, Affine3A) {
     let mut config = SyntheticScanConfig::new(seed);
     config.frames = frames;
-    config.intrinsics = config.intrinsics.scaled(160, 120);
+    config.intrinsics = config.intrinsics.scaled(width, height);
     let (_room, scan) = synthetic_scan(&config).expect("scan");
     let mut out: Vec<Frame> = (0..scan.len()).map(|i| scan.frame(i).expect("frame")).collect();
     let map_from_world = out[0].world_from_camera.expect("pose").inverse();
@@ -202,6 +207,37 @@ fn realtime_mode_and_no_network_finish_cleanly() {
     let (p, mesh) = run(&frames, config(SemanticMode::Full), None);
     assert!(!p.has_semantics() && p.semantic_passes().is_empty());
     assert!(mesh.vertex_labels.iter().all(|&l| l == UNLABELED) && mesh.vertex_count() > 0);
+}
+
+/// The demo's seed 7 starts pitched 50 degrees at the floor: the first passes run in the
+/// cameras' frame (no horizontal plane within reach of it), the network sees a tilted room,
+/// and the labels it gave must not outlive the frame: once the planes show, one pass labels
+/// every cell again from scratch, and the labels are complete and in the right frame.
+#[test]
+fn labels_from_a_tilted_first_estimate_are_redone_once_up_is_found() {
+    // The demo's 300-frame path (paths are laid out over the whole scan), its first 120 frames.
+    let (mut frames, map_from_world) = scan_in_first_camera_frame_at(7, 300, 640, 480);
+    frames.truncate(120);
+    // The demo's map: its 5 mm voxels give the cells the normals the estimate reads.
+    let demo_map = PipelineConfig { poses: PoseMode::GroundTruth, ..PipelineConfig::default() };
+    let (p, mesh) = run(&frames, demo_map, Some(tiny_net(6)));
+    let passes = p.semantic_passes();
+    let relabelled: Vec<_> = passes.iter().filter(|s| s.relabelled).collect();
+    eprintln!(
+        "{} passes, relabelled at frames {:?}",
+        passes.len(),
+        relabelled.iter().map(|s| s.frame).collect::<Vec<_>>()
+    );
+    assert_eq!(relabelled.len(), 1, "one change of frame, one relabelling");
+    // The relabelling pass takes every cell of the map.
+    assert_eq!(relabelled[0].input_cells, relabelled[0].map_cells);
+    assert_eq!(relabelled[0].updated_cells, relabelled[0].map_cells);
+    assert!(relabelled[0].frame > passes[0].frame, "not the first pass");
+    let up = p.up().expect("a pass ran");
+    let off = up.angle_to_deg(map_from_world.transform_vector3(Vec3::Z));
+    assert!(off < 2.0, "{up:?} {off} deg off");
+    let labelled = mesh.vertex_labels.iter().filter(|&&l| l != UNLABELED).count();
+    assert!(labelled * 100 >= mesh.vertex_count() * 99, "{labelled} of {} vertices labelled", mesh.vertex_count());
 }
 
 #[test]

@@ -86,6 +86,9 @@ struct Report {
     confusion: Option<Vec<Vec<u64>>>,
     network: String,
     semantic_passes: usize,
+    /// Passes that labelled every cell again because the up direction moved by more than 10
+    /// degrees (an early estimate from a pitched camera, corrected once the planes showed).
+    semantic_relabels: usize,
     labelled_vertices: f64,
     /// Angle between the estimated up direction and the true one, degrees.
     up_error_deg: Option<f32>,
@@ -197,6 +200,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         }),
         network,
         semantic_passes: pipeline.semantic_passes().len(),
+        semantic_relabels: pipeline.semantic_passes().iter().filter(|p| p.relabelled).count(),
         labelled_vertices: labelled_share(&mesh),
         // The map frame is the world frame here (tracking starts at the first true pose).
         up_error_deg: pipeline.up().map(|u| u.angle_to_deg(glam::Vec3::Z)),
@@ -231,10 +235,14 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         report.mesh_recall_5cm.map_or("n/a".to_string(), |r| format!("{:.0}%", r * 100.0))
     );
     println!(
-        "semantics: mIoU {} over the mesh vertices ({} over the classes in view), {} passes, {:.0}% of vertices labelled, up {} off",
+        "semantics: mIoU {} over the mesh vertices ({} over the classes in view), {} passes{}, {:.0}% of vertices labelled, up {} off",
         report.miou.map_or("n/a".to_string(), |m| format!("{:.1}%", m * 100.0)),
         report.miou_present_classes.map_or("n/a".to_string(), |m| format!("{:.1}%", m * 100.0)),
         report.semantic_passes,
+        match report.semantic_relabels {
+            0 => String::new(),
+            n => format!(" ({n} relabelling all after the up estimate moved)"),
+        },
         report.labelled_vertices * 100.0,
         report.up_error_deg.map_or("n/a".to_string(), |d| format!("{d:.1} deg"))
     );

@@ -176,6 +176,9 @@ struct Report {
     stages: serde_json::Value,
     network: String,
     semantic_passes: usize,
+    /// Passes that labelled every cell again because the up direction moved by more than 10
+    /// degrees (an early estimate from a pitched camera, corrected once the planes showed).
+    semantic_relabels: usize,
     skipped_keyframes: usize,
     labelled_vertices: f64,
     up: Option<UpJson>,
@@ -365,6 +368,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         stages: stages_json(&times),
         network,
         semantic_passes: pipeline.semantic_passes().len(),
+        semantic_relabels: pipeline.semantic_passes().iter().filter(|p| p.relabelled).count(),
         skipped_keyframes: pipeline.skipped_keyframes(),
         labelled_vertices: labelled_share(&mesh),
         up: pipeline.up().map(UpJson::from),
