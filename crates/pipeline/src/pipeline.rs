@@ -103,8 +103,8 @@ pub struct SemanticPass {
     pub snapshot_ms: f64,
     /// Back-end time (voxelising, network, softmax), ms.
     pub network_ms: f64,
-    /// Whether the pass labelled every cell again, its predecessors' labels dropped, because
-    /// the up direction moved (see `RELABEL_ANGLE_DEG`).
+    /// Whether the pass labelled every cell again, its result replacing every label made
+    /// before, because the up direction moved (see `RELABEL_ANGLE_DEG`).
     pub relabelled: bool,
 }
 
@@ -124,10 +124,10 @@ struct Semantics {
     passes: Vec<SemanticPass>,
     skipped: usize,
     up: Option<UpEstimate>,
-    /// The up direction of the gravity-aligned frame the stored labels were made in.
+    /// The up direction of the gravity-aligned frame of the latest pass.
     labels_up: Option<Vec3>,
-    /// The up direction of the pass in flight.
-    in_flight_up: Vec3,
+    /// The labels are from another frame until a relabelling pass lands.
+    relabel_pending: bool,
     /// Whether the map changed since the last snapshot.
     stale: bool,
     /// The next snapshot reads every changed chunk still waiting for its turn (the scan's
@@ -215,7 +215,7 @@ impl Pipeline {
                     skipped: 0,
                     up: None,
                     labels_up: None,
-                    in_flight_up: Vec3::Z,
+                    relabel_pending: false,
                     stale: false,
                     flush: false,
                 })
@@ -499,13 +499,15 @@ impl Pipeline {
         s.up = Some(up);
         // Labels made in a frame tilted away from this one (an early estimate from a camera
         // pitched at the floor, before the planes were found) are the network's view of a
-        // tilted room: dropped, and every cell is labelled again in the new frame.
-        let relabel = s.labels_up.is_some_and(|u| u.dot(up.up) < RELABEL_ANGLE_DEG.to_radians().cos());
+        // tilted room: this pass labels every cell in the new frame, and its result replaces
+        // them all when it lands (until then the old labels stay on show).
+        s.relabel_pending |= s.labels_up.is_some_and(|u| u.dot(up.up) < RELABEL_ANGLE_DEG.to_radians().cos());
+        let relabel = s.relabel_pending;
         s.labels_up = Some(up.up);
         let tile_cells = ((self.config.semantics.tile_m / s.cells.cell_size()).round() as i32).max(1);
         let changed_cells = s.cells.take_changed_cells(self.config.semantics.min_cell_change);
         let cells = &s.cells;
-        s.labels.retain(|k| !relabel && cells.contains(k));
+        s.labels.retain(|k| cells.contains(k));
         let selected = match self.config.semantics.mode {
             SemanticMode::Full => s.cells.select(None, tile_cells, 0),
             SemanticMode::Incremental { .. } if relabel => s.cells.select(None, tile_cells, 0),
@@ -543,7 +545,6 @@ impl Pipeline {
             return Ok(false);
         }
         s.in_flight = Some(record);
-        s.in_flight_up = up.up;
         self.times.record_ms("semantic snapshot", record.snapshot_ms);
         Ok(true)
     }
@@ -554,10 +555,13 @@ impl Pipeline {
         let Some(mut record) = s.in_flight.take() else { return };
         match r {
             Ok(r) => {
-                // A pass started before the labels' frame changed (real-time mode) is stale.
-                if s.labels_up.is_none_or(|u| u.dot(s.in_flight_up) >= RELABEL_ANGLE_DEG.to_radians().cos()) {
-                    s.labels.accumulate(&r.keys, &r.probs);
+                // A pass is started only when none is in flight, so nothing older than a
+                // relabelling pass can land after it.
+                if record.relabelled {
+                    s.labels.retain(|_| false);
+                    s.relabel_pending = false;
                 }
+                s.labels.accumulate(&r.keys, &r.probs);
                 record.network_voxels = r.network_voxels;
                 record.network_ms = r.total_ms;
                 s.passes.push(record);
