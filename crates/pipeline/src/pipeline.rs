@@ -124,8 +124,6 @@ struct Semantics {
     passes: Vec<SemanticPass>,
     skipped: usize,
     up: Option<UpEstimate>,
-    /// The up direction of the gravity-aligned frame of the latest pass.
-    labels_up: Option<Vec3>,
     /// The labels are from another frame until a relabelling pass lands.
     relabel_pending: bool,
     /// Whether the map changed since the last snapshot.
@@ -214,7 +212,6 @@ impl Pipeline {
                     passes: Vec::new(),
                     skipped: 0,
                     up: None,
-                    labels_up: None,
                     relabel_pending: false,
                     stale: false,
                     flush: false,
@@ -496,22 +493,19 @@ impl Pipeline {
                 estimate_up(&samples, prior, &cameras)
             }
         };
-        s.up = Some(up);
         // Labels made in a frame tilted away from this one (an early estimate from a camera
         // pitched at the floor, before the planes were found) are the network's view of a
         // tilted room: this pass labels every cell in the new frame, and its result replaces
         // them all when it lands (until then the old labels stay on show).
-        s.relabel_pending |= s.labels_up.is_some_and(|u| u.dot(up.up) < RELABEL_ANGLE_DEG.to_radians().cos());
+        s.relabel_pending |= s.up.is_some_and(|u| u.up.dot(up.up) < RELABEL_ANGLE_DEG.to_radians().cos());
         let relabel = s.relabel_pending;
-        s.labels_up = Some(up.up);
+        s.up = Some(up);
         let tile_cells = ((self.config.semantics.tile_m / s.cells.cell_size()).round() as i32).max(1);
         let changed_cells = s.cells.take_changed_cells(self.config.semantics.min_cell_change);
         let cells = &s.cells;
         s.labels.retain(|k| cells.contains(k));
         let selected = match self.config.semantics.mode {
-            SemanticMode::Full => s.cells.select(None, tile_cells, 0),
-            SemanticMode::Incremental { .. } if relabel => s.cells.select(None, tile_cells, 0),
-            SemanticMode::Incremental { context_m } => {
+            SemanticMode::Incremental { context_m } if !relabel => {
                 if changed_cells.is_empty() {
                     self.times.record("semantic snapshot", t.elapsed());
                     return Ok(false);
@@ -520,6 +514,7 @@ impl Pipeline {
                 let tile_m = tile_cells as f32 * s.cells.cell_size();
                 s.cells.select(Some(&tiles), tile_cells, (context_m / tile_m).ceil() as i32)
             }
+            SemanticMode::Full | SemanticMode::Incremental { .. } => s.cells.select(None, tile_cells, 0),
         };
         let job = Job {
             keys: selected.iter().map(|(c, _)| c.key).collect(),
@@ -717,6 +712,12 @@ impl Pipeline {
     /// Semantic passes applied so far, in order.
     pub fn semantic_passes(&self) -> &[SemanticPass] {
         self.semantics.as_ref().map_or(&[], |s| s.passes.as_slice())
+    }
+
+    /// Semantic passes that labelled every cell again because the up direction moved
+    /// (see [`SemanticPass::relabelled`]).
+    pub fn relabelled_passes(&self) -> usize {
+        self.semantic_passes().iter().filter(|p| p.relabelled).count()
     }
 
     /// Keyframes skipped because the back end was busy (real-time mode).

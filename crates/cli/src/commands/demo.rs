@@ -86,8 +86,7 @@ struct Report {
     confusion: Option<Vec<Vec<u64>>>,
     network: String,
     semantic_passes: usize,
-    /// Passes that labelled every cell again because the up direction moved by more than 10
-    /// degrees (an early estimate from a pitched camera, corrected once the planes showed).
+    /// [`semrecon_pipeline::Pipeline::relabelled_passes`].
     semantic_relabels: usize,
     labelled_vertices: f64,
     /// Angle between the estimated up direction and the true one, degrees.
@@ -200,7 +199,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         }),
         network,
         semantic_passes: pipeline.semantic_passes().len(),
-        semantic_relabels: pipeline.semantic_passes().iter().filter(|p| p.relabelled).count(),
+        semantic_relabels: pipeline.relabelled_passes(),
         labelled_vertices: labelled_share(&mesh),
         // The map frame is the world frame here (tracking starts at the first true pose).
         up_error_deg: pipeline.up().map(|u| u.angle_to_deg(glam::Vec3::Z)),

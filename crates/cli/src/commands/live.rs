@@ -137,8 +137,7 @@ struct Report {
     stages: serde_json::Value,
     network: String,
     semantic_passes: usize,
-    /// Passes that labelled every cell again because the up direction moved by more than 10
-    /// degrees (an early estimate from a pitched camera, corrected once the planes showed).
+    /// [`semrecon_pipeline::Pipeline::relabelled_passes`].
     semantic_relabels: usize,
     skipped_keyframes: usize,
     labelled_vertices: f64,
@@ -354,7 +353,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
         stages: stages_json(&times),
         network,
         semantic_passes: pipeline.semantic_passes().len(),
-        semantic_relabels: pipeline.semantic_passes().iter().filter(|p| p.relabelled).count(),
+        semantic_relabels: pipeline.relabelled_passes(),
         skipped_keyframes: pipeline.skipped_keyframes(),
         labelled_vertices: labelled_share(&mesh),
         memory_mb: map.memory_bytes() as f64 / 1e6,
