@@ -82,6 +82,13 @@ pub struct Augment {
     /// the class's points in another material ([`crate::repaint::repaint_classes`]), before
     /// the camera colours.
     pub repaint_probability: f32,
+    /// Probability of dropping the wall points (class 2) along one to four sides of the
+    /// room ([`walls_along_sides`]), keeping everything on those walls: doors, windows,
+    /// boards, pictures, bulkheads and columns without the wall around them. Object-level
+    /// fragments (the S3DIS annotations of one room cut to a few objects) and the edges of a
+    /// partial scan show such things; a network that always saw a door or a board inside a
+    /// wall calls a lone dark rectangle wall.
+    pub wall_drop_probability: f32,
 }
 
 impl Augment {
@@ -109,6 +116,7 @@ impl Augment {
             ceiling_drop_probability: 0.0,
             floor_drop_probability: 0.0,
             repaint_probability: 0.0,
+            wall_drop_probability: 0.0,
         }
     }
 
@@ -175,9 +183,16 @@ impl Augment {
         Self { repaint_probability: 0.15, ..Self::real_scans() }
     }
 
+    /// [`Augment::real_homes`] with the walls along some sides of the room dropped from 20 %
+    /// of the samples, so that what hangs on or stands in a wall is told by itself (the
+    /// twentieth leg).
+    pub fn real_fragments() -> Self {
+        Self { wall_drop_probability: 0.2, ..Self::real_homes() }
+    }
+
     /// Names of the recipes [`Augment::from_recipe`] knows (`semrecon train --augment`).
-    pub const RECIPES: [&'static str; 6] =
-        ["training", "live-maps", "casual-scans", "real-rooms", "real-scans", "real-homes"];
+    pub const RECIPES: [&'static str; 7] =
+        ["training", "live-maps", "casual-scans", "real-rooms", "real-scans", "real-homes", "real-fragments"];
 
     /// The recipe of a name in [`Augment::RECIPES`]; `None` for any other name.
     pub fn from_recipe(name: &str) -> Option<Self> {
@@ -188,6 +203,7 @@ impl Augment {
             "real-rooms" => Some(Self::real_rooms()),
             "real-scans" => Some(Self::real_scans()),
             "real-homes" => Some(Self::real_homes()),
+            "real-fragments" => Some(Self::real_fragments()),
             _ => None,
         }
     }
@@ -226,6 +242,19 @@ impl Augment {
                 }
             });
         let below_cut: Option<Vec<bool>> = cut_height.map(|h| cloud.positions.iter().map(|p| p.z <= h).collect());
+        // Own stream, and in the room's own frame (its walls along the axes): the other
+        // choices of a seed stay those of the real-homes recipe.
+        let mut wall_rng = ChaCha8Rng::seed_from_u64(seed ^ 0x3A11_D409);
+        let walls_dropped: Option<Vec<bool>> = (self.wall_drop_probability > 0.0
+            && wall_rng.random::<f32>() < self.wall_drop_probability)
+            .then(|| {
+                // Each side with probability 1/2, at least one.
+                let mut sides = [false; 4];
+                while !sides.contains(&true) {
+                    sides = std::array::from_fn(|_| wall_rng.random_bool(0.5));
+                }
+                walls_along_sides(cloud, sides)
+            });
         let (lo, hi) = bounds(&cloud.positions);
         let centre = Vec3::new((lo.x + hi.x) * 0.5, (lo.y + hi.y) * 0.5, 0.0);
         let angle = if self.rotate_max > 0.0 { rng.random_range(-self.rotate_max..=self.rotate_max) } else { 0.0 };
@@ -279,6 +308,15 @@ impl Augment {
             if left * 10 >= keep.iter().filter(|&&k| k).count() {
                 for (k, &l) in keep.iter_mut().zip(&cloud.labels) {
                     *k &= !dropped(l);
+                }
+            }
+        }
+        if let Some(dropped) = &walls_dropped {
+            let left = keep.iter().zip(dropped).filter(|&(&k, &d)| k && !d).count();
+            // As above: a sample that would be (nearly) all wall keeps it.
+            if left * 10 >= keep.iter().filter(|&&k| k).count() {
+                for (k, &d) in keep.iter_mut().zip(dropped) {
+                    *k &= !d;
                 }
             }
         }
@@ -340,6 +378,27 @@ impl Augment {
             }
         }
     }
+}
+
+/// Which points are wall (class 2) on the chosen sides of the room: `sides` are the
+/// bounding box's low x, high x, low y and high y; a wall point belongs to the side it is
+/// nearest to, so a room's inner walls go with the outer wall they face.
+pub fn walls_along_sides(cloud: &LabeledPointCloud, sides: [bool; 4]) -> Vec<bool> {
+    let (lo, hi) = bounds(&cloud.positions);
+    let wall = SemanticClass::Wall.id();
+    cloud
+        .positions
+        .iter()
+        .zip(&cloud.labels)
+        .map(|(p, &l)| {
+            if l != wall {
+                return false;
+            }
+            let distances = [p.x - lo.x, hi.x - p.x, p.y - lo.y, hi.y - p.y];
+            let nearest = (1..4).fold(0, |best, i| if distances[i] < distances[best] { i } else { best });
+            sides[nearest]
+        })
+        .collect()
 }
 
 fn bounds(points: &[Vec3]) -> (Vec3, Vec3) {

@@ -391,6 +391,8 @@ pub fn sample_seed(run_seed: u64, epoch: u64, room_index: u64) -> u64 {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+    use glam::Vec3;
+    use semrecon_data::class::SemanticClass;
 
     #[test]
     fn parses_sources_and_rejects_bad_ones() {
@@ -582,6 +584,42 @@ mod tests {
         only_ceiling.labels.iter_mut().for_each(|l| *l = 0);
         Augment { ceiling_drop_probability: 1.0, ..Augment::none() }.apply(&mut only_ceiling, 5);
         assert_eq!(only_ceiling.len(), original.len());
+    }
+
+    #[test]
+    fn wall_drop_removes_only_wall_points_of_the_chosen_sides() {
+        let room = &DataSource::parse("synth:11..12").unwrap().rooms().unwrap()[0];
+        let original = load_cloud(room, 0.1, 1).unwrap();
+        let wall = SemanticClass::Wall.id();
+        let count = |c: &LabeledPointCloud, class: u8| c.labels.iter().filter(|&&l| l == class).count();
+        // The four sides together are every wall point; one side is some of them.
+        let all = crate::augment::walls_along_sides(&original, [true; 4]);
+        assert_eq!(all.iter().filter(|&&d| d).count(), count(&original, wall));
+        let one = crate::augment::walls_along_sides(&original, [true, false, false, false]);
+        let n_one = one.iter().filter(|&&d| d).count();
+        assert!(n_one > 0 && n_one < count(&original, wall), "{n_one}");
+        // Plain reference: a wall point of the low-x side is nearer to it than to any other.
+        let (lo, hi) = original.positions.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(a, b), p| {
+            (a.min(*p), b.max(*p))
+        });
+        for ((p, &l), &d) in original.positions.iter().zip(&original.labels).zip(&one) {
+            let dx = p.x - lo.x;
+            let nearest_low_x = l == wall && dx <= hi.x - p.x && dx <= p.y - lo.y && dx <= hi.y - p.y;
+            assert_eq!(d, nearest_low_x);
+        }
+        // The recipe drops walls from some samples, never another class.
+        let drop = Augment { wall_drop_probability: 1.0, ..Augment::none() };
+        let rest: Vec<u8> = original.labels.iter().copied().filter(|&l| l != wall).collect();
+        let mut fewer = 0;
+        for seed in 0..6 {
+            let mut c = original.clone();
+            drop.apply(&mut c, seed);
+            let kept: Vec<u8> = c.labels.iter().copied().filter(|&l| l != wall).collect();
+            assert_eq!(kept, rest);
+            fewer += usize::from(count(&c, wall) < count(&original, wall));
+        }
+        assert_eq!(fewer, 6);
+        assert_eq!(Augment::from_recipe("real-fragments"), Some(Augment::real_fragments()));
     }
 
     #[test]

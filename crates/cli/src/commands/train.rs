@@ -59,7 +59,8 @@ pub struct TrainArgs {
     /// `real-rooms` (`casual-scans` plus a real camera's colours half of the time),
     /// `real-scans` (`real-rooms` with the ceiling dropped half of the time, the floor 15 %)
     /// or `real-homes` (`real-scans` with walls, doors and furniture repainted in other
-    /// materials, each class 15 % of the time).
+    /// materials, each class 15 % of the time) or `real-fragments` (`real-homes` with the
+    /// walls along some sides of the room dropped 20 % of the time).
     #[arg(long, default_value = "training", value_parser = semrecon_net::dataset::Augment::RECIPES)]
     augment: String,
     /// Worker threads (default: all cores).
