@@ -145,11 +145,25 @@ pub struct SemanticArgs {
     /// around them (specks of a wrong class at boundaries and in clutter); 0 keeps them.
     #[arg(long, default_value_t = 0.06)]
     pub min_label_island: f32,
+    /// Labels voted over geometric segments of the map (normals and colour), as `semrecon
+    /// segment --structure segments`: a class bleeding from an object onto the even surface
+    /// beside it goes back to that surface's own; `none`: each 5 cm cell its own class.
+    #[arg(long, value_enum, default_value_t = LiveStructure::Segments)]
+    pub structure: LiveStructure,
     /// A changed chunk whose surface the labels already know is re-read for them at one
     /// keyframe in this many (new surface at once, everything at the end); 1: every changed
     /// chunk at every keyframe.
     #[arg(long, default_value_t = semrecon_pipeline::SemanticConfig::default().surface_refresh_keyframes)]
     pub surface_refresh: u32,
+}
+
+/// `--structure` of the live map's labels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum LiveStructure {
+    /// Each cell its own class.
+    None,
+    /// Each geometric segment one class.
+    Segments,
 }
 
 /// `--semantics`.
@@ -203,6 +217,7 @@ pub fn pipeline_config(
     config.semantics.realtime = realtime;
     config.semantics.up = up;
     config.semantics.min_island_m2 = semantics.min_label_island;
+    config.semantics.segment_vote = semantics.structure == LiveStructure::Segments;
     anyhow::ensure!(semantics.surface_refresh > 0, "--surface-refresh must be at least 1");
     config.semantics.surface_refresh_keyframes = semantics.surface_refresh;
     config.loop_closure.enabled = recon.loop_closure;

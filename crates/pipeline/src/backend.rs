@@ -47,6 +47,8 @@ pub(crate) struct JobResult {
     pub keys: Vec<CellKey>,
     /// Their class probabilities.
     pub probs: Vec<[f32; CLASSES]>,
+    /// Their mean colours as the pass saw them.
+    pub colors: Vec<[u8; 3]>,
     /// Voxels the network saw (cells merged by the aligned grid).
     pub network_voxels: usize,
     /// Wall time of voxelising, the network and the softmax, milliseconds.
@@ -84,13 +86,15 @@ pub(crate) fn run_job(net: &mut Segmenter, job: Job) -> Result<JobResult> {
     };
     let mut keys = Vec::new();
     let mut probs = Vec::new();
+    let mut colors = Vec::new();
     for (i, &u) in job.update.iter().enumerate() {
         if u {
             keys.push(job.keys[i]);
             probs.push(probs_of(voxel_of[i] as usize));
+            colors.push(job.colors[i]);
         }
     }
-    Ok(JobResult { keys, probs, network_voxels: coords.len(), total_ms: t.elapsed().as_secs_f64() * 1e3 })
+    Ok(JobResult { keys, probs, colors, network_voxels: coords.len(), total_ms: t.elapsed().as_secs_f64() * 1e3 })
 }
 
 /// The back-end thread and its two channels.

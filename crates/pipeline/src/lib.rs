@@ -55,6 +55,7 @@ pub mod config;
 pub mod error;
 pub mod gravity;
 pub mod label_islands;
+pub mod label_store;
 pub mod live;
 pub mod loop_closure;
 mod pipeline;

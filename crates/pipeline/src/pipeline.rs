@@ -29,7 +29,8 @@ use crate::config::{PipelineConfig, PoseMode, SemanticMode};
 use crate::error::{PipelineError, Result};
 use crate::gravity::{camera_up_prior, estimate_up, given_up, UpEstimate};
 use crate::loop_closure::{LoopClosure, LoopClosureReport};
-use crate::semantic_map::{LabelStore, SurfaceCells, CLASSES};
+use crate::label_store::LabelStore;
+use crate::semantic_map::{SurfaceCells, CLASSES};
 use crate::surface_cells::SurfaceRule;
 use crate::timing::StageTimes;
 
@@ -206,7 +207,8 @@ impl Pipeline {
                     .with_refresh_every(config.semantics.surface_refresh_keyframes);
                 Some(Semantics {
                     cells,
-                    labels: LabelStore::new(island_cells(config.semantics.min_island_m2, c.voxel_size)),
+                    labels: LabelStore::new(island_cells(config.semantics.min_island_m2, c.voxel_size))
+                        .with_segment_vote(config.semantics.segment_vote),
                     backend: Backend::start(net)?,
                     in_flight: None,
                     passes: Vec::new(),
@@ -556,7 +558,7 @@ impl Pipeline {
                     s.labels.retain(|_| false);
                     s.relabel_pending = false;
                 }
-                s.labels.accumulate(&r.keys, &r.probs);
+                s.labels.accumulate(&r.keys, &r.probs, &r.colors);
                 record.network_voxels = r.network_voxels;
                 record.network_ms = r.total_ms;
                 s.passes.push(record);

@@ -15,21 +15,16 @@
 //! that a chunk's old contribution can be subtracted exactly when it changes and the result
 //! never depends on the order of updates or on the number of threads.
 //!
-//! Probabilities are summed over passes (the label is the arg-max of the sum): a cell's label
-//! settles as evidence accumulates instead of flickering with each pass, and later passes, made
-//! on more complete geometry, still outvote early ones once they agree with each other.
+//! The labels of the cells are kept in [`crate::label_store`].
 
 use std::collections::{BTreeSet, HashMap, HashSet};
-use std::sync::OnceLock;
 
 use glam::{IVec3, Vec3};
 use rayon::prelude::*;
-use semrecon_data::class::UNLABELED;
 use semrecon_recon::map::ChunkHashBuilder;
 use semrecon_recon::{ChunkKey, TsdfMap, CHUNK_SIDE};
 
 use crate::gravity::SurfaceSample;
-use crate::label_islands::merge_small_islands;
 use crate::surface_cells::{readers_of, SurfaceChunk, SurfacePoint, SurfaceRule};
 
 /// Number of classes of the labels kept here (the S3DIS set).
@@ -105,7 +100,7 @@ pub struct Cell {
 type ChunkCells = Vec<(CellKey, CellSum)>;
 
 /// Order of cells and tiles: z, then y, then x.
-fn order(k: IVec3) -> (i32, i32, i32) {
+pub(crate) fn order(k: IVec3) -> (i32, i32, i32) {
     (k.z, k.y, k.x)
 }
 
@@ -493,104 +488,6 @@ impl SurfaceCells {
     }
 }
 
-/// Class probabilities summed per cell over the passes, and the classes read from them.
-///
-/// A cell's class is the arg-max of its sums, after islands of a class smaller than
-/// `min_island_cells` have taken their surroundings' class ([`crate::label_islands`]); the
-/// cleaned classes are worked out when first asked for after a change.
-#[derive(Debug, Clone, Default)]
-pub struct LabelStore {
-    probs: HashMap<CellKey, [f32; CLASSES], ChunkHashBuilder>,
-    min_island_cells: usize,
-    classes: OnceLock<HashMap<CellKey, u8, ChunkHashBuilder>>,
-}
-
-impl LabelStore {
-    /// An empty store whose islands of fewer than `min_island_cells` cells are merged into
-    /// their surroundings (0: none are).
-    pub fn new(min_island_cells: usize) -> Self {
-        Self { min_island_cells, ..Self::default() }
-    }
-
-    /// Adds one pass's probabilities (rows of `CLASSES`, summing to 1) for `keys`.
-    pub fn accumulate(&mut self, keys: &[CellKey], probs: &[[f32; CLASSES]]) {
-        self.classes.take();
-        for (k, p) in keys.iter().zip(probs) {
-            let e = self.probs.entry(*k).or_insert([0.0; CLASSES]);
-            for (a, b) in e.iter_mut().zip(p) {
-                *a += b;
-            }
-        }
-    }
-
-    /// Forgets the labels of the cells for which `keep` is false (cells that lost their
-    /// surface: early noise that later observations carved away).
-    pub fn retain(&mut self, mut keep: impl FnMut(CellKey) -> bool) {
-        self.classes.take();
-        self.probs.retain(|k, _| keep(*k));
-    }
-
-    /// Cells with a label.
-    pub fn len(&self) -> usize {
-        self.probs.len()
-    }
-
-    /// Whether no cell has a label yet.
-    pub fn is_empty(&self) -> bool {
-        self.probs.is_empty()
-    }
-
-    fn classes(&self) -> &HashMap<CellKey, u8, ChunkHashBuilder> {
-        self.classes
-            .get_or_init(|| merge_small_islands(&self.raw_labels(), self.min_island_cells).into_iter().collect())
-    }
-
-    /// The arg-max classes, in (z, y, x) order.
-    fn raw_labels(&self) -> Vec<(CellKey, u8)> {
-        let mut v: Vec<(CellKey, u8)> = self.probs.iter().map(|(k, p)| (*k, argmax(p) as u8)).collect();
-        v.sort_unstable_by_key(|(k, _)| order(*k));
-        v
-    }
-
-    /// The class of cell `key` (arg-max of its summed probabilities, the lowest id on ties,
-    /// unless its island was merged), [`UNLABELED`] when no pass labelled it.
-    pub fn label(&self, key: CellKey) -> u8 {
-        self.classes().get(&key).copied().unwrap_or(UNLABELED)
-    }
-
-    /// The class of cell `key`, else of the neighbouring cell (26-neighbourhood) with the most
-    /// evidence (a vertex can lie in a cell no pass has labelled yet: meshed after the last pass).
-    pub fn label_near(&self, key: CellKey) -> u8 {
-        let classes = self.classes();
-        if let Some(&c) = classes.get(&key) {
-            return c;
-        }
-        let mut best: Option<(f32, CellKey)> = None;
-        for dz in -1..=1 {
-            for dy in -1..=1 {
-                for dx in -1..=1 {
-                    let n = key + IVec3::new(dx, dy, dz);
-                    if let Some(p) = self.probs.get(&n) {
-                        let w: f32 = p.iter().sum();
-                        if best.is_none_or(|b| w > b.0) {
-                            best = Some((w, n));
-                        }
-                    }
-                }
-            }
-        }
-        best.and_then(|b| classes.get(&b.1).copied()).unwrap_or(UNLABELED)
-    }
-
-    /// The labelled cells and their classes, in (z, y, x) order.
-    pub fn labels(&self) -> Vec<(CellKey, u8)> {
-        let classes = self.classes();
-        let mut v: Vec<(CellKey, u8)> = classes.iter().map(|(k, c)| (*k, *c)).collect();
-        v.sort_unstable_by_key(|(k, _)| order(*k));
-        v
-    }
-}
-
 /// `x.floor() as i32` without the library call `floor` is on x86-64 before SSE4.1 (this runs
 /// per surface point at every keyframe); NaN gives 0 and out-of-range values saturate.
 fn floor_i32(x: f32) -> i32 {
@@ -603,16 +500,6 @@ fn floor_i32(x: f32) -> i32 {
 /// below one half, which is of no consequence there.
 fn round_i64(x: f32) -> i64 {
     (x + 0.5f32.copysign(x)) as i64
-}
-
-fn argmax(p: &[f32]) -> usize {
-    let mut best = 0;
-    for (i, &v) in p.iter().enumerate() {
-        if v > p[best] {
-            best = i;
-        }
-    }
-    best
 }
 
 #[cfg(test)]
@@ -739,24 +626,5 @@ mod tests {
         assert_eq!(floor_i32(f32::NAN), 0);
         assert_eq!(floor_i32(-1e20), i32::MIN);
         assert_eq!(floor_i32(1e20), i32::MAX);
-    }
-
-    #[test]
-    fn labels_settle_on_the_accumulated_evidence() {
-        let mut s = LabelStore::default();
-        let k = IVec3::new(1, 2, 3);
-        let mut a = [0.0; CLASSES];
-        a[2] = 0.9;
-        a[1] = 0.1;
-        let mut b = [0.0; CLASSES];
-        b[1] = 0.6;
-        b[2] = 0.4;
-        s.accumulate(&[k], &[a]);
-        s.accumulate(&[k], &[b]);
-        // 1.3 for wall against 0.7 for floor: one weak pass does not flip the label.
-        assert_eq!(s.label(k), 2);
-        assert_eq!(s.label(IVec3::ZERO), UNLABELED);
-        assert_eq!(s.label_near(k + IVec3::X), 2);
-        assert_eq!(s.label_near(k + IVec3::new(2, 0, 0)), UNLABELED);
     }
 }
