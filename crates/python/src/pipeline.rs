@@ -109,7 +109,7 @@ impl FrameResult {
 /// True/"incremental", "full" or False/"off"; `model` a safetensors file (default: the shipped
 /// model); `truncation` voxels; `max_depth` metres; `poses` "track" or "ground_truth";
 /// `mesh_budget` chunks per keyframe; `realtime`; `up` (x, y, z); `context` metres;
-/// `min_label_island` m^2; `photometric_weight`; `min_mesh_weight`; `min_mesh_piece`
+/// `min_label_island` m^2; `structure` "segments" or "none"; `photometric_weight`; `min_mesh_weight`; `min_mesh_piece`
 /// triangles; `frame_rate` Hz. `intrinsics`: an `Intrinsics` or (width, height, fx, fy, cx, cy)
 /// in pixels. Full reference: semrecon/_native.pyi and docs/python.md.
 #[pyclass(module = "semrecon")]
@@ -233,7 +233,7 @@ impl Pipeline {
     #[pyo3(signature = (
         intrinsics, *, voxel_size = 0.005, semantics = None, model = None, keyframe_every = 10,
         truncation = 10.0, max_depth = None, poses = "track", mesh_budget = None, realtime = false,
-        up = None, context = 1.0, min_label_island = 0.06, photometric_weight = 0.0,
+        up = None, context = 1.0, min_label_island = 0.06, structure = "segments", photometric_weight = 0.0,
         min_mesh_weight = None, min_mesh_piece = None, frame_rate = 30.0
     ))]
     #[allow(clippy::too_many_arguments)]
@@ -252,6 +252,7 @@ impl Pipeline {
         up: Option<&Bound<'_, PyAny>>,
         context: f32,
         min_label_island: f32,
+        structure: &str,
         photometric_weight: f32,
         min_mesh_weight: Option<f32>,
         min_mesh_piece: Option<usize>,
@@ -306,6 +307,11 @@ impl Pipeline {
         config.semantics.realtime = realtime;
         config.semantics.up = up.map(|u| vec3_arg("up", u)).transpose()?;
         config.semantics.min_island_m2 = min_label_island;
+        config.semantics.segment_vote = match structure {
+            "segments" => true,
+            "none" => false,
+            other => return Err(value_error("structure", format!("expected \"segments\" or \"none\", got {other:?}"))),
+        };
         config.validate().map_err(pipeline_err)?;
         let pipeline = py.detach(|| {
             let net = match mode {

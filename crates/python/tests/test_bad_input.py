@@ -81,6 +81,7 @@ def test_a_valid_frame_still_works_after_errors(pipeline):
         (dict(voxel_size=float("nan")), ValueError, "voxel_size"),
         (dict(semantics="maybe"), ValueError, "semantics: expected True, False"),
         (dict(poses="magic"), ValueError, "poses: expected"),
+        (dict(structure="planes"), ValueError, "structure: expected"),
         (dict(keyframe_every=0), ValueError, "keyframe_every"),
         (dict(up=(0, 0, float("nan"))), ValueError, "up: value NaN"),
         (dict(model="/no/such/model.safetensors"), FileNotFoundError, "model: no file at /no/such"),

@@ -196,6 +196,8 @@ class Pipeline:
         up: the map's up direction when known (three numbers); estimated otherwise.
         context: incremental semantics' context, metres.
         min_label_island: label islands smaller than this (m^2) take their surroundings' class.
+        structure: "segments" (the map's labels voted over its geometric segments, normals
+            and colour, as ``semrecon segment``) or "none" (each 5 cm cell its own class).
         photometric_weight: weight of the colour term in tracking (0: depth only).
         min_mesh_weight, min_mesh_piece: meshing thresholds (defaults as the CLI).
         frame_rate: Hz, for timestamps of frames pushed without one.
@@ -219,6 +221,7 @@ class Pipeline:
         up: Optional[Sequence[float]] = None,
         context: float = 1.0,
         min_label_island: float = 0.06,
+        structure: Literal["segments", "none"] = "segments",
         photometric_weight: float = 0.0,
         min_mesh_weight: Optional[float] = None,
         min_mesh_piece: Optional[int] = None,
