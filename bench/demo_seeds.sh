@@ -5,7 +5,8 @@
 # rooms: a class a scan never sees but predicts on a few hundred vertices costs that seed a
 # whole class at 0 % in its own mIoU, and the pooled figure counts those vertices instead).
 # Usage: bench/demo_seeds.sh [MODEL] [SEEDS]   (default: the shipped model, seeds 1-10)
-# Environment: SEMRECON_BIN (default target/release/semrecon, built if missing).
+# Environment: SEMRECON_BIN (default target/release/semrecon, built if missing); DEMO_ARGS,
+#   extra arguments for every `semrecon demo` (e.g. "--structure none").
 set -euo pipefail
 cd "$(dirname "$0")/.."
 model=${1:-crates/net/models/s20.safetensors}
@@ -16,7 +17,7 @@ out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 values=()
 for s in $seeds; do
-  v=$("$bin" demo --seed "$s" --model "$model" --out "$out/demo$s" --no-mesh-eval 2>&1 \
+  v=$("$bin" demo --seed "$s" --model "$model" --out "$out/demo$s" --no-mesh-eval ${DEMO_ARGS:-} 2>&1 \
       | grep -o 'mIoU [0-9.]*%' | head -1 | grep -o '[0-9.]*' || true)
   echo "seed $s mIoU ${v:-?} %"
   [ -n "$v" ] && values+=("$v")
