@@ -31,7 +31,7 @@ fn neighbours(k: CellKey) -> impl Iterator<Item = CellKey> {
 /// Labels with every island of fewer than `min_cells` cells given its surroundings' class.
 ///
 /// `labels` are (cell, class) pairs in (z, y, x) order, each cell once (as
-/// [`crate::semantic_map::LabelStore::labels`] gives them). `min_cells` of 0 or 1 changes
+/// [`crate::label_store::LabelStore::labels`] gives them). `min_cells` of 0 or 1 changes
 /// nothing.
 pub fn merge_small_islands(labels: &[(CellKey, u8)], min_cells: usize) -> Vec<(CellKey, u8)> {
     if min_cells <= 1 || labels.is_empty() {

@@ -1,6 +1,6 @@
 //! The semantic side of the map: the surface summarised in coarse cells at the network's voxel
-//! size (5 cm), kept up to date chunk by chunk, and the class probabilities accumulated per
-//! cell over the semantic passes.
+//! size (5 cm), kept up to date chunk by chunk (the class probabilities accumulated per cell
+//! over the semantic passes are in [`crate::label_store`]).
 //!
 //! The surface is the TSDF's zero crossings ([`crate::surface_cells`]): the points where the
 //! mesher puts its vertices, read from the chunks that changed since the last pass rather than
