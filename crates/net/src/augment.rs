@@ -299,26 +299,17 @@ impl Augment {
             self.ceiling_drop_probability > 0.0 && context_rng.random::<f32>() < self.ceiling_drop_probability;
         let drop_floor = self.floor_drop_probability > 0.0 && context_rng.random::<f32>() < self.floor_drop_probability;
         if drop_ceiling || drop_floor {
-            let dropped = |label: u8| {
-                (drop_ceiling && label == SemanticClass::Ceiling.id())
-                    || (drop_floor && label == SemanticClass::Floor.id())
-            };
-            let left = keep.iter().zip(&cloud.labels).filter(|&(&k, &l)| k && !dropped(l)).count();
-            // A sample that would be (nearly) all ceiling and floor keeps them.
-            if left * 10 >= keep.iter().filter(|&&k| k).count() {
-                for (k, &l) in keep.iter_mut().zip(&cloud.labels) {
-                    *k &= !dropped(l);
-                }
-            }
+            let dropped: Vec<bool> = cloud
+                .labels
+                .iter()
+                .map(|&l| {
+                    (drop_ceiling && l == SemanticClass::Ceiling.id()) || (drop_floor && l == SemanticClass::Floor.id())
+                })
+                .collect();
+            drop_context(&mut keep, &dropped);
         }
         if let Some(dropped) = &walls_dropped {
-            let left = keep.iter().zip(dropped).filter(|&(&k, &d)| k && !d).count();
-            // As above: a sample that would be (nearly) all wall keeps it.
-            if left * 10 >= keep.iter().filter(|&&k| k).count() {
-                for (k, &d) in keep.iter_mut().zip(dropped) {
-                    *k &= !d;
-                }
-            }
+            drop_context(&mut keep, dropped);
         }
         if self.dropout_max > 0.0 {
             let rate = rng.random_range(0.0..=self.dropout_max);
@@ -376,6 +367,17 @@ impl Augment {
             for p in &mut cloud.positions {
                 *p += shift;
             }
+        }
+    }
+}
+
+/// Clears `keep` where `dropped` is set, unless that would leave under a tenth of the kept
+/// points: a sample that is (nearly) all ceiling, floor or wall keeps them.
+fn drop_context(keep: &mut [bool], dropped: &[bool]) {
+    let left = keep.iter().zip(dropped).filter(|&(&k, &d)| k && !d).count();
+    if left * 10 >= keep.iter().filter(|&&k| k).count() {
+        for (k, &d) in keep.iter_mut().zip(dropped) {
+            *k &= !d;
         }
     }
 }

@@ -19,6 +19,7 @@ use std::collections::HashMap;
 use std::sync::OnceLock;
 
 use semrecon_data::class::UNLABELED;
+use semrecon_net::color_features;
 use semrecon_net::structure::{refine_labels, SegmentParams, StructureConfig, StructureMode};
 use semrecon_recon::map::ChunkHashBuilder;
 
@@ -116,12 +117,12 @@ impl LabelStore {
     /// passes weighs as much as one seen once.
     fn vote_over_segments(&self, labels: &mut [(CellKey, u8)]) {
         let mut coords = Vec::with_capacity(labels.len());
-        let mut features = Vec::with_capacity(labels.len() * 3);
+        let mut colors = Vec::with_capacity(labels.len());
         let mut probs = Vec::with_capacity(labels.len() * CLASSES);
         for (k, _) in labels.iter() {
             let Some(e) = self.cells.get(k) else { return };
             coords.push([k.x, k.y, k.z, 0]);
-            features.extend(e.color.map(|v| f32::from(v) / 127.5 - 1.0));
+            colors.push(e.color);
             let total = e.probs.iter().sum::<f32>().max(1e-12);
             probs.extend(e.probs.iter().map(|v| v / total));
         }
@@ -129,7 +130,7 @@ impl LabelStore {
         let config = StructureConfig { segments: LIVE_SEGMENTS, ..StructureConfig::new(StructureMode::Segments) };
         // Well-formed by construction (lengths match, unit size): an error leaves the
         // per-cell classes, which are right, only noisier.
-        if let Ok(voted) = refine_labels(&coords, &features, &probs, CLASSES, 1.0, &config) {
+        if let Ok(voted) = refine_labels(&coords, &color_features(&colors), &probs, CLASSES, 1.0, &config) {
             for ((_, l), v) in labels.iter_mut().zip(voted) {
                 *l = v;
             }
