@@ -64,6 +64,12 @@ pub struct ReconArgs {
     /// (synthetic scans, Replica), not 7-Scenes.
     #[arg(long, default_value_t = 0.0)]
     pub photometric_weight: f32,
+    /// Weight of the photometric term for frames whose depth alone leaves the alignment
+    /// poorly conditioned (a bare wall, a floor): only those frames are aligned again with
+    /// colour, so they alone pay for it; 0 (default) tracks on depth alone. Only for colour
+    /// registered to depth (synthetic scans, Replica, TUM), not 7-Scenes (docs/live.md).
+    #[arg(long, default_value_t = 0.0)]
+    pub degenerate_photometric_weight: f32,
     /// Where poses come from: tracking, or the dataset's ground truth.
     #[arg(long, value_enum, default_value_t = PoseMode::Track)]
     pub poses: PoseMode,
@@ -200,6 +206,7 @@ pub fn pipeline_config(
         tracker: TrackerConfig {
             keyframe_interval: recon.keyframe_every,
             photometric_weight: recon.photometric_weight,
+            degenerate_photometric_weight: recon.degenerate_photometric_weight,
             ..TrackerConfig::default()
         },
         poses: match recon.poses {

@@ -329,6 +329,65 @@ fn a_bare_wall_keeps_its_unconstrained_motion_at_the_prediction() {
     }
 }
 
+/// A camera sliding along a painted bare wall: depth alone leaves the slide at the
+/// prediction, and the colour fallback for poorly conditioned frames
+/// (`TrackerConfig::degenerate_photometric_weight`) recovers it from the paint.
+#[test]
+fn colour_takes_over_where_a_bare_wall_leaves_depth_blind() {
+    let (w, h) = (160usize, 120usize);
+    let camera = |f: f32| semrecon_data::Intrinsics::new(w as u32, h as u32, f, f, 79.5, 59.5).expect("camera");
+    let depth = 1.5f32;
+    let step = 0.004f32;
+    // A view with focal length `f` from x = `tx`, facing the wall at z = `depth`; the paint is a
+    // smooth pattern of the wall's own coordinates, so every view of it agrees.
+    let view = |f: f32, tx: f32, index: usize| {
+        let mut frame = Frame::from_depth(camera(f), vec![depth; w * h]);
+        frame.index = index;
+        frame.color = (0..w * h)
+            .map(|p| {
+                let (u, v) = ((p % w) as f32, (p / w) as f32);
+                let (x, y) = ((u - 79.5) / f * depth + tx, (v - 59.5) / f * depth);
+                let t = std::f32::consts::TAU;
+                [(128.0 + 90.0 * (t * x / 0.12).sin() * (t * y / 0.17).cos()) as u8; 3]
+            })
+            .collect();
+        frame
+    };
+    // Five frames: the model ray-cast at the first is reused for the next four (the default
+    // `model_interval`), so every frame is aligned to the same view of the wall.
+    let frames: Vec<Frame> = (0..5).map(|i| view(140.0, step * i as f32, i)).collect();
+    let run = |config: TrackerConfig| {
+        // The map holds the wall well beyond the views (a wide first look), so no edge of the
+        // mapped patch comes into view to constrain the slide.
+        let mut map = TsdfMap::new(TsdfConfig { truncation_voxels: 10.0, ..TsdfConfig::default() }).expect("config");
+        map.integrate(&view(50.0, 0.0, 0), Affine3A::IDENTITY).expect("fusion");
+        let mut tracker = Tracker::with_initial_pose(config, Affine3A::IDENTITY).expect("tracker");
+        let mut slides = Vec::new();
+        let mut fallbacks = 0;
+        for f in &frames {
+            let r = tracker.track(f, &map).expect("valid frame");
+            assert!(r.should_fuse(), "frame {}: {r:?}", f.index);
+            fallbacks += r.colour_fallback as usize;
+            slides.push(r.world_from_camera.translation.x);
+            map.integrate(f, r.world_from_camera).expect("fusion");
+        }
+        (slides, fallbacks)
+    };
+    let (depth_only, none) = run(config());
+    assert_eq!(none, 0);
+    let last = frames.len() - 1;
+    let truth = step * last as f32;
+    assert!((depth_only[last] - truth).abs() > 0.5 * truth, "depth alone saw the slide: {depth_only:?}");
+    let (with_colour, fallbacks) = run(TrackerConfig { degenerate_photometric_weight: 0.1, ..config() });
+    assert_eq!(fallbacks, last, "every frame after the first is poorly conditioned");
+    assert!((with_colour[last] - truth).abs() < 0.25 * truth, "colour missed the slide: {with_colour:?}");
+    // A room with furniture is well conditioned: no frame falls back, the same poses.
+    let frames = scan(3, 8, true);
+    let (plain, _) = track_and_fuse(&frames, config());
+    let (adaptive, _) = track_and_fuse(&frames, TrackerConfig { degenerate_photometric_weight: 0.1, ..config() });
+    assert_eq!(plain, adaptive);
+}
+
 /// After a jump to a place seen earlier, tracking from the last pose fails, and
 /// relocalisation from the keyframes finds the place again.
 #[test]
