@@ -109,7 +109,7 @@ impl FrameResult {
 /// True/"incremental", "full" or False/"off"; `model` a safetensors file (default: the shipped
 /// model); `truncation` voxels; `max_depth` metres; `poses` "track" or "ground_truth";
 /// `mesh_budget` chunks per keyframe; `realtime`; `up` (x, y, z); `context` metres;
-/// `min_label_island` m^2; `structure` "segments" or "none"; `photometric_weight`; `min_mesh_weight`; `min_mesh_piece`
+/// `min_label_island` m^2; `structure` "segments" or "none"; `photometric_weight`; `degenerate_photometric_weight`; `min_mesh_weight`; `min_mesh_piece`
 /// triangles; `frame_rate` Hz. `intrinsics`: an `Intrinsics` or (width, height, fx, fy, cx, cy)
 /// in pixels. Full reference: semrecon/_native.pyi and docs/python.md.
 #[pyclass(module = "semrecon")]
@@ -234,7 +234,7 @@ impl Pipeline {
         intrinsics, *, voxel_size = 0.005, semantics = None, model = None, keyframe_every = 10,
         truncation = 10.0, max_depth = None, poses = "track", mesh_budget = None, realtime = false,
         up = None, context = 1.0, min_label_island = 0.06, structure = "segments", photometric_weight = 0.0,
-        min_mesh_weight = None, min_mesh_piece = None, frame_rate = 30.0
+        degenerate_photometric_weight = 0.0, min_mesh_weight = None, min_mesh_piece = None, frame_rate = 30.0
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -254,6 +254,7 @@ impl Pipeline {
         min_label_island: f32,
         structure: &str,
         photometric_weight: f32,
+        degenerate_photometric_weight: f32,
         min_mesh_weight: Option<f32>,
         min_mesh_piece: Option<usize>,
         frame_rate: f64,
@@ -294,6 +295,7 @@ impl Pipeline {
             tracker: TrackerConfig {
                 keyframe_interval: keyframe_every,
                 photometric_weight,
+                degenerate_photometric_weight,
                 ..TrackerConfig::default()
             },
             poses,
