@@ -67,7 +67,7 @@ pub struct ReconArgs {
     /// Weight of the photometric term for frames whose depth alone leaves the alignment
     /// poorly conditioned (a bare wall, a floor): only those frames are aligned again with
     /// colour, so they alone pay for it; 0 (default) tracks on depth alone. Only for colour
-    /// registered to depth (synthetic scans, Replica, TUM), not 7-Scenes (docs/live.md).
+    /// registered to depth (synthetic scans, Replica, TUM), not 7-Scenes (docs/benchmarks_log.md, "Session 21").
     #[arg(long, default_value_t = 0.0)]
     pub degenerate_photometric_weight: f32,
     /// Where poses come from: tracking, or the dataset's ground truth.
