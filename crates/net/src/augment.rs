@@ -245,9 +245,8 @@ impl Augment {
         // Own stream, and in the room's own frame (its walls along the axes): the other
         // choices of a seed stay those of the real-homes recipe.
         let mut wall_rng = ChaCha8Rng::seed_from_u64(seed ^ 0x3A11_D409);
-        let walls_dropped: Option<Vec<bool>> = (self.wall_drop_probability > 0.0
-            && wall_rng.random::<f32>() < self.wall_drop_probability)
-            .then(|| {
+        let walls_dropped: Option<Vec<bool>> =
+            (self.wall_drop_probability > 0.0 && wall_rng.random::<f32>() < self.wall_drop_probability).then(|| {
                 // Each side with probability 1/2, at least one.
                 let mut sides = [false; 4];
                 while !sides.contains(&true) {

@@ -599,9 +599,10 @@ mod tests {
         let n_one = one.iter().filter(|&&d| d).count();
         assert!(n_one > 0 && n_one < count(&original, wall), "{n_one}");
         // Plain reference: a wall point of the low-x side is nearer to it than to any other.
-        let (lo, hi) = original.positions.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(a, b), p| {
-            (a.min(*p), b.max(*p))
-        });
+        let (lo, hi) = original
+            .positions
+            .iter()
+            .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(a, b), p| (a.min(*p), b.max(*p)));
         for ((p, &l), &d) in original.positions.iter().zip(&original.labels).zip(&one) {
             let dx = p.x - lo.x;
             let nearest_low_x = l == wall && dx <= hi.x - p.x && dx <= p.y - lo.y && dx <= hi.y - p.y;
