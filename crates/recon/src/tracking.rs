@@ -552,7 +552,7 @@ impl Tracker {
             });
         }
         let c = self.config.clone();
-        let pyramid = build_pyramid(frame, &c);
+        let mut pyramid = build_pyramid(frame, &c);
         let last_pose = self.last.unwrap_or(self.initial_pose);
         let mut result = TrackingResult {
             status: TrackingStatus::Lost(LostReason::NoDepth),
@@ -596,18 +596,17 @@ impl Tracker {
         // reference_from_current, predicted with constant velocity.
         let prediction = reference.inverse() * last * self.velocity;
         let (mut estimate, mut stats, mut singular) = align(&pyramid, &model, prediction, &c);
-        if c.photometric_weight <= 0.0 && c.degenerate_photometric_weight > 0.0 && !frame.color.is_empty() && !singular
-        {
-            let (cond, _) = conditioning(&stats.symmetric(), c.min_condition);
-            if cond < c.degenerate_condition {
-                // Depth alone barely sees some motion: align again with colour.
-                let colour = TrackerConfig { photometric_weight: c.degenerate_photometric_weight, ..c.clone() };
-                let pyramid = build_pyramid(frame, &colour);
-                let (intensity, gradient) = model_intensity(&model.view);
-                let model = Model { view: Arc::clone(&model.view), intensity, gradient };
-                (estimate, stats, singular) = align(&pyramid, &model, prediction, &colour);
-                result.colour_fallback = true;
-            }
+        let mut conditioned = conditioning(&stats.symmetric(), c.min_condition);
+        let fallback = c.photometric_weight <= 0.0 && c.degenerate_photometric_weight > 0.0 && !frame.color.is_empty();
+        if fallback && !singular && conditioned.0 < c.degenerate_condition {
+            // Depth alone barely sees some motion: align again with colour.
+            let colour = TrackerConfig { photometric_weight: c.degenerate_photometric_weight, ..c.clone() };
+            add_intensity(&mut pyramid, frame);
+            let (intensity, gradient) = model_intensity(&model.view);
+            let model = Model { view: Arc::clone(&model.view), intensity, gradient };
+            (estimate, stats, singular) = align(&pyramid, &model, prediction, &colour);
+            conditioned = conditioning(&stats.symmetric(), c.min_condition);
+            result.colour_fallback = true;
         }
         // Quality from the last iteration's sums (at the pose before its small final
         // step): a separate pass at the finest level would cost as much as an iteration.
@@ -619,7 +618,7 @@ impl Tracker {
         result.inlier_ratio = (stats.inliers + stats.turned) as f32 / overlap.max(1) as f32;
         let overlap_ratio = overlap as f32 / stats.sampled.max(1) as f32;
         result.residual_rms = (stats.sq_residual / stats.inliers.max(1) as f64).sqrt() as f32;
-        let (cond, constrained) = conditioning(&stats.symmetric(), c.min_condition);
+        let (cond, constrained) = conditioned;
         result.condition = cond;
         result.constrained = constrained;
         let jump = prediction.inverse() * estimate;

@@ -25,12 +25,6 @@ pub(super) fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
             valid
         })
         .sum();
-    // Intensity only feeds the photometric term: empty at every level when it is off.
-    let intensity0: Vec<f32> = if frame.color.is_empty() || c.photometric_weight <= 0.0 {
-        Vec::new()
-    } else {
-        frame.color.iter().map(|&c| luma(c)).collect()
-    };
     // Level 0 takes its normals from level 1, and its vertices are one multiply-add away from
     // its depth: both are formed where association visits a pixel (a stride of them).
     let mut levels = vec![Level {
@@ -38,7 +32,7 @@ pub(super) fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
         depth: depth0,
         vertices: Vec::new(),
         normals: Vec::new(),
-        intensity: intensity0,
+        intensity: Vec::new(),
         valid: valid0,
         own_normals: Vec::new(),
     }];
@@ -48,30 +42,12 @@ pub(super) fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
         let (w, h) = ((pw / 2).max(1), (ph / 2).max(1));
         let k = prev.k.scaled(w as u32, h as u32);
         let mut depth = vec![0.0f32; w * h];
-        let mut intensity = vec![0.0f32; if prev.intensity.is_empty() { 0 } else { w * h }];
-        let has_intensity = !intensity.is_empty();
         depth.par_chunks_mut(w).enumerate().for_each(|(y, drow)| {
             // A row past the edge (odd heights) reads as invalid, as does a column.
             let src_row = |sy: usize| if sy < ph { &prev.depth[sy * pw..(sy + 1) * pw] } else { &[][..] };
             block_depth_row(src_row(2 * y), src_row(2 * y + 1), drow);
         });
-        if has_intensity {
-            intensity.par_chunks_mut(w).enumerate().for_each(|(y, irow)| {
-                for (x, out) in irow.iter_mut().enumerate() {
-                    let (mut inten, mut m) = (0.0, 0);
-                    for (sx, sy) in [(2 * x, 2 * y), (2 * x + 1, 2 * y), (2 * x, 2 * y + 1), (2 * x + 1, 2 * y + 1)] {
-                        if sx < pw && sy < ph {
-                            inten += prev.intensity[sy * pw + sx];
-                            m += 1;
-                        }
-                    }
-                    if m > 0 {
-                        *out = inten / m as f32;
-                    }
-                }
-            });
-        }
-        levels.push(make_level(k, depth, intensity, true));
+        levels.push(make_level(k, depth, true));
     }
     // Normals of a level come from the next coarser level: neighbouring pixels of a noisy,
     // disparity-quantised depth image differ by about as much in depth as in position, so
@@ -90,7 +66,42 @@ pub(super) fn build_pyramid(frame: &Frame, c: &TrackerConfig) -> Vec<Level> {
             }
         });
     }
+    // Intensity only feeds the photometric term: empty at every level when it is off.
+    if c.photometric_weight > 0.0 {
+        add_intensity(&mut levels, frame);
+    }
     levels
+}
+
+/// Fills every level's intensity: the frame's luma at level 0, then the mean of each 2x2
+/// block of the level below (nothing for a frame without colour).
+pub(super) fn add_intensity(levels: &mut [Level], frame: &Frame) {
+    if frame.color.is_empty() || levels.is_empty() {
+        return;
+    }
+    levels[0].intensity = frame.color.iter().map(|&c| luma(c)).collect();
+    for l in 1..levels.len() {
+        let (below, rest) = levels.split_at_mut(l);
+        let (prev, level) = (&below[l - 1], &mut rest[0]);
+        let (pw, ph) = (prev.k.width as usize, prev.k.height as usize);
+        let w = level.k.width as usize;
+        let mut intensity = vec![0.0f32; w * level.k.height as usize];
+        intensity.par_chunks_mut(w).enumerate().for_each(|(y, irow)| {
+            for (x, out) in irow.iter_mut().enumerate() {
+                let (mut inten, mut m) = (0.0, 0);
+                for (sx, sy) in [(2 * x, 2 * y), (2 * x + 1, 2 * y), (2 * x, 2 * y + 1), (2 * x + 1, 2 * y + 1)] {
+                    if sx < pw && sy < ph {
+                        inten += prev.intensity[sy * pw + sx];
+                        m += 1;
+                    }
+                }
+                if m > 0 {
+                    *out = inten / m as f32;
+                }
+            }
+        });
+        level.intensity = intensity;
+    }
 }
 
 /// The depth of a 2x2 block (0 = invalid in and out): the mean of its valid depths within
@@ -197,8 +208,8 @@ impl RayTable {
     }
 }
 
-/// Vertices and normals of one level.
-pub(super) fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>, with_normals: bool) -> Level {
+/// Vertices and normals of one level (intensity comes later, from [`add_intensity`]).
+pub(super) fn make_level(k: Intrinsics, depth: Vec<f32>, with_normals: bool) -> Level {
     let (w, h) = (k.width as usize, k.height as usize);
     let mut vertices = vec![Vec3::ZERO; w * h];
     let rays = RayTable::new(k);
@@ -224,7 +235,7 @@ pub(super) fn make_level(k: Intrinsics, depth: Vec<f32>, intensity: Vec<f32>, wi
         }
     });
     let valid = depth.iter().filter(|&&d| d > 0.0).count();
-    Level { k, depth, vertices, normals, intensity, valid, own_normals: Vec::new() }
+    Level { k, depth, vertices, normals, intensity: Vec::new(), valid, own_normals: Vec::new() }
 }
 
 /// The normal of inner pixel `i` of a level from its four neighbours' vertices (zero where

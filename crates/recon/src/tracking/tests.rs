@@ -203,7 +203,7 @@ fn lane_normals_match_the_pixel_rule() {
                 _ => 1.5 + 0.01 * (i % w) as f32 + rng.random_range(-0.004..0.004),
             })
             .collect();
-        let level = make_level(k, depth, Vec::new(), true);
+        let level = make_level(k, depth, true);
         let (mut set, mut zero) = (0, 0);
         for y in 1..h - 1 {
             for x in 1..w - 1 {
@@ -255,7 +255,7 @@ fn lazy_finest_level_equals_the_materialised_one() {
     let (pyramid, model) = bumpy_plane(&c);
     let (k, l1) = (pyramid[0].k, &pyramid[1]);
     // The materialised level 0: its vertices, and level 1's own normals per 2x2 block.
-    let mut eager = make_level(k, pyramid[0].depth.clone(), Vec::new(), false);
+    let mut eager = make_level(k, pyramid[0].depth.clone(), false);
     for (i, n) in eager.normals.iter_mut().enumerate() {
         let (x, y) = (i % 64, i / 64);
         let ci = (y / 2).min(23) * 32 + (x / 2).min(31);
