@@ -127,7 +127,13 @@ impl LabelStore {
             probs.extend(e.probs.iter().map(|v| v / total));
         }
         // The cells are the grid (one unit each); the size only matters to planes, off here.
-        let config = StructureConfig { segments: LIVE_SEGMENTS, ..StructureConfig::new(StructureMode::Segments) };
+        // The beam-face rule reads heights along the cells' z, which is the map's frame, not
+        // gravity's, so it stays off here too.
+        let config = StructureConfig {
+            segments: LIVE_SEGMENTS,
+            beam_faces: None,
+            ..StructureConfig::new(StructureMode::Segments)
+        };
         // Well-formed by construction (lengths match, unit size): an error leaves the
         // per-cell classes, which are right, only noisier.
         if let Ok(voted) = refine_labels(&coords, &color_features(&colors), &probs, CLASSES, 1.0, &config) {

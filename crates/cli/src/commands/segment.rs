@@ -22,7 +22,9 @@ use glam::Vec3;
 use semrecon_data::ply::{mesh_from_ply, Column, PlyFile, PlyFormat, Property, PropertyData};
 use semrecon_data::{LabeledMesh, PlyEncoding};
 use semrecon_net::dataset::points_per_m2;
-use semrecon_net::structure::{refine, PlaneParams, Refinement, SegmentParams, StructureConfig, StructureMode};
+use semrecon_net::structure::{
+    refine, BeamFaceParams, PlaneParams, Refinement, SegmentParams, StructureConfig, StructureMode,
+};
 use semrecon_net::surface::sample_surface;
 use semrecon_net::{shipped, NetConfig, Segmenter, Tta, TtaMean};
 
@@ -76,6 +78,10 @@ pub struct StructureArgs {
     /// Segments: smallest segment in voxels (smaller ones merge into a neighbour).
     #[arg(long, default_value_t = SegmentParams::default().min_size)]
     pub segment_min_size: usize,
+    /// Segments: leave wall faces that rise from a beam's underside as the vote made them
+    /// (by default they become beam, as S3DIS labels a bulkhead's faces).
+    #[arg(long)]
+    pub no_beam_faces: bool,
 }
 
 /// The default `--structure`: segment votes, the one step that helped the real labelled scan
@@ -119,6 +125,7 @@ impl StructureArgs {
                 min_size: self.segment_min_size,
             },
             planes: PlaneParams::default(),
+            beam_faces: (!self.no_beam_faces).then(BeamFaceParams::default),
         }
     }
 }
@@ -318,7 +325,7 @@ pub fn run(args: SegmentArgs) -> anyhow::Result<()> {
     let opts = &args.structure;
     let height = |z: Option<f32>| z.map_or_else(|| "none".to_string(), |z| format!("{z:.2} m"));
     println!(
-        "network {:.0} ms (tta {} {}), structure {} {:.0} ms: {} segments, floor {}, ceiling {}, {} voxels changed",
+        "network {:.0} ms (tta {} {}), structure {} {:.0} ms: {} segments, floor {}, ceiling {}, {} voxels changed ({} as beam faces)",
         network_s * 1e3,
         opts.tta,
         opts.tta_mean,
@@ -327,7 +334,8 @@ pub fn run(args: SegmentArgs) -> anyhow::Result<()> {
         refinement.segments,
         height(refinement.floor_z),
         height(refinement.ceiling_z),
-        refinement.changed
+        refinement.changed,
+        refinement.beam_face_voxels
     );
     Ok(())
 }

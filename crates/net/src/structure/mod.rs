@@ -32,16 +32,25 @@
 //! voxel on its own; sorting breaks ties by index; the union-find and the sums run in
 //! order).
 //!
+//! 3. **A beam's face starts at its underside.** After the vote, a vertical wall segment that
+//!    rises from a horizontal beam segment high above the floor, along most of its lower
+//!    edge, and whose plane does not go on below it, is the beam's face ([`beam_faces`]):
+//!    S3DIS labels a bulkhead's faces beam, and the network cannot tell such a face from the
+//!    strip of wall above a doorway. Part of the segments step (`--no-beam-faces` leaves it
+//!    out).
+//!
 //! The steps live in submodules by concept, re-exported here: `neighbours` (the
 //! 26-neighbourhood of the occupied voxels), `normals` (their PCA normals and the 3x3 eigen
-//! solver), `segments` (the graph segmentation and the vote) and `planes` (floor and
-//! ceiling). This file holds the configuration and [`refine`], which runs them in order.
+//! solver), `segments` (the graph segmentation and the vote), `beam_faces` and `planes`
+//! (floor and ceiling). This file holds the configuration and [`refine`], which runs them in order.
 
+mod beam_faces;
 mod neighbours;
 mod normals;
 mod planes;
 mod segments;
 
+pub use beam_faces::{beam_faces, BeamFaceParams};
 pub use neighbours::{voxel_neighbours, NEIGHBOUR_OFFSETS, NO_NEIGHBOUR};
 pub use normals::{symmetric_eigen3, voxel_normals};
 pub use planes::{find_planes, plane_corrections, Plane, PlaneCorrections, PlaneMember, PlaneParams, Planes};
@@ -115,7 +124,7 @@ impl FromStr for StructureMode {
 }
 
 /// What [`refine`] does and with which parameters.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StructureConfig {
     /// Which steps run.
     pub mode: StructureMode,
@@ -123,6 +132,20 @@ pub struct StructureConfig {
     pub segments: SegmentParams,
     /// The planes.
     pub planes: PlaneParams,
+    /// After the segment vote, wall faces that rise from a beam's underside become beam
+    /// ([`beam_faces`]); `None` leaves the vote as it is. Runs only with the segments.
+    pub beam_faces: Option<BeamFaceParams>,
+}
+
+impl Default for StructureConfig {
+    fn default() -> Self {
+        Self {
+            mode: StructureMode::default(),
+            segments: SegmentParams::default(),
+            planes: PlaneParams::default(),
+            beam_faces: Some(BeamFaceParams::default()),
+        }
+    }
 }
 
 impl StructureConfig {
@@ -163,6 +186,8 @@ pub struct Refinement {
     pub ceiling_z: Option<f32>,
     /// Voxels whose class differs from the network's own.
     pub changed: usize,
+    /// Voxels that became beam as faces of a beam ([`beam_faces`]).
+    pub beam_face_voxels: usize,
     /// Time per step.
     pub timing: StructureTiming,
 }
@@ -225,8 +250,8 @@ pub fn refine_labels(
 /// and ceiling are searched among the horizontal voxels ([`find_planes`]); voxels on them
 /// become floor / ceiling and classes impossible at a voxel's height lose their probability
 /// ([`plane_corrections`]). With segments, [`felzenszwalb`] over [`voxel_edges`] and
-/// [`vote`] on the (corrected) probabilities; plane voxels stay floor / ceiling after the
-/// vote, and a vote that gives a voxel a class impossible at its height falls back to the
+/// [`vote`] on the (corrected) probabilities, then (unless `config.beam_faces` is `None`)
+/// [`beam_faces`]; plane voxels stay floor / ceiling after the vote, and a vote that gives a voxel a class impossible at its height falls back to the
 /// voxel's own best class.
 ///
 /// # Shapes
@@ -285,11 +310,20 @@ pub fn refine(
     let t = Instant::now();
     let p: &[f32] = probs_used.as_deref().unwrap_or(probs);
     let mut segments = 0;
+    let mut beam_face_voxels = 0;
     let mut labels = if mode.segments() {
         let edges = voxel_edges(&neighbours, &normals, features, config.segments.color_weight);
         let segment = felzenszwalb(n, &edges, config.segments.k, config.segments.min_size);
         segments = segment.iter().map(|&s| s as usize + 1).max().unwrap_or(0);
-        vote(&segment, p, classes)
+        let mut voted = vote(&segment, p, classes);
+        let (wall, beam) = (SemanticClass::Wall.id(), SemanticClass::Beam.id());
+        if let Some(params) = &config.beam_faces {
+            if classes > wall.max(beam) as usize {
+                beam_face_voxels =
+                    beam_faces(coords, &neighbours, &normals, &segment, &mut voted, voxel_size, wall, beam, params);
+            }
+        }
+        voted
     } else {
         argmax_rows(p, classes)
     };
@@ -313,7 +347,7 @@ pub fn refine(
     }
     timing.segments = t.elapsed();
     let changed = labels.iter().zip(&network).filter(|(a, b)| a != b).count();
-    Ok(Refinement { labels, segments, floor_z, ceiling_z, changed, timing })
+    Ok(Refinement { labels, segments, floor_z, ceiling_z, changed, beam_face_voxels, timing })
 }
 
 #[cfg(test)]
