@@ -102,14 +102,21 @@ pub struct ReconArgs {
     /// camera need is raised, with a warning, and report.json says so. Default: no budget.
     #[arg(long, value_parser = crate::cli_values::parse_bytes)]
     pub max_memory: Option<usize>,
-    /// Chunks that no frame changed for this many frames are packed in memory (lossless:
-    /// the output is the same bits); 0 keeps every chunk plain (4 KiB each). Default: 30 with
+    /// Chunks that no frame changed for this many frames are packed in memory (lossless but
+    /// for distances far from the surface, see `--packed-distance-step`); 0 keeps every chunk
+    /// plain (4 KiB each). Default: 30 with
     /// `--max-memory`, else 0: a packed chunk takes about 1 KB, so packing saves a third of
     /// a room scan's map at its end (the view stays plain) and three quarters of what the
     /// camera left, for compaction every 10th frame (about 17 ms on the demo) and slower
     /// final meshing (docs/benchmarks_log.md, "A compact voxel and denser packing").
     #[arg(long)]
     pub cold_after: Option<u32>,
+    /// Packed chunks keep distances more than 3 voxels from the surface in steps of this many
+    /// voxels (0 to 1; 0: exactly, and packing and spilling then change no output bit).
+    /// Meshing, tracking and the labels read distances near the surface; 0.2 makes a packed
+    /// chunk about 15 % smaller (docs/benchmarks_log.md, "Session 22").
+    #[arg(long, default_value_t = semrecon_recon::TsdfConfig::default().packed_far_step_voxels)]
+    pub packed_distance_step: f32,
 }
 
 /// Where the pose of each frame comes from.
@@ -241,6 +248,7 @@ pub fn pipeline_config(
         0
     });
     config.memory.budget_bytes = recon.max_memory;
+    config.tsdf.packed_far_step_voxels = recon.packed_distance_step;
     config.validate().context("pipeline options")?;
     Ok(config)
 }

@@ -93,20 +93,24 @@ fn run_reconstructs_a_few_synthetic_frames() {
     assert_eq!(report["realtime"], false);
 }
 
-/// `--max-memory` spills packed chunks and changes no output byte; a budget below the
-/// chunks in view is raised and said so in report.json; the spill file does not outlive the
-/// run.
+/// `--max-memory` spills packed chunks and changes no output byte of packing alone, and with
+/// `--packed-distance-step 0` none of the plain map's; a budget below the chunks in view is
+/// raised and said so in report.json; the spill file does not outlive the run.
 #[test]
 fn run_within_a_memory_budget_writes_the_same_mesh() {
     let dir = tempfile::tempdir().expect("temp dir");
     let common = ["--frames", "0..12", "--voxel", "0.02", "--keyframe-every", "3", "--semantics", "off"];
-    let plain = dir.path().join("plain");
-    let budget = dir.path().join("budget");
+    let [plain, packed, budget, exact] = ["plain", "packed", "budget", "exact"].map(|n| dir.path().join(n));
     run_ok("synth:3", &[&common[..], &["--cold-after", "0"]].concat(), &plain);
+    run_ok("synth:3", &[&common[..], &["--cold-after", "1"]].concat(), &packed);
     let out = run_ok("synth:3", &[&common[..], &["--cold-after", "1", "--max-memory", "1K"]].concat(), &budget);
+    let exact_args = ["--cold-after", "1", "--max-memory", "1K", "--packed-distance-step", "0"];
+    run_ok("synth:3", &[&common[..], &exact_args].concat(), &exact);
     let read = |d: &Path, f: &str| std::fs::read(d.join(f)).expect("output");
-    assert!(read(&plain, "mesh.ply") == read(&budget, "mesh.ply"), "same mesh bytes");
-    assert!(read(&plain, "trajectory.txt") == read(&budget, "trajectory.txt"), "same trajectory");
+    for (a, b) in [(&packed, &budget), (&plain, &exact)] {
+        assert!(read(a, "mesh.ply") == read(b, "mesh.ply"), "same mesh bytes: {a:?} {b:?}");
+        assert!(read(a, "trajectory.txt") == read(b, "trajectory.txt"), "same trajectory: {a:?} {b:?}");
+    }
     let report = read_report(&budget);
     let m = &report["map_memory"];
     assert_eq!(m["budget_bytes"], 1024, "{m}");

@@ -104,8 +104,10 @@ impl Default for SemanticConfig {
 }
 
 /// How the map keeps its memory down ([`semrecon_recon::TsdfMap::compact`]): chunks that no
-/// frame changed for a while are packed losslessly in memory, and past a budget the coldest
-/// are spilled to a file. The output is the same bits with any of these settings.
+/// frame changed for a while are packed in memory, and past a budget the coldest are spilled
+/// to a file. Packing keeps every voxel but the distances far from the surface exactly
+/// ([`semrecon_recon::TsdfConfig::packed_far_step_voxels`]; 0 there: the output is the same
+/// bits with any of these settings); spilling adds nothing to packing.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct MapMemoryConfig {
     /// Chunks no fused frame changed for this many frames are packed (0: never pack). A

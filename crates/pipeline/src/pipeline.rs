@@ -420,7 +420,7 @@ impl Pipeline {
         }
     }
 
-    /// Every few fused frames: packs the chunks fusion left alone (lossless) and keeps the
+    /// Every few fused frames: packs the chunks fusion left alone and keeps the
     /// map within its memory budget; the map's warnings (budget raised, spill file failed)
     /// join the pipeline's, the latest of each kind kept.
     fn compact_map(&mut self, frame: usize) {

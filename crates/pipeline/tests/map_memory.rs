@@ -1,7 +1,8 @@
-//! The map's memory settings change no output bit: packing cold chunks and spilling them past
-//! a budget give the same trajectory (tracking ray-casts the map), labelled mesh and labels
-//! as a plain map, for 1, 2 and 4 threads; a spill file that cannot be made stops the
-//! pipeline before any frame.
+//! The map's memory settings change no output bit: with exact packing, packing cold chunks and
+//! spilling them past a budget give the same trajectory (tracking ray-casts the map), labelled
+//! mesh and labels as a plain map, for 1, 2 and 4 threads; with the default coarse far
+//! distances, spilling gives the same outputs as packing alone for any thread count; a spill
+//! file that cannot be made stops the pipeline before any frame.
 
 use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
 use semrecon_data::{Frame, FrameSource, LabeledMesh};
@@ -19,7 +20,14 @@ fn frames(seed: u64, n: usize) -> Vec<Frame> {
 }
 
 fn config(memory: MapMemoryConfig) -> PipelineConfig {
+    config_with(memory, 0.0)
+}
+
+/// [`config`] with packed distances in steps of `far_step` voxels far from the surface (0:
+/// exact).
+fn config_with(memory: MapMemoryConfig, far_step: f32) -> PipelineConfig {
     let mut c = PipelineConfig { poses: PoseMode::Track, keyframe_every: 5, memory, ..PipelineConfig::default() };
+    c.tsdf.packed_far_step_voxels = far_step;
     c.tsdf.voxel_size = 0.02;
     c.tsdf.truncation_voxels = 4.0;
     c.tracker.fine_stride = 1;
@@ -31,11 +39,15 @@ fn config(memory: MapMemoryConfig) -> PipelineConfig {
 type Outputs = (LabeledMesh, Vec<(glam::IVec3, u8)>, Vec<glam::Affine3A>, semrecon_recon::MapMemory);
 
 fn run(frames: &[Frame], memory: MapMemoryConfig, threads: usize) -> Outputs {
+    run_with(frames, memory, threads, 0.0)
+}
+
+fn run_with(frames: &[Frame], memory: MapMemoryConfig, threads: usize, far_step: f32) -> Outputs {
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
     pool.install(|| {
         let c = NetConfig::new("tiny", 3, 8, 0.05);
         let net = Segmenter::new(Weights::random(&c, 9), c).expect("net");
-        let mut p = Pipeline::new(config(memory), frames[0].intrinsics, Some(net)).expect("pipeline");
+        let mut p = Pipeline::new(config_with(memory, far_step), frames[0].intrinsics, Some(net)).expect("pipeline");
         for f in frames {
             p.push_frame(f).expect("frame");
         }
@@ -46,7 +58,7 @@ fn run(frames: &[Frame], memory: MapMemoryConfig, threads: usize) -> Outputs {
 }
 
 #[test]
-fn packing_and_spilling_change_no_output_bit() {
+fn exact_packing_and_spilling_change_no_output_bit() {
     let frames = frames(11, 40);
     let plain = MapMemoryConfig { cold_after_frames: 0, ..MapMemoryConfig::default() };
     let (mesh, labels, poses, memory) = run(&frames, plain, 2);
@@ -69,6 +81,28 @@ fn packing_and_spilling_change_no_output_bit() {
         assert_eq!(p, poses, "{what}: trajectory");
         assert_eq!(m, mesh, "{what}: labelled mesh");
         assert_eq!(l, labels, "{what}: cell labels");
+    }
+}
+
+#[test]
+fn with_coarse_far_distances_spilling_changes_no_output_bit() {
+    let frames = frames(11, 40);
+    let step = semrecon_recon::TsdfConfig::default().packed_far_step_voxels;
+    let packed = MapMemoryConfig { cold_after_frames: 3, compact_every: 1, ..MapMemoryConfig::default() };
+    let (mesh, labels, poses, memory) = run_with(&frames, packed.clone(), 1, step);
+    assert!(memory.packed_chunks > 0, "{memory:?}");
+    let dir = tempfile::tempdir().expect("temp dir");
+    for threads in [2, 4] {
+        let spilling = MapMemoryConfig {
+            budget_bytes: Some(memory.in_memory() / 4),
+            spill_path: Some(dir.path().join(format!("{threads}.spill"))),
+            ..packed.clone()
+        };
+        let (m, l, p, after) = run_with(&frames, spilling, threads, step);
+        assert!(after.spilled_chunks > 0, "{threads} threads: {after:?}");
+        assert_eq!(p, poses, "{threads} threads: trajectory");
+        assert!(m == mesh, "{threads} threads: labelled mesh");
+        assert_eq!(l, labels, "{threads} threads: cell labels");
     }
 }
 

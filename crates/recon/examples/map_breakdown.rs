@@ -3,14 +3,16 @@
 //!
 //! ```text
 //! cargo run --release -p semrecon-recon --example map_breakdown -- [--seed S] [--frames N]
-//!     [--truncation T] [--color-band V]
+//!     [--truncation T] [--color-band V] [--packed-step V] [--packed-exact-band V]
 //! ```
 //!
 //! Fuses synthetic scan `S` (the demo's room and path, 640x480) at the true poses with the
 //! pipeline's band (truncation `T` voxels far away, 10 by default, down to 4 near) and
 //! prints counts per square metre of the mesh (meshing's recommended settings), and the
 //! bytes with every chunk packed. `--color-band V` sets
-//! [`TsdfConfig::color_band_voxels`] ([`TsdfConfig`]).
+//! [`TsdfConfig::color_band_voxels`], `--packed-step V` and `--packed-exact-band V`
+//! [`TsdfConfig::packed_far_step_voxels`] and [`TsdfConfig::packed_exact_band_voxels`]
+//! ([`TsdfConfig`]).
 
 #[path = "common/flags.rs"]
 mod flags;
@@ -32,6 +34,8 @@ fn run() -> Result<(), String> {
             "--frames" => frames = flags.value(&flag)?,
             "--truncation" => truncation = flags.value(&flag)?,
             "--color-band" => tsdf.color_band_voxels = flags.value(&flag)?,
+            "--packed-step" => tsdf.packed_far_step_voxels = flags.value(&flag)?,
+            "--packed-exact-band" => tsdf.packed_exact_band_voxels = flags.value(&flag)?,
             other => return Err(format!("unknown argument {other}")),
         }
     }

@@ -16,8 +16,9 @@
 //! packed chunks are a sixth smaller, mesh accuracy on rendered scans 1.37 -> 1.38 mm
 //! (docs/benchmarks_log.md, "A compact voxel and denser packing").
 //!
-//! Chunks fusion has left alone can be packed losslessly in memory or spilled to a file
-//! (submodules `compressed`, `storage`, `memory`, `spill`); readers see the same voxels.
+//! Chunks fusion has left alone can be packed in memory (exactly but for distances far from
+//! the surface, [`TsdfConfig::packed_far_step_voxels`]) or spilled to a file (submodules
+//! `compressed`, `storage`, `memory`, `spill`); spilling changes no voxel of packing.
 
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
@@ -102,6 +103,16 @@ pub struct TsdfConfig {
     /// voxels, 0.05 % at 3, 0.007 % at 4 (docs/benchmarks_log.md, "A compact voxel and
     /// denser packing").
     pub color_band_voxels: f32,
+    /// Packed (cold) chunks store the distances of voxels at least
+    /// [`TsdfConfig::packed_exact_band_voxels`] from the surface in steps of this many voxels
+    /// (0: every distance exact, as fusion left it). Meshing, the raycast and the labels read
+    /// distances only near zero crossings; far out in the band the finest steps spend bits
+    /// on sensor noise. 0.2 voxels (1 mm at 5 mm) takes the demo's packed map from 2.88 to
+    /// 2.50 MB per m² of surface (docs/benchmarks_log.md, "Session 22"). Plain chunks and
+    /// the spill file are unaffected: a chunk changes only when it is packed. 0 to 1.
+    pub packed_far_step_voxels: f32,
+    /// Distances nearer to zero than this many voxels are always packed exactly (2 to 64).
+    pub packed_exact_band_voxels: f32,
 }
 
 impl Default for TsdfConfig {
@@ -117,6 +128,8 @@ impl Default for TsdfConfig {
             selection_stride: 2,
             color_every: 3,
             color_band_voxels: 4.0,
+            packed_far_step_voxels: 0.2,
+            packed_exact_band_voxels: 3.0,
         }
     }
 }
@@ -156,6 +169,12 @@ impl TsdfConfig {
         if !(0.5..=64.0).contains(&self.color_band_voxels) {
             return bad(format!("colour band {} voxels is outside 0.5..64", self.color_band_voxels));
         }
+        if !(0.0..=1.0).contains(&self.packed_far_step_voxels) {
+            return bad(format!("packed distance step {} voxels is outside 0..1", self.packed_far_step_voxels));
+        }
+        if !(2.0..=64.0).contains(&self.packed_exact_band_voxels) {
+            return bad(format!("exact packed band {} voxels is outside 2..64", self.packed_exact_band_voxels));
+        }
         if !(1..=64).contains(&self.color_every) {
             return bad(format!("colour rate 1/{} is outside 1/1..1/64", self.color_every));
         }
@@ -186,6 +205,20 @@ impl TsdfConfig {
             1.0
         };
         BandModel { constant: k * NOISE_CONSTANT, quadratic: k * NOISE_QUADRATIC, min_relative }
+    }
+
+    /// How packed chunks code distances (see [`TsdfConfig::packed_far_step_voxels`]), in
+    /// stored units.
+    pub(crate) fn distance_coding(&self) -> compressed::DistanceCoding {
+        let unit = TSDF_SCALE / self.truncation_voxels;
+        let step = (self.packed_far_step_voxels * unit).round();
+        if step < 2.0 {
+            return compressed::DistanceCoding::EXACT;
+        }
+        compressed::DistanceCoding {
+            exact_below: (self.packed_exact_band_voxels * unit).round().min(u16::MAX as f32) as u16,
+            far_step: step as u16,
+        }
     }
 
     /// Half-width of the colour band in truncation units (the unit of stored distances).

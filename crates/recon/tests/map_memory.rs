@@ -1,6 +1,7 @@
-//! Packed and spilled chunks: the map reads the same with and without them (voxels and mesh
-//! bits, any thread count), and a spill file that cannot be written or read back is an
-//! error, never lost data or a panic.
+//! Packed and spilled chunks: with exact packing the map reads the same with and without them
+//! (voxels and mesh bits, any thread count); with the default coarse far distances, spilling
+//! changes no bit of the packed map and packing moves only distances far from the surface;
+//! a spill file that cannot be written or read back is an error, never lost data or a panic.
 
 #[path = "common/scene.rs"]
 mod scene;
@@ -36,9 +37,15 @@ enum Memory<'a> {
 /// Fuses the path, meshing incrementally every 4 frames as the pipeline does at keyframes
 /// and compacting every 2 frames; returns the voxels and the incremental mesh.
 fn run(memory: Memory, threads: usize) -> (Vec<Vec<Voxel>>, LabeledMesh, TsdfMap) {
+    run_with(memory, threads, 0.0)
+}
+
+/// [`run`] with packed distances in steps of `far_step` voxels beyond the exact band (0:
+/// exact).
+fn run_with(memory: Memory, threads: usize, far_step: f32) -> (Vec<Vec<Voxel>>, LabeledMesh, TsdfMap) {
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
     pool.install(|| {
-        let config = TsdfConfig { voxel_size: 0.01, ..TsdfConfig::default() };
+        let config = TsdfConfig { voxel_size: 0.01, packed_far_step_voxels: far_step, ..TsdfConfig::default() };
         let k = small_camera();
         let mut map = TsdfMap::new(config).expect("valid");
         if let Memory::Spilled(budget, path) = memory {
@@ -61,7 +68,7 @@ fn run(memory: Memory, threads: usize) -> (Vec<Vec<Voxel>>, LabeledMesh, TsdfMap
 }
 
 #[test]
-fn packing_and_spilling_change_no_bit_for_any_thread_count() {
+fn exact_packing_and_spilling_change_no_bit_for_any_thread_count() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (voxels, mesh, plain) = run(Memory::Plain, 1);
     assert!(mesh.triangle_count() > 1000);
@@ -78,6 +85,40 @@ fn packing_and_spilling_change_no_bit_for_any_thread_count() {
         let mem = spilled.memory();
         assert!(spilled.spill_path().is_some_and(|p| p.exists()));
         assert!(mem.spilled_bytes > 0, "{threads} threads: {mem:?}");
+    }
+}
+
+#[test]
+fn coarse_far_distances_move_only_far_voxels_and_spilling_adds_nothing() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let step = TsdfConfig::default().packed_far_step_voxels;
+    assert!(step > 0.0, "the default packs far distances coarsely");
+    let (plain, plain_mesh, map) = run_with(Memory::Plain, 1, step);
+    let (packed, mesh, _) = run_with(Memory::Packed, 2, step);
+    // Weights and colours are as fusion left them; a distance moved by at most a step (a
+    // voxel packed far out and fused nearer since keeps what is left of its step), and only
+    // where it was far from the surface when packed.
+    let config = TsdfConfig { voxel_size: 0.01, ..TsdfConfig::default() };
+    let unit = 1.0 / config.truncation_voxels; // one voxel in truncation units
+    let mut moved = 0;
+    for (a, b) in plain.iter().flatten().zip(packed.iter().flatten()) {
+        assert_eq!((a.weight(), a.color()), (b.weight(), b.color()));
+        assert!((a.tsdf() - b.tsdf()).abs() <= step * unit + 1e-4, "{} -> {}", a.tsdf(), b.tsdf());
+        if a.tsdf() != b.tsdf() {
+            moved += 1;
+            assert!(a.tsdf().abs() > unit, "a voxel within a voxel of the surface moved: {}", a.tsdf());
+        }
+    }
+    assert!(moved > 0, "no far distance moved");
+    // The surface lies in the exact band; a crossing's far end may have moved a little.
+    let (a, b) = (plain_mesh.triangle_count() as f64, mesh.triangle_count() as f64);
+    assert!((a - b).abs() <= 0.01 * a, "{a} against {b} triangles");
+    let budget = map.memory_bytes() / 3;
+    for threads in [1, 2, 4] {
+        let path = dir.path().join(format!("coarse-{threads}.spill"));
+        let (v, m, spilled) = run_with(Memory::Spilled(budget, &path), threads, step);
+        assert!(v == packed && m == mesh, "spilled, {threads} threads");
+        assert!(spilled.memory().spilled_bytes > 0);
     }
 }
 

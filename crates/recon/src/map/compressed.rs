@@ -1,4 +1,4 @@
-//! Lossless packing of one chunk's voxels for chunks that fusion has not touched for a while
+//! Packing of one chunk's voxels for chunks that fusion has not touched for a while
 //! ("cold" chunks): the in-memory form of a cold chunk, and the payload of a spill-file
 //! record.
 //!
@@ -16,14 +16,21 @@
 //! through LZ4 (fast, pure Rust) when that shrinks it, which folds long runs of equal
 //! residuals (capped weights, saturated colour counts, flat colours).
 //!
-//! Lossless for every input: a chunk with an unobserved voxel that is not all zeros (which
-//! fusion never makes, but a caller of the map could) is packed densely, all 512 voxels.
+//! Lossless for every input with [`DistanceCoding::EXACT`]: a chunk with an unobserved voxel
+//! that is not all zeros (which fusion never makes, but a caller of the map could) is packed
+//! densely, all 512 voxels. With a coarse [`DistanceCoding`] (the map's default, see
+//! [`crate::TsdfConfig::packed_far_step_voxels`]) the distances of voxels far from the surface
+//! are stored in coarser steps: meshing, tracking's raycast and the labels read distances only
+//! near zero crossings, and in the far part of the band the sensor's noise is what the
+//! finest steps spend their bits on. Coding stays closed-loop (predictions read the values
+//! as decoded), so packing a decoded chunk again gives the same bytes and the same voxels:
+//! a chunk that goes cold, comes back and goes cold again moves only where fusion changed it.
 //!
 //! Layout: `[flags u8] [stream length u16] [stream, LZ4 or raw]`; the stream, which holds
 //! the observed mask as run lengths (sparse chunks only), is described at `residuals`.
 
 use super::rice::{self, BitReader, BitWriter};
-use super::{VoxelBlock, CHUNK_SIDE, CHUNK_VOXELS};
+use super::{VoxelBlock, CHUNK_SIDE, CHUNK_VOXELS, TSDF_SCALE};
 
 /// What a packed chunk can be wrong about when read back (only bytes from outside the
 /// process, the spill file, can be).
@@ -41,6 +48,34 @@ pub enum PackError {
 const LZ4: u8 = 1;
 /// Flag bit: all 512 voxels are coded (no mask).
 const DENSE: u8 = 2;
+/// Flag bit: distances far from the surface are coarse; the layout's header then carries the
+/// [`DistanceCoding`] (two `u16`, little-endian) after the stream length.
+const COARSE: u8 = 4;
+
+/// How a packed chunk stores distances: exactly, or, where the prediction from already-coded
+/// neighbours is at least `exact_below` from zero (in stored units), in steps of `far_step`.
+///
+/// In a coarse context a voxel whose distance is itself at least `exact_below` (and a valid
+/// distance, at most [`crate::map::TSDF_SCALE`]) is stored to the nearest step from the
+/// prediction that is also at least `exact_below` from zero: within half a step (a step at
+/// the band's edge), on the same side of zero; any other voxel is stored exactly, with a code
+/// above every step's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct DistanceCoding {
+    /// Distances nearer to zero than this are exact.
+    pub exact_below: u16,
+    /// Step of the far distances (1: exact everywhere).
+    pub far_step: u16,
+}
+
+impl DistanceCoding {
+    /// Every distance exact.
+    pub(crate) const EXACT: Self = Self { exact_below: u16::MAX, far_step: 1 };
+
+    fn is_exact(self) -> bool {
+        self.far_step <= 1
+    }
+}
 /// Bits of the number of runs of the observed mask (at most 512).
 const RUN_COUNT_BITS: u32 = 10;
 /// Longest residual stream: the mask's runs (one per voxel at most) and per voxel a bit
@@ -50,8 +85,8 @@ const RUN_COUNT_BITS: u32 = 10;
 const MAX_STREAM: usize =
     (RUN_COUNT_BITS as usize + CHUNK_VOXELS * (1 + 7 * rice::MAX_VALUE_BITS) + 7 * rice::SECTION_BITS).div_ceil(8);
 
-/// Packs `block` losslessly (see the module documentation).
-pub(crate) fn pack(block: &VoxelBlock) -> Box<[u8]> {
+/// Packs `block`, its distances coded as `coding` says (see the module documentation).
+pub(crate) fn pack(block: &VoxelBlock, coding: DistanceCoding) -> Box<[u8]> {
     let mut mask = [0u64; CHUNK_VOXELS / 64];
     let mut dense = false;
     for i in 0..CHUNK_VOXELS {
@@ -64,14 +99,22 @@ pub(crate) fn pack(block: &VoxelBlock) -> Box<[u8]> {
     if dense {
         mask = [u64::MAX; CHUNK_VOXELS / 64];
     }
-    let stream = residuals(block, &mask, dense);
+    // Coarse coding is for fusion's distances, within +-TSDF_SCALE; a chunk holding anything
+    // else (which fusion never makes) is packed exactly.
+    let valid = |t: i16| (t as i32).unsigned_abs() <= TSDF_SCALE as u32;
+    let coding = if coding.is_exact() || block.tsdf.iter().all(|&t| valid(t)) { coding } else { DistanceCoding::EXACT };
+    let stream = residuals(block, &mask, dense, coding);
     let compressed = lz4_flex::block::compress(&stream);
     let (flags, body) = if compressed.len() < stream.len() { (LZ4, &compressed) } else { (0, &stream) };
-    let flags = flags | if dense { DENSE } else { 0 };
-    let mut out = Vec::with_capacity(1 + 2 + body.len());
+    let flags = flags | if dense { DENSE } else { 0 } | if coding.is_exact() { 0 } else { COARSE };
+    let mut out = Vec::with_capacity(1 + 2 + 4 + body.len());
     out.push(flags);
     // MAX_STREAM < 2^16, so the raw length always fits.
     out.extend_from_slice(&(stream.len() as u16).to_le_bytes());
+    if !coding.is_exact() {
+        out.extend_from_slice(&coding.exact_below.to_le_bytes());
+        out.extend_from_slice(&coding.far_step.to_le_bytes());
+    }
     out.extend_from_slice(body);
     out.into_boxed_slice()
 }
@@ -80,11 +123,23 @@ pub(crate) fn pack(block: &VoxelBlock) -> Box<[u8]> {
 pub(crate) fn unpack_into(bytes: &[u8], block: &mut VoxelBlock) -> Result<(), PackError> {
     let truncated = || PackError::Truncated(bytes.len());
     let (&flags, rest) = bytes.split_first().ok_or_else(truncated)?;
-    if flags & !(LZ4 | DENSE) != 0 {
+    if flags & !(LZ4 | DENSE | COARSE) != 0 {
         return Err(PackError::Malformed("unknown flags"));
     }
-    let (len, body) = rest.split_at_checked(2).ok_or_else(truncated)?;
+    let (len, mut body) = rest.split_at_checked(2).ok_or_else(truncated)?;
     let len = u16::from_le_bytes([len[0], len[1]]) as usize;
+    let mut coding = DistanceCoding::EXACT;
+    if flags & COARSE != 0 {
+        let (c, b) = body.split_at_checked(4).ok_or_else(truncated)?;
+        coding = DistanceCoding {
+            exact_below: u16::from_le_bytes([c[0], c[1]]),
+            far_step: u16::from_le_bytes([c[2], c[3]]),
+        };
+        if coding.is_exact() {
+            return Err(PackError::Malformed("coarse distances with a step of 1"));
+        }
+        body = b;
+    }
     if len > MAX_STREAM {
         return Err(PackError::Malformed("stream longer than any chunk's"));
     }
@@ -102,7 +157,7 @@ pub(crate) fn unpack_into(bytes: &[u8], block: &mut VoxelBlock) -> Result<(), Pa
         }
         body
     };
-    decode(stream, flags & DENSE != 0, block)
+    decode(stream, flags & DENSE != 0, coding, block)
 }
 
 /// Whether voxel `i` is coded.
@@ -161,6 +216,34 @@ fn predict_tsdf(t: &[i16; CHUNK_VOXELS], n: Neighbours) -> i16 {
     }
 }
 
+/// Whether a voxel predicted `pred` is coded in a coarse context.
+#[inline]
+fn coarse_context(pred: i16, coding: DistanceCoding) -> bool {
+    (pred as i32).unsigned_abs() >= coding.exact_below as u32
+}
+
+/// Whether distance `v` in a coarse context is stored in steps.
+#[inline]
+fn coarse_value(v: i16, coding: DistanceCoding) -> bool {
+    let a = (v as i32).unsigned_abs();
+    a >= coding.exact_below as u32 && a <= TSDF_SCALE as u32
+}
+
+/// The first code of an exact residual in a coarse context: every step code is below it
+/// (steps from a prediction within 3 x TSDF_SCALE to a distance within TSDF_SCALE).
+#[inline]
+fn exact_code_base(coding: DistanceCoding) -> u16 {
+    let most_steps = 4 * TSDF_SCALE as u32 / coding.far_step.max(2) as u32 + 1;
+    (2 * most_steps + 2) as u16
+}
+
+/// The distance `r` steps from `pred`, kept within the valid distances.
+#[inline]
+fn coarse_reconstruction(pred: i16, r: i32, coding: DistanceCoding) -> i16 {
+    let limit = TSDF_SCALE as i32;
+    (pred as i32 + r * coding.far_step as i32).clamp(-limit, limit) as i16
+}
+
 /// Planar prediction of a weight, clamped to the range of its neighbours (weights follow
 /// the viewing distance and count, smooth across a chunk but not linear).
 #[inline]
@@ -200,7 +283,7 @@ fn predict_color(c: &[[u8; 4]; CHUNK_VOXELS], n: Neighbours, last: [u8; 4]) -> [
 /// distances and weights of the coded voxels, then the red, green, blue and count bytes of
 /// the coloured ones (sections apart, each with its own parameter). One pass over the voxels
 /// fills all sections.
-fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64], dense: bool) -> Vec<u8> {
+fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64], dense: bool, coding: DistanceCoding) -> Vec<u8> {
     let n = mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
     let mut out = BitWriter::with_capacity(n.div_ceil(8) + 64);
     if !dense {
@@ -209,16 +292,41 @@ fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64], dense: bool) -
         rice::put_section(&mut out, &runs);
     }
     let mut tsdf = Vec::with_capacity(n);
+    // Coarse contexts' codes, a section of their own: their steps are a few units wide where
+    // the exact residuals near the surface are hundreds.
+    let mut far = Vec::new();
     let mut weight = Vec::with_capacity(n);
     let mut color: [Vec<u16>; 4] = std::array::from_fn(|_| Vec::with_capacity(n));
     let mut last = [0u8; 4];
+    // The distances as the decoder will see them (closed loop): predictions read these.
+    let mut decoded = block.tsdf;
     for (w, &word) in mask.iter().enumerate() {
         let mut bits = word;
         while bits != 0 {
             let i = w * 64 + bits.trailing_zeros() as usize;
             bits &= bits - 1;
             let nb = Neighbours::of(mask, i);
-            tsdf.push(zigzag(block.tsdf[i].wrapping_sub(predict_tsdf(&block.tsdf, nb))));
+            let pred = predict_tsdf(&decoded, nb);
+            let v = block.tsdf[i];
+            if coding.is_exact() || !coarse_context(pred, coding) {
+                tsdf.push(zigzag(v.wrapping_sub(pred)));
+            } else if coarse_value(v, coding) {
+                let d = v as i32 - pred as i32;
+                let step = coding.far_step as i32;
+                let mut r = (d + step / 2).div_euclid(step);
+                if !coarse_value(coarse_reconstruction(pred, r, coding), coding) {
+                    // Rounded into the exact band: one step further out, so that the value
+                    // stays coarse and packing the decoded chunk again changes nothing.
+                    r += (v as i32).signum();
+                }
+                decoded[i] = coarse_reconstruction(pred, r, coding);
+                far.push(zigzag(r as i16));
+            } else {
+                // An exact residual in a coarse context, above every step code. Coarse
+                // chunks hold valid distances only (`pack`): a prediction is within
+                // 3 x TSDF_SCALE, a residual's zigzag within 15 bits.
+                far.push(exact_code_base(coding) + zigzag(v.wrapping_sub(pred)));
+            }
             weight.push(zigzag(block.weight[i].wrapping_sub(predict_weight(&block.weight, nb)) as i16));
             let c = block.color[i];
             out.put((c != [0; 4]) as u64, 1);
@@ -231,8 +339,13 @@ fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64], dense: bool) -
             }
         }
     }
-    for section in [&tsdf, &weight, &color[0], &color[1], &color[2], &color[3]] {
-        rice::put_section(&mut out, section);
+    if !coding.is_exact() {
+        out.put(far.len() as u64, RUN_COUNT_BITS);
+    }
+    for section in [&tsdf, &far, &weight, &color[0], &color[1], &color[2], &color[3]] {
+        if !(coding.is_exact() && std::ptr::eq(section, &far)) {
+            rice::put_section(&mut out, section);
+        }
     }
     out.finish()
 }
@@ -277,7 +390,7 @@ fn mask_from_runs(runs: &[u16]) -> Result<[u64; CHUNK_VOXELS / 64], PackError> {
 }
 
 /// Inverts [`residuals`] into `block`; voxels outside the mask become all zeros.
-fn decode(s: &[u8], dense: bool, block: &mut VoxelBlock) -> Result<(), PackError> {
+fn decode(s: &[u8], dense: bool, coding: DistanceCoding, block: &mut VoxelBlock) -> Result<(), PackError> {
     let mut r = BitReader::new(s);
     let mask = if dense {
         [u64::MAX; CHUNK_VOXELS / 64]
@@ -302,7 +415,15 @@ fn decode(s: &[u8], dense: bool, block: &mut VoxelBlock) -> Result<(), PackError
     let m = coloured.iter().filter(|&&c| c).count();
     let (mut tsdf, mut weight) = ([0u16; CHUNK_VOXELS], [0u16; CHUNK_VOXELS]);
     let mut color = [[0u16; CHUNK_VOXELS]; 4];
-    rice::get_section(&mut r, &mut tsdf[..n])?;
+    let n_far = if coding.is_exact() { 0 } else { r.get(RUN_COUNT_BITS)? as usize };
+    if n_far > n {
+        return Err(PackError::Malformed("more coarse distances than voxels"));
+    }
+    let mut far = [0u16; CHUNK_VOXELS];
+    rice::get_section(&mut r, &mut tsdf[..n - n_far])?;
+    if !coding.is_exact() {
+        rice::get_section(&mut r, &mut far[..n_far])?;
+    }
     rice::get_section(&mut r, &mut weight[..n])?;
     for plane in &mut color {
         rice::get_section(&mut r, &mut plane[..m])?;
@@ -314,13 +435,28 @@ fn decode(s: &[u8], dense: bool, block: &mut VoxelBlock) -> Result<(), PackError
     block.weight.fill(0);
     block.color.fill([0; 4]);
     let (mut k, mut c, mut last) = (0, 0, [0u8; 4]);
+    let (mut k_near, mut k_far) = (0, 0);
     for (w, &word) in mask.iter().enumerate() {
         let mut bits = word;
         while bits != 0 {
             let i = w * 64 + bits.trailing_zeros() as usize;
             bits &= bits - 1;
             let nb = Neighbours::of(mask, i);
-            block.tsdf[i] = unzigzag(tsdf[k]).wrapping_add(predict_tsdf(&block.tsdf, nb));
+            let pred = predict_tsdf(&block.tsdf, nb);
+            block.tsdf[i] = if coding.is_exact() || !coarse_context(pred, coding) {
+                let v = *tsdf[..n - n_far].get(k_near).ok_or(PackError::Malformed("too few exact distances"))?;
+                k_near += 1;
+                unzigzag(v).wrapping_add(pred)
+            } else {
+                let v = *far[..n_far].get(k_far).ok_or(PackError::Malformed("too few coarse distances"))?;
+                k_far += 1;
+                let base = exact_code_base(coding);
+                if v >= base {
+                    unzigzag(v - base).wrapping_add(pred)
+                } else {
+                    coarse_reconstruction(pred, unzigzag(v) as i32, coding)
+                }
+            };
             block.weight[i] = (unzigzag(weight[k]) as u16).wrapping_add(predict_weight(&block.weight, nb));
             if !dense && block.weight[i] == 0 {
                 // A sparse chunk codes observed voxels only: the bytes were altered.
@@ -346,6 +482,9 @@ fn decode(s: &[u8], dense: bool, block: &mut VoxelBlock) -> Result<(), PackError
             }
             k += 1;
         }
+    }
+    if k_near + k_far != n || k_far != n_far {
+        return Err(PackError::Malformed("coarse distance count does not match the voxels"));
     }
     Ok(())
 }
@@ -377,7 +516,7 @@ mod tests {
     }
 
     fn round_trip(b: &VoxelBlock) -> usize {
-        let packed = pack(b);
+        let packed = pack(b, DistanceCoding::EXACT);
         let mut out = empty();
         out.tsdf.fill(7);
         unpack_into(&packed, &mut out).expect("own pack decodes");
@@ -440,19 +579,94 @@ mod tests {
         round_trip(&b);
     }
 
+    /// A chunk like fusion makes at 5 mm with a 10-voxel band: distances within
+    /// +-TSDF_SCALE, noisy far out.
+    fn fused(rng: &mut ChaCha8Rng) -> Box<VoxelBlock> {
+        let mut b = empty();
+        let (nx, ny, d) = (rng.random_range(-1.0f32..1.0), rng.random_range(-1.0f32..1.0), rng.random_range(0.0..8.0));
+        for i in 0..CHUNK_VOXELS {
+            let (x, y, z) = ((i % 8) as f32, ((i / 8) % 8) as f32, (i / 64) as f32);
+            let voxels = z + nx * x + ny * y - d;
+            if voxels.abs() < 10.0 {
+                let noise = rng.random_range(-1.0..1.0);
+                let t = ((voxels + noise) / 10.0).clamp(-1.0, 1.0) * TSDF_SCALE;
+                b.tsdf[i] = t.round() as i16;
+                b.weight[i] = if rng.random_range(0..8) == 0 { rng.random_range(1..64 * 16) } else { 64 * 16 };
+                if voxels.abs() < 4.0 {
+                    b.color[i] = [rng.random_range(90..110), 128, rng.random_range(100..110), rng.random_range(1..200)];
+                }
+            }
+        }
+        b
+    }
+
+    /// The 5 mm default: exact within 3 voxels, steps of 0.2 voxels beyond (10-voxel band).
+    const COARSE_CODING: DistanceCoding = DistanceCoding { exact_below: 614, far_step: 41 };
+
+    #[test]
+    fn coarse_distances_stay_within_half_a_step_far_out_and_exact_near_the_surface() {
+        let mut rng = ChaCha8Rng::seed_from_u64(21);
+        let (mut exact_bytes, mut coarse_bytes, mut moved) = (0, 0, 0);
+        for _ in 0..200 {
+            let b = fused(&mut rng);
+            let packed = pack(&b, COARSE_CODING);
+            let mut out = empty();
+            unpack_into(&packed, &mut out).expect("own pack decodes");
+            assert_eq!((out.weight, out.color), (b.weight, b.color), "weights and colours exact");
+            for i in 0..CHUNK_VOXELS {
+                let (v, w) = (b.tsdf[i] as i32, out.tsdf[i] as i32);
+                if v.abs() < COARSE_CODING.exact_below as i32 {
+                    assert_eq!(w, v, "near the surface: exact");
+                } else {
+                    let half = COARSE_CODING.far_step as i32 / 2;
+                    let step = COARSE_CODING.far_step as i32;
+                    let bound = if w.abs() < 614 + step { step } else { half };
+                    assert!((w - v).abs() <= bound, "{v} -> {w}");
+                    assert!(w.signum() == v.signum() && w.abs() >= 614, "{v} -> {w}");
+                }
+                moved += (w != v) as usize;
+            }
+            // Closed loop: packing the decoded chunk again gives the same bytes.
+            assert_eq!(pack(&out, COARSE_CODING), packed, "repacking is idempotent");
+            exact_bytes += pack(&b, DistanceCoding::EXACT).len();
+            coarse_bytes += packed.len();
+        }
+        assert!(moved > 1000, "the far distances were coarsened ({moved} voxels)");
+        // (On fused scans the saving is larger: docs/benchmarks_log.md, "Session 22".)
+        assert!(coarse_bytes < exact_bytes, "{coarse_bytes} against {exact_bytes} bytes");
+    }
+
+    #[test]
+    fn chunks_fusion_never_makes_pack_exactly_under_coarse_coding() {
+        // Distances beyond +-TSDF_SCALE: the chunk falls back to exact coding.
+        let mut rng = ChaCha8Rng::seed_from_u64(22);
+        for _ in 0..20 {
+            let b = banded(&mut rng);
+            let packed = pack(&b, COARSE_CODING);
+            let mut out = empty();
+            unpack_into(&packed, &mut out).expect("decodes");
+            assert_eq!(&*out, &*b);
+        }
+    }
+
     #[test]
     fn damaged_bytes_are_errors_not_panics() {
-        let mut rng = ChaCha8Rng::seed_from_u64(5);
-        let packed = pack(&banded(&mut rng));
         let mut out = empty();
-        for n in 0..packed.len() {
-            assert!(unpack_into(&packed[..n], &mut out).is_err(), "truncated to {n} bytes");
-        }
-        // Flipped bytes: an error or some block, never a panic.
-        for k in 0..packed.len() {
-            let mut bad = packed.to_vec();
-            bad[k] ^= 0x5a;
-            let _ = unpack_into(&bad, &mut out);
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let exact = pack(&banded(&mut rng), DistanceCoding::EXACT);
+        let mut rng = ChaCha8Rng::seed_from_u64(6);
+        let coarse = pack(&fused(&mut rng), COARSE_CODING);
+        assert_ne!(coarse[0] & COARSE, 0);
+        for packed in [exact, coarse] {
+            for n in 0..packed.len() {
+                assert!(unpack_into(&packed[..n], &mut out).is_err(), "truncated to {n} bytes");
+            }
+            // Flipped bytes: an error or some block, never a panic.
+            for k in 0..packed.len() {
+                let mut bad = packed.to_vec();
+                bad[k] ^= 0x5a;
+                let _ = unpack_into(&bad, &mut out);
+            }
         }
         assert_eq!(unpack_into(&[0xff], &mut out), Err(PackError::Malformed("unknown flags")));
     }
@@ -471,24 +685,28 @@ mod speed {
         let mut b = VoxelBlock::empty();
         for i in 0..CHUNK_VOXELS {
             if rng.random_range(0..4) > 0 {
-                b.tsdf[i] = rng.random_range(-2000..2000) + (i as i16) * 40;
+                b.tsdf[i] = rng.random_range(-400..400) + (i as i16 % 64) * 40 - 1200;
                 b.weight[i] = rng.random_range(1..16000);
                 b.color[i] = [rng.random_range(100..120), 50, 60, rng.random_range(10..40)];
             }
         }
         let n = 2000;
-        let t = std::time::Instant::now();
-        let mut p = pack(&b);
-        for _ in 0..n {
-            p = pack(std::hint::black_box(&b));
+        for (name, coding) in
+            [("exact", DistanceCoding::EXACT), ("coarse", DistanceCoding { exact_below: 614, far_step: 41 })]
+        {
+            let t = std::time::Instant::now();
+            let mut p = pack(&b, coding);
+            for _ in 0..n {
+                p = pack(std::hint::black_box(&b), coding);
+            }
+            let pack_us = t.elapsed().as_secs_f64() * 1e6 / n as f64;
+            let mut out = VoxelBlock::empty();
+            let t = std::time::Instant::now();
+            for _ in 0..n {
+                unpack_into(std::hint::black_box(&p), &mut out).expect("decodes");
+            }
+            let unpack_us = t.elapsed().as_secs_f64() * 1e6 / n as f64;
+            println!("{name}: pack {pack_us:.1} us, unpack {unpack_us:.1} us, {} bytes", p.len());
         }
-        let pack_us = t.elapsed().as_secs_f64() * 1e6 / n as f64;
-        let mut out = VoxelBlock::empty();
-        let t = std::time::Instant::now();
-        for _ in 0..n {
-            unpack_into(std::hint::black_box(&p), &mut out).expect("decodes");
-        }
-        let unpack_us = t.elapsed().as_secs_f64() * 1e6 / n as f64;
-        println!("pack {pack_us:.1} us, unpack {unpack_us:.1} us, {} bytes", p.len());
     }
 }

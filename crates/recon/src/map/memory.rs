@@ -5,7 +5,9 @@
 //! or out of its range, and will only be read again (meshing its neighbours, ray casting
 //! when the camera turns back) or refused again much later. Deciding by fused frame index,
 //! never by time or thread, keeps the output the same bits whatever the machine does; and
-//! packing is lossless, so the map reads exactly as it would unpacked.
+//! packing is lossless but for distances far from the surface (exact too with
+//! `TsdfConfig::packed_far_step_voxels` 0), so the map reads as it would unpacked where any
+//! reader looks.
 //!
 //! The spill order is the same: coldest neighbourhood first (the latest frame that changed
 //! the chunk or any of its 26 neighbours), ties in key order. A chunk is spilled only when
@@ -159,20 +161,23 @@ impl TsdfMap {
 
     /// Packs the chunks no frame changed in the `cold_after` frames up to frame `now`, drops
     /// the unpacked copies readers made of packed chunks, and, past the memory budget,
-    /// spills the coldest packed chunks. Lossless: every reader sees the same voxels.
+    /// spills the coldest packed chunks. Packing stores distances far from the surface in the
+    /// steps of [`TsdfConfig::packed_far_step_voxels`](crate::TsdfConfig::packed_far_step_voxels)
+    /// (exactly with 0); everything else, and spilling, is lossless.
     ///
     /// Never fails: a spill file that cannot be written stops spilling (the chunks stay
     /// packed in memory) and a budget smaller than the chunks near the camera is raised;
     /// both come back as warnings.
     pub fn compact(&mut self, now: u32, cold_after: u32) -> Compaction {
         let quiet = |c: &Chunk| c.last_changed().is_none_or(|f| f.saturating_add(cold_after) <= now);
+        let coding = self.config.distance_coding();
         let packed = self
             .chunks
             .par_iter_mut()
             .map(|c| {
                 let was_hot = !c.voxels.is_cold();
                 if !was_hot || quiet(c) {
-                    c.voxels.freeze();
+                    c.voxels.freeze(coding);
                 }
                 (was_hot && c.voxels.is_cold()) as usize
             })

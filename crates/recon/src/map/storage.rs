@@ -17,7 +17,7 @@ use std::ops::{Deref, DerefMut};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
 
-use super::compressed::{pack, unpack_into};
+use super::compressed::{pack, unpack_into, DistanceCoding};
 use super::spill::{SpillFile, SpillRecord};
 use super::VoxelBlock;
 
@@ -63,12 +63,12 @@ pub(crate) enum Packed {
 }
 
 impl VoxelStore {
-    /// Packs a hot block; a cold one drops its cache unless a read marked it since the last
-    /// call (then only the mark is cleared).
-    pub(crate) fn freeze(&mut self) {
+    /// Packs a hot block, its distances coded as `coding` says; a cold one drops its cache
+    /// unless a read marked it since the last call (then only the mark is cleared).
+    pub(crate) fn freeze(&mut self, coding: DistanceCoding) {
         match self {
             Self::Hot(b) => {
-                let packed = pack(b);
+                let packed = pack(b, coding);
                 *self = Self::Cold(Box::new(ColdVoxels::new(Packed::Memory(packed), OnceLock::new())));
             }
             Self::Cold(c) => {
