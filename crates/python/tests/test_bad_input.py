@@ -121,6 +121,8 @@ def test_bad_segment_input():
         semrecon.segment(bad, cols)
     with pytest.raises(ValueError, match="points: .*not C-contiguous"):
         semrecon.segment(np.zeros((3, 5), np.float32).T, cols)
+    with pytest.raises(ValueError, match="structure: `bogus`: expected one of none, segments, planes, all"):
+        semrecon.segment(pts, cols, structure="bogus")
 
 
 def test_bad_ply(tmp_path):

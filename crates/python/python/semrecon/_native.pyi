@@ -286,11 +286,17 @@ class Pipeline:
     def warnings(self) -> List[str]: ...
 
 def segment(
-    points: npt.NDArray[np.float32], colors: npt.NDArray[np.uint8], *, model: Optional[str] = None
+    points: npt.NDArray[np.float32],
+    colors: npt.NDArray[np.uint8],
+    *,
+    model: Optional[str] = None,
+    structure: Literal["none", "segments", "planes", "all"] = "segments",
 ) -> npt.NDArray[np.uint8]:
     """Class ids uint8 ``(N,)`` of a coloured point cloud: ``points`` float32 ``(N, 3)``
     metres, z up; ``colors`` uint8 ``(N, 3)`` RGB. The network (the shipped model by
-    default) labels 5 cm voxels; every point takes its voxel's class."""
+    default) labels 5 cm voxels, then ``structure`` refines them as ``semrecon segment
+    --structure`` does (default: labels voted over geometric segments, and beam faces); every
+    point takes its voxel's class."""
 
 def write_ply(path: _Path, mesh: _Mesh, *, binary: bool = True) -> None:
     """Writes a mesh dict (``vertices`` required; ``faces`` int32/int64/uint32, ``colors``,
