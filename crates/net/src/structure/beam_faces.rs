@@ -148,7 +148,6 @@ pub fn beam_faces(
     // `support[s]`: the level of the underside that segment `s` belongs to or rises from
     // (the undersides first, then the faces converted in earlier rounds).
     let mut support: Vec<Option<i32>> = shapes.iter().map(|s| underside(s).then_some(s.z_min)).collect();
-    let mut changed_segments = vec![false; m];
     loop {
         // For every candidate face: its lower-edge voxels that touch a support, the lowest
         // support level touched, and whether it touches an underside or a converted face in
@@ -203,7 +202,6 @@ pub fn beam_faces(
             let continues = wall_below[f] < level[f] - params.below_levels;
             if rests && anchored[f] && !continues && shapes[f].z_min >= level[f] - params.below_levels {
                 support[f] = Some(level[f]);
-                changed_segments[f] = true;
                 grew = true;
             }
         }
@@ -211,9 +209,11 @@ pub fn beam_faces(
             break;
         }
     }
+    // Supports of class wall are the converted faces (undersides are beam).
+    let converted: Vec<bool> = (0..m).map(|f| support[f].is_some() && shapes[f].class == wall).collect();
     let mut changed = 0;
     for i in 0..n {
-        if changed_segments[segment[i] as usize] {
+        if converted[segment[i] as usize] {
             labels[i] = beam;
             changed += 1;
         }
@@ -268,21 +268,16 @@ mod tests {
         (coords, segment, labels)
     }
 
+    /// [`beam_faces`] at 5 cm on hand-made segments, normals from the voxels.
+    fn apply(coords: &[Coord], segment: &[u32], labels: &mut [u8], params: &BeamFaceParams) -> usize {
+        let neighbours = voxel_neighbours(coords);
+        let normals = voxel_normals(coords, &neighbours);
+        beam_faces(coords, &neighbours, &normals, segment, labels, 0.05, WALL, BEAM, params)
+    }
+
     fn run(underside_class: u8) -> (Vec<u32>, Vec<u8>, usize) {
         let (coords, segment, mut labels) = bulkhead(underside_class);
-        let neighbours = voxel_neighbours(&coords);
-        let normals = voxel_normals(&coords, &neighbours);
-        let changed = beam_faces(
-            &coords,
-            &neighbours,
-            &normals,
-            &segment,
-            &mut labels,
-            0.05,
-            WALL,
-            BEAM,
-            &BeamFaceParams::default(),
-        );
+        let changed = apply(&coords, &segment, &mut labels, &BeamFaceParams::default());
         (segment, labels, changed)
     }
 
@@ -325,11 +320,7 @@ mod tests {
         }
         let mut labels: Vec<u8> = segment.iter().map(|&s| if s == 2 { BEAM } else { WALL }).collect();
         let before = labels.clone();
-        let neighbours = voxel_neighbours(&coords);
-        let normals = voxel_normals(&coords, &neighbours);
-        let params = BeamFaceParams::default();
-        let changed = beam_faces(&coords, &neighbours, &normals, &segment, &mut labels, 0.05, WALL, BEAM, &params);
-        assert_eq!(changed, 0);
+        assert_eq!(apply(&coords, &segment, &mut labels, &BeamFaceParams::default()), 0);
         assert_eq!(labels, before);
     }
 
@@ -359,15 +350,12 @@ mod tests {
         }
         let mut labels: Vec<u8> = segment.iter().map(|&s| if s == 2 { BEAM } else { WALL }).collect();
         let before = labels.clone();
-        let neighbours = voxel_neighbours(&coords);
-        let normals = voxel_normals(&coords, &neighbours);
         let params = BeamFaceParams::default();
-        let changed = beam_faces(&coords, &neighbours, &normals, &segment, &mut labels, 0.05, WALL, BEAM, &params);
-        assert_eq!(changed, 0);
+        assert_eq!(apply(&coords, &segment, &mut labels, &params), 0);
         assert_eq!(labels, before);
         // Without the walk down, the strip would be taken for a face.
         let blind = BeamFaceParams { walk_levels: 0, ..params };
-        let changed = beam_faces(&coords, &neighbours, &normals, &segment, &mut labels, 0.05, WALL, BEAM, &blind);
+        let changed = apply(&coords, &segment, &mut labels, &blind);
         assert!(changed > 0);
     }
 

@@ -342,10 +342,12 @@ fn residuals(block: &VoxelBlock, mask: &[u64; CHUNK_VOXELS / 64], dense: bool, c
     if !coding.is_exact() {
         out.put(far.len() as u64, RUN_COUNT_BITS);
     }
-    for section in [&tsdf, &far, &weight, &color[0], &color[1], &color[2], &color[3]] {
-        if !(coding.is_exact() && std::ptr::eq(section, &far)) {
-            rice::put_section(&mut out, section);
-        }
+    rice::put_section(&mut out, &tsdf);
+    if !coding.is_exact() {
+        rice::put_section(&mut out, &far);
+    }
+    for section in [&weight, &color[0], &color[1], &color[2], &color[3]] {
+        rice::put_section(&mut out, section);
     }
     out.finish()
 }
