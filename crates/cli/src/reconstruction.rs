@@ -92,6 +92,11 @@ pub struct ReconArgs {
     /// (docs/loop_closure.md).
     #[arg(long)]
     pub loop_information_from_alignment: bool,
+    /// With loop closure: odometry edges take their information's shape from the tracking
+    /// between their keyframes (the worst-conditioned frame's normal matrix), so that a stretch
+    /// where depth barely constrained some motion takes more of a loop's correction.
+    #[arg(long)]
+    pub odometry_information_from_tracking: bool,
     /// With loop closure: the map follows a correction only in chunks that a frame's pose
     /// change moves by more than this many voxels (default 0.5).
     #[arg(long)]
@@ -236,6 +241,7 @@ pub fn pipeline_config(
     config.semantics.surface_refresh_keyframes = semantics.surface_refresh;
     config.loop_closure.enabled = recon.loop_closure;
     config.loop_closure.loop_information_from_alignment = recon.loop_information_from_alignment;
+    config.loop_closure.odometry_information_from_tracking = recon.odometry_information_from_tracking;
     if let Some(v) = recon.min_chunk_move_voxels {
         config.loop_closure.min_chunk_move_voxels = v;
     }

@@ -27,7 +27,9 @@
 
 use glam::{Affine3A, DAffine3};
 use semrecon_data::{Frame, Intrinsics, Trajectory};
-use semrecon_recon::pose_graph::{alignment_information, isotropic_information, pose_distance};
+use semrecon_recon::pose_graph::{
+    adjoint, alignment_information, isotropic_information, odometry_information, pose_distance, pull_back, Mat6,
+};
 use semrecon_recon::{
     EdgeKind, IntegrationStats, LoopConfig, LoopDetector, LoopVerdict, PoseEdge, PoseGraph, PoseGraphConfig, TsdfMap,
 };
@@ -66,6 +68,13 @@ pub struct LoopClosureConfig {
     /// 3.9-11.0 mm against 2.4-5.0 mm, seeds 1-5): its weaker directions trigger fewer
     /// corrections and pull less against odometry (docs/loop_closure.md).
     pub loop_information_from_alignment: bool,
+    /// An odometry edge's information takes its shape from the tracking between its two
+    /// keyframes: the camera-frame normal matrix of the worst-conditioned frame of the
+    /// interval ([`semrecon_recon::TrackingResult::camera_hessian`]), scaled so that its
+    /// best-constrained translation has `odometry_sigma`'s metres. A stretch where depth
+    /// barely constrained some motion (a doorway, a bare wall) then takes more of a loop's
+    /// correction than one where tracking was firm; off: isotropic `odometry_sigma`.
+    pub odometry_information_from_tracking: bool,
     /// The graph is optimised when a new loop edge's chi-square at the current poses exceeds
     /// this: a loop that agrees with the poses changes nothing worth re-fusing the map for.
     pub min_loop_chi2: f64,
@@ -116,6 +125,7 @@ impl Default for LoopClosureConfig {
             odometry_sigma: (0.005, 0.004),
             loop_sigma: (0.004, 0.003),
             loop_information_from_alignment: false,
+            odometry_information_from_tracking: false,
             min_loop_chi2: 6.0,
             min_move: 0.008,
             min_chunk_move_voxels: 0.5,
@@ -319,6 +329,10 @@ pub(crate) struct LoopClosure {
     /// re-integration budget is spread; and the store's size at the last keyframe.
     keyframe_interval: usize,
     frames_at_keyframe: usize,
+    /// Since the last graph node, the tracked frame whose alignment was worst conditioned:
+    /// its condition, map pose and camera-frame normal matrix (the odometry edge's shape
+    /// with [`LoopClosureConfig::odometry_information_from_tracking`]).
+    weakest_tracking: Option<(f64, DAffine3, Mat6)>,
 }
 
 fn to_f64(p: Affine3A) -> DAffine3 {
@@ -347,6 +361,7 @@ impl LoopClosure {
             live_frames: 0,
             keyframe_interval: 10,
             frames_at_keyframe: 0,
+            weakest_tracking: None,
             config,
         }
     }
@@ -387,7 +402,21 @@ impl LoopClosure {
 
     /// Records a fused frame at its tracked pose; a keyframe (`keyframe`, and always the
     /// first frame) becomes a graph node with an odometry edge from the previous one.
+    #[cfg(test)]
     pub fn add_frame(&mut self, frame: &Frame, pose: Affine3A, keyframe: bool) -> Result<()> {
+        self.add_frame_tracked(frame, pose, keyframe, None)
+    }
+
+    /// [`LoopClosure::add_frame`] with what the tracker measured of the frame: the
+    /// condition of its alignment and its camera-frame normal matrix
+    /// ([`semrecon_recon::TrackingResult::camera_hessian`]).
+    pub fn add_frame_tracked(
+        &mut self,
+        frame: &Frame,
+        pose: Affine3A,
+        keyframe: bool,
+        tracking: Option<(f64, Mat6)>,
+    ) -> Result<()> {
         self.tracked.push(frame.timestamp, pose);
         if !self.is_running() {
             return Ok(());
@@ -399,6 +428,13 @@ impl LoopClosure {
         };
         if !pose64.is_finite() {
             return Err(invalid(semrecon_recon::PoseGraphError::NonFinitePose(self.graph.poses().len())));
+        }
+        if let Some((condition, h)) =
+            tracking.filter(|(c, h)| c.is_finite() && h.iter().flatten().all(|v| v.is_finite()))
+        {
+            if self.weakest_tracking.as_ref().is_none_or(|w| condition < w.0) {
+                self.weakest_tracking = Some((condition, pose64, h));
+            }
         }
         if keyframe && self.frames.len() > self.frames_at_keyframe {
             // Counts of stored frames: deterministic.
@@ -419,14 +455,19 @@ impl LoopClosure {
             // without odometry (the optimiser keeps it still), never an inconsistent store.
             self.node_frames.push(self.frames.len());
             self.detector.add(frame);
+            let weakest = self.weakest_tracking.take();
             if let Some(z) = odometry {
                 let (st, sr) = self.config.odometry_sigma;
+                // The weakest frame's form, carried from its camera frame to the keyframe's.
+                let shaped = weakest
+                    .filter(|_| self.config.odometry_information_from_tracking)
+                    .and_then(|(_, f, h)| odometry_information(&pull_back(&h, &adjoint(&(f.inverse() * pose64))), st));
                 self.graph
                     .add_edge(PoseEdge {
                         from: node - 1,
                         to: node,
                         from_from_to: z,
-                        information: isotropic_information(st, sr),
+                        information: shaped.unwrap_or_else(|| isotropic_information(st, sr)),
                         kind: EdgeKind::Odometry,
                     })
                     .map_err(invalid)?;

@@ -274,6 +274,9 @@ impl Pipeline {
             self.poll_semantics();
         }
         let t = Instant::now();
+        // What the tracker measured of this frame (its conditioning and normal matrix), for
+        // the odometry edges of loop closure.
+        let mut tracking: Option<(f64, [[f64; 6]; 6])> = None;
         let (status, pose) = match self.config.poses {
             PoseMode::GroundTruth => match frame.world_from_camera {
                 Some(p) => (if self.fused == 0 { FrameStatus::Initialized } else { FrameStatus::Fused }, Some(p)),
@@ -309,6 +312,7 @@ impl Pipeline {
                 if r.keyframe {
                     self.keyframe_index.add(frame, r.world_from_camera);
                 }
+                tracking = Some((r.condition, r.camera_hessian));
                 match r.status {
                     TrackingStatus::Lost(reason) => (FrameStatus::Lost(reason), None),
                     TrackingStatus::Initialized => (FrameStatus::Initialized, Some(r.world_from_camera)),
@@ -343,7 +347,7 @@ impl Pipeline {
             s.stale = true;
         }
         let keyframe = self.fused.is_multiple_of(self.config.keyframe_every);
-        self.global_optimisation(frame, pose, keyframe)?;
+        self.global_optimisation(frame, pose, keyframe, tracking)?;
         if keyframe {
             result.keyframe = true;
             self.remesh();
@@ -354,9 +358,15 @@ impl Pipeline {
 
     /// Loop closure for a fused frame: stores it, and at keyframes looks for loops and
     /// applies a correction of the poses to the trajectory, the tracker and the map.
-    fn global_optimisation(&mut self, frame: &Frame, pose: Affine3A, keyframe: bool) -> Result<()> {
+    fn global_optimisation(
+        &mut self,
+        frame: &Frame,
+        pose: Affine3A,
+        keyframe: bool,
+        tracking: Option<(f64, [[f64; 6]; 6])>,
+    ) -> Result<()> {
         let Some(lc) = &mut self.loop_closure else { return Ok(()) };
-        lc.add_frame(frame, pose, keyframe)?;
+        lc.add_frame_tracked(frame, pose, keyframe, tracking)?;
         if !keyframe {
             if lc.is_rebuilding() {
                 // The re-integration in progress goes on at every frame; it swaps at keyframes.

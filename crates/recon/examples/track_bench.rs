@@ -17,7 +17,8 @@
 //! shared machine). Thread count: `RAYON_NUM_THREADS`. `TRACK_BENCH_TRAJECTORY=FILE` writes
 //! the poses of the fused frames in the TUM format (`timestamp tx ty tz qx qy qz qw`, as
 //! `semrecon run` writes `trajectory.txt`); `TRACK_BENCH_POSITIONS=FILE` the estimated and
-//! reference positions, a pair per line.
+//! reference positions, a pair per line; `TRACK_BENCH_LOG=FILE` one line per frame: index,
+//! status, condition, constrained directions, inlier ratio, residual (mm), colour fallback.
 
 #[path = "common/cpu_time.rs"]
 mod cpu_time;
@@ -174,6 +175,7 @@ fn run(a: Args) -> Result<(), String> {
     let (mut est, mut gt) = (Vec::new(), Vec::new());
     let mut first_err = Vec::new();
     let mut traj_text = String::from("# timestamp tx ty tz qx qy qz qw\n");
+    let mut frame_log = String::from("# frame status condition constrained inlier_ratio residual_mm colour_fallback\n");
     let mut lost = Vec::new();
     let mut load_s = 0.0;
     let t_all = Instant::now();
@@ -196,6 +198,15 @@ fn run(a: Args) -> Result<(), String> {
         }
         let (r, _, cpu) = timed(|| tracker.track(&frame, &map));
         let r = r.map_err(|e| e.to_string())?;
+        frame_log += &format!(
+            "{i} {:?} {:.3e} {} {:.3} {:.2} {}\n",
+            r.status,
+            r.condition,
+            r.constrained,
+            r.inlier_ratio,
+            r.residual_rms * 1e3,
+            u8::from(r.colour_fallback)
+        );
         if r.status == TrackingStatus::Tracked {
             track_ms.push(r.total_ms);
             track_cpu_ms.push(cpu);
@@ -241,6 +252,9 @@ fn run(a: Args) -> Result<(), String> {
     println!("lost frames: {} {:?}", lost.len(), &lost[..lost.len().min(10)]);
     if let Ok(path) = std::env::var("TRACK_BENCH_TRAJECTORY") {
         std::fs::write(&path, &traj_text).map_err(|e| format!("{path}: {e}"))?;
+    }
+    if let Ok(path) = std::env::var("TRACK_BENCH_LOG") {
+        std::fs::write(&path, &frame_log).map_err(|e| format!("{path}: {e}"))?;
     }
     if let Ok(path) = std::env::var("TRACK_BENCH_POSITIONS") {
         // Estimated and reference positions, one pair per line (for offline analysis).

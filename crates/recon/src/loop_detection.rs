@@ -17,8 +17,11 @@
 //!    starting from the relative pose the current poses predict. Accepted when the aligned
 //!    views overlap ([`LoopConfig::min_overlap`]), agree ([`LoopConfig::min_inlier_ratio`],
 //!    [`LoopConfig::max_residual`]), constrain all six motions
-//!    ([`LoopConfig::min_condition`]), and the alignment moved the prediction by no more than
-//!    the drift a loop can correct ([`LoopConfig::max_correction`]).
+//!    ([`LoopConfig::min_condition`]), the alignment moved the prediction by no more than
+//!    the drift a loop can correct ([`LoopConfig::max_correction`]), and it comes back to the
+//!    same pose when started 2 cm either side along its least-constrained translation
+//!    ([`LoopConfig::basin_shift`]: a view pair whose cost is flat in some direction ends
+//!    wherever it starts along it, and would hand the graph the error of its start).
 //!
 //! Repeated structure (twin rooms, identical chairs) fools appearance, not position: two
 //! places metres apart are never candidates, and a candidate whose views match only after
@@ -34,7 +37,7 @@
 use glam::{DAffine3, DVec3, Vec3};
 use semrecon_data::{Frame, Intrinsics};
 
-use crate::linalg::cholesky_solve;
+use crate::linalg::{cholesky_solve, symmetric_eigen};
 use crate::pose_graph::{pose_distance, rotation_exp};
 use crate::relocalisation::Thumbnail;
 use crate::tracking::conditioning;
@@ -80,6 +83,15 @@ pub struct LoopConfig {
     pub min_condition: f64,
     /// Largest move of the prediction by the alignment: metres and radians.
     pub max_correction: (f32, f32),
+    /// The basin test: the alignment is run again from its own result moved this many
+    /// metres either way along its least-constrained translation, and the loop is rejected
+    /// ([`LoopRejection::Ambiguous`]) when either run ends more than `basin_tolerance` metres
+    /// from the first. A view pair whose cost is flat along some direction (a wall seen
+    /// along itself) ends wherever it starts along it: its "loop" then carries the error of
+    /// the start into the graph, centimetres that tracking never had. 0: no test.
+    pub basin_shift: f32,
+    /// See `basin_shift`, metres.
+    pub basin_tolerance: f32,
 }
 
 impl Default for LoopConfig {
@@ -97,6 +109,8 @@ impl Default for LoopConfig {
             max_residual: 0.012,
             min_condition: 2e-3,
             max_correction: (0.3, 12f32.to_radians()),
+            basin_shift: 0.02,
+            basin_tolerance: 0.004,
         }
     }
 }
@@ -114,6 +128,9 @@ pub enum LoopRejection {
     Degenerate,
     /// The alignment moved the prediction too far (repeated structure, a wrong minimum).
     LargeCorrection,
+    /// The alignment ends elsewhere when started a little away along its weakest direction:
+    /// its minimum is not pinned down ([`LoopConfig::basin_shift`]).
+    Ambiguous,
 }
 
 /// The verdict on one candidate.
@@ -267,22 +284,7 @@ impl LoopDetector {
         if !prediction.is_finite() {
             return None;
         }
-        let mut estimate = prediction;
-        for level in [1, 0] {
-            let gate = c.max_distance * if level == 1 { 4.0 } else { 1.0 };
-            for _ in 0..c.iterations[1 - level] {
-                let stats = icp_sums(&src.levels[level], &dst.levels[level], &estimate, gate);
-                let Some(delta) = cholesky_solve(&damped(&stats.h), &stats.g.map(|v| -v)) else { break };
-                let step = DAffine3 {
-                    matrix3: rotation_exp(DVec3::new(delta[3], delta[4], delta[5])),
-                    translation: DVec3::new(delta[0], delta[1], delta[2]),
-                };
-                estimate = step * estimate;
-                if delta.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
-                    break;
-                }
-            }
-        }
+        let estimate = self.align(src, dst, prediction);
         // Quality at the final pose, finest level.
         let stats = icp_sums(&src.levels[0], &dst.levels[0], &estimate, c.max_distance);
         let overlap = stats.matched as f32 / stats.valid.max(1) as f32;
@@ -299,6 +301,8 @@ impl LoopDetector {
             Some(LoopRejection::Degenerate)
         } else if !(correction.0 <= c.max_correction.0 as f64 && correction.1 <= c.max_correction.1 as f64) {
             Some(LoopRejection::LargeCorrection)
+        } else if c.basin_shift > 0.0 && !self.pinned_down(src, dst, &estimate, &stats.h) {
+            Some(LoopRejection::Ambiguous)
         } else {
             None
         };
@@ -316,6 +320,69 @@ impl LoopDetector {
             hessian: stats.h,
         })
     }
+}
+
+impl LoopDetector {
+    /// Point-to-plane ICP of `src` onto `dst` from `start` (`dst_from_src`), coarse level
+    /// then fine.
+    fn align(&self, src: &KeyframeCloud, dst: &KeyframeCloud, start: DAffine3) -> DAffine3 {
+        let c = &self.config;
+        let mut estimate = start;
+        for level in [1, 0] {
+            let gate = c.max_distance * if level == 1 { 4.0 } else { 1.0 };
+            for _ in 0..c.iterations[1 - level] {
+                let stats = icp_sums(&src.levels[level], &dst.levels[level], &estimate, gate);
+                let Some(delta) = cholesky_solve(&damped(&stats.h), &stats.g.map(|v| -v)) else { break };
+                let step = DAffine3 {
+                    matrix3: rotation_exp(DVec3::new(delta[3], delta[4], delta[5])),
+                    translation: DVec3::new(delta[0], delta[1], delta[2]),
+                };
+                estimate = step * estimate;
+                if delta.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
+                    break;
+                }
+            }
+        }
+        estimate
+    }
+
+    /// The basin test ([`LoopConfig::basin_shift`]): whether the alignment comes back to
+    /// `estimate` from either side of it along the least-constrained translation of `h`
+    /// (translation with the rotation free: the Schur complement's weakest eigenvector).
+    fn pinned_down(&self, src: &KeyframeCloud, dst: &KeyframeCloud, estimate: &DAffine3, h: &[[f64; 6]; 6]) -> bool {
+        let c = &self.config;
+        let Some(weakest) = weakest_translation(h) else { return false };
+        [1.0, -1.0].into_iter().all(|side| {
+            let start = DAffine3::from_translation(weakest * (side * c.basin_shift as f64)) * *estimate;
+            let end = self.align(src, dst, start);
+            pose_distance(&end, estimate).0 <= c.basin_tolerance as f64
+        })
+    }
+}
+
+/// The unit translation (left perturbation, the old keyframe's frame) that the normal matrix
+/// `h` (translation first) constrains least once the rotation may follow it: the weakest
+/// eigenvector of `Htt - Htr Hrr⁻¹ Hrt`. `None` when the rotation block is singular.
+fn weakest_translation(h: &[[f64; 6]; 6]) -> Option<DVec3> {
+    let hrr: [[f64; 3]; 3] = std::array::from_fn(|a| std::array::from_fn(|b| h[3 + a][3 + b]));
+    let mut schur = [[0.0; 3]; 3];
+    for b in 0..3 {
+        // Hrr⁻¹ Hrt's column b.
+        let x = cholesky_solve(&hrr, &[h[3][b], h[4][b], h[5][b]])?;
+        for a in 0..3 {
+            schur[a][b] = h[a][b] - (0..3).map(|k| h[a][3 + k] * x[k]).sum::<f64>();
+        }
+    }
+    for a in 0..3 {
+        for b in 0..a {
+            let m = 0.5 * (schur[a][b] + schur[b][a]);
+            schur[a][b] = m;
+            schur[b][a] = m;
+        }
+    }
+    let (_, vectors) = symmetric_eigen(&schur);
+    let v = DVec3::from_array(vectors[0]);
+    v.is_finite().then_some(v)
 }
 
 /// Normal equations and counts of one ICP linearisation.

@@ -645,7 +645,7 @@ fn reverse_cuthill_mckee(n: usize, pattern: &[(usize, usize)]) -> Vec<usize> {
 }
 
 mod information;
-pub use information::alignment_information;
+pub use information::{adjoint, alignment_information, odometry_information, pull_back};
 
 #[cfg(test)]
 mod tests;

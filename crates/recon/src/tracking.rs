@@ -311,6 +311,13 @@ pub struct TrackingResult {
     /// when some were kept at the motion prediction, see
     /// [`TrackerConfig::min_constrained`]).
     pub constrained: usize,
+    /// The alignment's Gauss-Newton normal matrix `JᵀJ` at the final pose (finest level,
+    /// robustly weighted, per square metre of residual) as a right perturbation
+    /// `(δt, δφ)`, translation first, of `world_from_camera` in the camera's own frame
+    /// (`T ← T · exp(δ)`). Its shape says which motions this frame pinned down and which it
+    /// barely saw (along a corridor, across a bare wall); loop closure can weigh odometry by
+    /// it ([`crate::pose_graph::odometry_information`]). Zeros when the frame was not aligned.
+    pub camera_hessian: [[f64; 6]; 6],
     /// Whether this frame became a keyframe.
     pub keyframe: bool,
     /// Whether the frame was aligned again with the photometric term because depth alone
@@ -561,6 +568,7 @@ impl Tracker {
             residual_rms: 0.0,
             condition: 0.0,
             constrained: 0,
+            camera_hessian: [[0.0; 6]; 6],
             keyframe: false,
             colour_fallback: false,
             raycast_ms: 0.0,
@@ -621,6 +629,7 @@ impl Tracker {
         let (cond, constrained) = conditioned;
         result.condition = cond;
         result.constrained = constrained;
+        result.camera_hessian = camera_hessian(&stats.symmetric(), estimate);
         let jump = prediction.inverse() * estimate;
         let jump_t = Vec3::from(jump.translation).length();
         let jump_r = Quat::from_mat3a(&jump.matrix3).to_axis_angle().1;

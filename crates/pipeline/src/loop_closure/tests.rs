@@ -202,3 +202,52 @@ fn a_full_frame_store_stops_loop_closure_with_a_reason() {
     let nan = Affine3A::from_translation(Vec3::new(f32::NAN, 0.0, 0.0));
     assert!(lc.add_frame(&f, nan, true).is_err());
 }
+
+/// With the tracking's information, an odometry edge is weak where the interval's worst
+/// frame was (motion along x barely seen, the camera turned a quarter about y since), firm
+/// elsewhere; without it, or without tracking, the edge is the isotropic model.
+#[test]
+fn odometry_edges_take_the_shape_of_the_weakest_tracking() {
+    let k = Intrinsics::new(64, 48, 60.0, 60.0, 31.5, 23.5).expect("camera");
+    let f = Frame::from_depth(k, vec![1.0; 64 * 48]);
+    // A camera-frame form that sees translation along the camera's x a hundred times less.
+    let mut weak_x = [[0.0; 6]; 6];
+    for (i, row) in weak_x.iter_mut().enumerate() {
+        row[i] = if i == 0 { 1.0 } else { 100.0 };
+    }
+    let firm = {
+        let mut h = [[0.0; 6]; 6];
+        (0..6).for_each(|i| h[i][i] = 100.0);
+        h
+    };
+    let quarter = Affine3A::from_quat(Quat::from_rotation_y(std::f32::consts::FRAC_PI_2));
+    let edge_of = |from_tracking: bool| {
+        let config =
+            LoopClosureConfig { odometry_information_from_tracking: from_tracking, ..LoopClosureConfig::default() };
+        let mut lc = LoopClosure::new(config, k);
+        lc.add_frame_tracked(&f, Affine3A::IDENTITY, true, Some((1e-2, firm))).expect("stored");
+        // The weak frame is the interval's worst; the keyframe is turned from it.
+        lc.add_frame_tracked(&f, Affine3A::from_translation(Vec3::X * 0.01), false, Some((1e-4, weak_x)))
+            .expect("stored");
+        lc.add_frame_tracked(&f, Affine3A::from_translation(Vec3::X * 0.02) * quarter, true, Some((1e-2, firm)))
+            .expect("stored");
+        lc.graph.edges()[0].information
+    };
+    let iso = edge_of(false);
+    assert_eq!(iso, isotropic_information(0.005, 0.004));
+    let shaped = edge_of(true);
+    // The weak direction is the weak frame's x, which is the keyframe's z after the turn;
+    // the best-constrained translation has the odometry sigma (plus the tiny floor).
+    let sigma_t = LoopClosureConfig::default().odometry_sigma.0;
+    let (weak, firm_t) = (shaped[2][2], shaped[0][0]);
+    assert!((firm_t - (1.0 / (sigma_t * sigma_t) + 1.0)).abs() < 1e-6 * firm_t, "{shaped:?}");
+    assert!((weak - (0.01 / (sigma_t * sigma_t) + 1.0)).abs() < 1e-6 * firm_t, "{shaped:?}");
+    // A frame without tracking (ground-truth poses) leaves the isotropic model.
+    let mut lc = LoopClosure::new(
+        LoopClosureConfig { odometry_information_from_tracking: true, ..LoopClosureConfig::default() },
+        k,
+    );
+    lc.add_frame(&f, Affine3A::IDENTITY, true).expect("stored");
+    lc.add_frame(&f, Affine3A::from_translation(Vec3::X * 0.02), true).expect("stored");
+    assert_eq!(lc.graph.edges()[0].information, iso);
+}

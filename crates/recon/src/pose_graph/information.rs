@@ -74,6 +74,60 @@ pub fn alignment_information(z: &DAffine3, h: &Mat6, sigma_t: f64) -> Option<Mat
     Some(out)
 }
 
+/// The adjoint of `t` on twists `ξ = (δt, δφ)` (translation first, the left-perturbation
+/// model `x ← x + δφ × x + δt`): `t · exp(ξ) · t⁻¹ = exp(Ad(t) ξ)`, so that
+/// `Ad(t) = [[R, [t]ₓ R], [0, R]]`.
+pub fn adjoint(t: &DAffine3) -> Mat6 {
+    let r = t.matrix3;
+    let tr = skew(t.translation) * r;
+    let mut a = [[0.0; 6]; 6];
+    for row in 0..3 {
+        for col in 0..3 {
+            // glam matrices are column-major: m.col(c)[r] is row r, column c.
+            a[row][col] = r.col(col)[row];
+            a[row][3 + col] = tr.col(col)[row];
+            a[3 + row][3 + col] = r.col(col)[row];
+        }
+    }
+    a
+}
+
+/// `aᵀ h a`: the quadratic form `h` on twists `ζ` seen in twists `ξ` with `ζ = a ξ`.
+pub fn pull_back(h: &Mat6, a: &Mat6) -> Mat6 {
+    let mut ha = [[0.0; 6]; 6];
+    for r in 0..6 {
+        for c in 0..6 {
+            ha[r][c] = (0..6).map(|k| h[r][k] * a[k][c]).sum();
+        }
+    }
+    let mut out = [[0.0; 6]; 6];
+    for r in 0..6 {
+        for c in 0..6 {
+            out[r][c] = (0..6).map(|k| a[k][r] * ha[k][c]).sum();
+        }
+    }
+    // Exactly symmetric: the graph checks its information matrices.
+    for r in 0..6 {
+        for c in 0..r {
+            let m = 0.5 * (out[r][c] + out[c][r]);
+            out[r][c] = m;
+            out[c][r] = m;
+        }
+    }
+    out
+}
+
+/// The information of an odometry edge `i_from_j` from the normal matrix `h` of the tracking
+/// that measured keyframe `j` against the map: `h` is a right perturbation `(δt, δφ)` of
+/// `j`'s pose in its own camera frame (`T ← T · exp(δ)`, as
+/// [`crate::TrackingResult::camera_hessian`]), which is a right perturbation of `i_from_j`
+/// too, and the edge error `log(z⁻¹ Tᵢ⁻¹ Tⱼ)` is one: the form carries over unchanged. Scaled
+/// like [`alignment_information`] (the best-constrained translation gets `sigma_t`); `None`
+/// when `h` carries no translation information.
+pub fn odometry_information(h: &Mat6, sigma_t: f64) -> Option<Mat6> {
+    alignment_information(&DAffine3::IDENTITY, h, sigma_t)
+}
+
 /// The largest eigenvalue of a symmetric positive semi-definite 3x3 matrix, by power
 /// iteration from the diagonal's largest column (enough here: only the scale depends on it).
 fn largest_eigenvalue(m: DMat3) -> f64 {

@@ -461,6 +461,29 @@ pub(super) fn huber(r: f32, delta: f32) -> f32 {
     }
 }
 
+/// The normal matrix `h` of an alignment (left twists `(ω, υ)` of `reference_from_current`
+/// in the reference frame, rotation first, as [`se3_exp`] applies them) as a right
+/// perturbation `(δt, δφ)` of the pose in the current camera's frame, translation first:
+/// `estimate · exp(ξ) = exp(Ad(estimate) ξ) · estimate`, so the form is pulled back through
+/// the adjoint. The reference's own pose adds nothing: a right perturbation of
+/// `reference · estimate` is one of `estimate`.
+pub(super) fn camera_hessian(h: &[[f64; 6]; 6], estimate: Affine3A) -> [[f64; 6]; 6] {
+    // Rotation-first to translation-first.
+    const FROM: [usize; 6] = [3, 4, 5, 0, 1, 2];
+    let mut left = [[0.0; 6]; 6];
+    for (r, row) in left.iter_mut().enumerate() {
+        for (c, v) in row.iter_mut().enumerate() {
+            *v = h[FROM[r]][FROM[c]];
+        }
+    }
+    let m = estimate.matrix3;
+    let pose = glam::DAffine3 {
+        matrix3: glam::DMat3::from_cols(m.x_axis.as_dvec3(), m.y_axis.as_dvec3(), m.z_axis.as_dvec3()),
+        translation: estimate.translation.as_dvec3(),
+    };
+    crate::pose_graph::pull_back(&left, &crate::pose_graph::adjoint(&pose))
+}
+
 /// `exp` of a left twist `(ω, υ)`: rotation by `ω`, then translation by `υ` (the first-order
 /// model the Jacobians use).
 pub(super) fn se3_exp(xi: [f64; 6]) -> Affine3A {

@@ -374,3 +374,42 @@ fn ray_table_unprojects_like_the_camera() {
         }
     }
 }
+
+/// The camera-frame normal matrix gives the same quadratic form as the alignment's own for
+/// the same small motion of the pose, expressed either way (random poses and forms).
+#[test]
+fn the_camera_frame_hessian_is_the_same_form_in_the_camera_frame() {
+    use crate::pose_graph::{rotation_exp, rotation_log};
+    use glam::{DAffine3, DVec3};
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    for seed in 0..20 {
+        let (h, _) = normal_system(seed, 40, None);
+        let axis = Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+        let estimate = Affine3A::from_rotation_translation(
+            Quat::from_scaled_axis(axis),
+            Vec3::new(rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0)),
+        );
+        let hc = camera_hessian(&h, estimate);
+        let m = estimate.matrix3;
+        let e = DAffine3 {
+            matrix3: glam::DMat3::from_cols(m.x_axis.as_dvec3(), m.y_axis.as_dvec3(), m.z_axis.as_dvec3()),
+            translation: estimate.translation.as_dvec3(),
+        };
+        // A right perturbation (δt, δφ) in the camera's frame...
+        let d: [f64; 6] = std::array::from_fn(|_| rng.random_range(-1e-4..1e-4));
+        let moved = e * DAffine3 {
+            matrix3: rotation_exp(DVec3::new(d[3], d[4], d[5])),
+            translation: DVec3::new(d[0], d[1], d[2]),
+        };
+        // ... is the left twist (ω, υ) of the reference frame that the alignment's sums use.
+        let left = moved * e.inverse();
+        let w = rotation_log(left.matrix3);
+        let xi = [w.x, w.y, w.z, left.translation.x, left.translation.y, left.translation.z];
+        let form = |h: &[[f64; 6]; 6], v: &[f64; 6]| -> f64 {
+            (0..6).map(|a| (0..6).map(|b| v[a] * h[a][b] * v[b]).sum::<f64>()).sum()
+        };
+        let (expected, got) = (form(&h, &xi), form(&hc, &d));
+        assert!((expected - got).abs() <= 1e-3 * expected.abs(), "seed {seed}: {expected} vs {got}");
+    }
+}
