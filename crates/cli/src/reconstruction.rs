@@ -84,22 +84,22 @@ pub struct ReconArgs {
     /// With loop closure: re-fuse runs of up to this many consecutive stored frames as one
     /// frame weighing as much (1: every frame, exact). Cuts a re-integration's work about
     /// this many times for a little of the noise averaging (docs/loop_closure.md).
-    #[arg(long)]
+    #[arg(long, requires = "loop_closure")]
     pub reintegration_stride: Option<usize>,
     /// With loop closure: weigh loop edges by the shape of the loop alignment's Hessian
     /// (J^T J of the point-to-plane ICP) instead of one isotropic standard deviation (4 mm,
     /// 0.17 degree). Off by default: it closed less drift on rendered loops
     /// (docs/loop_closure.md).
-    #[arg(long)]
+    #[arg(long, requires = "loop_closure")]
     pub loop_information_from_alignment: bool,
     /// With loop closure: odometry edges take their information's shape from the tracking
     /// between their keyframes (the worst-conditioned frame's normal matrix), so that a stretch
     /// where depth barely constrained some motion takes more of a loop's correction.
-    #[arg(long)]
+    #[arg(long, requires = "loop_closure")]
     pub odometry_information_from_tracking: bool,
     /// With loop closure: the map follows a correction only in chunks that a frame's pose
     /// change moves by more than this many voxels (default 0.5).
-    #[arg(long)]
+    #[arg(long, requires = "loop_closure")]
     pub min_chunk_move_voxels: Option<f32>,
     /// Memory the TSDF map may use, e.g. 512M or 2G: past it the coldest chunks (packed, far
     /// from the camera) are written to a spill file in the output folder and read back when

@@ -198,6 +198,11 @@ fn run_rejects_bad_input_cleanly() {
     assert!(!out.status.success());
     let out = semrecon(&["run", "--dataset", "synth:1", "--frames", "0..2", "--voxel=-1", "--out", s(&out_dir)]);
     assert_clean_failure(&out, "voxel");
+    // A loop-closure option without loop closure would be silently ignored: refused instead.
+    let out = semrecon(&["run", "--dataset", "synth:1", "--odometry-information-from-tracking", "--out", s(&out_dir)]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "a usage error: {stderr}");
+    assert!(stderr.contains("--loop-closure"), "{stderr}");
     assert!(!out_dir.join("report.json").exists());
 }
 

@@ -242,8 +242,16 @@ fn main() {
     let (mut visited, mut updated, mut remeshed, mut changed) = (0usize, 0usize, 0usize, 0usize);
     let (mut pending, mut max_pending) = (0usize, 0usize);
     let (mut upd_chunks, mut band_chunks, mut new_chunks, mut freed_chunks) = (0usize, 0usize, 0usize, 0usize);
+    // `FUSION_BENCH_FLUSH_MB=N`: N MB of other memory written between frames (untimed), as a
+    // whole run's tracking, rendering or decoding does, so that fusion starts with cold caches.
+    let flush_mb: usize = std::env::var("FUSION_BENCH_FLUSH_MB").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
+    let mut flush = vec![0u8; flush_mb << 20];
     let t_all = Instant::now();
     for (i, (frame, pose)) in frames.iter().enumerate() {
+        if !flush.is_empty() {
+            flush.iter_mut().for_each(|b| *b = b.wrapping_add(i as u8));
+            std::hint::black_box(&flush);
+        }
         let c0 = cpu_ns();
         let t0 = Instant::now();
         let keys = match map.select_chunks(frame, *pose) {
