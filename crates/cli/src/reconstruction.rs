@@ -97,6 +97,11 @@ pub struct ReconArgs {
     /// where depth barely constrained some motion takes more of a loop's correction.
     #[arg(long, requires = "loop_closure")]
     pub odometry_information_from_tracking: bool,
+    /// With loop closure: a loop edge's standard deviations grow in proportion to its
+    /// alignment's RMS residual past this many millimetres (default 3; 0: the same for every
+    /// loop).
+    #[arg(long, requires = "loop_closure")]
+    pub loop_residual_reference_mm: Option<f64>,
     /// With loop closure: the map follows a correction only in chunks that a frame's pose
     /// change moves by more than this many voxels (default 0.5).
     #[arg(long, requires = "loop_closure")]
@@ -242,6 +247,9 @@ pub fn pipeline_config(
     config.loop_closure.enabled = recon.loop_closure;
     config.loop_closure.loop_information_from_alignment = recon.loop_information_from_alignment;
     config.loop_closure.odometry_information_from_tracking = recon.odometry_information_from_tracking;
+    if let Some(mm) = recon.loop_residual_reference_mm {
+        config.loop_closure.loop_residual_reference = mm * 1e-3;
+    }
     if let Some(v) = recon.min_chunk_move_voxels {
         config.loop_closure.min_chunk_move_voxels = v;
     }

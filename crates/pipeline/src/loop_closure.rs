@@ -75,6 +75,16 @@ pub struct LoopClosureConfig {
     /// barely constrained some motion (a doorway, a bare wall) then takes more of a loop's
     /// correction than one where tracking was firm; off: isotropic `odometry_sigma`.
     pub odometry_information_from_tracking: bool,
+    /// A loop edge's standard deviations (`loop_sigma`) grow with its alignment's RMS
+    /// residual past this many metres, in proportion: the pose an ICP finds is about as
+    /// uncertain as its residual is large (noisier, farther surfaces), so a loop aligned at
+    /// a 9 mm residual weighs a ninth of one at 3 mm instead of the same. 3 mm: the residual
+    /// of good loops on generated scans (2-4 mm); 7-Scenes' real Kinect loops have 7-10 mm and
+    /// so weigh less than before (17 corrections became 5, ATE 25.2 -> 25.4 mm), and a loop
+    /// whose far, noisy surfaces biased it 25 mm (`synth-loop:6`, residual 9.3 mm) no longer
+    /// bends a trajectory that was right (2.3 -> 0.9 mm ATE; docs/loop_closure.md). 0: one
+    /// `loop_sigma` for every loop.
+    pub loop_residual_reference: f64,
     /// The graph is optimised when a new loop edge's chi-square at the current poses exceeds
     /// this: a loop that agrees with the poses changes nothing worth re-fusing the map for.
     pub min_loop_chi2: f64,
@@ -126,6 +136,7 @@ impl Default for LoopClosureConfig {
             loop_sigma: (0.004, 0.003),
             loop_information_from_alignment: false,
             odometry_information_from_tracking: false,
+            loop_residual_reference: 0.003,
             min_loop_chi2: 6.0,
             min_move: 0.008,
             min_chunk_move_voxels: 0.5,
@@ -154,6 +165,8 @@ impl LoopClosureConfig {
         }
         if !(self.min_move.is_finite()
             && self.min_move >= 0.0
+            && self.loop_residual_reference.is_finite()
+            && self.loop_residual_reference >= 0.0
             && self.min_loop_chi2.is_finite()
             && self.min_loop_chi2 >= 0.0
             && self.min_chunk_move_voxels.is_finite()
@@ -546,6 +559,14 @@ impl LoopClosure {
             };
             if v.accepted() {
                 let (st, sr) = self.config.loop_sigma;
+                // An alignment is as uncertain as its residual is large: scale both sigmas
+                // by the residual over the reference (never below 1).
+                let noise = if self.config.loop_residual_reference > 0.0 {
+                    (f64::from(v.residual_rms) / self.config.loop_residual_reference).max(1.0)
+                } else {
+                    1.0
+                };
+                let (st, sr) = (st * noise, sr * noise);
                 let information = self
                     .config
                     .loop_information_from_alignment
