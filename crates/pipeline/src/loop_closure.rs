@@ -149,6 +149,20 @@ impl Default for LoopClosureConfig {
 }
 
 impl LoopClosureConfig {
+    /// The standard deviations (metres, radians) of a loop edge whose alignment left an RMS
+    /// residual of `residual_m`: `loop_sigma`, scaled by the residual over
+    /// `loop_residual_reference` when that is larger (an alignment is as uncertain as its
+    /// residual is large).
+    pub fn loop_sigmas(&self, residual_m: f32) -> (f64, f64) {
+        let (st, sr) = self.loop_sigma;
+        let noise = if self.loop_residual_reference > 0.0 && residual_m.is_finite() {
+            (f64::from(residual_m) / self.loop_residual_reference).max(1.0)
+        } else {
+            1.0
+        };
+        (st * noise, sr * noise)
+    }
+
     /// Checks the ranges of the fields.
     ///
     /// # Errors
@@ -558,15 +572,7 @@ impl LoopClosure {
                 edge: None,
             };
             if v.accepted() {
-                let (st, sr) = self.config.loop_sigma;
-                // An alignment is as uncertain as its residual is large: scale both sigmas
-                // by the residual over the reference (never below 1).
-                let noise = if self.config.loop_residual_reference > 0.0 {
-                    (f64::from(v.residual_rms) / self.config.loop_residual_reference).max(1.0)
-                } else {
-                    1.0
-                };
-                let (st, sr) = (st * noise, sr * noise);
+                let (st, sr) = self.config.loop_sigmas(v.residual_rms);
                 let information = self
                     .config
                     .loop_information_from_alignment

@@ -251,3 +251,25 @@ fn odometry_edges_take_the_shape_of_the_weakest_tracking() {
     lc.add_frame(&f, Affine3A::from_translation(Vec3::X * 0.02), true).expect("stored");
     assert_eq!(lc.graph.edges()[0].information, iso);
 }
+
+/// A loop's sigmas grow with its residual past the reference, never shrink below
+/// `loop_sigma`, and stay `loop_sigma` when the weighting is off.
+#[test]
+fn loops_weigh_less_as_their_residual_grows() {
+    let config = LoopClosureConfig::default();
+    let (st, sr) = config.loop_sigma;
+    // Residuals are f32: compare the scale to a part in a million.
+    let scale = |c: &LoopClosureConfig, residual: f32| {
+        let (t, r) = c.loop_sigmas(residual);
+        assert!((t / st - r / sr).abs() < 1e-9, "both sigmas scale alike: {t} {r}");
+        t / st
+    };
+    let reference = config.loop_residual_reference as f32;
+    assert_eq!(scale(&config, 0.5 * reference), 1.0);
+    assert!((scale(&config, reference) - 1.0).abs() < 1e-6);
+    assert!((scale(&config, 3.0 * reference) - 3.0).abs() < 1e-6);
+    // A non-finite residual (never accepted anyway) falls back to the plain sigmas.
+    assert_eq!(scale(&config, f32::NAN), 1.0);
+    let off = LoopClosureConfig { loop_residual_reference: 0.0, ..config };
+    assert_eq!(scale(&off, 0.009), 1.0);
+}
