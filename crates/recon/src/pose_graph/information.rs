@@ -38,38 +38,14 @@ pub fn alignment_information(z: &DAffine3, h: &Mat6, sigma_t: f64) -> Option<Mat
         return None;
     }
     let scale = 1.0 / (sigma_t * sigma_t * largest);
-    // N = [[R, [t]x R], [0, R]] as a 6x6 array, row-major.
-    let r = z.matrix3;
-    let tr = skew(z.translation) * r;
-    let mut n = [[0.0; 6]; 6];
-    for row in 0..3 {
-        for col in 0..3 {
-            // glam matrices are column-major: m.col(c)[r] is row r, column c.
-            n[row][col] = r.col(col)[row];
-            n[row][3 + col] = tr.col(col)[row];
-            n[3 + row][3 + col] = r.col(col)[row];
+    // N = Ad(z) = [[R, [t]x R], [0, R]]: the form in the edge's terms is Nᵀ h N.
+    let mut out = pull_back(h, &adjoint(z));
+    // Scaled, with the floor (pull_back's result is exactly symmetric; so is a scaling).
+    for (a, row) in out.iter_mut().enumerate() {
+        for v in row.iter_mut() {
+            *v *= scale;
         }
-    }
-    let mut hn = [[0.0; 6]; 6];
-    for a in 0..6 {
-        for b in 0..6 {
-            hn[a][b] = (0..6).map(|k| h[a][k] * n[k][b]).sum();
-        }
-    }
-    let mut out = [[0.0; 6]; 6];
-    for a in 0..6 {
-        for b in 0..6 {
-            out[a][b] = scale * (0..6).map(|k| n[k][a] * hn[k][b]).sum::<f64>();
-        }
-    }
-    // Exactly symmetric (the graph checks), with the floor.
-    for a in 0..6 {
-        for b in 0..a {
-            let m = 0.5 * (out[a][b] + out[b][a]);
-            out[a][b] = m;
-            out[b][a] = m;
-        }
-        out[a][a] += 1.0;
+        row[a] += 1.0;
     }
     Some(out)
 }

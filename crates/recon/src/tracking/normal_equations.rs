@@ -476,12 +476,7 @@ pub(super) fn camera_hessian(h: &[[f64; 6]; 6], estimate: Affine3A) -> [[f64; 6]
             *v = h[FROM[r]][FROM[c]];
         }
     }
-    let m = estimate.matrix3;
-    let pose = glam::DAffine3 {
-        matrix3: glam::DMat3::from_cols(m.x_axis.as_dvec3(), m.y_axis.as_dvec3(), m.z_axis.as_dvec3()),
-        translation: estimate.translation.as_dvec3(),
-    };
-    crate::pose_graph::pull_back(&left, &crate::pose_graph::adjoint(&pose))
+    crate::pose_graph::pull_back(&left, &crate::pose_graph::adjoint(&estimate.as_daffine3()))
 }
 
 /// `exp` of a left twist `(ω, υ)`: rotation by `ω`, then translation by `υ` (the first-order

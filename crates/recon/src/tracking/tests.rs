@@ -391,11 +391,7 @@ fn the_camera_frame_hessian_is_the_same_form_in_the_camera_frame() {
             Vec3::new(rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0)),
         );
         let hc = camera_hessian(&h, estimate);
-        let m = estimate.matrix3;
-        let e = DAffine3 {
-            matrix3: glam::DMat3::from_cols(m.x_axis.as_dvec3(), m.y_axis.as_dvec3(), m.z_axis.as_dvec3()),
-            translation: estimate.translation.as_dvec3(),
-        };
+        let e = estimate.as_daffine3();
         // A right perturbation (δt, δφ) in the camera's frame...
         let d: [f64; 6] = std::array::from_fn(|_| rng.random_range(-1e-4..1e-4));
         let moved = e * DAffine3 {
