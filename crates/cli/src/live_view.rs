@@ -62,12 +62,19 @@ impl LiveView {
         self.pushed_at != Some(fused) && self.last_push.is_none_or(|t| t.elapsed() >= LIVE_PUSH_INTERVAL)
     }
 
-    /// Shows `mesh` and `trajectory`; an empty mesh (nothing surfaced yet) is skipped.
-    pub fn push(&mut self, fused: usize, mesh: &LabeledMesh, trajectory: &Trajectory) -> Result<(), String> {
+    /// Shows `mesh` and `trajectory` in a map frame whose up is `up` (when known); an empty
+    /// mesh (nothing surfaced yet) is skipped.
+    pub fn push(
+        &mut self,
+        fused: usize,
+        mesh: &LabeledMesh,
+        trajectory: &Trajectory,
+        up: Option<glam::Vec3>,
+    ) -> Result<(), String> {
         if mesh.triangles.is_empty() {
             return Ok(());
         }
-        self.scene.update(mesh, trajectory).map_err(|e| format!("live viewer not updated: {e}"))?;
+        self.scene.update(mesh, trajectory, up).map_err(|e| format!("live viewer not updated: {e}"))?;
         self.pushed_at = Some(fused);
         self.last_push = Some(Instant::now());
         Ok(())
@@ -82,7 +89,7 @@ impl LiveView {
         }
         let t = Instant::now();
         let mesh = pipeline.mesh();
-        self.push(fused, &mesh, pipeline.trajectory())?;
+        self.push(fused, &mesh, pipeline.trajectory(), pipeline.up().map(|u| u.up))?;
         Ok(Some(t.elapsed()))
     }
 }

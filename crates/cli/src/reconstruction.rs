@@ -356,8 +356,9 @@ pub fn finish_session(
 ) -> anyhow::Result<(LabeledMesh, f64)> {
     let mesh = pipeline.finish()?;
     let wall_s = start.elapsed().as_secs_f64();
+    let up = output_up(pipeline, &mesh);
     if let Some(live) = live {
-        if let Err(why) = live.push(pipeline.frame_counts().1, &mesh, pipeline.trajectory()) {
+        if let Err(why) = live.push(pipeline.frame_counts().1, &mesh, pipeline.trajectory(), up) {
             eprintln!("warning: {why}");
         }
     }
@@ -367,14 +368,23 @@ pub fn finish_session(
     if warnings > MAX_WARNINGS {
         eprintln!("warning: {} more warnings not shown", warnings - MAX_WARNINGS);
     }
-    write_outputs(out, &mesh, pipeline.trajectory())?;
+    write_outputs(out, &mesh, pipeline.trajectory(), up)?;
     Ok((mesh, wall_s))
+}
+
+/// The up direction recorded in the written meshes: the pipeline's (a dataset's gravity
+/// file, or the semantic passes' estimate), else estimated from the mesh and the cameras,
+/// so that physics, the viewer and `snapshot` know where gravity points in the map frame.
+pub fn output_up(pipeline: &Pipeline, mesh: &LabeledMesh) -> Option<Vec3> {
+    pipeline.up().map(|u| u.up).or_else(|| {
+        semrecon_pipeline::gravity::mesh_up(&mesh.positions, &mesh.normals, &pipeline.trajectory().poses).map(|u| u.up)
+    })
 }
 
 /// Writes `dir/mesh.ply` (observed colours and a vertex `label`), `dir/semantic.ply` (class
 /// colours) and `dir/trajectory.txt` (TUM) into `dir`, which [`prepare_output_dir`] made
-/// before the run.
-pub fn write_outputs(dir: &Path, mesh: &LabeledMesh, trajectory: &Trajectory) -> anyhow::Result<()> {
+/// before the run. Both meshes record `up` (the map frame's up direction) when known.
+pub fn write_outputs(dir: &Path, mesh: &LabeledMesh, trajectory: &Trajectory, up: Option<Vec3>) -> anyhow::Result<()> {
     // One PLY conversion for both files: a whole home's mesh is gigabytes.
     let colors = class_colors(mesh);
     write_ply_recoloured(
@@ -383,6 +393,7 @@ pub fn write_outputs(dir: &Path, mesh: &LabeledMesh, trajectory: &Trajectory) ->
         mesh,
         &colors,
         PlyEncoding::BinaryLittleEndian,
+        up,
     )?;
     trajectory.write_tum(dir.join("trajectory.txt"))?;
     Ok(())

@@ -42,7 +42,7 @@ use crate::collision_mesh::{CollisionMesh, CollisionMeshConfig, CollisionRegion,
 use crate::error::{PhysicsError, Result};
 use crate::materials::{label_name, MaterialTable};
 
-/// Standard gravity, m/s^2, along -z.
+/// Standard gravity, m/s^2, along the opposite of [`SceneConfig::up`].
 pub const GRAVITY: f32 = 9.81;
 
 /// Largest accepted coordinate magnitude (m), speed (m/s) and duration (s): beyond these
@@ -69,6 +69,12 @@ pub struct SceneConfig {
     pub angular_damping: f32,
     /// How the visual mesh becomes collision geometry.
     pub collision: CollisionMeshConfig,
+    /// The scene's up direction (unit length; gravity pulls along its opposite). Default z:
+    /// generated rooms and S3DIS/ScanNet meshes are z up. A reconstruction keeps the frame
+    /// of its dataset or first camera (7-Scenes' world is nearly y down), so its mesh file
+    /// carries the up direction ([`semrecon_data::read_ply_with_up`]), and scenes built from it
+    /// take that.
+    pub up: Vec3,
 }
 
 impl Default for SceneConfig {
@@ -80,6 +86,7 @@ impl Default for SceneConfig {
             ball_density: 400.0,
             angular_damping: 0.5,
             collision: CollisionMeshConfig::default(),
+            up: Vec3::Z,
         }
     }
 }
@@ -104,6 +111,12 @@ impl SceneConfig {
         }
         if !(self.angular_damping.is_finite() && (0.0..=100.0).contains(&self.angular_damping)) {
             return bad("angular damping", self.angular_damping, "0..=100");
+        }
+        if !(self.up.is_finite() && (self.up.length() - 1.0).abs() <= 1e-3) {
+            return Err(PhysicsError::InvalidArgument(format!(
+                "up direction {} must be a finite unit vector",
+                self.up
+            )));
         }
         self.collision.validate()
     }
@@ -196,7 +209,8 @@ impl ArScene {
     pub fn new(materials: MaterialTable, config: SceneConfig) -> Result<Self> {
         config.validate()?;
         let mut world = PhysicsWorld::new();
-        world.gravity = Vector::new(0.0, 0.0, -GRAVITY);
+        let gravity = -config.up * GRAVITY;
+        world.gravity = Vector::new(gravity.x, gravity.y, gravity.z);
         world.integration_parameters.dt = config.dt;
         // The material hook needs the triangle index of each manifold (see module docs).
         world.integration_parameters.contact_clustering = false;
@@ -380,7 +394,7 @@ impl ArScene {
             match hit {
                 Some(hit) => {
                     // Velocity the ball hit with: before the step plus the step's gravity.
-                    let approach = -(ball.velocity - Vec3::Z * (GRAVITY * dt)).dot(hit.normal);
+                    let approach = -(ball.velocity - self.config.up * (GRAVITY * dt)).dot(hit.normal);
                     let m = self.materials.label(hit.label);
                     let bounce = approach > BOUNCE_MIN_SPEED;
                     if bounce {
@@ -434,10 +448,12 @@ impl ArScene {
     }
 
     /// Mechanical energy of a ball, joules: kinetic (translation and rotation) plus
-    /// potential `m g z` of its centre.
+    /// potential `m g h` of its centre, `h` its height along [`SceneConfig::up`].
     pub fn ball_energy(&self, ball: BallId) -> Option<f32> {
         let body = self.world.bodies.get(self.balls.get(ball.0)?.body)?;
-        Some(body.kinetic_energy() + body.mass() * GRAVITY * body.translation().z)
+        let p = body.translation();
+        let height = self.config.up.dot(Vec3::new(p.x, p.y, p.z));
+        Some(body.kinetic_energy() + body.mass() * GRAVITY * height)
     }
 
     /// The trajectory recorded for a ball so far.

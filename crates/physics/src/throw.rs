@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use glam::Vec3;
-use semrecon_data::{read_ply, LabeledMesh};
+use semrecon_data::{read_ply_with_up, LabeledMesh};
 
 use crate::error::{PhysicsError, Result};
 use crate::materials::MaterialTable;
@@ -14,7 +14,8 @@ use crate::scene::{ArScene, SceneConfig, Throw};
 /// Throws one ball into the mesh of `mesh_path` from `from` along `dir` at `speed` m/s and
 /// simulates `seconds`, with the materials of `materials_path` (defaults when `None`).
 /// A mesh without labels works with the unlabelled material; the result then carries a
-/// warning.
+/// warning. Gravity pulls against the up direction the file records (a reconstruction's
+/// mesh, in its dataset's frame), +z when it records none.
 pub fn throw_from_ply(
     mesh_path: &Path,
     materials_path: Option<&Path>,
@@ -27,11 +28,12 @@ pub fn throw_from_ply(
         Some(p) => MaterialTable::load(p)?,
         None => MaterialTable::defaults(),
     };
-    let mesh = read_ply(mesh_path)?;
+    let (mesh, up) = read_ply_with_up(mesh_path)?;
     if mesh.triangles.is_empty() {
         return Err(PhysicsError::Mesh(format!("{}: the mesh has no triangles", mesh_path.display())));
     }
-    throw_into_mesh(&mesh, materials, SceneConfig::default(), from, dir, speed, seconds)
+    let config = SceneConfig { up: up.unwrap_or(Vec3::Z), ..SceneConfig::default() };
+    throw_into_mesh(&mesh, materials, config, from, dir, speed, seconds)
 }
 
 /// [`throw_from_ply`] for a mesh in memory, with explicit settings.

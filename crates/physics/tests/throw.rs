@@ -109,3 +109,48 @@ fn bad_input_is_an_error_not_a_panic() {
         assert!(matches!(e, PhysicsError::InvalidArgument(_)) && e.to_string().contains(what), "{what}: {e}");
     }
 }
+
+/// A reconstruction keeps its dataset's frame (7-Scenes' world is nearly y down) and records
+/// that frame's up in the PLY header: the same room turned into such a frame, thrown into
+/// from the turned start, gives the same throw turned (same class, same contact time), and
+/// never the ball "falling" along the file's -z.
+#[test]
+fn gravity_follows_the_up_direction_the_file_records() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let upright = room_with_table();
+    let (from, toward) = (Vec3::new(-1.0, 0.0, 1.2), Vec3::new(1.0, 0.0, 0.3));
+    let reference = throw_from_ply(&room_ply(dir.path(), true), None, from, toward, 2.5, 1.5).expect("throw");
+    // 7-Scenes redkitchen's gravity file: up = (0.0089, -0.9044, -0.4265).
+    let turn = glam::Quat::from_rotation_arc(Vec3::Z, Vec3::new(0.0089, -0.9044, -0.4265).normalize());
+    let mut turned = upright.clone();
+    turned.positions.iter_mut().for_each(|p| *p = turn * *p);
+    turned.normals.iter_mut().for_each(|n| *n = turn * *n);
+    let colors = turned.colors.clone();
+    let (a, b) = (dir.path().join("turned.ply"), dir.path().join("turned-classes.ply"));
+    semrecon_data::write_ply_recoloured(
+        &a,
+        &b,
+        &turned,
+        &colors,
+        PlyEncoding::BinaryLittleEndian,
+        Some(turn * Vec3::Z),
+    )
+    .expect("write");
+    let t = throw_from_ply(&a, None, turn * from, turn * toward, 2.5, 1.5).expect("throw");
+    assert_eq!(t.contacts[0].class, reference.contacts[0].class, "{:?}", t.contacts);
+    assert!(
+        (t.contacts[0].time - reference.contacts[0].time).abs() < 0.02,
+        "{} against {}",
+        t.contacts[0].time,
+        reference.contacts[0].time
+    );
+    for (p, q) in t.positions.iter().zip(&reference.positions).take(30) {
+        let back = turn.inverse() * Vec3::from_array(*p);
+        assert!(back.distance(Vec3::from_array(*q)) < 0.02, "{back} against {q:?}");
+    }
+    // Without the recorded up the same file would pull the ball along its -z.
+    write_ply(&a, &turned, PlyEncoding::BinaryLittleEndian).expect("write");
+    let sideways = throw_from_ply(&a, None, turn * from, turn * toward, 2.5, 1.5).expect("throw");
+    let off = turn.inverse() * Vec3::from_array(sideways.positions[10]);
+    assert!(off.distance(Vec3::from_array(reference.positions[10])) > 0.05, "{off}: gravity along the file's -z");
+}

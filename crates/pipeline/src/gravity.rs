@@ -167,6 +167,31 @@ pub fn given_up(samples: &[SurfaceSample], up: Vec3, cameras: &[Vec3]) -> UpEsti
     }
 }
 
+/// Up of a finished mesh, for maps without a semantic pass (which estimates it from the map
+/// as it grows): the same estimate over at most [`MESH_UP_SAMPLES`] of its vertices with a
+/// normal, evenly spread, from the cameras' prior (`poses`, the trajectory). `None` without a
+/// camera pose or a vertex normal.
+pub fn mesh_up(positions: &[Vec3], normals: &[Vec3], poses: &[Affine3A]) -> Option<UpEstimate> {
+    let prior = camera_up_prior(poses)?;
+    if normals.len() != positions.len() || positions.is_empty() {
+        return None;
+    }
+    let step = positions.len().div_ceil(MESH_UP_SAMPLES).max(1);
+    let samples: Vec<SurfaceSample> = positions
+        .iter()
+        .zip(normals)
+        .step_by(step)
+        .filter(|(_, n)| n.is_finite() && n.length_squared() > 0.5)
+        .map(|(&position, &normal)| SurfaceSample { position, normal, weight: 1.0 })
+        .collect();
+    let cameras: Vec<Vec3> = poses.iter().map(|p| Vec3::from(p.translation)).collect();
+    Some(estimate_up(&samples, prior, &cameras))
+}
+
+/// Most vertices [`mesh_up`] reads: the horizontal planes of a room are millions of vertices,
+/// and their average direction is settled long before.
+pub const MESH_UP_SAMPLES: usize = 200_000;
+
 /// Height band of 5 cm.
 const FLOOR_BIN_M: f32 = 0.05;
 
@@ -311,5 +336,21 @@ mod tests {
         let still: Vec<Affine3A> = (0..60).map(|_| handheld(map_from_world, 0.2, 40f32.to_radians(), 0.0)).collect();
         let prior = camera_up_prior(&still).expect("poses");
         assert!((prior.angle_between(true_up).to_degrees() - 40.0).abs() < 0.5);
+    }
+
+    #[test]
+    fn a_mesh_gives_its_up_from_its_normals_and_the_cameras() {
+        let map_from_world = Affine3A::from_quat(glam::Quat::from_rotation_x(-1.9) * glam::Quat::from_rotation_z(0.4));
+        let samples = room(map_from_world);
+        let positions: Vec<Vec3> = samples.iter().map(|s| s.position).collect();
+        let normals: Vec<Vec3> = samples.iter().map(|s| s.normal).collect();
+        let true_up = map_from_world.transform_vector3(Vec3::Z);
+        let q = glam::Quat::from_rotation_x(-1.9) * glam::Quat::from_rotation_z(0.4);
+        let poses: Vec<Affine3A> = (0..30).map(|i| handheld(q, (i as f32 * 3.0).to_radians(), 0.3, 0.0)).collect();
+        let e = mesh_up(&positions, &normals, &poses).expect("an estimate");
+        assert!(e.angle_to_deg(true_up) < 0.5, "{} deg", e.angle_to_deg(true_up));
+        // No normals or no cameras: no estimate.
+        assert!(mesh_up(&positions, &[], &poses).is_none());
+        assert!(mesh_up(&positions, &normals, &[]).is_none());
     }
 }

@@ -1,7 +1,7 @@
 // The semrecon viewer page: the labelled mesh, the camera trajectory, the class legend and
 // the material table; a click throws a ball. Served by `semrecon view` (data from /api/...,
 // throws simulated by the server) or exported by `semrecon export-viewer` (data embedded in
-// window.SEMRECON_STATIC, precomputed throws replayed). World frame: metres, z up.
+// window.SEMRECON_STATIC, precomputed throws replayed). World frame: metres, up from /api/info (z for generated rooms).
 //
 // Behind `semrecon run --serve` the scene is live: the page polls /api/version and loads
 // the mesh and trajectory again when the version changes, keeping the camera where the
@@ -197,12 +197,45 @@ function buildMesh(mesh, info, keepCamera) {
   ballGeometry = new THREE.SphereGeometry(Math.max(info.ball_radius || 0.04, 0.01 * diag), 24, 16);
 }
 
+// The scene's up direction (info.up: a reconstruction keeps its dataset's frame, where up is
+// rarely +z; generated rooms are z up). The orbit turns about it and throws start above the
+// floor along it.
+const sceneUp = new THREE.Vector3(0, 0, 1);
+
+function setSceneUp(up) {
+  const u = Array.isArray(up) && up.length === 3 ? new THREE.Vector3(...up) : new THREE.Vector3(0, 0, 1);
+  if (!(u.lengthSq() > 1e-12)) u.set(0, 0, 1);
+  u.normalize();
+  if (u.distanceTo(sceneUp) < 1e-6) return;
+  sceneUp.copy(u);
+  camera.up.copy(u);
+  // OrbitControls takes its orbit axis from camera.up when it is made.
+  controls._quat.setFromUnitVectors(camera.up, new THREE.Vector3(0, 1, 0));
+  controls._quatInverse.copy(controls._quat).invert();
+}
+
+// Heights along the scene's up of a box's eight corners: [lowest, highest].
+function heightRange(box) {
+  let lo = Infinity, hi = -Infinity;
+  for (let c = 0; c < 8; c++) {
+    const p = new THREE.Vector3(c & 1 ? box.max.x : box.min.x, c & 2 ? box.max.y : box.min.y, c & 4 ? box.max.z : box.min.z);
+    const h = p.dot(sceneUp);
+    lo = Math.min(lo, h);
+    hi = Math.max(hi, h);
+  }
+  return [lo, hi];
+}
+
 function frameCamera(box) {
   const centre = box.getCenter(new THREE.Vector3());
   const size = box.getSize(new THREE.Vector3());
   const diag = Math.max(size.length(), 0.1);
   controls.target.copy(centre);
-  camera.position.set(centre.x - 0.55 * size.x - 0.2 * diag, centre.y - 0.75 * size.y - 0.3 * diag, box.max.z + 0.7 * diag);
+  // Above a corner of the room: back along a horizontal direction, up along the scene's up.
+  const side = new THREE.Vector3(-0.55 * size.x - 0.2 * diag, -0.75 * size.y - 0.3 * diag, 0);
+  side.addScaledVector(sceneUp, -side.dot(sceneUp));
+  const top = heightRange(box)[1];
+  camera.position.copy(centre).add(side).addScaledVector(sceneUp, top - centre.dot(sceneUp) + 0.7 * diag);
   camera.near = diag / 500;
   camera.far = diag * 20;
   camera.updateProjectionMatrix();
@@ -351,7 +384,9 @@ function throwStart(ray, hit) {
   if (!hit) return null;
   const back = Math.min(1.5, 0.8 * hit.distanceTo(ray.origin));
   const start = hit.clone().sub(ray.direction.clone().multiplyScalar(back));
-  start.z = Math.max(start.z, box.min.z + 0.2);
+  const lowest = heightRange(box)[0] + 0.2;
+  const h = start.dot(sceneUp);
+  if (h < lowest) start.addScaledVector(sceneUp, lowest - h);
   return start;
 }
 
@@ -580,6 +615,7 @@ function clearScene() {
 // settings (mode, ceiling) and, once the user has moved it, the camera.
 function showScene(data) {
   const first = meshObject === null;
+  setSceneUp(data.info.up);
   palette = [];
   for (const p of data.info.palette) palette[p.id] = p;
   const mesh = decodeMesh(data.scene);

@@ -27,11 +27,15 @@ pub struct ArOptions {
     pub throw_every_s: f32,
     /// Width of the GIF preview in pixels (frames are shrunk by a whole factor to about this).
     pub gif_width: u32,
+    /// Up direction of the scan's world frame (unit length): gravity pulls against it and
+    /// balls are tossed a little along it. A reconstruction's mesh records it
+    /// ([`semrecon_data::read_ply_with_up`]); +z for generated rooms.
+    pub up: Vec3,
 }
 
 impl Default for ArOptions {
     fn default() -> Self {
-        Self { max_frames: 300, speed: 3.0, throw_every_s: 1.5, gif_width: 320 }
+        Self { max_frames: 300, speed: 3.0, throw_every_s: 1.5, gif_width: 320, up: Vec3::Z }
     }
 }
 
@@ -70,7 +74,7 @@ pub fn render_ar(
     let throw_every = ((options.throw_every_s * fps).round() as usize).max(1);
     let prepared = PreparedMesh::new(mesh)?;
     let mut renderer = Renderer::new(intrinsics)?;
-    let mut scene = ArScene::with_mesh(mesh, materials, SceneConfig::default())?;
+    let mut scene = ArScene::with_mesh(mesh, materials, SceneConfig { up: options.up, ..SceneConfig::default() })?;
     let radius = scene.config().ball_radius;
     let mut balls: Vec<BallId> = Vec::new();
     let mut pixels = (0, 0);
@@ -95,7 +99,7 @@ pub fn render_ar(
         if i % throw_every == 0 {
             let forward = Vec3::from(world_from_camera.matrix3.z_axis).normalize_or(Vec3::X);
             let from = Vec3::from(world_from_camera.translation) + forward * 0.15;
-            balls.push(scene.throw_ball(from, forward + Vec3::Z * 0.3, options.speed)?);
+            balls.push(scene.throw_ball(from, forward + options.up * 0.3, options.speed)?);
         }
         let model_depth = renderer.render(&prepared, world_from_camera).depth.clone();
         let mut color = frame.color;

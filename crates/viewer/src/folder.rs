@@ -4,7 +4,8 @@
 
 use std::path::{Path, PathBuf};
 
-use semrecon_data::{read_ply, LabeledMesh, Trajectory};
+use glam::Vec3;
+use semrecon_data::{read_ply_with_up, LabeledMesh, Trajectory};
 use semrecon_physics::{CollisionMesh, MaterialTable, SceneConfig};
 
 use crate::decimate::{decimate_for_display, MAX_DISPLAY_TRIANGLES};
@@ -72,7 +73,7 @@ impl ViewerFolder {
     /// folder when a file is given).
     pub fn load(dir: &Path, materials: Option<&Path>) -> Result<Self> {
         let mesh_path = find_mesh(dir)?;
-        let mesh = read_ply(&mesh_path)?;
+        let (mesh, up) = read_ply_with_up(&mesh_path)?;
         if mesh.triangles.is_empty() {
             return Err(ViewerError::NoMesh {
                 dir: mesh_path.clone(),
@@ -83,13 +84,20 @@ impl ViewerFolder {
             Some(p) => MaterialTable::load(p)?,
             None => MaterialTable::defaults(),
         };
-        Self::from_mesh(mesh_path, mesh, materials, dir)
+        Self::from_mesh(mesh_path, mesh, materials, dir, up)
     }
 
     /// As [`ViewerFolder::load`] for a mesh already in memory; the trajectory is looked for
-    /// in `dir`, or in its parent folder when `dir` is a file.
-    pub fn from_mesh(mesh_path: PathBuf, mesh: LabeledMesh, materials: MaterialTable, dir: &Path) -> Result<Self> {
-        let config = SceneConfig::default();
+    /// in `dir`, or in its parent folder when `dir` is a file. `up` is the mesh frame's up
+    /// direction (gravity pulls against it; +z when `None`).
+    pub fn from_mesh(
+        mesh_path: PathBuf,
+        mesh: LabeledMesh,
+        materials: MaterialTable,
+        dir: &Path,
+        up: Option<Vec3>,
+    ) -> Result<Self> {
+        let config = SceneConfig { up: up.map_or(Vec3::Z, |u| u.normalize_or(Vec3::Z)), ..SceneConfig::default() };
         let collision = CollisionMesh::build(&mesh, &config.collision)?;
         let labelled = !mesh.vertex_labels.is_empty() || !mesh.triangle_labels.is_empty();
         let mut notes = Vec::new();
@@ -126,8 +134,9 @@ impl ViewerFolder {
 impl ViewerFolder {
     /// The scene of a live reconstruction: `mesh` as it stands (decimated for display like a
     /// file's mesh) and the camera path so far, with default materials. `name` is what the
-    /// page shows in place of a file name. An empty mesh is an error (nothing to collide with).
-    pub fn live(name: &str, mesh: &LabeledMesh, trajectory: &Trajectory) -> Result<Self> {
+    /// page shows in place of a file name; `up` the map's up direction when known. An empty
+    /// mesh is an error (nothing to collide with).
+    pub fn live(name: &str, mesh: &LabeledMesh, trajectory: &Trajectory, up: Option<Vec3>) -> Result<Self> {
         if mesh.triangles.is_empty() {
             return Err(ViewerError::NoMesh {
                 dir: PathBuf::from(name),
@@ -135,7 +144,8 @@ impl ViewerFolder {
             });
         }
         // No folder: from_mesh then finds no trajectory file, and the live poses go in instead.
-        let mut folder = Self::from_mesh(PathBuf::from(name), mesh.clone(), MaterialTable::defaults(), Path::new(""))?;
+        let mut folder =
+            Self::from_mesh(PathBuf::from(name), mesh.clone(), MaterialTable::defaults(), Path::new(""), up)?;
         if !trajectory.is_empty() {
             folder.trajectory = Some((PathBuf::from("trajectory (live)"), trajectory.clone()));
         }

@@ -224,6 +224,7 @@ pub fn info_json(folder: &ViewerFolder) -> Value {
         "bounds": bounds,
         "has_trajectory": folder.trajectory.is_some(),
         "ball_radius": folder.config.ball_radius,
+        "up": folder.config.up.to_array(),
     })
 }
 
@@ -259,6 +260,7 @@ fn camera_forward(world_from_camera: &glam::Affine3A) -> Vec3 {
 /// (or one shorter than 1 m), from the middle of the room in evenly spaced directions.
 pub fn precomputed_throws(folder: &ViewerFolder, count: usize) -> Vec<(ThrowRequest, Throw)> {
     let speed = 4.0;
+    let up = folder.config.up;
     // A camera that barely moved would give the same throw `count` times.
     let path_length = |t: &semrecon_data::Trajectory| -> f32 {
         t.poses.windows(2).map(|w| Vec3::from(w[1].translation).distance(Vec3::from(w[0].translation))).sum()
@@ -269,18 +271,26 @@ pub fn precomputed_throws(folder: &ViewerFolder, count: usize) -> Vec<(ThrowRequ
                 let i = if count > 1 { k * (t.len() - 1) / (count - 1) } else { 0 };
                 let forward = camera_forward(&t.poses[i]);
                 let from = Vec3::from(t.poses[i].translation) + forward * 0.1;
-                let dir = (forward + Vec3::Z * 0.25).normalize_or(Vec3::Z);
+                let dir = (forward + up * 0.25).normalize_or(up);
                 request(from, dir, speed)
             })
             .collect(),
         _ => {
             let (lo, hi) = folder.display.bounds().unwrap_or((Vec3::ZERO, Vec3::ONE));
-            let mut centre = (lo + hi) * 0.5;
-            centre.z = lo.z + (hi.z - lo.z).min(2.5) * 0.6;
+            // Heights along up of the box's corners: the room's floor and ceiling when the
+            // mesh frame is tilted.
+            let heights: Vec<f32> = (0..8)
+                .map(|c| Vec3::new([lo.x, hi.x][c & 1], [lo.y, hi.y][(c >> 1) & 1], [lo.z, hi.z][c >> 2]).dot(up))
+                .collect();
+            let (low, high) =
+                heights.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &h| (a.min(h), b.max(h)));
+            let mid = (lo + hi) * 0.5;
+            let centre = mid + up * (low + (high - low).min(2.5) * 0.6 - mid.dot(up));
+            let (e1, e2) = up.any_orthonormal_pair();
             (0..count)
                 .map(|k| {
                     let a = k as f32 / count.max(1) as f32 * std::f32::consts::TAU;
-                    request(centre, Vec3::new(a.cos(), a.sin(), 0.3).normalize(), speed)
+                    request(centre, (e1 * a.cos() + e2 * a.sin() + up * 0.3).normalize(), speed)
                 })
                 .collect()
         }

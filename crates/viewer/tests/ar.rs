@@ -64,7 +64,7 @@ fn balls_are_drawn_over_the_frames_and_a_gif_is_written() {
     let frames: Vec<Frame> = (0..20).map(|i| renderer.render_frame(&prepared, pose, i)).collect();
     let plain: Vec<Vec<[u8; 3]>> = frames.iter().map(|f| f.color.clone()).collect();
     let dir = tempfile::tempdir().expect("tempdir");
-    let options = ArOptions { max_frames: 20, speed: 2.0, throw_every_s: 0.3, gif_width: 40 };
+    let options = ArOptions { max_frames: 20, speed: 2.0, throw_every_s: 0.3, gif_width: 40, ..ArOptions::default() };
     let summary =
         render_ar(&Frames(frames, intrinsics), &mesh, MaterialTable::defaults(), dir.path(), &options).expect("ar");
     assert_eq!(summary.frames, 20);

@@ -59,10 +59,10 @@ fn live_updates_bump_the_version_and_change_the_scene() {
     assert_eq!(status, 200);
     assert_eq!((v["version"].as_u64(), v["live"].as_bool(), v["ready"].as_bool()), (Some(0), Some(true), Some(false)));
     assert_eq!(get(addr, "/api/info").0, 503, "no scene before the first update");
-    assert!(live.update(&LabeledMesh::default(), &path(1)).is_err(), "an empty mesh is refused");
+    assert!(live.update(&LabeledMesh::default(), &path(1), None).is_err(), "an empty mesh is refused");
     assert_eq!(live.version(), 0);
 
-    assert_eq!(live.update(&floor_tiles(3), &path(4)).expect("first update"), 1);
+    assert_eq!(live.update(&floor_tiles(3), &path(4), None).expect("first update"), 1);
     let (_, v) = get(addr, "/api/version");
     assert_eq!((v["version"].as_u64(), v["ready"].as_bool()), (Some(1), Some(true)));
     let (status, info) = get(addr, "/api/info");
@@ -73,7 +73,7 @@ fn live_updates_bump_the_version_and_change_the_scene() {
     let (_, t) = get(addr, "/api/trajectory");
     assert_eq!(t["positions"].as_array().map(Vec::len), Some(4));
 
-    assert_eq!(live.update(&floor_tiles(5), &path(9)).expect("second update"), 2);
+    assert_eq!(live.update(&floor_tiles(5), &path(9), None).expect("second update"), 2);
     let (_, v) = get(addr, "/api/version");
     assert_eq!(v["version"].as_u64(), Some(2));
     let (_, info) = get(addr, "/api/info");
@@ -86,8 +86,8 @@ fn live_updates_bump_the_version_and_change_the_scene() {
 #[test]
 fn a_fixed_scene_reports_version_zero_and_not_live() {
     let (server, live) = ViewerServer::start_live(None).expect("start live server");
-    live.update(&floor_tiles(1), &path(2)).expect("update");
-    let folder = semrecon_viewer::ViewerFolder::live("tiles", &floor_tiles(2), &path(2)).expect("folder");
+    live.update(&floor_tiles(1), &path(2), None).expect("update");
+    let folder = semrecon_viewer::ViewerFolder::live("tiles", &floor_tiles(2), &path(2), None).expect("folder");
     server.stop();
     let server = ViewerServer::start(folder, None).expect("start");
     let (status, v) = get(server.addr(), "/api/version");

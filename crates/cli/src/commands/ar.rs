@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use semrecon_data::datasets::{open_dataset, DatasetSpec};
-use semrecon_data::read_ply;
+use semrecon_data::read_ply_with_up;
 use semrecon_physics::MaterialTable;
 use semrecon_viewer::ar::{render_ar, ArOptions};
 use semrecon_viewer::folder::find_mesh;
@@ -49,13 +49,19 @@ pub fn run(args: ArArgs) -> anyhow::Result<()> {
             find_mesh(dir).with_context(|| format!("no room mesh for {}: pass --mesh", args.dataset))?
         }
     };
-    let mesh = read_ply(&mesh_path)?;
+    // A reconstruction's mesh is in its dataset's frame and records that frame's up.
+    let (mesh, up) = read_ply_with_up(&mesh_path)?;
     let materials = match &args.materials {
         Some(p) => MaterialTable::load(p)?,
         None => MaterialTable::defaults(),
     };
-    let options =
-        ArOptions { max_frames: args.frames, speed: args.speed, throw_every_s: args.every, ..Default::default() };
+    let options = ArOptions {
+        max_frames: args.frames,
+        speed: args.speed,
+        throw_every_s: args.every,
+        up: up.unwrap_or(glam::Vec3::Z),
+        ..Default::default()
+    };
     let summary = render_ar(source.as_ref(), &mesh, materials, &args.out, &options)?;
     println!(
         "wrote {} frames with {} balls to {}/frame-NNNNNN.png and {} ({} ball pixels drawn, {} hidden behind the room)",

@@ -12,7 +12,7 @@ use anyhow::{bail, Context};
 use glam::{Affine3A, Mat3A, Quat, Vec3};
 use semrecon_data::class::UNLABELED;
 use semrecon_data::depth_image::write_color_png;
-use semrecon_data::{read_ply, Intrinsics, LabeledMesh, PreparedMesh, Renderer, SemanticClass};
+use semrecon_data::{read_ply_with_up, Intrinsics, LabeledMesh, PreparedMesh, Renderer, SemanticClass};
 
 /// Arguments of `semrecon snapshot`.
 #[derive(clap::Args)]
@@ -37,8 +37,9 @@ pub struct SnapshotArgs {
     /// Image width in pixels (height is 3/4 of it).
     #[arg(long, default_value_t = 1024)]
     width: u32,
-    /// The scene's up direction x,y,z (default 0,0,1): the scene is first turned so that it
-    /// points along +z (for meshes of `semrecon run`, minus the dataset's gravity direction).
+    /// The scene's up direction x,y,z: the scene is first turned so that it points along +z.
+    /// Default: the up direction the file records (meshes of `semrecon run`, `live` and
+    /// `demo` do: their map frame is the dataset's or the first camera's), else 0,0,1.
     #[arg(long, value_parser = crate::cli_values::parse_vec3, allow_hyphen_values = true)]
     up: Option<Vec3>,
 }
@@ -57,7 +58,7 @@ pub fn look_at(eye: Vec3, at: Vec3) -> anyhow::Result<Affine3A> {
 
 /// Runs the command.
 pub fn run(args: SnapshotArgs) -> anyhow::Result<()> {
-    let mut mesh = read_ply(&args.mesh)?;
+    let (mut mesh, file_up) = read_ply_with_up(&args.mesh)?;
     if args.classes {
         let labels = mesh.vertex_labels_or_from_triangles();
         if labels.iter().all(|&l| l == UNLABELED) {
@@ -66,7 +67,7 @@ pub fn run(args: SnapshotArgs) -> anyhow::Result<()> {
         mesh.colors = labels.iter().map(|&l| SemanticClass::from_id(l).map_or([0, 0, 0], |c| c.color())).collect();
         println!("classes (share of vertices): {}", class_shares(&labels));
     }
-    if let Some(up) = args.up {
+    if let Some(up) = args.up.or(file_up) {
         let up = up.normalize_or_zero();
         if up == Vec3::ZERO {
             bail!("--up must not be the zero vector");

@@ -156,7 +156,7 @@ fn recoloured_pair_equals_two_writes() {
     recoloured.colors = colors.clone();
     for enc in [PlyEncoding::Ascii, PlyEncoding::BinaryLittleEndian] {
         let (a, b, c, d) = ["a", "b", "c", "d"].map(|n| dir.path().join(format!("{n}.ply"))).into();
-        write_ply_recoloured(&a, &b, &mesh, &colors, enc).expect("pair");
+        write_ply_recoloured(&a, &b, &mesh, &colors, enc, None).expect("pair");
         write_ply(&c, &mesh, enc).expect("mesh");
         write_ply(&d, &recoloured, enc).expect("recoloured");
         let read = |p: &std::path::Path| std::fs::read(p).expect("read");
@@ -169,8 +169,42 @@ fn recoloured_pair_equals_two_writes() {
         &mesh,
         &colors[1..],
         PlyEncoding::Ascii,
+        None,
     )
     .expect_err("short colours")
     .to_string();
     assert!(e.contains("colours for"), "{e}");
+}
+
+/// The up direction survives a write and a read in both files and every encoding; files
+/// without one read as `None`; a malformed one is an error naming the file.
+#[test]
+fn the_up_direction_is_recorded_in_the_header() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mesh = mesh_of(QUAD).expect("parse");
+    let up = glam::Vec3::new(0.0089, -0.9044, -0.4265);
+    for enc in [PlyEncoding::Ascii, PlyEncoding::BinaryLittleEndian] {
+        let (a, b) = (dir.path().join("a.ply"), dir.path().join("b.ply"));
+        write_ply_recoloured(&a, &b, &mesh, &mesh.colors, enc, Some(up * 3.0)).expect("pair");
+        for p in [&a, &b] {
+            let (read, read_up) = read_ply_with_up(p).expect("read");
+            assert_eq!(read, mesh);
+            let read_up = read_up.expect("an up direction");
+            assert!((read_up - up.normalize()).length() < 1e-6, "{read_up}");
+        }
+        write_ply(&a, &mesh, enc).expect("mesh");
+        assert_eq!(read_ply_with_up(&a).expect("read").1, None);
+    }
+    let bad = dir.path().join("bad.ply");
+    for comment in ["semrecon up 0 0 0", "semrecon up 1 x 0", "semrecon up 1 0", "semrecon up nan 0 1"] {
+        let text = String::from_utf8(QUAD.to_vec()).expect("ascii").replacen(
+            "comment hello world",
+            &format!("comment {comment}"),
+            1,
+        );
+        std::fs::write(&bad, text).expect("write");
+        let e = read_ply_with_up(&bad).expect_err(comment).to_string();
+        assert!(e.contains("bad.ply") && e.contains("up direction"), "{comment}: {e}");
+    }
+    assert!(write_ply_recoloured(&bad, &bad, &mesh, &mesh.colors, PlyEncoding::Ascii, Some(glam::Vec3::ZERO)).is_err());
 }
