@@ -4,6 +4,7 @@
 
 use std::time::{Duration, Instant};
 
+use crate::reconstruction::mesh_gravity;
 use anyhow::Context;
 use semrecon_data::{LabeledMesh, Trajectory};
 use semrecon_pipeline::Pipeline;
@@ -62,19 +63,19 @@ impl LiveView {
         self.pushed_at != Some(fused) && self.last_push.is_none_or(|t| t.elapsed() >= LIVE_PUSH_INTERVAL)
     }
 
-    /// Shows `mesh` and `trajectory` in a map frame whose up is `up` (when known); an empty
-    /// mesh (nothing surfaced yet) is skipped.
+    /// Shows `mesh` and `trajectory` in a map frame whose gravity is `gravity` (when known);
+    /// an empty mesh (nothing surfaced yet) is skipped.
     pub fn push(
         &mut self,
         fused: usize,
         mesh: &LabeledMesh,
         trajectory: &Trajectory,
-        up: Option<glam::Vec3>,
+        gravity: Option<semrecon_data::MeshGravity>,
     ) -> Result<(), String> {
         if mesh.triangles.is_empty() {
             return Ok(());
         }
-        self.scene.update(mesh, trajectory, up).map_err(|e| format!("live viewer not updated: {e}"))?;
+        self.scene.update(mesh, trajectory, gravity).map_err(|e| format!("live viewer not updated: {e}"))?;
         self.pushed_at = Some(fused);
         self.last_push = Some(Instant::now());
         Ok(())
@@ -89,7 +90,7 @@ impl LiveView {
         }
         let t = Instant::now();
         let mesh = pipeline.mesh();
-        self.push(fused, &mesh, pipeline.trajectory(), pipeline.up().map(|u| u.up))?;
+        self.push(fused, &mesh, pipeline.trajectory(), pipeline.up().map(mesh_gravity))?;
         Ok(Some(t.elapsed()))
     }
 }

@@ -16,11 +16,11 @@ use anyhow::Context;
 use glam::Vec3;
 use rayon::prelude::*;
 use semrecon_data::class::UNLABELED;
-use semrecon_data::{write_ply_recoloured, LabeledMesh, PlyEncoding, SemanticClass, Trajectory};
+use semrecon_data::{write_ply_recoloured, LabeledMesh, MeshGravity, PlyEncoding, SemanticClass, Trajectory};
 use semrecon_eval::{evaluate_trajectory, TrajectoryEvalConfig};
 use semrecon_eval::{MeshEvalConfig, SurfaceIndex, SurfaceLabeler};
 use semrecon_net::{shipped, ConfusionMatrix, NetConfig, Segmenter, Weights};
-use semrecon_pipeline::{Pipeline, PipelineConfig, SemanticMode, DEFAULT_MESH_BUDGET};
+use semrecon_pipeline::{Pipeline, PipelineConfig, SemanticMode, UpEstimate, DEFAULT_MESH_BUDGET};
 use semrecon_recon::{MeshConfig, TrackerConfig, TsdfConfig};
 
 use crate::live_view::LiveView;
@@ -356,9 +356,9 @@ pub fn finish_session(
 ) -> anyhow::Result<(LabeledMesh, f64)> {
     let mesh = pipeline.finish()?;
     let wall_s = start.elapsed().as_secs_f64();
-    let up = output_up(pipeline, &mesh);
+    let gravity = output_gravity(pipeline, &mesh);
     if let Some(live) = live {
-        if let Err(why) = live.push(pipeline.frame_counts().1, &mesh, pipeline.trajectory(), up) {
+        if let Err(why) = live.push(pipeline.frame_counts().1, &mesh, pipeline.trajectory(), gravity) {
             eprintln!("warning: {why}");
         }
     }
@@ -368,23 +368,35 @@ pub fn finish_session(
     if warnings > MAX_WARNINGS {
         eprintln!("warning: {} more warnings not shown", warnings - MAX_WARNINGS);
     }
-    write_outputs(out, &mesh, pipeline.trajectory(), up)?;
+    write_outputs(out, &mesh, pipeline.trajectory(), gravity)?;
     Ok((mesh, wall_s))
 }
 
-/// The up direction recorded in the written meshes: the pipeline's (a dataset's gravity
-/// file, or the semantic passes' estimate), else estimated from the mesh and the cameras,
-/// so that physics, the viewer and `snapshot` know where gravity points in the map frame.
-pub fn output_up(pipeline: &Pipeline, mesh: &LabeledMesh) -> Option<Vec3> {
-    pipeline.up().map(|u| u.up).or_else(|| {
-        semrecon_pipeline::gravity::mesh_up(&mesh.positions, &mesh.normals, &pipeline.trajectory().poses).map(|u| u.up)
-    })
+/// The gravity recorded in the written meshes: the pipeline's up and floor (a dataset's
+/// gravity file, or the semantic passes' estimate), else estimated from the mesh and the
+/// cameras, so that physics, the viewer and `snapshot` know where gravity points in the map
+/// frame and where the floor lies under the scan's holes.
+pub fn output_gravity(pipeline: &Pipeline, mesh: &LabeledMesh) -> Option<MeshGravity> {
+    pipeline
+        .up()
+        .or_else(|| semrecon_pipeline::gravity::mesh_up(&mesh.positions, &mesh.normals, &pipeline.trajectory().poses))
+        .map(mesh_gravity)
+}
+
+/// An up estimate as recorded in a mesh file.
+pub fn mesh_gravity(u: UpEstimate) -> MeshGravity {
+    MeshGravity { up: u.up, floor_height: Some(u.floor_height) }
 }
 
 /// Writes `dir/mesh.ply` (observed colours and a vertex `label`), `dir/semantic.ply` (class
 /// colours) and `dir/trajectory.txt` (TUM) into `dir`, which [`prepare_output_dir`] made
-/// before the run. Both meshes record `up` (the map frame's up direction) when known.
-pub fn write_outputs(dir: &Path, mesh: &LabeledMesh, trajectory: &Trajectory, up: Option<Vec3>) -> anyhow::Result<()> {
+/// before the run. Both meshes record `gravity` (the map frame's up and floor) when known.
+pub fn write_outputs(
+    dir: &Path,
+    mesh: &LabeledMesh,
+    trajectory: &Trajectory,
+    gravity: Option<MeshGravity>,
+) -> anyhow::Result<()> {
     // One PLY conversion for both files: a whole home's mesh is gigabytes.
     let colors = class_colors(mesh);
     write_ply_recoloured(
@@ -393,7 +405,7 @@ pub fn write_outputs(dir: &Path, mesh: &LabeledMesh, trajectory: &Trajectory, up
         mesh,
         &colors,
         PlyEncoding::BinaryLittleEndian,
-        up,
+        gravity,
     )?;
     trajectory.write_tum(dir.join("trajectory.txt"))?;
     Ok(())

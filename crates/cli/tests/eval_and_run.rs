@@ -105,9 +105,10 @@ fn run_records_the_up_direction_in_its_meshes() {
     let given = dir.path().join("given");
     run_ok(&format!("7scenes:{}", s(&scan)), &["--voxel", "0.02"], &given);
     for name in ["mesh.ply", "semantic.ply"] {
-        let (_, up) = semrecon_data::read_ply_with_up(given.join(name)).expect("mesh");
-        let up = up.expect("an up direction");
-        assert!((up - glam::Vec3::new(0.0, -0.6, 0.8)).length() < 1e-5, "{name}: {up}");
+        let (_, gravity) = semrecon_data::read_ply_with_gravity(given.join(name)).expect("mesh");
+        let gravity = gravity.expect("gravity");
+        assert!((gravity.up - glam::Vec3::new(0.0, -0.6, 0.8)).length() < 1e-5, "{name}: {}", gravity.up);
+        assert!(gravity.floor_height.is_some_and(f32::is_finite), "{name}: {gravity:?}");
     }
     // Without semantics (no estimate from the passes) and without a gravity file: estimated
     // from the mesh and the cameras, the generated room's +z (160x120: at 64x48 the floor
@@ -117,9 +118,12 @@ fn run_records_the_up_direction_in_its_meshes() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let estimated = dir.path().join("estimated");
     run_ok(&format!("7scenes:{}", s(&scan)), &["--voxel", "0.02", "--semantics", "off"], &estimated);
-    let (_, up) = semrecon_data::read_ply_with_up(estimated.join("mesh.ply")).expect("mesh");
-    let up = up.expect("an up direction");
-    assert!(up.angle_between(glam::Vec3::Z).to_degrees() < 2.0, "{up}");
+    let (_, gravity) = semrecon_data::read_ply_with_gravity(estimated.join("mesh.ply")).expect("mesh");
+    let gravity = gravity.expect("gravity");
+    assert!(gravity.up.angle_between(glam::Vec3::Z).to_degrees() < 2.0, "{}", gravity.up);
+    // The generated room's floor is at z = 0.
+    let floor = gravity.floor_height.expect("a floor");
+    assert!(floor.abs() < 0.05, "floor at {floor} m");
 }
 
 /// `--max-memory` spills packed chunks and changes no output byte of packing alone, and with

@@ -24,11 +24,11 @@ use std::io::Write;
 use std::ops::Range;
 use std::path::Path;
 
+mod gravity;
 mod mesh;
 mod reader;
-pub use mesh::{
-    mesh_from_ply, mesh_to_ply, read_ply, read_ply_with_up, up_comment, up_of, write_ply, write_ply_recoloured,
-};
+pub use gravity::{read_ply_with_gravity, MeshGravity};
+pub use mesh::{mesh_from_ply, mesh_to_ply, read_ply, write_ply, write_ply_recoloured};
 
 use glam::Vec3;
 

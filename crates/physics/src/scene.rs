@@ -36,6 +36,7 @@ use rapier3d::prelude::{
 };
 use semrecon_data::class::UNLABELED;
 use semrecon_data::LabeledMesh;
+use semrecon_data::SemanticClass;
 use serde::{Deserialize, Serialize};
 
 use crate::collision_mesh::{CollisionMesh, CollisionMeshConfig, CollisionRegion, RegionKey};
@@ -72,10 +73,20 @@ pub struct SceneConfig {
     /// The scene's up direction (unit length; gravity pulls along its opposite). Default z:
     /// generated rooms and S3DIS/ScanNet meshes are z up. A reconstruction keeps the frame
     /// of its dataset or first camera (7-Scenes' world is nearly y down), so its mesh file
-    /// carries the up direction ([`semrecon_data::read_ply_with_up`]), and scenes built from it
-    /// take that.
+    /// carries the up direction ([`semrecon_data::read_ply_with_gravity`]), and scenes built
+    /// from it take that.
     pub up: Vec3,
+    /// Height along `up` of the room's floor, metres, when known: a ground plane
+    /// [`FLOOR_PLANE_DROP`] below it, with the floor's material, catches balls where the
+    /// scanned floor has holes (patches no frame saw, under furniture), through which they
+    /// would otherwise fall for ever. `None`: no plane (generated rooms are closed).
+    pub floor_height: Option<f32>,
 }
+
+/// How far below [`SceneConfig::floor_height`] the ground plane lies, metres: the scanned
+/// floor takes the contacts where it exists (its noise is a few millimetres), the plane only
+/// where it has a hole.
+pub const FLOOR_PLANE_DROP: f32 = 0.02;
 
 impl Default for SceneConfig {
     fn default() -> Self {
@@ -87,6 +98,7 @@ impl Default for SceneConfig {
             angular_damping: 0.5,
             collision: CollisionMeshConfig::default(),
             up: Vec3::Z,
+            floor_height: None,
         }
     }
 }
@@ -111,6 +123,11 @@ impl SceneConfig {
         }
         if !(self.angular_damping.is_finite() && (0.0..=100.0).contains(&self.angular_damping)) {
             return bad("angular damping", self.angular_damping, "0..=100");
+        }
+        if let Some(h) = self.floor_height {
+            if !(h.is_finite() && h.abs() <= MAX_COORDINATE) {
+                return bad("floor height", h, "a finite +-10 km");
+            }
         }
         if !(self.up.is_finite() && (self.up.length() - 1.0).abs() <= 1e-3) {
             return Err(PhysicsError::InvalidArgument(format!(
@@ -214,12 +231,24 @@ impl ArScene {
         world.integration_parameters.dt = config.dt;
         // The material hook needs the triangle index of each manifold (see module docs).
         world.integration_parameters.contact_clustering = false;
+        let mut surfaces = HashMap::new();
+        if let Some(h) = config.floor_height {
+            // A half-space (one sub-shape, index 0) labelled floor, its boundary through
+            // `up * (h - drop)` with its normal along up (a unit vector: validated above).
+            let normal = Vector::new(config.up.x, config.up.y, config.up.z);
+            let origin = config.up * (h - FLOOR_PLANE_DROP);
+            let plane = ColliderBuilder::halfspace(rapier3d::na::Unit::new_unchecked(normal))
+                .translation(Vector::new(origin.x, origin.y, origin.z))
+                .active_hooks(ActiveHooks::MODIFY_SOLVER_CONTACTS);
+            let handle = world.insert_collider(plane, None);
+            surfaces.insert(handle, Arc::new(Surface { labels: vec![SemanticClass::Floor.id()], origin }));
+        }
         Ok(Self {
             world,
             config,
             materials,
             regions: BTreeMap::new(),
-            surfaces: HashMap::new(),
+            surfaces,
             balls: Vec::new(),
             steps: 0,
             unlabelled: false,
@@ -301,7 +330,7 @@ impl ArScene {
                 .map_err(|e| PhysicsError::Mesh(format!("region {:?}: {e}", region.key)))?,
         };
         let handle = self.world.insert_collider(collider.active_hooks(ActiveHooks::MODIFY_SOLVER_CONTACTS), None);
-        self.surfaces.insert(handle, Arc::new(Surface { labels: region.labels }));
+        self.surfaces.insert(handle, Arc::new(Surface { labels: region.labels, origin: Vec3::ZERO }));
         self.regions.insert(region.key, RegionCollider { handle, hash: region.hash });
         // Balls asleep on the old geometry must notice the change.
         self.world.wake_up_all(true);
@@ -506,10 +535,10 @@ fn contact_impulses(
                     continue;
                 }
                 total += n * p.data.impulse;
-                // Room colliders sit at the identity pose: their local frame is the world's.
+                // Room colliders are only translated (by `origin`), never turned.
                 let local = if mesh_is_first { p.local_p1 } else { p.local_p2 };
                 if best.is_none_or(|(j, _, _)| p.data.impulse > j) {
-                    best = Some((p.data.impulse, Vec3::new(local.x, local.y, local.z), label));
+                    best = Some((p.data.impulse, Vec3::new(local.x, local.y, local.z) + surface.origin, label));
                 }
             }
         }
@@ -518,9 +547,13 @@ fn contact_impulses(
     Some(Hit { normal: total.try_normalize()?, point, label })
 }
 
-/// Per-triangle data of one region collider.
+/// Per-triangle data of one room collider.
 struct Surface {
     labels: Vec<u8>,
+    /// The collider's translation (zero for the regions, which sit at the identity pose;
+    /// the ground plane's point on its boundary), which takes contact points from the
+    /// collider's frame to the world's.
+    origin: Vec3,
 }
 
 /// Sets each room manifold's friction from the class of its triangle, and its restitution

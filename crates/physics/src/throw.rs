@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use glam::Vec3;
-use semrecon_data::{read_ply_with_up, LabeledMesh};
+use semrecon_data::{read_ply_with_gravity, LabeledMesh};
 
 use crate::error::{PhysicsError, Result};
 use crate::materials::MaterialTable;
@@ -15,7 +15,8 @@ use crate::scene::{ArScene, SceneConfig, Throw};
 /// simulates `seconds`, with the materials of `materials_path` (defaults when `None`).
 /// A mesh without labels works with the unlabelled material; the result then carries a
 /// warning. Gravity pulls against the up direction the file records (a reconstruction's
-/// mesh, in its dataset's frame), +z when it records none.
+/// mesh, in its dataset's frame), +z when it records none; a floor height it records puts a
+/// ground plane under the scan's holes ([`SceneConfig::floor_height`]).
 pub fn throw_from_ply(
     mesh_path: &Path,
     materials_path: Option<&Path>,
@@ -28,11 +29,15 @@ pub fn throw_from_ply(
         Some(p) => MaterialTable::load(p)?,
         None => MaterialTable::defaults(),
     };
-    let (mesh, up) = read_ply_with_up(mesh_path)?;
+    let (mesh, gravity) = read_ply_with_gravity(mesh_path)?;
     if mesh.triangles.is_empty() {
         return Err(PhysicsError::Mesh(format!("{}: the mesh has no triangles", mesh_path.display())));
     }
-    let config = SceneConfig { up: up.unwrap_or(Vec3::Z), ..SceneConfig::default() };
+    let config = SceneConfig {
+        up: gravity.map_or(Vec3::Z, |g| g.up),
+        floor_height: gravity.and_then(|g| g.floor_height),
+        ..SceneConfig::default()
+    };
     throw_into_mesh(&mesh, materials, config, from, dir, speed, seconds)
 }
 

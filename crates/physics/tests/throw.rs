@@ -133,7 +133,7 @@ fn gravity_follows_the_up_direction_the_file_records() {
         &turned,
         &colors,
         PlyEncoding::BinaryLittleEndian,
-        Some(turn * Vec3::Z),
+        Some(semrecon_data::MeshGravity::up(turn * Vec3::Z)),
     )
     .expect("write");
     let t = throw_from_ply(&a, None, turn * from, turn * toward, 2.5, 1.5).expect("throw");
@@ -153,4 +153,60 @@ fn gravity_follows_the_up_direction_the_file_records() {
     let sideways = throw_from_ply(&a, None, turn * from, turn * toward, 2.5, 1.5).expect("throw");
     let off = turn.inverse() * Vec3::from_array(sideways.positions[10]);
     assert!(off.distance(Vec3::from_array(reference.positions[10])) > 0.05, "{off}: gravity along the file's -z");
+}
+
+/// A scan's floor has holes (patches no frame saw): a ball dropped over one falls for ever,
+/// unless the file records the floor height, when a ground plane 2 cm below it catches the
+/// ball with the floor's material; where the scanned floor exists it takes the contact.
+#[test]
+fn a_recorded_floor_catches_balls_under_the_scans_holes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // A 2 m x 2 m floor at z = 0 in 10 cm quads, with a 60 cm square hole in its middle.
+    let mut mesh = semrecon_data::LabeledMesh::default();
+    for i in 0..20 {
+        for j in 0..20 {
+            let (x, y) = (i as f32 * 0.1 - 1.0, j as f32 * 0.1 - 1.0);
+            if (-0.3..0.3).contains(&x) && (-0.3..0.3).contains(&y) {
+                continue;
+            }
+            let k = mesh.positions.len() as u32;
+            for (dx, dy) in [(0.0, 0.0), (0.1, 0.0), (0.1, 0.1), (0.0, 0.1)] {
+                mesh.positions.push(Vec3::new(x + dx, y + dy, 0.0));
+                mesh.colors.push([128; 3]);
+                mesh.vertex_labels.push(semrecon_data::SemanticClass::Floor.id());
+            }
+            mesh.triangles.extend([[k, k + 1, k + 2], [k, k + 2, k + 3]]);
+        }
+    }
+    let path = dir.path().join("holey.ply");
+    let drop = |gravity: Option<semrecon_data::MeshGravity>, x: f32| {
+        semrecon_data::write_ply_recoloured(
+            &path,
+            dir.path().join("classes.ply"),
+            &mesh,
+            &mesh.colors,
+            PlyEncoding::BinaryLittleEndian,
+            gravity,
+        )
+        .expect("write");
+        throw_from_ply(&path, None, Vec3::new(x, 0.05, 1.0), Vec3::NEG_Z, 0.1, 2.0).expect("throw")
+    };
+    let radius = drop(None, 0.0).radius;
+    // Through the hole without a floor: no contact, metres below.
+    let through = drop(Some(semrecon_data::MeshGravity::up(Vec3::Z)), 0.0);
+    assert!(through.contacts.is_empty(), "{:?}", through.contacts);
+    assert!(through.positions.last().expect("samples")[2] < -5.0);
+    // With the floor recorded: caught by the plane 2 cm down, as floor.
+    let floor = Some(semrecon_data::MeshGravity { up: Vec3::Z, floor_height: Some(0.0) });
+    let caught = drop(floor, 0.0);
+    let first = caught.contacts.first().expect("a contact");
+    assert_eq!(first.class, "floor");
+    assert!((first.position[2] + 0.02).abs() < 1e-3, "{:?}", first.position);
+    // It bounces on the plane (the floor's restitution) and never sinks through it.
+    let lowest = caught.positions.iter().map(|p| p[2]).fold(f32::INFINITY, f32::min);
+    assert!(lowest > radius - 0.02 - 0.005, "lowest centre at {lowest} m");
+    assert!(caught.contacts.len() >= 2, "{:?}", caught.contacts);
+    // Over the scanned floor the mesh takes the contact, at z = 0.
+    let on_mesh = drop(floor, 0.75);
+    assert!(on_mesh.contacts[0].position[2].abs() < 1e-3, "{:?}", on_mesh.contacts[0].position);
 }

@@ -29,13 +29,16 @@ pub struct ArOptions {
     pub gif_width: u32,
     /// Up direction of the scan's world frame (unit length): gravity pulls against it and
     /// balls are tossed a little along it. A reconstruction's mesh records it
-    /// ([`semrecon_data::read_ply_with_up`]); +z for generated rooms.
+    /// ([`semrecon_data::read_ply_with_gravity`]); +z for generated rooms.
     pub up: Vec3,
+    /// Height along `up` of the floor, when known: a ground plane catches balls under the
+    /// scan's holes ([`SceneConfig::floor_height`]).
+    pub floor_height: Option<f32>,
 }
 
 impl Default for ArOptions {
     fn default() -> Self {
-        Self { max_frames: 300, speed: 3.0, throw_every_s: 1.5, gif_width: 320, up: Vec3::Z }
+        Self { max_frames: 300, speed: 3.0, throw_every_s: 1.5, gif_width: 320, up: Vec3::Z, floor_height: None }
     }
 }
 
@@ -74,7 +77,11 @@ pub fn render_ar(
     let throw_every = ((options.throw_every_s * fps).round() as usize).max(1);
     let prepared = PreparedMesh::new(mesh)?;
     let mut renderer = Renderer::new(intrinsics)?;
-    let mut scene = ArScene::with_mesh(mesh, materials, SceneConfig { up: options.up, ..SceneConfig::default() })?;
+    let mut scene = ArScene::with_mesh(
+        mesh,
+        materials,
+        SceneConfig { up: options.up, floor_height: options.floor_height, ..SceneConfig::default() },
+    )?;
     let radius = scene.config().ball_radius;
     let mut balls: Vec<BallId> = Vec::new();
     let mut pixels = (0, 0);

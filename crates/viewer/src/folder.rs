@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use glam::Vec3;
-use semrecon_data::{read_ply_with_up, LabeledMesh, Trajectory};
+use semrecon_data::{read_ply_with_gravity, LabeledMesh, MeshGravity, Trajectory};
 use semrecon_physics::{CollisionMesh, MaterialTable, SceneConfig};
 
 use crate::decimate::{decimate_for_display, MAX_DISPLAY_TRIANGLES};
@@ -73,7 +73,7 @@ impl ViewerFolder {
     /// folder when a file is given).
     pub fn load(dir: &Path, materials: Option<&Path>) -> Result<Self> {
         let mesh_path = find_mesh(dir)?;
-        let (mesh, up) = read_ply_with_up(&mesh_path)?;
+        let (mesh, gravity) = read_ply_with_gravity(&mesh_path)?;
         if mesh.triangles.is_empty() {
             return Err(ViewerError::NoMesh {
                 dir: mesh_path.clone(),
@@ -84,20 +84,24 @@ impl ViewerFolder {
             Some(p) => MaterialTable::load(p)?,
             None => MaterialTable::defaults(),
         };
-        Self::from_mesh(mesh_path, mesh, materials, dir, up)
+        Self::from_mesh(mesh_path, mesh, materials, dir, gravity)
     }
 
     /// As [`ViewerFolder::load`] for a mesh already in memory; the trajectory is looked for
-    /// in `dir`, or in its parent folder when `dir` is a file. `up` is the mesh frame's up
-    /// direction (gravity pulls against it; +z when `None`).
+    /// in `dir`, or in its parent folder when `dir` is a file. `gravity` is the mesh frame's
+    /// up direction and floor (+z and no ground plane when `None`).
     pub fn from_mesh(
         mesh_path: PathBuf,
         mesh: LabeledMesh,
         materials: MaterialTable,
         dir: &Path,
-        up: Option<Vec3>,
+        gravity: Option<MeshGravity>,
     ) -> Result<Self> {
-        let config = SceneConfig { up: up.map_or(Vec3::Z, |u| u.normalize_or(Vec3::Z)), ..SceneConfig::default() };
+        let config = SceneConfig {
+            up: gravity.map_or(Vec3::Z, |g| g.up.normalize_or(Vec3::Z)),
+            floor_height: gravity.and_then(|g| g.floor_height),
+            ..SceneConfig::default()
+        };
         let collision = CollisionMesh::build(&mesh, &config.collision)?;
         let labelled = !mesh.vertex_labels.is_empty() || !mesh.triangle_labels.is_empty();
         let mut notes = Vec::new();
@@ -134,9 +138,9 @@ impl ViewerFolder {
 impl ViewerFolder {
     /// The scene of a live reconstruction: `mesh` as it stands (decimated for display like a
     /// file's mesh) and the camera path so far, with default materials. `name` is what the
-    /// page shows in place of a file name; `up` the map's up direction when known. An empty
-    /// mesh is an error (nothing to collide with).
-    pub fn live(name: &str, mesh: &LabeledMesh, trajectory: &Trajectory, up: Option<Vec3>) -> Result<Self> {
+    /// page shows in place of a file name; `gravity` the map's up direction and floor when
+    /// known. An empty mesh is an error (nothing to collide with).
+    pub fn live(name: &str, mesh: &LabeledMesh, trajectory: &Trajectory, gravity: Option<MeshGravity>) -> Result<Self> {
         if mesh.triangles.is_empty() {
             return Err(ViewerError::NoMesh {
                 dir: PathBuf::from(name),
@@ -145,7 +149,7 @@ impl ViewerFolder {
         }
         // No folder: from_mesh then finds no trajectory file, and the live poses go in instead.
         let mut folder =
-            Self::from_mesh(PathBuf::from(name), mesh.clone(), MaterialTable::defaults(), Path::new(""), up)?;
+            Self::from_mesh(PathBuf::from(name), mesh.clone(), MaterialTable::defaults(), Path::new(""), gravity)?;
         if !trajectory.is_empty() {
             folder.trajectory = Some((PathBuf::from("trajectory (live)"), trajectory.clone()));
         }

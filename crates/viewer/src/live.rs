@@ -69,10 +69,15 @@ impl LiveScene {
     /// Shows `mesh` and `trajectory` (camera poses so far) from now on and returns the new
     /// version. The mesh is decimated for display and its collision geometry built here, on
     /// the caller's thread, so the cost (tens of milliseconds for a room) is the caller's to
-    /// schedule. `up` is the map's up direction when known (the viewer's and the throws'
-    /// up; +z otherwise). An empty mesh is an error and leaves the scene as it was.
-    pub fn update(&self, mesh: &LabeledMesh, trajectory: &Trajectory, up: Option<glam::Vec3>) -> Result<u64> {
-        let folder = ViewerFolder::live(LIVE_MESH_NAME, mesh, trajectory, up)?;
+    /// schedule. `gravity` is the map's up direction and floor when known (the viewer's and
+    /// the throws' up; +z otherwise). An empty mesh is an error and leaves the scene as it was.
+    pub fn update(
+        &self,
+        mesh: &LabeledMesh,
+        trajectory: &Trajectory,
+        gravity: Option<semrecon_data::MeshGravity>,
+    ) -> Result<u64> {
+        let folder = ViewerFolder::live(LIVE_MESH_NAME, mesh, trajectory, gravity)?;
         Ok(self.slot.replace(folder))
     }
 

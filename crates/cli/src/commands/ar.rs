@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use semrecon_data::datasets::{open_dataset, DatasetSpec};
-use semrecon_data::read_ply_with_up;
+use semrecon_data::read_ply_with_gravity;
 use semrecon_physics::MaterialTable;
 use semrecon_viewer::ar::{render_ar, ArOptions};
 use semrecon_viewer::folder::find_mesh;
@@ -50,7 +50,7 @@ pub fn run(args: ArArgs) -> anyhow::Result<()> {
         }
     };
     // A reconstruction's mesh is in its dataset's frame and records that frame's up.
-    let (mesh, up) = read_ply_with_up(&mesh_path)?;
+    let (mesh, gravity) = read_ply_with_gravity(&mesh_path)?;
     let materials = match &args.materials {
         Some(p) => MaterialTable::load(p)?,
         None => MaterialTable::defaults(),
@@ -59,7 +59,8 @@ pub fn run(args: ArArgs) -> anyhow::Result<()> {
         max_frames: args.frames,
         speed: args.speed,
         throw_every_s: args.every,
-        up: up.unwrap_or(glam::Vec3::Z),
+        up: gravity.map_or(glam::Vec3::Z, |g| g.up),
+        floor_height: gravity.and_then(|g| g.floor_height),
         ..Default::default()
     };
     let summary = render_ar(source.as_ref(), &mesh, materials, &args.out, &options)?;

@@ -157,8 +157,10 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let wall = start.elapsed().as_secs_f64();
 
     let evaluating = spinner("writing the outputs and comparing with the ground truth");
-    // The generated room is z up (its ground truth), whatever the map's estimate says.
-    write_outputs(&args.out, &mesh, pipeline.trajectory(), Some(glam::Vec3::Z))?;
+    // The generated room is z up with its floor at z = 0 (its ground truth), whatever the
+    // map's estimate says.
+    let gravity = semrecon_data::MeshGravity { up: glam::Vec3::Z, floor_height: Some(0.0) };
+    write_outputs(&args.out, &mesh, pipeline.trajectory(), Some(gravity))?;
     write_ply(args.out.join("ground_truth.ply"), &room.mesh, PlyEncoding::BinaryLittleEndian)?;
     let mut times = pipeline.timings().clone();
     times.merge(&sensor_times);

@@ -12,7 +12,7 @@ use anyhow::{bail, Context};
 use glam::{Affine3A, Mat3A, Quat, Vec3};
 use semrecon_data::class::UNLABELED;
 use semrecon_data::depth_image::write_color_png;
-use semrecon_data::{read_ply_with_up, Intrinsics, LabeledMesh, PreparedMesh, Renderer, SemanticClass};
+use semrecon_data::{read_ply_with_gravity, Intrinsics, LabeledMesh, PreparedMesh, Renderer, SemanticClass};
 
 /// Arguments of `semrecon snapshot`.
 #[derive(clap::Args)]
@@ -58,7 +58,7 @@ pub fn look_at(eye: Vec3, at: Vec3) -> anyhow::Result<Affine3A> {
 
 /// Runs the command.
 pub fn run(args: SnapshotArgs) -> anyhow::Result<()> {
-    let (mut mesh, file_up) = read_ply_with_up(&args.mesh)?;
+    let (mut mesh, gravity) = read_ply_with_gravity(&args.mesh)?;
     if args.classes {
         let labels = mesh.vertex_labels_or_from_triangles();
         if labels.iter().all(|&l| l == UNLABELED) {
@@ -67,7 +67,7 @@ pub fn run(args: SnapshotArgs) -> anyhow::Result<()> {
         mesh.colors = labels.iter().map(|&l| SemanticClass::from_id(l).map_or([0, 0, 0], |c| c.color())).collect();
         println!("classes (share of vertices): {}", class_shares(&labels));
     }
-    if let Some(up) = args.up.or(file_up) {
+    if let Some(up) = args.up.or(gravity.map(|g| g.up)) {
         let up = up.normalize_or_zero();
         if up == Vec3::ZERO {
             bail!("--up must not be the zero vector");

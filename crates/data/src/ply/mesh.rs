@@ -11,52 +11,6 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<LabeledMesh> {
     mesh_from_ply(&ply, path)
 }
 
-/// Reads a PLY mesh or point cloud and the up direction its header records (a
-/// `comment semrecon up X Y Z` line, see [`up_comment`]), `None` when it records none.
-///
-/// # Errors
-/// As [`read_ply`]; an `up` comment that is not three finite numbers, not all zero.
-pub fn read_ply_with_up(path: impl AsRef<Path>) -> Result<(LabeledMesh, Option<Vec3>)> {
-    let path = path.as_ref();
-    let ply = PlyFile::read(path)?;
-    let up = up_of(&ply, path)?;
-    Ok((mesh_from_ply(&ply, path)?, up))
-}
-
-/// The keyword of the header comment that records a mesh's up direction.
-const UP_KEYWORD: &str = "semrecon up";
-
-/// The header comment recording `up` (normalised): `semrecon up X Y Z`. A reconstruction
-/// keeps the frame of its dataset or first camera, where up is rarely +z (7-Scenes' world
-/// is nearly y down), and physics, the viewer and `snapshot` need to know where gravity
-/// points.
-pub fn up_comment(up: Vec3) -> String {
-    let u = up.normalize_or(Vec3::Z);
-    format!("{UP_KEYWORD} {} {} {}", u.x, u.y, u.z)
-}
-
-/// The up direction recorded in `ply`'s comments (normalised), if any; `path` names the
-/// file in errors.
-///
-/// # Errors
-/// A `semrecon up` comment that is not three finite numbers, not all zero.
-pub fn up_of(ply: &PlyFile, path: &Path) -> Result<Option<Vec3>> {
-    let Some(text) = ply.comments.iter().find_map(|c| c.strip_prefix(UP_KEYWORD)) else { return Ok(None) };
-    let values: Vec<f32> = text.split_whitespace().filter_map(|v| v.parse().ok()).collect();
-    let up = match values[..] {
-        [x, y, z] if text.split_whitespace().count() == 3 => Vec3::new(x, y, z),
-        _ => Vec3::NAN,
-    };
-    if !(up.is_finite() && up.length() > 1e-6) {
-        return Err(DataError::parse(
-            path,
-            None,
-            format!("comment '{UP_KEYWORD}{text}' is not an up direction (three finite numbers, not all zero)"),
-        ));
-    }
-    Ok(Some(up.normalize()))
-}
-
 /// Writes `mesh` as PLY, atomically; see [`mesh_to_ply`] for the layout.
 pub fn write_ply(path: impl AsRef<Path>, mesh: &LabeledMesh, encoding: PlyEncoding) -> Result<()> {
     let path = path.as_ref();
@@ -70,7 +24,7 @@ pub fn write_ply(path: impl AsRef<Path>, mesh: &LabeledMesh, encoding: PlyEncodi
 /// [`write_ply`] calls with a recoloured copy of the mesh, without the copy (a whole home's
 /// mesh is gigabytes).
 ///
-/// `up`, when given, is recorded in both headers ([`up_comment`]).
+/// `gravity`, when given, is recorded in both headers ([`MeshGravity::comments`]).
 ///
 /// # Errors
 /// As [`write_ply`]; `colors` not one per vertex.
@@ -80,7 +34,7 @@ pub fn write_ply_recoloured(
     mesh: &LabeledMesh,
     colors: &[[u8; 3]],
     encoding: PlyEncoding,
-    up: Option<Vec3>,
+    gravity: Option<MeshGravity>,
 ) -> Result<()> {
     let (path, recoloured_path) = (path.as_ref(), recoloured_path.as_ref());
     if colors.len() != mesh.positions.len() {
@@ -93,11 +47,10 @@ pub fn write_ply_recoloured(
     }
     let mut ply =
         mesh_to_ply(mesh).map_err(|m| DataError::InvalidArgument(format!("cannot write {}: {m}", path.display())))?;
-    if let Some(up) = up {
-        if !(up.is_finite() && up.length() > 1e-6) {
-            return Err(DataError::InvalidArgument(format!("cannot write {}: up direction {up}", path.display())));
-        }
-        ply.comments.push(up_comment(up));
+    if let Some(g) = gravity {
+        ply.comments.extend(
+            g.comments().map_err(|m| DataError::InvalidArgument(format!("cannot write {}: {m}", path.display())))?,
+        );
     }
     ply.write(path, encoding)?;
     if let Some(vertex) = ply.elements.iter_mut().find(|e| e.name == "vertex") {

@@ -176,35 +176,49 @@ fn recoloured_pair_equals_two_writes() {
     assert!(e.contains("colours for"), "{e}");
 }
 
-/// The up direction survives a write and a read in both files and every encoding; files
-/// without one read as `None`; a malformed one is an error naming the file.
+/// The up direction and floor survive a write and a read in both files and every encoding;
+/// files without them read as `None`; malformed ones are errors naming the file.
 #[test]
-fn the_up_direction_is_recorded_in_the_header() {
+fn gravity_is_recorded_in_the_header() {
     let dir = tempfile::tempdir().expect("tempdir");
     let mesh = mesh_of(QUAD).expect("parse");
     let up = glam::Vec3::new(0.0089, -0.9044, -0.4265);
     for enc in [PlyEncoding::Ascii, PlyEncoding::BinaryLittleEndian] {
         let (a, b) = (dir.path().join("a.ply"), dir.path().join("b.ply"));
-        write_ply_recoloured(&a, &b, &mesh, &mesh.colors, enc, Some(up * 3.0)).expect("pair");
+        let gravity = MeshGravity { up: up * 3.0, floor_height: Some(-1.4797) };
+        write_ply_recoloured(&a, &b, &mesh, &mesh.colors, enc, Some(gravity)).expect("pair");
         for p in [&a, &b] {
-            let (read, read_up) = read_ply_with_up(p).expect("read");
+            let (read, g) = read_ply_with_gravity(p).expect("read");
             assert_eq!(read, mesh);
-            let read_up = read_up.expect("an up direction");
-            assert!((read_up - up.normalize()).length() < 1e-6, "{read_up}");
+            let g = g.expect("gravity");
+            assert!((g.up - up.normalize()).length() < 1e-6, "{}", g.up);
+            assert_eq!(g.floor_height, Some(-1.4797));
         }
+        write_ply_recoloured(&a, &b, &mesh, &mesh.colors, enc, Some(MeshGravity::up(up))).expect("pair");
+        assert_eq!(read_ply_with_gravity(&a).expect("read").1.and_then(|g| g.floor_height), None);
         write_ply(&a, &mesh, enc).expect("mesh");
-        assert_eq!(read_ply_with_up(&a).expect("read").1, None);
+        assert_eq!(read_ply_with_gravity(&a).expect("read").1, None);
     }
     let bad = dir.path().join("bad.ply");
-    for comment in ["semrecon up 0 0 0", "semrecon up 1 x 0", "semrecon up 1 0", "semrecon up nan 0 1"] {
+    for comment in [
+        "semrecon up 0 0 0",
+        "semrecon up 1 x 0",
+        "semrecon up 1 0",
+        "semrecon up nan 0 1",
+        "semrecon up 0 0 1\ncomment semrecon floor",
+        "semrecon up 0 0 1\ncomment semrecon floor inf",
+        "semrecon up 0 0 1\ncomment semrecon floor 1 2",
+    ] {
         let text = String::from_utf8(QUAD.to_vec()).expect("ascii").replacen(
             "comment hello world",
             &format!("comment {comment}"),
             1,
         );
         std::fs::write(&bad, text).expect("write");
-        let e = read_ply_with_up(&bad).expect_err(comment).to_string();
-        assert!(e.contains("bad.ply") && e.contains("up direction"), "{comment}: {e}");
+        let e = read_ply_with_gravity(&bad).expect_err(comment).to_string();
+        assert!(e.contains("bad.ply") && (e.contains("up direction") || e.contains("floor height")), "{comment}: {e}");
     }
-    assert!(write_ply_recoloured(&bad, &bad, &mesh, &mesh.colors, PlyEncoding::Ascii, Some(glam::Vec3::ZERO)).is_err());
+    for g in [MeshGravity::up(glam::Vec3::ZERO), MeshGravity { up: glam::Vec3::Z, floor_height: Some(f32::NAN) }] {
+        assert!(write_ply_recoloured(&bad, &bad, &mesh, &mesh.colors, PlyEncoding::Ascii, Some(g)).is_err());
+    }
 }
