@@ -40,7 +40,9 @@ pub use datasets::{open_dataset, DatasetSpec};
 pub use error::{DataError, Result};
 pub use frame::{Frame, FrameSource};
 pub use mesh::LabeledMesh;
-pub use ply::{read_ply, read_ply_with_gravity, write_ply, write_ply_recoloured, MeshGravity, PlyEncoding};
+pub use ply::{
+    read_ply, read_ply_with_gravity, write_ply, write_ply_recoloured, write_ply_with_gravity, MeshGravity, PlyEncoding,
+};
 pub use point_cloud::LabeledPointCloud;
 pub use render::{PreparedMesh, RenderOutput, RenderedScan, Renderer};
 pub use scan_path::{RoomLayout, ScanPlan};

@@ -27,7 +27,7 @@ use std::path::Path;
 mod gravity;
 mod mesh;
 mod reader;
-pub use gravity::{read_ply_with_gravity, MeshGravity};
+pub use gravity::{read_ply_with_gravity, write_ply_with_gravity, MeshGravity};
 pub use mesh::{mesh_from_ply, mesh_to_ply, read_ply, write_ply, write_ply_recoloured};
 
 use glam::Vec3;

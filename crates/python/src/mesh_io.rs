@@ -1,13 +1,15 @@
 //! PLY files ([`semrecon_data::ply`]): `write_ply(path, mesh)` writes a mesh dict (the layout
 //! `Pipeline.mesh()` returns: `vertices`, and optionally `faces`, `colors`, `labels`,
 //! `normals`) with a vertex `label` property; `read_ply(path)` reads any PLY mesh or point
-//! cloud back into that layout.
+//! cloud back into that layout. Meshes written by `semrecon run` record where gravity points
+//! in their frame: `read_ply` returns it as `up` (3 floats) and `floor_height` (float or
+//! `None`), and `write_ply` records a dict's `up` / `floor_height` when present.
 
 use glam::Vec3;
 use pyo3::exceptions::{PyKeyError, PyTypeError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use semrecon_data::{LabeledMesh, PlyEncoding};
+use semrecon_data::{LabeledMesh, MeshGravity, PlyEncoding};
 
 use crate::arrays::{require_finite, typed};
 use crate::errors::{data_err, value_error};
@@ -77,8 +79,34 @@ fn mesh_arg(mesh: &Bound<'_, PyDict>) -> PyResult<LabeledMesh> {
     Ok(LabeledMesh { positions, colors, normals, vertex_labels, triangles, triangle_labels: Vec::new() })
 }
 
+/// `mesh['up']` (3 finite numbers, not all zero) and `mesh['floor_height']` (a finite number),
+/// when present and not `None`.
+fn gravity_arg(dict: &Bound<'_, PyDict>) -> PyResult<Option<MeshGravity>> {
+    let Some(up) = dict.get_item("up")?.filter(|u| !u.is_none()) else { return Ok(None) };
+    let v: Vec<f32> = up.extract().map_err(|_| value_error("mesh['up']", "expected 3 numbers"))?;
+    let up = match v[..] {
+        [x, y, z] => Vec3::new(x, y, z),
+        _ => return Err(value_error("mesh['up']", format!("expected 3 numbers, got {}", v.len()))),
+    };
+    if !(up.is_finite() && up.length() > 1e-6) {
+        return Err(value_error("mesh['up']", format!("{up} is not a direction")));
+    }
+    let floor_height = match dict.get_item("floor_height")?.filter(|f| !f.is_none()) {
+        None => None,
+        Some(f) => {
+            let h: f32 = f.extract().map_err(|_| value_error("mesh['floor_height']", "expected a number"))?;
+            if !h.is_finite() {
+                return Err(value_error("mesh['floor_height']", format!("{h} is not finite")));
+            }
+            Some(h)
+        }
+    };
+    Ok(Some(MeshGravity { up, floor_height }))
+}
+
 /// `write_ply(path, mesh, *, binary=True)`: writes a mesh dict as PLY (binary little endian,
-/// or ASCII), atomically.
+/// or ASCII), atomically; the dict's `up` and `floor_height`, when present, are recorded in
+/// the header.
 #[pyfunction]
 #[pyo3(signature = (path, mesh, *, binary = true))]
 fn write_ply(py: Python<'_>, path: std::path::PathBuf, mesh: &Bound<'_, PyAny>, binary: bool) -> PyResult<()> {
@@ -86,15 +114,26 @@ fn write_ply(py: Python<'_>, path: std::path::PathBuf, mesh: &Bound<'_, PyAny>, 
         PyTypeError::new_err("mesh: expected a dict with 'vertices' (and 'faces', 'colors', 'labels', 'normals')")
     })?;
     let m = mesh_arg(dict)?;
+    let gravity = gravity_arg(dict)?;
     let encoding = if binary { PlyEncoding::BinaryLittleEndian } else { PlyEncoding::Ascii };
-    py.detach(|| semrecon_data::write_ply(&path, &m, encoding)).map_err(data_err)
+    py.detach(|| match gravity {
+        Some(g) => semrecon_data::write_ply_with_gravity(&path, &m, encoding, &g),
+        None => semrecon_data::write_ply(&path, &m, encoding),
+    })
+    .map_err(data_err)
 }
 
-/// `read_ply(path)`: a PLY mesh or point cloud as a mesh dict.
+/// `read_ply(path)`: a PLY mesh or point cloud as a mesh dict, with `up` and `floor_height`
+/// when the file records them.
 #[pyfunction]
 fn read_ply<'py>(py: Python<'py>, path: std::path::PathBuf) -> PyResult<Bound<'py, PyDict>> {
-    let mesh = py.detach(|| semrecon_data::read_ply(&path)).map_err(data_err)?;
-    crate::pipeline::mesh_dict(py, mesh)
+    let (mesh, gravity) = py.detach(|| semrecon_data::read_ply_with_gravity(&path)).map_err(data_err)?;
+    let d = crate::pipeline::mesh_dict(py, mesh)?;
+    if let Some(g) = gravity {
+        d.set_item("up", (g.up.x, g.up.y, g.up.z))?;
+        d.set_item("floor_height", g.floor_height)?;
+    }
+    Ok(d)
 }
 
 /// Adds the functions to the module.

@@ -107,6 +107,28 @@ def test_mesh_before_finish_and_ply_round_trip(tmp_path, scan, frames):
     assert len(lines) == len(p.trajectory()["poses"]) and len(lines[0].split()) == 8
 
 
+def test_ply_files_keep_where_gravity_points(tmp_path):
+    # `semrecon run` records the map frame's up and floor; read_ply returns them and
+    # write_ply records them again, so physics and the viewer keep balls falling the right way.
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0]], np.float32)
+    mesh = {"vertices": v, "faces": np.array([[0, 1, 2]], np.int32)}
+    path = tmp_path / "m.ply"
+    semrecon.write_ply(path, mesh)
+    back = semrecon.read_ply(path)
+    assert "up" not in back and "floor_height" not in back
+    mesh["up"] = (0.0, -2.0, 0.0)
+    mesh["floor_height"] = -1.25
+    semrecon.write_ply(path, mesh)
+    back = semrecon.read_ply(path)
+    assert back["up"] == pytest.approx((0.0, -1.0, 0.0)) and back["floor_height"] == pytest.approx(-1.25)
+    semrecon.write_ply(path, back, binary=False)  # a read dict writes back as it was
+    assert semrecon.read_ply(path)["floor_height"] == pytest.approx(-1.25)
+    with pytest.raises(ValueError, match=r"mesh\['up'\]"):
+        semrecon.write_ply(path, {**mesh, "up": (0.0, 0.0, 0.0)})
+    with pytest.raises(ValueError, match=r"mesh\['floor_height'\]"):
+        semrecon.write_ply(path, {**mesh, "floor_height": float("nan")})
+
+
 def test_segment_labels_a_rendered_frame(scan):
     """The shipped network labels back-projected frames mostly right (ground truth from
     the renderer)."""

@@ -10,7 +10,7 @@ use std::path::Path;
 
 use glam::Vec3;
 
-use super::{mesh_from_ply, PlyFile};
+use super::{mesh_from_ply, mesh_to_ply, PlyEncoding, PlyFile};
 use crate::error::{DataError, Result};
 use crate::mesh::LabeledMesh;
 
@@ -90,6 +90,24 @@ impl MeshGravity {
         };
         Ok(Some(Self { up, floor_height }))
     }
+}
+
+/// Writes `mesh` as PLY, atomically, its header recording `gravity` (see
+/// [`super::write_ply`] for the layout).
+///
+/// # Errors
+/// As [`super::write_ply`]; a gravity that [`MeshGravity::comments`] refuses.
+pub fn write_ply_with_gravity(
+    path: impl AsRef<Path>,
+    mesh: &LabeledMesh,
+    encoding: PlyEncoding,
+    gravity: &MeshGravity,
+) -> Result<()> {
+    let path = path.as_ref();
+    let cannot = |m: String| DataError::InvalidArgument(format!("cannot write {}: {m}", path.display()));
+    let mut ply = mesh_to_ply(mesh).map_err(cannot)?;
+    ply.comments.extend(gravity.comments().map_err(cannot)?);
+    ply.write(path, encoding)
 }
 
 /// Reads a PLY mesh or point cloud and the gravity its header records (see the module

@@ -300,11 +300,13 @@ def segment(
 
 def write_ply(path: _Path, mesh: _Mesh, *, binary: bool = True) -> None:
     """Writes a mesh dict (``vertices`` required; ``faces`` int32/int64/uint32, ``colors``,
-    ``labels`` (as a vertex ``label`` property), ``normals`` optional) as PLY, atomically."""
+    ``labels`` (as a vertex ``label`` property), ``normals`` optional) as PLY, atomically;
+    ``up`` (3 floats) and ``floor_height`` (float), when present, are recorded in the header."""
 
 def read_ply(path: _Path) -> _Mesh:
     """Reads a PLY mesh or point cloud (``faces`` empty for a point cloud; ``labels`` 255
-    where the file has none)."""
+    where the file has none); ``up`` and ``floor_height`` (or ``None``) when the file records
+    where gravity points (meshes of ``semrecon run``)."""
 
 def default_model_path() -> str:
     """The model file used when no ``model=`` is given."""
