@@ -4,7 +4,7 @@
 
 use std::time::{Duration, Instant};
 
-use crate::reconstruction::mesh_gravity;
+use crate::reconstruction::output_gravity;
 use anyhow::Context;
 use semrecon_data::{LabeledMesh, Trajectory};
 use semrecon_pipeline::Pipeline;
@@ -90,7 +90,7 @@ impl LiveView {
         }
         let t = Instant::now();
         let mesh = pipeline.mesh();
-        self.push(fused, &mesh, pipeline.trajectory(), pipeline.up().map(mesh_gravity))?;
+        self.push(fused, &mesh, pipeline.trajectory(), output_gravity(pipeline, &mesh))?;
         Ok(Some(t.elapsed()))
     }
 }

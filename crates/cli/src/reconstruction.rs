@@ -384,7 +384,7 @@ pub fn output_gravity(pipeline: &Pipeline, mesh: &LabeledMesh) -> Option<MeshGra
 }
 
 /// An up estimate as recorded in a mesh file.
-pub fn mesh_gravity(u: UpEstimate) -> MeshGravity {
+fn mesh_gravity(u: UpEstimate) -> MeshGravity {
     MeshGravity { up: u.up, floor_height: Some(u.floor_height) }
 }
 
