@@ -18,5 +18,5 @@ mod throw;
 pub use collision_mesh::{CollisionMesh, CollisionMeshConfig, CollisionRegion, RegionKey};
 pub use error::{PhysicsError, Result};
 pub use materials::{Material, MaterialTable, DEFAULT_MATERIALS_TOML};
-pub use scene::{ArScene, BallId, Contact, RegionDiff, SceneConfig, Throw};
+pub use scene::{ArScene, BallId, Contact, RegionDiff, SceneConfig, Throw, FLOOR_PLANE_DROP};
 pub use throw::{throw_from_ply, throw_into_mesh};

@@ -192,6 +192,7 @@ function buildMesh(mesh, info, keepCamera) {
   geometry.computeBoundingSphere();
   geometry.computeBoundingBox();
   if (!keepCamera) frameCamera(geometry.boundingBox);
+  buildFloorGrid(geometry.boundingBox, info);
   // Drawn at least 1 % of the room's size: a 4 cm ball is a speck in a whole-room view.
   const diag = geometry.boundingBox.getSize(new THREE.Vector3()).length();
   ballGeometry = new THREE.SphereGeometry(Math.max(info.ball_radius || 0.04, 0.01 * diag), 24, 16);
@@ -224,6 +225,27 @@ function heightRange(box) {
     hi = Math.max(hi, h);
   }
   return [lo, hi];
+}
+
+// The ground plane the physics puts under the scan's floor (info.floor_height along the
+// scene's up, info.floor_plane_drop below it), drawn as a faint grid of 50 cm squares over the
+// room's extent, so that a ball bouncing where the scan has a hole bounces on something seen.
+let floorGrid = null;
+
+function buildFloorGrid(box, info) {
+  if (typeof info.floor_height !== 'number') return;
+  const size = box.getSize(new THREE.Vector3()).length();
+  const cells = Math.max(2, Math.ceil(size / 0.5));
+  floorGrid = new THREE.GridHelper(cells * 0.5, cells, 0x8a8f99, 0x8a8f99);
+  floorGrid.material.transparent = true;
+  floorGrid.material.opacity = 0.25;
+  floorGrid.material.depthWrite = false;
+  // GridHelper lies in its local x-z plane (normal +y): turn +y onto the scene's up.
+  floorGrid.quaternion.setFromUnitVectors(new THREE.Vector3(0, 1, 0), sceneUp);
+  const centre = box.getCenter(new THREE.Vector3());
+  const height = info.floor_height - (info.floor_plane_drop || 0);
+  floorGrid.position.copy(centre).addScaledVector(sceneUp, height - centre.dot(sceneUp));
+  scene.add(floorGrid);
 }
 
 function frameCamera(box) {
@@ -607,6 +629,12 @@ function clearScene() {
     scene.remove(trajectoryLine);
     trajectoryLine.traverse((o) => { if (o.geometry) o.geometry.dispose(); });
     trajectoryLine = null;
+  }
+  if (floorGrid) {
+    scene.remove(floorGrid);
+    floorGrid.geometry.dispose();
+    floorGrid.material.dispose();
+    floorGrid = null;
   }
   indexNoCeiling = null;
 }

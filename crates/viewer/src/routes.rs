@@ -225,6 +225,8 @@ pub fn info_json(folder: &ViewerFolder) -> Value {
         "has_trajectory": folder.trajectory.is_some(),
         "ball_radius": folder.config.ball_radius,
         "up": folder.config.up.to_array(),
+        "floor_height": folder.config.floor_height,
+        "floor_plane_drop": semrecon_physics::FLOOR_PLANE_DROP,
     })
 }
 
