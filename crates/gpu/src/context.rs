@@ -43,6 +43,9 @@ const WORKGROUP_BYTES: u32 = {
     }
     most
 };
+/// Read-back buffers up to this size are kept between calls (one per power of two): a call's
+/// status words and labels, not the logits of a large room.
+const STAGING_POOLED: u64 = 8 << 20;
 /// Operations queued before they are submitted without waiting for a read-back: few
 /// submissions per forward, without holding an unbounded backlog.
 const MAX_PENDING: usize = 32;
@@ -112,6 +115,8 @@ pub struct GpuContext {
     /// only grown, so repeated calls (every layer of the network, every call of a benchmark)
     /// allocate nothing on the device. Layer geometry is never pooled.
     pool: Mutex<HashMap<&'static str, wgpu::Buffer>>,
+    /// Read-back buffers not in use, at most one per power of two (see [`STAGING_POOLED`]).
+    staging: Mutex<Vec<wgpu::Buffer>>,
     /// Held for a whole engine call: pooled buffers are then never shared by two calls.
     call: Mutex<()>,
     /// Recorded work of resident-tensor operations not yet submitted.
@@ -217,6 +222,7 @@ impl GpuContext {
             errors,
             lost,
             pool: Mutex::new(HashMap::new()),
+            staging: Mutex::new(Vec::new()),
             call: Mutex::new(()),
             pending: Mutex::new(None),
             params: Mutex::new(params),
@@ -597,6 +603,34 @@ impl GpuContext {
         self.submit_and_read(encoder, buffer, count, true)
     }
 
+    /// A read-back buffer of at least `bytes`, unmapped and used by nothing.
+    fn staging_buffer(&self, bytes: u64) -> wgpu::Buffer {
+        let mut size = bytes.max(4).next_multiple_of(4);
+        if size <= STAGING_POOLED {
+            size = size.next_power_of_two().max(256);
+            let mut pool = self.staging.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            if let Some(i) = pool.iter().position(|b| b.size() == size) {
+                return pool.swap_remove(i);
+            }
+        }
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("read-back"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    }
+
+    /// Keeps a read-back buffer, unmapped again, for the next read-back of its size.
+    fn keep_staging(&self, buffer: wgpu::Buffer) {
+        if buffer.size() <= STAGING_POOLED {
+            let mut pool = self.staging.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            if !pool.iter().any(|b| b.size() == buffer.size()) {
+                pool.push(buffer);
+            }
+        }
+    }
+
     fn submit_and_read<T: bytemuck::Pod>(
         &self,
         mut encoder: Recorder,
@@ -605,12 +639,7 @@ impl GpuContext {
         status: bool,
     ) -> Result<Vec<T>> {
         let bytes = (count * std::mem::size_of::<T>()) as u64;
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("read-back"),
-            size: bytes.max(4).next_multiple_of(4),
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let staging = self.staging_buffer(bytes);
         if bytes > 0 {
             encoder.copy(buffer, 0, &staging, 0, bytes.next_multiple_of(4));
         }
@@ -666,6 +695,7 @@ impl GpuContext {
         let out: Vec<T> = bytemuck::pod_collect_to_vec(&view[..bytes as usize]);
         drop(view);
         staging.unmap();
+        self.keep_staging(staging);
         if let (Some((ticks, kernels, trx)), Some(p)) = (timed, &self.profiler) {
             if let Ok(Ok(())) = trx.recv() {
                 let view = ticks.slice(..).get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;

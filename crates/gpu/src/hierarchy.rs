@@ -13,6 +13,8 @@
 //! Why: on an H100 the host's geometry and its upload took 45 of the network's 61-68 ms per
 //! room (docs/gpu.md). Here the host uploads the coordinates only, and waits once per level
 //! for the coarse voxel count (buffers are sized exactly; the forward needs the counts anyway).
+//! The scratch buffers (hash tables, ranks, statuses) are the context's pooled ones, kept
+//! between calls: buffer creation was a good part of the fixed cost of a small input.
 //! Every table is the same as the host's, bit for bit (integer work, fixed orders), except the
 //! interpolation weights, whose division rounds on the device (within an ulp or two).
 //!
@@ -94,11 +96,12 @@ impl GpuEngine {
             let n = count32("voxels", rows)?;
             let entries = count32("neighbour table", rows.checked_mul(28).ok_or(SparseError::TooManyRows(rows))?)?;
             let capacity = count32("hash slots", (2 * rows).next_power_of_two().max(64))?;
-            let slots = ctx.zeroed("hash slots", u64::from(capacity) * 4)?;
+            let slots = ctx.transient("hierarchy hash slots", u64::from(capacity) * 4)?;
             fill(ctx, &mut enc, &slots, capacity, EMPTY);
             // [destination rows | table]: the chunked kernel's plan layout.
             let subm_plan = ctx.zeroed("submanifold plan", u64::from(entries) * 4)?;
-            let map_status = ctx.zeroed("map status", 12)?;
+            let map_status = ctx.transient("hierarchy map status", 12)?;
+            fill(ctx, &mut enc, &map_status, 3, 0);
             let p = &ctx.pipelines;
             let b = [(1, &coords_buf), (2, &slots), (3, &map_status)];
             ctx.dispatch(&mut enc, &p.map_insert, &[n, capacity - 1, 3, 27, 0], &b, n.div_ceil(WORKGROUP), 1);
@@ -110,7 +113,7 @@ impl GpuEngine {
             let coarser = (level + 1 < levels).then(|| Parents::count(ctx, &mut enc, &coords_buf, n)).transpose()?;
 
             // One wait per level: the statuses, the pair count and the coarse voxel count.
-            let report = ctx.zeroed("hierarchy report", 20)?;
+            let report = ctx.transient("hierarchy report", 20)?;
             enc.copy(&map_status, 0, &report, 0, 12);
             if let Some(parents) = &coarser {
                 enc.copy(&parents.status, 0, &report, 12, 8);
@@ -124,7 +127,8 @@ impl GpuEngine {
                 ))
                 .into());
             }
-            if r[1] != 0 || r[4] != 0 {
+            // The parents' words were copied only with a coarser level.
+            if r[1] != 0 || (coarser.is_some() && r[4] != 0) {
                 return Err(GpuError::Device("the voxel hash table overflowed".into()));
             }
             let sub = MapKind::Submanifold { kernel_size: 3 };
@@ -181,7 +185,8 @@ impl GpuEngine {
             .iter()
             .map(|level| level.parent.as_ref().ok_or(GpuError::LayerPart("parents")))
             .collect::<Result<Vec<_>>>()?;
-        let ancestors = ctx.zeroed("ancestors", u64::from(n) * 4)?;
+        // Written whole (the copy below) before it is read.
+        let ancestors = ctx.transient("hierarchy ancestors", u64::from(n) * 4)?;
         let gather = ctx.zeroed("interpolation table", u64::from(n) * 64)?;
         let p = &ctx.pipelines.hierarchy;
         ctx.record(|enc| {
@@ -252,13 +257,15 @@ impl Parents {
     /// Records the parents' hash table, the first-child flags and their prefix sum.
     fn count(ctx: &GpuContext, enc: &mut Recorder, coords: &wgpu::Buffer, n: u32) -> Result<Self> {
         let capacity = count32("hash slots", (2 * n as usize).next_power_of_two().max(64))?;
-        let slots = ctx.zeroed("parent slots", u64::from(capacity) * 4)?;
+        let slots = ctx.transient("hierarchy parent slots", u64::from(capacity) * 4)?;
         fill(ctx, enc, &slots, capacity, EMPTY);
-        let slot_of = ctx.zeroed("parent slot of rows", u64::from(n) * 4)?;
-        let rank = ctx.zeroed("parent ranks", u64::from(n) * 4)?;
+        // Written for every row (insert, first_child) and block (scan_blocks) before read.
+        let slot_of = ctx.transient("hierarchy parent slot of rows", u64::from(n) * 4)?;
+        let rank = ctx.transient("hierarchy parent ranks", u64::from(n) * 4)?;
         let blocks = n.div_ceil(SCAN);
-        let block_sums = ctx.zeroed("prefix sum blocks", u64::from(blocks) * 4)?;
-        let status = ctx.zeroed("parent status", 8)?;
+        let block_sums = ctx.transient("hierarchy prefix sum blocks", u64::from(blocks) * 4)?;
+        let status = ctx.transient("hierarchy parent status", 8)?;
+        fill(ctx, enc, &status, 2, 0);
         let p = &ctx.pipelines.hierarchy;
         let params = [n, capacity - 1, blocks, 0];
         let groups = n.div_ceil(WORKGROUP);
