@@ -7,21 +7,22 @@
 //! engine call checks them after waiting for the queue, so a lost device or a bad dispatch
 //! becomes a [`GpuError`] instead of a panic or a silently wrong result.
 //!
-//! Operations on resident tensors do not wait: their command buffers queue up here and go to
-//! the device together (every few dozen, or before the next read-back), so a network forward
-//! costs a handful of submissions, not one per layer. Data is written into a buffer through the
-//! queue only while nothing queued uses it (fresh buffers, or pooled ones after
-//! [`GpuContext::flush`]), because queue writes land before the commands of the submission
-//! they precede. Every transfer is counted ([`TransferCounts`]).
+//! Operations on resident tensors do not wait: they record into one queued encoder (and one
+//! compute pass, crate::record) that goes to the device every few dozen operations or before
+//! the next read-back, so a network forward costs a handful of submissions, not one per layer.
+//! Data is written into a buffer through the queue only while nothing queued uses it (fresh
+//! buffers, or pooled ones after [`GpuContext::flush`]), because queue writes land before the
+//! commands of the submission they precede. Every transfer is counted ([`TransferCounts`]).
 
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{mpsc, Arc, Mutex, MutexGuard};
 use std::time::Instant;
 
 use crate::error::{GpuError, Result};
 use crate::kernel_time::KernelTime;
 use crate::profile::Profiler;
+use crate::record::{ParamArena, Recorder};
 use crate::tile::CHUNKED_TILES;
 use crate::transfers::TransferCounts;
 
@@ -42,7 +43,10 @@ const WORKGROUP_BYTES: u32 = {
     }
     most
 };
-/// Command buffers queued before they are submitted without waiting for a read-back: few
+/// Read-back buffers up to this size are kept between calls (one per power of two): a call's
+/// status words and labels, not the logits of a large room.
+const STAGING_POOLED: u64 = 8 << 20;
+/// Operations queued before they are submitted without waiting for a read-back: few
 /// submissions per forward, without holding an unbounded backlog.
 const MAX_PENDING: usize = 32;
 
@@ -78,8 +82,8 @@ pub(crate) struct Pipelines {
     pub split_sum: wgpu::ComputePipeline,
     /// The device voxel hierarchy's kernels (shaders/hierarchy.wgsl).
     pub hierarchy: HierarchyPipelines,
-    /// Every pipeline's name, for the profiler.
-    names: HashMap<wgpu::ComputePipeline, &'static str>,
+    /// Every pipeline's name (for the profiler) and bind group layout.
+    names: HashMap<wgpu::ComputePipeline, (&'static str, wgpu::BindGroupLayout)>,
 }
 
 /// The entry points of shaders/hierarchy.wgsl.
@@ -111,10 +115,17 @@ pub struct GpuContext {
     /// only grown, so repeated calls (every layer of the network, every call of a benchmark)
     /// allocate nothing on the device. Layer geometry is never pooled.
     pool: Mutex<HashMap<&'static str, wgpu::Buffer>>,
+    /// Read-back buffers not in use, at most one per power of two (see [`STAGING_POOLED`]).
+    staging: Mutex<Vec<wgpu::Buffer>>,
     /// Held for a whole engine call: pooled buffers are then never shared by two calls.
     call: Mutex<()>,
-    /// Recorded work of resident-tensor operations not yet submitted, in order.
-    pending: Mutex<Vec<wgpu::CommandBuffer>>,
+    /// Recorded work of resident-tensor operations not yet submitted.
+    pending: Mutex<Option<Recorder>>,
+    /// The parameters of recorded dispatches (and the submissions so far: see
+    /// [`Self::submit`]).
+    params: Mutex<ParamArena>,
+    /// Recorders alive: while one is, recorded parameters may still be unsubmitted.
+    live: Arc<AtomicUsize>,
     /// Host-device transfers so far.
     transfers: Mutex<TransferCounts>,
     /// Dispatches recorded so far, and the host's nanoseconds recording them (parameters,
@@ -199,6 +210,7 @@ impl GpuContext {
             });
         }
         let pipelines = Pipelines::new(&device);
+        let params = ParamArena::new(&device, limits.min_uniform_buffer_offset_alignment);
         let profiler = Profiler::new(&device, &queue).map(Mutex::new);
         let context = Self {
             device,
@@ -210,8 +222,11 @@ impl GpuContext {
             errors,
             lost,
             pool: Mutex::new(HashMap::new()),
+            staging: Mutex::new(Vec::new()),
             call: Mutex::new(()),
-            pending: Mutex::new(Vec::new()),
+            pending: Mutex::new(None),
+            params: Mutex::new(params),
+            live: Arc::new(AtomicUsize::new(0)),
             transfers: Mutex::new(TransferCounts::default()),
             recorded: (AtomicU64::new(0), AtomicU64::new(0)),
             profiler,
@@ -369,17 +384,31 @@ impl GpuContext {
         Ok(self.call.lock().unwrap_or_else(std::sync::PoisonError::into_inner))
     }
 
-    /// Queues the recorded work of one resident operation; submits the queue once it is long.
-    pub(crate) fn enqueue(&self, encoder: wgpu::CommandEncoder) -> Result<()> {
-        let full = {
-            let mut pending = self.pending.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-            pending.push(encoder.finish());
-            pending.len() >= MAX_PENDING
-        };
-        if full {
-            self.flush()?;
+    /// The queued work.
+    fn pending(&self) -> MutexGuard<'_, Option<Recorder>> {
+        self.pending.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// The parameter pages.
+    fn arena(&self) -> MutexGuard<'_, ParamArena> {
+        self.params.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// Records one resident operation with `op` into the queued work, which is submitted once
+    /// it holds enough operations. Should `op` fail, what it recorded stays queued with the
+    /// rest (the earlier operations' work must not be lost).
+    pub(crate) fn record<T>(&self, op: impl FnOnce(&mut Recorder) -> Result<T>) -> Result<T> {
+        let mut pending = self.pending();
+        let recorder = pending.get_or_insert_with(|| Recorder::new(&self.device, &self.live));
+        let out = op(recorder);
+        recorder.ops += 1;
+        if recorder.ops >= MAX_PENDING {
+            let full = pending.take();
+            drop(pending);
+            self.submit(full);
+            self.check()?;
         }
-        Ok(())
+        out
     }
 
     /// Submits the queued work without waiting for it.
@@ -387,11 +416,32 @@ impl GpuContext {
     /// # Errors
     /// A lost device, validation errors recorded so far.
     pub fn flush(&self) -> Result<()> {
-        let work = std::mem::take(&mut *self.pending.lock().unwrap_or_else(std::sync::PoisonError::into_inner));
-        if !work.is_empty() {
-            self.queue.submit(work);
+        let queued = self.pending().take();
+        if let Some(recorder) = queued {
+            self.submit([recorder]);
         }
         self.check()
+    }
+
+    /// Submits `recorders`' work, in order, after the parameters recorded so far; returns the
+    /// number of this submission. Under the parameters' lock: no page is recycled between a
+    /// recorder's end and its submission.
+    fn submit(&self, recorders: impl IntoIterator<Item = Recorder>) -> u64 {
+        let mut arena = self.arena();
+        arena.write(&self.queue);
+        let work: Vec<wgpu::CommandBuffer> = recorders.into_iter().map(Recorder::finish).collect();
+        self.queue.submit(work);
+        arena.submissions += 1;
+        arena.submissions
+    }
+
+    /// Lets the parameter pages be reused once the device has finished submission `waited`,
+    /// when it is the last one and no recorder is alive (nothing recorded can read them).
+    fn recycle_params(&self, waited: u64) {
+        let mut arena = self.arena();
+        if arena.submissions == waited && self.live.load(Ordering::Acquire) == 0 {
+            arena.recycle();
+        }
     }
 
     /// The pooled storage buffer of `role` with room for `bytes` (contents undefined), grown
@@ -443,42 +493,29 @@ impl GpuContext {
         }))
     }
 
-    /// A uniform buffer of kernel parameters (`u32` words, padded to 16 bytes).
-    pub(crate) fn params(&self, words: &[u32]) -> wgpu::Buffer {
-        let start = Instant::now();
-        let mut w = words.to_vec();
-        w.resize(words.len().next_multiple_of(4).max(4), 0);
-        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("params"),
-            size: w.len() as u64 * 4,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        self.queue.write_buffer(&buffer, 0, bytemuck::cast_slice(&w));
-        self.recorded.1.fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
-        buffer
-    }
-
-    /// Records one dispatch of `pipeline` with `bindings` (binding number, buffer) over a
-    /// grid of `groups` workgroups (folded into x and y past the per-dimension limit) times
-    /// `z` in the third dimension.
+    /// Records one dispatch of `pipeline` with the kernel parameters `params` (`u32` words,
+    /// binding 0) and `bindings` (binding number, buffer) over a grid of `groups` workgroups
+    /// (folded into x and y past the per-dimension limit) times `z` in the third dimension.
     pub(crate) fn dispatch(
         &self,
-        encoder: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder,
         pipeline: &wgpu::ComputePipeline,
+        params: &[u32],
         bindings: &[(u32, &wgpu::Buffer)],
         groups: u32,
         z: u32,
     ) {
-        self.dispatch_shaped(encoder, pipeline, bindings, groups, z, String::new);
+        self.dispatch_shaped(rec, pipeline, params, bindings, groups, z, String::new);
     }
 
     /// [`Self::dispatch`] with the problem's shape for the profiler (`shape` is only called
     /// when profiling): its times are then kept per kernel and shape.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn dispatch_shaped(
         &self,
-        encoder: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder,
         pipeline: &wgpu::ComputePipeline,
+        params: &[u32],
         bindings: &[(u32, &wgpu::Buffer)],
         groups: u32,
         z: u32,
@@ -488,11 +525,22 @@ impl GpuContext {
             return;
         }
         let start = Instant::now();
-        let layout = pipeline.get_bind_group_layout(0);
-        let entries: Vec<wgpu::BindGroupEntry<'_>> = bindings
-            .iter()
-            .map(|&(binding, buffer)| wgpu::BindGroupEntry { binding, resource: buffer.as_entire_binding() })
-            .collect();
+        let slot = self.arena().push(&self.device, &self.queue, params);
+        let (name, layout) = self.pipelines.info(pipeline);
+        let mut entries = Vec::with_capacity(bindings.len() + 1);
+        entries.push(wgpu::BindGroupEntry {
+            binding: 0,
+            resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                buffer: &slot.buffer,
+                offset: slot.offset,
+                size: Some(slot.size),
+            }),
+        });
+        entries.extend(
+            bindings
+                .iter()
+                .map(|&(binding, buffer)| wgpu::BindGroupEntry { binding, resource: buffer.as_entire_binding() }),
+        );
         let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: None,
             layout: &layout,
@@ -500,35 +548,44 @@ impl GpuContext {
         });
         let (x, y) = grid(groups);
         let timed = self.profiler.as_ref().and_then(|p| {
-            let name = self.pipelines.names.get(pipeline).copied().unwrap_or("unnamed");
             let shape = shape();
             let label = if shape.is_empty() { name.to_string() } else { format!("{name} {shape}") };
             p.lock().unwrap_or_else(std::sync::PoisonError::into_inner).next(label)
         });
-        let timestamp_writes = timed.as_ref().map(|(query_set, i)| wgpu::ComputePassTimestampWrites {
-            query_set,
-            beginning_of_pass_write_index: Some(*i),
-            end_of_pass_write_index: Some(i + 1),
-        });
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes });
-        pass.set_pipeline(pipeline);
-        pass.set_bind_group(0, &group, &[]);
-        pass.dispatch_workgroups(x, y, z);
-        drop(pass);
+        match &timed {
+            // Timestamps are written at a pass's start and end: a timed dispatch has its own.
+            Some((query_set, i)) => {
+                let mut pass = rec.timed_pass(wgpu::ComputePassTimestampWrites {
+                    query_set,
+                    beginning_of_pass_write_index: Some(*i),
+                    end_of_pass_write_index: Some(i + 1),
+                });
+                pass.set_pipeline(pipeline);
+                pass.set_bind_group(0, &group, &[]);
+                pass.dispatch_workgroups(x, y, z);
+            }
+            None => {
+                let pass = rec.pass();
+                pass.set_pipeline(pipeline);
+                pass.set_bind_group(0, &group, &[]);
+                pass.dispatch_workgroups(x, y, z);
+            }
+        }
         self.recorded.0.fetch_add(1, Ordering::Relaxed);
         self.recorded.1.fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
     }
 
-    /// A new command encoder.
-    pub(crate) fn encoder(&self) -> wgpu::CommandEncoder {
-        self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None })
+    /// A new recorder, for work submitted by a read-back ([`Self::finish_and_read`]), after
+    /// the queued work.
+    pub(crate) fn encoder(&self) -> Recorder {
+        Recorder::new(&self.device, &self.live)
     }
 
     /// Submits the queued work and `encoder` after appending a copy of the first `count`
     /// values of `buffer` to a staging buffer, waits, and returns them.
     pub(crate) fn finish_and_read<T: bytemuck::Pod>(
         &self,
-        encoder: wgpu::CommandEncoder,
+        encoder: Recorder,
         buffer: &wgpu::Buffer,
         count: usize,
     ) -> Result<Vec<T>> {
@@ -539,29 +596,52 @@ impl GpuContext {
     /// on (counted as a status read, not a read-back of data).
     pub(crate) fn finish_and_read_status(
         &self,
-        encoder: wgpu::CommandEncoder,
+        encoder: Recorder,
         buffer: &wgpu::Buffer,
         count: usize,
     ) -> Result<Vec<u32>> {
         self.submit_and_read(encoder, buffer, count, true)
     }
 
+    /// A read-back buffer of at least `bytes`, unmapped and used by nothing.
+    fn staging_buffer(&self, bytes: u64) -> wgpu::Buffer {
+        let mut size = bytes.max(4).next_multiple_of(4);
+        if size <= STAGING_POOLED {
+            size = size.next_power_of_two().max(256);
+            let mut pool = self.staging.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            if let Some(i) = pool.iter().position(|b| b.size() == size) {
+                return pool.swap_remove(i);
+            }
+        }
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("read-back"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    }
+
+    /// Keeps a read-back buffer, unmapped again, for the next read-back of its size.
+    fn keep_staging(&self, buffer: wgpu::Buffer) {
+        if buffer.size() <= STAGING_POOLED {
+            let mut pool = self.staging.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            if !pool.iter().any(|b| b.size() == buffer.size()) {
+                pool.push(buffer);
+            }
+        }
+    }
+
     fn submit_and_read<T: bytemuck::Pod>(
         &self,
-        mut encoder: wgpu::CommandEncoder,
+        mut encoder: Recorder,
         buffer: &wgpu::Buffer,
         count: usize,
         status: bool,
     ) -> Result<Vec<T>> {
         let bytes = (count * std::mem::size_of::<T>()) as u64;
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("read-back"),
-            size: bytes.max(4).next_multiple_of(4),
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let staging = self.staging_buffer(bytes);
         if bytes > 0 {
-            encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, bytes.next_multiple_of(4));
+            encoder.copy(buffer, 0, &staging, 0, bytes.next_multiple_of(4));
         }
         // The kernels timed so far, resolved behind everything they timed.
         let timed = match &self.profiler {
@@ -575,15 +655,14 @@ impl GpuContext {
                         usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                         mapped_at_creation: false,
                     });
-                    let kernels = p.resolve(&mut encoder, &ticks);
+                    let kernels = p.resolve(encoder.encoder(), &ticks);
                     (ticks, kernels)
                 })
             }
             None => None,
         };
-        let mut work = std::mem::take(&mut *self.pending.lock().unwrap_or_else(std::sync::PoisonError::into_inner));
-        work.push(encoder.finish());
-        self.queue.submit(work);
+        let queued = self.pending().take();
+        let submission = self.submit(queued.into_iter().chain([encoder]));
         let mut t = self.transfers.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
         if status {
             t.status_reads += 1;
@@ -606,6 +685,7 @@ impl GpuContext {
         });
         self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Readback(e.to_string()))?;
         self.check()?;
+        self.recycle_params(submission);
         match rx.recv() {
             Ok(Ok(())) => {}
             Ok(Err(e)) => return Err(GpuError::Readback(e.to_string())),
@@ -615,6 +695,7 @@ impl GpuContext {
         let out: Vec<T> = bytemuck::pod_collect_to_vec(&view[..bytes as usize]);
         drop(view);
         staging.unmap();
+        self.keep_staging(staging);
         if let (Some((ticks, kernels, trx)), Some(p)) = (timed, &self.profiler) {
             if let Ok(Ok(())) = trx.recv() {
                 let view = ticks.slice(..).get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
@@ -733,8 +814,17 @@ impl Pipelines {
         }
         // wgpu hashes and compares pipelines by identity: the interior state is not the key.
         #[allow(clippy::mutable_key_type)]
-        let names = names.into_iter().map(|(p, n)| (p.clone(), n)).collect();
+        let names = names.into_iter().map(|(p, n)| (p.clone(), (n, p.get_bind_group_layout(0)))).collect();
         pipelines.names = names;
         pipelines
+    }
+
+    /// `pipeline`'s name and bind group layout (the layout asked of wgpu once, not per
+    /// dispatch).
+    fn info(&self, pipeline: &wgpu::ComputePipeline) -> (&'static str, wgpu::BindGroupLayout) {
+        match self.names.get(pipeline) {
+            Some((name, layout)) => (name, layout.clone()),
+            None => ("unnamed", pipeline.get_bind_group_layout(0)),
+        }
     }
 }

@@ -18,6 +18,7 @@ use semrecon_sparse::{BnRelu, ChunkConfig, ChunkedConv, ConvAlgorithm, ConvBacke
 use crate::context::{GpuContext, WORKGROUP};
 use crate::error::{GpuError, Result};
 use crate::layer::{DevicePlan, GpuLayer, LayerParts};
+use crate::record::Recorder;
 use crate::tile::{TileShape, CHANNEL_STEP, CHUNKED_TILES};
 
 /// The GPU engine: an opened device and the algorithm of its convolutions.
@@ -168,13 +169,7 @@ impl GpuEngine {
         w: &[f32],
         y: &mut [f32],
         accumulate: bool,
-        encode: impl FnOnce(
-            &mut wgpu::CommandEncoder,
-            &wgpu::Buffer,
-            Option<&wgpu::Buffer>,
-            &wgpu::Buffer,
-            &wgpu::Buffer,
-        ) -> Result<()>,
+        encode: impl FnOnce(&mut Recorder, &wgpu::Buffer, Option<&wgpu::Buffer>, &wgpu::Buffer, &wgpu::Buffer) -> Result<()>,
     ) -> Result<()> {
         let ctx = &*self.ctx;
         let xb = ctx.transient_upload("features", x)?;
@@ -198,7 +193,7 @@ impl GpuEngine {
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn encode_chunked(
         &self,
-        enc: &mut wgpu::CommandEncoder,
+        enc: &mut Recorder,
         plan: &DevicePlan,
         kv: usize,
         x: &wgpu::Buffer,
@@ -244,7 +239,7 @@ impl GpuEngine {
         // Splits write their own slices; only the whole layer adds to y.
         let adds = accumulate && partial.is_none();
         let flags = u32::from(bn.is_some()) | (u32::from(adds) << 1);
-        let params = ctx.params(&[
+        let params = [
             c_in32,
             count32("channels", c_out)?,
             kv32,
@@ -255,15 +250,15 @@ impl GpuEngine {
             splits,
             channel_tiles,
             slice,
-        ]);
+        ];
         let out = partial.as_ref().unwrap_or(y);
-        let bindings = [(0, &params), (1, x), (2, w), (3, bnb), (4, &plan.buffer), (5, out)];
+        let bindings = [(1, x), (2, w), (3, bnb), (4, &plan.buffer), (5, out)];
         let z = channel_tiles.saturating_mul(splits);
-        ctx.dispatch_shaped(enc, &ctx.pipelines.chunked[which], &bindings, tiles, z, shape);
+        ctx.dispatch_shaped(enc, &ctx.pipelines.chunked[which], &params, &bindings, tiles, z, shape);
         if let Some(partial) = &partial {
-            let params = ctx.params(&[slice, splits, u32::from(accumulate), 0]);
-            let bindings = [(0, &params), (1, partial), (3, y)];
-            ctx.dispatch(enc, &ctx.pipelines.split_sum, &bindings, slice.div_ceil(WORKGROUP), 1);
+            let params = [slice, splits, u32::from(accumulate), 0];
+            let bindings = [(1, partial), (3, y)];
+            ctx.dispatch(enc, &ctx.pipelines.split_sum, &params, &bindings, slice.div_ceil(WORKGROUP), 1);
         }
         Ok(())
     }
@@ -299,7 +294,7 @@ impl GpuEngine {
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn encode_rulebook(
         &self,
-        enc: &mut wgpu::CommandEncoder,
+        enc: &mut Recorder,
         layer: &GpuLayer,
         swap: bool,
         x: &wgpu::Buffer,
@@ -322,7 +317,7 @@ impl GpuEngine {
         let products = ctx.transient("products", most * u64::from(cd) * 4)?;
         if !accumulate && sizes.1 > 0 {
             // The scatter adds: the output starts at zero.
-            enc.clear_buffer(y, 0, Some(sizes.1 as u64 * 4));
+            enc.clear(y, sizes.1 as u64 * 4);
         }
         let normalised;
         let mut src = x;
@@ -330,9 +325,8 @@ impl GpuEngine {
             // The standard algorithm's separate normalisation pass.
             normalised = ctx.transient("normalised features", sizes.0 as u64 * 4)?;
             let n = count32("features", sizes.0)?;
-            let params = ctx.params(&[n, cs, 0, 0, 0, 0, 0, 0]);
-            let b = [(0, &params), (1, x), (3, bnb), (4, &normalised)];
-            ctx.dispatch(enc, &p.bn_relu, &b, n.div_ceil(WORKGROUP), 1);
+            let b = [(1, x), (3, bnb), (4, &normalised)];
+            ctx.dispatch(enc, &p.bn_relu, &[n, cs, 0, 0, 0, 0, 0, 0], &b, n.div_ceil(WORKGROUP), 1);
             src = &normalised;
         }
         for k in 0..layer.kv {
@@ -341,13 +335,15 @@ impl GpuEngine {
                 continue;
             }
             let w_base = count32("weights", k * c_src * c_dst)?;
-            let params = ctx.params(&[rows, cs, cd, base, n_pairs, u32::from(swap), w_base, layer.kv as u32]);
-            let g = [(0, &params), (1, src), (2, &pairs.buffer), (4, &gathered)];
-            ctx.dispatch(enc, &p.gather, &g, count32("gathered rows", rows as usize * c_src)?.div_ceil(WORKGROUP), 1);
-            let m = [(0, &params), (1, &gathered), (3, w), (4, &products)];
-            ctx.dispatch(enc, &p.gemm, &m, rows.div_ceil(16), cd.div_ceil(16));
-            let s = [(0, &params), (1, &products), (2, &pairs.buffer), (4, y)];
-            ctx.dispatch(enc, &p.scatter, &s, count32("products", rows as usize * c_dst)?.div_ceil(WORKGROUP), 1);
+            let params = [rows, cs, cd, base, n_pairs, u32::from(swap), w_base, layer.kv as u32];
+            let g = [(1, src), (2, &pairs.buffer), (4, &gathered)];
+            let threads = count32("gathered rows", rows as usize * c_src)?;
+            ctx.dispatch(enc, &p.gather, &params, &g, threads.div_ceil(WORKGROUP), 1);
+            let m = [(1, &gathered), (3, w), (4, &products)];
+            ctx.dispatch(enc, &p.gemm, &params, &m, rows.div_ceil(16), cd.div_ceil(16));
+            let s = [(1, &products), (2, &pairs.buffer), (4, y)];
+            let threads = count32("products", rows as usize * c_dst)?;
+            ctx.dispatch(enc, &p.scatter, &params, &s, threads.div_ceil(WORKGROUP), 1);
         }
         Ok(())
     }
@@ -462,17 +458,7 @@ impl ConvBackend for GpuEngine {
                 let wanted = WEIGHT_GRAD_GROUPS.div_ceil(blocks).clamp(1, most);
                 let segment_rows = plan.n_dst.div_ceil(wanted).next_multiple_of(WEIGHT_GRAD_ROWS).max(WEIGHT_GRAD_ROWS);
                 let segments = plan.n_dst.div_ceil(segment_rows).max(1);
-                let params = ctx.params(&[
-                    cs,
-                    cd,
-                    kv as u32,
-                    plan.n_dst,
-                    0,
-                    plan.table_offset(),
-                    c_blocks,
-                    segments,
-                    segment_rows,
-                ]);
+                let params = [cs, cd, kv as u32, plan.n_dst, 0, plan.table_offset(), c_blocks, segments, segment_rows];
                 let partial;
                 let out = if segments == 1 {
                     &dwb
@@ -480,21 +466,21 @@ impl ConvBackend for GpuEngine {
                     partial = ctx.transient("weight gradient parts", u64::from(segments) * dw.len() as u64 * 4)?;
                     &partial
                 };
-                let b = [(0, &params), (1, &xb), (2, &dyb), (3, &plan.buffer), (4, out)];
+                let b = [(1, &xb), (2, &dyb), (3, &plan.buffer), (4, out)];
                 let groups = count32("weight blocks", (segments * kv as u32 * c_blocks) as usize)?;
-                ctx.dispatch(&mut enc, &ctx.pipelines.weight_grad_tiled, &b, groups, o_blocks);
+                ctx.dispatch(&mut enc, &ctx.pipelines.weight_grad_tiled, &params, &b, groups, o_blocks);
                 if segments > 1 {
-                    let r = [(0, &params), (5, out), (6, &dwb)];
+                    let r = [(5, out), (6, &dwb)];
                     let threads = count32("weights", dw.len())?.div_ceil(WORKGROUP);
-                    ctx.dispatch(&mut enc, &ctx.pipelines.reduce_segments, &r, threads, 1);
+                    ctx.dispatch(&mut enc, &ctx.pipelines.reduce_segments, &params, &r, threads, 1);
                 }
             }
             ConvAlgorithm::Rulebook => {
                 let n_pairs = count32("pairs", layer.num_pairs())?;
-                let params = ctx.params(&[0, cs, cd, 0, n_pairs, 0, 0, kv as u32]);
-                let b = [(0, &params), (1, &xb), (2, &layer.pairs()?.buffer), (4, &dwb), (5, &dyb)];
+                let params = [0, cs, cd, 0, n_pairs, 0, 0, kv as u32];
+                let b = [(1, &xb), (2, &layer.pairs()?.buffer), (4, &dwb), (5, &dyb)];
                 let threads = count32("weights", dw.len())?.div_ceil(WORKGROUP);
-                ctx.dispatch(&mut enc, &ctx.pipelines.weight_grad, &b, threads, 1);
+                ctx.dispatch(&mut enc, &ctx.pipelines.weight_grad, &params, &b, threads, 1);
             }
         }
         ctx.finish_and_read(enc, &dwb, dw.len())

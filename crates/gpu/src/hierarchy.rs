@@ -13,6 +13,8 @@
 //! Why: on an H100 the host's geometry and its upload took 45 of the network's 61-68 ms per
 //! room (docs/gpu.md). Here the host uploads the coordinates only, and waits once per level
 //! for the coarse voxel count (buffers are sized exactly; the forward needs the counts anyway).
+//! The scratch buffers (hash tables, ranks, statuses) are the context's pooled ones, kept
+//! between calls: buffer creation was a good part of the fixed cost of a small input.
 //! Every table is the same as the host's, bit for bit (integer work, fixed orders), except the
 //! interpolation weights, whose division rounds on the device (within an ulp or two).
 //!
@@ -27,6 +29,7 @@ use crate::engine::{count32, GpuEngine};
 use crate::error::{GpuError, Result};
 use crate::host_level::HostLevel;
 use crate::layer::{DevicePlan, GpuLayer, EMPTY};
+use crate::record::Recorder;
 use crate::resident::GpuGather;
 
 /// Rows per block of the device prefix sum (shaders/hierarchy.wgsl `SCAN`).
@@ -93,27 +96,27 @@ impl GpuEngine {
             let n = count32("voxels", rows)?;
             let entries = count32("neighbour table", rows.checked_mul(28).ok_or(SparseError::TooManyRows(rows))?)?;
             let capacity = count32("hash slots", (2 * rows).next_power_of_two().max(64))?;
-            let slots = ctx.zeroed("hash slots", u64::from(capacity) * 4)?;
+            let slots = ctx.transient("hierarchy hash slots", u64::from(capacity) * 4)?;
             fill(ctx, &mut enc, &slots, capacity, EMPTY);
             // [destination rows | table]: the chunked kernel's plan layout.
             let subm_plan = ctx.zeroed("submanifold plan", u64::from(entries) * 4)?;
-            let map_status = ctx.zeroed("map status", 12)?;
+            let map_status = ctx.transient("hierarchy map status", 12)?;
+            fill(ctx, &mut enc, &map_status, 3, 0);
             let p = &ctx.pipelines;
-            let insert = ctx.params(&[n, capacity - 1, 3, 27, 0]);
-            let b = [(0, &insert), (1, &coords_buf), (2, &slots), (3, &map_status)];
-            ctx.dispatch(&mut enc, &p.map_insert, &b, n.div_ceil(WORKGROUP), 1);
-            let lookup = ctx.params(&[n, capacity - 1, 3, 27, 1]);
-            let b = [(0, &lookup), (1, &coords_buf), (2, &slots), (3, &map_status), (4, &subm_plan)];
-            ctx.dispatch(&mut enc, &p.map_lookup, &b, count32("neighbour table", rows * 27)?.div_ceil(WORKGROUP), 1);
+            let b = [(1, &coords_buf), (2, &slots), (3, &map_status)];
+            ctx.dispatch(&mut enc, &p.map_insert, &[n, capacity - 1, 3, 27, 0], &b, n.div_ceil(WORKGROUP), 1);
+            let b = [(1, &coords_buf), (2, &slots), (3, &map_status), (4, &subm_plan)];
+            let groups = count32("neighbour table", rows * 27)?.div_ceil(WORKGROUP);
+            ctx.dispatch(&mut enc, &p.map_lookup, &[n, capacity - 1, 3, 27, 1], &b, groups, 1);
             let point_plan = ctx.zeroed("pointwise plan", u64::from(n) * 8)?;
             row_numbers(ctx, &mut enc, &point_plan, 2 * n, n);
             let coarser = (level + 1 < levels).then(|| Parents::count(ctx, &mut enc, &coords_buf, n)).transpose()?;
 
             // One wait per level: the statuses, the pair count and the coarse voxel count.
-            let report = ctx.zeroed("hierarchy report", 20)?;
-            enc.copy_buffer_to_buffer(&map_status, 0, &report, 0, 12);
+            let report = ctx.transient("hierarchy report", 20)?;
+            enc.copy(&map_status, 0, &report, 0, 12);
             if let Some(parents) = &coarser {
-                enc.copy_buffer_to_buffer(&parents.status, 0, &report, 12, 8);
+                enc.copy(&parents.status, 0, &report, 12, 8);
             }
             let r = ctx.finish_and_read_status(std::mem::replace(&mut enc, ctx.encoder()), &report, 5)?;
             if r[0] != 0 {
@@ -124,7 +127,8 @@ impl GpuEngine {
                 ))
                 .into());
             }
-            if r[1] != 0 || r[4] != 0 {
+            // The parents' words were copied only with a coarser level.
+            if r[1] != 0 || (coarser.is_some() && r[4] != 0) {
                 return Err(GpuError::Device("the voxel hash table overflowed".into()));
             }
             let sub = MapKind::Submanifold { kernel_size: 3 };
@@ -173,30 +177,30 @@ impl GpuEngine {
         let _call = ctx.begin_resident_call()?;
         let fine = &h.levels[t];
         let n = count32("voxels", fine.rows)?;
-        let mut enc = ctx.encoder();
-        // Ancestors: the parents, then their parents, up to level j.
-        let ancestors = ctx.zeroed("ancestors", u64::from(n) * 4)?;
-        let first = fine.parent.as_ref().ok_or(GpuError::LayerPart("the parents of a level with no coarser one"))?;
-        enc.copy_buffer_to_buffer(first, 0, &ancestors, 0, u64::from(n) * 4);
-        let p = &ctx.pipelines.hierarchy;
-        for level in &h.levels[t + 1..j] {
-            let parent = level.parent.as_ref().ok_or(GpuError::LayerPart("parents"))?;
-            let params = ctx.params(&[n, 0, 0, 0]);
-            ctx.dispatch(
-                &mut enc,
-                &p.ancestor,
-                &[(0, &params), (7, parent), (10, &ancestors)],
-                n.div_ceil(WORKGROUP),
-                1,
-            );
-        }
         let coarse = &h.levels[j];
-        let gather = ctx.zeroed("interpolation table", u64::from(n) * 64)?;
+        let coarse_rows = count32("voxels", coarse.rows)?;
         let plan = coarse.subm.forward_plan()?;
-        let params = ctx.params(&[n, (j - t) as u32, count32("voxels", coarse.rows)?, 0]);
-        let b = [(0, &params), (1, &fine.coords), (10, &ancestors), (11, &plan.buffer), (12, &gather)];
-        ctx.dispatch(&mut enc, &p.interp, &b, n.div_ceil(WORKGROUP), 1);
-        ctx.enqueue(enc)?;
+        let first = fine.parent.as_ref().ok_or(GpuError::LayerPart("the parents of a level with no coarser one"))?;
+        let parents = h.levels[t + 1..j]
+            .iter()
+            .map(|level| level.parent.as_ref().ok_or(GpuError::LayerPart("parents")))
+            .collect::<Result<Vec<_>>>()?;
+        // Written whole (the copy below) before it is read.
+        let ancestors = ctx.transient("hierarchy ancestors", u64::from(n) * 4)?;
+        let gather = ctx.zeroed("interpolation table", u64::from(n) * 64)?;
+        let p = &ctx.pipelines.hierarchy;
+        ctx.record(|enc| {
+            // Ancestors: the parents, then their parents, up to level j.
+            enc.copy(first, 0, &ancestors, 0, u64::from(n) * 4);
+            for parent in parents {
+                let b = [(7, parent), (10, &ancestors)];
+                ctx.dispatch(enc, &p.ancestor, &[n, 0, 0, 0], &b, n.div_ceil(WORKGROUP), 1);
+            }
+            let params = [n, (j - t) as u32, coarse_rows, 0];
+            let b = [(1, &fine.coords), (10, &ancestors), (11, &plan.buffer), (12, &gather)];
+            ctx.dispatch(enc, &p.interp, &params, &b, n.div_ceil(WORKGROUP), 1);
+            Ok(())
+        })?;
         Ok(GpuGather::on_device(gather, fine.rows, 8, coarse.rows))
     }
 
@@ -251,23 +255,25 @@ struct Parents {
 
 impl Parents {
     /// Records the parents' hash table, the first-child flags and their prefix sum.
-    fn count(ctx: &GpuContext, enc: &mut wgpu::CommandEncoder, coords: &wgpu::Buffer, n: u32) -> Result<Self> {
+    fn count(ctx: &GpuContext, enc: &mut Recorder, coords: &wgpu::Buffer, n: u32) -> Result<Self> {
         let capacity = count32("hash slots", (2 * n as usize).next_power_of_two().max(64))?;
-        let slots = ctx.zeroed("parent slots", u64::from(capacity) * 4)?;
+        let slots = ctx.transient("hierarchy parent slots", u64::from(capacity) * 4)?;
         fill(ctx, enc, &slots, capacity, EMPTY);
-        let slot_of = ctx.zeroed("parent slot of rows", u64::from(n) * 4)?;
-        let rank = ctx.zeroed("parent ranks", u64::from(n) * 4)?;
+        // Written for every row (insert, first_child) and block (scan_blocks) before read.
+        let slot_of = ctx.transient("hierarchy parent slot of rows", u64::from(n) * 4)?;
+        let rank = ctx.transient("hierarchy parent ranks", u64::from(n) * 4)?;
         let blocks = n.div_ceil(SCAN);
-        let block_sums = ctx.zeroed("prefix sum blocks", u64::from(blocks) * 4)?;
-        let status = ctx.zeroed("parent status", 8)?;
+        let block_sums = ctx.transient("hierarchy prefix sum blocks", u64::from(blocks) * 4)?;
+        let status = ctx.transient("hierarchy parent status", 8)?;
+        fill(ctx, enc, &status, 2, 0);
         let p = &ctx.pipelines.hierarchy;
-        let params = ctx.params(&[n, capacity - 1, blocks, 0]);
+        let params = [n, capacity - 1, blocks, 0];
         let groups = n.div_ceil(WORKGROUP);
-        ctx.dispatch(enc, &p.insert, &[(0, &params), (1, coords), (2, &slots), (3, &slot_of), (6, &status)], groups, 1);
-        ctx.dispatch(enc, &p.first_child, &[(0, &params), (2, &slots), (3, &slot_of), (4, &rank)], groups, 1);
-        ctx.dispatch(enc, &p.scan_blocks, &[(0, &params), (4, &rank), (5, &block_sums)], blocks, 1);
-        ctx.dispatch(enc, &p.scan_totals, &[(0, &params), (5, &block_sums), (6, &status)], 1, 1);
-        ctx.dispatch(enc, &p.scan_add, &[(0, &params), (4, &rank), (5, &block_sums)], blocks, 1);
+        ctx.dispatch(enc, &p.insert, &params, &[(1, coords), (2, &slots), (3, &slot_of), (6, &status)], groups, 1);
+        ctx.dispatch(enc, &p.first_child, &params, &[(2, &slots), (3, &slot_of), (4, &rank)], groups, 1);
+        ctx.dispatch(enc, &p.scan_blocks, &params, &[(4, &rank), (5, &block_sums)], blocks, 1);
+        ctx.dispatch(enc, &p.scan_totals, &params, &[(5, &block_sums), (6, &status)], 1, 1);
+        ctx.dispatch(enc, &p.scan_add, &params, &[(4, &rank), (5, &block_sums)], blocks, 1);
         Ok(Self { slots, slot_of, rank, status })
     }
 
@@ -276,7 +282,7 @@ impl Parents {
     fn emit(
         &self,
         ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        enc: &mut Recorder,
         coords: &wgpu::Buffer,
         n: u32,
         nc: u32,
@@ -291,9 +297,7 @@ impl Parents {
         fill(ctx, enc, &up, up_words, EMPTY);
         row_numbers(ctx, enc, &down, nc, nc);
         row_numbers(ctx, enc, &up, n, n);
-        let params = ctx.params(&[n, nc, 0, 0]);
         let b = [
-            (0, &params),
             (1, coords),
             (2, &self.slots),
             (3, &self.slot_of),
@@ -303,19 +307,18 @@ impl Parents {
             (9, &down),
             (10, &up),
         ];
-        ctx.dispatch(enc, &ctx.pipelines.hierarchy.emit, &b, n.div_ceil(WORKGROUP), 1);
+        ctx.dispatch(enc, &ctx.pipelines.hierarchy.emit, &[n, nc, 0, 0], &b, n.div_ceil(WORKGROUP), 1);
         Ok((coarse, parent, DevicePlan { buffer: down, n_dst: nc }, DevicePlan { buffer: up, n_dst: n }))
     }
 }
 
 /// Records `buffer[i] = value` for `i < n`.
-fn fill(ctx: &GpuContext, enc: &mut wgpu::CommandEncoder, buffer: &wgpu::Buffer, n: u32, value: u32) {
-    let params = ctx.params(&[n, 0, 0, value]);
-    ctx.dispatch(enc, &ctx.pipelines.hierarchy.fill, &[(0, &params), (9, buffer)], n.div_ceil(WORKGROUP), 1);
+fn fill(ctx: &GpuContext, enc: &mut Recorder, buffer: &wgpu::Buffer, n: u32, value: u32) {
+    ctx.dispatch(enc, &ctx.pipelines.hierarchy.fill, &[n, 0, 0, value], &[(9, buffer)], n.div_ceil(WORKGROUP), 1);
 }
 
 /// Records `buffer[i] = i % modulus` for `i < n` (plans' destination rows).
-fn row_numbers(ctx: &GpuContext, enc: &mut wgpu::CommandEncoder, buffer: &wgpu::Buffer, n: u32, modulus: u32) {
-    let params = ctx.params(&[n, 0, 0, modulus.max(1)]);
-    ctx.dispatch(enc, &ctx.pipelines.hierarchy.rows, &[(0, &params), (9, buffer)], n.div_ceil(WORKGROUP), 1);
+fn row_numbers(ctx: &GpuContext, enc: &mut Recorder, buffer: &wgpu::Buffer, n: u32, modulus: u32) {
+    let params = [n, 0, 0, modulus.max(1)];
+    ctx.dispatch(enc, &ctx.pipelines.hierarchy.rows, &params, &[(9, buffer)], n.div_ceil(WORKGROUP), 1);
 }

@@ -328,23 +328,15 @@ fn neighbour_table(ctx: &GpuContext, coords: &[Coord], kernel_size: usize) -> Re
     let slots = ctx.upload("hash slots", &vec![EMPTY; capacity])?;
     let status = ctx.zeroed("map status", 12)?;
     let table = ctx.zeroed("neighbour table", entries as u64 * 4)?;
-    let params = ctx.params(&[n as u32, cap32 - 1, kernel_size as u32, kv as u32, 0]);
+    let params = [n as u32, cap32 - 1, kernel_size as u32, kv as u32, 0];
+    // The pooled buffers are not touched, but recording is one caller at a time.
+    let _call = ctx.begin_call()?;
     let mut enc = ctx.encoder();
     let p = &ctx.pipelines;
-    ctx.dispatch(
-        &mut enc,
-        &p.map_insert,
-        &[(0, &params), (1, &coords_buf), (2, &slots), (3, &status)],
-        (n as u32).div_ceil(WORKGROUP),
-        1,
-    );
-    ctx.dispatch(
-        &mut enc,
-        &p.map_lookup,
-        &[(0, &params), (1, &coords_buf), (2, &slots), (3, &status), (4, &table)],
-        (entries as u32).div_ceil(WORKGROUP),
-        1,
-    );
+    let b = [(1, &coords_buf), (2, &slots), (3, &status)];
+    ctx.dispatch(&mut enc, &p.map_insert, &params, &b, (n as u32).div_ceil(WORKGROUP), 1);
+    let b = [(1, &coords_buf), (2, &slots), (3, &status), (4, &table)];
+    ctx.dispatch(&mut enc, &p.map_lookup, &params, &b, (entries as u32).div_ceil(WORKGROUP), 1);
     let status: Vec<u32> = ctx.finish_and_read(enc, &status, 2)?;
     if status[0] != 0 {
         let row = status[0] as usize - 1;

@@ -48,6 +48,8 @@ mod layer;
 #[cfg(feature = "gpu")]
 mod profile;
 #[cfg(feature = "gpu")]
+mod record;
+#[cfg(feature = "gpu")]
 mod resident;
 #[cfg(not(feature = "gpu"))]
 mod stub;

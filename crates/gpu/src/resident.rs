@@ -2,8 +2,8 @@
 //! weights once ([`GpuTensor`]s kept by the caller across calls), its input once per forward,
 //! and reads back only the logits (or the labels: an argmax kernel); convolutions and the
 //! element-wise steps between them (attention gate, weighted row gather, bias) run on the
-//! device buffers where they are. Operations are recorded and queued without waiting
-//! (`GpuContext::enqueue`); the read-back submits the queue and waits once.
+//! device buffers where they are. Operations are recorded into the queued work without waiting
+//! (`GpuContext::record`); the read-back submits the queue and waits once.
 //!
 //! Tensors are only ever created fresh (upload, growth), never rewritten through the queue,
 //! so the queued work that reads them cannot see a later write land early.
@@ -15,6 +15,7 @@ use crate::context::{Transfer, WORKGROUP};
 use crate::engine::{count32, GpuEngine};
 use crate::error::{GpuError, Result};
 use crate::layer::GpuLayer;
+use crate::record::Recorder;
 
 /// A flat `f32` buffer on the device of the [`GpuEngine`] that made it.
 #[derive(Debug)]
@@ -60,21 +61,18 @@ impl GpuGather {
 }
 
 impl GpuEngine {
-    /// Records one element-wise kernel over `threads` threads.
+    /// Records one element-wise kernel over `threads` threads into `enc`.
     fn elementwise(
         &self,
+        enc: &mut Recorder,
         pipeline: &wgpu::ComputePipeline,
         params: [u32; 4],
         bindings: &[(u32, &wgpu::Buffer)],
         threads: usize,
-    ) -> Result<wgpu::CommandEncoder> {
-        let ctx = self.context();
-        let params = ctx.params(&params);
-        let mut all = vec![(0, &params)];
-        all.extend_from_slice(bindings);
-        let mut enc = ctx.encoder();
-        ctx.dispatch(&mut enc, pipeline, &all, count32("threads", threads)?.div_ceil(WORKGROUP), 1);
-        Ok(enc)
+    ) -> Result<()> {
+        let groups = count32("threads", threads)?.div_ceil(WORKGROUP);
+        self.context().dispatch(enc, pipeline, &params, bindings, groups, 1);
+        Ok(())
     }
 }
 
@@ -142,43 +140,41 @@ impl ResidentBackend for GpuEngine {
         }
         let ctx = self.context();
         let _call = ctx.begin_resident_call()?;
-        let mut enc = ctx.encoder();
         let bnb = bn.map(|t| &t.buffer);
-        if x_len == 0 {
+        ctx.record(|enc| match self.algorithm {
             // Nothing to read: the convolution is zero.
-            if !accumulate {
-                enc.clear_buffer(&y.buffer, 0, Some(y_len as u64 * 4));
+            _ if x_len == 0 => {
+                if !accumulate {
+                    enc.clear(&y.buffer, y_len as u64 * 4);
+                }
+                Ok(())
             }
-        } else {
-            match self.algorithm {
-                ConvAlgorithm::Chunked => self.encode_chunked(
-                    &mut enc,
-                    layer.forward_plan()?,
-                    layer.kv,
-                    &x.buffer,
-                    c_in,
-                    bnb,
-                    &w.buffer,
-                    c_out,
-                    &y.buffer,
-                    accumulate,
-                )?,
-                ConvAlgorithm::Rulebook => self.encode_rulebook(
-                    &mut enc,
-                    layer,
-                    false,
-                    &x.buffer,
-                    c_in,
-                    bnb,
-                    &w.buffer,
-                    c_out,
-                    &y.buffer,
-                    (x_len, y_len),
-                    accumulate,
-                )?,
-            }
-        }
-        ctx.enqueue(enc)
+            ConvAlgorithm::Chunked => self.encode_chunked(
+                enc,
+                layer.forward_plan()?,
+                layer.kv,
+                &x.buffer,
+                c_in,
+                bnb,
+                &w.buffer,
+                c_out,
+                &y.buffer,
+                accumulate,
+            ),
+            ConvAlgorithm::Rulebook => self.encode_rulebook(
+                enc,
+                layer,
+                false,
+                &x.buffer,
+                c_in,
+                bnb,
+                &w.buffer,
+                c_out,
+                &y.buffer,
+                (x_len, y_len),
+                accumulate,
+            ),
+        })
     }
 
     fn gate(&self, g: &mut GpuTensor, rows: usize, c: usize) -> Result<()> {
@@ -189,8 +185,7 @@ impl ResidentBackend for GpuEngine {
         let ctx = self.context();
         let _call = ctx.begin_resident_call()?;
         let params = [count32("rows", rows)?, count32("channels", c)?, 0, 0];
-        let enc = self.elementwise(&ctx.pipelines.gate, params, &[(3, &g.buffer)], rows * c)?;
-        ctx.enqueue(enc)
+        ctx.record(|enc| self.elementwise(enc, &ctx.pipelines.gate, params, &[(3, &g.buffer)], rows * c))
     }
 
     fn gather_add(
@@ -214,8 +209,7 @@ impl ResidentBackend for GpuEngine {
         let params =
             [count32("rows", table.rows)?, count32("channels", c)?, count32("stride", stride)?, table.per_row as u32];
         let bindings = [(1, &src.buffer), (2, &table.buffer), (3, &dst.buffer)];
-        let enc = self.elementwise(&ctx.pipelines.gather_add, params, &bindings, n)?;
-        ctx.enqueue(enc)
+        ctx.record(|enc| self.elementwise(enc, &ctx.pipelines.gather_add, params, &bindings, n))
     }
 
     fn add_bias(&self, y: &mut GpuTensor, rows: usize, bias: &GpuTensor, c: usize) -> Result<()> {
@@ -227,8 +221,8 @@ impl ResidentBackend for GpuEngine {
         let ctx = self.context();
         let _call = ctx.begin_resident_call()?;
         let params = [count32("rows", rows)?, count32("channels", c)?, 0, 0];
-        let enc = self.elementwise(&ctx.pipelines.add_bias, params, &[(1, &bias.buffer), (3, &y.buffer)], n)?;
-        ctx.enqueue(enc)
+        let bindings = [(1, &bias.buffer), (3, &y.buffer)];
+        ctx.record(|enc| self.elementwise(enc, &ctx.pipelines.add_bias, params, &bindings, n))
     }
 
     fn argmax_rows(&self, scores: &GpuTensor, rows: usize, k: usize) -> Result<Vec<u32>> {
@@ -244,7 +238,8 @@ impl ResidentBackend for GpuEngine {
         // Pooled, and written only by the kernel below.
         let labels = ctx.transient("labels", rows as u64 * 4)?;
         let params = [count32("rows", rows)?, count32("scores", k)?, 0, 0];
-        let enc = self.elementwise(&ctx.pipelines.argmax, params, &[(1, &scores.buffer), (4, &labels)], rows)?;
-        ctx.finish_and_read(enc, &labels, rows)
+        let bindings = [(1, &scores.buffer), (4, &labels)];
+        ctx.record(|enc| self.elementwise(enc, &ctx.pipelines.argmax, params, &bindings, rows))?;
+        ctx.finish_and_read(ctx.encoder(), &labels, rows)
     }
 }

@@ -87,6 +87,11 @@ struct NetRow {
     /// per-dispatch overhead; 0 on the CPU).
     dispatches: u64,
     record_ms: f64,
+    /// CPU milliseconds of the calling thread per call, fewest over the rounds: the host's own
+    /// work (recording, submitting, buffer creation; not the waits). On a software driver
+    /// (lavapipe) the kernels run on the driver's threads, so this is the fixed host cost per
+    /// call; 0 where the platform cannot tell.
+    host_cpu_ms: f64,
     /// Device milliseconds per kernel of one call (`SEMRECON_GPU_PROFILE=1` only).
     kernel_times: Vec<KernelMs>,
     /// Useful multiply-add FLOPs (2 per multiply-add) of one forward.
@@ -165,6 +170,7 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
     // Per kernel: (total, geometry, forward) of every round.
     let mut times: Vec<Vec<(f64, f64, f64, f64)>> = vec![Vec::new(); kernels.len()];
     let mut recorded = vec![(0u64, 0f64); kernels.len()];
+    let mut host_cpu = vec![f64::INFINITY; kernels.len()];
     let dispatches = || match &device {
         Device::Gpu(g) => g.context().dispatches(),
         Device::Cpu => (0, 0.0),
@@ -173,9 +179,11 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
     for _ in 0..rounds {
         for (q, net) in nets.iter_mut().enumerate() {
             let before = dispatches();
+            let cpu = thread_cpu_seconds();
             let t = Instant::now();
             let out = net.segment(&sample.coords, &sample.features)?;
             let total = t.elapsed().as_secs_f64() * 1e3;
+            host_cpu[q] = host_cpu[q].min((thread_cpu_seconds() - cpu) * 1e3);
             let after = dispatches();
             recorded[q] = (after.0 - before.0, (after.1 - before.1) * 1e3);
             let timing = net.last_timing();
@@ -226,6 +234,7 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
                 upload_ms: upload,
                 dispatches: recorded[q].0,
                 record_ms: recorded[q].1,
+                host_cpu_ms: host_cpu[q],
                 kernel_times: kernel_times[q].clone(),
                 flops,
                 gflops: flops as f64 / (forward * 1e6),
@@ -247,7 +256,7 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
         rows[0].threads
     );
     println!(
-        "{:<22} {:>12} {:>10} {:>12} {:>11} {:>10} {:>9} {:>9} {:>11} {:>10}",
+        "{:<22} {:>12} {:>10} {:>12} {:>11} {:>10} {:>9} {:>9} {:>11} {:>10} {:>12}",
         "kernel",
         "ms per room",
         "mean ms",
@@ -257,11 +266,12 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
         "GFLOP/s",
         "slowdown",
         "dispatches",
-        "record ms"
+        "record ms",
+        "host cpu ms"
     );
     for r in &rows {
         println!(
-            "{:<22} {:>12.1} {:>10.1} {:>12.1} {:>11.1} {:>10.1} {:>9.1} {:>8.2}x {:>11} {:>10.1}",
+            "{:<22} {:>12.1} {:>10.1} {:>12.1} {:>11.1} {:>10.1} {:>9.1} {:>8.2}x {:>11} {:>10.1} {:>12.2}",
             r.kernel,
             r.ms_per_room,
             r.mean_ms_per_room,
@@ -271,7 +281,8 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
             r.gflops,
             r.slowdown_vs_chunked,
             r.dispatches,
-            r.record_ms
+            r.record_ms,
+            r.host_cpu_ms
         );
     }
     for r in rows.iter().filter(|r| !r.kernel_times.is_empty()) {
@@ -303,6 +314,19 @@ pub fn run(args: NetArgs) -> anyhow::Result<()> {
         println!("wrote {}", path.display());
     }
     Ok(())
+}
+
+/// CPU seconds the calling thread has run so far (0 where the platform cannot tell).
+fn thread_cpu_seconds() -> f64 {
+    #[cfg(unix)]
+    {
+        let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+        // SAFETY: clock_gettime only writes the timespec it is given, which lives on this stack.
+        if unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) } == 0 {
+            return ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9;
+        }
+    }
+    0.0
 }
 
 /// Writes `DIR/net.json` and the little-endian arrays it names: `coords` (`[n, 4]` i32, the
