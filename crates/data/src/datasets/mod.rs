@@ -30,7 +30,7 @@ pub use spec::{open_dataset, DatasetSpec};
 pub use synthetic::{synthetic_scan, synthetic_scan_of, SyntheticScanConfig};
 pub use synthetic_flat::{flat_layout, flat_scan_plan, synthetic_flat_scan};
 pub use synthetic_source::{SyntheticScene, SyntheticSource};
-pub use tum::Tum;
+pub use tum::{Tum, TumCamera};
 
 use std::path::{Path, PathBuf};
 

@@ -9,12 +9,12 @@ use std::path::PathBuf;
 use std::str::FromStr;
 
 use crate::datasets::synthetic_source::{SyntheticScene, SyntheticSource};
-use crate::datasets::{Oni, RealSenseBag, Redwood, Replica, ScanNet, SevenScenes, Tum};
+use crate::datasets::{Oni, RealSenseBag, Redwood, Replica, ScanNet, SevenScenes, Tum, TumCamera};
 use crate::error::{DataError, Result};
 use crate::frame::FrameSource;
 
 /// The accepted kinds, for error messages.
-const KINDS: &str = "7scenes:PATH, tum:PATH, redwood:PATH, scannet:PATH, replica:PATH, oni:FILE, bag:FILE, \
+const KINDS: &str = "7scenes:PATH, tum:PATH (tum-fr1/fr2/fr3/default:PATH names the camera), redwood:PATH, scannet:PATH, replica:PATH, oni:FILE, bag:FILE, \
                      synth:SEED, synth-loop:SEED, synth-flat:SEED (options :noisy, :SECONDSs)";
 
 /// Which dataset reader to use on which folder (or which synthetic scene).
@@ -22,8 +22,9 @@ const KINDS: &str = "7scenes:PATH, tum:PATH, redwood:PATH, scannet:PATH, replica
 pub enum DatasetSpec {
     /// A 7-Scenes / SUN3D folder.
     SevenScenes(PathBuf),
-    /// A TUM RGB-D folder.
-    Tum(PathBuf),
+    /// A TUM RGB-D folder, and its camera when the specification names it (`tum-fr2:PATH`;
+    /// `None`: from the folder name).
+    Tum(PathBuf, Option<TumCamera>),
     /// A Redwood / Open3D folder.
     Redwood(PathBuf),
     /// A ScanNet export folder.
@@ -54,7 +55,11 @@ impl FromStr for DatasetSpec {
         let path = || PathBuf::from(rest);
         Ok(match kind.to_ascii_lowercase().as_str() {
             "7scenes" => Self::SevenScenes(path()),
-            "tum" => Self::Tum(path()),
+            "tum" => Self::Tum(path(), None),
+            "tum-fr1" => Self::Tum(path(), Some(TumCamera::Freiburg1)),
+            "tum-fr2" => Self::Tum(path(), Some(TumCamera::Freiburg2)),
+            "tum-fr3" => Self::Tum(path(), Some(TumCamera::Freiburg3)),
+            "tum-default" => Self::Tum(path(), Some(TumCamera::Default)),
             "redwood" => Self::Redwood(path()),
             "scannet" => Self::ScanNet(path()),
             "replica" => Self::Replica(path()),
@@ -79,7 +84,16 @@ impl fmt::Display for DatasetSpec {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Self::SevenScenes(p) => write!(f, "7scenes:{}", p.display()),
-            Self::Tum(p) => write!(f, "tum:{}", p.display()),
+            Self::Tum(p, camera) => {
+                let kind = match camera {
+                    None => "tum",
+                    Some(TumCamera::Freiburg1) => "tum-fr1",
+                    Some(TumCamera::Freiburg2) => "tum-fr2",
+                    Some(TumCamera::Freiburg3) => "tum-fr3",
+                    Some(TumCamera::Default) => "tum-default",
+                };
+                write!(f, "{kind}:{}", p.display())
+            }
             Self::Redwood(p) => write!(f, "redwood:{}", p.display()),
             Self::ScanNet(p) => write!(f, "scannet:{}", p.display()),
             Self::Replica(p) => write!(f, "replica:{}", p.display()),
@@ -94,7 +108,7 @@ impl fmt::Display for DatasetSpec {
 pub fn open_dataset(spec: &DatasetSpec) -> Result<Box<dyn FrameSource>> {
     Ok(match spec {
         DatasetSpec::SevenScenes(p) => Box::new(SevenScenes::open(p)?),
-        DatasetSpec::Tum(p) => Box::new(Tum::open(p)?),
+        DatasetSpec::Tum(p, camera) => Box::new(Tum::open_with_camera(p, *camera)?),
         DatasetSpec::Redwood(p) => Box::new(Redwood::open(p)?),
         DatasetSpec::ScanNet(p) => Box::new(ScanNet::open(p)?),
         DatasetSpec::Replica(p) => Box::new(Replica::open(p)?),
@@ -113,6 +127,10 @@ mod tests {
         for s in [
             "7scenes:/a/b",
             "tum:x",
+            "tum-fr1:x",
+            "tum-fr2:/t/desk",
+            "tum-fr3:x",
+            "tum-default:x",
             "redwood:../r",
             "scannet:s",
             "replica:C:/w",
