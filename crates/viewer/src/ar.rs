@@ -103,12 +103,18 @@ pub fn render_ar(
                 intrinsics.height
             )));
         }
+        let model_depth = renderer.render(&prepared, world_from_camera).depth.clone();
         if i % throw_every == 0 {
             let forward = Vec3::from(world_from_camera.matrix3.z_axis).normalize_or(Vec3::X);
-            let from = Vec3::from(world_from_camera.translation) + forward * 0.15;
+            // Released as from a hand in front of the camera: 40 cm ahead and 10 cm below
+            // the view's centre (15 cm ahead, a 4 cm ball filled a third of the picture),
+            // nearer when the room's surface in the middle of the view is closer than that.
+            let centre = model_depth
+                [(intrinsics.height as usize / 2) * intrinsics.width as usize + intrinsics.width as usize / 2];
+            let ahead = if centre > 0.0 { (centre - 2.0 * radius - 0.05).clamp(0.1, 0.4) } else { 0.4 };
+            let from = Vec3::from(world_from_camera.translation) + forward * ahead - options.up * (0.25 * ahead);
             balls.push(scene.throw_ball(from, forward + options.up * 0.3, options.speed)?);
         }
-        let model_depth = renderer.render(&prepared, world_from_camera).depth.clone();
         let mut color = frame.color;
         let camera_from_world = world_from_camera.inverse();
         for &b in &balls {
