@@ -35,8 +35,7 @@ use rapier3d::prelude::{
     RigidBodyBuilder, RigidBodyHandle, TriMeshFlags, Vector,
 };
 use semrecon_data::class::UNLABELED;
-use semrecon_data::LabeledMesh;
-use semrecon_data::SemanticClass;
+use semrecon_data::{LabeledMesh, MeshGravity, SemanticClass};
 use serde::{Deserialize, Serialize};
 
 use crate::collision_mesh::{CollisionMesh, CollisionMeshConfig, CollisionRegion, RegionKey};
@@ -104,6 +103,15 @@ impl Default for SceneConfig {
 }
 
 impl SceneConfig {
+    /// These settings in the frame a mesh file records (its up and floor, see
+    /// [`semrecon_data::read_ply_with_gravity`]); `None` keeps +z and no ground plane.
+    pub fn with_gravity(self, gravity: Option<MeshGravity>) -> Self {
+        match gravity {
+            Some(g) => Self { up: g.up.normalize_or(Vec3::Z), floor_height: g.floor_height, ..self },
+            None => self,
+        }
+    }
+
     /// Checks every value is finite and in a sensible range.
     pub fn validate(&self) -> Result<()> {
         let bad = |what: &str, v: f32, range: &str| {

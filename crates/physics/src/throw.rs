@@ -33,12 +33,7 @@ pub fn throw_from_ply(
     if mesh.triangles.is_empty() {
         return Err(PhysicsError::Mesh(format!("{}: the mesh has no triangles", mesh_path.display())));
     }
-    let config = SceneConfig {
-        up: gravity.map_or(Vec3::Z, |g| g.up),
-        floor_height: gravity.and_then(|g| g.floor_height),
-        ..SceneConfig::default()
-    };
-    throw_into_mesh(&mesh, materials, config, from, dir, speed, seconds)
+    throw_into_mesh(&mesh, materials, SceneConfig::default().with_gravity(gravity), from, dir, speed, seconds)
 }
 
 /// [`throw_from_ply`] for a mesh in memory, with explicit settings.

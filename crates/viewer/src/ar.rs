@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use glam::{Affine3A, Vec3};
 use semrecon_data::atomic_file::write_atomic;
 use semrecon_data::depth_image::write_color_png;
-use semrecon_data::{FrameSource, Intrinsics, LabeledMesh, PreparedMesh, Renderer};
+use semrecon_data::{FrameSource, Intrinsics, LabeledMesh, MeshGravity, PreparedMesh, Renderer};
 use semrecon_physics::{ArScene, BallId, MaterialTable, SceneConfig};
 
 use crate::error::{Result, ViewerError};
@@ -27,18 +27,16 @@ pub struct ArOptions {
     pub throw_every_s: f32,
     /// Width of the GIF preview in pixels (frames are shrunk by a whole factor to about this).
     pub gif_width: u32,
-    /// Up direction of the scan's world frame (unit length): gravity pulls against it and
-    /// balls are tossed a little along it. A reconstruction's mesh records it
-    /// ([`semrecon_data::read_ply_with_gravity`]); +z for generated rooms.
-    pub up: Vec3,
-    /// Height along `up` of the floor, when known: a ground plane catches balls under the
-    /// scan's holes ([`SceneConfig::floor_height`]).
-    pub floor_height: Option<f32>,
+    /// Gravity in the scan's world frame, as its mesh file records it
+    /// ([`semrecon_data::read_ply_with_gravity`]): gravity pulls against its up, balls are
+    /// tossed a little along it, and a recorded floor puts a ground plane under the scan's
+    /// holes ([`SceneConfig::with_gravity`]). `None`: +z up (generated rooms), no plane.
+    pub gravity: Option<MeshGravity>,
 }
 
 impl Default for ArOptions {
     fn default() -> Self {
-        Self { max_frames: 300, speed: 3.0, throw_every_s: 1.5, gif_width: 320, up: Vec3::Z, floor_height: None }
+        Self { max_frames: 300, speed: 3.0, throw_every_s: 1.5, gif_width: 320, gravity: None }
     }
 }
 
@@ -77,11 +75,7 @@ pub fn render_ar(
     let throw_every = ((options.throw_every_s * fps).round() as usize).max(1);
     let prepared = PreparedMesh::new(mesh)?;
     let mut renderer = Renderer::new(intrinsics)?;
-    let mut scene = ArScene::with_mesh(
-        mesh,
-        materials,
-        SceneConfig { up: options.up, floor_height: options.floor_height, ..SceneConfig::default() },
-    )?;
+    let mut scene = ArScene::with_mesh(mesh, materials, SceneConfig::default().with_gravity(options.gravity))?;
     let radius = scene.config().ball_radius;
     let mut balls: Vec<BallId> = Vec::new();
     let mut pixels = (0, 0);
@@ -112,8 +106,9 @@ pub fn render_ar(
             let centre = model_depth
                 [(intrinsics.height as usize / 2) * intrinsics.width as usize + intrinsics.width as usize / 2];
             let ahead = if centre > 0.0 { (centre - 2.0 * radius - 0.05).clamp(0.1, 0.4) } else { 0.4 };
-            let from = Vec3::from(world_from_camera.translation) + forward * ahead - options.up * (0.25 * ahead);
-            balls.push(scene.throw_ball(from, forward + options.up * 0.3, options.speed)?);
+            let up = scene.config().up;
+            let from = Vec3::from(world_from_camera.translation) + forward * ahead - up * (0.25 * ahead);
+            balls.push(scene.throw_ball(from, forward + up * 0.3, options.speed)?);
         }
         let mut color = frame.color;
         let camera_from_world = world_from_camera.inverse();

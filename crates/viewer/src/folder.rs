@@ -4,7 +4,6 @@
 
 use std::path::{Path, PathBuf};
 
-use glam::Vec3;
 use semrecon_data::{read_ply_with_gravity, LabeledMesh, MeshGravity, Trajectory};
 use semrecon_physics::{CollisionMesh, MaterialTable, SceneConfig};
 
@@ -97,11 +96,7 @@ impl ViewerFolder {
         dir: &Path,
         gravity: Option<MeshGravity>,
     ) -> Result<Self> {
-        let config = SceneConfig {
-            up: gravity.map_or(Vec3::Z, |g| g.up.normalize_or(Vec3::Z)),
-            floor_height: gravity.and_then(|g| g.floor_height),
-            ..SceneConfig::default()
-        };
+        let config = SceneConfig::default().with_gravity(gravity);
         let collision = CollisionMesh::build(&mesh, &config.collision)?;
         let labelled = !mesh.vertex_labels.is_empty() || !mesh.triangle_labels.is_empty();
         let mut notes = Vec::new();

@@ -59,8 +59,7 @@ pub fn run(args: ArArgs) -> anyhow::Result<()> {
         max_frames: args.frames,
         speed: args.speed,
         throw_every_s: args.every,
-        up: gravity.map_or(glam::Vec3::Z, |g| g.up),
-        floor_height: gravity.and_then(|g| g.floor_height),
+        gravity,
         ..Default::default()
     };
     let summary = render_ar(source.as_ref(), &mesh, materials, &args.out, &options)?;
