@@ -51,6 +51,7 @@ pub fn stages_json(times: &StageTimes) -> serde_json::Value {
                 "p95_ms": s.map_or(0.0, |s| s.p95_ms),
                 "max_ms": s.map_or(0.0, |s| s.max_ms),
                 "count": s.map_or(0, |s| s.count),
+                "total_ms": s.map_or(0.0, |s| s.total_ms),
             }),
         );
     }

@@ -116,6 +116,27 @@ fn segment_labels_every_vertex_and_keeps_everything_else() {
         PlyFile::read(&yup).expect("in").element("vertex").and_then(|v| v.property("y"))
     );
 
+    // A file that records its up direction (as the meshes of `run`, `live` and `demo` do) is
+    // turned by it without `--up`, as `--up X,Y,Z` turns one that does not; the output keeps
+    // the comment. A tilted up, as 7-Scenes' frame has.
+    let tilt = glam::Quat::from_rotation_arc(Vec3::Z, Vec3::new(0.1, 0.9, -0.4).normalize());
+    let tilted = dir.path().join("room_tilted.ply");
+    room_ply(&tilted, |p| tilt * p, true);
+    let up = tilt * Vec3::Z;
+    let mut recorded = PlyFile::read(&tilted).expect("tilted");
+    recorded.comments.push(format!("semrecon up {} {} {}", up.x, up.y, up.z));
+    let recorded_path = dir.path().join("room_recorded.ply");
+    recorded.write(&recorded_path, PlyEncoding::BinaryLittleEndian).expect("write");
+    let (out_given, out_recorded) = (dir.path().join("given.ply"), dir.path().join("recorded_out.ply"));
+    let up_arg = format!("{},{},{}", up.x, up.y, up.z);
+    let o = semrecon(&["segment", "--input", s(&tilted), "--out", s(&out_given), "--model", s(&model), "--up", &up_arg]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = semrecon(&["segment", "--input", s(&recorded_path), "--out", s(&out_recorded), "--model", s(&model)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("up: ") && stdout(&o).contains("recorded in"), "{}", stdout(&o));
+    assert_eq!(labels_of(&out_recorded), labels_of(&out_given));
+    let kept = PlyFile::read(&out_recorded).expect("out");
+    assert!(kept.comments.iter().any(|c| c.starts_with("semrecon up ")), "{:?}", kept.comments);
     // Running again on the output replaces the label in place.
     let again = dir.path().join("again.ply");
     let o = semrecon(&["segment", "--input", s(&out), "--out", s(&again), "--model", s(&model)]);

@@ -6,8 +6,11 @@
 //! The network sees voxels of coloured surface: for a mesh, the vertices alone can be far
 //! apart on large flat triangles, so the surface is also sampled densely (several points per
 //! voxel, as the training data is made) and every vertex takes the class of its voxel. Inputs
-//! are in metres with z up (the S3DIS and ScanNet convention); `--up` names another up axis,
-//! which is rotated onto z for the network only (the output keeps the input's coordinates).
+//! are in metres with z up (the S3DIS and ScanNet convention), unless the file records its
+//! up direction (`comment semrecon up X Y Z`: the meshes of `semrecon run`, `live` and `demo`,
+//! whose map frame is the dataset's or the first camera's); `--up` names another up axis or
+//! direction. The input is turned so that up is +z for the network only (the output keeps the
+//! input's coordinates and comments).
 //!
 //! `--structure` refines the network's voxel labels with the room's geometry (segment votes,
 //! floor and ceiling planes; `semrecon_net::structure`) and `--tta N` averages the network
@@ -44,9 +47,11 @@ pub struct SegmentArgs {
     /// the file stores one, the two must agree.
     #[arg(long)]
     config: Option<String>,
-    /// The input's up axis (x, y, z, -x, -y, -z); it is rotated onto +z for the network.
-    #[arg(long, default_value = "z", value_parser = parse_up, allow_hyphen_values = true)]
-    up: UpAxis,
+    /// The input's up axis (x, y, z, -x, -y, -z) or direction (x,y,z); it is turned onto +z
+    /// for the network. Default: the up direction the file records (meshes of `semrecon run`,
+    /// `live` and `demo`), else z.
+    #[arg(long, value_parser = parse_up, allow_hyphen_values = true)]
+    up: Option<Up>,
     #[command(flatten)]
     structure: StructureArgs,
     #[command(flatten)]
@@ -184,17 +189,54 @@ impl UpAxis {
     }
 }
 
-/// Parses `x|y|z|-x|-y|-z` (also `+x`, any case).
-pub fn parse_up(s: &str) -> Result<UpAxis, String> {
-    match s.trim().to_ascii_lowercase().as_str() {
-        "x" | "+x" => Ok(UpAxis::X),
-        "y" | "+y" => Ok(UpAxis::Y),
-        "z" | "+z" => Ok(UpAxis::Z),
-        "-x" => Ok(UpAxis::NegX),
-        "-y" => Ok(UpAxis::NegY),
-        "-z" => Ok(UpAxis::NegZ),
-        _ => Err(format!("`{s}`: expected one of x, y, z, -x, -y, -z")),
+/// Where an input's up points: one of its axes, or any direction (a scan's estimated
+/// gravity is seldom along an axis: 7-Scenes' is 25 degrees off its -y).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Up {
+    /// Along an axis (turned onto +z by a quarter or half turn).
+    Axis(UpAxis),
+    /// Along a unit direction (turned onto +z by the shortest rotation).
+    Direction(Vec3),
+}
+
+impl Up {
+    /// `p` turned so that this up becomes +z (a proper rotation: no mirroring).
+    pub fn to_z_up(self, p: Vec3) -> Vec3 {
+        match self {
+            Self::Axis(a) => a.to_z_up(p),
+            Self::Direction(d) => glam::Quat::from_rotation_arc(d, Vec3::Z) * p,
+        }
     }
+}
+
+impl std::fmt::Display for Up {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Axis(a) => write!(f, "{a:?} axis"),
+            Self::Direction(d) => write!(f, "{:.4},{:.4},{:.4}", d.x, d.y, d.z),
+        }
+    }
+}
+
+/// Parses `x|y|z|-x|-y|-z` (also `+x`, any case) or a direction `x,y,z` (not zero).
+pub fn parse_up(s: &str) -> Result<Up, String> {
+    let axis = match s.trim().to_ascii_lowercase().as_str() {
+        "x" | "+x" => Some(UpAxis::X),
+        "y" | "+y" => Some(UpAxis::Y),
+        "z" | "+z" => Some(UpAxis::Z),
+        "-x" => Some(UpAxis::NegX),
+        "-y" => Some(UpAxis::NegY),
+        "-z" => Some(UpAxis::NegZ),
+        _ => None,
+    };
+    if let Some(a) = axis {
+        return Ok(Up::Axis(a));
+    }
+    if !s.contains(',') {
+        return Err(format!("`{s}`: expected one of x, y, z, -x, -y, -z or a direction x,y,z"));
+    }
+    let v = crate::cli_values::parse_vec3(s)?;
+    v.try_normalize().map(Up::Direction).ok_or_else(|| format!("`{s}`: the up direction must not be zero"))
 }
 
 /// The network of `--model` (with `--config`), or the shipped one.
@@ -277,8 +319,18 @@ pub fn run(args: SegmentArgs) -> anyhow::Result<()> {
             args.input.display()
         );
     }
+    let up = match args.up {
+        Some(up) => up,
+        None => match semrecon_data::MeshGravity::of(&ply, &args.input)? {
+            Some(g) => {
+                println!("up: {} (recorded in {})", Up::Direction(g.up), args.input.display());
+                Up::Direction(g.up)
+            }
+            None => Up::Axis(UpAxis::Z),
+        },
+    };
     for p in &mut mesh.positions {
-        *p = args.up.to_z_up(*p);
+        *p = up.to_z_up(*p);
     }
     let t = Instant::now();
     let (labels, refinement, network_s, structure_s) = label_vertices(&mut net, &mesh, &args.structure)
@@ -349,13 +401,28 @@ mod tests {
         let cases =
             [("x", Vec3::X), ("y", Vec3::Y), ("z", Vec3::Z), ("-x", -Vec3::X), ("-y", -Vec3::Y), ("-Z", -Vec3::Z)];
         for (name, up) in cases {
-            let axis = parse_up(name).unwrap_or(UpAxis::Z);
+            let axis = parse_up(name).unwrap_or(Up::Axis(UpAxis::Z));
             assert!(axis.to_z_up(up).abs_diff_eq(Vec3::Z, 0.0), "{name}");
             // A rotation: the images of x, y, z form a right-handed frame.
             let (x, y, z) = (axis.to_z_up(Vec3::X), axis.to_z_up(Vec3::Y), axis.to_z_up(Vec3::Z));
             assert!(x.cross(y).abs_diff_eq(z, 0.0), "{name}");
         }
         assert!(parse_up("w").is_err());
+    }
+
+    #[test]
+    fn an_up_direction_turns_onto_z_without_mirroring() {
+        // 7-Scenes' gravity frame: up about 25 degrees off -y.
+        let up = Vec3::new(0.008874604, -0.9044256, -0.42653918).normalize();
+        let turn = parse_up("0.008874604,-0.9044256,-0.42653918").expect("a direction");
+        assert!(turn.to_z_up(up).abs_diff_eq(Vec3::Z, 1e-6));
+        let (x, y, z) = (turn.to_z_up(Vec3::X), turn.to_z_up(Vec3::Y), turn.to_z_up(Vec3::Z));
+        assert!(x.cross(y).abs_diff_eq(z, 1e-6));
+        // A direction along an axis is that axis' turn up to a yaw; z itself is no turn.
+        assert_eq!(parse_up("0,0,2").expect("a direction").to_z_up(Vec3::new(1.0, 2.0, 3.0)), Vec3::new(1.0, 2.0, 3.0));
+        for bad in ["0,0,0", "1,2", "a,b,c", "1,nan,0"] {
+            assert!(parse_up(bad).is_err(), "{bad}");
+        }
     }
 
     #[test]
