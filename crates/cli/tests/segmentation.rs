@@ -129,7 +129,8 @@ fn segment_labels_every_vertex_and_keeps_everything_else() {
     recorded.write(&recorded_path, PlyEncoding::BinaryLittleEndian).expect("write");
     let (out_given, out_recorded) = (dir.path().join("given.ply"), dir.path().join("recorded_out.ply"));
     let up_arg = format!("{},{},{}", up.x, up.y, up.z);
-    let o = semrecon(&["segment", "--input", s(&tilted), "--out", s(&out_given), "--model", s(&model), "--up", &up_arg]);
+    let o =
+        semrecon(&["segment", "--input", s(&tilted), "--out", s(&out_given), "--model", s(&model), "--up", &up_arg]);
     assert!(o.status.success(), "{}", stderr(&o));
     let o = semrecon(&["segment", "--input", s(&recorded_path), "--out", s(&out_recorded), "--model", s(&model)]);
     assert!(o.status.success(), "{}", stderr(&o));

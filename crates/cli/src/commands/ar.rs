@@ -2,7 +2,7 @@
 //! the camera bounce around the room (class materials) and are drawn over the RGB frames,
 //! hidden behind real geometry; PNG frames and an animated GIF.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::Context;
 use semrecon_data::datasets::{open_dataset, DatasetSpec};
@@ -14,7 +14,8 @@ use semrecon_viewer::folder::find_mesh;
 /// Arguments of `semrecon ar`.
 #[derive(clap::Args)]
 pub struct ArArgs {
-    /// Dataset with poses as KIND:PATH (7scenes:, tum:, redwood:, scannet:, replica:).
+    /// Dataset with poses as KIND:PATH (7scenes:, tum:, redwood:, scannet:, replica:), or its
+    /// folder (the kind read from its files).
     #[arg(long)]
     dataset: String,
     /// Output folder: frame-NNNNNN.png and ar.gif.
@@ -45,7 +46,7 @@ pub fn run(args: ArArgs) -> anyhow::Result<()> {
     let mesh_path = match &args.mesh {
         Some(p) => p.clone(),
         None => {
-            let dir = args.dataset.split_once(':').map(|(_, p)| Path::new(p)).context("--dataset must be KIND:PATH")?;
+            let dir = spec.path().context("a generated scene has no room mesh beside it: pass --mesh")?;
             find_mesh(dir).with_context(|| format!("no room mesh for {}: pass --mesh", args.dataset))?
         }
     };

@@ -7,7 +7,8 @@ use serde::Serialize;
 /// Arguments of `semrecon info`.
 #[derive(clap::Args)]
 pub struct InfoArgs {
-    /// Dataset as KIND:PATH (7scenes:, tum:, redwood:, scannet:, replica:, oni:FILE, bag:FILE, synth:SEED).
+    /// Dataset as KIND:PATH (7scenes:, tum:, redwood:, scannet:, replica:, oni:FILE, bag:FILE, synth:SEED),
+    /// or a dataset folder or recording (the kind read from its files).
     #[arg(long)]
     dataset: DatasetSpec,
     /// Print JSON instead of a table.

@@ -53,7 +53,7 @@ pub const MAX_CONSECUTIVE_FAILED_LOADS: usize = 30;
 #[derive(clap::Args)]
 pub struct RunArgs {
     /// Dataset as KIND:PATH (7scenes:, tum:, redwood:, scannet:, replica:, oni:FILE, bag:FILE),
-    /// or a generated scene: synth:SEED (one room, 10 s), synth-loop:SEED (two rooms, a 60 s
+    /// a dataset folder or recording (the kind read from its files), or a generated scene: synth:SEED (one room, 10 s), synth-loop:SEED (two rooms, a 60 s
     /// loop through both), synth-flat:SEED (five rooms, a 5 min walk through all); options
     /// after the seed: :noisy (uncalibrated sensor: tracking drifts by centimetres a minute),
     /// :SECONDSs (length), e.g. synth-loop:3:noisy, synth-flat:1:600s.

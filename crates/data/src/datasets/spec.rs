@@ -2,7 +2,8 @@
 //! `scannet:...`, `replica:...`, `oni:FILE`, `bag:FILE`, and the generated scenes `synth:SEED`,
 //! `synth-loop:SEED`, `synth-flat:SEED` with their options, see [`SyntheticSource`]) as typed
 //! on the command line, and the one function that opens any of them as a boxed
-//! [`FrameSource`].
+//! [`FrameSource`]. A bare path (no kind) is read by the kind its files show (see
+//! [`DatasetSpec::detect`]): the layouts differ enough that a user should not have to name it.
 
 use std::fmt;
 use std::path::PathBuf;
@@ -43,10 +44,16 @@ impl FromStr for DatasetSpec {
     type Err = DataError;
 
     fn from_str(s: &str) -> Result<Self> {
-        let Some((kind, rest)) = s.split_once(':') else {
+        let Some((kind, rest)) = s.split_once(':').filter(|(kind, _)| is_kind(kind)) else {
+            if std::path::Path::new(s).exists() {
+                return Self::detect(s);
+            }
+            if let Some((kind, _)) = s.split_once(':') {
+                return Err(DataError::dataset(s, format!("unknown dataset kind `{kind}`; expected one of {KINDS}")));
+            }
             return Err(DataError::dataset(
                 s,
-                format!("not a KIND:PATH dataset specification; expected one of {KINDS}"),
+                format!("no such file or folder, and not a KIND:PATH dataset specification; expected a dataset folder or one of {KINDS}"),
             ));
         };
         if rest.is_empty() {
@@ -77,6 +84,101 @@ impl FromStr for DatasetSpec {
                 }
             },
         })
+    }
+}
+
+/// The reader kinds a specification may start with (the part before the first `:`).
+fn is_kind(kind: &str) -> bool {
+    matches!(
+        kind.to_ascii_lowercase().as_str(),
+        "7scenes"
+            | "tum"
+            | "tum-fr1"
+            | "tum-fr2"
+            | "tum-fr3"
+            | "tum-default"
+            | "redwood"
+            | "scannet"
+            | "replica"
+            | "oni"
+            | "bag"
+    ) || SyntheticScene::from_kind(&kind.to_ascii_lowercase()).is_some()
+}
+
+impl DatasetSpec {
+    /// The folder or file of a recorded dataset (`None` for a generated scene).
+    pub fn path(&self) -> Option<&std::path::Path> {
+        match self {
+            Self::SevenScenes(p)
+            | Self::Tum(p, _)
+            | Self::Redwood(p)
+            | Self::ScanNet(p)
+            | Self::Replica(p)
+            | Self::Oni(p)
+            | Self::Bag(p) => Some(p),
+            Self::Synth(_) => None,
+        }
+    }
+
+    /// The reader for an existing file or folder `path` given without a kind, from what it
+    /// holds: `.oni` and `.bag` files by their extension; folders with `rgb.txt` and
+    /// `depth.txt` (TUM), `results/` and `traj.txt` in them or in one sub-folder (Replica),
+    /// `color/`, `depth/`, `pose/` and `intrinsic/` (ScanNet), `color/` and `depth/`
+    /// (Redwood / Open3D), or `frame-N.depth.png` files (7-Scenes, SUN3D). The TUM camera
+    /// then comes from the folder's name, as with `tum:`.
+    ///
+    /// # Errors
+    /// A path that matches none of them: the error lists what was looked for and says to
+    /// name the kind.
+    pub fn detect(path: impl AsRef<std::path::Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let p = path.to_path_buf();
+        if path.is_file() {
+            let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+            return match ext.as_deref() {
+                Some("oni") => Ok(Self::Oni(p)),
+                Some("bag") => Ok(Self::Bag(p)),
+                _ => Err(DataError::dataset(
+                    path,
+                    format!(
+                        "a file that is not an .oni or .bag recording; expected a dataset folder or one of {KINDS}"
+                    ),
+                )),
+            };
+        }
+        let has = |name: &str| path.join(name).exists();
+        let is_replica = |dir: &std::path::Path| dir.join("results").is_dir() && dir.join("traj.txt").is_file();
+        if has("rgb.txt") && has("depth.txt") {
+            return Ok(Self::Tum(p, None));
+        }
+        if has("color") && has("depth") && has("pose") && has("intrinsic") {
+            return Ok(Self::ScanNet(p));
+        }
+        if has("color") && has("depth") {
+            return Ok(Self::Redwood(p));
+        }
+        let entries: Vec<std::fs::DirEntry> = match std::fs::read_dir(path) {
+            Ok(entries) => entries.filter_map(std::result::Result::ok).collect(),
+            Err(e) => return Err(DataError::io(path, e)),
+        };
+        if is_replica(path) || entries.iter().any(|e| is_replica(&e.path())) {
+            return Ok(Self::Replica(p));
+        }
+        let frame_files = entries.iter().any(|e| {
+            let name = e.file_name();
+            let name = name.to_string_lossy();
+            name.starts_with("frame-") && name.ends_with(".depth.png")
+        });
+        if frame_files {
+            return Ok(Self::SevenScenes(p));
+        }
+        Err(DataError::dataset(
+            path,
+            format!(
+                "cannot tell the dataset kind from the folder's files (looked for rgb.txt + depth.txt, results/ + traj.txt, \
+                 color/ + depth/, frame-N.depth.png); name it: one of {KINDS}"
+            ),
+        ))
     }
 }
 
@@ -148,7 +250,7 @@ mod tests {
 
     #[test]
     fn bad_specs_list_the_kinds() {
-        for s in ["kinect:/x", "/just/a/path", "tum:", "synth:-1", "synth-flat:2:loud", "synth-loop:x"] {
+        for s in ["kinect:/x", "/just/a/path", "tum:", "synth:-1", "synth-flat:2:loud", "synth-loop:x", "C:/no/such"] {
             let e = s.parse::<DatasetSpec>().expect_err(s).to_string();
             assert!(e.contains(s), "{e}");
         }
@@ -157,6 +259,46 @@ mod tests {
             e.contains("unknown dataset kind `kinect`") && e.contains("7scenes:PATH") && e.contains("synth:SEED"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn a_bare_path_is_read_by_the_kind_its_files_show() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let make = |name: &str, files: &[&str], dirs: &[&str]| {
+            let d = dir.path().join(name);
+            std::fs::create_dir_all(&d).expect("mkdir");
+            for sub in dirs {
+                std::fs::create_dir_all(d.join(sub)).expect("mkdir");
+            }
+            for f in files {
+                std::fs::write(d.join(f), b"").expect("write");
+            }
+            d
+        };
+        let parse = |p: &std::path::Path| p.to_string_lossy().parse::<DatasetSpec>();
+        let tum = make("rgbd_dataset_freiburg2_desk", &["rgb.txt", "depth.txt"], &["rgb", "depth"]);
+        assert_eq!(parse(&tum).ok(), Some(DatasetSpec::Tum(tum.clone(), None)));
+        let scannet = make("scene0001_00", &[], &["color", "depth", "pose", "intrinsic"]);
+        assert_eq!(parse(&scannet).ok(), Some(DatasetSpec::ScanNet(scannet.clone())));
+        let redwood = make("living_room", &["trajectory.log"], &["color", "depth"]);
+        assert_eq!(parse(&redwood).ok(), Some(DatasetSpec::Redwood(redwood.clone())));
+        let replica = make("replica/office0", &["traj.txt"], &["results"]);
+        assert_eq!(parse(&replica).ok(), Some(DatasetSpec::Replica(replica.clone())));
+        let parent = dir.path().join("replica");
+        assert_eq!(parse(&parent).ok(), Some(DatasetSpec::Replica(parent.clone())));
+        let seven = make("redkitchen", &["frame-000000.depth.png", "frame-000000.color.png"], &[]);
+        assert_eq!(parse(&seven).ok(), Some(DatasetSpec::SevenScenes(seven.clone())));
+        let oni = dir.path().join("take.ONI");
+        std::fs::write(&oni, b"").expect("write");
+        assert_eq!(parse(&oni).ok(), Some(DatasetSpec::Oni(oni.clone())));
+        // Nothing recognisable: the error names the folder and says to name the kind.
+        let other = make("holiday_photos", &["a.jpg"], &[]);
+        let e = parse(&other).expect_err("unknown layout").to_string();
+        assert!(e.contains("holiday_photos") && e.contains("name it") && e.contains("7scenes:PATH"), "{e}");
+        let e = parse(&other.join("a.jpg")).expect_err("a photo").to_string();
+        assert!(e.contains("a.jpg") && e.contains(".oni"), "{e}");
+        // A kind still wins over a path that happens to exist.
+        assert_eq!(format!("redwood:{}", tum.display()).parse::<DatasetSpec>().ok(), Some(DatasetSpec::Redwood(tum)));
     }
 
     #[test]
