@@ -101,7 +101,7 @@ impl SemanticClass {
             Self::Door => [160, 60, 200],
             Self::Chair => [230, 40, 40],
             Self::Table => [40, 160, 60],
-            Self::Bookcase => [120, 70, 30],
+            Self::Bookcase => [0, 130, 130],
             Self::Sofa => [240, 100, 170],
             Self::Board => [30, 60, 200],
             Self::Clutter => [90, 90, 90],
