@@ -219,6 +219,9 @@ pub struct LoopRecord {
     pub correction_m: f64,
     /// See `correction_m`.
     pub correction_deg: f64,
+    /// Feature matches that started the alignment when the candidate came from appearance
+    /// features (drift beyond the pose-based search); 0 for a pose-based candidate.
+    pub feature_inliers: usize,
     /// The edge's chi-square at the poses before optimisation (accepted loops).
     pub chi2_before: Option<f64>,
     /// Its graph edge (accepted loops), to follow rejections by the optimiser.
@@ -568,6 +571,7 @@ impl LoopClosure {
                 residual_m: v.residual_rms,
                 correction_m: v.correction.0,
                 correction_deg: v.correction.1.to_degrees(),
+                feature_inliers: v.feature_inliers,
                 chi2_before: None,
                 edge: None,
             };

@@ -99,6 +99,26 @@ pub(crate) fn symmetric_eigen<const N: usize>(a: &[[f64; N]; N]) -> ([f64; N], [
     (values, vectors)
 }
 
+/// The rotation `R` that best maps centred points `a` onto centred points `b` (minimising
+/// `sum |R a - b|^2`), from their cross-covariance `s = sum a b^T`: Horn's closed form, the
+/// unit quaternion of the largest eigenvalue of his 4x4 matrix. Row-major.
+pub(crate) fn horn_rotation(s: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    let [[sxx, sxy, sxz], [syx, syy, syz], [szx, szy, szz]] = *s;
+    let nm = [
+        [sxx + syy + szz, syz - szy, szx - sxz, sxy - syx],
+        [syz - szy, sxx - syy - szz, sxy + syx, szx + sxz],
+        [szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy],
+        [sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz],
+    ];
+    let (_, vecs) = symmetric_eigen(&nm);
+    let [w, x, y, z] = vecs[3];
+    [
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
+        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

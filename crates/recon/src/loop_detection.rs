@@ -23,11 +23,16 @@
 //!    ([`LoopConfig::basin_shift`]: a view pair whose cost is flat in some direction ends
 //!    wherever it starts along it, and would hand the graph the error of its start).
 //!
+//! 3. **Features**, when no pose-based candidate is accepted: the
+//!    [`LoopConfig::feature_candidates`] keyframes most alike in appearance, wherever their
+//!    poses are, are aligned by their corners' BRIEF descriptors and 3D points (RANSAC,
+//!    `features.rs`), and verified from that alignment as above. This reaches drift beyond
+//!    the search radius and the ICP's basin (35 cm on TUM fr2/desk: 10 of 10 views found);
+//!    its correction is bounded by [`LoopConfig::feature_max_correction`] (1 m).
+//!
 //! Repeated structure (twin rooms, identical chairs) fools appearance, not position: two
-//! places metres apart are never candidates, and a candidate whose views match only after
-//! a jump beyond the correction bound is rejected. Large drift (beyond the search radius)
-//! is therefore not closed; feature matching with RANSAC for that case is future work
-//! (docs/loop_closure.md).
+//! places metres apart are never pose-based candidates, and a loop whose views match only
+//! after a jump beyond the correction bound (the pose-based or the feature one) is rejected.
 //!
 //! Everything is sequential and in fixed order: the verdicts are deterministic.
 
@@ -92,6 +97,14 @@ pub struct LoopConfig {
     pub basin_shift: f32,
     /// See `basin_shift`, metres.
     pub basin_tolerance: f32,
+    /// When no pose-based candidate is accepted: this many earlier keyframes, the most alike
+    /// in appearance whatever their poses say, are aligned by their features first
+    /// ([`features`]: BRIEF matches and RANSAC), then verified like the others. Reaches
+    /// drift beyond `search_radius` and the ICP's basin. 0: off.
+    pub feature_candidates: usize,
+    /// Largest drift a feature-found loop may correct (metres, radians): its alignment
+    /// against the current poses' prediction. Twin places metres apart stay apart.
+    pub feature_max_correction: (f32, f32),
 }
 
 impl Default for LoopConfig {
@@ -111,6 +124,8 @@ impl Default for LoopConfig {
             max_correction: (0.3, 12f32.to_radians()),
             basin_shift: 0.02,
             basin_tolerance: 0.004,
+            feature_candidates: 3,
+            feature_max_correction: (1.0, 35f32.to_radians()),
         }
     }
 }
@@ -156,6 +171,9 @@ pub struct LoopVerdict {
     pub correction: (f64, f64),
     /// Thumbnail distance (smaller is more alike).
     pub appearance: f32,
+    /// Feature matches that agreed with the alignment's start when the candidate came from
+    /// features ([`LoopConfig::feature_candidates`]); 0 for a pose-based candidate.
+    pub feature_inliers: usize,
     /// The alignment's Gauss-Newton Hessian `JᵀJ` (Huber-weighted) at the final pose, finest
     /// level: left perturbation `(δt, δφ)` of `old_from_new` in the old keyframe's frame, per
     /// square metre of residual ([`crate::pose_graph::alignment_information`] makes an edge's
@@ -185,6 +203,8 @@ struct CloudLevel {
 struct KeyframeCloud {
     frame_index: usize,
     thumbnail: Thumbnail,
+    /// Corners with descriptors and 3D points, for loops beyond the pose-based search.
+    features: features::Features,
     /// Fine (160x120) then coarse (80x60).
     levels: [CloudLevel; 2],
 }
@@ -227,6 +247,11 @@ impl LoopDetector {
         self.keyframes.push(KeyframeCloud {
             frame_index: frame.index,
             thumbnail: Thumbnail::of(frame, glam::Affine3A::IDENTITY),
+            features: if self.config.feature_candidates > 0 {
+                features::Features::of(frame)
+            } else {
+                Default::default()
+            },
             levels: [fine, coarse],
         });
         self.keyframes.len() - 1
@@ -272,6 +297,60 @@ impl LoopDetector {
                 verdicts.push(v);
             }
         }
+        if c.feature_candidates > 0 && !verdicts.iter().any(LoopVerdict::accepted) {
+            verdicts.extend(self.detect_by_features(new, poses, last));
+        }
+        verdicts
+    }
+
+    /// The feature path of [`Self::detect`]: the `feature_candidates` keyframes up to
+    /// `last` most alike in appearance, wherever their poses are (the pose-based candidates
+    /// again too: their ICP may have failed only for its start), each aligned by its features
+    /// and, when RANSAC finds a motion, verified from it; stops at the first accepted. Their
+    /// verdicts' `correction` is the alignment's distance from the poses' prediction.
+    fn detect_by_features(&self, new: usize, poses: &[DAffine3], last: usize) -> Vec<LoopVerdict> {
+        let c = &self.config;
+        let query = &self.keyframes[new];
+        if query.features.points.len() < features::MIN_INLIERS {
+            return Vec::new();
+        }
+        let mut scored: Vec<(f32, usize)> = (0..=last)
+            .filter_map(|old| Some((query.thumbnail.distance(&self.keyframes.get(old)?.thumbnail)?, old)))
+            .collect();
+        scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut verdicts = Vec::new();
+        let mut chosen: Vec<usize> = Vec::new();
+        for (appearance, old) in scored {
+            if chosen.len() >= c.feature_candidates {
+                break;
+            }
+            if chosen.iter().any(|&o| o.abs_diff(old) < c.min_candidate_spacing) {
+                continue;
+            }
+            chosen.push(old);
+            let kf = &self.keyframes[old];
+            let matches = features::match_features(&query.features, &kf.features);
+            let seed = (old as u64) << 32 | new as u64;
+            let Some(found) = features::ransac(&query.features, &kf.features, &matches, seed) else { continue };
+            let Some(mut v) = self.verify_with_bound(old, new, found.old_from_new, (f32::INFINITY, f32::INFINITY))
+            else {
+                continue;
+            };
+            v.appearance = appearance;
+            v.feature_inliers = found.inliers;
+            // The drift this loop corrects: its alignment against the poses' prediction.
+            let predicted = poses[old].inverse() * poses[new];
+            v.correction = pose_distance(&predicted, &v.old_from_new);
+            let bound = c.feature_max_correction;
+            if v.accepted() && !(v.correction.0 <= bound.0 as f64 && v.correction.1 <= bound.1 as f64) {
+                v.rejection = Some(LoopRejection::LargeCorrection);
+            }
+            let accepted = v.accepted();
+            verdicts.push(v);
+            if accepted {
+                break;
+            }
+        }
         verdicts
     }
 
@@ -279,6 +358,17 @@ impl LoopDetector {
     /// judges the result; `None` when either keyframe is missing or the prediction is not
     /// finite.
     pub fn verify(&self, old: usize, new: usize, prediction: DAffine3) -> Option<LoopVerdict> {
+        self.verify_with_bound(old, new, prediction, self.config.max_correction)
+    }
+
+    /// [`Self::verify`] with `max_correction` for the bound on the alignment's move.
+    fn verify_with_bound(
+        &self,
+        old: usize,
+        new: usize,
+        prediction: DAffine3,
+        max_correction: (f32, f32),
+    ) -> Option<LoopVerdict> {
         let c = &self.config;
         let (src, dst) = (self.keyframes.get(new)?, self.keyframes.get(old)?);
         if !prediction.is_finite() {
@@ -299,7 +389,7 @@ impl LoopDetector {
             Some(LoopRejection::LargeResidual)
         } else if !(conditioning(&stats.h, c.min_condition).0 >= c.min_condition) {
             Some(LoopRejection::Degenerate)
-        } else if !(correction.0 <= c.max_correction.0 as f64 && correction.1 <= c.max_correction.1 as f64) {
+        } else if !(correction.0 <= max_correction.0 as f64 && correction.1 <= max_correction.1 as f64) {
             Some(LoopRejection::LargeCorrection)
         } else if c.basin_shift > 0.0 && !self.pinned_down(src, dst, &estimate, &stats.h) {
             Some(LoopRejection::Ambiguous)
@@ -317,6 +407,7 @@ impl LoopDetector {
             residual_rms,
             correction,
             appearance: 0.0,
+            feature_inliers: 0,
             hessian: stats.h,
         })
     }
@@ -578,5 +669,6 @@ fn level_from_depth(k: Intrinsics, depth: &[f32]) -> CloudLevel {
     CloudLevel { k, vertices, normals }
 }
 
+mod features;
 #[cfg(test)]
 mod tests;

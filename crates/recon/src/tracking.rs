@@ -827,21 +827,7 @@ pub fn ate_rmse(estimated: &[Vec3], reference: &[Vec3]) -> Option<f64> {
             }
         }
     }
-    let [[sxx, sxy, sxz], [syx, syy, syz], [szx, szy, szz]] = s;
-    let nm = [
-        [sxx + syy + szz, syz - szy, szx - sxz, sxy - syx],
-        [syz - szy, sxx - syy - szz, sxy + syx, szx + sxz],
-        [szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy],
-        [sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz],
-    ];
-    let (_, vecs) = symmetric_eigen(&nm);
-    let [w, x, y, z] = vecs[3];
-    // Rotation matrix of the unit quaternion (w, x, y, z), f64.
-    let r = [
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
-    ];
+    let r = crate::linalg::horn_rotation(&s);
     let mut sum = 0.0;
     for (e, rf) in estimated.iter().zip(reference) {
         let a = [e.x as f64 - ce[0], e.y as f64 - ce[1], e.z as f64 - ce[2]];

@@ -89,6 +89,15 @@ fn more_drifting_loops() {
 /// Runs the scan with loop closure configured by `lc_config`; returns the final mesh's vertex
 /// bits and each re-integration's (start, swap) frames.
 fn close_a_drifting_loop(seed: u64, lc_config: LoopClosureConfig) -> (Vec<[u32; 3]>, Vec<(usize, usize)>) {
+    close_a_drifting_loop_scaled(seed, lc_config, 1.0)
+}
+
+/// [`close_a_drifting_loop`] with the injected drift times `scale`.
+fn close_a_drifting_loop_scaled(
+    seed: u64,
+    lc_config: LoopClosureConfig,
+    scale: f32,
+) -> (Vec<[u32; 3]>, Vec<(usize, usize)>) {
     let mut config = SyntheticScanConfig::new(seed);
     config.frames = 300;
     config.intrinsics = config.intrinsics.scaled(320, 240);
@@ -109,7 +118,7 @@ fn close_a_drifting_loop(seed: u64, lc_config: LoopClosureConfig) -> (Vec<[u32; 
         .iter()
         .enumerate()
         .map(|(i, p)| {
-            let k = i as f32;
+            let k = i as f32 * scale;
             let drift = Affine3A::from_translation(origin + Vec3::new(0.00025, -0.0002, 0.0001) * k)
                 * Affine3A::from_quat(Quat::from_rotation_z(0.0001 * k))
                 * Affine3A::from_translation(-origin);
