@@ -497,6 +497,7 @@ pub fn loop_closure_json(pipeline: &Pipeline, gt: Option<&Trajectory>) -> serde_
         "corrections": report.corrections,
         "reintegrations": report.reintegrations,
         "skipped_reintegrations": report.skipped_reintegrations,
+        "odometry_scale": report.odometry_scale,
         "ate_rmse_before_m": ate(before),
         "ate_rmse_after_m": ate(pipeline.trajectory()),
         "trajectory_before": rows(before),

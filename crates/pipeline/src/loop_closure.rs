@@ -292,6 +292,9 @@ pub struct LoopClosureReport {
     /// Times the map was due to follow a correction that moved no chunk by more than
     /// [`LoopClosureConfig::min_chunk_move_voxels`] (nothing re-fused).
     pub skipped_reintegrations: usize,
+    /// How many times the configured `odometry_sigma` the odometry's standard deviations
+    /// ended at: above 1 when refused loops agreed once the odometry was trusted less.
+    pub odometry_scale: f64,
 }
 
 /// A fused frame kept for re-integration.
@@ -333,6 +336,10 @@ pub(crate) struct PoseUpdate {
     pub record: CorrectionRecord,
 }
 
+/// Largest factor on the configured odometry standard deviations that agreeing loops may
+/// bring (5 mm a keyframe becomes at most 4 cm).
+const MAX_ODOMETRY_SCALE: f64 = 8.0;
+
 /// The loop-closure state of a pipeline. See the module documentation.
 pub(crate) struct LoopClosure {
     config: LoopClosureConfig,
@@ -351,6 +358,10 @@ pub(crate) struct LoopClosure {
     keyframes_since_follow: usize,
     /// The re-integration in progress, spread over keyframes.
     shadow: Option<Shadow>,
+    /// How many times `odometry_sigma` the odometry's standard deviations are, after loops
+    /// showed the scan drifting more than the configured noise allows (see
+    /// `retry_with_looser_odometry`); 1 at the start.
+    odometry_scale: f64,
     /// Chunks selected by the frames fused live, and those frames: the mean is what a frame
     /// costs, the unit of the per-keyframe budget.
     live_chunks: usize,
@@ -378,11 +389,12 @@ impl LoopClosure {
         Self {
             detector: LoopDetector::new(config.detector),
             graph: PoseGraph::new(),
+            odometry_scale: 1.0,
             node_frames: Vec::new(),
             intrinsics,
             frames: Vec::new(),
             store_bytes: 0,
-            report: LoopClosureReport { enabled: true, ..LoopClosureReport::default() },
+            report: LoopClosureReport { enabled: true, odometry_scale: 1.0, ..LoopClosureReport::default() },
             tracked: Trajectory::default(),
             behind: false,
             keyframes_since_follow: 0,
@@ -488,6 +500,7 @@ impl LoopClosure {
             let weakest = self.weakest_tracking.take();
             if let Some(z) = odometry {
                 let (st, sr) = self.config.odometry_sigma;
+                let (st, sr) = (st * self.odometry_scale, sr * self.odometry_scale);
                 // The weakest frame's form, carried from its camera frame to the keyframe's.
                 let shaped = weakest
                     .filter(|_| self.config.odometry_information_from_tracking)
@@ -623,6 +636,11 @@ impl LoopClosure {
                 return None;
             }
         };
+        let report = if added.iter().any(|&e| self.graph.is_rejected(e)) {
+            self.retry_with_looser_odometry().unwrap_or(report)
+        } else {
+            report
+        };
         let moved = before.iter().zip(self.graph.poses()).any(|(a, b)| moved_by(a, b) > self.config.min_move);
         if !moved {
             return None;
@@ -647,6 +665,41 @@ impl LoopClosure {
                 optimise_ms,
             },
         })
+    }
+
+    /// When the optimiser refused loops: whether they agree with each other and with every
+    /// accepted loop once the odometry is trusted less (its standard deviations 2, then 4
+    /// times larger, up to [`MAX_ODOMETRY_SCALE`] times the configured ones). A tracker that
+    /// drifts centimetres between keyframes makes true loops look like outliers against the
+    /// configured millimetres; two or more loops (from different keyframe pairs) that all fit
+    /// once the odometry is looser are evidence of that drift, not of wrong loops, while a
+    /// lone loop stays refused. On success the graph keeps the looser odometry (for the edges
+    /// to come too) and its optimised poses; otherwise nothing changes.
+    fn retry_with_looser_odometry(&mut self) -> Option<semrecon_recon::pose_graph::OptimisationReport> {
+        let is_loop = |g: &PoseGraph, i: usize| g.edges()[i].kind == EdgeKind::Loop;
+        let refused: Vec<usize> =
+            (0..self.graph.edges().len()).filter(|&i| is_loop(&self.graph, i) && self.graph.is_rejected(i)).collect();
+        if refused.len() < 2 {
+            return None;
+        }
+        for k in [2.0, 4.0] {
+            if self.odometry_scale * k > MAX_ODOMETRY_SCALE {
+                break;
+            }
+            let mut g = self.graph.clone();
+            g.scale_information(EdgeKind::Odometry, 1.0 / (k * k));
+            for &e in &refused {
+                g.restore(e);
+            }
+            let Ok(report) = g.optimise(&self.config.graph) else { continue };
+            if (0..g.edges().len()).all(|i| !(is_loop(&g, i) && g.is_rejected(i))) {
+                self.graph = g;
+                self.odometry_scale *= k;
+                self.report.odometry_scale = self.odometry_scale;
+                return Some(report);
+            }
+        }
+        None
     }
 
     /// Records a correction adopted by the trajectory; the map is then behind it.

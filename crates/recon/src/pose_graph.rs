@@ -345,6 +345,25 @@ impl PoseGraph {
         }
     }
 
+    /// Puts edge `i` back into the optimisation (a rejection later evidence overturns).
+    pub fn restore(&mut self, i: usize) {
+        if let Some(r) = self.rejected.get_mut(i) {
+            *r = false;
+        }
+    }
+
+    /// Multiplies the information of every edge of `kind` by `factor` (positive): a noise
+    /// model found too confident for the data.
+    pub fn scale_information(&mut self, kind: EdgeKind, factor: f64) {
+        for e in self.edges.iter_mut().filter(|e| e.kind == kind) {
+            for row in e.information.iter_mut() {
+                for v in row.iter_mut() {
+                    *v *= factor;
+                }
+            }
+        }
+    }
+
     /// Chi-square `eᵀ Ω e` of edge `i` at the current poses.
     pub fn edge_chi2(&self, i: usize) -> Option<f64> {
         let e = self.edges.get(i)?;

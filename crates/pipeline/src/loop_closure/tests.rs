@@ -76,6 +76,30 @@ fn the_shadow_swaps_at_the_same_keyframe_for_any_thread_count() {
     }
 }
 
+/// Four times the drift (30 cm and 6.8 degrees by the end, 1 cm a keyframe where the
+/// odometry's noise model says 5 mm), in a furnished room (textured furniture: the generated
+/// rooms' flat colours give too few corners for features); skipped without the furniture
+/// package. The pose-based search cannot reach it and the loop ICP's basin is centimetres:
+/// the loops come from features, the optimiser first refuses them against the too confident
+/// odometry, then takes them all once a looser odometry fits every loop.
+#[test]
+fn a_large_drift_in_a_furnished_room() {
+    let library = match semrecon_data::library::FurnitureLibrary::open_default() {
+        Ok(l) => l,
+        Err(e) => {
+            eprintln!("skipped: {e}");
+            return;
+        }
+    };
+    let room = semrecon_data::library::rooms::generate_library_room_detailed(
+        &semrecon_data::library::rooms::LibraryRoomConfig::new(1),
+        &library,
+    )
+    .expect("room")
+    .room;
+    close_a_drifting_loop_in(1, LoopClosureConfig::default(), 4.0, Some(room));
+}
+
 /// The same on more scans (about 25 s each): `cargo test --release -p semrecon-pipeline --lib
 /// more_drifting_loops -- --ignored --nocapture` (numbers in docs/loop_closure.md).
 #[test]
@@ -89,19 +113,24 @@ fn more_drifting_loops() {
 /// Runs the scan with loop closure configured by `lc_config`; returns the final mesh's vertex
 /// bits and each re-integration's (start, swap) frames.
 fn close_a_drifting_loop(seed: u64, lc_config: LoopClosureConfig) -> (Vec<[u32; 3]>, Vec<(usize, usize)>) {
-    close_a_drifting_loop_scaled(seed, lc_config, 1.0)
+    close_a_drifting_loop_in(seed, lc_config, 1.0, None)
 }
 
-/// [`close_a_drifting_loop`] with the injected drift times `scale`.
-fn close_a_drifting_loop_scaled(
+/// [`close_a_drifting_loop`] with the injected drift times `scale`, in `room` (the generated
+/// room of `seed` when `None`).
+fn close_a_drifting_loop_in(
     seed: u64,
     lc_config: LoopClosureConfig,
     scale: f32,
+    room: Option<semrecon_data::synth::SyntheticRoom>,
 ) -> (Vec<[u32; 3]>, Vec<(usize, usize)>) {
     let mut config = SyntheticScanConfig::new(seed);
     config.frames = 300;
     config.intrinsics = config.intrinsics.scaled(320, 240);
-    let (room, scan) = synthetic_scan(&config).expect("scan");
+    let (room, scan) = match room {
+        Some(room) => semrecon_data::datasets::synthetic_scan_of(room, &config).expect("scan"),
+        None => synthetic_scan(&config).expect("scan"),
+    };
     // Drift growing along the scan: 0.25 mm and 0.006 degrees per frame (7.5 cm and 1.7
     // degrees by the end), about the first camera.
     let frames: Vec<Frame> = (0..scan.len())

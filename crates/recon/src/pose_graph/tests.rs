@@ -277,3 +277,24 @@ fn the_block_order_is_a_permutation_and_narrows_a_revisited_ring() {
     let band = pattern.iter().map(|&(r, c)| order[r].abs_diff(order[c])).max().unwrap_or(0);
     assert!(band <= 6, "bandwidth {band}");
 }
+
+#[test]
+fn restored_edges_and_scaled_information_change_what_the_optimiser_sees() {
+    let truth = ring(20);
+    let mut g = drifting_graph(&truth, 3);
+    let e = g.add_edge(loop_edge(&truth, 19, 0, DAffine3::IDENTITY)).expect("valid");
+    let odometry = (0..g.edges().len()).find(|&i| g.edges()[i].kind == EdgeKind::Odometry).expect("odometry");
+    let before = g.edge_chi2(odometry).expect("edge");
+    // A quarter of the information: a quarter of the chi-square, and only odometry's.
+    let loop_before = g.edge_chi2(e).expect("edge");
+    g.scale_information(EdgeKind::Odometry, 0.25);
+    assert!((g.edge_chi2(odometry).expect("edge") - 0.25 * before).abs() <= 1e-12 * before.max(1.0));
+    assert_eq!(g.edge_chi2(e), Some(loop_before));
+    g.reject(e);
+    assert!(g.is_rejected(e));
+    g.restore(e);
+    assert!(!g.is_rejected(e));
+    // Out-of-range indices are ignored, not a panic.
+    g.restore(999);
+    assert!(!g.is_rejected(999));
+}
