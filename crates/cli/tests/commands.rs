@@ -83,6 +83,12 @@ fn synth_writes_a_dataset_that_reads_back_and_a_mesh_that_renders() {
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("json");
     assert_eq!((v["frames"].as_u64(), v["width"].as_u64(), v["height"].as_u64()), (Some(3), Some(64), Some(48)));
     assert_eq!(v["has_gt"], true);
+    // The folder alone, without a kind or --dataset: read as what its files show.
+    let o = semrecon(&["info", out_s, "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let bare: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("json");
+    assert_eq!(bare["frames"], v["frames"]);
+    assert!(bare["dataset"].as_str().is_some_and(|d| d.starts_with("7scenes:")), "{bare}");
 
     let png = dir.path().join("room.png");
     let o = semrecon(&[

@@ -9,8 +9,11 @@ use serde::Serialize;
 pub struct InfoArgs {
     /// Dataset as KIND:PATH (7scenes:, tum:, redwood:, scannet:, replica:, oni:FILE, bag:FILE, synth:SEED),
     /// or a dataset folder or recording (the kind read from its files).
-    #[arg(long)]
-    dataset: DatasetSpec,
+    #[arg(long, required_unless_present = "dataset_positional", conflicts_with = "dataset_positional")]
+    dataset: Option<DatasetSpec>,
+    /// The same, given without `--dataset` (`semrecon info ../shared/data/tum-fr2-desk-50`).
+    #[arg(value_name = "DATASET")]
+    dataset_positional: Option<DatasetSpec>,
     /// Print JSON instead of a table.
     #[arg(long)]
     json: bool,
@@ -39,7 +42,11 @@ struct Info {
 
 /// Runs the command.
 pub fn run(args: InfoArgs) -> anyhow::Result<()> {
-    let source = open_dataset(&args.dataset).with_context(|| format!("opening {}", args.dataset))?;
+    let spec = args
+        .dataset
+        .or(args.dataset_positional)
+        .context("name a dataset: semrecon info DATASET (or --dataset DATASET)")?;
+    let source = open_dataset(&spec).with_context(|| format!("opening {spec}"))?;
     let k = source.intrinsics();
     let mut range: Option<(f32, f32)> = None;
     let n = source.len();
