@@ -280,17 +280,8 @@ impl LoopDetector {
                 scored.push((d, old));
             }
         }
-        scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let mut chosen: Vec<usize> = Vec::new();
         let mut verdicts = Vec::new();
-        for (appearance, old) in scored {
-            if chosen.len() >= c.candidates {
-                break;
-            }
-            if chosen.iter().any(|&o| o.abs_diff(old) < c.min_candidate_spacing) {
-                continue;
-            }
-            chosen.push(old);
+        for (appearance, old) in self.best_spaced(scored, c.candidates) {
             let prediction = poses[old].inverse() * *pose_new;
             if let Some(mut v) = self.verify(old, new, prediction) {
                 v.appearance = appearance;
@@ -314,20 +305,11 @@ impl LoopDetector {
         if query.features.points.len() < features::MIN_INLIERS {
             return Vec::new();
         }
-        let mut scored: Vec<(f32, usize)> = (0..=last)
+        let scored: Vec<(f32, usize)> = (0..=last)
             .filter_map(|old| Some((query.thumbnail.distance(&self.keyframes.get(old)?.thumbnail)?, old)))
             .collect();
-        scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         let mut verdicts = Vec::new();
-        let mut chosen: Vec<usize> = Vec::new();
-        for (appearance, old) in scored {
-            if chosen.len() >= c.feature_candidates {
-                break;
-            }
-            if chosen.iter().any(|&o| o.abs_diff(old) < c.min_candidate_spacing) {
-                continue;
-            }
-            chosen.push(old);
+        for (appearance, old) in self.best_spaced(scored, c.feature_candidates) {
             let kf = &self.keyframes[old];
             let matches = features::match_features(&query.features, &kf.features);
             let seed = (old as u64) << 32 | new as u64;
@@ -352,6 +334,23 @@ impl LoopDetector {
             }
         }
         verdicts
+    }
+
+    /// The `limit` best `(appearance, keyframe)` pairs of `scored` (smallest distance first,
+    /// ties by keyframe), each at least `min_candidate_spacing` keyframes from those chosen
+    /// before it (neighbours would give the same loop twice).
+    fn best_spaced(&self, mut scored: Vec<(f32, usize)>, limit: usize) -> Vec<(f32, usize)> {
+        scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut chosen: Vec<(f32, usize)> = Vec::new();
+        for (appearance, old) in scored {
+            if chosen.len() >= limit {
+                break;
+            }
+            if chosen.iter().all(|&(_, o)| o.abs_diff(old) >= self.config.min_candidate_spacing) {
+                chosen.push((appearance, old));
+            }
+        }
+        chosen
     }
 
     /// Aligns keyframe `new` onto keyframe `old` from `prediction` (`old_from_new`) and

@@ -10,6 +10,23 @@ use semrecon_data::{open_dataset, DatasetSpec};
 use semrecon_recon::pose_graph::{pose_distance, rotation_exp};
 use semrecon_recon::{LoopConfig, LoopDetector};
 
+/// A detector holding every tenth of redkitchen's first 500 frames, and their reference poses.
+fn redkitchen_keyframes(dir: &std::path::Path, config: LoopConfig) -> (LoopDetector, Vec<DAffine3>) {
+    let mut detector = LoopDetector::new(config);
+    let mut poses = Vec::new();
+    for i in (0..500).step_by(10) {
+        let (frame, pose) = seven_scenes::read_frame(dir, i).expect("frame");
+        detector.add(&frame);
+        poses.push(d(pose));
+    }
+    (detector, poses)
+}
+
+/// Drift after a long walk, applied to a keyframe's pose: 35 cm and 8 degrees.
+fn large_drift() -> DAffine3 {
+    DAffine3 { matrix3: rotation_exp(DVec3::new(0.05, 0.12, -0.06)), translation: DVec3::new(0.25, -0.2, 0.15) }
+}
+
 fn d(p: Affine3A) -> DAffine3 {
     p.as_daffine3()
 }
@@ -20,13 +37,7 @@ fn redkitchen_revisits_align_the_same_from_a_drifted_start() {
         eprintln!("skipped: ../shared/data/7scenes-redkitchen is absent");
         return;
     };
-    let mut detector = LoopDetector::new(LoopConfig::default());
-    let mut poses = Vec::new();
-    for i in (0..500).step_by(10) {
-        let (frame, pose) = seven_scenes::read_frame(&dir, i).expect("frame");
-        detector.add(&frame);
-        poses.push(d(pose));
-    }
+    let (detector, poses) = redkitchen_keyframes(&dir, LoopConfig::default());
     // Drift of the size 7-Scenes tracking has: 2 cm and 1 degree.
     let drift =
         DAffine3 { matrix3: rotation_exp(DVec3::new(0.0, 0.017, 0.0)), translation: DVec3::new(0.015, -0.01, 0.008) };
@@ -133,8 +144,7 @@ fn desk_views_are_found_by_features_after_large_drift() {
         poses.push(d(frame.world_from_camera.expect("motion capture")));
         detector.add(&frame);
     }
-    let drift =
-        DAffine3 { matrix3: rotation_exp(DVec3::new(0.05, 0.12, -0.06)), translation: DVec3::new(0.25, -0.2, 0.15) };
+    let drift = large_drift();
     let (mut found, mut tried) = (0, 0);
     for new in 15..poses.len() {
         let old = new - 15;
@@ -188,16 +198,8 @@ fn redkitchen_loops_from_features_correct_the_drift_they_were_given() {
         eprintln!("skipped: ../shared/data/7scenes-redkitchen is absent");
         return;
     };
-    let config = LoopConfig { min_keyframe_gap: 10, ..LoopConfig::default() };
-    let mut detector = LoopDetector::new(config);
-    let mut poses = Vec::new();
-    for i in (0..500).step_by(10) {
-        let (frame, pose) = seven_scenes::read_frame(&dir, i).expect("frame");
-        detector.add(&frame);
-        poses.push(d(pose));
-    }
-    let drift =
-        DAffine3 { matrix3: rotation_exp(DVec3::new(0.05, 0.12, -0.06)), translation: DVec3::new(0.25, -0.2, 0.15) };
+    let (detector, poses) = redkitchen_keyframes(&dir, LoopConfig { min_keyframe_gap: 10, ..LoopConfig::default() });
+    let drift = large_drift();
     let mut found = 0;
     for new in 10..poses.len() {
         let mut drifted = poses.clone();

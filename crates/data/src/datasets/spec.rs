@@ -59,50 +59,40 @@ impl FromStr for DatasetSpec {
         if rest.is_empty() {
             return Err(DataError::dataset(s, format!("nothing after `{kind}:`; expected one of {KINDS}")));
         }
-        let path = || PathBuf::from(rest);
-        Ok(match kind.to_ascii_lowercase().as_str() {
-            "7scenes" => Self::SevenScenes(path()),
-            "tum" => Self::Tum(path(), None),
-            "tum-fr1" => Self::Tum(path(), Some(TumCamera::Freiburg1)),
-            "tum-fr2" => Self::Tum(path(), Some(TumCamera::Freiburg2)),
-            "tum-fr3" => Self::Tum(path(), Some(TumCamera::Freiburg3)),
-            "tum-default" => Self::Tum(path(), Some(TumCamera::Default)),
-            "redwood" => Self::Redwood(path()),
-            "scannet" => Self::ScanNet(path()),
-            "replica" => Self::Replica(path()),
-            "oni" => Self::Oni(path()),
-            "bag" => Self::Bag(path()),
-            other => match SyntheticScene::from_kind(other) {
-                Some(scene) => {
-                    Self::Synth(SyntheticSource::parse(scene, rest).map_err(|why| DataError::dataset(s, why))?)
-                }
-                None => {
-                    return Err(DataError::dataset(
-                        s,
-                        format!("unknown dataset kind `{kind}`; expected one of {KINDS}"),
-                    ))
-                }
-            },
-        })
+        if let Some(spec) = recorded(kind, PathBuf::from(rest)) {
+            return Ok(spec);
+        }
+        match SyntheticScene::from_kind(&kind.to_ascii_lowercase()) {
+            Some(scene) => {
+                Ok(Self::Synth(SyntheticSource::parse(scene, rest).map_err(|why| DataError::dataset(s, why))?))
+            }
+            None => Err(DataError::dataset(s, format!("unknown dataset kind `{kind}`; expected one of {KINDS}"))),
+        }
     }
 }
 
-/// The reader kinds a specification may start with (the part before the first `:`).
+/// The recorded dataset of `kind` (the part before the first `:`, any case) at `path`;
+/// `None` for a generated scene's kind or an unknown one.
+fn recorded(kind: &str, path: PathBuf) -> Option<DatasetSpec> {
+    Some(match kind.to_ascii_lowercase().as_str() {
+        "7scenes" => DatasetSpec::SevenScenes(path),
+        "tum" => DatasetSpec::Tum(path, None),
+        "tum-fr1" => DatasetSpec::Tum(path, Some(TumCamera::Freiburg1)),
+        "tum-fr2" => DatasetSpec::Tum(path, Some(TumCamera::Freiburg2)),
+        "tum-fr3" => DatasetSpec::Tum(path, Some(TumCamera::Freiburg3)),
+        "tum-default" => DatasetSpec::Tum(path, Some(TumCamera::Default)),
+        "redwood" => DatasetSpec::Redwood(path),
+        "scannet" => DatasetSpec::ScanNet(path),
+        "replica" => DatasetSpec::Replica(path),
+        "oni" => DatasetSpec::Oni(path),
+        "bag" => DatasetSpec::Bag(path),
+        _ => return None,
+    })
+}
+
+/// The kinds a specification may start with: the recorded ones and the generated scenes.
 fn is_kind(kind: &str) -> bool {
-    matches!(
-        kind.to_ascii_lowercase().as_str(),
-        "7scenes"
-            | "tum"
-            | "tum-fr1"
-            | "tum-fr2"
-            | "tum-fr3"
-            | "tum-default"
-            | "redwood"
-            | "scannet"
-            | "replica"
-            | "oni"
-            | "bag"
-    ) || SyntheticScene::from_kind(&kind.to_ascii_lowercase()).is_some()
+    recorded(kind, PathBuf::new()).is_some() || SyntheticScene::from_kind(&kind.to_ascii_lowercase()).is_some()
 }
 
 impl DatasetSpec {
