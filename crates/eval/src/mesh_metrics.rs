@@ -350,10 +350,25 @@ impl<'a> SurfaceIndex<'a> {
 
     /// Distance from `p` to the indexed surface, metres.
     pub fn distance(&self, p: Vec3) -> f32 {
-        for (level, far) in &self.coarse {
-            let d = level.distance(self.mesh, p, self.candidates);
+        let mut levels = self.coarse.iter();
+        if let Some((coarsest, far)) = levels.next() {
+            let d = coarsest.distance(self.mesh, p, self.candidates);
             if d > *far {
                 return d;
+            }
+            // A level's answer is never below the true distance, so once the coarsest puts
+            // the point within the finest coarse level's far limit no level in between has
+            // anything to add (they would answer only by overestimating): straight to the
+            // dense samples. Most queries of an accuracy (estimated vertices on the surface)
+            // are such, and skipping the middle levels halves their tree searches.
+            if d <= self.far_m() {
+                return self.fine.distance(self.mesh, p, self.candidates);
+            }
+            for (level, far) in levels {
+                let d = level.distance(self.mesh, p, self.candidates);
+                if d > *far {
+                    return d;
+                }
             }
         }
         self.fine.distance(self.mesh, p, self.candidates)
