@@ -5,7 +5,7 @@
 //! cargo run --release -p semrecon-recon --example accuracy_bench -- SOURCE [--frames N]
 //!     [--size WxH] [--voxel M] [--trunc VOXELS] [--band-factor K] [--min-band VOXELS]
 //!     [--max-depth M] [--min-weight W[,W...]] [--min-component N[,N...]] [--ideal]
-//!     [--skip-tracking] [--color-band VOXELS]
+//!     [--skip-tracking] [--color-band VOXELS] [--behind-band K]
 //! ```
 //!
 //! `SOURCE` is `synth:SEED` (a generated room along its generated handheld path) or
@@ -55,6 +55,7 @@ struct Args {
     min_weights: Vec<f32>,
     min_components: Vec<usize>,
     color_band: f32,
+    behind_band: f32,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -72,6 +73,7 @@ fn parse_args() -> Result<Args, String> {
         min_weights: vec![0.0],
         min_components: vec![0],
         color_band: TsdfConfig::default().color_band_voxels,
+        behind_band: TsdfConfig::default().behind_band,
     };
     let mut flags = Flags::from_env();
     while let Some(flag) = flags.next_flag() {
@@ -86,6 +88,7 @@ fn parse_args() -> Result<Args, String> {
             "--min-component" => a.min_components = comma_list(&flag, &flags.value::<String>(&flag)?)?,
             "--ideal" => a.ideal = true,
             "--color-band" => a.color_band = flags.value(&flag)?,
+            "--behind-band" => a.behind_band = flags.value(&flag)?,
             "--skip-tracking" => a.skip_tracking = true,
             "--size" => a.size = flags.size(&flag)?,
             s if !s.starts_with("--") && a.source.is_empty() => a.source = s.to_string(),
@@ -182,6 +185,7 @@ fn run(a: Args) -> Result<(), String> {
         min_truncation_voxels: a.min_band,
         max_depth: a.max_depth,
         color_band_voxels: a.color_band,
+        behind_band: a.behind_band,
         ..TsdfConfig::with_voxel_size(a.voxel).map_err(|e| e.to_string())?
     };
     println!(

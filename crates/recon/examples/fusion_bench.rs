@@ -4,7 +4,7 @@
 //! cargo run --release -p semrecon-recon --example fusion_bench -- [--frames N] [--voxel M]
 //!     [--7scenes DIR] [--out mesh.ply] [--keyframe K] [--trunc VOXELS]
 //!     [--band-factor K] [--min-band VOXELS] [--remesh-tol VOXELS] [--mesh-repeat N]
-//!     [--mesh-budget CHUNKS] [--color-every N]
+//!     [--mesh-budget CHUNKS] [--color-every N] [--behind-band K]
 //! ```
 //!
 //! Without `--7scenes` the frames are ray-cast from an analytic scene (floor, wall, sphere).
@@ -17,7 +17,8 @@
 //! `RemeshTolerance::distance_voxels` (default 0: exact). `--mesh-budget` caps the chunks
 //! one keyframe re-meshes (`IncrementalMesher::with_budget`; 0, the default: no cap); the
 //! final mesh is then brought up to date without it. `--color-every` is
-//! `TsdfConfig::color_every` (1: colour from every frame, as before issue 20).
+//! `TsdfConfig::color_every` (1: colour from every frame, as before issue 20). `--behind-band`
+//! is `TsdfConfig::behind_band` (1: the one-sided clamp before session 26).
 //! `--mesh-repeat N` re-meshes the final map N more times, alternately from an empty cache
 //! (the incremental path over every chunk) and with `extract_mesh`, and prints the best and
 //! median CPU and wall time of each: a meshing-only load for profilers. The fusion kernel is
@@ -59,6 +60,7 @@ struct Args {
     mesh_repeat: usize,
     mesh_budget: usize,
     color_every: usize,
+    behind_band: f32,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -75,6 +77,7 @@ fn parse_args() -> Result<Args, String> {
         mesh_repeat: 0,
         mesh_budget: 0,
         color_every: TsdfConfig::default().color_every,
+        behind_band: TsdfConfig::default().behind_band,
     };
     let mut flags = Flags::from_env();
     while let Some(flag) = flags.next_flag() {
@@ -88,6 +91,7 @@ fn parse_args() -> Result<Args, String> {
             "--mesh-repeat" => a.mesh_repeat = flags.value(&flag)?,
             "--mesh-budget" => a.mesh_budget = flags.value(&flag)?,
             "--color-every" => a.color_every = flags.value(&flag)?,
+            "--behind-band" => a.behind_band = flags.value(&flag)?,
             "--keyframe" => a.keyframe = flags.value(&flag)?,
             "--7scenes" => a.seven_scenes = Some(flags.value(&flag)?),
             "--out" => a.out = Some(flags.value(&flag)?),
@@ -185,6 +189,7 @@ fn main() {
             truncation_noise_factor: args.band_factor,
             min_truncation_voxels: args.min_band,
             color_every: args.color_every,
+            behind_band: args.behind_band,
             ..c
         })
         .and_then(|c| c.validate().map(|()| c))

@@ -153,6 +153,9 @@ struct FrameView<'a> {
     /// Colour is blended only where `-color_band <= sdf < color_band` (truncation units;
     /// [`TsdfConfig::color_band_voxels`]).
     color_band: f32,
+    /// Observations from the surface up to this many bands behind a voxel are clamped to one
+    /// band behind ([`TsdfConfig::behind_band`]); beyond, skipped.
+    behind: f32,
     /// Factor on each observation's weight: 1 for a frame, n where one frame stands for n
     /// similar ones (loop closure re-fusing a subsample). Multiplying by 1 is exact, so the
     /// default changes no bit.
@@ -178,6 +181,7 @@ impl<'a> FrameView<'a> {
             weight_cap: (config.max_weight * WEIGHT_SCALE).round().clamp(1.0, u16::MAX as f32) as u16,
             color_all: config.is_color_frame(frame.index),
             color_band: config.color_band(),
+            behind: config.behind_band,
             obs_weight,
         }
     }
@@ -624,6 +628,7 @@ fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> 
     let (zero, half, one) = (f32x8::ZERO, f32x8::HALF, f32x8::ONE);
     let cap = splat(f.weight_cap as f32);
     let color_band = splat(f.color_band);
+    let behind = splat(f.behind);
     let has_color = !f.color.is_empty();
     let block = &mut *chunk.voxels;
     let (tsdf_rows, _) = block.tsdf.as_chunks_mut::<N>();
@@ -658,10 +663,10 @@ fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, f: &FrameView) -> 
         let weight_row = &mut weight_rows[r];
         let t_old = i32x8::from_i16x8(i16x8::new(*tsdf_row)).round_float();
         let w_old_q = i32x8::from_u16x8(u16x8::new(*weight_row)).round_float();
-        let valid = inside & d.simd_ge(min_d) & d.simd_le(max_d) & sdf.simd_ge(-mu);
+        let valid = inside & d.simd_ge(min_d) & d.simd_le(max_d) & sdf.simd_ge(-mu * behind);
         let valid_bits = valid.to_bitmask();
         let (t_now, w_now) = if valid_bits != 0 {
-            let obs = sdf.fast_min(mu);
+            let obs = sdf.fast_min(mu).fast_max(-mu);
             let w_obs = valid.select((one / (d * d)).fast_min(splat(4.0)) * splat(f.obs_weight), zero);
             let w_old = w_old_q * splat(1.0 / WEIGHT_SCALE);
             let w_sum = w_old + w_obs;

@@ -69,10 +69,12 @@ impl DenseTsdf {
                     let sdf = d - p.z;
                     // The band of this observation (the full truncation unless depth-dependent).
                     let mu = c.band(d);
-                    if sdf < -mu {
+                    // Up to `behind_band` bands behind, clamped to one band behind.
+                    if sdf < -mu * c.behind_band {
                         continue;
                     }
-                    if sdf < mu {
+                    // The band itself (what chunk selection must allocate) is one band each side.
+                    if sdf < mu && sdf >= -mu {
                         band.push(v);
                     }
                     if !fuse_here(v) {
@@ -80,7 +82,7 @@ impl DenseTsdf {
                     }
                     let i = self.index(v).expect("inside");
                     let w = depth_weight(d);
-                    let t = (sdf / trunc).min(mu / trunc);
+                    let t = (sdf / trunc).min(mu / trunc).max(-mu / trunc);
                     // Stored as the map stores them: the distance in steps of 1 / TSDF_SCALE,
                     // the weight in steps of 1 / WEIGHT_SCALE (at least one step, capped).
                     let mean = (self.tsdf[i] * self.weight[i] + t * w) / (self.weight[i] + w);
@@ -137,6 +139,8 @@ fn depth_dependent_band_matches_a_dense_reference() {
     let (near, far) = (config.band(1.0) / config.voxel_size, config.band(4.0) / config.voxel_size);
     assert!(near == 1.0 && far > 7.0 && far <= 8.0, "band {near} .. {far} voxels");
     check_against_dense_reference(config);
+    // Observations up to 1.5 bands behind clamped to one band behind.
+    check_against_dense_reference(TsdfConfig { behind_band: 1.5, ..config });
 }
 
 fn check_against_dense_reference(base: TsdfConfig) {

@@ -85,6 +85,7 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
         let obs_scale = splat(f.obs_weight);
         let tiny = splat(1e-30);
         let (color_band, neg_color_band) = (splat(f.color_band), splat(-f.color_band));
+        let behind = splat(f.behind);
         let inv_wscale = splat(1.0 / WEIGHT_SCALE);
         let wscale = splat(WEIGHT_SCALE);
         let tscale = splat(TSDF_SCALE);
@@ -162,7 +163,10 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 let neg_mu = _mm256_sub_ps(zero, mu);
                 let valid = _mm256_and_ps(
                     _mm256_cmp_ps::<_CMP_GE_OQ>(d, min_d),
-                    _mm256_and_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(d, max_d), _mm256_cmp_ps::<_CMP_GE_OQ>(sdf, neg_mu)),
+                    _mm256_and_ps(
+                        _mm256_cmp_ps::<_CMP_LE_OQ>(d, max_d),
+                        _mm256_cmp_ps::<_CMP_GE_OQ>(sdf, _mm256_mul_ps(neg_mu, behind)),
+                    ),
                 );
                 // With the gathers done in the first pass, branching on the outcome pays: a
                 // quarter of the rows see no valid observation and keep their voxels.
@@ -172,7 +176,7 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
                 }
                 let t_old = _mm256_cvtepi32_ps(t_old_i);
                 let w_old_q = _mm256_cvtepi32_ps(w_old_i);
-                let obs = _mm256_min_ps(sdf, mu);
+                let obs = _mm256_max_ps(_mm256_min_ps(sdf, mu), neg_mu);
                 let w_obs = _mm256_and_ps(
                     valid,
                     _mm256_mul_ps(_mm256_min_ps(_mm256_div_ps(one, _mm256_mul_ps(d, d)), four), obs_scale),

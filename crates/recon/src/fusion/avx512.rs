@@ -97,6 +97,7 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
         let obs_scale = splat(f.obs_weight);
         let tiny = splat(1e-30);
         let (color_band, neg_color_band) = (splat(f.color_band), splat(-f.color_band));
+        let behind = splat(f.behind);
         let inv_wscale = splat(1.0 / WEIGHT_SCALE);
         let wscale = splat(WEIGHT_SCALE);
         let tscale = splat(TSDF_SCALE);
@@ -172,14 +173,14 @@ pub(super) unsafe fn integrate_chunk<const DEPTH_BAND: bool>(chunk: &mut Chunk, 
             let neg_mu = _mm512_sub_ps(zero, mu);
             let valid = _mm512_cmp_ps_mask::<_CMP_GE_OQ>(d, min_d)
                 & _mm512_cmp_ps_mask::<_CMP_LE_OQ>(d, max_d)
-                & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(sdf, neg_mu);
+                & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(sdf, _mm512_mul_ps(neg_mu, behind));
             // A quarter of the row pairs see no valid observation: they keep their voxels.
             let (t_i, w_i) = if valid == 0 {
                 (t_old_i, w_old_i)
             } else {
                 let t_old = _mm512_cvtepi32_ps(t_old_i);
                 let w_old_q = _mm512_cvtepi32_ps(w_old_i);
-                let obs = _mm512_min_ps(sdf, mu);
+                let obs = _mm512_max_ps(_mm512_min_ps(sdf, mu), neg_mu);
                 let w_obs = _mm512_maskz_mov_ps(
                     valid,
                     _mm512_mul_ps(_mm512_min_ps(_mm512_div_ps(one, _mm512_mul_ps(d, d)), four), obs_scale),

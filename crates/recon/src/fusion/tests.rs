@@ -47,13 +47,13 @@ fn scalar_integrate(voxels: &mut [Voxel], key: IVec3, f: &FrameView) {
         let d = f.depth[pix];
         let sdf = (d - pz) * (1.0 / f.truncation);
         let mu = f.band.relative(d);
-        if !(d >= f.min_depth && d <= f.max_depth && sdf >= -mu) {
+        if !(d >= f.min_depth && d <= f.max_depth && sdf >= -mu * f.behind) {
             continue;
         }
         let in_color_band = sdf < f.color_band && sdf >= -f.color_band;
         let color =
             (sdf < mu && in_color_band && (f.color_all || vox.color_count < COLOR_WARMUP)).then_some(f.color[pix]);
-        vox.fuse(sdf.min(mu), depth_weight(d) * f.obs_weight, color, f.weight_cap);
+        vox.fuse(sdf.min(mu).max(-mu), depth_weight(d) * f.obs_weight, color, f.weight_cap);
     }
 }
 
@@ -80,6 +80,24 @@ fn colour_on_every_frame_or_every_third_equals_the_scalar_specification() {
         let config = TsdfConfig { max_weight: 3.0, color_every, ..TsdfConfig::default() };
         for kernel in kernels() {
             check_kernel_against_scalar(kernel, config, 20);
+        }
+    }
+}
+
+#[test]
+fn observations_behind_the_band_clamped_equal_the_scalar_specification() {
+    // Both sides of the band alike (`behind_band` above 1), with a depth-dependent band.
+    let base = TsdfConfig {
+        max_weight: 3.0,
+        truncation_voxels: 8.0,
+        min_truncation_voxels: 2.0,
+        truncation_noise_factor: 20.0,
+        ..TsdfConfig::default()
+    };
+    for behind_band in [1.5, 3.0] {
+        let config = TsdfConfig { behind_band, ..base };
+        for kernel in kernels() {
+            check_kernel_against_scalar(kernel, config, 8);
         }
     }
 }
