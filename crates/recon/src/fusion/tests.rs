@@ -60,13 +60,7 @@ fn scalar_integrate(voxels: &mut [Voxel], key: IVec3, f: &FrameView) {
 #[test]
 fn simd_rows_equal_the_scalar_specification_bit_for_bit() {
     // A depth-dependent band (about 5 voxels at these depths, changing with depth).
-    let config = TsdfConfig {
-        max_weight: 3.0,
-        truncation_voxels: 8.0,
-        min_truncation_voxels: 2.0,
-        truncation_noise_factor: 20.0,
-        ..TsdfConfig::default()
-    };
+    let config = depth_band_config();
     assert!(config.band(0.5) < config.band(0.7) && config.band(0.7) < config.truncation());
     check_simd_against_scalar(config);
 }
@@ -87,13 +81,7 @@ fn colour_on_every_frame_or_every_third_equals_the_scalar_specification() {
 #[test]
 fn observations_behind_the_band_clamped_equal_the_scalar_specification() {
     // Both sides of the band alike (`behind_band` above 1), with a depth-dependent band.
-    let base = TsdfConfig {
-        max_weight: 3.0,
-        truncation_voxels: 8.0,
-        min_truncation_voxels: 2.0,
-        truncation_noise_factor: 20.0,
-        ..TsdfConfig::default()
-    };
+    let base = depth_band_config();
     for behind_band in [1.5, 3.0] {
         let config = TsdfConfig { behind_band, ..base };
         for kernel in kernels() {
@@ -106,13 +94,7 @@ fn observations_behind_the_band_clamped_equal_the_scalar_specification() {
 fn colour_band_settings_equal_the_scalar_specification() {
     // Colour over the whole band (as before issue 20), a colour band wider than the
     // narrowest band and one narrower, with a depth-dependent band.
-    let base = TsdfConfig {
-        max_weight: 3.0,
-        truncation_voxels: 8.0,
-        min_truncation_voxels: 2.0,
-        truncation_noise_factor: 20.0,
-        ..TsdfConfig::default()
-    };
+    let base = depth_band_config();
     for color_band_voxels in [64.0, 3.0, 1.0] {
         let config = TsdfConfig { color_band_voxels, ..base };
         for kernel in kernels() {
@@ -157,6 +139,18 @@ fn colour_stays_within_the_colour_band() {
 fn fixed_band_kernel_equals_the_scalar_specification_bit_for_bit() {
     let config = TsdfConfig { max_weight: 3.0, truncation_noise_factor: 0.0, ..TsdfConfig::default() };
     check_simd_against_scalar(config);
+}
+
+/// A depth-dependent band (about 5 voxels at the test frames' depths, changing with depth)
+/// and a low weight cap, so that the cap is reached within a few frames.
+fn depth_band_config() -> TsdfConfig {
+    TsdfConfig {
+        max_weight: 3.0,
+        truncation_voxels: 8.0,
+        min_truncation_voxels: 2.0,
+        truncation_noise_factor: 20.0,
+        ..TsdfConfig::default()
+    }
 }
 
 /// The kernels this machine can run.
