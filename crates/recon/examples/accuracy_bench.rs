@@ -36,7 +36,7 @@ use rayon::prelude::*;
 use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
 use semrecon_data::{read_ply, FrameSource, Intrinsics, LabeledMesh, RenderedScan, SensorModel};
 use semrecon_eval::{evaluate_mesh, sample_surface, MeshEvalConfig, SurfaceIndex};
-use semrecon_recon::{extract_mesh_with, MeshConfig, Tracker, TrackerConfig, TsdfConfig, TsdfMap};
+use semrecon_recon::{extract_mesh_with, MeshConfig, GroupedFusion, Tracker, TrackerConfig, TsdfConfig, TsdfMap};
 
 use flags::Flags;
 use tracked_path::track_and_fuse;
@@ -56,6 +56,8 @@ struct Args {
     min_components: Vec<usize>,
     color_band: f32,
     behind_band: f32,
+    pair_far: f32,
+    group_frames: usize,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -74,6 +76,8 @@ fn parse_args() -> Result<Args, String> {
         min_components: vec![0],
         color_band: TsdfConfig::default().color_band_voxels,
         behind_band: TsdfConfig::default().behind_band,
+        pair_far: 0.0,
+        group_frames: 2,
     };
     let mut flags = Flags::from_env();
     while let Some(flag) = flags.next_flag() {
@@ -89,6 +93,8 @@ fn parse_args() -> Result<Args, String> {
             "--ideal" => a.ideal = true,
             "--color-band" => a.color_band = flags.value(&flag)?,
             "--behind-band" => a.behind_band = flags.value(&flag)?,
+            "--far-group-beyond" => a.pair_far = flags.value(&flag)?,
+            "--far-group-frames" => a.group_frames = flags.value(&flag)?,
             "--skip-tracking" => a.skip_tracking = true,
             "--size" => a.size = flags.size(&flag)?,
             s if !s.starts_with("--") && a.source.is_empty() => a.source = s.to_string(),
@@ -186,6 +192,8 @@ fn run(a: Args) -> Result<(), String> {
         max_depth: a.max_depth,
         color_band_voxels: a.color_band,
         behind_band: a.behind_band,
+        far_group_beyond_m: a.pair_far,
+        far_group_frames: a.group_frames,
         ..TsdfConfig::with_voxel_size(a.voxel).map_err(|e| e.to_string())?
     };
     println!(
@@ -202,9 +210,12 @@ fn run(a: Args) -> Result<(), String> {
 
     // Mesh with ground-truth poses.
     let mut map = TsdfMap::new(map_config).map_err(|e| e.to_string())?;
+    let mut pairing = GroupedFusion::new(a.pair_far, a.group_frames);
     for f in &frames {
-        map.integrate(f, f.world_from_camera.ok_or("rendered frames have poses")?).map_err(|e| e.to_string())?;
+        let pose = f.world_from_camera.ok_or("rendered frames have poses")?;
+        pairing.integrate(&mut map, f, pose).map_err(|e| e.to_string())?;
     }
+    pairing.flush(&mut map).map_err(|e| e.to_string())?;
     let eval =
         MeshEvalConfig { sample_spacing_m: 0.005, thresholds_m: vec![0.005, 0.01, 0.05], ..MeshEvalConfig::default() };
     let poses: Vec<Affine3A> = frames.iter().filter_map(|f| f.world_from_camera).collect();

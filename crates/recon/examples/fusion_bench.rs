@@ -42,7 +42,7 @@ use std::time::Instant;
 
 use glam::Affine3A;
 use semrecon_data::{Frame, Intrinsics, LabeledMesh};
-use semrecon_recon::{IncrementalMesher, RemeshTolerance, TsdfConfig, TsdfMap};
+use semrecon_recon::{IncrementalMesher, GroupedFusion, RemeshTolerance, TsdfConfig, TsdfMap};
 
 use cpu_time::cpu_ns;
 use flags::Flags;
@@ -61,6 +61,8 @@ struct Args {
     mesh_budget: usize,
     color_every: usize,
     behind_band: f32,
+    pair_far: f32,
+    group_frames: usize,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -78,6 +80,8 @@ fn parse_args() -> Result<Args, String> {
         mesh_budget: 0,
         color_every: TsdfConfig::default().color_every,
         behind_band: TsdfConfig::default().behind_band,
+        pair_far: 0.0,
+        group_frames: 2,
     };
     let mut flags = Flags::from_env();
     while let Some(flag) = flags.next_flag() {
@@ -92,6 +96,8 @@ fn parse_args() -> Result<Args, String> {
             "--mesh-budget" => a.mesh_budget = flags.value(&flag)?,
             "--color-every" => a.color_every = flags.value(&flag)?,
             "--behind-band" => a.behind_band = flags.value(&flag)?,
+            "--far-group-beyond" => a.pair_far = flags.value(&flag)?,
+            "--far-group-frames" => a.group_frames = flags.value(&flag)?,
             "--keyframe" => a.keyframe = flags.value(&flag)?,
             "--7scenes" => a.seven_scenes = Some(flags.value(&flag)?),
             "--out" => a.out = Some(flags.value(&flag)?),
@@ -190,6 +196,8 @@ fn main() {
             min_truncation_voxels: args.min_band,
             color_every: args.color_every,
             behind_band: args.behind_band,
+            far_group_beyond_m: args.pair_far,
+            far_group_frames: args.group_frames,
             ..c
         })
         .and_then(|c| c.validate().map(|()| c))
@@ -251,6 +259,7 @@ fn main() {
     // whole run's tracking, rendering or decoding does, so that fusion starts with cold caches.
     let flush_mb: usize = std::env::var("FUSION_BENCH_FLUSH_MB").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
     let mut flush = vec![0u8; flush_mb << 20];
+    let mut pairing = GroupedFusion::new(args.pair_far, args.group_frames);
     let t_all = Instant::now();
     for (i, (frame, pose)) in frames.iter().enumerate() {
         if !flush.is_empty() {
@@ -259,16 +268,27 @@ fn main() {
         }
         let c0 = cpu_ns();
         let t0 = Instant::now();
-        let keys = match map.select_chunks(frame, *pose) {
-            Ok(k) => k,
-            Err(e) => {
-                eprintln!("fusion_bench: {e}");
-                continue;
+        // With `--far-group-beyond`, selection and integration both happen in the pairing (timed as
+        // integration).
+        let keys = if pairing.is_on() {
+            Vec::new()
+        } else {
+            match map.select_chunks(frame, *pose) {
+                Ok(k) => k,
+                Err(e) => {
+                    eprintln!("fusion_bench: {e}");
+                    continue;
+                }
             }
         };
         let t1 = Instant::now();
         let c1 = cpu_ns();
-        match map.integrate_chunks(frame, *pose, &keys) {
+        let fused = if pairing.is_on() {
+            pairing.integrate(&mut map, frame, *pose)
+        } else {
+            map.integrate_chunks(frame, *pose, &keys)
+        };
+        match fused {
             Ok(s) => {
                 visited += s.visited_chunks;
                 updated += s.updated_voxels;
@@ -297,6 +317,18 @@ fn main() {
             mesh_ms.push(t.elapsed().as_secs_f64() * 1e3);
             mesh_cpu.push((cpu_ns() - c) as f64 * 1e-6);
         }
+    }
+    if let Err(e) = pairing.flush(&mut map) {
+        eprintln!("fusion_bench: {e}");
+    }
+    if pairing.is_on() {
+        let p = pairing.stats();
+        println!(
+            "grouped {} far passes, {:.1} % of candidate pixels averaged, {} frames fused alone",
+            p.groups,
+            100.0 * p.paired_pixels as f64 / p.candidate_pixels.max(1) as f64,
+            p.flushed_frames
+        );
     }
     let wall = t_all.elapsed().as_secs_f64();
     println!("map fingerprint {:016x}", fingerprint(&map));

@@ -28,6 +28,7 @@ pub mod fusion;
 mod linalg;
 pub mod loop_detection;
 pub mod map;
+pub mod grouped_fusion;
 pub mod marching_cubes;
 pub mod pose_graph;
 pub mod raycast;
@@ -45,6 +46,7 @@ pub use marching_cubes::{
     extract_mesh, extract_mesh_with, mesh_chunk, mesh_chunk_with, ChunkMesh, IncrementalMesher, MeshConfig,
     MeshingStats, RemeshTolerance,
 };
+pub use grouped_fusion::{GroupedFusion, GroupingStats};
 pub use pose_graph::{EdgeKind, PoseEdge, PoseGraph, PoseGraphConfig, PoseGraphError};
 pub use raycast::{raycast, ModelView};
 pub use relocalisation::KeyframeIndex;

@@ -5,7 +5,7 @@
 
 use glam::Vec3;
 use semrecon_data::Frame;
-use semrecon_recon::{ate_rmse, TrackingResult, TsdfMap};
+use semrecon_recon::{ate_rmse, GroupedFusion, TrackingResult, TsdfMap};
 
 /// Where the tracker put the frames that have a ground-truth pose.
 pub struct TrackedPath {
@@ -32,17 +32,20 @@ pub fn track_and_fuse(
     mut track: impl FnMut(&Frame, &TsdfMap) -> Result<TrackingResult, String>,
 ) -> Result<TrackedPath, String> {
     let mut path = TrackedPath { estimated: Vec::new(), ground_truth: Vec::new(), lost: 0 };
+    // Far chunks from pairs of frames when the map's configuration asks for it.
+    let mut fusion = GroupedFusion::for_map(map);
     for f in frames {
         let r = track(f, map)?;
         if !r.should_fuse() {
             path.lost += 1;
             continue;
         }
-        map.integrate(f, r.world_from_camera).map_err(|e| e.to_string())?;
+        fusion.integrate(map, f, r.world_from_camera).map_err(|e| e.to_string())?;
         if let Some(g) = f.world_from_camera {
             path.estimated.push(Vec3::from(r.world_from_camera.translation));
             path.ground_truth.push(Vec3::from(g.translation));
         }
     }
+    fusion.flush(map).map_err(|e| e.to_string())?;
     Ok(path)
 }

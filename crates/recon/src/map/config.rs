@@ -75,6 +75,14 @@ pub struct TsdfConfig {
     /// one band are updated only in the chunks the band selects, and keep negative
     /// distances there, which meshing never crosses.
     pub behind_band: f32,
+    /// Chunks whose centre lies more than this many metres along the camera's axis are fused
+    /// from groups of [`TsdfConfig::far_group_frames`] consecutive frames, one pass for the
+    /// group at its weight, the frames' depths averaged pixel by pixel
+    /// ([`crate::GroupedFusion`]; used by the pipeline and the benchmarks, not by
+    /// [`crate::TsdfMap::integrate`], which fuses every frame whole). 0: off.
+    pub far_group_beyond_m: f32,
+    /// Frames in a group of [`TsdfConfig::far_group_beyond_m`] (2 to 8).
+    pub far_group_frames: usize,
 }
 
 impl Default for TsdfConfig {
@@ -93,6 +101,8 @@ impl Default for TsdfConfig {
             packed_far_step_voxels: 0.2,
             packed_exact_band_voxels: 3.0,
             behind_band: 1.0,
+            far_group_beyond_m: 0.0,
+            far_group_frames: 2,
         }
     }
 }
@@ -140,6 +150,12 @@ impl TsdfConfig {
         }
         if !(1.0..=4.0).contains(&self.behind_band) {
             return bad(format!("behind band {} is outside 1..4", self.behind_band));
+        }
+        if !(self.far_group_beyond_m == 0.0 || (0.3..=20.0).contains(&self.far_group_beyond_m)) {
+            return bad(format!("far group distance {} m is neither 0 nor in 0.3..20 m", self.far_group_beyond_m));
+        }
+        if !(2..=8).contains(&self.far_group_frames) {
+            return bad(format!("far group of {} frames is outside 2..8", self.far_group_frames));
         }
         if !(1..=64).contains(&self.color_every) {
             return bad(format!("colour rate 1/{} is outside 1/1..1/64", self.color_every));

@@ -1,0 +1,471 @@
+//! Fusing far surfaces from groups of consecutive frames: one voxel pass for a few frames'
+//! depth, with the noise averaging of all of them.
+//!
+//! Why: fusion's cost is the voxels in the truncation band of the surface in view, and far
+//! away, where the band is widest and a pixel is already wider than a voxel, most of them lie
+//! (80 % of the demo's updates come from surfaces 2.5-4 m away; docs/fusion.md). Fusing far
+//! chunks from every second frame only halves that work but loses the averaging of half the
+//! observations, which the far surfaces need most (mesh accuracy 1.48 -> 2.0 mm on the demo,
+//! docs/benchmarks_log.md, "Session 26"). Here every frame fuses its near chunks at once; the
+//! first frames of a group are held, and the last averages the held frames' depth into its
+//! own, pixel by pixel ([`grouped_depth`]), and fuses its far chunks from that average at the
+//! group's weight. Inside the band a voxel's signed distance is linear in the depth along the
+//! ray, so the average of n depths weighing n is the same update as the n depths one after
+//! the other, up to how well the warp finds each held frame's depth on the new pixel's ray.
+//!
+//! The warp: a pixel of the last frame, back-projected at its depth, is moved into a held
+//! camera and projected there; the held depth is interpolated bilinearly at that position
+//! over the neighbours that are valid and within the band of the predicted depth (so no
+//! average straddles an edge) and its point is moved back. That point lies on the held
+//! camera's ray, off the new ray by the depth disagreement times the parallax between frames
+//! tens of milliseconds apart (hundredths of a millimetre at 3 m), so its depth along the new
+//! camera's axis is the held frame's observation for that pixel. Pixels without a partner in
+//! every held frame are left out of the far pass (occlusion edges, newly seen borders, flying
+//! pixels at depth edges): a far surface loses one group's observation there.
+//!
+//! Near chunks are fused from every frame as before, so close-range detail and the tracker's
+//! model are unchanged. Everything is per pixel and per chunk in a fixed order: the same bits
+//! for any thread count. Loop closure re-fuses stored frames one by one, so the pipeline
+//! groups frames only without it.
+
+use glam::{Affine3A, Vec3};
+use rayon::prelude::*;
+use semrecon_data::{Frame, Intrinsics};
+
+use crate::error::Result;
+use crate::fusion::IntegrationStats;
+use crate::map::{ChunkKey, TsdfMap, CHUNK_SIDE};
+
+/// Largest gap in frame indices between consecutive frames of a group: a stream that skipped
+/// frames (a lost frame, a subsampled clip) groups across a short gap, not across seconds.
+const MAX_GROUP_GAP: usize = 3;
+
+/// Fusion that groups consecutive frames for the chunks beyond a distance (see the module).
+#[derive(Debug)]
+pub struct GroupedFusion {
+    beyond_m: f32,
+    frames: usize,
+    held: Vec<Held>,
+    stats: GroupingStats,
+}
+
+/// A frame of a group before its last: fused near, waiting to be fused far.
+#[derive(Debug)]
+struct Held {
+    index: usize,
+    depth: Vec<f32>,
+    intrinsics: Intrinsics,
+    world_from_camera: Affine3A,
+    /// Colour, for fusing it alone if the group is broken off.
+    color: Vec<[u8; 3]>,
+    timestamp: f64,
+    /// Its far chunks: what it fuses alone if the group is broken off.
+    far: Vec<ChunkKey>,
+}
+
+/// What the grouping did over a scan.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct GroupingStats {
+    /// Far passes fused from a whole group.
+    pub groups: usize,
+    /// Pixels of the groups' last frames that found a partner in every held frame.
+    pub paired_pixels: usize,
+    /// Pixels of the groups' last frames that could reach a far chunk.
+    pub candidate_pixels: usize,
+    /// Held frames fused alone (a group broken off by a gap, the end of the scan).
+    pub flushed_frames: usize,
+}
+
+impl GroupedFusion {
+    /// Groups `frames` consecutive frames (2 to 8) for chunks whose centre lies more than
+    /// `beyond_m` metres along the camera's axis; `beyond_m` 0 (or not positive and finite),
+    /// or `frames` below 2, fuses every frame whole, as [`TsdfMap::integrate`] does.
+    pub fn new(beyond_m: f32, frames: usize) -> Self {
+        let on = beyond_m.is_finite() && beyond_m > 0.0 && frames >= 2;
+        Self {
+            beyond_m: if on { beyond_m } else { 0.0 },
+            frames: if on { frames.min(8) } else { 1 },
+            held: Vec::new(),
+            stats: GroupingStats::default(),
+        }
+    }
+
+    /// For a map's configuration ([`crate::TsdfConfig::far_group_beyond_m`],
+    /// [`crate::TsdfConfig::far_group_frames`]).
+    pub fn for_map(map: &TsdfMap) -> Self {
+        Self::new(map.config().far_group_beyond_m, map.config().far_group_frames)
+    }
+
+    /// Whether frames are grouped at all.
+    pub fn is_on(&self) -> bool {
+        self.frames >= 2
+    }
+
+    /// What the grouping did so far.
+    pub fn stats(&self) -> GroupingStats {
+        self.stats
+    }
+
+    /// Fuses `frame` seen from `world_from_camera`: near chunks now; far chunks now from the
+    /// average over the group when it is the group's last frame, otherwise later.
+    ///
+    /// # Errors
+    /// What [`TsdfMap::select_chunks`] and [`TsdfMap::integrate_chunks`] return (a frame whose
+    /// buffers do not match its intrinsics, a non-finite pose).
+    pub fn integrate(&mut self, map: &mut TsdfMap, frame: &Frame, world_from_camera: Affine3A) -> Result<IntegrationStats> {
+        if !self.is_on() {
+            return map.integrate(frame, world_from_camera);
+        }
+        let keys = map.select_chunks(frame, world_from_camera)?;
+        let (near, far) = split_by_depth(map, &keys, world_from_camera, self.beyond_m);
+        let mut stats = IntegrationStats::default();
+        // A group broken by a gap in the stream, or by another camera, is fused frame by frame.
+        if let Some(last) = self.held.last() {
+            let gap = frame.index.wrapping_sub(last.index);
+            if !(1..=MAX_GROUP_GAP).contains(&gap) || last.intrinsics != frame.intrinsics {
+                add(&mut stats, self.flush(map)?);
+            }
+        }
+        add(&mut stats, map.integrate_chunks(frame, world_from_camera, &near)?);
+        if self.held.len() + 1 < self.frames {
+            self.held.push(Held {
+                index: frame.index,
+                depth: frame.depth.clone(),
+                intrinsics: frame.intrinsics,
+                world_from_camera,
+                color: frame.color.clone(),
+                timestamp: frame.timestamp,
+                far,
+            });
+            return Ok(stats);
+        }
+        let held = std::mem::take(&mut self.held);
+        if far.is_empty() {
+            return Ok(stats);
+        }
+        let config = map.config();
+        let band = config.band_model();
+        let truncation = config.truncation();
+        // A pixel nearer than this reaches no far voxel: every far chunk's voxels lie behind
+        // its surface by more than the band (or the clamp behind it).
+        let reach = CHUNK_SIDE as f32 * config.voxel_size;
+        let from_depth = self.beyond_m - reach - config.behind_band * truncation;
+        let camera_from_world = world_from_camera.inverse();
+        let others: Vec<(&[f32], Affine3A)> =
+            held.iter().map(|h| (h.depth.as_slice(), camera_from_world * h.world_from_camera)).collect();
+        let (depth, paired, candidates) = grouped_depth(
+            &frame.depth,
+            &others,
+            &frame.intrinsics,
+            |z| band.relative(z) * truncation,
+            (config.min_depth, config.max_depth),
+            from_depth,
+        );
+        self.stats.groups += 1;
+        self.stats.paired_pixels += paired;
+        self.stats.candidate_pixels += candidates;
+        let averaged = Frame {
+            index: frame.index,
+            timestamp: frame.timestamp,
+            depth,
+            color: frame.color.clone(),
+            intrinsics: frame.intrinsics,
+            world_from_camera: frame.world_from_camera,
+            labels: None,
+        };
+        add(&mut stats, map.integrate_chunks_weighted(&averaged, world_from_camera, &far, self.frames as f32)?);
+        Ok(stats)
+    }
+
+    /// Fuses the held frames' far chunks one by one (the end of a scan, a group broken off):
+    /// no observation is lost.
+    ///
+    /// # Errors
+    /// What [`TsdfMap::integrate_chunks`] returns.
+    pub fn flush(&mut self, map: &mut TsdfMap) -> Result<IntegrationStats> {
+        let mut stats = IntegrationStats::default();
+        for held in std::mem::take(&mut self.held) {
+            self.stats.flushed_frames += 1;
+            if held.far.is_empty() {
+                continue;
+            }
+            let frame = Frame {
+                index: held.index,
+                timestamp: held.timestamp,
+                depth: held.depth,
+                color: held.color,
+                intrinsics: held.intrinsics,
+                world_from_camera: None,
+                labels: None,
+            };
+            add(&mut stats, map.integrate_chunks(&frame, held.world_from_camera, &held.far)?);
+        }
+        Ok(stats)
+    }
+
+    /// Whether frames are held, their far chunks not fused yet.
+    pub fn is_holding(&self) -> bool {
+        !self.held.is_empty()
+    }
+}
+
+/// `keys` split into chunks whose centre is at most `beyond_m` along the camera's axis and
+/// those beyond, each in the given order.
+fn split_by_depth(map: &TsdfMap, keys: &[ChunkKey], world_from_camera: Affine3A, beyond_m: f32) -> (Vec<ChunkKey>, Vec<ChunkKey>) {
+    let camera_from_world = world_from_camera.inverse();
+    let voxel = map.config().voxel_size;
+    let half = (CHUNK_SIDE as f32 - 1.0) / 2.0;
+    keys.iter().partition(|key| {
+        let centre = (key.as_vec3() * CHUNK_SIDE as f32 + Vec3::splat(half)) * voxel;
+        camera_from_world.transform_point3(centre).z <= beyond_m
+    })
+}
+
+fn add(total: &mut IntegrationStats, s: IntegrationStats) {
+    total.visited_chunks += s.visited_chunks;
+    total.new_chunks += s.new_chunks;
+    total.freed_chunks += s.freed_chunks;
+    total.updated_chunks += s.updated_chunks;
+    total.band_chunks += s.band_chunks;
+    total.updated_voxels += s.updated_voxels;
+}
+
+/// The depth of `current` averaged, pixel by pixel, with each of `others`' observations of
+/// the same surface point (see the module's text); 0 where some other frame has no partner,
+/// and for pixels nearer than `from_depth` (left out). Returns the image, the number of
+/// averaged pixels and the number of valid pixels from `from_depth` on.
+///
+/// `others` holds each other frame's depth and `current_from_other`, which moves points from
+/// its camera into the current one; all share the intrinsics `k`. `tolerance(z)` is the most
+/// two depths of one surface at depth `z` may differ by (the truncation band); depths outside
+/// `range` (min, max metres) are invalid. An other depth is interpolated bilinearly over those
+/// of the four neighbours that are valid and within the tolerance of the predicted depth,
+/// when they carry at least a quarter of the weight: a sensor's scattered dropouts would
+/// otherwise leave a fifth of the pixels unpaired.
+///
+/// # Shapes
+/// `current` and every other depth: `height * width` metres, row-major, of `k`'s size; the
+/// result the same.
+pub fn grouped_depth(
+    current: &[f32],
+    others: &[(&[f32], Affine3A)],
+    k: &Intrinsics,
+    tolerance: impl Fn(f32) -> f32 + Sync,
+    range: (f32, f32),
+    from_depth: f32,
+) -> (Vec<f32>, usize, usize) {
+    let (w, h) = (k.width as usize, k.height as usize);
+    let from = from_depth.max(range.0);
+    let valid = |d: f32| d >= range.0 && d <= range.1;
+    let (inv_fx, inv_fy) = (1.0 / k.fx, 1.0 / k.fy);
+    // Per other frame: a current pixel's point seen from it is d * (R ray(u, v)) + t, with
+    // ray(u, v) linear in u along a row; and of the point brought back only the depth along
+    // the current camera's axis is needed.
+    struct Warp<'a> {
+        depth: &'a [f32],
+        rotation: glam::Mat3A,
+        translation: Vec3,
+        step_u: Vec3,
+        back_z: Vec3,
+        back_tz: f32,
+    }
+    let warps: Vec<Warp> = others
+        .iter()
+        .map(|&(depth, current_from_other)| {
+            let other_from_current = current_from_other.inverse();
+            let back = current_from_other.matrix3;
+            Warp {
+                depth,
+                rotation: other_from_current.matrix3,
+                translation: Vec3::from(other_from_current.translation),
+                step_u: Vec3::from(other_from_current.matrix3.x_axis) * inv_fx,
+                back_z: Vec3::new(back.x_axis.z, back.y_axis.z, back.z_axis.z),
+                back_tz: current_from_other.translation.z,
+            }
+        })
+        .collect();
+    let scale = 1.0 / (warps.len() + 1) as f32;
+    let mut out = vec![0.0f32; w * h];
+    let (paired, candidates) = out
+        .par_chunks_mut(w)
+        .enumerate()
+        .map(|(v, row)| {
+            let row_rays: Vec<Vec3> = warps
+                .iter()
+                .map(|wp| Vec3::from(wp.rotation * glam::Vec3A::new(-k.cx * inv_fx, (v as f32 - k.cy) * inv_fy, 1.0)))
+                .collect();
+            let (mut n, mut c) = (0, 0);
+            'pixels: for (u, o) in row.iter_mut().enumerate() {
+                let d = current[v * w + u];
+                if !(d >= from && d <= range.1) {
+                    continue;
+                }
+                c += 1;
+                let mut sum = d;
+                for (wp, row_ray) in warps.iter().zip(&row_rays) {
+                    let seen = (*row_ray + wp.step_u * u as f32) * d + wp.translation;
+                    if !valid(seen.z) {
+                        continue 'pixels;
+                    }
+                    let inv_z = 1.0 / seen.z;
+                    let (px, py) = (k.fx * seen.x * inv_z + k.cx, k.fy * seen.y * inv_z + k.cy);
+                    // Truncation is the floor for the non-negative coordinates kept (the
+                    // baseline target has no rounding instruction: `floor` is a call).
+                    if !(px >= 0.0 && py >= 0.0 && px < (w - 1) as f32 && py < (h - 1) as f32) {
+                        continue 'pixels;
+                    }
+                    let (iu, iv) = (px as usize, py as usize);
+                    let (a, b) = (px - iu as f32, py - iv as f32);
+                    let tol = tolerance(seen.z);
+                    let i = iv * w + iu;
+                    let corners = [
+                        (wp.depth[i], (1.0 - a) * (1.0 - b)),
+                        (wp.depth[i + 1], a * (1.0 - b)),
+                        (wp.depth[i + w], (1.0 - a) * b),
+                        (wp.depth[i + w + 1], a * b),
+                    ];
+                    let (mut acc, mut weight) = (0.0f32, 0.0f32);
+                    for (z, wz) in corners {
+                        if valid(z) && (z - seen.z).abs() <= tol {
+                            acc += z * wz;
+                            weight += wz;
+                        }
+                    }
+                    if weight < 0.25 {
+                        continue 'pixels;
+                    }
+                    let held = acc / weight;
+                    let ray = Vec3::new((px - k.cx) * inv_fx, (py - k.cy) * inv_fy, 1.0);
+                    let back = held * wp.back_z.dot(ray) + wp.back_tz;
+                    if !valid(back) {
+                        continue 'pixels;
+                    }
+                    sum += back;
+                }
+                *o = sum * scale;
+                n += 1;
+            }
+            (n, c)
+        })
+        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    (out, paired, candidates)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::TsdfConfig;
+
+    fn intrinsics() -> Intrinsics {
+        Intrinsics::new(64, 48, 50.0, 50.0, 31.5, 23.5).expect("intrinsics")
+    }
+
+    /// Depth of the plane `n · x = c` (camera frame) on every pixel's ray.
+    fn plane_depth(k: &Intrinsics, n: Vec3, c: f32) -> Vec<f32> {
+        let mut out = Vec::new();
+        for v in 0..k.height {
+            for u in 0..k.width {
+                let ray = k.unproject(u as f32, v as f32, 1.0);
+                out.push(c / n.dot(ray));
+            }
+        }
+        out
+    }
+
+    /// A slanted plane seen from two poses: the previous frame's depth, warped onto the
+    /// current pixels, equals the current depth wherever both see it, so the average is the
+    /// current depth; pixels that leave the previous view are left out.
+    #[test]
+    fn a_plane_seen_twice_averages_to_its_own_depth() {
+        let k = intrinsics();
+        let n = Vec3::new(0.3, -0.2, 1.0).normalize();
+        let world_plane_c = 3.0;
+        let previous_from_world = Affine3A::IDENTITY;
+        let current_from_world = Affine3A::from_rotation_translation(
+            glam::Quat::from_rotation_y(0.03) * glam::Quat::from_rotation_x(-0.02),
+            Vec3::new(0.04, -0.01, 0.02),
+        );
+        // The plane in each camera: n_c = R n, c_c = c + n_c · t.
+        let in_camera = |t: Affine3A| {
+            let nc = t.transform_vector3(n);
+            (nc, world_plane_c + nc.dot(Vec3::from(t.translation)))
+        };
+        let (np, cp) = in_camera(previous_from_world);
+        let (nc, cc) = in_camera(current_from_world);
+        let previous = plane_depth(&k, np, cp);
+        let current = plane_depth(&k, nc, cc);
+        let current_from_previous = current_from_world * previous_from_world.inverse();
+        let (avg, paired, _) = grouped_depth(&current, &[(&previous, current_from_previous)], &k, |_| 0.05, (0.1, 10.0), 0.0);
+        assert!(paired > k.pixel_count() * 3 / 4, "{paired} of {} paired", k.pixel_count());
+        let mut worst = 0.0f32;
+        for (a, c) in avg.iter().zip(&current) {
+            if *a > 0.0 {
+                worst = worst.max((a - c).abs());
+            }
+        }
+        // Bilinear interpolation of 1/(n·ray) is not exact: well under a millimetre here.
+        assert!(worst < 5e-4, "worst difference {worst} m");
+    }
+
+    /// Noise averages: two independent noisy copies of a wall average to about half the
+    /// variance, and a depth edge is never averaged across.
+    #[test]
+    fn noise_averages_and_edges_are_left_out() {
+        let k = intrinsics();
+        let n = k.pixel_count();
+        let mut state = 12345u64;
+        let mut noise = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((state >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * 0.02
+        };
+        // A wall at 3 m with a box at 1.5 m in the left quarter.
+        let truth: Vec<f32> = (0..n).map(|i| if i % 64 < 16 { 1.5 } else { 3.0 }).collect();
+        let a: Vec<f32> = truth.iter().map(|t| t + noise()).collect();
+        let b: Vec<f32> = truth.iter().map(|t| t + noise()).collect();
+        let (avg, _, _) = grouped_depth(&a, &[(&b, Affine3A::IDENTITY)], &k, |_| 0.1, (0.1, 10.0), 0.0);
+        let err = |img: &[f32]| {
+            let e: Vec<f32> =
+                img.iter().zip(&truth).filter(|(v, _)| **v > 0.0).map(|(v, t)| (v - t) * (v - t)).collect();
+            e.iter().sum::<f32>() / e.len() as f32
+        };
+        assert!(err(&avg) < 0.75 * err(&a), "{} against {}", err(&avg), err(&a));
+        // Pixels next to the edge (whose bilinear neighbours straddle it) are never averaged
+        // into a value between the two surfaces.
+        for (v, t) in avg.iter().zip(&truth) {
+            assert!(*v == 0.0 || (v - t).abs() < 0.03, "{v} averaged across the edge (truth {t})");
+        }
+    }
+
+    /// Every chunk's key and voxels, in key order.
+    fn voxels(map: &TsdfMap) -> Vec<(ChunkKey, Vec<(f32, f32, [u8; 3])>)> {
+        map.sorted_keys()
+            .into_iter()
+            .filter_map(|key| map.chunk(key).map(|c| (key, c.voxels().map(|v| (v.tsdf(), v.weight(), v.color())).collect())))
+            .collect()
+    }
+
+    /// With pairing off the map is exactly what `TsdfMap::integrate` builds; with it on, a
+    /// held frame's far chunks are fused by `flush`.
+    #[test]
+    fn off_is_plain_fusion_and_a_held_frame_is_flushed() {
+        let k = intrinsics();
+        let config = TsdfConfig { voxel_size: 0.02, ..TsdfConfig::default() };
+        let depth: Vec<f32> = (0..k.pixel_count()).map(|i| if i % 64 < 32 { 1.0 } else { 3.0 }).collect();
+        let frame = Frame { color: vec![[100, 120, 140]; k.pixel_count()], ..Frame::from_depth(k, depth) };
+        let pose = Affine3A::IDENTITY;
+        let mut plain = TsdfMap::new(config.clone()).expect("map");
+        plain.integrate(&frame, pose).expect("fusion");
+        let mut off = TsdfMap::new(config.clone()).expect("map");
+        GroupedFusion::new(0.0, 2).integrate(&mut off, &frame, pose).expect("fusion");
+        assert_eq!(voxels(&off), voxels(&plain));
+
+        let mut paired = TsdfMap::new(config).expect("map");
+        let mut fusion = GroupedFusion::new(2.0, 2);
+        fusion.integrate(&mut paired, &frame, pose).expect("fusion");
+        assert!(fusion.is_holding());
+        assert!(paired.chunk_count() < plain.chunk_count(), "the far wall waits for its partner");
+        fusion.flush(&mut paired).expect("flush");
+        assert!(!fusion.is_holding());
+        assert_eq!(paired.chunk_count(), plain.chunk_count());
+    }
+}
