@@ -87,6 +87,15 @@ pub struct ReconArgs {
     /// a bare wall may drift (docs/fusion.md, "Both sides of the band").
     #[arg(long, default_value_t = 1.0)]
     pub behind_band: f32,
+    /// Chunks more than this many metres from the camera (along its axis) are fused once per
+    /// group of `--far-group-frames` consecutive frames, from the frames' depths averaged
+    /// pixel by pixel: the same noise averaging for a fraction of the work. 0: every frame
+    /// whole. Off with `--loop-closure` (docs/fusion.md, "Far surfaces from groups of frames").
+    #[arg(long, default_value_t = TsdfConfig::default().far_group_beyond_m)]
+    pub far_group_beyond: f32,
+    /// Frames in a group of `--far-group-beyond` (2 to 8).
+    #[arg(long, default_value_t = TsdfConfig::default().far_group_frames)]
+    pub far_group_frames: usize,
     /// With loop closure: re-fuse runs of up to this many consecutive stored frames as one
     /// frame weighing as much (1: every frame, exact). Cuts a re-integration's work about
     /// this many times for a little of the noise averaging (docs/loop_closure.md).
@@ -218,8 +227,13 @@ pub fn pipeline_config(
     tsdf.truncation_voxels = recon.truncation;
     tsdf.max_depth = recon.max_depth;
     tsdf.behind_band = recon.behind_band;
+    tsdf.far_group_beyond_m = recon.far_group_beyond;
+    tsdf.far_group_frames = recon.far_group_frames;
     tsdf.validate().with_context(|| {
-        format!("truncation of {} voxels, fused depth up to {} m", recon.truncation, recon.max_depth)
+        format!(
+            "truncation of {} voxels, fused depth up to {} m, far groups of {} frames beyond {} m",
+            recon.truncation, recon.max_depth, recon.far_group_frames, recon.far_group_beyond
+        )
     })?;
     // The same budget with semantics: the network reads the map's chunks, not the mesh.
     let default_mesh_budget = DEFAULT_MESH_BUDGET;

@@ -20,7 +20,7 @@ use glam::{Affine3A, Vec3};
 use semrecon_data::{class::UNLABELED, Frame, Intrinsics, LabeledMesh, SemanticClass, Trajectory};
 use semrecon_net::Segmenter;
 use semrecon_recon::{
-    IncrementalMesher, KeyframeIndex, LostReason, RemeshTolerance, Tracker, TrackerConfig, TrackingStatus, TsdfMap,
+    GroupedFusion, IncrementalMesher, KeyframeIndex, LostReason, RemeshTolerance, Tracker, TrackerConfig, TrackingStatus, TsdfMap,
 };
 use serde::Serialize;
 
@@ -161,6 +161,9 @@ pub struct Pipeline {
     semantics: Option<Semantics>,
     /// Keyframe graph, loop detection and the frame store (tracking with loop closure on).
     loop_closure: Option<LoopClosure>,
+    /// Fusion of far chunks from groups of frames ([`TsdfConfig::far_group_beyond_m`]); off
+    /// with loop closure, which re-fuses stored frames one by one.
+    grouped: GroupedFusion,
     warnings: Vec<String>,
 }
 
@@ -224,6 +227,11 @@ impl Pipeline {
             IncrementalMesher::with_config(config.mesh, RemeshTolerance::EXACT)?.with_budget(config.mesh_budget);
         let loop_closure = (config.poses == PoseMode::Track && config.loop_closure.enabled)
             .then(|| LoopClosure::new(config.loop_closure.clone(), intrinsics));
+        let grouped = if loop_closure.is_some() {
+            GroupedFusion::new(0.0, 1)
+        } else {
+            GroupedFusion::new(config.tsdf.far_group_beyond_m, config.tsdf.far_group_frames)
+        };
         Ok(Self {
             config,
             intrinsics,
@@ -244,6 +252,7 @@ impl Pipeline {
             last_fused_index: 0,
             semantics,
             loop_closure,
+            grouped,
             warnings: Vec::new(),
         })
     }
@@ -334,7 +343,7 @@ impl Pipeline {
         match &mut self.loop_closure {
             // A re-integration in progress copies the chunks the frame changes, first.
             Some(lc) if lc.is_running() => lc.fuse_live(&mut self.map, frame, pose)?,
-            _ => self.map.integrate(frame, pose)?,
+            _ => self.grouped.integrate(&mut self.map, frame, pose)?,
         };
         self.times.record("fusion", t.elapsed());
         self.last_fused_index = frame.index;
@@ -595,6 +604,18 @@ impl Pipeline {
     /// None at present (failures of the back end are [`Pipeline::warnings`]); the `Result`
     /// leaves room for outputs that can fail.
     pub fn finish(&mut self) -> Result<LabeledMesh> {
+        // Frames of an unfinished group: their far chunks, before the last mesh and labels.
+        if self.grouped.is_holding() {
+            let t = Instant::now();
+            let flushed = self.grouped.flush(&mut self.map)?;
+            self.times.record("fusion", t.elapsed());
+            if flushed.updated_voxels > 0 {
+                self.meshed_at = usize::MAX;
+                if let Some(s) = &mut self.semantics {
+                    s.stale = true;
+                }
+            }
+        }
         if self.loop_closure.as_ref().is_some_and(LoopClosure::is_behind) {
             self.follow_poses(self.frames.saturating_sub(1))?;
         }

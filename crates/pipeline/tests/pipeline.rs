@@ -250,7 +250,11 @@ fn a_camera_pitched_at_the_floor_finds_up_at_the_first_pass() {
 fn first_frames_of_demo_seed(seed: u64) -> (Pipeline, semrecon_data::LabeledMesh, f32) {
     let (mut frames, map_from_world) = scan_in_first_camera_frame_at(seed, 300, 640, 480);
     frames.truncate(120);
-    let demo_map = PipelineConfig { poses: PoseMode::GroundTruth, ..PipelineConfig::default() };
+    let mut demo_map = PipelineConfig { poses: PoseMode::GroundTruth, ..PipelineConfig::default() };
+    // The scenarios as they were recorded, every frame fused whole: with far surfaces fused
+    // from groups of frames (the default since session 27) seed 3's first estimate is no
+    // longer tilted, and these tests are about the up estimate, not fusion.
+    demo_map.tsdf.far_group_beyond_m = 0.0;
     let (p, mesh) = run(&frames, demo_map, Some(tiny_net(6)));
     let up = p.up().expect("a pass ran");
     let off = up.angle_to_deg(map_from_world.transform_vector3(Vec3::Z));

@@ -101,8 +101,8 @@ impl Default for TsdfConfig {
             packed_far_step_voxels: 0.2,
             packed_exact_band_voxels: 3.0,
             behind_band: 1.0,
-            far_group_beyond_m: 0.0,
-            far_group_frames: 2,
+            far_group_beyond_m: 2.0,
+            far_group_frames: 3,
         }
     }
 }
