@@ -20,7 +20,8 @@ use glam::{Affine3A, Vec3};
 use semrecon_data::{class::UNLABELED, Frame, Intrinsics, LabeledMesh, SemanticClass, Trajectory};
 use semrecon_net::Segmenter;
 use semrecon_recon::{
-    GroupedFusion, IncrementalMesher, KeyframeIndex, LostReason, RemeshTolerance, Tracker, TrackerConfig, TrackingStatus, TsdfMap,
+    GroupedFusion, IncrementalMesher, KeyframeIndex, LostReason, RemeshTolerance, Tracker, TrackerConfig,
+    TrackingStatus, TsdfMap,
 };
 use serde::Serialize;
 

@@ -5,8 +5,11 @@
 //!     [--7scenes DIR] [--out mesh.ply] [--keyframe K] [--trunc VOXELS]
 //!     [--band-factor K] [--min-band VOXELS] [--remesh-tol VOXELS] [--mesh-repeat N]
 //!     [--mesh-budget CHUNKS] [--color-every N] [--behind-band K]
+//!     [--far-group-beyond M] [--far-group-frames N]
 //! ```
 //!
+//! `--far-group-beyond`/`--far-group-frames` fuse far chunks from groups of frames as the
+//! pipeline does ([`semrecon_recon::GroupedFusion`]; selection is then timed with integration).
 //! Without `--7scenes` the frames are ray-cast from an analytic scene (floor, wall, sphere).
 //! With it, `DIR` is a 7-Scenes sequence folder (`frame-NNNNNN.depth.png` in millimetres with
 //! 0 and 65535 invalid, `.color.png`/`.color.jpg`, `.pose.txt` 4x4 camera-to-world) read with
@@ -42,7 +45,7 @@ use std::time::Instant;
 
 use glam::Affine3A;
 use semrecon_data::{Frame, Intrinsics, LabeledMesh};
-use semrecon_recon::{IncrementalMesher, GroupedFusion, RemeshTolerance, TsdfConfig, TsdfMap};
+use semrecon_recon::{GroupedFusion, IncrementalMesher, RemeshTolerance, TsdfConfig, TsdfMap};
 
 use cpu_time::cpu_ns;
 use flags::Flags;

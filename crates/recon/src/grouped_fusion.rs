@@ -134,7 +134,12 @@ impl GroupedFusion {
     /// # Errors
     /// What [`TsdfMap::select_chunks`] and [`TsdfMap::integrate_chunks`] return (a frame whose
     /// buffers do not match its intrinsics, a non-finite pose).
-    pub fn integrate(&mut self, map: &mut TsdfMap, frame: &Frame, world_from_camera: Affine3A) -> Result<IntegrationStats> {
+    pub fn integrate(
+        &mut self,
+        map: &mut TsdfMap,
+        frame: &Frame,
+        world_from_camera: Affine3A,
+    ) -> Result<IntegrationStats> {
         if !self.is_on() {
             return map.integrate(frame, world_from_camera);
         }
@@ -184,7 +189,7 @@ impl GroupedFusion {
         if far.is_empty() {
             return Ok(stats);
         }
-        let config = map.config();
+        let config = *map.config();
         let truncation = config.truncation();
         // A pixel nearer than this reaches no far voxel: every far chunk's voxels lie behind
         // its surface by more than the band (or the clamp behind it).
@@ -248,7 +253,12 @@ impl GroupedFusion {
 
 /// `keys` split into chunks whose centre is at most `beyond_m` along the camera's axis and
 /// those beyond, each in the given order.
-fn split_by_depth(map: &TsdfMap, keys: &[ChunkKey], world_from_camera: Affine3A, beyond_m: f32) -> (Vec<ChunkKey>, Vec<ChunkKey>) {
+fn split_by_depth(
+    map: &TsdfMap,
+    keys: &[ChunkKey],
+    world_from_camera: Affine3A,
+    beyond_m: f32,
+) -> (Vec<ChunkKey>, Vec<ChunkKey>) {
     let camera_from_world = world_from_camera.inverse();
     let voxel = map.config().voxel_size;
     let half = (CHUNK_SIDE as f32 - 1.0) / 2.0;
@@ -440,7 +450,8 @@ mod tests {
         let previous = plane_depth(&k, np, cp);
         let current = plane_depth(&k, nc, cc);
         let current_from_previous = current_from_world * previous_from_world.inverse();
-        let (avg, paired, _) = grouped_depth(&current, &[(&previous, current_from_previous)], &k, |_| 0.05, (0.1, 10.0), 0.0);
+        let (avg, paired, _) =
+            grouped_depth(&current, &[(&previous, current_from_previous)], &k, |_| 0.05, (0.1, 10.0), 0.0);
         assert!(paired > k.pixel_count() * 3 / 4, "{paired} of {} paired", k.pixel_count());
         let mut worst = 0.0f32;
         for (a, c) in avg.iter().zip(&current) {
@@ -481,11 +492,16 @@ mod tests {
         }
     }
 
+    /// A chunk's key and its voxels' distance, weight and colour.
+    type ChunkVoxels = (ChunkKey, Vec<(f32, f32, [u8; 3])>);
+
     /// Every chunk's key and voxels, in key order.
-    fn voxels(map: &TsdfMap) -> Vec<(ChunkKey, Vec<(f32, f32, [u8; 3])>)> {
+    fn voxels(map: &TsdfMap) -> Vec<ChunkVoxels> {
         map.sorted_keys()
             .into_iter()
-            .filter_map(|key| map.chunk(key).map(|c| (key, c.voxels().map(|v| (v.tsdf(), v.weight(), v.color())).collect())))
+            .filter_map(|key| {
+                map.chunk(key).map(|c| (key, c.voxels().map(|v| (v.tsdf(), v.weight(), v.color())).collect()))
+            })
             .collect()
     }
 
@@ -498,9 +514,9 @@ mod tests {
         let depth: Vec<f32> = (0..k.pixel_count()).map(|i| if i % 64 < 32 { 1.0 } else { 3.0 }).collect();
         let frame = Frame { color: vec![[100, 120, 140]; k.pixel_count()], ..Frame::from_depth(k, depth) };
         let pose = Affine3A::IDENTITY;
-        let mut plain = TsdfMap::new(config.clone()).expect("map");
+        let mut plain = TsdfMap::new(config).expect("map");
         plain.integrate(&frame, pose).expect("fusion");
-        let mut off = TsdfMap::new(config.clone()).expect("map");
+        let mut off = TsdfMap::new(config).expect("map");
         GroupedFusion::new(0.0, 2).integrate(&mut off, &frame, pose).expect("fusion");
         assert_eq!(voxels(&off), voxels(&plain));
 
@@ -517,7 +533,7 @@ mod tests {
         fusion.integrate(&mut paired, &later, pose).expect("fusion");
         assert!(fusion.is_holding());
         assert_eq!(fusion.stats().flushed_frames, 1);
-        let mut twice = TsdfMap::new(paired.config().clone()).expect("map");
+        let mut twice = TsdfMap::new(*paired.config()).expect("map");
         twice.integrate(&frame, pose).expect("fusion");
         let near_only = voxels(&paired);
         fusion.flush(&mut paired).expect("flush");

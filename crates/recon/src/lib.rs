@@ -25,10 +25,10 @@
 mod cube_cases;
 pub mod error;
 pub mod fusion;
+pub mod grouped_fusion;
 mod linalg;
 pub mod loop_detection;
 pub mod map;
-pub mod grouped_fusion;
 pub mod marching_cubes;
 pub mod pose_graph;
 pub mod raycast;
@@ -37,6 +37,7 @@ pub mod tracking;
 
 pub use error::{ReconError, Result};
 pub use fusion::{depth_weight, IntegrationStats};
+pub use grouped_fusion::{GroupedFusion, GroupingStats};
 pub use loop_detection::{LoopConfig, LoopDetector, LoopRejection, LoopVerdict};
 pub use map::{
     Chunk, ChunkKey, Compaction, MapMemory, PackError, SpillError, SpillFile, TsdfConfig, TsdfMap, Voxel, CHUNK_SIDE,
@@ -46,7 +47,6 @@ pub use marching_cubes::{
     extract_mesh, extract_mesh_with, mesh_chunk, mesh_chunk_with, ChunkMesh, IncrementalMesher, MeshConfig,
     MeshingStats, RemeshTolerance,
 };
-pub use grouped_fusion::{GroupedFusion, GroupingStats};
 pub use pose_graph::{EdgeKind, PoseEdge, PoseGraph, PoseGraphConfig, PoseGraphError};
 pub use raycast::{raycast, ModelView};
 pub use relocalisation::KeyframeIndex;

@@ -368,3 +368,54 @@ fn memory_follows_the_surface_not_the_frame_count() {
     revisit(&mut map, 21..41);
     assert_eq!((map.chunk_count(), map.memory_bytes()), (chunks, full));
 }
+
+/// Far surfaces fused from groups of frames (`GroupedFusion`): the same bits for any thread
+/// count, and on noise-free depth the same surface as fusing every frame whole (the average
+/// of three observations of one surface is that surface, up to the warp's interpolation).
+#[test]
+fn grouped_fusion_is_deterministic_and_keeps_the_surface() {
+    let k = small_camera();
+    let config = TsdfConfig { voxel_size: 0.01, ..TsdfConfig::default() };
+    let frames: Vec<(Frame, Affine3A)> =
+        scene::trajectory(20).into_iter().enumerate().map(|(i, p)| (scene::render(k, p, i), p)).collect();
+    let grouped = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+        pool.install(|| {
+            let mut map = TsdfMap::new(config).expect("valid");
+            // Beyond 1 m: most of the analytic scene is far.
+            let mut fusion = semrecon_recon::GroupedFusion::new(1.0, 3);
+            for (f, pose) in &frames {
+                fusion.integrate(&mut map, f, *pose).expect("fusion");
+            }
+            fusion.flush(&mut map).expect("flush");
+            assert!(fusion.stats().groups >= 6, "{:?}", fusion.stats());
+            map
+        })
+    };
+    let voxels = |map: &TsdfMap| -> Vec<(semrecon_recon::ChunkKey, Vec<(f32, f32)>)> {
+        map.sorted_keys()
+            .into_iter()
+            .map(|key| (key, map.chunk(key).expect("allocated").voxels().map(|v| (v.tsdf(), v.weight())).collect()))
+            .collect()
+    };
+    let one = grouped(1);
+    for threads in [2, 4] {
+        assert!(voxels(&one) == voxels(&grouped(threads)), "{threads} threads");
+    }
+    let mut whole = TsdfMap::new(config).expect("valid");
+    for (f, pose) in &frames {
+        whole.integrate(f, *pose).expect("fusion");
+    }
+    // Every vertex of the grouped mesh lies on the whole-frame map's surface: the whole map's
+    // distance, interpolated at the vertex, is within a fraction of a voxel of zero.
+    let mesh = extract_mesh(&one);
+    assert!(mesh.triangle_count() > 1000);
+    let reference = extract_mesh(&whole);
+    let near = |p: Vec3| reference.positions.iter().map(|q| q.distance_squared(p)).fold(f32::MAX, f32::min).sqrt();
+    let step = (mesh.positions.len() / 400).max(1);
+    let mut worst = 0.0f32;
+    for p in mesh.positions.iter().step_by(step) {
+        worst = worst.max(near(*p));
+    }
+    assert!(worst < 0.5 * config.voxel_size, "a grouped vertex {worst} m from the whole-frame surface");
+}
