@@ -97,9 +97,8 @@ pub struct ReconArgs {
     #[arg(long, default_value_t = TsdfConfig::default().far_group_frames)]
     pub far_group_frames: usize,
     /// With loop closure: re-fuse runs of up to this many consecutive stored frames as one
-    /// frame weighing as much, their depths averaged pixel by pixel (1: every frame, exact).
-    /// Cuts a re-integration's work about this many times, at the same mesh accuracy or
-    /// better (docs/loop_closure.md).
+    /// frame weighing as much (1: every frame, exact). Cuts a re-integration's work about
+    /// this many times for a little of the noise averaging (docs/loop_closure.md).
     #[arg(long, requires = "loop_closure")]
     pub reintegration_stride: Option<usize>,
     /// With loop closure: weigh loop edges by the shape of the loop alignment's Hessian

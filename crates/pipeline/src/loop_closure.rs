@@ -118,14 +118,11 @@ pub struct LoopClosureConfig {
     /// re-integration (seconds on 7-Scenes).
     pub reintegration_frames_per_keyframe: usize,
     /// Stored frames re-fused as one: runs of up to this many consecutive frames are re-fused
-    /// as their first, with the run's depths averaged onto it pixel by pixel where all of them
-    /// saw the same surface (`semrecon_recon::grouped_fusion::average_depth`, as live fusion
-    /// does for far surfaces), its observations weighing as much as the run. 1: every frame
-    /// (the rebuilt chunks are then what fusing afresh at the corrected poses gives). The
-    /// average keeps the noise averaging of the run's frames and leaves out depths only one
-    /// of them measured: on the drifting-loop test stride 4 gives 1.77 mm of mesh accuracy
-    /// against 2.30 mm exact (3.27 mm re-fusing the first frame alone, before session 27);
-    /// the work of a re-integration shrinks about this many times.
+    /// as their first, its observations weighing as much as the run. 1: every frame (the
+    /// rebuilt chunks are then what fusing afresh at the corrected poses gives). Consecutive
+    /// frames see nearly the same surface from nearly the same place, so a subsample loses
+    /// little besides the averaging of their noise (docs/loop_closure.md has the effect on
+    /// mesh accuracy); the work of a re-integration shrinks about this many times.
     pub reintegration_stride: usize,
 }
 

@@ -198,7 +198,18 @@ impl GroupedFusion {
         let camera_from_world = world_from_camera.inverse();
         let others: Vec<(&[f32], Affine3A)> =
             held.iter().map(|h| (h.depth.as_slice(), camera_from_world * h.world_from_camera)).collect();
-        let (depth, paired, candidates) = average_depth(&config, &frame.depth, &frame.intrinsics, &others, from_depth);
+        let (depth, paired, candidates) = grouped_depth(
+            &frame.depth,
+            &others,
+            &frame.intrinsics,
+            // Two observations of one surface differ by the noise of both, sqrt(2) sigma:
+            // 4.5 sigma keeps all but a few in ten thousand of them (the band, capped at the
+            // truncation, would drop a fifth far away), and still parts surfaces that are
+            // decimetres apart at 4 m.
+            |z| (4.5 * depth_noise(z)).max(2.0 * config.voxel_size),
+            (config.min_depth, config.max_depth),
+            from_depth,
+        );
         self.stats.groups += 1;
         self.stats.paired_pixels += paired;
         self.stats.candidate_pixels += candidates;
@@ -238,34 +249,6 @@ impl GroupedFusion {
     pub fn is_holding(&self) -> bool {
         !self.held.is_empty()
     }
-}
-
-/// [`grouped_depth`] with the tolerance fusion uses, for a map of `config`: the depth of
-/// `reference` averaged with each of `others` (depth, `reference_from_other`) where all saw
-/// the same surface, from `from_depth` on. Returns the image, the averaged pixels and the
-/// candidates. Loop closure's re-integration averages runs of stored frames with it too.
-///
-/// # Shapes
-/// As [`grouped_depth`].
-pub fn average_depth(
-    config: &crate::TsdfConfig,
-    reference: &[f32],
-    k: &Intrinsics,
-    others: &[(&[f32], Affine3A)],
-    from_depth: f32,
-) -> (Vec<f32>, usize, usize) {
-    grouped_depth(
-        reference,
-        others,
-        k,
-        // Two observations of one surface differ by the noise of both, sqrt(2) sigma: 4.5
-        // sigma keeps all but a few in ten thousand of them (the band, capped at the
-        // truncation, would drop a fifth far away), and still parts surfaces that are
-        // decimetres apart at 4 m.
-        |z| (4.5 * depth_noise(z)).max(2.0 * config.voxel_size),
-        (config.min_depth, config.max_depth),
-        from_depth,
-    )
 }
 
 /// `keys` split into chunks whose centre is at most `beyond_m` along the camera's axis and

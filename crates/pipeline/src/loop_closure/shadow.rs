@@ -28,8 +28,7 @@
 use std::collections::{HashMap, VecDeque};
 
 use glam::Affine3A;
-use semrecon_data::{Frame, Intrinsics};
-use semrecon_recon::grouped_fusion::average_depth;
+use semrecon_data::Intrinsics;
 use semrecon_recon::{ChunkKey, TsdfMap};
 
 use super::plan::Plan;
@@ -221,20 +220,6 @@ impl Shadow {
         };
         if keys.is_empty() {
             return Ok(0);
-        }
-        // A run of frames stands for all of them: their depths averaged onto the first
-        // (where every one saw the same surface), not the first alone, so the run keeps the
-        // noise averaging its frames gave (docs/loop_closure.md, "Re-fusing runs averaged").
-        let mut frame = frame;
-        if work.weight > 1 {
-            let reference_from_world = pose.inverse();
-            let run: Vec<Frame> = (work.frame + 1..work.frame + work.weight).map(|i| frames[i].frame(intrinsics)).collect();
-            let others: Vec<(&[f32], Affine3A)> = run
-                .iter()
-                .zip(work.frame + 1..)
-                .map(|(f, i)| (f.depth.as_slice(), reference_from_world * self.poses[i]))
-                .collect();
-            frame.depth = average_depth(self.map.config(), &frame.depth, &intrinsics, &others, 0.0).0;
         }
         self.map.integrate_chunks_weighted(&frame, pose, &keys, work.weight as f32)?;
         self.fused += 1;

@@ -43,11 +43,9 @@ fn a_drifting_loop_re_integrated_at_once() {
     );
 }
 
-/// Re-fused from runs of four stored frames, their depths averaged onto the first, weighing
-/// four: 1.77 mm on seed 1, better than the exact re-fusion (2.30 mm; the average leaves out
-/// depths that only one frame of a run measured, flying pixels among them), far better than
-/// the drifted map (33 mm). Before session 27 the run's first frame alone stood for it:
-/// 3.27 mm.
+/// Re-fused from every fourth stored frame, weighing four: within half again of the exact
+/// re-fusion (3.27 against 2.25 mm on seed 1: fewer frames' noise averaged, and the frames
+/// between miss what only they saw), far better than the drifted map (33 mm).
 #[test]
 fn a_drifting_loop_re_fused_from_a_subsample() {
     close_a_drifting_loop(1, LoopClosureConfig { reintegration_stride: 4, ..LoopClosureConfig::default() });
@@ -219,8 +217,9 @@ fn close_a_drifting_loop_in(
         lc.report.corrections.len(),
         lc.report.reintegrations.len()
     );
-    // Exact re-fusion matches fusing afresh, and so does (or better) re-fusing runs averaged.
-    assert!(followed <= fresh * 1.05 + 0.05, "re-integrated {followed} mm, fused afresh {fresh} mm");
+    // Exact re-fusion matches fusing afresh; a subsample averages fewer frames' noise.
+    let slack = if stride == 1 { (1.05, 0.05) } else { (1.5, 0.1) };
+    assert!(followed <= fresh * slack.0 + slack.1, "re-integrated {followed} mm, fused afresh {fresh} mm");
     assert!(followed < drifting, "re-integrated {followed} mm, drifted {drifting} mm");
     let bits = mesh.positions.iter().map(|p| p.to_array().map(f32::to_bits)).collect();
     (bits, lc.report.reintegrations.iter().map(|r| (r.started_at, r.frame)).collect())
