@@ -131,6 +131,18 @@ pub struct IntegrationStats {
     pub updated_voxels: usize,
 }
 
+impl std::ops::AddAssign for IntegrationStats {
+    /// Sums the counts of several integrations (one frame fused in several passes).
+    fn add_assign(&mut self, s: Self) {
+        self.visited_chunks += s.visited_chunks;
+        self.new_chunks += s.new_chunks;
+        self.freed_chunks += s.freed_chunks;
+        self.updated_chunks += s.updated_chunks;
+        self.band_chunks += s.band_chunks;
+        self.updated_voxels += s.updated_voxels;
+    }
+}
+
 /// Everything a per-chunk integration task reads, precomputed once per frame.
 struct FrameView<'a> {
     depth: &'a [f32],

@@ -150,7 +150,7 @@ impl GroupedFusion {
         if let Some(last) = self.held.last() {
             let gap = frame.index.wrapping_sub(last.index);
             if !(1..=MAX_GROUP_GAP).contains(&gap) || last.intrinsics != frame.intrinsics {
-                add(&mut stats, self.flush(map)?);
+                stats += self.flush(map)?;
             }
         }
         if self.held.len() + 1 < self.frames {
@@ -161,7 +161,7 @@ impl GroupedFusion {
             // is new).
             let (new, far): (Vec<ChunkKey>, Vec<ChunkKey>) = far.into_iter().partition(|k| map.chunk(*k).is_none());
             let now: Vec<ChunkKey> = if new.is_empty() { near } else { near.into_iter().chain(new).collect() };
-            add(&mut stats, map.integrate_chunks(frame, world_from_camera, &now)?);
+            stats += map.integrate_chunks(frame, world_from_camera, &now)?;
             self.held.push(Held {
                 index: frame.index,
                 depth: frame.depth.clone(),
@@ -173,7 +173,7 @@ impl GroupedFusion {
             });
             return Ok(stats);
         }
-        add(&mut stats, map.integrate_chunks(frame, world_from_camera, &near)?);
+        stats += map.integrate_chunks(frame, world_from_camera, &near)?;
         let mut held = std::mem::take(&mut self.held);
         // Far chunks a held frame saw that the last frame does not (the edge of a panning
         // view) would get nothing from the average: each held frame fuses those alone.
@@ -182,7 +182,7 @@ impl GroupedFusion {
             let missing: Vec<ChunkKey> = h.far.iter().copied().filter(|k| !last.contains(k)).collect();
             if !missing.is_empty() {
                 let frame = h.frame();
-                add(&mut stats, map.integrate_chunks(&frame, h.world_from_camera, &missing)?);
+                stats += map.integrate_chunks(&frame, h.world_from_camera, &missing)?;
                 h.restore(frame);
             }
         }
@@ -222,7 +222,7 @@ impl GroupedFusion {
             world_from_camera: frame.world_from_camera,
             labels: None,
         };
-        add(&mut stats, map.integrate_chunks_weighted(&averaged, world_from_camera, &far, self.frames as f32)?);
+        stats += map.integrate_chunks_weighted(&averaged, world_from_camera, &far, self.frames as f32)?;
         Ok(stats)
     }
 
@@ -240,7 +240,7 @@ impl GroupedFusion {
             }
             let pose = held.world_from_camera;
             let far = std::mem::take(&mut held.far);
-            add(&mut stats, map.integrate_chunks(&held.frame(), pose, &far)?);
+            stats += map.integrate_chunks(&held.frame(), pose, &far)?;
         }
         Ok(stats)
     }
@@ -266,15 +266,6 @@ fn split_by_depth(
         let centre = (key.as_vec3() * CHUNK_SIDE as f32 + Vec3::splat(half)) * voxel;
         camera_from_world.transform_point3(centre).z <= beyond_m
     })
-}
-
-fn add(total: &mut IntegrationStats, s: IntegrationStats) {
-    total.visited_chunks += s.visited_chunks;
-    total.new_chunks += s.new_chunks;
-    total.freed_chunks += s.freed_chunks;
-    total.updated_chunks += s.updated_chunks;
-    total.band_chunks += s.band_chunks;
-    total.updated_voxels += s.updated_voxels;
 }
 
 /// The depth of `current` averaged, pixel by pixel, with each of `others`' observations of
