@@ -104,6 +104,33 @@ pub(crate) fn order(k: IVec3) -> (i32, i32, i32) {
     (k.z, k.y, k.x)
 }
 
+/// Sorts `keys` in [`order`] and drops repeats.
+///
+/// A keyframe's re-read list holds about 100,000 keys on the demo (every changed chunk and
+/// its three lower neighbours), most of them twice or more; sorted as `(z, y, x)` tuples they
+/// took most of the snapshot's serial part (5-6 ms a keyframe). Packed into one integer in
+/// the same order they sort several times faster; keys too far out to pack (none on a map of
+/// a building) fall back to the tuples.
+fn sort_dedup(keys: &mut Vec<ChunkKey>) {
+    const BITS: u32 = 21;
+    const OFFSET: i32 = 1 << (BITS - 1);
+    let packable = |k: &ChunkKey| k.to_array().iter().all(|c| (-OFFSET..OFFSET).contains(c));
+    if !keys.iter().all(packable) {
+        keys.sort_unstable_by_key(|k| order(*k));
+        keys.dedup();
+        return;
+    }
+    let field = |c: i32| u64::from((c + OFFSET) as u32);
+    let mut packed: Vec<u64> =
+        keys.iter().map(|k| (field(k.z) << (2 * BITS)) | (field(k.y) << BITS) | field(k.x)).collect();
+    packed.sort_unstable();
+    packed.dedup();
+    let mask = (1u64 << BITS) - 1;
+    let unpack = |v: u64| (v & mask) as i32 - OFFSET;
+    keys.clear();
+    keys.extend(packed.into_iter().map(|v| IVec3::new(unpack(v), unpack(v >> BITS), unpack(v >> (2 * BITS)))));
+}
+
 /// The surface of the map in coarse cells, updated from changed chunks only.
 #[derive(Debug, Clone)]
 pub struct SurfaceCells {
@@ -252,8 +279,7 @@ impl SurfaceCells {
                 }
             };
             reread.extend(self.pending.iter().filter(|k| due(k)).copied());
-            reread.sort_unstable_by_key(|k| order(*k));
-            reread.dedup();
+            sort_dedup(&mut reread);
             reread.retain(|k| {
                 let wait = !due(k) && self.chunks.contains_key(k) && map.chunk(*k).is_some();
                 if wait {
@@ -264,8 +290,7 @@ impl SurfaceCells {
                 !wait
             });
         } else {
-            reread.sort_unstable_by_key(|k| order(*k));
-            reread.dedup();
+            sort_dedup(&mut reread);
         }
         let t_par = std::time::Instant::now();
         if std::env::var_os("SNAP_DEBUG").is_some() {
@@ -505,6 +530,28 @@ fn round_i64(x: f32) -> i64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn packed_sort_matches_the_tuple_sort() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        for range in [3, 40, (1 << 20) - 1, 1 << 20, i32::MAX] {
+            let mut keys: Vec<ChunkKey> = (0..5000)
+                .map(|_| {
+                    IVec3::new(
+                        rng.random_range(-range..range),
+                        rng.random_range(-range..range),
+                        rng.random_range(-range..range),
+                    )
+                })
+                .collect();
+            let mut want = keys.clone();
+            want.sort_unstable_by_key(|k| order(*k));
+            want.dedup();
+            sort_dedup(&mut keys);
+            assert_eq!(keys, want, "coordinates within {range}");
+        }
+    }
 
     /// Fuses `frames` frames of a synthetic scan at 2 cm, calling `keyframe` after every third.
     fn fuse_scan(seed: u64, frames: usize, mut keyframe: impl FnMut(&mut TsdfMap)) -> TsdfMap {
