@@ -32,6 +32,7 @@
 //! of its three lower face neighbours ([`readers_of`]) are re-made.
 
 use glam::{IVec3, Vec3};
+use semrecon_recon::cache_hint::prefetch;
 use semrecon_recon::map::{split_voxel, TSDF_SCALE};
 use semrecon_recon::marching_cubes::{edge_color, max_edge_jump};
 use semrecon_recon::{Chunk, ChunkKey, MeshConfig, TsdfConfig, TsdfMap, CHUNK_SIDE};
@@ -284,24 +285,6 @@ impl SurfaceChunk<'_> {
             }
         }
     }
-}
-
-/// Asks for the cache lines at `count` offsets `stride` bytes apart from the start of `data`
-/// (those inside it): a hint, with no effect on results (none off x86-64).
-#[inline(always)]
-fn prefetch<T>(data: &[T], stride: usize, count: usize) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-        let bytes = std::mem::size_of_val(data);
-        let start = data.as_ptr().cast::<i8>();
-        for offset in (0..bytes).step_by(stride.max(1)).take(count) {
-            // SAFETY: a prefetch never faults, and the address lies inside `data`.
-            unsafe { _mm_prefetch::<_MM_HINT_T0>(start.add(offset)) };
-        }
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = (data, stride, count);
 }
 
 /// Bit masks (bit x) of the observed and of the observed negative voxels of one row of 8.

@@ -22,6 +22,7 @@
 //! non-zero [`RemeshTolerance`] adds a 2112-byte snapshot per chunk with both signs.
 #![warn(missing_docs)]
 
+pub mod cache_hint;
 mod cube_cases;
 pub mod error;
 pub mod fusion;

@@ -26,6 +26,7 @@ use glam::{Affine3A, IVec3, Vec3};
 use rayon::prelude::*;
 use semrecon_data::Intrinsics;
 
+use crate::cache_hint::prefetch;
 use crate::map::{depth_noise, split_voxel, BandModel, Chunk, ChunkKey, TsdfMap, VoxelBlock, CHUNK_SIDE, TSDF_SCALE};
 
 /// A predicted view of the map from one camera pose.
@@ -143,8 +144,8 @@ impl<'a> VoxelReader<'a> {
         }
         let found = self.lookup(key);
         if let Some(b) = found {
-            prefetch_lines(&b.tsdf);
-            prefetch_lines(&b.weight);
+            prefetch(&b.tsdf, 64, usize::MAX);
+            prefetch(&b.weight, 64, usize::MAX);
         }
         self.recent[h as usize % RECENT_CHUNKS] = (key, found);
         found
@@ -234,21 +235,6 @@ impl<'a> VoxelReader<'a> {
                 [c[0], c[1], c[2]]
             }
             None => [0; 3],
-        }
-    }
-}
-
-/// Asks for every cache line of `data`: a hint, with no effect on results (none off
-/// x86-64).
-#[inline(always)]
-fn prefetch_lines<T>(data: &[T]) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-        let start = data.as_ptr().cast::<i8>();
-        for offset in (0..std::mem::size_of_val(data)).step_by(64) {
-            // SAFETY: a prefetch never faults, and the address lies inside `data`.
-            unsafe { _mm_prefetch::<_MM_HINT_T0>(start.add(offset)) };
         }
     }
 }
