@@ -8,6 +8,7 @@ mod device;
 mod interrupt;
 mod live_view;
 mod map_report;
+mod process_memory;
 mod progress;
 mod reconstruction;
 mod timing;

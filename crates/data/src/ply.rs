@@ -654,6 +654,18 @@ impl PlyFile {
     }
 
     fn write_unchecked(&self, w: &mut dyn Write, format: PlyFormat) -> std::io::Result<()> {
+        self.write_header(w, format)?;
+        let mut buf: Vec<u8> = Vec::with_capacity(ROW_FLUSH_BYTES + 4096);
+        for e in &self.elements {
+            e.write_rows(w, &mut buf, format)?;
+        }
+        w.write_all(&buf)?;
+        w.flush()
+    }
+
+    /// Writes the header: format, comments, and every element with its `count` and its
+    /// properties' types (the rows themselves are not read).
+    pub(crate) fn write_header(&self, w: &mut dyn Write, format: PlyFormat) -> std::io::Result<()> {
         let mut head = String::from("ply\n");
         head += &format!("format {} 1.0\n", format.name());
         for c in &self.comments {
@@ -679,52 +691,56 @@ impl PlyFile {
             }
         }
         head += "end_header\n";
-        w.write_all(head.as_bytes())?;
+        w.write_all(head.as_bytes())
+    }
+}
 
-        // Rows are assembled in a buffer flushed every ~1 MiB: one write call per chunk
-        // rather than per value.
-        const FLUSH: usize = 1 << 20;
-        let mut buf: Vec<u8> = Vec::with_capacity(FLUSH + 4096);
+/// Rows are assembled in a buffer written out every ~1 MiB: one write call per block
+/// rather than per value.
+pub(crate) const ROW_FLUSH_BYTES: usize = 1 << 20;
+
+impl Element {
+    /// Appends the element's rows (`count` of them, checked against the columns
+    /// beforehand) to `buf` in the body encoding, writing `buf` out to `w` whenever it
+    /// holds [`ROW_FLUSH_BYTES`]; what is left in `buf` is for the caller to write.
+    pub(crate) fn write_rows(&self, w: &mut dyn Write, buf: &mut Vec<u8>, format: PlyFormat) -> std::io::Result<()> {
         let big = format == PlyFormat::BinaryBigEndian;
-        for e in &self.elements {
-            for row in 0..e.count {
-                for (k, p) in e.properties.iter().enumerate() {
-                    if format == PlyFormat::Ascii && k > 0 {
-                        buf.push(b' ');
+        for row in 0..self.count {
+            for (k, p) in self.properties.iter().enumerate() {
+                if format == PlyFormat::Ascii && k > 0 {
+                    buf.push(b' ');
+                }
+                match &p.data {
+                    PropertyData::Scalar(c) => {
+                        if format == PlyFormat::Ascii {
+                            c.put_text(row, buf);
+                        } else {
+                            c.put_binary(row, buf, big);
+                        }
                     }
-                    match &p.data {
-                        PropertyData::Scalar(c) => {
+                    PropertyData::List(l) => {
+                        let (a, b) = (l.offsets[row], l.offsets[row + 1]);
+                        put_count(l.count_type, b - a, buf, format);
+                        for i in a..b {
                             if format == PlyFormat::Ascii {
-                                c.put_text(row, &mut buf);
+                                buf.push(b' ');
+                                l.values.put_text(i, buf);
                             } else {
-                                c.put_binary(row, &mut buf, big);
-                            }
-                        }
-                        PropertyData::List(l) => {
-                            let (a, b) = (l.offsets[row], l.offsets[row + 1]);
-                            put_count(l.count_type, b - a, &mut buf, format);
-                            for i in a..b {
-                                if format == PlyFormat::Ascii {
-                                    buf.push(b' ');
-                                    l.values.put_text(i, &mut buf);
-                                } else {
-                                    l.values.put_binary(i, &mut buf, big);
-                                }
+                                l.values.put_binary(i, buf, big);
                             }
                         }
                     }
-                }
-                if format == PlyFormat::Ascii {
-                    buf.push(b'\n');
-                }
-                if buf.len() >= FLUSH {
-                    w.write_all(&buf)?;
-                    buf.clear();
                 }
             }
+            if format == PlyFormat::Ascii {
+                buf.push(b'\n');
+            }
+            if buf.len() >= ROW_FLUSH_BYTES {
+                w.write_all(buf)?;
+                buf.clear();
+            }
         }
-        w.write_all(&buf)?;
-        w.flush()
+        Ok(())
     }
 }
 

@@ -724,6 +724,11 @@ impl Pipeline {
         &self.map
     }
 
+    /// Heap bytes of the live mesh's chunk store (beside the map's [`TsdfMap::memory`]).
+    pub fn mesh_store_memory(&self) -> semrecon_recon::MeshStoreMemory {
+        self.mesher.memory()
+    }
+
     /// How far the live mesh lagged under [`crate::PipelineConfig::mesh_budget`]: the chunks
     /// left waiting after each keyframe's meshing, as (mean, largest); `None` before the first
     /// keyframe. Always (0, 0) without a budget.

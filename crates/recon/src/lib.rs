@@ -46,7 +46,7 @@ pub use map::{
 };
 pub use marching_cubes::{
     extract_mesh, extract_mesh_with, mesh_chunk, mesh_chunk_with, ChunkMesh, IncrementalMesher, MeshConfig,
-    MeshingStats, RemeshTolerance,
+    MeshStoreMemory, MeshingStats, RemeshTolerance,
 };
 pub use pose_graph::{EdgeKind, PoseEdge, PoseGraph, PoseGraphConfig, PoseGraphError};
 pub use raycast::{raycast, ModelView};

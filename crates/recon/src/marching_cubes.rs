@@ -43,7 +43,7 @@ use crate::map::{
     key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, VoxelBlock, CHUNK_SIDE, CHUNK_VOXELS, TSDF_SCALE,
     WEIGHT_SCALE,
 };
-pub use incremental::{IncrementalMesher, MeshingStats, RemeshTolerance};
+pub use incremental::{IncrementalMesher, MeshStoreMemory, MeshingStats, RemeshTolerance};
 use reader_marks::{ALL_READERS, CELL_READERS};
 #[allow(clippy::wildcard_imports)]
 use triangles::*;
@@ -88,14 +88,52 @@ pub struct ChunkMesh {
     pub colors: Vec<[u8; 3]>,
     /// Unit vertex normals toward free space (zero where the gradient vanishes).
     pub normals: Vec<Vec3>,
-    /// Triangles, counter-clockwise seen from free space.
-    pub triangles: Vec<[u32; 3]>,
-    /// Vertices on cell edges that neighbouring chunks also use, with the edge's global key
+    /// Triangles, counter-clockwise seen from free space, as indices into this chunk's
+    /// vertices (a chunk has fewer than 4096: 16 bits halve what the live mesh keeps).
+    pub triangles: Vec<[u16; 3]>,
+    /// Vertices on cell edges that neighbouring chunks also use, with their edges
     /// (ascending vertex order); the assembly welds them.
-    shared: Vec<(u32, EdgeKey)>,
+    shared: Vec<SharedVertex>,
+}
+
+/// A chunk's vertex on a cell edge that neighbouring chunks also use, with the edge local to
+/// the chunk: the edge's low corner as a voxel offset from the chunk's first voxel (4 bits
+/// per axis) and its axis. 4 bytes where the global key took 20: a whole home's mesh has
+/// millions of them, kept for as long as the live mesh.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct SharedVertex {
+    vertex: u16,
+    edge: u16,
+}
+
+impl SharedVertex {
+    /// Vertex `vertex` (below 4096) on the edge along `axis` from voxel offset `low` (each
+    /// 0..16).
+    fn new(vertex: u32, axis: usize, low: [i32; 3]) -> Self {
+        debug_assert!(vertex < 1 << 12 && axis < 3 && low.iter().all(|c| (0..16).contains(c)));
+        let edge = low[0] as u16 | (low[1] as u16) << 4 | (low[2] as u16) << 8 | (axis as u16) << 12;
+        Self { vertex: vertex as u16, edge }
+    }
+
+    /// The edge's global key in the chunk whose first voxel is `key_voxel`.
+    fn key(self, key_voxel: IVec3) -> EdgeKey {
+        let e = i32::from(self.edge);
+        (key_voxel + IVec3::new(e & 15, e >> 4 & 15, e >> 8 & 15), (e >> 12) as u8)
+    }
 }
 
 impl ChunkMesh {
+    /// Heap bytes of the vectors: (at their capacities, at their lengths).
+    pub fn heap_bytes(&self) -> (usize, usize) {
+        fn bytes<T>(v: &Vec<T>) -> (usize, usize) {
+            let size = std::mem::size_of::<T>();
+            (v.capacity() * size, v.len() * size)
+        }
+        [bytes(&self.positions), bytes(&self.colors), bytes(&self.normals), bytes(&self.triangles), bytes(&self.shared)]
+            .into_iter()
+            .fold((0, 0), |(a, u), (x, y)| (a + x, u + y))
+    }
+
     fn clear(&mut self) {
         self.positions.clear();
         self.colors.clear();
@@ -721,10 +759,13 @@ fn remesh_into(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scra
     let src = &scratch.mesh;
     fn copy<T: Copy>(dst: &mut Vec<T>, src: &[T]) {
         dst.clear();
-        // Slack beyond twice the length would let the cache grow with the surface's history.
-        if dst.capacity() > 2 * src.len() + 8 {
+        // Grown to the exact length, and slack beyond an eighth given back: the cache is the
+        // whole live mesh, a gigabyte for a home, and doubling growth left a third of it
+        // unused (docs/benchmarks_log.md, "Session 29").
+        if dst.capacity() > src.len() + src.len() / 8 + 4 {
             dst.shrink_to(src.len());
         }
+        dst.reserve_exact(src.len());
         dst.extend_from_slice(src);
     }
     copy(&mut dst.positions, &src.positions);
@@ -760,7 +801,6 @@ fn build(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scratch) -
         &scratch.cells,
         triangle_count,
         max_jump,
-        key_voxel,
         &mut scratch.edges,
         &mut scratch.jobs,
         &mut mesh,
@@ -799,7 +839,7 @@ fn extract_mesh_configured(map: &TsdfMap, min_weight: u16) -> LabeledMesh {
     let keys = map.sorted_keys();
     let meshes: Vec<ChunkMesh> =
         keys.par_iter().map_init(Scratch::new, |s, &k| mesh_chunk_configured(map, k, min_weight, s)).collect();
-    assemble(&meshes.iter().collect::<Vec<_>>())
+    assemble(&keys.iter().copied().zip(&meshes).collect::<Vec<_>>())
 }
 
 /// Drops the connected pieces of `mesh` (triangles joined through shared vertices) with
@@ -878,10 +918,10 @@ fn drop_small_components(mesh: &mut LabeledMesh, min_triangles: usize) {
     }
 }
 
-/// Concatenates chunk meshes, welding vertices on shared cell edges.
-fn assemble(meshes: &[&ChunkMesh]) -> LabeledMesh {
-    let vertices: usize = meshes.iter().map(|m| m.positions.len()).sum();
-    let triangles: usize = meshes.iter().map(|m| m.triangles.len()).sum();
+/// Concatenates chunk meshes, each with its chunk's key, welding vertices on shared cell edges.
+fn assemble(meshes: &[(ChunkKey, &ChunkMesh)]) -> LabeledMesh {
+    let vertices: usize = meshes.iter().map(|m| m.1.positions.len()).sum();
+    let triangles: usize = meshes.iter().map(|m| m.1.triangles.len()).sum();
     let mut out = LabeledMesh {
         positions: Vec::with_capacity(vertices),
         colors: Vec::with_capacity(vertices),
@@ -891,11 +931,13 @@ fn assemble(meshes: &[&ChunkMesh]) -> LabeledMesh {
     };
     let mut welded: HashMap<EdgeKey, u32, ChunkHashBuilder> = HashMap::default();
     let mut remap = Vec::new();
-    for m in meshes {
+    for &(chunk, m) in meshes {
         remap.clear();
+        let key_voxel = chunk * CHUNK_SIDE as i32;
         let mut shared = m.shared.iter().peekable();
         for i in 0..m.positions.len() {
-            if let Some(&(_, key)) = shared.next_if(|s| s.0 == i as u32) {
+            if let Some(s) = shared.next_if(|s| u32::from(s.vertex) == i as u32) {
+                let key = s.key(key_voxel);
                 if let Some(&j) = welded.get(&key) {
                     remap.push(j);
                     continue;

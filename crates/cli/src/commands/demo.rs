@@ -21,6 +21,7 @@ use semrecon_pipeline::{FrameStatus, Pipeline};
 use serde::Serialize;
 
 use crate::map_report::MapMemoryReport;
+use crate::process_memory::ProcessMemoryReport;
 use crate::progress::{progress_bar, spinner};
 use crate::reconstruction::{
     labelled_share, load_network, loop_closure_json, loop_closure_summary, pipeline_config, prepare_output_dir,
@@ -99,6 +100,8 @@ struct Report {
     memory_mb: f64,
     /// Where the map's bytes are, bytes per square metre of surface, the memory budget.
     map_memory: MapMemoryReport,
+    /// The live mesh's store and the process's resident peak.
+    process_memory: ProcessMemoryReport,
     mesh_vertices: usize,
     mesh_triangles: usize,
 }
@@ -212,6 +215,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         chunks: map.chunk_count(),
         memory_mb: map.memory_bytes() as f64 / 1e6,
         map_memory: MapMemoryReport::new(map, &mesh),
+        process_memory: ProcessMemoryReport::new(pipeline.mesh_store_memory()),
         mesh_vertices: mesh.vertex_count(),
         mesh_triangles: mesh.triangle_count(),
     };
@@ -254,6 +258,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     );
     println!("mesh: {} vertices, {} triangles", report.mesh_vertices, report.mesh_triangles);
     println!("{}", report.map_memory.summary());
+    println!("{}", report.process_memory.summary());
     println!("{}", loop_closure_summary(&report.loop_closure));
     for w in pipeline.warnings() {
         eprintln!("warning: {w}");

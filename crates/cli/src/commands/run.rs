@@ -39,6 +39,7 @@ use serde::Serialize;
 
 use crate::live_view::{LiveView, ServeArgs};
 use crate::map_report::MapMemoryReport;
+use crate::process_memory::ProcessMemoryReport;
 use crate::progress::progress_bar;
 use crate::reconstruction::{
     dataset_up, finish_session, labelled_share, load_network, loop_closure_json, loop_closure_summary, pipeline_config,
@@ -184,6 +185,8 @@ struct Report {
     memory_mb: f64,
     /// Where the map's bytes are, bytes per square metre of surface, the memory budget.
     map_memory: MapMemoryReport,
+    /// The live mesh's store and the process's resident peak.
+    process_memory: ProcessMemoryReport,
     chunks: usize,
     mesh_vertices: usize,
     mesh_triangles: usize,
@@ -373,6 +376,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         up: pipeline.up().map(UpJson::from),
         memory_mb: map.memory_bytes() as f64 / 1e6,
         map_memory: MapMemoryReport::new(map, &mesh),
+        process_memory: ProcessMemoryReport::new(pipeline.mesh_store_memory()),
         chunks: map.chunk_count(),
         mesh_vertices: mesh.vertex_count(),
         mesh_triangles: mesh.triangle_count(),
@@ -417,6 +421,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     );
     println!("mesh: {} vertices, {} triangles", report.mesh_vertices, report.mesh_triangles);
     println!("{}", report.map_memory.summary());
+    println!("{}", report.process_memory.summary());
     if let Some(ate) = ate_rmse_m {
         println!("ATE rmse {:.4} m against the dataset's ground truth", ate);
     }

@@ -10,7 +10,7 @@ use std::path::Path;
 
 use glam::Vec3;
 
-use super::{mesh_from_ply, mesh_to_ply, PlyEncoding, PlyFile};
+use super::{mesh_from_ply, PlyEncoding, PlyFile};
 use crate::error::{DataError, Result};
 use crate::mesh::LabeledMesh;
 
@@ -103,11 +103,7 @@ pub fn write_ply_with_gravity(
     encoding: PlyEncoding,
     gravity: &MeshGravity,
 ) -> Result<()> {
-    let path = path.as_ref();
-    let cannot = |m: String| DataError::InvalidArgument(format!("cannot write {}: {m}", path.display()));
-    let mut ply = mesh_to_ply(mesh).map_err(cannot)?;
-    ply.comments.extend(gravity.comments().map_err(cannot)?);
-    ply.write(path, encoding)
+    super::mesh::write_mesh_file(path.as_ref(), mesh, None, encoding, Some(gravity))
 }
 
 /// Reads a PLY mesh or point cloud and the gravity its header records (see the module

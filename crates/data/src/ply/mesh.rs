@@ -13,16 +13,43 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<LabeledMesh> {
 
 /// Writes `mesh` as PLY, atomically; see [`mesh_to_ply`] for the layout.
 pub fn write_ply(path: impl AsRef<Path>, mesh: &LabeledMesh, encoding: PlyEncoding) -> Result<()> {
-    let path = path.as_ref();
-    let ply =
-        mesh_to_ply(mesh).map_err(|m| DataError::InvalidArgument(format!("cannot write {}: {m}", path.display())))?;
-    ply.write(path, encoding)
+    write_mesh_file(path.as_ref(), mesh, None, encoding, None)
+}
+
+/// Writes `mesh` to `path` atomically as [`mesh_to_ply`] then [`PlyFile::write`] would, the
+/// colours replaced by `colors` and the header recording `gravity` when given, streamed
+/// ([`write_mesh_streamed`]).
+pub(super) fn write_mesh_file(
+    path: &Path,
+    mesh: &LabeledMesh,
+    colors: Option<&[[u8; 3]]>,
+    encoding: PlyEncoding,
+    gravity: Option<&MeshGravity>,
+) -> Result<()> {
+    let invalid = |m: String| DataError::InvalidArgument(format!("cannot write {}: {m}", path.display()));
+    // Checks the mesh and its size as the whole conversion would, converting nothing.
+    mesh.validate().map_err(invalid)?;
+    if mesh.positions.len() > i32::MAX as usize {
+        return Err(invalid(format!("{} vertices cannot be indexed by PLY 'int' indices", mesh.positions.len())));
+    }
+    if let Some(c) = colors.filter(|c| c.len() != mesh.positions.len()) {
+        return Err(invalid(format!("{} colours for {} vertices", c.len(), mesh.positions.len())));
+    }
+    let comments = match gravity {
+        Some(g) => g.comments().map_err(invalid)?,
+        None => Vec::new(),
+    };
+    if let Some(c) = comments.iter().find(|c| c.contains(['\n', '\r'])) {
+        return Err(invalid(format!("comment '{c}' contains a line break")));
+    }
+    let format = encoding.into();
+    crate::atomic_file::write_atomic_with(path, |w| write_mesh_streamed(w, mesh, colors, &comments, format))
 }
 
 /// Writes `mesh` as PLY to `path`, and again to `recoloured_path` with the vertex colours
-/// `colors` (e.g. class colours), both atomically, from one conversion: the same bytes as two
-/// [`write_ply`] calls with a recoloured copy of the mesh, without the copy (a whole home's
-/// mesh is gigabytes).
+/// `colors` (e.g. class colours), both atomically: the same bytes as two [`write_ply`]
+/// calls with a recoloured copy of the mesh, without the copy and without converting the
+/// mesh whole (blocks of rows at a time: a whole home's mesh is gigabytes).
 ///
 /// `gravity`, when given, is recorded in both headers ([`MeshGravity::comments`]).
 ///
@@ -45,22 +72,8 @@ pub fn write_ply_recoloured(
             mesh.positions.len()
         )));
     }
-    let mut ply =
-        mesh_to_ply(mesh).map_err(|m| DataError::InvalidArgument(format!("cannot write {}: {m}", path.display())))?;
-    if let Some(g) = gravity {
-        ply.comments.extend(
-            g.comments().map_err(|m| DataError::InvalidArgument(format!("cannot write {}: {m}", path.display())))?,
-        );
-    }
-    ply.write(path, encoding)?;
-    if let Some(vertex) = ply.elements.iter_mut().find(|e| e.name == "vertex") {
-        for (k, name) in ["red", "green", "blue"].into_iter().enumerate() {
-            if let Some(p) = vertex.properties.iter_mut().find(|p| p.name == name) {
-                p.data = PropertyData::Scalar(Column::UChar(colors.iter().map(|c| c[k]).collect()));
-            }
-        }
-    }
-    ply.write(recoloured_path, encoding)
+    write_mesh_file(path, mesh, None, encoding, gravity.as_ref())?;
+    write_mesh_file(recoloured_path, mesh, Some(colors), encoding, gravity.as_ref())
 }
 
 /// Converts a parsed PLY file into a [`LabeledMesh`]; `path` names the file in errors.
@@ -264,9 +277,23 @@ pub fn mesh_to_ply(mesh: &LabeledMesh) -> std::result::Result<PlyFile, String> {
     if n > i32::MAX as usize {
         return Err(format!("{n} vertices cannot be indexed by PLY 'int' indices"));
     }
-    let mut vertex = Element::new("vertex", n);
+    Ok(mesh_block_to_ply(mesh, None, 0..n, 0..mesh.triangles.len()))
+}
+
+/// The rows `vertices` and `triangles` of `mesh` (validated, indexable by `int`) in the
+/// layout of [`mesh_to_ply`], the colours replaced by `colors` when given (one per vertex):
+/// the columns of a block of a file being written, with the element counts of the block.
+/// Whether there is a face element depends on the whole mesh, so that every block has the
+/// same elements.
+fn mesh_block_to_ply(
+    mesh: &LabeledMesh,
+    colors: Option<&[[u8; 3]]>,
+    vertices: Range<usize>,
+    triangles: Range<usize>,
+) -> PlyFile {
+    let mut vertex = Element::new("vertex", vertices.len());
     let scalar = |name: &str, c: Column| Property { name: name.to_string(), data: PropertyData::Scalar(c) };
-    let axis = |v: &[Vec3], k: usize| Column::Float(v.iter().map(|p| p[k]).collect());
+    let axis = |v: &[Vec3], k: usize| Column::Float(v[vertices.clone()].iter().map(|p| p[k]).collect());
     vertex.properties.push(scalar("x", axis(&mesh.positions, 0)));
     vertex.properties.push(scalar("y", axis(&mesh.positions, 1)));
     vertex.properties.push(scalar("z", axis(&mesh.positions, 2)));
@@ -275,25 +302,61 @@ pub fn mesh_to_ply(mesh: &LabeledMesh) -> std::result::Result<PlyFile, String> {
         vertex.properties.push(scalar("ny", axis(&mesh.normals, 1)));
         vertex.properties.push(scalar("nz", axis(&mesh.normals, 2)));
     }
+    let colors = &colors.unwrap_or(&mesh.colors)[vertices.clone()];
     for (k, name) in ["red", "green", "blue"].into_iter().enumerate() {
-        vertex.properties.push(scalar(name, Column::UChar(mesh.colors.iter().map(|c| c[k]).collect())));
+        vertex.properties.push(scalar(name, Column::UChar(colors.iter().map(|c| c[k]).collect())));
     }
     if !mesh.vertex_labels.is_empty() {
-        vertex.properties.push(scalar("label", Column::UChar(mesh.vertex_labels.clone())));
+        vertex.properties.push(scalar("label", Column::UChar(mesh.vertex_labels[vertices].to_vec())));
     }
     let mut ply = PlyFile { comments: vec!["semrecon".into()], elements: vec![vertex], ..Default::default() };
     if !mesh.triangles.is_empty() || !mesh.triangle_labels.is_empty() {
-        let mut face = Element::new("face", mesh.triangles.len());
+        let mut face = Element::new("face", triangles.len());
         let list = ListColumn {
             count_type: ScalarType::UChar,
-            offsets: (0..=mesh.triangles.len()).map(|i| 3 * i).collect(),
-            values: Column::Int(mesh.triangles.iter().flat_map(|t| t.map(|i| i as i32)).collect()),
+            offsets: (0..=triangles.len()).map(|i| 3 * i).collect(),
+            values: Column::Int(mesh.triangles[triangles.clone()].iter().flat_map(|t| t.map(|i| i as i32)).collect()),
         };
         face.properties.push(Property { name: "vertex_indices".into(), data: PropertyData::List(list) });
         if !mesh.triangle_labels.is_empty() {
-            face.properties.push(scalar("label", Column::UChar(mesh.triangle_labels.clone())));
+            face.properties.push(scalar("label", Column::UChar(mesh.triangle_labels[triangles].to_vec())));
         }
         ply.elements.push(face);
     }
-    Ok(ply)
+    ply
+}
+
+/// Rows per block of [`write_mesh_streamed`]: a few MB of columns at a time.
+pub(super) const STREAM_BLOCK_ROWS: usize = 1 << 16;
+
+/// Writes `mesh` as [`mesh_to_ply`] then [`PlyFile::write`] would (the same bytes, with
+/// `comments` after the first one and `colors` for the vertex colours when given) without
+/// converting the whole mesh: blocks of rows at a time, so that writing a whole home's mesh
+/// costs megabytes, not another copy of it.
+pub(super) fn write_mesh_streamed(
+    w: &mut dyn Write,
+    mesh: &LabeledMesh,
+    colors: Option<&[[u8; 3]]>,
+    comments: &[String],
+    format: PlyFormat,
+) -> std::io::Result<()> {
+    let mut header = mesh_block_to_ply(mesh, colors, 0..0, 0..0);
+    header.comments.extend(comments.iter().cloned());
+    header.elements[0].count = mesh.positions.len();
+    if let Some(face) = header.elements.get_mut(1) {
+        face.count = mesh.triangles.len();
+    }
+    header.write_header(w, format)?;
+    let mut buf: Vec<u8> = Vec::with_capacity(super::ROW_FLUSH_BYTES + 4096);
+    let blocks = |n: usize| (0..n).step_by(STREAM_BLOCK_ROWS).map(move |a| a..(a + STREAM_BLOCK_ROWS).min(n));
+    for v in blocks(mesh.positions.len()) {
+        mesh_block_to_ply(mesh, colors, v, 0..0).elements[0].write_rows(w, &mut buf, format)?;
+    }
+    if header.elements.len() > 1 {
+        for t in blocks(mesh.triangles.len()) {
+            mesh_block_to_ply(mesh, colors, 0..0, t).elements[1].write_rows(w, &mut buf, format)?;
+        }
+    }
+    w.write_all(&buf)?;
+    w.flush()
 }

@@ -85,6 +85,24 @@ impl Default for RemeshTolerance {
     }
 }
 
+/// Heap bytes of an [`IncrementalMesher`] ([`IncrementalMesher::memory`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct MeshStoreMemory {
+    /// The chunk meshes' vectors at their allocated capacity (what the allocator holds).
+    pub mesh_bytes: usize,
+    /// The same at their lengths (what the meshes need).
+    pub mesh_used_bytes: usize,
+    /// Entries, the key index, the slot table and snapshots.
+    pub bookkeeping_bytes: usize,
+}
+
+impl MeshStoreMemory {
+    /// All heap bytes.
+    pub fn total(&self) -> usize {
+        self.mesh_bytes + self.bookkeeping_bytes
+    }
+}
+
 /// A chunk's voxels as the cached meshes that read them were made (see [`RemeshTolerance`]):
 /// raw distances, 5-6-5 colours and observed bits, 2112 bytes.
 #[derive(Debug, Clone)]
@@ -334,6 +352,23 @@ impl IncrementalMesher {
         self.entries.iter().filter(|e| e.snapshot.is_some()).count() * SNAPSHOT_BYTES
     }
 
+    /// Where the cache's heap bytes are (see [`MeshStoreMemory`]): what a whole home's live
+    /// mesh costs beside its map.
+    pub fn memory(&self) -> MeshStoreMemory {
+        let (mut allocated, mut used) = (0, 0);
+        for m in &self.meshes {
+            let (a, u) = m.heap_bytes();
+            allocated += a;
+            used += u;
+        }
+        let bookkeeping = self.entries.capacity() * std::mem::size_of::<CacheEntry>()
+            + self.meshes.capacity() * std::mem::size_of::<ChunkMesh>()
+            + self.index.capacity() * (std::mem::size_of::<(ChunkKey, u32)>() + 1)
+            + self.slot_entry.capacity() * std::mem::size_of::<u32>()
+            + self.snapshot_bytes();
+        MeshStoreMemory { mesh_bytes: allocated, mesh_used_bytes: used, bookkeeping_bytes: bookkeeping }
+    }
+
     /// Re-meshes the chunks that changed since the last update (materially, see
     /// [`RemeshTolerance`]), and their neighbours that read the changed voxels, at most the
     /// [budget](IncrementalMesher#budget) of them (those left over first at the next update);
@@ -563,10 +598,10 @@ impl IncrementalMesher {
 
     /// The whole surface as one welded mesh (chunks in (z, y, x) key order; no labels).
     pub fn mesh(&self) -> LabeledMesh {
-        let mut order: Vec<((i32, i32, i32), &ChunkMesh)> =
-            self.entries.iter().zip(&self.meshes).map(|(e, m)| (key_order(e.key), m)).collect();
-        order.sort_unstable_by_key(|(k, _)| *k);
-        let meshes: Vec<&ChunkMesh> = order.into_iter().map(|(_, m)| m).collect();
+        let mut order: Vec<((i32, i32, i32), ChunkKey, &ChunkMesh)> =
+            self.entries.iter().zip(&self.meshes).map(|(e, m)| (key_order(e.key), e.key, m)).collect();
+        order.sort_unstable_by_key(|(k, _, _)| *k);
+        let meshes: Vec<(ChunkKey, &ChunkMesh)> = order.into_iter().map(|(_, key, m)| (key, m)).collect();
         let mut mesh = assemble(&meshes);
         drop_small_components(&mut mesh, self.config.min_component_triangles);
         mesh

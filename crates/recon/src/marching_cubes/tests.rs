@@ -658,3 +658,18 @@ fn free_space_next_to_the_back_of_a_surface_makes_no_triangles() {
     map.chunks[slot as usize].signs = map.chunks[slot as usize].voxels.signs();
     assert!(mesh_chunk(&map, IVec3::ZERO).triangles.is_empty());
 }
+
+/// A shared vertex's compact local edge gives back the global key it stands for, for every
+/// axis and every offset a chunk's cells reach, in chunks on either side of the origin.
+#[test]
+fn shared_vertex_edges_round_trip() {
+    for key_voxel in [IVec3::ZERO, IVec3::new(-8, 16, -4000), IVec3::new(4000, -4000, 8)] {
+        for axis in 0..3 {
+            for low in [[0, 0, 0], [8, 0, 3], [1, 8, 8], [15, 15, 15]] {
+                let v = SharedVertex::new(4095, axis, low);
+                assert_eq!(v.key(key_voxel), (key_voxel + IVec3::from(low), axis as u8));
+                assert_eq!(v.vertex, 4095);
+            }
+        }
+    }
+}

@@ -166,7 +166,6 @@ pub(super) fn triangles(
     cells: &[(u16, u8)],
     triangle_count: usize,
     max_jump: f32,
-    key_voxel: IVec3,
     edges: &mut EdgeSlots,
     jobs: &mut Vec<u32>,
     mesh: &mut ChunkMesh,
@@ -175,13 +174,11 @@ pub(super) fn triangles(
     #[cfg(target_arch = "x86_64")]
     if kernel != VertexKernel::Scalar && is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2.
-        unsafe { triangles_avx2(block, cells, triangle_count, max_jump, key_voxel, edges, jobs, mesh) };
+        unsafe { triangles_avx2(block, cells, triangle_count, max_jump, edges, jobs, mesh) };
         return;
     }
     let _ = kernel;
-    triangles_with(cells, triangle_count, key_voxel, edges, jobs, mesh, |base, case| {
-        seam_scalar(block, base, case, max_jump)
-    });
+    triangles_with(cells, triangle_count, edges, jobs, mesh, |base, case| seam_scalar(block, base, case, max_jump));
 }
 
 /// [`triangles`] compiled for AVX2, with [`seam_avx2`] inlined.
@@ -196,14 +193,11 @@ pub(super) unsafe fn triangles_avx2(
     cells: &[(u16, u8)],
     triangle_count: usize,
     max_jump: f32,
-    key_voxel: IVec3,
     edges: &mut EdgeSlots,
     jobs: &mut Vec<u32>,
     mesh: &mut ChunkMesh,
 ) {
-    triangles_with(cells, triangle_count, key_voxel, edges, jobs, mesh, |base, case| {
-        seam_avx2(&block.tsdf, base, case, max_jump)
-    });
+    triangles_with(cells, triangle_count, edges, jobs, mesh, |base, case| seam_avx2(&block.tsdf, base, case, max_jump));
 }
 
 /// Whether a crossed edge of the cell with lowest corner at padded index `base` and case
@@ -279,7 +273,6 @@ pub(super) fn seam_avx2(tsdf: &[i16; PAD * PAD2], base: usize, case: u8, max_jum
 pub(super) fn triangles_with(
     cells: &[(u16, u8)],
     triangle_count: usize,
-    key_voxel: IVec3,
     edges: &mut EdgeSlots,
     jobs: &mut Vec<u32>,
     mesh: &mut ChunkMesh,
@@ -320,7 +313,7 @@ pub(super) fn triangles_with(
         let cell_key = ((z * ES + y) * ES + x) * 3;
         let cell_job = VertexJob::pack(base, 0, [x, y, z]);
         let shared = SHARED_EDGES[CELL_CLASS[cell] as usize];
-        let mut local = [0u32; 16];
+        let mut local = [0u16; 16];
         for &e in used {
             let e = e as usize & 15;
             let slot = &mut edge_vertex[cell_key + KEY[e]];
@@ -331,10 +324,10 @@ pub(super) fn triangles_with(
                 jobs.push(job);
                 if shared >> e & 1 != 0 {
                     let (_, axis, low) = VertexJob::unpack(job);
-                    mesh.shared.push((v, (key_voxel + IVec3::from(low), axis as u8)));
+                    mesh.shared.push(SharedVertex::new(v, axis, low));
                 }
             }
-            local[e] = *slot & 0xfff;
+            local[e] = (*slot & 0xfff) as u16;
         }
         let tris = table.triangles(case);
         for (dst, tri) in mesh.triangles[written..written + tris.len()].iter_mut().zip(tris) {
