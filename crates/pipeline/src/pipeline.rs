@@ -648,11 +648,12 @@ impl Pipeline {
                 break;
             }
         }
-        let mesh = self.mesh();
         if self.config.memory.cold_after_frames > 0 {
             // The readers are done: the map goes back to its compact form (no unpacked
             // copies kept for readers that will not come, then a compaction at the last
-            // frame, which then sees only what the map itself holds).
+            // frame, which then sees only what the map itself holds). Before the mesh is
+            // assembled, which reads no voxel: the final meshing unpacked every chunk it
+            // re-meshed, hundreds of megabytes that would otherwise sit beside the mesh.
             let t = Instant::now();
             let last = self.last_fused_index.min(u32::MAX as usize) as u32;
             self.map.release_caches();
@@ -660,7 +661,7 @@ impl Pipeline {
             self.times.record("map compaction", t.elapsed());
             self.add_map_warnings(out.warnings);
         }
-        Ok(mesh)
+        Ok(self.mesh())
     }
 
     /// Loop closure's account: loops tried (accepted and rejected, with their frames and

@@ -31,6 +31,7 @@ use semrecon_data::LabeledMesh;
 
 use crate::cube_cases::{case_table, EDGES};
 
+mod assembly;
 #[cfg(target_arch = "x86_64")]
 mod avx2;
 #[cfg(target_arch = "x86_64")]
@@ -43,6 +44,7 @@ use crate::map::{
     key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, VoxelBlock, CHUNK_SIDE, CHUNK_VOXELS, TSDF_SCALE,
     WEIGHT_SCALE,
 };
+use assembly::assemble;
 pub use incremental::{IncrementalMesher, MeshStoreMemory, MeshingStats, RemeshTolerance};
 use reader_marks::{ALL_READERS, CELL_READERS};
 #[allow(clippy::wildcard_imports)]
@@ -821,7 +823,7 @@ fn build(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scratch) -
 
 /// Meshes the whole map from scratch (parallel over chunks), every observed voxel counting.
 pub fn extract_mesh(map: &TsdfMap) -> LabeledMesh {
-    extract_mesh_configured(map, MeshConfig::ALL_OBSERVED.stored_min_weight())
+    extract_mesh_configured(map, MeshConfig::ALL_OBSERVED.stored_min_weight(), 0)
 }
 
 /// [`extract_mesh`] with options (see [`MeshConfig`]).
@@ -830,128 +832,14 @@ pub fn extract_mesh(map: &TsdfMap) -> LabeledMesh {
 /// [`crate::ReconError::InvalidConfig`] when the config is out of range.
 pub fn extract_mesh_with(map: &TsdfMap, config: MeshConfig) -> crate::Result<LabeledMesh> {
     config.validate()?;
-    let mut mesh = extract_mesh_configured(map, config.stored_min_weight());
-    drop_small_components(&mut mesh, config.min_component_triangles);
-    Ok(mesh)
+    Ok(extract_mesh_configured(map, config.stored_min_weight(), config.min_component_triangles))
 }
 
-fn extract_mesh_configured(map: &TsdfMap, min_weight: u16) -> LabeledMesh {
+fn extract_mesh_configured(map: &TsdfMap, min_weight: u16, min_component_triangles: usize) -> LabeledMesh {
     let keys = map.sorted_keys();
     let meshes: Vec<ChunkMesh> =
         keys.par_iter().map_init(Scratch::new, |s, &k| mesh_chunk_configured(map, k, min_weight, s)).collect();
-    assemble(&keys.iter().copied().zip(&meshes).collect::<Vec<_>>())
-}
-
-/// Drops the connected pieces of `mesh` (triangles joined through shared vertices) with
-/// fewer than `min_triangles` triangles, and the vertices only they use; the rest keeps its
-/// order. 0 or 1 changes nothing.
-fn drop_small_components(mesh: &mut LabeledMesh, min_triangles: usize) {
-    if min_triangles <= 1 || mesh.triangles.is_empty() {
-        return;
-    }
-    // Union-find over vertices, with path halving.
-    let mut parent: Vec<u32> = (0..mesh.positions.len() as u32).collect();
-    fn root(parent: &mut [u32], mut i: u32) -> u32 {
-        while parent[i as usize] != i {
-            let grand = parent[parent[i as usize] as usize];
-            parent[i as usize] = grand;
-            i = grand;
-        }
-        i
-    }
-    for t in &mesh.triangles {
-        let a = root(&mut parent, t[0]);
-        for &v in &t[1..] {
-            let b = root(&mut parent, v);
-            if a != b {
-                parent[b as usize] = a;
-            }
-        }
-    }
-    let roots: Vec<u32> = mesh.triangles.iter().map(|t| root(&mut parent, t[0])).collect();
-    let mut size = vec![0u32; mesh.positions.len()];
-    for &r in &roots {
-        size[r as usize] = size[r as usize].saturating_add(1);
-    }
-    let keep = |r: u32| size[r as usize] as usize >= min_triangles;
-    if roots.iter().all(|&r| keep(r)) {
-        return;
-    }
-    let mut used = vec![false; mesh.positions.len()];
-    for (t, &r) in mesh.triangles.iter().zip(&roots) {
-        if keep(r) {
-            for &v in t {
-                used[v as usize] = true;
-            }
-        }
-    }
-    let mut remap = vec![u32::MAX; mesh.positions.len()];
-    let mut next = 0u32;
-    for (m, &u) in remap.iter_mut().zip(&used) {
-        if u {
-            *m = next;
-            next += 1;
-        }
-    }
-    fn retain<T: Copy>(v: &mut Vec<T>, used: &[bool]) {
-        if v.len() == used.len() {
-            let mut i = 0;
-            v.retain(|_| {
-                i += 1;
-                used[i - 1]
-            });
-        }
-    }
-    retain(&mut mesh.positions, &used);
-    retain(&mut mesh.colors, &used);
-    retain(&mut mesh.normals, &used);
-    retain(&mut mesh.vertex_labels, &used);
-    let kept: Vec<bool> = roots.iter().map(|&r| keep(r)).collect();
-    retain(&mut mesh.triangle_labels, &kept);
-    let mut i = 0;
-    mesh.triangles.retain(|_| {
-        i += 1;
-        kept[i - 1]
-    });
-    for t in &mut mesh.triangles {
-        *t = t.map(|v| remap[v as usize]);
-    }
-}
-
-/// Concatenates chunk meshes, each with its chunk's key, welding vertices on shared cell edges.
-fn assemble(meshes: &[(ChunkKey, &ChunkMesh)]) -> LabeledMesh {
-    let vertices: usize = meshes.iter().map(|m| m.1.positions.len()).sum();
-    let triangles: usize = meshes.iter().map(|m| m.1.triangles.len()).sum();
-    let mut out = LabeledMesh {
-        positions: Vec::with_capacity(vertices),
-        colors: Vec::with_capacity(vertices),
-        normals: Vec::with_capacity(vertices),
-        triangles: Vec::with_capacity(triangles),
-        ..LabeledMesh::default()
-    };
-    let mut welded: HashMap<EdgeKey, u32, ChunkHashBuilder> = HashMap::default();
-    let mut remap = Vec::new();
-    for &(chunk, m) in meshes {
-        remap.clear();
-        let key_voxel = chunk * CHUNK_SIDE as i32;
-        let mut shared = m.shared.iter().peekable();
-        for i in 0..m.positions.len() {
-            if let Some(s) = shared.next_if(|s| u32::from(s.vertex) == i as u32) {
-                let key = s.key(key_voxel);
-                if let Some(&j) = welded.get(&key) {
-                    remap.push(j);
-                    continue;
-                }
-                welded.insert(key, out.positions.len() as u32);
-            }
-            remap.push(out.positions.len() as u32);
-            out.positions.push(m.positions[i]);
-            out.colors.push(m.colors[i]);
-            out.normals.push(m.normals[i]);
-        }
-        out.triangles.extend(m.triangles.iter().map(|t| t.map(|i| remap[i as usize])));
-    }
-    out
+    assemble(&keys.iter().copied().zip(&meshes).collect::<Vec<_>>(), min_component_triangles)
 }
 
 #[cfg(test)]

@@ -602,8 +602,6 @@ impl IncrementalMesher {
             self.entries.iter().zip(&self.meshes).map(|(e, m)| (key_order(e.key), e.key, m)).collect();
         order.sort_unstable_by_key(|(k, _, _)| *k);
         let meshes: Vec<(ChunkKey, &ChunkMesh)> = order.into_iter().map(|(_, key, m)| (key, m)).collect();
-        let mut mesh = assemble(&meshes);
-        drop_small_components(&mut mesh, self.config.min_component_triangles);
-        mesh
+        assemble(&meshes, self.config.min_component_triangles)
     }
 }

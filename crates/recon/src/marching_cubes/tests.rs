@@ -1,6 +1,7 @@
 //! Tests of marching cubes: the mesh of analytic surfaces, the fast paths against the scalar
 //! definitions, the incremental mesher against meshing from scratch.
 
+use super::assembly::{assemble_welded, drop_small_components};
 use super::incremental::{pack_bytes, readers};
 use super::*;
 use crate::map::{split_voxel, TsdfConfig, Voxel, CHUNK_VOXELS};
@@ -672,4 +673,32 @@ fn shared_vertex_edges_round_trip() {
             }
         }
     }
+}
+
+/// The one-pass assembly (welding and dropping small pieces on index arrays, the output
+/// written at its size) equals welding everything and filtering afterwards, on noisy maps
+/// with holes (many pieces of every size) and for minimums that keep all, some and none.
+#[test]
+fn assembly_matches_welding_then_filtering() {
+    use rand::SeedableRng;
+    let mut partly_dropped = 0;
+    for (seed, holes) in [(1, 0), (2, 20), (3, 45)] {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let map = noisy_map(&mut rng, holes);
+        let keys = map.sorted_keys();
+        let meshes: Vec<ChunkMesh> = keys.iter().map(|&k| mesh_chunk(&map, k)).collect();
+        let chunks: Vec<(ChunkKey, &ChunkMesh)> = keys.iter().copied().zip(&meshes).collect();
+        let welded = assemble_welded(&chunks);
+        assert!(!welded.triangles.is_empty());
+        for min in [0, 1, 2, 3, 8, 50, 400, usize::MAX] {
+            let mut want = welded.clone();
+            drop_small_components(&mut want, min);
+            let got = assemble(&chunks, min);
+            assert!(got == want, "seed {seed}, holes {holes}%, min {min}");
+            partly_dropped += usize::from(!got.triangles.is_empty() && got.triangles.len() < welded.triangles.len());
+            assert_eq!(got.positions.capacity(), got.positions.len());
+            assert_eq!(got.triangles.capacity(), got.triangles.len());
+        }
+    }
+    assert!(partly_dropped >= 3, "only {partly_dropped} cases drop some pieces and keep others");
 }

@@ -1,0 +1,259 @@
+//! The whole mesh from chunk meshes: vertices on cell edges that neighbouring chunks share
+//! are welded into one, and connected pieces with fewer triangles than a minimum (specks of
+//! noise in free space) are left out.
+//!
+//! Both happen before the output is allocated, on index arrays alone (16 bytes a vertex),
+//! and the output is then written once at its exact size. Welding the whole mesh first and
+//! filtering it in place afterwards held the mesh and the filter's arrays together: for a
+//! whole home at 5 mm, 18 million vertices, that was a gigabyte more at the end of the run
+//! on top of the live mesh (docs/benchmarks_log.md, "Session 29"). The output is the same:
+//! the references [`assemble_welded`] and [`drop_small_components`] are kept for the tests.
+
+use super::*;
+
+/// Union-find root of `i`, with path halving.
+fn root(parent: &mut [u32], mut i: u32) -> u32 {
+    while parent[i as usize] != i {
+        let grand = parent[parent[i as usize] as usize];
+        parent[i as usize] = grand;
+        i = grand;
+    }
+    i
+}
+
+/// Every chunk's triangles in order, each with the position of its chunk's first vertex
+/// among all chunk vertices.
+fn chunk_triangles<'a>(meshes: &'a [(ChunkKey, &'a ChunkMesh)]) -> impl Iterator<Item = (usize, [u16; 3])> + 'a {
+    let mut offset = 0;
+    meshes.iter().flat_map(move |&(_, m)| {
+        let base = offset;
+        offset += m.positions.len();
+        m.triangles.iter().map(move |t| (base, *t))
+    })
+}
+
+/// Concatenates chunk meshes, each with its chunk's key, welding vertices on shared cell
+/// edges, and drops the connected pieces (triangles joined through shared vertices) with
+/// fewer than `min_triangles` triangles with the vertices only they use (0 or 1 keeps all).
+/// Vertices keep the order in which the chunks first use them, triangles their chunk order.
+pub(super) fn assemble(meshes: &[(ChunkKey, &ChunkMesh)], min_triangles: usize) -> LabeledMesh {
+    // Pass 1: every chunk vertex's welded index, new indices in order of first use.
+    let chunk_vertices: usize = meshes.iter().map(|m| m.1.positions.len()).sum();
+    let mut welded_index: Vec<u32> = Vec::with_capacity(chunk_vertices);
+    let mut vertices = 0u32;
+    {
+        let mut welded: HashMap<EdgeKey, u32, ChunkHashBuilder> = HashMap::default();
+        for &(chunk, m) in meshes {
+            let key_voxel = chunk * CHUNK_SIDE as i32;
+            let mut shared = m.shared.iter().peekable();
+            for i in 0..m.positions.len() {
+                if let Some(s) = shared.next_if(|s| usize::from(s.vertex) == i) {
+                    let next = vertices;
+                    let j = *welded.entry(s.key(key_voxel)).or_insert(next);
+                    if j != next {
+                        welded_index.push(j);
+                        continue;
+                    }
+                }
+                welded_index.push(vertices);
+                vertices += 1;
+            }
+        }
+    }
+    let global = |base: usize, t: [u16; 3], index: &[u32]| t.map(|v| index[base + usize::from(v)]);
+
+    // Pass 2: the pieces, and the output index of each kept vertex (`u32::MAX`: dropped).
+    let kept_index: Option<Vec<u32>> = (min_triangles > 1)
+        .then(|| {
+            let mut parent: Vec<u32> = (0..vertices).collect();
+            for (base, t) in chunk_triangles(meshes) {
+                let [a, b, c] = global(base, t, &welded_index);
+                let a = root(&mut parent, a);
+                for v in [b, c] {
+                    let r = root(&mut parent, v);
+                    if a != r {
+                        parent[r as usize] = a;
+                    }
+                }
+            }
+            let mut size = vec![0u32; vertices as usize];
+            for (base, t) in chunk_triangles(meshes) {
+                let r = root(&mut parent, global(base, t, &welded_index)[0]);
+                size[r as usize] = size[r as usize].saturating_add(1);
+            }
+            let keep = |v: u32, parent: &mut Vec<u32>| size[root(parent, v) as usize] as usize >= min_triangles;
+            if chunk_triangles(meshes).all(|(base, t)| keep(global(base, t, &welded_index)[0], &mut parent)) {
+                return None;
+            }
+            // Vertices used by kept triangles, numbered in order.
+            let mut index = vec![u32::MAX; vertices as usize];
+            for (base, t) in chunk_triangles(meshes) {
+                let t = global(base, t, &welded_index);
+                if keep(t[0], &mut parent) {
+                    for v in t {
+                        index[v as usize] = 0;
+                    }
+                }
+            }
+            let mut next = 0u32;
+            for i in index.iter_mut().filter(|i| **i == 0) {
+                *i = next;
+                next += 1;
+            }
+            Some(index)
+        })
+        .flatten();
+
+    // Pass 3: the output at its exact size.
+    let out_vertices = kept_index.as_ref().map_or(vertices as usize, |k| k.iter().filter(|&&i| i != u32::MAX).count());
+    let kept = |v: u32| kept_index.as_ref().map_or(v, |k| k[v as usize]);
+    let out_triangles =
+        chunk_triangles(meshes).filter(|&(base, t)| kept(global(base, t, &welded_index)[0]) != u32::MAX).count();
+    let mut out = LabeledMesh {
+        positions: Vec::with_capacity(out_vertices),
+        colors: Vec::with_capacity(out_vertices),
+        normals: Vec::with_capacity(out_vertices),
+        triangles: Vec::with_capacity(out_triangles),
+        ..LabeledMesh::default()
+    };
+    // A chunk vertex adds an output vertex where its welded index is met for the first time
+    // (those come in increasing order) and is kept.
+    let mut first_unmet = 0u32;
+    let mut chunk_vertex = 0;
+    for &(_, m) in meshes {
+        for i in 0..m.positions.len() {
+            let w = welded_index[chunk_vertex + i];
+            if w == first_unmet {
+                first_unmet += 1;
+                if kept(w) != u32::MAX {
+                    out.positions.push(m.positions[i]);
+                    out.colors.push(m.colors[i]);
+                    out.normals.push(m.normals[i]);
+                }
+            }
+        }
+        chunk_vertex += m.positions.len();
+    }
+    for (base, t) in chunk_triangles(meshes) {
+        let t = global(base, t, &welded_index).map(kept);
+        if t[0] != u32::MAX {
+            out.triangles.push(t);
+        }
+    }
+    out
+}
+
+/// The reference of [`assemble`]'s filter: drops the connected pieces of `mesh` (triangles joined through shared vertices) with
+/// fewer than `min_triangles` triangles, and the vertices only they use; the rest keeps its
+/// order. 0 or 1 changes nothing.
+#[cfg(test)]
+pub(super) fn drop_small_components(mesh: &mut LabeledMesh, min_triangles: usize) {
+    if min_triangles <= 1 || mesh.triangles.is_empty() {
+        return;
+    }
+    // Union-find over vertices, with path halving.
+    let mut parent: Vec<u32> = (0..mesh.positions.len() as u32).collect();
+    fn root(parent: &mut [u32], mut i: u32) -> u32 {
+        while parent[i as usize] != i {
+            let grand = parent[parent[i as usize] as usize];
+            parent[i as usize] = grand;
+            i = grand;
+        }
+        i
+    }
+    for t in &mesh.triangles {
+        let a = root(&mut parent, t[0]);
+        for &v in &t[1..] {
+            let b = root(&mut parent, v);
+            if a != b {
+                parent[b as usize] = a;
+            }
+        }
+    }
+    let roots: Vec<u32> = mesh.triangles.iter().map(|t| root(&mut parent, t[0])).collect();
+    let mut size = vec![0u32; mesh.positions.len()];
+    for &r in &roots {
+        size[r as usize] = size[r as usize].saturating_add(1);
+    }
+    let keep = |r: u32| size[r as usize] as usize >= min_triangles;
+    if roots.iter().all(|&r| keep(r)) {
+        return;
+    }
+    let mut used = vec![false; mesh.positions.len()];
+    for (t, &r) in mesh.triangles.iter().zip(&roots) {
+        if keep(r) {
+            for &v in t {
+                used[v as usize] = true;
+            }
+        }
+    }
+    let mut remap = vec![u32::MAX; mesh.positions.len()];
+    let mut next = 0u32;
+    for (m, &u) in remap.iter_mut().zip(&used) {
+        if u {
+            *m = next;
+            next += 1;
+        }
+    }
+    fn retain<T: Copy>(v: &mut Vec<T>, used: &[bool]) {
+        if v.len() == used.len() {
+            let mut i = 0;
+            v.retain(|_| {
+                i += 1;
+                used[i - 1]
+            });
+        }
+    }
+    retain(&mut mesh.positions, &used);
+    retain(&mut mesh.colors, &used);
+    retain(&mut mesh.normals, &used);
+    retain(&mut mesh.vertex_labels, &used);
+    let kept: Vec<bool> = roots.iter().map(|&r| keep(r)).collect();
+    retain(&mut mesh.triangle_labels, &kept);
+    let mut i = 0;
+    mesh.triangles.retain(|_| {
+        i += 1;
+        kept[i - 1]
+    });
+    for t in &mut mesh.triangles {
+        *t = t.map(|v| remap[v as usize]);
+    }
+}
+
+/// Concatenates chunk meshes, each with its chunk's key, welding vertices on shared cell edges
+/// (the reference of [`assemble`] with `min_triangles` 0).
+#[cfg(test)]
+pub(super) fn assemble_welded(meshes: &[(ChunkKey, &ChunkMesh)]) -> LabeledMesh {
+    let vertices: usize = meshes.iter().map(|m| m.1.positions.len()).sum();
+    let triangles: usize = meshes.iter().map(|m| m.1.triangles.len()).sum();
+    let mut out = LabeledMesh {
+        positions: Vec::with_capacity(vertices),
+        colors: Vec::with_capacity(vertices),
+        normals: Vec::with_capacity(vertices),
+        triangles: Vec::with_capacity(triangles),
+        ..LabeledMesh::default()
+    };
+    let mut welded: HashMap<EdgeKey, u32, ChunkHashBuilder> = HashMap::default();
+    let mut remap = Vec::new();
+    for &(chunk, m) in meshes {
+        remap.clear();
+        let key_voxel = chunk * CHUNK_SIDE as i32;
+        let mut shared = m.shared.iter().peekable();
+        for i in 0..m.positions.len() {
+            if let Some(s) = shared.next_if(|s| u32::from(s.vertex) == i as u32) {
+                let key = s.key(key_voxel);
+                if let Some(&j) = welded.get(&key) {
+                    remap.push(j);
+                    continue;
+                }
+                welded.insert(key, out.positions.len() as u32);
+            }
+            remap.push(out.positions.len() as u32);
+            out.positions.push(m.positions[i]);
+            out.colors.push(m.colors[i]);
+            out.normals.push(m.normals[i]);
+        }
+        out.triangles.extend(m.triangles.iter().map(|t| t.map(|i| remap[i as usize])));
+    }
+    out
+}
