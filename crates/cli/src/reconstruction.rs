@@ -420,7 +420,7 @@ pub fn write_outputs(
     trajectory: &Trajectory,
     gravity: Option<MeshGravity>,
 ) -> anyhow::Result<()> {
-    // One PLY conversion for both files: a whole home's mesh is gigabytes.
+    // Both files straight from the mesh, in blocks of rows: a whole home's mesh is a gigabyte.
     let colors = class_colors(mesh);
     write_ply_recoloured(
         dir.join("mesh.ply"),
