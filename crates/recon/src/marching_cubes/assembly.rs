@@ -95,10 +95,8 @@ pub(super) fn assemble(meshes: &[(ChunkKey, &ChunkMesh)], min_triangles: usize) 
                     }
                 }
             }
-            let mut next = 0u32;
-            for i in index.iter_mut().filter(|i| **i == 0) {
-                *i = next;
-                next += 1;
+            for (next, i) in index.iter_mut().filter(|i| **i == 0).enumerate() {
+                *i = next as u32;
             }
             Some(index)
         })

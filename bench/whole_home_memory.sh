@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# A whole home's memory: runs the generated five-room flat (true poses, semantics off) under a
+# map budget with one or two binaries side by side, and prints a table of the process's
+# resident peak (`/usr/bin/time`), the map's and the live mesh's bytes at the end (report.json)
+# and whether the written meshes are the same bytes; writes the table as JSON.
+# Usage: bench/whole_home_memory.sh [DATASET] [BUDGET]   (default: synth-flat:1 700M; the
+#   first two minutes are synth-flat:1:120s)
+# Environment: SEMRECON_BIN (default target/release/semrecon, built if missing); BASELINE_BIN,
+#   a second binary to run beside it (e.g. an older build kept in /tmp); OUT (default a
+#   temporary folder; the meshes are about 1 GB each for the whole flat).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+dataset=${1:-synth-flat:1}
+budget=${2:-700M}
+bin=${SEMRECON_BIN:-target/release/semrecon}
+[ -x "$bin" ] || cargo build --release -p semrecon
+command -v /usr/bin/time >/dev/null || { echo "needs /usr/bin/time (apt install time)" >&2; exit 1; }
+out=${OUT:-$(mktemp -d)}
+[ -n "${OUT:-}" ] || trap 'rm -rf "$out"' EXIT
+names=(current)
+bins=("$bin")
+if [ -n "${BASELINE_BIN:-}" ]; then names+=(baseline); bins+=("$BASELINE_BIN"); fi
+for i in "${!bins[@]}"; do
+  n=${names[$i]}
+  echo "running $n: ${bins[$i]} run --dataset $dataset --max-memory $budget" >&2
+  /usr/bin/time -v "${bins[$i]}" run --dataset "$dataset" --poses ground-truth --semantics off \
+    --max-memory "$budget" --out "$out/$n" >"$out/$n.log" 2>"$out/$n.time"
+done
+python3 - "$out" "$dataset" "$budget" "${names[@]}" <<'PY'
+import filecmp, json, os, re, sys
+out, dataset, budget, names = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4:]
+rows = []
+for n in names:
+    peak_kb = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", open(f"{out}/{n}.time").read()).group(1))
+    r = json.load(open(f"{out}/{n}/report.json"))
+    pm = r.get("process_memory") or {}
+    rows.append({
+        "binary": n,
+        "peak_resident_mb": peak_kb * 1024 / 1e6,
+        "map_mb": r["map_memory"]["bytes_in_memory"] / 1e6,
+        "spilled_mb": r["map_memory"]["spilled_bytes"] / 1e6,
+        "live_mesh_mb": pm["mesh_store_bytes"] / 1e6 if pm else None,
+        "mesh_vertices": r["mesh_vertices"],
+        "realtime_factor": r["realtime_factor"],
+    })
+same = None
+if len(names) == 2:
+    same = all(filecmp.cmp(f"{out}/{names[0]}/{f}", f"{out}/{names[1]}/{f}", shallow=False) for f in ("mesh.ply", "semantic.ply"))
+print(f"{dataset}, --max-memory {budget}, true poses, semantics off")
+print(f"{'binary':<10} {'peak MB':>9} {'map MB':>8} {'spilled MB':>11} {'live mesh MB':>13} {'vertices':>11} {'RTF':>6}")
+for x in rows:
+    lm = "n/a" if x["live_mesh_mb"] is None else f"{x['live_mesh_mb']:.0f}"
+    print(f"{x['binary']:<10} {x['peak_resident_mb']:>9.0f} {x['map_mb']:>8.0f} {x['spilled_mb']:>11.0f} {lm:>13} {x['mesh_vertices']:>11} {x['realtime_factor']:>6.2f}")
+if same is not None:
+    print("written meshes: " + ("the same bytes" if same else "DIFFERENT"))
+os.makedirs("bench/results", exist_ok=True)
+path = "bench/results/whole_home_memory.json"
+with open(path + ".tmp", "w") as f:
+    json.dump({"dataset": dataset, "budget": budget, "rows": rows, "same_bytes": same}, f, indent=2)
+os.replace(path + ".tmp", path)
+print(f"wrote {path}")
+PY
