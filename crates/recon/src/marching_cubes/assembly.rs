@@ -8,7 +8,7 @@
 //! triangles a vertex) beside the whole mesh and the live mesh it came from: with the map
 //! compacted before the assembly, a whole home's peak went from 3.46 to 3.27 GB
 //! (docs/benchmarks_log.md, "Session 29"). The output is the same: the references
-//! `assemble_welded` and `drop_small_components` (below, compiled for tests) are kept for the tests.
+//! `assemble_welded` and `drop_small_components` below, compiled for the tests only.
 
 use super::*;
 
