@@ -761,13 +761,18 @@ fn remesh_into(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scra
     let src = &scratch.mesh;
     fn copy<T: Copy>(dst: &mut Vec<T>, src: &[T]) {
         dst.clear();
-        // Grown to the exact length, and slack beyond an eighth given back: the cache is the
-        // whole live mesh, a gigabyte for a home, and doubling growth left a third of it
-        // unused (docs/benchmarks_log.md, "Session 29").
-        if dst.capacity() > src.len() + src.len() / 8 + 4 {
-            dst.shrink_to(src.len());
+        // Grown to an eighth above the length, and slack beyond a quarter given back: the
+        // cache is the whole live mesh, a gigabyte for a home, and doubling growth left
+        // nearly a third of it unused; the gap between the two keeps a chunk that grows or
+        // shrinks by a few vertices per re-mesh from reallocating every time
+        // (docs/benchmarks_log.md, "Session 29").
+        let (len, roomy) = (src.len(), src.len() + src.len() / 8 + 4);
+        if dst.capacity() > len + len / 4 + 8 {
+            dst.shrink_to(roomy);
         }
-        dst.reserve_exact(src.len());
+        if dst.capacity() < len {
+            dst.reserve_exact(roomy);
+        }
         dst.extend_from_slice(src);
     }
     copy(&mut dst.positions, &src.positions);
