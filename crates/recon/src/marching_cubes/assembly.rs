@@ -6,7 +6,8 @@
 //! and the output is then written once at its exact size. Welding the whole mesh first and
 //! filtering it in place afterwards held the filter's arrays (18 bytes a vertex, with two
 //! triangles a vertex) beside the whole mesh and the live mesh it came from: with the map
-//! compacted before the assembly, a whole home's peak went from 3.46 to 3.27 GB
+//! compacted before the assembly, a whole home's peak went from 3.46 to 3.27 GB (exact
+//! chunk-mesh capacities)
 //! (docs/benchmarks_log.md, "Session 29"). The output is the same: the references
 //! `assemble_welded` and `drop_small_components` below, compiled for the tests only.
 
