@@ -7,9 +7,9 @@
 //! filtering it in place afterwards held the filter's arrays (18 bytes a vertex, with two
 //! triangles a vertex) beside the whole mesh and the live mesh it came from: with the map
 //! compacted before the assembly, a whole home's peak went from 3.46 to 3.27 GB (exact
-//! chunk-mesh capacities)
-//! (docs/benchmarks_log.md, "Session 29"). The output is the same: the references
-//! `assemble_welded` and `drop_small_components` below, compiled for the tests only.
+//! chunk-mesh capacities; docs/benchmarks_log.md, "Session 29"). The output is the same:
+//! the references `assemble_welded` and `drop_small_components` below, compiled for the
+//! tests only.
 
 use super::*;
 
