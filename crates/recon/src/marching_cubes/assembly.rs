@@ -64,8 +64,9 @@ pub(super) fn assemble(meshes: &[(ChunkKey, &ChunkMesh)], min_triangles: usize) 
     }
     let global = |base: usize, t: [u16; 3], index: &[u32]| t.map(|v| index[base + usize::from(v)]);
 
-    // Pass 2: the pieces, and the output index of each kept vertex (`u32::MAX`: dropped).
-    let kept_index: Option<Vec<u32>> = (min_triangles > 1)
+    // Pass 2: the pieces, and the output index of each kept vertex (`u32::MAX`: dropped),
+    // with how many vertices and triangles are kept.
+    let filtered: Option<(Vec<u32>, usize, usize)> = (min_triangles > 1)
         .then(|| {
             let mut parent: Vec<u32> = (0..vertices).collect();
             for (base, t) in chunk_triangles(meshes) {
@@ -78,37 +79,42 @@ pub(super) fn assemble(meshes: &[(ChunkKey, &ChunkMesh)], min_triangles: usize) 
                     }
                 }
             }
+            // Triangles per piece, at the piece's root (0 elsewhere).
             let mut size = vec![0u32; vertices as usize];
             for (base, t) in chunk_triangles(meshes) {
                 let r = root(&mut parent, global(base, t, &welded_index)[0]);
                 size[r as usize] = size[r as usize].saturating_add(1);
             }
-            let keep = |v: u32, parent: &mut Vec<u32>| size[root(parent, v) as usize] as usize >= min_triangles;
-            if chunk_triangles(meshes).all(|(base, t)| keep(global(base, t, &welded_index)[0], &mut parent)) {
+            if !size.iter().any(|&n| n > 0 && (n as usize) < min_triangles) {
                 return None;
             }
             // Vertices used by kept triangles, numbered in order.
             let mut index = vec![u32::MAX; vertices as usize];
+            let mut kept_triangles = 0;
             for (base, t) in chunk_triangles(meshes) {
                 let t = global(base, t, &welded_index);
-                if keep(t[0], &mut parent) {
+                if size[root(&mut parent, t[0]) as usize] as usize >= min_triangles {
+                    kept_triangles += 1;
                     for v in t {
                         index[v as usize] = 0;
                     }
                 }
             }
+            let mut kept_vertices = 0;
             for (next, i) in index.iter_mut().filter(|i| **i == 0).enumerate() {
                 *i = next as u32;
+                kept_vertices = next + 1;
             }
-            Some(index)
+            Some((index, kept_vertices, kept_triangles))
         })
         .flatten();
 
     // Pass 3: the output at its exact size.
-    let out_vertices = kept_index.as_ref().map_or(vertices as usize, |k| k.iter().filter(|&&i| i != u32::MAX).count());
+    let (kept_index, out_vertices, out_triangles) = match filtered {
+        Some((index, v, t)) => (Some(index), v, t),
+        None => (None, vertices as usize, meshes.iter().map(|m| m.1.triangles.len()).sum()),
+    };
     let kept = |v: u32| kept_index.as_ref().map_or(v, |k| k[v as usize]);
-    let out_triangles =
-        chunk_triangles(meshes).filter(|&(base, t)| kept(global(base, t, &welded_index)[0]) != u32::MAX).count();
     let mut out = LabeledMesh {
         positions: Vec::with_capacity(out_vertices),
         colors: Vec::with_capacity(out_vertices),
