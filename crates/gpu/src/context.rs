@@ -47,8 +47,20 @@ const WORKGROUP_BYTES: u32 = {
 /// status words and labels, not the logits of a large room.
 const STAGING_POOLED: u64 = 8 << 20;
 /// Operations queued before they are submitted without waiting for a read-back: few
-/// submissions per forward, without holding an unbounded backlog.
+/// submissions per forward, without holding an unbounded backlog. The environment variable
+/// `SEMRECON_GPU_SUBMIT_EVERY` sets another count (a tuning knob: on lavapipe 256 took a
+/// third off the host's CPU per call, but the device then starts later; a GPU decides).
 const MAX_PENDING: usize = 32;
+
+/// Operations queued before a submission: `SEMRECON_GPU_SUBMIT_EVERY` when it is a positive
+/// count, else [`MAX_PENDING`].
+fn submit_every() -> usize {
+    std::env::var("SEMRECON_GPU_SUBMIT_EVERY")
+        .ok()
+        .and_then(|v| v.trim().parse::<usize>().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or(MAX_PENDING)
+}
 
 /// Which counter a transfer goes to.
 #[derive(Debug, Clone, Copy)]
@@ -121,6 +133,8 @@ pub struct GpuContext {
     call: Mutex<()>,
     /// Recorded work of resident-tensor operations not yet submitted.
     pending: Mutex<Option<Recorder>>,
+    /// Operations queued before a submission ([`submit_every`]).
+    submit_every: usize,
     /// The parameters of recorded dispatches (and the submissions so far: see
     /// [`Self::submit`]).
     params: Mutex<ParamArena>,
@@ -225,6 +239,7 @@ impl GpuContext {
             staging: Mutex::new(Vec::new()),
             call: Mutex::new(()),
             pending: Mutex::new(None),
+            submit_every: submit_every(),
             params: Mutex::new(params),
             live: Arc::new(AtomicUsize::new(0)),
             transfers: Mutex::new(TransferCounts::default()),
@@ -402,7 +417,7 @@ impl GpuContext {
         let recorder = pending.get_or_insert_with(|| Recorder::new(&self.device, &self.live));
         let out = op(recorder);
         recorder.ops += 1;
-        if recorder.ops >= MAX_PENDING {
+        if recorder.ops >= self.submit_every {
             let full = pending.take();
             drop(pending);
             self.submit(full);
