@@ -53,6 +53,7 @@
 mod backend;
 pub mod config;
 pub mod error;
+mod freed_memory;
 pub mod gravity;
 pub mod label_islands;
 pub mod label_store;

@@ -20,8 +20,8 @@ use glam::{Affine3A, Vec3};
 use semrecon_data::{class::UNLABELED, Frame, Intrinsics, LabeledMesh, SemanticClass, Trajectory};
 use semrecon_net::Segmenter;
 use semrecon_recon::{
-    GroupedFusion, IncrementalMesher, KeyframeIndex, LostReason, RemeshTolerance, Tracker, TrackerConfig,
-    TrackingStatus, TsdfMap,
+    GroupedFusion, IncrementalMesher, KeyframeIndex, LostReason, MeshStoreMemory, RemeshTolerance, Tracker,
+    TrackerConfig, TrackingStatus, TsdfMap,
 };
 use serde::Serialize;
 
@@ -166,6 +166,10 @@ pub struct Pipeline {
     /// with loop closure, which re-fuses stored frames one by one.
     grouped: GroupedFusion,
     warnings: Vec<String>,
+    /// The live mesh's store as it was when [`Pipeline::finish`] took the whole mesh from it,
+    /// while the emptied store has not been refilled: [`Pipeline::mesh`] then meshes the map
+    /// afresh.
+    handed_over: Option<MeshStoreMemory>,
 }
 
 impl std::fmt::Debug for Pipeline {
@@ -255,6 +259,7 @@ impl Pipeline {
             loop_closure,
             grouped,
             warnings: Vec::new(),
+            handed_over: None,
         })
     }
 
@@ -468,7 +473,12 @@ impl Pipeline {
 
     fn remesh(&mut self) {
         let t = Instant::now();
-        let stats = self.mesher.update(&self.map);
+        // After `finish` took the store: the whole map at once, not a budget's worth of it.
+        let stats = if self.handed_over.take().is_some() {
+            self.mesher.update_all(&self.map)
+        } else {
+            self.mesher.update(&self.map)
+        };
         self.times.record("meshing", t.elapsed());
         let (n, sum, max) = self.pending_after_keyframes;
         self.pending_after_keyframes = (n + 1, sum + stats.pending_chunks, max.max(stats.pending_chunks));
@@ -623,6 +633,7 @@ impl Pipeline {
         if self.meshed_at != self.fused || self.mesher.pending_chunks() > 0 {
             let t = Instant::now();
             self.mesher.update_all(&self.map);
+            self.handed_over = None;
             // Apart from the keyframes' "meshing": a one-off catch-up without the budget. The
             // surface cells read the map, not the mesh, so this changes no label.
             self.times.record("final meshing", t.elapsed());
@@ -661,7 +672,13 @@ impl Pipeline {
             self.times.record("map compaction", t.elapsed());
             self.add_map_warnings(out.warnings);
         }
-        Ok(self.mesh())
+        // The whole mesh takes the live mesh's memory: each chunk mesh is freed once copied,
+        // and the freed pages go back to the system as they add up, so that a whole home's
+        // peak holds one of the two (a gigabyte each), not both.
+        self.handed_over = Some(self.mesher.memory());
+        let mesh = self.mesher.take_mesh(|_| crate::freed_memory::return_to_os());
+        self.meshed_at = usize::MAX;
+        Ok(self.labelled(mesh))
     }
 
     /// Loop closure's account: loops tried (accepted and rejected, with their frames and
@@ -691,8 +708,22 @@ impl Pipeline {
     /// reached yet) and observed colours. Each vertex takes the class of its 5 cm cell, else of
     /// the neighbouring cell with the most evidence: under a mesh budget a vertex may stand where
     /// the surface was keyframes ago, while the cells follow the map.
+    ///
+    /// After [`Pipeline::finish`], which hands the live mesh's memory over to the mesh it
+    /// returns, the map is meshed afresh (until the next keyframe refills the live mesh).
     pub fn mesh(&self) -> LabeledMesh {
-        let mut mesh = self.mesher.mesh();
+        let mesh = if self.handed_over.is_some() {
+            let mut afresh = self.mesher.clone();
+            afresh.update_all(&self.map);
+            afresh.mesh()
+        } else {
+            self.mesher.mesh()
+        };
+        self.labelled(mesh)
+    }
+
+    /// `mesh` with the class of each vertex (see [`Pipeline::mesh`]).
+    fn labelled(&self, mut mesh: LabeledMesh) -> LabeledMesh {
         mesh.vertex_labels = match &self.semantics {
             Some(s) => mesh.positions.iter().map(|p| s.labels.label_near(s.cells.cell_of_point(*p))).collect(),
             None => vec![UNLABELED; mesh.positions.len()],
@@ -726,8 +757,9 @@ impl Pipeline {
     }
 
     /// Heap bytes of the live mesh's chunk store (beside the map's [`TsdfMap::memory`]).
-    pub fn mesh_store_memory(&self) -> semrecon_recon::MeshStoreMemory {
-        self.mesher.memory()
+    /// After [`Pipeline::finish`]: as it was when the final mesh took it over.
+    pub fn mesh_store_memory(&self) -> MeshStoreMemory {
+        self.handed_over.unwrap_or_else(|| self.mesher.memory())
     }
 
     /// How far the live mesh lagged under [`crate::PipelineConfig::mesh_budget`]: the chunks

@@ -154,9 +154,23 @@ fn a_mesh_budget_delays_keyframe_meshes_but_not_the_final_one() {
     for f in &frames[10..] {
         p.push_frame(f).expect("frame");
     }
+    let store = p.mesh_store_memory();
     let mesh = p.finish().expect("finish");
     assert_eq!(mesh, whole, "the final mesh is complete");
     assert_eq!(p.timings().summary("final meshing").map(|s| s.count), Some(1));
+    // `finish` handed the live mesh's memory to the mesh it returned: the store's size is
+    // remembered, and the map is meshed afresh for a later `mesh()` (the same mesh: no
+    // compaction between) until frames refill the store.
+    let after = p.mesh_store_memory();
+    assert!(after.mesh_bytes >= store.mesh_bytes && after.mesh_used_bytes > 0, "{store:?} -> {after:?}");
+    assert_eq!(p.mesh(), whole, "meshed afresh after finish");
+    for f in &frames[..4] {
+        p.push_frame(f).expect("frame after finish");
+    }
+    assert!(p.mesh_store_memory().mesh_used_bytes > 0, "the next keyframe refills the store");
+    let again = p.finish().expect("finish again");
+    assert!(again.triangle_count() > whole.triangle_count() / 2);
+    assert_eq!(p.mesh(), again, "meshed afresh after the second finish");
     // With semantics the complete mesh is labelled too.
     let budgeted = PipelineConfig { mesh_budget: std::num::NonZeroUsize::new(8), ..config(SemanticMode::default()) };
     let (_, mesh) = run(&frames, budgeted, Some(tiny_net(6)));

@@ -44,7 +44,7 @@ use crate::map::{
     key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, VoxelBlock, CHUNK_SIDE, CHUNK_VOXELS, TSDF_SCALE,
     WEIGHT_SCALE,
 };
-use assembly::assemble;
+use assembly::{assemble, assemble_owned};
 pub use incremental::{IncrementalMesher, MeshStoreMemory, MeshingStats, RemeshTolerance};
 use reader_marks::{ALL_READERS, CELL_READERS};
 #[allow(clippy::wildcard_imports)]

@@ -174,3 +174,36 @@ fn tolerant_incremental_mesh_of_real_frames_stays_within_its_bound() {
     }
     mesher.mesh().validate().expect("valid mesh");
 }
+
+#[test]
+fn taking_the_mesh_gives_the_same_mesh_and_empties_the_cache() {
+    let k = Intrinsics::new(160, 120, 140.0, 140.0, 79.5, 59.5).expect("valid camera");
+    let config = TsdfConfig { voxel_size: 0.01, ..TsdfConfig::default() };
+    let mut map = TsdfMap::new(config).expect("valid");
+    let heavy = MeshConfig { min_weight: 1.0, min_component_triangles: 20 };
+    let budget = std::num::NonZeroUsize::new(40);
+    let mut mesher = IncrementalMesher::with_config(heavy, RemeshTolerance { distance_voxels: 0.25 })
+        .expect("valid")
+        .with_budget(budget);
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let poses = scene::trajectory(3);
+    for i in 0..12 {
+        let pose = poses[i % 3];
+        map.integrate(&noisy(k, pose, i, 0.002, &mut rng), pose).expect("fusion");
+        mesher.update(&map);
+    }
+    mesher.update_all(&map);
+    let want = mesher.mesh();
+    assert!(want.triangle_count() > 1000, "a surface to take");
+    let generation = mesher.generation();
+    let mut freed = 0;
+    let took = mesher.take_mesh(|bytes| freed += bytes);
+    assert!(took == want, "the taken mesh is the cache's mesh");
+    assert!(freed > 0, "the chunk meshes' bytes are reported");
+    assert_eq!((mesher.chunk_count(), mesher.memory().mesh_bytes), (0, 0), "the cache is empty");
+    assert_eq!((mesher.budget(), mesher.config(), mesher.generation()), (budget, heavy, generation));
+    // The next update meshes the whole map again, every chunk newer than before.
+    mesher.update_all(&map);
+    assert_eq!(mesher.remeshed_since(generation).count(), mesher.chunk_count());
+    assert_eq!(mesher.mesh(), extract_mesh_with(&map, heavy).expect("valid"), "meshed afresh");
+}

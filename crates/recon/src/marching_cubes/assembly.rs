@@ -39,114 +39,202 @@ fn chunk_triangles<'a>(meshes: &'a [(ChunkKey, &'a ChunkMesh)]) -> impl Iterator
 /// fewer than `min_triangles` triangles with the vertices only they use (0 or 1 keeps all).
 /// Vertices keep the order in which the chunks first use them, triangles their chunk order.
 pub(super) fn assemble(meshes: &[(ChunkKey, &ChunkMesh)], min_triangles: usize) -> LabeledMesh {
-    // Pass 1: every chunk vertex's welded index, new indices in order of first use.
-    let chunk_vertices: usize = meshes.iter().map(|m| m.1.positions.len()).sum();
-    let mut welded_index: Vec<u32> = Vec::with_capacity(chunk_vertices);
-    let mut vertices = 0u32;
-    {
-        let mut welded: HashMap<EdgeKey, u32, ChunkHashBuilder> = HashMap::default();
-        for &(chunk, m) in meshes {
-            let key_voxel = chunk * CHUNK_SIDE as i32;
-            let mut shared = m.shared.iter().peekable();
+    let plan = AssemblyPlan::new(meshes, min_triangles);
+    plan.write(meshes.iter().map(|&(_, m)| m), |_| {})
+}
+
+/// [`assemble`] of meshes it owns, freeing each as soon as it is copied: the whole mesh
+/// then grows as the chunk meshes go, instead of beside all of them (a whole home's live
+/// mesh is over a gigabyte). `freed(bytes)` is called after every [`FREED_REPORT_BYTES`] or so
+/// of chunk-mesh heap freed and once at the end, with the bytes freed since the last call,
+/// for an allocator that keeps freed memory until asked to return it. The same mesh as
+/// [`assemble`].
+pub(super) fn assemble_owned(
+    meshes: Vec<(ChunkKey, ChunkMesh)>,
+    min_triangles: usize,
+    freed: impl FnMut(usize),
+) -> LabeledMesh {
+    let plan = {
+        let borrowed: Vec<(ChunkKey, &ChunkMesh)> = meshes.iter().map(|(k, m)| (*k, m)).collect();
+        AssemblyPlan::new(&borrowed, min_triangles)
+    };
+    plan.write(meshes.into_iter().map(|(_, m)| m), freed)
+}
+
+/// Chunk-mesh heap freed between two reports of [`assemble_owned`].
+pub(super) const FREED_REPORT_BYTES: usize = 64 << 20;
+
+/// Where every chunk vertex and triangle goes in the whole mesh: built from index arrays
+/// alone, before the output is allocated.
+struct AssemblyPlan {
+    /// Every chunk vertex's welded index (chunk vertices concatenated in chunk order); new
+    /// indices in order of first use.
+    welded_index: Vec<u32>,
+    /// The output index of each welded vertex (`u32::MAX`: dropped with a small piece);
+    /// `None` when nothing is dropped.
+    kept_index: Option<Vec<u32>>,
+    out_vertices: usize,
+    out_triangles: usize,
+}
+
+impl AssemblyPlan {
+    fn new(meshes: &[(ChunkKey, &ChunkMesh)], min_triangles: usize) -> Self {
+        // Pass 1: every chunk vertex's welded index, new indices in order of first use.
+        let chunk_vertices: usize = meshes.iter().map(|m| m.1.positions.len()).sum();
+        let mut welded_index: Vec<u32> = Vec::with_capacity(chunk_vertices);
+        let mut vertices = 0u32;
+        {
+            let mut welded: HashMap<EdgeKey, u32, ChunkHashBuilder> = HashMap::default();
+            for &(chunk, m) in meshes {
+                let key_voxel = chunk * CHUNK_SIDE as i32;
+                let mut shared = m.shared.iter().peekable();
+                for i in 0..m.positions.len() {
+                    if let Some(s) = shared.next_if(|s| usize::from(s.vertex) == i) {
+                        let next = vertices;
+                        let j = *welded.entry(s.key(key_voxel)).or_insert(next);
+                        if j != next {
+                            welded_index.push(j);
+                            continue;
+                        }
+                    }
+                    welded_index.push(vertices);
+                    vertices += 1;
+                }
+            }
+        }
+        let global = |base: usize, t: [u16; 3], index: &[u32]| t.map(|v| index[base + usize::from(v)]);
+
+        // Pass 2: the pieces, and the output index of each kept vertex (`u32::MAX`: dropped),
+        // with how many vertices and triangles are kept.
+        let filtered: Option<(Vec<u32>, usize, usize)> = (min_triangles > 1)
+            .then(|| {
+                let mut parent: Vec<u32> = (0..vertices).collect();
+                for (base, t) in chunk_triangles(meshes) {
+                    let [a, b, c] = global(base, t, &welded_index);
+                    let a = root(&mut parent, a);
+                    for v in [b, c] {
+                        let r = root(&mut parent, v);
+                        if a != r {
+                            parent[r as usize] = a;
+                        }
+                    }
+                }
+                // Triangles per piece, at the piece's root (0 elsewhere).
+                let mut size = vec![0u32; vertices as usize];
+                for (base, t) in chunk_triangles(meshes) {
+                    let r = root(&mut parent, global(base, t, &welded_index)[0]);
+                    size[r as usize] = size[r as usize].saturating_add(1);
+                }
+                if !size.iter().any(|&n| n > 0 && (n as usize) < min_triangles) {
+                    return None;
+                }
+                // From here `parent` becomes each vertex's state, then its output index, so
+                // that two index arrays live at a time, not three: `DROPPED` (its piece is
+                // small), `UNUSED` (kept piece, no kept triangle yet), `USED`.
+                const DROPPED: u32 = 0;
+                const UNUSED: u32 = 1;
+                const USED: u32 = 2;
+                // Every vertex pointing at its root first (path halving never moves a vertex
+                // that already does), then each reads only its own entry and `size`.
+                for v in 0..vertices {
+                    parent[v as usize] = root(&mut parent, v);
+                }
+                for p in parent.iter_mut() {
+                    *p = if size[*p as usize] as usize >= min_triangles { UNUSED } else { DROPPED };
+                }
+                drop(size);
+                let mut state = parent;
+                let mut kept_triangles = 0;
+                for (base, t) in chunk_triangles(meshes) {
+                    let t = global(base, t, &welded_index);
+                    // A triangle's vertices are all in its piece.
+                    if state[t[0] as usize] != DROPPED {
+                        kept_triangles += 1;
+                        for v in t {
+                            state[v as usize] = USED;
+                        }
+                    }
+                }
+                // Vertices used by kept triangles, numbered in order.
+                let mut kept_vertices = 0;
+                for s in state.iter_mut() {
+                    if *s == USED {
+                        *s = kept_vertices;
+                        kept_vertices += 1;
+                    } else {
+                        *s = u32::MAX;
+                    }
+                }
+                let (index, kept_vertices) = (state, kept_vertices as usize);
+                Some((index, kept_vertices, kept_triangles))
+            })
+            .flatten();
+        match filtered {
+            Some((index, out_vertices, out_triangles)) => {
+                Self { welded_index, kept_index: Some(index), out_vertices, out_triangles }
+            }
+            None => Self {
+                welded_index,
+                kept_index: None,
+                out_vertices: vertices as usize,
+                out_triangles: meshes.iter().map(|m| m.1.triangles.len()).sum(),
+            },
+        }
+    }
+
+    /// Pass 3: the output at its exact size, from the chunk meshes in the plan's order, each
+    /// dropped once its vertices and triangles are copied (see [`assemble_owned`] for
+    /// `freed`).
+    fn write<M: std::borrow::Borrow<ChunkMesh>>(
+        self,
+        meshes: impl Iterator<Item = M>,
+        mut freed: impl FnMut(usize),
+    ) -> LabeledMesh {
+        let Self { welded_index, kept_index, out_vertices, out_triangles } = self;
+        let kept = |v: u32| kept_index.as_ref().map_or(v, |k| k[v as usize]);
+        let mut out = LabeledMesh {
+            positions: Vec::with_capacity(out_vertices),
+            colors: Vec::with_capacity(out_vertices),
+            normals: Vec::with_capacity(out_vertices),
+            triangles: Vec::with_capacity(out_triangles),
+            ..LabeledMesh::default()
+        };
+        // A chunk vertex adds an output vertex where its welded index is met for the first
+        // time (those come in increasing order) and is kept. A triangle's vertices are all
+        // numbered by then: each is in its own chunk, met there or before.
+        let mut first_unmet = 0u32;
+        let mut chunk_vertex = 0;
+        let mut freed_bytes = 0;
+        for owner in meshes {
+            let m: &ChunkMesh = owner.borrow();
             for i in 0..m.positions.len() {
-                if let Some(s) = shared.next_if(|s| usize::from(s.vertex) == i) {
-                    let next = vertices;
-                    let j = *welded.entry(s.key(key_voxel)).or_insert(next);
-                    if j != next {
-                        welded_index.push(j);
-                        continue;
-                    }
-                }
-                welded_index.push(vertices);
-                vertices += 1;
-            }
-        }
-    }
-    let global = |base: usize, t: [u16; 3], index: &[u32]| t.map(|v| index[base + usize::from(v)]);
-
-    // Pass 2: the pieces, and the output index of each kept vertex (`u32::MAX`: dropped),
-    // with how many vertices and triangles are kept.
-    let filtered: Option<(Vec<u32>, usize, usize)> = (min_triangles > 1)
-        .then(|| {
-            let mut parent: Vec<u32> = (0..vertices).collect();
-            for (base, t) in chunk_triangles(meshes) {
-                let [a, b, c] = global(base, t, &welded_index);
-                let a = root(&mut parent, a);
-                for v in [b, c] {
-                    let r = root(&mut parent, v);
-                    if a != r {
-                        parent[r as usize] = a;
+                let w = welded_index[chunk_vertex + i];
+                if w == first_unmet {
+                    first_unmet += 1;
+                    if kept(w) != u32::MAX {
+                        out.positions.push(m.positions[i]);
+                        out.colors.push(m.colors[i]);
+                        out.normals.push(m.normals[i]);
                     }
                 }
             }
-            // Triangles per piece, at the piece's root (0 elsewhere).
-            let mut size = vec![0u32; vertices as usize];
-            for (base, t) in chunk_triangles(meshes) {
-                let r = root(&mut parent, global(base, t, &welded_index)[0]);
-                size[r as usize] = size[r as usize].saturating_add(1);
-            }
-            if !size.iter().any(|&n| n > 0 && (n as usize) < min_triangles) {
-                return None;
-            }
-            // Vertices used by kept triangles, numbered in order.
-            let mut index = vec![u32::MAX; vertices as usize];
-            let mut kept_triangles = 0;
-            for (base, t) in chunk_triangles(meshes) {
-                let t = global(base, t, &welded_index);
-                if size[root(&mut parent, t[0]) as usize] as usize >= min_triangles {
-                    kept_triangles += 1;
-                    for v in t {
-                        index[v as usize] = 0;
-                    }
+            for t in &m.triangles {
+                let t = t.map(|v| kept(welded_index[chunk_vertex + usize::from(v)]));
+                if t[0] != u32::MAX {
+                    out.triangles.push(t);
                 }
             }
-            let mut kept_vertices = 0;
-            for (next, i) in index.iter_mut().filter(|i| **i == 0).enumerate() {
-                *i = next as u32;
-                kept_vertices = next + 1;
-            }
-            Some((index, kept_vertices, kept_triangles))
-        })
-        .flatten();
-
-    // Pass 3: the output at its exact size.
-    let (kept_index, out_vertices, out_triangles) = match filtered {
-        Some((index, v, t)) => (Some(index), v, t),
-        None => (None, vertices as usize, meshes.iter().map(|m| m.1.triangles.len()).sum()),
-    };
-    let kept = |v: u32| kept_index.as_ref().map_or(v, |k| k[v as usize]);
-    let mut out = LabeledMesh {
-        positions: Vec::with_capacity(out_vertices),
-        colors: Vec::with_capacity(out_vertices),
-        normals: Vec::with_capacity(out_vertices),
-        triangles: Vec::with_capacity(out_triangles),
-        ..LabeledMesh::default()
-    };
-    // A chunk vertex adds an output vertex where its welded index is met for the first time
-    // (those come in increasing order) and is kept.
-    let mut first_unmet = 0u32;
-    let mut chunk_vertex = 0;
-    for &(_, m) in meshes {
-        for i in 0..m.positions.len() {
-            let w = welded_index[chunk_vertex + i];
-            if w == first_unmet {
-                first_unmet += 1;
-                if kept(w) != u32::MAX {
-                    out.positions.push(m.positions[i]);
-                    out.colors.push(m.colors[i]);
-                    out.normals.push(m.normals[i]);
-                }
+            chunk_vertex += m.positions.len();
+            freed_bytes += m.heap_bytes().0;
+            drop(owner);
+            if freed_bytes >= FREED_REPORT_BYTES {
+                freed(freed_bytes);
+                freed_bytes = 0;
             }
         }
-        chunk_vertex += m.positions.len();
+        freed(freed_bytes);
+        out
     }
-    for (base, t) in chunk_triangles(meshes) {
-        let t = global(base, t, &welded_index).map(kept);
-        if t[0] != u32::MAX {
-            out.triangles.push(t);
-        }
-    }
-    out
 }
 
 /// The reference of [`assemble`]'s filter: drops the connected pieces of `mesh` (triangles joined through shared vertices) with

@@ -598,10 +598,49 @@ impl IncrementalMesher {
 
     /// The whole surface as one welded mesh (chunks in (z, y, x) key order; no labels).
     pub fn mesh(&self) -> LabeledMesh {
-        let mut order: Vec<((i32, i32, i32), ChunkKey, &ChunkMesh)> =
-            self.entries.iter().zip(&self.meshes).map(|(e, m)| (key_order(e.key), e.key, m)).collect();
+        let mut order: Vec<((i32, i32, i32), ChunkKey, &ChunkMesh)> = self
+            .entries
+            .iter()
+            .zip(&self.meshes)
+            .filter(|(_, m)| !m.positions.is_empty())
+            .map(|(e, m)| (key_order(e.key), e.key, m))
+            .collect();
         order.sort_unstable_by_key(|(k, _, _)| *k);
         let meshes: Vec<(ChunkKey, &ChunkMesh)> = order.into_iter().map(|(_, key, m)| (key, m)).collect();
         assemble(&meshes, self.config.min_component_triangles)
+    }
+
+    /// [`IncrementalMesher::mesh`], taking the cache's memory with it: each chunk mesh is
+    /// freed as soon as it is copied, so that the whole mesh grows as the cache goes instead
+    /// of beside all of it (a whole home's live mesh is over a gigabyte, its whole mesh about
+    /// as much). The cache is left empty, with its tolerance, options and budget: the next
+    /// update meshes every chunk of the map again. `freed(bytes)` is called once the cache's
+    /// bookkeeping and empty chunk meshes are gone (with 0), after every 64 MiB or so of
+    /// chunk meshes freed, and at the end, with the chunk-mesh bytes freed since the last call
+    /// (see [`MeshStoreMemory`]): for a process whose allocator keeps freed memory until asked
+    /// to return it. The same mesh as [`IncrementalMesher::mesh`].
+    pub fn take_mesh(&mut self, mut freed: impl FnMut(usize)) -> LabeledMesh {
+        let entries = std::mem::take(&mut self.entries);
+        let meshes = std::mem::take(&mut self.meshes);
+        // The generation goes on: readers of `remeshed_since` see every chunk meshed again.
+        *self = Self {
+            tolerance: self.tolerance,
+            config: self.config,
+            budget: self.budget,
+            generation: self.generation,
+            ..Self::new()
+        };
+        // Empty chunk meshes (most of a map's chunks) add nothing: they go at once, with the
+        // entries, before the assembly's index arrays are made.
+        let mut order: Vec<((i32, i32, i32), ChunkKey, ChunkMesh)> = entries
+            .into_iter()
+            .zip(meshes)
+            .filter(|(_, m)| !m.positions.is_empty())
+            .map(|(e, m)| (key_order(e.key), e.key, m))
+            .collect();
+        freed(0);
+        order.sort_unstable_by_key(|(k, _, _)| *k);
+        let meshes: Vec<(ChunkKey, ChunkMesh)> = order.into_iter().map(|(_, key, m)| (key, m)).collect();
+        assemble_owned(meshes, self.config.min_component_triangles, freed)
     }
 }

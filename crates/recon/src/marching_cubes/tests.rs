@@ -695,6 +695,13 @@ fn assembly_matches_welding_then_filtering() {
             drop_small_components(&mut want, min);
             let got = assemble(&chunks, min);
             assert!(got == want, "seed {seed}, holes {holes}%, min {min}");
+            // Owned meshes, freed as they are copied: the same mesh, every byte reported.
+            let owned: Vec<(ChunkKey, ChunkMesh)> = keys.iter().copied().zip(meshes.iter().cloned()).collect();
+            let heap: usize = owned.iter().map(|(_, m)| m.heap_bytes().0).sum();
+            let mut reported = 0;
+            let took = assemble_owned(owned, min, |bytes| reported += bytes);
+            assert!(took == want, "owned: seed {seed}, holes {holes}%, min {min}");
+            assert_eq!(reported, heap);
             partly_dropped += usize::from(!got.triangles.is_empty() && got.triangles.len() < welded.triangles.len());
             assert_eq!(got.positions.capacity(), got.positions.len());
             assert_eq!(got.triangles.capacity(), got.triangles.len());
