@@ -753,19 +753,53 @@ fn mesh_chunk_configured(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch:
 
 /// Re-meshes chunk `key` into `dst`, reusing its buffers: in steady state a re-mesh
 /// allocates and frees nothing (a fifth of the incremental update went to the allocator).
-fn remesh_into(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scratch, dst: &mut ChunkMesh) {
+/// Where `dst`'s buffers must grow or shrink, the new mesh is returned instead, for
+/// [`store_mesh`] on the calling thread.
+fn remesh_into(
+    map: &TsdfMap,
+    key: ChunkKey,
+    min_weight: u16,
+    scratch: &mut Scratch,
+    dst: &mut ChunkMesh,
+) -> Option<ChunkMesh> {
     if !build(map, key, min_weight, scratch) {
         *dst = ChunkMesh::default();
-        return;
+        return None;
     }
     let src = &scratch.mesh;
+    let fits = fits(&dst.positions, src.positions.len())
+        && fits(&dst.colors, src.colors.len())
+        && fits(&dst.normals, src.normals.len())
+        && fits(&dst.triangles, src.triangles.len())
+        && fits(&dst.shared, src.shared.len());
+    if !fits {
+        return Some(src.clone());
+    }
+    store_mesh(dst, src);
+    None
+}
+
+/// Whether `v` holds `len` elements without growing, and without more slack than a live
+/// mesh keeps (see [`store_mesh`]).
+fn fits<T>(v: &Vec<T>, len: usize) -> bool {
+    v.capacity() >= len && v.capacity() <= len + len / 4 + 8
+}
+
+/// Copies `src` into the live mesh's `dst`, reusing its buffers where they [`fits`].
+///
+/// Buffers are grown to an eighth above the length, and slack beyond a quarter given back:
+/// the cache is the whole live mesh, a gigabyte for a home, and doubling growth left nearly a
+/// third of it unused; the gap between the two keeps a chunk that grows or shrinks by a few
+/// vertices per re-mesh from reallocating every time (docs/benchmarks_log.md, "Session 29").
+///
+/// The incremental mesher calls this on its own thread for every buffer that must be
+/// allocated anew, not on the meshing workers: glibc gives each thread an arena, and live
+/// meshes allocated by the workers sat on the same pages as the map's chunks, which the
+/// workers allocate too, so that a whole home's live mesh, once freed, stayed resident
+/// (docs/benchmarks_log.md, "Session 30").
+fn store_mesh(dst: &mut ChunkMesh, src: &ChunkMesh) {
     fn copy<T: Copy>(dst: &mut Vec<T>, src: &[T]) {
         dst.clear();
-        // Grown to an eighth above the length, and slack beyond a quarter given back: the
-        // cache is the whole live mesh, a gigabyte for a home, and doubling growth left
-        // nearly a third of it unused; the gap between the two keeps a chunk that grows or
-        // shrinks by a few vertices per re-mesh from reallocating every time
-        // (docs/benchmarks_log.md, "Session 29").
         let (len, roomy) = (src.len(), src.len() + src.len() / 8 + 4);
         if dst.capacity() > len + len / 4 + 8 {
             dst.shrink_to(roomy);

@@ -526,18 +526,23 @@ impl IncrementalMesher {
             }
         };
         order.par_sort_unstable();
-        let mut jobs: Vec<(ChunkKey, u32, ChunkMesh)> = order
+        let mut jobs: Vec<(ChunkKey, u32, ChunkMesh, Option<ChunkMesh>)> = order
             .iter()
             .map(|&(_, i)| {
                 let mesh = std::mem::take(&mut self.meshes[i as usize]);
                 self.triangles -= mesh.triangles.len();
-                (self.entries[i as usize].key, i, mesh)
+                (self.entries[i as usize].key, i, mesh, None)
             })
             .collect();
         let remeshed = jobs.len();
-        jobs.par_iter_mut()
-            .for_each_init(Scratch::new, |s, (key, _, mesh)| remesh_into(map, *key, min_weight, s, mesh));
-        for (_, i, mesh) in jobs {
+        jobs.par_iter_mut().for_each_init(Scratch::new, |s, (key, _, mesh, fresh)| {
+            *fresh = remesh_into(map, *key, min_weight, s, mesh);
+        });
+        for (_, i, mut mesh, fresh) in jobs {
+            // Buffers that must be allocated anew are, here, on this thread (see `store_mesh`).
+            if let Some(fresh) = fresh {
+                store_mesh(&mut mesh, &fresh);
+            }
             self.triangles += mesh.triangles.len();
             self.meshes[i as usize] = mesh;
             self.entries[i as usize].meshed_at = self.generation;
