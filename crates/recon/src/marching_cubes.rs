@@ -754,7 +754,7 @@ fn mesh_chunk_configured(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch:
 /// Re-meshes chunk `key` into `dst`, reusing its buffers: in steady state a re-mesh
 /// allocates and frees nothing (a fifth of the incremental update went to the allocator).
 /// Where `dst`'s buffers must grow or shrink, the new mesh is returned instead, for
-/// [`store_mesh`] on the calling thread.
+/// [`size_for`] on the calling thread.
 fn remesh_into(
     map: &TsdfMap,
     key: ChunkKey,
@@ -780,12 +780,12 @@ fn remesh_into(
 }
 
 /// Whether `v` holds `len` elements without growing, and without more slack than a live
-/// mesh keeps (see [`store_mesh`]).
+/// mesh keeps (see [`size_for`]).
 fn fits<T>(v: &Vec<T>, len: usize) -> bool {
     v.capacity() >= len && v.capacity() <= len + len / 4 + 8
 }
 
-/// Copies `src` into the live mesh's `dst`, reusing its buffers where they [`fits`].
+/// Sizes the live mesh's buffers of `dst` for `src`'s contents (emptied; see [`fits`]).
 ///
 /// Buffers are grown to an eighth above the length, and slack beyond a quarter given back:
 /// the cache is the whole live mesh, a gigabyte for a home, and doubling growth left nearly a
@@ -796,17 +796,32 @@ fn fits<T>(v: &Vec<T>, len: usize) -> bool {
 /// allocated anew, not on the meshing workers: glibc gives each thread an arena, and live
 /// meshes allocated by the workers sat on the same pages as the map's chunks, which the
 /// workers allocate too, so that a whole home's live mesh, once freed, stayed resident
-/// (docs/benchmarks_log.md, "Session 30").
-fn store_mesh(dst: &mut ChunkMesh, src: &ChunkMesh) {
-    fn copy<T: Copy>(dst: &mut Vec<T>, src: &[T]) {
+/// (docs/benchmarks_log.md, "Session 30"). The copying ([`store_mesh`]) then allocates nothing
+/// and runs on the workers.
+fn size_for(dst: &mut ChunkMesh, src: &ChunkMesh) {
+    fn size<T>(dst: &mut Vec<T>, len: usize) {
         dst.clear();
-        let (len, roomy) = (src.len(), src.len() + src.len() / 8 + 4);
+        let roomy = len + len / 8 + 4;
         if dst.capacity() > len + len / 4 + 8 {
             dst.shrink_to(roomy);
         }
         if dst.capacity() < len {
             dst.reserve_exact(roomy);
         }
+    }
+    size(&mut dst.positions, src.positions.len());
+    size(&mut dst.colors, src.colors.len());
+    size(&mut dst.normals, src.normals.len());
+    size(&mut dst.triangles, src.triangles.len());
+    size(&mut dst.shared, src.shared.len());
+}
+
+/// Copies `src` into the live mesh's `dst`, whose buffers [`fits`] it (as [`size_for`] leaves
+/// them): no allocation.
+fn store_mesh(dst: &mut ChunkMesh, src: &ChunkMesh) {
+    fn copy<T: Copy>(dst: &mut Vec<T>, src: &[T]) {
+        dst.clear();
+        debug_assert!(fits(dst, src.len()));
         dst.extend_from_slice(src);
     }
     copy(&mut dst.positions, &src.positions);

@@ -538,11 +538,23 @@ impl IncrementalMesher {
         jobs.par_iter_mut().for_each_init(Scratch::new, |s, (key, _, mesh, fresh)| {
             *fresh = remesh_into(map, *key, min_weight, s, mesh);
         });
-        for (_, i, mut mesh, fresh) in jobs {
-            // Buffers that must be allocated anew are, here, on this thread (see `store_mesh`).
+        // Buffers that must be allocated anew are, here, on this thread (see `size_for`); the
+        // workers then copy into them.
+        let mut resized = false;
+        for (_, _, mesh, fresh) in &mut jobs {
             if let Some(fresh) = fresh {
-                store_mesh(&mut mesh, &fresh);
+                size_for(mesh, fresh);
+                resized = true;
             }
+        }
+        if resized {
+            jobs.par_iter_mut().for_each(|(_, _, mesh, fresh)| {
+                if let Some(fresh) = fresh.take() {
+                    store_mesh(mesh, &fresh);
+                }
+            });
+        }
+        for (_, i, mesh, _) in jobs {
             self.triangles += mesh.triangles.len();
             self.meshes[i as usize] = mesh;
             self.entries[i as usize].meshed_at = self.generation;
