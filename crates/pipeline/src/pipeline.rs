@@ -609,7 +609,9 @@ impl Pipeline {
     }
 
     /// Ends the stream: waits for the pass in flight, runs a last pass over what changed
-    /// since, brings the mesh up to date and returns the labelled mesh.
+    /// since, brings the mesh up to date and returns the labelled mesh. The live mesh's
+    /// memory goes into the returned mesh (a whole home's live mesh is over a gigabyte):
+    /// [`Pipeline::mesh`] meshes the map afresh after this, until the next keyframe.
     ///
     /// # Errors
     /// None at present (failures of the back end are [`Pipeline::warnings`]); the `Result`
