@@ -801,12 +801,9 @@ fn fits<T>(v: &Vec<T>, len: usize) -> bool {
 fn size_for(dst: &mut ChunkMesh, src: &ChunkMesh) {
     fn size<T>(dst: &mut Vec<T>, len: usize) {
         dst.clear();
-        let roomy = len + len / 8 + 4;
-        if dst.capacity() > len + len / 4 + 8 {
-            dst.shrink_to(roomy);
-        }
-        if dst.capacity() < len {
-            dst.reserve_exact(roomy);
+        // A new buffer rather than a reallocation, which would stay in the old one's arena.
+        if !fits(dst, len) {
+            *dst = Vec::with_capacity(len + len / 8 + 4);
         }
     }
     size(&mut dst.positions, src.positions.len());
