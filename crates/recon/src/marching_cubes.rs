@@ -37,6 +37,7 @@ mod avx2;
 #[cfg(target_arch = "x86_64")]
 mod avx512;
 mod incremental;
+mod packed_mesh;
 mod reader_marks;
 mod triangles;
 mod vertices;
@@ -44,12 +45,13 @@ use crate::map::{
     key_order, Chunk, ChunkHashBuilder, ChunkKey, TsdfMap, VoxelBlock, CHUNK_SIDE, CHUNK_VOXELS, TSDF_SCALE,
     WEIGHT_SCALE,
 };
-use assembly::{assemble, assemble_owned};
+use assembly::{assemble, assemble_from, PackedMeshes};
 pub use incremental::{IncrementalMesher, MeshStoreMemory, MeshingStats, RemeshTolerance};
+use packed_mesh::{PackedChunkMesh, PackedStore, Unpacker};
 use reader_marks::{ALL_READERS, CELL_READERS};
 #[allow(clippy::wildcard_imports)]
 use triangles::*;
-use vertices::{make_vertices, VertexJob, VertexKernel, VertexLanes, LANES};
+use vertices::{edge_parameter, make_vertices, position_on_edge, VertexJob, VertexKernel, VertexLanes, LANES};
 #[cfg(test)]
 use vertices::{vertices_scalar, STRIDES};
 
@@ -644,7 +646,8 @@ struct Scratch {
     mesh: ChunkMesh,
     /// Cell edge -> vertex of the chunk being meshed.
     edges: EdgeSlots,
-    /// Crossed cells of the current chunk: local cell index and case.
+    /// Crossed cells of the current chunk: local cell index and case (after the triangle
+    /// pass, the cells that made triangles).
     cells: Vec<(u16, u8)>,
     /// The vertices to make, one [`VertexJob`] each, in vertex order (padded to whole
     /// batches).
@@ -751,81 +754,30 @@ fn mesh_chunk_configured(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch:
     }
 }
 
-/// Re-meshes chunk `key` into `dst`, reusing its buffers: in steady state a re-mesh
-/// allocates and frees nothing (a fifth of the incremental update went to the allocator).
-/// Where `dst`'s buffers must grow or shrink, the new mesh is returned instead, for
-/// [`size_for`] on the calling thread.
+/// Re-meshes chunk `key` into the live mesh's `dst`, packed, reusing its buffer: in steady
+/// state a re-mesh allocates and frees nothing (a fifth of the incremental update once went
+/// to the allocator). Where `dst`'s buffer must grow or shrink, the packed mesh is returned
+/// instead, at its exact size, for a buffer made on the calling thread
+/// ([`PackedChunkMesh::sized_for`]).
 fn remesh_into(
     map: &TsdfMap,
     key: ChunkKey,
     min_weight: u16,
     scratch: &mut Scratch,
-    dst: &mut ChunkMesh,
-) -> Option<ChunkMesh> {
+    dst: &mut PackedChunkMesh,
+) -> Option<PackedChunkMesh> {
     if !build(map, key, min_weight, scratch) {
-        *dst = ChunkMesh::default();
+        dst.release();
         return None;
     }
-    let src = &scratch.mesh;
-    let fits = fits(&dst.positions, src.positions.len())
-        && fits(&dst.colors, src.colors.len())
-        && fits(&dst.normals, src.normals.len())
-        && fits(&dst.triangles, src.triangles.len())
-        && fits(&dst.shared, src.shared.len());
-    if !fits {
-        return Some(src.clone());
+    let needed = PackedChunkMesh::needed(scratch.cells.len(), scratch.mesh.positions.len());
+    if dst.fits(needed) {
+        dst.pack(scratch);
+        return None;
     }
-    store_mesh(dst, src);
-    None
-}
-
-/// Whether `v` holds `len` elements without growing, and without more slack than a live
-/// mesh keeps (see [`size_for`]).
-fn fits<T>(v: &Vec<T>, len: usize) -> bool {
-    v.capacity() >= len && v.capacity() <= len + len / 4 + 8
-}
-
-/// Sizes the live mesh's buffers of `dst` for `src`'s contents (emptied; see [`fits`]).
-///
-/// Buffers are grown to an eighth above the length, and slack beyond a quarter given back:
-/// the cache is the whole live mesh, a gigabyte for a home, and doubling growth left nearly a
-/// third of it unused; the gap between the two keeps a chunk that grows or shrinks by a few
-/// vertices per re-mesh from reallocating every time (docs/benchmarks_log.md, "Session 29").
-///
-/// The incremental mesher calls this on its own thread for every buffer that must be
-/// allocated anew, not on the meshing workers: glibc gives each thread an arena, and live
-/// meshes allocated by the workers sat on the same pages as the map's chunks, which the
-/// workers allocate too, so that a whole home's live mesh, once freed, stayed resident
-/// (docs/benchmarks_log.md, "Session 30"). The copying ([`store_mesh`]) then allocates nothing
-/// and runs on the workers.
-fn size_for(dst: &mut ChunkMesh, src: &ChunkMesh) {
-    fn size<T>(dst: &mut Vec<T>, len: usize) {
-        dst.clear();
-        // A new buffer rather than a reallocation, which would stay in the old one's arena.
-        if !fits(dst, len) {
-            *dst = Vec::with_capacity(len + len / 8 + 4);
-        }
-    }
-    size(&mut dst.positions, src.positions.len());
-    size(&mut dst.colors, src.colors.len());
-    size(&mut dst.normals, src.normals.len());
-    size(&mut dst.triangles, src.triangles.len());
-    size(&mut dst.shared, src.shared.len());
-}
-
-/// Copies `src` into the live mesh's `dst`, whose buffers [`fits`] it (as [`size_for`] leaves
-/// them): no allocation.
-fn store_mesh(dst: &mut ChunkMesh, src: &ChunkMesh) {
-    fn copy<T: Copy>(dst: &mut Vec<T>, src: &[T]) {
-        dst.clear();
-        debug_assert!(fits(dst, src.len()));
-        dst.extend_from_slice(src);
-    }
-    copy(&mut dst.positions, &src.positions);
-    copy(&mut dst.colors, &src.colors);
-    copy(&mut dst.normals, &src.normals);
-    copy(&mut dst.triangles, &src.triangles);
-    copy(&mut dst.shared, &src.shared);
+    let mut fresh = PackedChunkMesh::exact(needed);
+    fresh.pack(scratch);
+    Some(fresh)
 }
 
 /// Marching cubes over chunk `key` into `scratch.mesh`, voxels of stored weight at least
@@ -851,7 +803,7 @@ fn build(map: &TsdfMap, key: ChunkKey, min_weight: u16, scratch: &mut Scratch) -
     let key_voxel = key * CHUNK_SIDE as i32;
     triangles(
         &scratch.block,
-        &scratch.cells,
+        &mut scratch.cells,
         triangle_count,
         max_jump,
         &mut scratch.edges,

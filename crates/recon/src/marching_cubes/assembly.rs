@@ -23,15 +23,90 @@ fn root(parent: &mut [u32], mut i: u32) -> u32 {
     i
 }
 
-/// Every chunk's triangles in order, each with the position of its chunk's first vertex
-/// among all chunk vertices.
-fn chunk_triangles<'a>(meshes: &'a [(ChunkKey, &'a ChunkMesh)]) -> impl Iterator<Item = (usize, [u16; 3])> + 'a {
+/// Chunk meshes in assembly order, read one at a time and as often as the assembly needs:
+/// whole (a fresh extraction) or packed (the live mesh, unpacked on the way).
+pub(super) trait ChunkMeshes {
+    /// How many chunks.
+    fn count(&self) -> usize;
+    /// Vertices of chunk `i` (without unpacking it).
+    fn vertices(&self, i: usize) -> usize;
+    /// Triangles of chunk `i` (without unpacking it).
+    fn triangles(&self, i: usize) -> usize;
+    /// Chunk `i`'s key and mesh.
+    fn get(&mut self, i: usize) -> (ChunkKey, &ChunkMesh);
+    /// Frees chunk `i`'s storage where this owns it; returns the heap bytes freed.
+    fn release(&mut self, i: usize) -> usize;
+}
+
+impl ChunkMeshes for &[(ChunkKey, &ChunkMesh)] {
+    fn count(&self) -> usize {
+        self.len()
+    }
+    fn vertices(&self, i: usize) -> usize {
+        self[i].1.positions.len()
+    }
+    fn triangles(&self, i: usize) -> usize {
+        self[i].1.triangles.len()
+    }
+    fn get(&mut self, i: usize) -> (ChunkKey, &ChunkMesh) {
+        self[i]
+    }
+    fn release(&mut self, _: usize) -> usize {
+        0
+    }
+}
+
+/// Packed chunk meshes (owned or borrowed, see [`PackedStore`]) unpacked one at a time.
+pub(super) struct PackedMeshes<P> {
+    meshes: Vec<(ChunkKey, P)>,
+    voxel_size: f32,
+    unpacker: Unpacker,
+    current: ChunkMesh,
+    /// The chunk in `current`.
+    unpacked: Option<usize>,
+}
+
+impl<P: PackedStore> PackedMeshes<P> {
+    /// The chunks `meshes` in assembly order, of a map with voxels of `voxel_size` metres.
+    pub(super) fn new(meshes: Vec<(ChunkKey, P)>, voxel_size: f32) -> Self {
+        Self { meshes, voxel_size, unpacker: Unpacker::new(), current: ChunkMesh::default(), unpacked: None }
+    }
+}
+
+impl<P: PackedStore> ChunkMeshes for PackedMeshes<P> {
+    fn count(&self) -> usize {
+        self.meshes.len()
+    }
+    fn vertices(&self, i: usize) -> usize {
+        self.meshes[i].1.packed().vertices()
+    }
+    fn triangles(&self, i: usize) -> usize {
+        self.meshes[i].1.packed().triangles()
+    }
+    fn get(&mut self, i: usize) -> (ChunkKey, &ChunkMesh) {
+        let (key, packed) = &self.meshes[i];
+        if self.unpacked != Some(i) {
+            packed.packed().unpack(*key, self.voxel_size, &mut self.unpacker, &mut self.current);
+            self.unpacked = Some(i);
+        }
+        (*key, &self.current)
+    }
+    fn release(&mut self, i: usize) -> usize {
+        self.meshes[i].1.release()
+    }
+}
+
+/// Calls `f` with every chunk's triangles in order, each with the position of its chunk's
+/// first vertex among all chunk vertices.
+fn for_each_triangle(meshes: &mut impl ChunkMeshes, mut f: impl FnMut(usize, [u16; 3])) {
     let mut offset = 0;
-    meshes.iter().flat_map(move |&(_, m)| {
-        let base = offset;
+    for i in 0..meshes.count() {
+        let (_, m) = meshes.get(i);
+        for &t in &m.triangles {
+            f(offset, t);
+        }
         offset += m.positions.len();
-        m.triangles.iter().map(move |t| (base, *t))
-    })
+    }
 }
 
 /// Concatenates chunk meshes, each with its chunk's key, welding vertices on shared cell
@@ -39,29 +114,25 @@ fn chunk_triangles<'a>(meshes: &'a [(ChunkKey, &'a ChunkMesh)]) -> impl Iterator
 /// fewer than `min_triangles` triangles with the vertices only they use (0 or 1 keeps all).
 /// Vertices keep the order in which the chunks first use them, triangles their chunk order.
 pub(super) fn assemble(meshes: &[(ChunkKey, &ChunkMesh)], min_triangles: usize) -> LabeledMesh {
-    let plan = AssemblyPlan::new(meshes, min_triangles);
-    plan.write(meshes.iter().map(|&(_, m)| m), |_| {})
+    assemble_from(meshes, min_triangles, |_| {})
 }
 
-/// [`assemble`] of meshes it owns, freeing each as soon as it is copied: the whole mesh
-/// then grows as the chunk meshes go, instead of beside all of them (a whole home's live
-/// mesh is over a gigabyte). `freed(bytes)` is called after every [`FREED_REPORT_BYTES`] or so
-/// of chunk-mesh heap freed and once at the end, with the bytes freed since the last call,
-/// for an allocator that keeps freed memory until asked to return it. The same mesh as
-/// [`assemble`].
-pub(super) fn assemble_owned(
-    meshes: Vec<(ChunkKey, ChunkMesh)>,
+/// [`assemble`] from any chunk meshes, freeing those it owns as soon as they are copied: the
+/// whole mesh then grows as the chunk meshes go, instead of beside all of them (a whole
+/// home's live mesh is most of a gigabyte). `freed(bytes)` is called after every
+/// [`FREED_REPORT_BYTES`] or so of chunk-mesh heap freed and once at the end, with the bytes
+/// freed since the last call, for an allocator that keeps freed memory until asked to return
+/// it.
+pub(super) fn assemble_from(
+    mut meshes: impl ChunkMeshes,
     min_triangles: usize,
     freed: impl FnMut(usize),
 ) -> LabeledMesh {
-    let plan = {
-        let borrowed: Vec<(ChunkKey, &ChunkMesh)> = meshes.iter().map(|(k, m)| (*k, m)).collect();
-        AssemblyPlan::new(&borrowed, min_triangles)
-    };
-    plan.write(meshes.into_iter().map(|(_, m)| m), freed)
+    let plan = AssemblyPlan::new(&mut meshes, min_triangles);
+    plan.write(&mut meshes, freed)
 }
 
-/// Chunk-mesh heap freed between two reports of [`assemble_owned`].
+/// Chunk-mesh heap freed between two reports of [`assemble_from`].
 pub(super) const FREED_REPORT_BYTES: usize = 64 << 20;
 
 /// Where every chunk vertex and triangle goes in the whole mesh: built from index arrays
@@ -78,14 +149,15 @@ struct AssemblyPlan {
 }
 
 impl AssemblyPlan {
-    fn new(meshes: &[(ChunkKey, &ChunkMesh)], min_triangles: usize) -> Self {
+    fn new(meshes: &mut impl ChunkMeshes, min_triangles: usize) -> Self {
         // Pass 1: every chunk vertex's welded index, new indices in order of first use.
-        let chunk_vertices: usize = meshes.iter().map(|m| m.1.positions.len()).sum();
+        let chunk_vertices: usize = (0..meshes.count()).map(|i| meshes.vertices(i)).sum();
         let mut welded_index: Vec<u32> = Vec::with_capacity(chunk_vertices);
         let mut vertices = 0u32;
         {
             let mut welded: HashMap<EdgeKey, u32, ChunkHashBuilder> = HashMap::default();
-            for &(chunk, m) in meshes {
+            for c in 0..meshes.count() {
+                let (chunk, m) = meshes.get(c);
                 let key_voxel = chunk * CHUNK_SIDE as i32;
                 let mut shared = m.shared.iter().peekable();
                 for i in 0..m.positions.len() {
@@ -109,7 +181,7 @@ impl AssemblyPlan {
         let filtered: Option<(Vec<u32>, usize, usize)> = (min_triangles > 1)
             .then(|| {
                 let mut parent: Vec<u32> = (0..vertices).collect();
-                for (base, t) in chunk_triangles(meshes) {
+                for_each_triangle(meshes, |base, t| {
                     let [a, b, c] = global(base, t, &welded_index);
                     let a = root(&mut parent, a);
                     for v in [b, c] {
@@ -118,13 +190,13 @@ impl AssemblyPlan {
                             parent[r as usize] = a;
                         }
                     }
-                }
+                });
                 // Triangles per piece, at the piece's root (0 elsewhere).
                 let mut size = vec![0u32; vertices as usize];
-                for (base, t) in chunk_triangles(meshes) {
+                for_each_triangle(meshes, |base, t| {
                     let r = root(&mut parent, global(base, t, &welded_index)[0]);
                     size[r as usize] = size[r as usize].saturating_add(1);
-                }
+                });
                 if !size.iter().any(|&n| n > 0 && (n as usize) < min_triangles) {
                     return None;
                 }
@@ -145,7 +217,7 @@ impl AssemblyPlan {
                 drop(size);
                 let mut state = parent;
                 let mut kept_triangles = 0;
-                for (base, t) in chunk_triangles(meshes) {
+                for_each_triangle(meshes, |base, t| {
                     let t = global(base, t, &welded_index);
                     // A triangle's vertices are all in its piece.
                     if state[t[0] as usize] != DROPPED {
@@ -154,7 +226,7 @@ impl AssemblyPlan {
                             state[v as usize] = USED;
                         }
                     }
-                }
+                });
                 // Vertices used by kept triangles, numbered in order.
                 let mut kept_vertices = 0;
                 for s in state.iter_mut() {
@@ -177,19 +249,15 @@ impl AssemblyPlan {
                 welded_index,
                 kept_index: None,
                 out_vertices: vertices as usize,
-                out_triangles: meshes.iter().map(|m| m.1.triangles.len()).sum(),
+                out_triangles: (0..meshes.count()).map(|i| meshes.triangles(i)).sum(),
             },
         }
     }
 
     /// Pass 3: the output at its exact size, from the chunk meshes in the plan's order, each
-    /// dropped once its vertices and triangles are copied (see [`assemble_owned`] for
+    /// released once its vertices and triangles are copied (see [`assemble_from`] for
     /// `freed`).
-    fn write<M: std::borrow::Borrow<ChunkMesh>>(
-        self,
-        meshes: impl Iterator<Item = M>,
-        mut freed: impl FnMut(usize),
-    ) -> LabeledMesh {
+    fn write(self, meshes: &mut impl ChunkMeshes, mut freed: impl FnMut(usize)) -> LabeledMesh {
         let Self { welded_index, kept_index, out_vertices, out_triangles } = self;
         let kept = |v: u32| kept_index.as_ref().map_or(v, |k| k[v as usize]);
         let mut out = LabeledMesh {
@@ -205,8 +273,8 @@ impl AssemblyPlan {
         let mut first_unmet = 0u32;
         let mut chunk_vertex = 0;
         let mut freed_bytes = 0;
-        for owner in meshes {
-            let m: &ChunkMesh = owner.borrow();
+        for c in 0..meshes.count() {
+            let (_, m) = meshes.get(c);
             for i in 0..m.positions.len() {
                 let w = welded_index[chunk_vertex + i];
                 if w == first_unmet {
@@ -225,8 +293,7 @@ impl AssemblyPlan {
                 }
             }
             chunk_vertex += m.positions.len();
-            freed_bytes += m.heap_bytes().0;
-            drop(owner);
+            freed_bytes += meshes.release(c);
             if freed_bytes >= FREED_REPORT_BYTES {
                 freed(freed_bytes);
                 freed_bytes = 0;

@@ -269,8 +269,10 @@ pub struct IncrementalMesher {
     index: HashMap<ChunkKey, u32, ChunkHashBuilder>,
     /// Entries in a slab, so that re-meshing can write into them in parallel.
     entries: Vec<CacheEntry>,
-    /// The chunk meshes, in the same positions as `entries`.
-    meshes: Vec<ChunkMesh>,
+    /// The chunk meshes, packed (see `packed_mesh.rs`), in the same positions as `entries`.
+    meshes: Vec<PackedChunkMesh>,
+    /// Voxel size of the map last meshed, metres (unpacking positions needs it).
+    voxel_size: f32,
     /// Triangles over all of `meshes`.
     triangles: usize,
     tolerance: RemeshTolerance,
@@ -297,6 +299,7 @@ impl IncrementalMesher {
             index: HashMap::default(),
             entries: Vec::new(),
             meshes: Vec::new(),
+            voxel_size: 0.0,
             triangles: 0,
             tolerance: RemeshTolerance::EXACT,
             config: MeshConfig::ALL_OBSERVED,
@@ -362,7 +365,7 @@ impl IncrementalMesher {
             used += u;
         }
         let bookkeeping = self.entries.capacity() * std::mem::size_of::<CacheEntry>()
-            + self.meshes.capacity() * std::mem::size_of::<ChunkMesh>()
+            + self.meshes.capacity() * std::mem::size_of::<PackedChunkMesh>()
             + self.index.capacity() * (std::mem::size_of::<(ChunkKey, u32)>() + 1)
             + self.slot_entry.capacity() * std::mem::size_of::<u32>()
             + self.snapshot_bytes();
@@ -385,6 +388,7 @@ impl IncrementalMesher {
 
     fn update_within(&mut self, map: &TsdfMap, budget: Option<usize>) -> MeshingStats {
         self.generation += 1;
+        self.voxel_size = map.config().voxel_size;
         // The entry of each map chunk: where the last update found it, when that entry still
         // holds its key (chunks move only when the map frees others), else from the index.
         // The index is asked only for moved and new chunks, not for every chunk of the map.
@@ -409,7 +413,7 @@ impl IncrementalMesher {
         let mut original: Vec<u32> = (0..self.entries.len() as u32).collect();
         for &i in freed_entries.iter().rev() {
             let removed = self.entries.swap_remove(i as usize);
-            self.triangles -= self.meshes.swap_remove(i as usize).triangles.len();
+            self.triangles -= self.meshes.swap_remove(i as usize).triangles();
             original.swap_remove(i as usize);
             self.index.remove(&removed.key);
             if let Some(moved) = self.entries.get(i as usize) {
@@ -436,7 +440,7 @@ impl IncrementalMesher {
                         pending_since: NOT_PENDING,
                         snapshot: None,
                     });
-                    self.meshes.push(ChunkMesh::default());
+                    self.meshes.push(PackedChunkMesh::default());
                     self.index.insert(c.key, i);
                     i
                 }
@@ -526,11 +530,11 @@ impl IncrementalMesher {
             }
         };
         order.par_sort_unstable();
-        let mut jobs: Vec<(ChunkKey, u32, ChunkMesh, Option<ChunkMesh>)> = order
+        let mut jobs: Vec<(ChunkKey, u32, PackedChunkMesh, Option<PackedChunkMesh>)> = order
             .iter()
             .map(|&(_, i)| {
                 let mesh = std::mem::take(&mut self.meshes[i as usize]);
-                self.triangles -= mesh.triangles.len();
+                self.triangles -= mesh.triangles();
                 (self.entries[i as usize].key, i, mesh, None)
             })
             .collect();
@@ -538,24 +542,24 @@ impl IncrementalMesher {
         jobs.par_iter_mut().for_each_init(Scratch::new, |s, (key, _, mesh, fresh)| {
             *fresh = remesh_into(map, *key, min_weight, s, mesh);
         });
-        // Buffers that must be allocated anew are, here, on this thread (see `size_for`); the
-        // workers then copy into them.
+        // Buffers that must be allocated anew are, here, on this thread (see
+        // `PackedChunkMesh::sized_for`); the workers then copy into them.
         let mut resized = false;
         for (_, _, mesh, fresh) in &mut jobs {
             if let Some(fresh) = fresh {
-                size_for(mesh, fresh);
+                *mesh = PackedChunkMesh::sized_for(fresh.heap_bytes().1);
                 resized = true;
             }
         }
         if resized {
             jobs.par_iter_mut().for_each(|(_, _, mesh, fresh)| {
                 if let Some(fresh) = fresh.take() {
-                    store_mesh(mesh, &fresh);
+                    mesh.copy_from(&fresh);
                 }
             });
         }
         for (_, i, mesh, _) in jobs {
-            self.triangles += mesh.triangles.len();
+            self.triangles += mesh.triangles();
             self.meshes[i as usize] = mesh;
             self.entries[i as usize].meshed_at = self.generation;
         }
@@ -590,9 +594,15 @@ impl IncrementalMesher {
         ranked.len() - budget
     }
 
-    /// The cached mesh of chunk `key`.
-    pub fn chunk_mesh(&self, key: ChunkKey) -> Option<&ChunkMesh> {
-        self.index.get(&key).map(|&i| &self.meshes[i as usize])
+    /// The cached mesh of chunk `key` (unpacked: the cache keeps it packed).
+    pub fn chunk_mesh(&self, key: ChunkKey) -> Option<ChunkMesh> {
+        self.index.get(&key).map(|&i| self.unpack(key, &self.meshes[i as usize], &mut Unpacker::new()))
+    }
+
+    fn unpack(&self, key: ChunkKey, packed: &PackedChunkMesh, unpacker: &mut Unpacker) -> ChunkMesh {
+        let mut mesh = ChunkMesh::default();
+        packed.unpack(key, self.voxel_size, unpacker, &mut mesh);
+        mesh
     }
 
     /// The number of [`IncrementalMesher::update`] calls so far: a consumer that remembers it
@@ -604,8 +614,13 @@ impl IncrementalMesher {
     /// The chunks re-meshed by the updates after `generation`, with their meshes (in cache
     /// order, which depends on the history of the map: sort the keys where order matters).
     /// Chunks freed since are simply absent from the cache ([`IncrementalMesher::chunk_mesh`]).
-    pub fn remeshed_since(&self, generation: u64) -> impl Iterator<Item = (ChunkKey, &ChunkMesh)> + '_ {
-        self.entries.iter().zip(&self.meshes).filter(move |(e, _)| e.meshed_at > generation).map(|(e, m)| (e.key, m))
+    pub fn remeshed_since(&self, generation: u64) -> impl Iterator<Item = (ChunkKey, ChunkMesh)> + '_ {
+        let mut unpacker = Unpacker::new();
+        self.entries
+            .iter()
+            .zip(&self.meshes)
+            .filter(move |(e, _)| e.meshed_at > generation)
+            .map(move |(e, m)| (e.key, self.unpack(e.key, m, &mut unpacker)))
     }
 
     /// Number of cached chunk meshes.
@@ -615,16 +630,16 @@ impl IncrementalMesher {
 
     /// The whole surface as one welded mesh (chunks in (z, y, x) key order; no labels).
     pub fn mesh(&self) -> LabeledMesh {
-        let mut order: Vec<((i32, i32, i32), ChunkKey, &ChunkMesh)> = self
+        let mut order: Vec<((i32, i32, i32), ChunkKey, &PackedChunkMesh)> = self
             .entries
             .iter()
             .zip(&self.meshes)
-            .filter(|(_, m)| !m.positions.is_empty())
+            .filter(|(_, m)| !m.is_empty())
             .map(|(e, m)| (key_order(e.key), e.key, m))
             .collect();
         order.sort_unstable_by_key(|(k, _, _)| *k);
-        let meshes: Vec<(ChunkKey, &ChunkMesh)> = order.into_iter().map(|(_, key, m)| (key, m)).collect();
-        assemble(&meshes, self.config.min_component_triangles)
+        let meshes: Vec<(ChunkKey, &PackedChunkMesh)> = order.into_iter().map(|(_, key, m)| (key, m)).collect();
+        assemble_from(PackedMeshes::new(meshes, self.voxel_size), self.config.min_component_triangles, |_| {})
     }
 
     /// [`IncrementalMesher::mesh`], taking the cache's memory with it: each chunk mesh is
@@ -645,19 +660,20 @@ impl IncrementalMesher {
             config: self.config,
             budget: self.budget,
             generation: self.generation,
+            voxel_size: self.voxel_size,
             ..Self::new()
         };
         // Empty chunk meshes (most of a map's chunks) add nothing: they go at once, with the
         // entries, before the assembly's index arrays are made.
-        let mut order: Vec<((i32, i32, i32), ChunkKey, ChunkMesh)> = entries
+        let mut order: Vec<((i32, i32, i32), ChunkKey, PackedChunkMesh)> = entries
             .into_iter()
             .zip(meshes)
-            .filter(|(_, m)| !m.positions.is_empty())
+            .filter(|(_, m)| !m.is_empty())
             .map(|(e, m)| (key_order(e.key), e.key, m))
             .collect();
         freed(0);
         order.sort_unstable_by_key(|(k, _, _)| *k);
-        let meshes: Vec<(ChunkKey, ChunkMesh)> = order.into_iter().map(|(_, key, m)| (key, m)).collect();
-        assemble_owned(meshes, self.config.min_component_triangles, freed)
+        let meshes: Vec<(ChunkKey, PackedChunkMesh)> = order.into_iter().map(|(_, key, m)| (key, m)).collect();
+        assemble_from(PackedMeshes::new(meshes, self.voxel_size), self.config.min_component_triangles, freed)
     }
 }

@@ -695,12 +695,14 @@ fn assembly_matches_welding_then_filtering() {
             drop_small_components(&mut want, min);
             let got = assemble(&chunks, min);
             assert!(got == want, "seed {seed}, holes {holes}%, min {min}");
-            // Owned meshes, freed as they are copied: the same mesh, every byte reported.
-            let owned: Vec<(ChunkKey, ChunkMesh)> = keys.iter().copied().zip(meshes.iter().cloned()).collect();
+            // Packed meshes owned by the assembly, freed as they are copied: the same mesh,
+            // every byte reported.
+            let owned: Vec<(ChunkKey, PackedChunkMesh)> = keys.iter().map(|&k| (k, packed_chunk(&map, k, 1))).collect();
             let heap: usize = owned.iter().map(|(_, m)| m.heap_bytes().0).sum();
             let mut reported = 0;
-            let took = assemble_owned(owned, min, |bytes| reported += bytes);
-            assert!(took == want, "owned: seed {seed}, holes {holes}%, min {min}");
+            let voxel_size = map.config().voxel_size;
+            let took = assemble_from(PackedMeshes::new(owned, voxel_size), min, |bytes| reported += bytes);
+            assert!(took == want, "packed: seed {seed}, holes {holes}%, min {min}");
             assert_eq!(reported, heap);
             partly_dropped += usize::from(!got.triangles.is_empty() && got.triangles.len() < welded.triangles.len());
             assert_eq!(got.positions.capacity(), got.positions.len());
@@ -708,4 +710,59 @@ fn assembly_matches_welding_then_filtering() {
         }
     }
     assert!(partly_dropped >= 3, "only {partly_dropped} cases drop some pieces and keep others");
+}
+
+/// Chunk `key` meshed and packed as the live mesh keeps it (empty without triangles).
+fn packed_chunk(map: &TsdfMap, key: ChunkKey, min_weight: u16) -> PackedChunkMesh {
+    let mut packed = PackedChunkMesh::default();
+    remesh_into(map, key, min_weight, &mut Scratch::new(), &mut packed).unwrap_or(packed)
+}
+
+/// A packed chunk mesh unpacks to the chunk mesh, bit for bit, whichever vertex kernel made
+/// it, on noisy maps with holes and seams; repacking into a buffer that fits leaves the same
+/// bytes, and a buffer made for it fits.
+#[test]
+fn packed_chunk_meshes_unpack_bit_for_bit() {
+    use rand::SeedableRng;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
+    let bits = |m: &ChunkMesh| {
+        let b = |v: &[Vec3]| v.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>();
+        (b(&m.positions), b(&m.normals))
+    };
+    let mut unpacker = Unpacker::new();
+    let (mut vertices, mut packed_bytes, mut mesh_bytes) = (0, 0, 0);
+    for holes in [0, 5, 30] {
+        let map = noisy_map(&mut rng, holes);
+        let voxel_size = map.config().voxel_size;
+        for kernel in available_kernels() {
+            let mut scratch = Scratch { kernel, ..Scratch::new() };
+            for key in map.sorted_keys() {
+                for min_weight in [1, 40] {
+                    let want = mesh_chunk_configured(&map, key, min_weight, &mut scratch);
+                    let mut packed = PackedChunkMesh::default();
+                    if let Some(fresh) = remesh_into(&map, key, min_weight, &mut scratch, &mut packed) {
+                        let mut sized = PackedChunkMesh::sized_for(fresh.heap_bytes().1);
+                        assert!(sized.fits(fresh.heap_bytes().1));
+                        sized.copy_from(&fresh);
+                        packed = sized;
+                    }
+                    assert_eq!(packed.is_empty(), want.triangles.is_empty());
+                    assert_eq!((packed.vertices(), packed.triangles()), (want.positions.len(), want.triangles.len()));
+                    let mut got = ChunkMesh::default();
+                    packed.unpack(key, voxel_size, &mut unpacker, &mut got);
+                    assert_eq!(bits(&got), bits(&want), "chunk {key}, {kernel:?}");
+                    assert_eq!(got, want, "chunk {key}, {kernel:?}");
+                    // Re-meshing into the buffer that holds it changes nothing.
+                    let before = packed.clone();
+                    assert!(remesh_into(&map, key, min_weight, &mut scratch, &mut packed).is_none());
+                    assert_eq!(packed, before);
+                    vertices += want.positions.len();
+                    packed_bytes += packed.heap_bytes().1;
+                    mesh_bytes += want.heap_bytes().1;
+                }
+            }
+        }
+    }
+    assert!(vertices > 3000, "{vertices} vertices");
+    assert!(packed_bytes * 3 < mesh_bytes * 2, "packed {packed_bytes} bytes against {mesh_bytes}");
 }

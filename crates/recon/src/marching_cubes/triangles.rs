@@ -155,7 +155,9 @@ pub(super) const SHARED_EDGES: [u16; 27] = {
 /// than `max_jump` truncation units), numbering each cell edge's vertex when first used and
 /// recording its [`VertexJob`] (vertices are made afterwards, in batches) and, for edges
 /// neighbouring chunks share, its global key. `triangle_count`: how many triangles `cells`
-/// make before the seam test ([`classify`]).
+/// make before the seam test ([`classify`]). `cells` keeps the cells that made triangles
+/// (those without a seam edge), in order: what the live mesh keeps of a chunk's topology
+/// (`packed_mesh.rs`).
 ///
 /// The seam test runs with AVX2 where the CPU has it and `kernel` is not the scalar one
 /// ([`seam_avx2`]), else edge by edge ([`seam_scalar`]): the same decisions.
@@ -163,7 +165,7 @@ pub(super) const SHARED_EDGES: [u16; 27] = {
 #[allow(clippy::too_many_arguments)]
 pub(super) fn triangles(
     block: &PaddedBlock,
-    cells: &[(u16, u8)],
+    cells: &mut Vec<(u16, u8)>,
     triangle_count: usize,
     max_jump: f32,
     edges: &mut EdgeSlots,
@@ -190,7 +192,7 @@ pub(super) fn triangles(
 #[allow(clippy::too_many_arguments)]
 pub(super) unsafe fn triangles_avx2(
     block: &PaddedBlock,
-    cells: &[(u16, u8)],
+    cells: &mut Vec<(u16, u8)>,
     triangle_count: usize,
     max_jump: f32,
     edges: &mut EdgeSlots,
@@ -267,11 +269,12 @@ pub(super) fn seam_avx2(tsdf: &[i16; PAD * PAD2], base: usize, case: u8, max_jum
     jumps & CROSSED[case as usize] != 0
 }
 
-/// The body of [`triangles`] with the seam test `seam(base, case)` (true: skip the cell).
+/// The body of [`triangles`] with the seam test `seam(base, case)` (true: skip the cell;
+/// `cells` is left with the others).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub(super) fn triangles_with(
-    cells: &[(u16, u8)],
+    cells: &mut Vec<(u16, u8)>,
     triangle_count: usize,
     edges: &mut EdgeSlots,
     jobs: &mut Vec<u32>,
@@ -301,12 +304,16 @@ pub(super) fn triangles_with(
     }
     pub(super) const KEY: [usize; 16] = pad(EDGE_KEY, 0);
     pub(super) const JOB: [u32; 16] = pad(EDGE_JOB, 0);
-    for &(cell, case) in cells {
-        let cell = cell as usize;
-        let base = CELL_BASE[cell] as usize;
+    let mut kept = 0;
+    for i in 0..cells.len() {
+        let (cell, case) = cells[i];
+        let base = CELL_BASE[cell as usize] as usize;
         if seam(base, case) {
             continue;
         }
+        cells[kept] = (cell, case);
+        kept += 1;
+        let cell = cell as usize;
         let (used, n_used) = &order[case as usize];
         let used = &used[..*n_used as usize];
         let (x, y, z) = (cell % CHUNK_SIDE, (cell / CHUNK_SIDE) % CHUNK_SIDE, cell / (CHUNK_SIDE * CHUNK_SIDE));
@@ -336,6 +343,7 @@ pub(super) fn triangles_with(
         written += tris.len();
     }
     mesh.triangles.truncate(written);
+    cells.truncate(kept);
 }
 
 /// Per cell (`x + 8 y + 64 z`), the padded index of its lowest corner.

@@ -83,13 +83,28 @@ impl VertexKernel {
 pub(super) fn vertex(block: &PaddedBlock, job: u32, key_voxel: IVec3, voxel_size: f32) -> (Vec3, [u8; 3], Vec3) {
     let (ia, axis, low) = VertexJob::unpack(job);
     let ib = ia + STRIDES[axis];
-    let (fa, fb) = (block.tsdf(ia), block.tsdf(ib));
-    let s = fa / (fa - fb);
-    let mut p = (key_voxel + IVec3::from(low)).as_vec3();
-    p[axis] += s;
+    let s = edge_parameter(block, job);
     let color = edge_color(block.color(ia), block.color(ib), s);
     let g = block.inner_gradient(ia).lerp(block.inner_gradient(ib), s);
-    (p * voxel_size, color, g.normalize_or_zero())
+    (position_on_edge(key_voxel, low, axis, s, voxel_size), color, g.normalize_or_zero())
+}
+
+/// Where on its edge the vertex of `job` lies: 0 at the lower end, 1 at the upper (the
+/// distances' zero crossing, linear between the ends).
+#[inline]
+pub(super) fn edge_parameter(block: &PaddedBlock, job: u32) -> f32 {
+    let (ia, axis, _) = VertexJob::unpack(job);
+    let (fa, fb) = (block.tsdf(ia), block.tsdf(ia + STRIDES[axis]));
+    fa / (fa - fb)
+}
+
+/// The position, metres, of a vertex `s` along the edge along `axis` from voxel `low` of the
+/// chunk whose first voxel is `key_voxel` (the arithmetic every vertex kernel matches).
+#[inline]
+pub(super) fn position_on_edge(key_voxel: IVec3, low: [i32; 3], axis: usize, s: f32, voxel_size: f32) -> Vec3 {
+    let mut p = (key_voxel + IVec3::from(low)).as_vec3();
+    p[axis] += s;
+    p * voxel_size
 }
 
 /// [`vertex`] for each of a batch of jobs.
