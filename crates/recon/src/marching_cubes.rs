@@ -90,7 +90,8 @@ pub struct ChunkMesh {
     pub positions: Vec<Vec3>,
     /// Vertex colours.
     pub colors: Vec<[u8; 3]>,
-    /// Unit vertex normals toward free space (zero where the gradient vanishes).
+    /// Unit vertex normals toward free space (zero where the gradient vanishes), rounded to
+    /// 32-bit octahedral codes (within 0.004 degrees; what the live mesh keeps).
     pub normals: Vec<Vec3>,
     /// Triangles, counter-clockwise seen from free space, as indices into this chunk's
     /// vertices (a chunk has fewer than 4096: 16 bits halve what the live mesh keeps).

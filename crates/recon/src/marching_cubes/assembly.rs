@@ -120,9 +120,9 @@ pub(super) fn assemble(meshes: &[(ChunkKey, &ChunkMesh)], min_triangles: usize) 
 /// [`assemble`] from any chunk meshes, freeing those it owns as soon as they are copied: the
 /// whole mesh then grows as the chunk meshes go, instead of beside all of them (a whole
 /// home's live mesh is most of a gigabyte). `freed(bytes)` is called after every
-/// [`FREED_REPORT_BYTES`] or so of chunk-mesh heap freed and once at the end, with the bytes
-/// freed since the last call, for an allocator that keeps freed memory until asked to return
-/// it.
+/// [`FREED_REPORT_BYTES`] or so of heap freed (chunk meshes, and the index entries of the
+/// chunks written) and once at the end, with the bytes freed since the last call, for an
+/// allocator that keeps freed memory until asked to return it.
 pub(super) fn assemble_from(
     mut meshes: impl ChunkMeshes,
     min_triangles: usize,
@@ -135,15 +135,66 @@ pub(super) fn assemble_from(
 /// Chunk-mesh heap freed between two reports of [`assemble_from`].
 pub(super) const FREED_REPORT_BYTES: usize = 64 << 20;
 
+/// A `u32` per chunk vertex (chunk vertices concatenated in chunk order), in blocks that the
+/// writing pass frees behind it: a chunk's triangles use only its own vertices, so once a
+/// chunk is written nothing reads the entries before it (a whole home has over 20 million
+/// chunk vertices, 80 MB of index held beside the finished mesh otherwise).
+struct ChunkVertexIndex {
+    blocks: Vec<Vec<u32>>,
+    len: usize,
+    capacity: usize,
+}
+
+/// Entries per [`ChunkVertexIndex`] block (4 MiB).
+const INDEX_BLOCK: usize = 1 << 20;
+
+impl ChunkVertexIndex {
+    fn with_capacity(capacity: usize) -> Self {
+        Self { blocks: Vec::with_capacity(capacity.div_ceil(INDEX_BLOCK)), len: 0, capacity }
+    }
+
+    fn push(&mut self, value: u32) {
+        if self.len % INDEX_BLOCK == 0 {
+            // The last block only as long as what is left of the capacity.
+            let size = self.capacity.saturating_sub(self.len).clamp(1, INDEX_BLOCK);
+            self.blocks.push(Vec::with_capacity(size));
+        }
+        if let Some(block) = self.blocks.last_mut() {
+            block.push(value);
+        }
+        self.len += 1;
+    }
+
+    #[inline]
+    fn get(&self, i: usize) -> u32 {
+        self.blocks[i / INDEX_BLOCK][i % INDEX_BLOCK]
+    }
+
+    /// Replaces every entry `v` with `f(v)`.
+    fn map_in_place(&mut self, f: impl Fn(u32) -> u32) {
+        for v in self.blocks.iter_mut().flatten() {
+            *v = f(*v);
+        }
+    }
+
+    /// Frees the whole blocks before entry `i`; returns the bytes freed.
+    fn free_before(&mut self, i: usize) -> usize {
+        let mut bytes = 0;
+        for block in &mut self.blocks[..i / INDEX_BLOCK] {
+            bytes += block.capacity() * std::mem::size_of::<u32>();
+            *block = Vec::new();
+        }
+        bytes
+    }
+}
+
 /// Where every chunk vertex and triangle goes in the whole mesh: built from index arrays
 /// alone, before the output is allocated.
 struct AssemblyPlan {
-    /// Every chunk vertex's welded index (chunk vertices concatenated in chunk order); new
-    /// indices in order of first use.
-    welded_index: Vec<u32>,
-    /// The output index of each welded vertex (`u32::MAX`: dropped with a small piece);
-    /// `None` when nothing is dropped.
-    kept_index: Option<Vec<u32>>,
+    /// Every chunk vertex's output index (`u32::MAX`: dropped with a small piece). Output
+    /// vertices are numbered in order of first use, so a chunk vertex adds one exactly where
+    /// its index is the next one.
+    out_index: ChunkVertexIndex,
     out_vertices: usize,
     out_triangles: usize,
 }
@@ -152,7 +203,7 @@ impl AssemblyPlan {
     fn new(meshes: &mut impl ChunkMeshes, min_triangles: usize) -> Self {
         // Pass 1: every chunk vertex's welded index, new indices in order of first use.
         let chunk_vertices: usize = (0..meshes.count()).map(|i| meshes.vertices(i)).sum();
-        let mut welded_index: Vec<u32> = Vec::with_capacity(chunk_vertices);
+        let mut welded_index = ChunkVertexIndex::with_capacity(chunk_vertices);
         let mut vertices = 0u32;
         {
             let mut welded: HashMap<EdgeKey, u32, ChunkHashBuilder> = HashMap::default();
@@ -174,7 +225,7 @@ impl AssemblyPlan {
                 }
             }
         }
-        let global = |base: usize, t: [u16; 3], index: &[u32]| t.map(|v| index[base + usize::from(v)]);
+        let global = |base: usize, t: [u16; 3], index: &ChunkVertexIndex| t.map(|v| index.get(base + usize::from(v)));
 
         // Pass 2: the pieces, and the output index of each kept vertex (`u32::MAX`: dropped),
         // with how many vertices and triangles are kept.
@@ -242,12 +293,14 @@ impl AssemblyPlan {
             })
             .flatten();
         match filtered {
-            Some((index, out_vertices, out_triangles)) => {
-                Self { welded_index, kept_index: Some(index), out_vertices, out_triangles }
+            Some((kept_index, out_vertices, out_triangles)) => {
+                // One index array from here on, not two.
+                let mut out_index = welded_index;
+                out_index.map_in_place(|w| kept_index[w as usize]);
+                Self { out_index, out_vertices, out_triangles }
             }
             None => Self {
-                welded_index,
-                kept_index: None,
+                out_index: welded_index,
                 out_vertices: vertices as usize,
                 out_triangles: (0..meshes.count()).map(|i| meshes.triangles(i)).sum(),
             },
@@ -258,8 +311,7 @@ impl AssemblyPlan {
     /// released once its vertices and triangles are copied (see [`assemble_from`] for
     /// `freed`).
     fn write(self, meshes: &mut impl ChunkMeshes, mut freed: impl FnMut(usize)) -> LabeledMesh {
-        let Self { welded_index, kept_index, out_vertices, out_triangles } = self;
-        let kept = |v: u32| kept_index.as_ref().map_or(v, |k| k[v as usize]);
+        let Self { mut out_index, out_vertices, out_triangles } = self;
         let mut out = LabeledMesh {
             positions: Vec::with_capacity(out_vertices),
             colors: Vec::with_capacity(out_vertices),
@@ -267,33 +319,28 @@ impl AssemblyPlan {
             triangles: Vec::with_capacity(out_triangles),
             ..LabeledMesh::default()
         };
-        // A chunk vertex adds an output vertex where its welded index is met for the first
-        // time (those come in increasing order) and is kept. A triangle's vertices are all
-        // numbered by then: each is in its own chunk, met there or before.
-        let mut first_unmet = 0u32;
+        // A chunk vertex adds an output vertex where its output index is the next one (kept
+        // welded vertices are met for the first time in increasing order). A triangle's
+        // vertices are all numbered by then: each is in its own chunk, met there or before.
         let mut chunk_vertex = 0;
         let mut freed_bytes = 0;
         for c in 0..meshes.count() {
             let (_, m) = meshes.get(c);
             for i in 0..m.positions.len() {
-                let w = welded_index[chunk_vertex + i];
-                if w == first_unmet {
-                    first_unmet += 1;
-                    if kept(w) != u32::MAX {
-                        out.positions.push(m.positions[i]);
-                        out.colors.push(m.colors[i]);
-                        out.normals.push(m.normals[i]);
-                    }
+                if out_index.get(chunk_vertex + i) as usize == out.positions.len() {
+                    out.positions.push(m.positions[i]);
+                    out.colors.push(m.colors[i]);
+                    out.normals.push(m.normals[i]);
                 }
             }
             for t in &m.triangles {
-                let t = t.map(|v| kept(welded_index[chunk_vertex + usize::from(v)]));
+                let t = t.map(|v| out_index.get(chunk_vertex + usize::from(v)));
                 if t[0] != u32::MAX {
                     out.triangles.push(t);
                 }
             }
             chunk_vertex += m.positions.len();
-            freed_bytes += meshes.release(c);
+            freed_bytes += meshes.release(c) + out_index.free_before(chunk_vertex);
             if freed_bytes >= FREED_REPORT_BYTES {
                 freed(freed_bytes);
                 freed_bytes = 0;

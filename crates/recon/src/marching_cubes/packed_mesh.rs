@@ -11,8 +11,10 @@
 //!
 //! Why: a whole home's live mesh held 1.27 GB in five vectors per chunk (positions and
 //! normals 12 bytes a vertex, colours 3, triangles 12 at two a vertex, shared vertices, each
-//! vector with its allocation and slack); packed it takes 22 bytes a vertex and one
-//! allocation per chunk (docs/benchmarks_log.md, "Session 31").
+//! vector with its allocation and slack); packed it takes 14 bytes a vertex and one
+//! allocation per chunk (docs/benchmarks_log.md, "Session 31"). Normals are kept in 32 bits
+//! ([`normal_code`]): the meshing kernels round theirs to what that code holds, so every mesh
+//! (live or extracted) has the same normals and packing loses nothing.
 
 use super::*;
 
@@ -20,8 +22,52 @@ use super::*;
 const HEADER: usize = 6;
 /// Bytes per kept cell: its index (`u16`) and case.
 const CELL_BYTES: usize = 3;
-/// Bytes per vertex: the parameter along its edge (`f32`), its normal (3 `f32`), its colour.
-const VERTEX_BYTES: usize = 4 + 12 + 3;
+/// Bytes per vertex: the parameter along its edge (`f32`), its normal ([`normal_code`]), its
+/// colour.
+const VERTEX_BYTES: usize = 4 + 4 + 3;
+
+/// The code of a zero normal (where the gradient vanishes): outside the codes of directions,
+/// whose components are at least `-32767`.
+const ZERO_NORMAL: [i16; 2] = [i16::MIN, i16::MIN];
+
+/// A unit normal in 32 bits: its octahedral projection (the unit octahedron's face folded
+/// over for the lower half) with 16 bits per coordinate, within 0.004 degrees of the normal.
+/// The meshing kernels' normals are stored as [`normal_from_code`] of this
+/// ([`quantised_normal`]), so that packing keeps them exactly in 4 bytes instead of 12.
+pub(super) fn normal_code(n: Vec3) -> [i16; 2] {
+    let l1 = n.x.abs() + n.y.abs() + n.z.abs();
+    if !(l1 > 0.0 && l1.is_finite()) {
+        return ZERO_NORMAL;
+    }
+    let (mut u, mut v) = (n.x / l1, n.y / l1);
+    if n.z < 0.0 {
+        (u, v) = ((1.0 - v.abs()) * sign(u), (1.0 - u.abs()) * sign(v));
+    }
+    [u, v].map(|c| (c * 32767.0).round().clamp(-32767.0, 32767.0) as i16)
+}
+
+/// The unit normal of a [`normal_code`] (zero for the zero normal's code).
+pub(super) fn normal_from_code(code: [i16; 2]) -> Vec3 {
+    if code == ZERO_NORMAL {
+        return Vec3::ZERO;
+    }
+    let [u, v] = code.map(|c| f32::from(c) / 32767.0);
+    let z = 1.0 - u.abs() - v.abs();
+    let (x, y) = if z < 0.0 { ((1.0 - v.abs()) * sign(u), (1.0 - u.abs()) * sign(v)) } else { (u, v) };
+    Vec3::new(x, y, z).normalize()
+}
+
+/// The normal a mesh keeps for the kernels' unit (or zero) normal `n`: within 0.004 degrees.
+#[inline]
+pub(super) fn quantised_normal(n: Vec3) -> Vec3 {
+    normal_from_code(normal_code(n))
+}
+
+/// 1 or -1 by the sign bit (-0 counts as negative): a coordinate that decoding leaves at
+/// zero keeps the side of the fold its code was on, so the code round-trips.
+fn sign(x: f32) -> f32 {
+    1.0f32.copysign(x)
+}
 
 /// A chunk mesh packed (see the module): empty when the chunk has no triangles.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -129,11 +175,10 @@ impl PackedChunkMesh {
         for (dst, &job) in params.chunks_exact_mut(4).zip(&scratch.jobs) {
             dst.copy_from_slice(&edge_parameter(&scratch.block, job).to_le_bytes());
         }
-        let (normals, colors) = rest.split_at_mut(12 * vertices);
-        for (dst, n) in normals.chunks_exact_mut(12).zip(&mesh.normals) {
-            for (d, c) in dst.chunks_exact_mut(4).zip(n.to_array()) {
-                d.copy_from_slice(&c.to_le_bytes());
-            }
+        let (normals, colors) = rest.split_at_mut(4 * vertices);
+        for (dst, &n) in normals.chunks_exact_mut(4).zip(&mesh.normals) {
+            let [u, v] = normal_code(n).map(i16::to_le_bytes);
+            dst.copy_from_slice(&[u[0], u[1], v[0], v[1]]);
         }
         for (dst, c) in colors.chunks_exact_mut(3).zip(&mesh.colors) {
             dst.copy_from_slice(c);
@@ -158,13 +203,17 @@ impl PackedChunkMesh {
         debug_assert_eq!(unpacker.jobs.len(), vertices);
         let f32_at = |b: &[u8]| f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
         let (params, rest) = rest.split_at(4 * vertices);
-        let (normals, colors) = rest.split_at(12 * vertices);
+        let (normals, colors) = rest.split_at(4 * vertices);
         let key_voxel = key * CHUNK_SIDE as i32;
         out.positions.extend(unpacker.jobs.iter().zip(params.chunks_exact(4)).map(|(&job, s)| {
             let (_, axis, low) = VertexJob::unpack(job);
             position_on_edge(key_voxel, low, axis, f32_at(s), voxel_size)
         }));
-        out.normals.extend(normals.chunks_exact(12).map(|n| Vec3::new(f32_at(n), f32_at(&n[4..]), f32_at(&n[8..]))));
+        out.normals.extend(
+            normals
+                .chunks_exact(4)
+                .map(|n| normal_from_code([i16::from_le_bytes([n[0], n[1]]), i16::from_le_bytes([n[2], n[3]])])),
+        );
         out.colors.extend(colors.chunks_exact(3).map(|c| [c[0], c[1], c[2]]));
     }
 

@@ -159,7 +159,9 @@ pub(super) fn make_vertices(
         let [px, py, pz] = &lanes.position;
         let [nx, ny, nz] = &lanes.normal;
         let positions: [Vec3; LANES] = std::array::from_fn(|k| Vec3::new(px[k], py[k], pz[k]));
-        let normals: [Vec3; LANES] = std::array::from_fn(|k| Vec3::new(nx[k], ny[k], nz[k]));
+        // Rounded to what the live mesh keeps of them (see `packed_mesh.rs`).
+        let normals: [Vec3; LANES] =
+            std::array::from_fn(|k| super::packed_mesh::quantised_normal(Vec3::new(nx[k], ny[k], nz[k])));
         let colors: [[u8; 3]; LANES] = std::array::from_fn(|k| {
             let c = lanes.color[k].to_le_bytes();
             [c[0], c[1], c[2]]
