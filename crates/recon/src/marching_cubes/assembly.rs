@@ -154,7 +154,7 @@ impl ChunkVertexIndex {
     }
 
     fn push(&mut self, value: u32) {
-        if self.len % INDEX_BLOCK == 0 {
+        if self.len.is_multiple_of(INDEX_BLOCK) {
             // The last block only as long as what is left of the capacity.
             let size = self.capacity.saturating_sub(self.len).clamp(1, INDEX_BLOCK);
             self.blocks.push(Vec::with_capacity(size));
