@@ -125,7 +125,7 @@ pub struct ReconArgs {
     /// from the camera) are written to a spill file in the output folder and read back when
     /// the camera returns; the output is the same. A budget below what the chunks near the
     /// camera need is raised, with a warning, and report.json says so. The live mesh comes on
-    /// top of it (for a whole home about as much again; report.json's `process_memory` says
+    /// top of it (for a whole home about two thirds as much; report.json's `process_memory` says
     /// what it and the process's resident peak were). Default: no budget.
     #[arg(long, value_parser = crate::cli_values::parse_bytes)]
     pub max_memory: Option<usize>,

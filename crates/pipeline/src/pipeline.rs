@@ -610,7 +610,7 @@ impl Pipeline {
 
     /// Ends the stream: waits for the pass in flight, runs a last pass over what changed
     /// since, brings the mesh up to date and returns the labelled mesh. The live mesh's
-    /// memory goes into the returned mesh (a whole home's live mesh is over a gigabyte):
+    /// memory goes into the returned mesh (a whole home's live mesh is half a gigabyte):
     /// [`Pipeline::mesh`] meshes the map afresh after this, until the next keyframe.
     ///
     /// # Errors
@@ -676,7 +676,7 @@ impl Pipeline {
         }
         // The whole mesh takes the live mesh's memory: each chunk mesh is freed once copied,
         // and the freed pages go back to the system as they add up, so that a whole home's
-        // peak holds one of the two (a gigabyte each), not both.
+        // peak holds one of the two (half a gigabyte packed, nearly one whole), not both.
         self.handed_over = Some(self.mesher.memory());
         let mesh = self.mesher.take_mesh(|_| crate::freed_memory::return_to_os());
         self.meshed_at = usize::MAX;

@@ -94,7 +94,7 @@ pub struct ChunkMesh {
     /// 32-bit octahedral codes (within 0.004 degrees; what the live mesh keeps).
     pub normals: Vec<Vec3>,
     /// Triangles, counter-clockwise seen from free space, as indices into this chunk's
-    /// vertices (a chunk has fewer than 4096: 16 bits halve what the live mesh keeps).
+    /// vertices (a chunk has fewer than 4096).
     pub triangles: Vec<[u16; 3]>,
     /// Vertices on cell edges that neighbouring chunks also use, with their edges
     /// (ascending vertex order); the assembly welds them.
@@ -103,8 +103,7 @@ pub struct ChunkMesh {
 
 /// A chunk's vertex on a cell edge that neighbouring chunks also use, with the edge local to
 /// the chunk: the edge's low corner as a voxel offset from the chunk's first voxel (4 bits
-/// per axis) and its axis. 4 bytes where the global key took 20: a whole home's mesh has
-/// millions of them, kept for as long as the live mesh.
+/// per axis) and its axis: 4 bytes where the global key took 20.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct SharedVertex {
     vertex: u16,

@@ -644,11 +644,12 @@ impl IncrementalMesher {
 
     /// [`IncrementalMesher::mesh`], taking the cache's memory with it: each chunk mesh is
     /// freed as soon as it is copied, so that the whole mesh grows as the cache goes instead
-    /// of beside all of it (a whole home's live mesh is over a gigabyte, its whole mesh about
-    /// as much). The cache is left empty, with its tolerance, options and budget: the next
+    /// of beside all of it (a whole home's live mesh is about half a gigabyte packed, its
+    /// whole mesh nearly twice that). The cache is left empty, with its tolerance, options and budget: the next
     /// update meshes every chunk of the map again. `freed(bytes)` is called once the cache's
     /// bookkeeping and empty chunk meshes are gone (with 0), after every 64 MiB or so of
-    /// chunk meshes freed, and at the end, with the chunk-mesh bytes freed since the last call
+    /// chunk meshes (and the assembly's index behind them) freed, and at the end, with the
+    /// bytes freed since the last call
     /// (see [`MeshStoreMemory`]): for a process whose allocator keeps freed memory until asked
     /// to return it. The same mesh as [`IncrementalMesher::mesh`].
     pub fn take_mesh(&mut self, mut freed: impl FnMut(usize)) -> LabeledMesh {
