@@ -32,7 +32,7 @@ impl ProcessMemoryReport {
     pub fn summary(&self) -> String {
         let mb = |b: usize| b as f64 / 1e6;
         format!(
-            "process memory: live mesh {:.0} MB ({:.0} MB of vertices and triangles), peak resident {}",
+            "process memory: live mesh {:.0} MB ({:.0} MB of packed chunk meshes), peak resident {}",
             mb(self.mesh_store_bytes),
             mb(self.mesh_store_used_bytes),
             self.peak_resident_bytes.map_or("n/a".to_string(), |b| format!("{:.0} MB", mb(b)))

@@ -88,9 +88,9 @@ impl Default for RemeshTolerance {
 /// Heap bytes of an [`IncrementalMesher`] ([`IncrementalMesher::memory`]).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct MeshStoreMemory {
-    /// The chunk meshes' vectors at their allocated capacity (what the allocator holds).
+    /// The packed chunk meshes' buffers as allocated (what the allocator holds).
     pub mesh_bytes: usize,
-    /// The same at their lengths (what the meshes need).
+    /// What the packed meshes need of them.
     pub mesh_used_bytes: usize,
     /// Entries, the key index, the slot table and snapshots.
     pub bookkeeping_bytes: usize,
