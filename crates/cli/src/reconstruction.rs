@@ -124,9 +124,11 @@ pub struct ReconArgs {
     /// Memory the TSDF map may use, e.g. 512M or 2G: past it the coldest chunks (packed, far
     /// from the camera) are written to a spill file in the output folder and read back when
     /// the camera returns; the output is the same. A budget below what the chunks near the
-    /// camera need is raised, with a warning, and report.json says so. The live mesh comes on
-    /// top of it (for a whole home about two thirds as much; report.json's `process_memory` says
-    /// what it and the process's resident peak were). Default: no budget.
+    /// camera need is raised, with a warning, and report.json says so. The rest of the process
+    /// comes on top of it: the live mesh, and at the end the whole mesh, and the semantic map
+    /// (report.json's `process_memory` says what the live mesh and the resident peak were). A
+    /// generated 5-minute home of five rooms peaks at 1.93 GB with 350M and semantics, 2.25 GB
+    /// with 700M. Default: no budget.
     #[arg(long, value_parser = crate::cli_values::parse_bytes)]
     pub max_memory: Option<usize>,
     /// Chunks that no frame changed for this many frames are packed in memory (lossless but
