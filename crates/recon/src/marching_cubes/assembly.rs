@@ -132,7 +132,7 @@ pub(super) fn assemble_from(
     plan.write(&mut meshes, freed)
 }
 
-/// Chunk-mesh heap freed between two reports of [`assemble_from`].
+/// Heap freed (chunk meshes and index blocks) between two reports of [`assemble_from`].
 pub(super) const FREED_REPORT_BYTES: usize = 64 << 20;
 
 /// A `u32` per chunk vertex (chunk vertices concatenated in chunk order), in blocks that the
@@ -143,6 +143,8 @@ struct ChunkVertexIndex {
     blocks: Vec<Vec<u32>>,
     len: usize,
     capacity: usize,
+    /// Blocks already freed (the first ones).
+    freed: usize,
 }
 
 /// Entries per [`ChunkVertexIndex`] block (4 MiB).
@@ -150,7 +152,7 @@ const INDEX_BLOCK: usize = 1 << 20;
 
 impl ChunkVertexIndex {
     fn with_capacity(capacity: usize) -> Self {
-        Self { blocks: Vec::with_capacity(capacity.div_ceil(INDEX_BLOCK)), len: 0, capacity }
+        Self { blocks: Vec::with_capacity(capacity.div_ceil(INDEX_BLOCK)), len: 0, capacity, freed: 0 }
     }
 
     fn push(&mut self, value: u32) {
@@ -177,13 +179,14 @@ impl ChunkVertexIndex {
         }
     }
 
-    /// Frees the whole blocks before entry `i`; returns the bytes freed.
+    /// Frees the whole blocks before entry `i` not freed yet; returns the bytes freed.
     fn free_before(&mut self, i: usize) -> usize {
-        let mut bytes = 0;
-        for block in &mut self.blocks[..i / INDEX_BLOCK] {
-            bytes += block.capacity() * std::mem::size_of::<u32>();
-            *block = Vec::new();
-        }
+        let upto = (i / INDEX_BLOCK).max(self.freed);
+        let bytes = self.blocks[self.freed..upto]
+            .iter_mut()
+            .map(|block| std::mem::take(block).capacity() * std::mem::size_of::<u32>())
+            .sum();
+        self.freed = upto;
         bytes
     }
 }
@@ -464,4 +467,29 @@ pub(super) fn assemble_welded(meshes: &[(ChunkKey, &ChunkMesh)]) -> LabeledMesh 
         out.triangles.extend(m.triangles.iter().map(|t| t.map(|i| remap[i as usize])));
     }
     out
+}
+
+#[cfg(test)]
+mod index_tests {
+    use super::*;
+
+    /// Entries read back across blocks; blocks freed once each, only whole ones behind the
+    /// given entry, the bytes counted once; entries after it still read.
+    #[test]
+    fn the_chunk_vertex_index_frees_whole_blocks_behind_it_once() {
+        let n = 2 * INDEX_BLOCK + 5;
+        let mut index = ChunkVertexIndex::with_capacity(n);
+        for v in 0..n as u32 {
+            index.push(v ^ 0x5a5a);
+        }
+        index.map_in_place(|v| v ^ 0x5a5a);
+        assert_eq!(index.get(INDEX_BLOCK + 7), (INDEX_BLOCK + 7) as u32);
+        assert_eq!(index.free_before(INDEX_BLOCK - 1), 0);
+        assert_eq!(index.free_before(INDEX_BLOCK + 3), 4 * INDEX_BLOCK);
+        assert_eq!(index.free_before(INDEX_BLOCK + 9), 0, "a block is freed once");
+        assert_eq!(index.get(INDEX_BLOCK + 3), (INDEX_BLOCK + 3) as u32);
+        assert_eq!(index.free_before(n), 4 * INDEX_BLOCK);
+        assert_eq!(index.get(n - 1), (n - 1) as u32, "the last, partial block stays");
+        assert_eq!(index.blocks[2].capacity(), 5, "the last block as long as the capacity left");
+    }
 }
