@@ -1,18 +1,20 @@
 #!/usr/bin/env bash
-# A whole home's memory: runs the generated five-room flat (true poses, semantics off) under a
+# A whole home's memory: runs the generated five-room flat (true poses; semantics off unless asked) under a
 # map budget with one or two binaries side by side, and prints a table of the process's
 # resident peak (`/usr/bin/time`), the map's and the live mesh's bytes at the end (report.json)
 # and whether the written meshes are the same bytes (or differ only in their normals, and by
 # how much); writes the table as JSON.
-# Usage: bench/whole_home_memory.sh [DATASET] [BUDGET]   (default: synth-flat:1 700M; the
+# Usage: [SEMANTICS=on] bench/whole_home_memory.sh [DATASET] [BUDGET]   (default: synth-flat:1 700M; the
 #   first two minutes are synth-flat:1:120s)
 # Environment: SEMRECON_BIN (default target/release/semrecon, built if missing); BASELINE_BIN,
-#   a second binary to run beside it (e.g. an older build kept in /tmp); OUT (default a
+#   a second binary to run beside it (e.g. an older build kept in /tmp); SEMANTICS (off by
+#   default; `on` labels the scan too and adds the semantic map's bytes); OUT (default a
 #   temporary folder; the meshes are about 1 GB each for the whole flat).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 dataset=${1:-synth-flat:1}
 budget=${2:-700M}
+semantics=${SEMANTICS:-off}
 bin=${SEMRECON_BIN:-target/release/semrecon}
 [ -x "$bin" ] || cargo build --release -p semrecon
 command -v /usr/bin/time >/dev/null || { echo "needs /usr/bin/time (apt install time)" >&2; exit 1; }
@@ -24,12 +26,12 @@ if [ -n "${BASELINE_BIN:-}" ]; then names+=(baseline); bins+=("$BASELINE_BIN"); 
 for i in "${!bins[@]}"; do
   n=${names[$i]}
   echo "running $n: ${bins[$i]} run --dataset $dataset --max-memory $budget" >&2
-  /usr/bin/time -v "${bins[$i]}" run --dataset "$dataset" --poses ground-truth --semantics off \
+  /usr/bin/time -v "${bins[$i]}" run --dataset "$dataset" --poses ground-truth --semantics "$semantics" \
     --max-memory "$budget" --out "$out/$n" >"$out/$n.log" 2>"$out/$n.time"
 done
-python3 - "$out" "$dataset" "$budget" "${names[@]}" <<'PY'
+python3 - "$out" "$dataset" "$budget" "$semantics" "${names[@]}" <<'PY'
 import filecmp, json, os, re, sys
-out, dataset, budget, names = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4:]
+out, dataset, budget, semantics, names = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4], sys.argv[5:]
 rows = []
 for n in names:
     peak_kb = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", open(f"{out}/{n}.time").read()).group(1))
@@ -41,6 +43,8 @@ for n in names:
         "map_mb": r["map_memory"]["bytes_in_memory"] / 1e6,
         "spilled_mb": r["map_memory"]["spilled_bytes"] / 1e6,
         "live_mesh_mb": pm["mesh_store_bytes"] / 1e6 if pm else None,
+        "semantic_map_mb": pm["semantic_map_bytes"] / 1e6 if pm.get("semantic_map_bytes") is not None else None,
+        "miou": r.get("miou"),
         "mesh_vertices": r["mesh_vertices"],
         "realtime_factor": r["realtime_factor"],
     })
@@ -73,11 +77,13 @@ if len(names) == 2:
     if not same:
         angles = [normals_only(a, b) for a, b in files]
         normal_angle = None if None in angles else max(angles)
-print(f"{dataset}, --max-memory {budget}, true poses, semantics off")
-print(f"{'binary':<10} {'peak MB':>9} {'map MB':>8} {'spilled MB':>11} {'live mesh MB':>13} {'vertices':>11} {'RTF':>6}")
+print(f"{dataset}, --max-memory {budget}, true poses, semantics {semantics}")
+print(f"{'binary':<10} {'peak MB':>9} {'map MB':>8} {'spilled MB':>11} {'live mesh MB':>13} {'semantic MB':>12} {'vertices':>11} {'RTF':>6} {'mIoU':>6}")
+na = lambda v, f: "n/a" if v is None else f.format(v)
 for x in rows:
-    lm = "n/a" if x["live_mesh_mb"] is None else f"{x['live_mesh_mb']:.0f}"
-    print(f"{x['binary']:<10} {x['peak_resident_mb']:>9.0f} {x['map_mb']:>8.0f} {x['spilled_mb']:>11.0f} {lm:>13} {x['mesh_vertices']:>11} {x['realtime_factor']:>6.2f}")
+    print(f"{x['binary']:<10} {x['peak_resident_mb']:>9.0f} {x['map_mb']:>8.0f} {x['spilled_mb']:>11.0f} "
+          f"{na(x['live_mesh_mb'], '{:.0f}'):>13} {na(x['semantic_map_mb'], '{:.0f}'):>12} {x['mesh_vertices']:>11} "
+          f"{x['realtime_factor']:>6.2f} {na(x['miou'] and x['miou'] * 100, '{:.1f}'):>6}")
 if same:
     print("written meshes: the same bytes")
 elif normal_angle is not None:
@@ -85,9 +91,9 @@ elif normal_angle is not None:
 elif same is not None:
     print("written meshes: DIFFERENT")
 os.makedirs("bench/results", exist_ok=True)
-path = "bench/results/whole_home_memory.json"
+path = "bench/results/whole_home_memory.json" if semantics == "off" else "bench/results/whole_home_memory_semantics.json"
 with open(path + ".tmp", "w") as f:
-    json.dump({"dataset": dataset, "budget": budget, "rows": rows, "same_bytes": same,
+    json.dump({"dataset": dataset, "budget": budget, "semantics": semantics, "rows": rows, "same_bytes": same,
                "max_normal_angle_degrees": normal_angle}, f, indent=2)
 os.replace(path + ".tmp", path)
 print(f"wrote {path}")

@@ -13,17 +13,22 @@ pub struct ProcessMemoryReport {
     pub mesh_store_bytes: usize,
     /// The chunk meshes at their lengths (what they need).
     pub mesh_store_used_bytes: usize,
+    /// Heap bytes of the semantic map at the end (surface cells, their per-chunk sums and the
+    /// labels' evidence; `null` with semantics off).
+    pub semantic_map_bytes: Option<usize>,
     /// The most memory the process held resident (Linux `VmHWM`; `null` elsewhere), taken
     /// after the outputs were written.
     pub peak_resident_bytes: Option<usize>,
 }
 
 impl ProcessMemoryReport {
-    /// The report for a mesh store's `memory`, with the process's peak read now.
-    pub fn new(memory: MeshStoreMemory) -> Self {
+    /// The report for a mesh store's `memory` and the semantic map's bytes, with the
+    /// process's peak read now.
+    pub fn new(memory: MeshStoreMemory, semantic_map_bytes: Option<usize>) -> Self {
         Self {
             mesh_store_bytes: memory.total(),
             mesh_store_used_bytes: memory.mesh_used_bytes,
+            semantic_map_bytes,
             peak_resident_bytes: peak_resident_bytes(),
         }
     }
@@ -32,9 +37,10 @@ impl ProcessMemoryReport {
     pub fn summary(&self) -> String {
         let mb = |b: usize| b as f64 / 1e6;
         format!(
-            "process memory: live mesh {:.0} MB ({:.0} MB of packed chunk meshes), peak resident {}",
+            "process memory: live mesh {:.0} MB ({:.0} MB of packed chunk meshes),{} peak resident {}",
             mb(self.mesh_store_bytes),
             mb(self.mesh_store_used_bytes),
+            self.semantic_map_bytes.map_or(String::new(), |b| format!(" semantic map {:.0} MB,", mb(b))),
             self.peak_resident_bytes.map_or("n/a".to_string(), |b| format!("{:.0} MB", mb(b)))
         )
     }

@@ -85,6 +85,11 @@ impl LabelStore {
         self.cells.retain(|k, _| keep(*k));
     }
 
+    /// Heap bytes held: the evidence per cell and the classes read from it (while cached).
+    pub fn heap_bytes(&self) -> usize {
+        crate::semantic_map::table_bytes(&self.cells) + self.classes.get().map_or(0, crate::semantic_map::table_bytes)
+    }
+
     /// Cells with a label.
     pub fn len(&self) -> usize {
         self.cells.len()

@@ -764,6 +764,13 @@ impl Pipeline {
         self.handed_over.unwrap_or_else(|| self.mesher.memory())
     }
 
+    /// Heap bytes of the semantic map beside the TSDF map: the surface cells with their
+    /// per-chunk sums and the labels' evidence (`None` with semantics off). The network's
+    /// weights and work buffers are not counted.
+    pub fn semantic_map_bytes(&self) -> Option<usize> {
+        self.semantics.as_ref().map(|s| s.cells.heap_bytes() + s.labels.heap_bytes())
+    }
+
     /// How far the live mesh lagged under [`crate::PipelineConfig::mesh_budget`]: the chunks
     /// left waiting after each keyframe's meshing, as (mean, largest); `None` before the first
     /// keyframe. Always (0, 0) without a budget.

@@ -27,6 +27,10 @@ use semrecon_recon::{ChunkKey, TsdfMap, CHUNK_SIDE};
 use crate::gravity::SurfaceSample;
 use crate::surface_cells::{readers_of, SurfaceChunk, SurfacePoint, SurfaceRule};
 
+mod chunk_parts;
+
+use chunk_parts::{ChunkParts, PartOrigin};
+
 /// Number of classes of the labels kept here (the S3DIS set).
 pub const CLASSES: usize = semrecon_data::SemanticClass::COUNT;
 
@@ -96,9 +100,6 @@ pub struct Cell {
     pub points: u64,
 }
 
-/// A chunk's contribution to the cells it overlaps, in (z, y, x) cell order.
-type ChunkCells = Vec<(CellKey, CellSum)>;
-
 /// Order of cells and tiles: z, then y, then x.
 pub(crate) fn order(k: IVec3) -> (i32, i32, i32) {
     (k.z, k.y, k.x)
@@ -144,8 +145,9 @@ pub struct SurfaceCells {
     /// Every map chunk with a revision above 0 at the last update: the map frees chunks only
     /// after loop closure, and this tells which without a lookup per tracked chunk.
     known_chunks: HashSet<ChunkKey, ChunkHashBuilder>,
-    /// Chunk -> its contribution per cell (chunks with surface points only).
-    chunks: HashMap<ChunkKey, ChunkCells, ChunkHashBuilder>,
+    /// Chunk -> its contribution per cell (chunks with surface points only), compact
+    /// ([`chunk_parts`]: most of the semantic map's memory on a whole home).
+    chunks: HashMap<ChunkKey, ChunkParts, ChunkHashBuilder>,
     /// Hashed: a keyframe adds and subtracts a few parts for each of some 10^4 changed
     /// chunks, where a B-tree's lookups cost more than all the summing.
     cells: HashMap<CellKey, CellSum, ChunkHashBuilder>,
@@ -215,6 +217,20 @@ impl SurfaceCells {
     /// The cells with their sums, in (z, y, x) order.
     fn ordered_cells(&self) -> impl Iterator<Item = (CellKey, &CellSum)> + '_ {
         self.ordered.iter().filter_map(|k| self.cells.get(k).map(|s| (*k, s)))
+    }
+
+    /// Heap bytes held: the hash tables at their capacity (a control byte an entry), the
+    /// chunks' parts and the ordered keys. What the cells cost beside the TSDF map; most of it
+    /// is the per-chunk parts.
+    pub fn heap_bytes(&self) -> usize {
+        let parts: usize = self.chunks.values().map(ChunkParts::heap_bytes).sum();
+        table_bytes(&self.known_chunks)
+            + table_bytes(&self.chunks)
+            + parts
+            + table_bytes(&self.cells)
+            + self.ordered.capacity() * std::mem::size_of::<CellKey>()
+            + table_bytes(&self.seen)
+            + table_bytes(&self.pending)
     }
 
     /// Whether cell `key` has surface.
@@ -299,7 +315,7 @@ impl SurfaceCells {
         // The per-chunk sums in parallel, each worker over runs of neighbouring chunks, asking
         // for the next chunk's voxels while it reads one; only merging them is serial.
         let this = &*self;
-        let all_parts: Vec<ChunkCells> = reread
+        let all_parts: Vec<ChunkParts> = reread
             .par_chunks(64)
             .flat_map_iter(|keys| {
                 // Each chunk and its neighbours are looked up once, a chunk ahead.
@@ -310,7 +326,9 @@ impl SurfaceCells {
                     if let Some(n) = &next {
                         n.prefetch();
                     }
-                    chunk.map_or_else(Vec::new, |c| this.chunk_cells(&c))
+                    chunk.map_or_else(ChunkParts::empty, |c| {
+                        ChunkParts::encode(this.chunk_cells(&c), this.part_origin(c.key()))
+                    })
                 })
             })
             .collect();
@@ -321,12 +339,11 @@ impl SurfaceCells {
             if self.chunks.get(key).map_or(parts.is_empty(), |old| *old == parts) {
                 continue;
             }
-            for (c, s) in &parts {
-                self.cells.entry(*c).or_default().add(s);
-            }
+            let origin = self.part_origin(*key);
+            parts.for_each(origin, |c, s| self.cells.entry(c).or_default().add(s));
             let old = if parts.is_empty() { self.chunks.remove(key) } else { self.chunks.insert(*key, parts) };
             if let Some(old) = old {
-                self.remove_parts(&old);
+                self.remove_parts(&old, origin);
             }
             changed.push(*key);
         }
@@ -355,7 +372,7 @@ impl SurfaceCells {
     /// Off its edge's axis a point sits exactly on its lower voxel's coordinate, so those
     /// coordinates' cells and fixed-point values are looked up from tables made once per
     /// chunk; only the coordinate along the edge is converted per point.
-    fn chunk_cells(&self, chunk: &SurfaceChunk) -> ChunkCells {
+    fn chunk_cells(&self, chunk: &SurfaceChunk) -> Vec<(CellKey, CellSum)> {
         let side = CHUNK_SIDE as i32;
         let first_voxel = chunk.key() * side;
         // Per axis and local voxel coordinate: the cell and the fixed-point coordinate.
@@ -404,15 +421,24 @@ impl SurfaceCells {
         parts.into_iter().map(|((z, y, x), s)| (IVec3::new(x, y, z), s)).collect()
     }
 
-    fn remove_parts(&mut self, parts: &[(CellKey, CellSum)]) {
-        for (c, s) in parts {
-            if let Some(e) = self.cells.get_mut(c) {
+    /// Where chunk `key`'s parts are measured from (see [`chunk_parts`]).
+    fn part_origin(&self, key: ChunkKey) -> PartOrigin {
+        let first_voxel = key * CHUNK_SIDE as i32;
+        PartOrigin {
+            cell: self.cell_of_point(first_voxel.as_vec3() * self.rule.voxel_size),
+            position: first_voxel.to_array().map(|v| i64::from(v) * POSITION_STEPS_PER_VOXEL as i64),
+        }
+    }
+
+    fn remove_parts(&mut self, parts: &ChunkParts, origin: PartOrigin) {
+        parts.for_each(origin, |c, s| {
+            if let Some(e) = self.cells.get_mut(&c) {
                 e.sub(s);
                 if e.count == 0 {
-                    self.cells.remove(c);
+                    self.cells.remove(&c);
                 }
             }
-        }
+        });
     }
 
     fn cell(&self, key: CellKey, s: &CellSum) -> Cell {
@@ -510,6 +536,38 @@ impl SurfaceCells {
                 context.contains(&t).then(|| (self.cell(k, s), update.contains(&t)))
             })
             .collect()
+    }
+}
+
+/// Heap bytes of a hash table (map or set) at its capacity: an entry and a control byte a slot
+/// (hashbrown's layout; its slack beyond the capacity is not counted).
+pub(crate) fn table_bytes<T: TableEntries>(table: &T) -> usize {
+    table.slots() * (table.entry_size() + 1)
+}
+
+/// Hash tables whose heap [`table_bytes`] estimates.
+pub(crate) trait TableEntries {
+    /// Entries the table has room for.
+    fn slots(&self) -> usize;
+    /// Bytes of one entry.
+    fn entry_size(&self) -> usize;
+}
+
+impl<K, V, S> TableEntries for HashMap<K, V, S> {
+    fn slots(&self) -> usize {
+        self.capacity()
+    }
+    fn entry_size(&self) -> usize {
+        std::mem::size_of::<(K, V)>()
+    }
+}
+
+impl<K, S> TableEntries for HashSet<K, S> {
+    fn slots(&self) -> usize {
+        self.capacity()
+    }
+    fn entry_size(&self) -> usize {
+        std::mem::size_of::<K>()
     }
 }
 
@@ -622,6 +680,9 @@ mod tests {
         let mut cells = cells.expect("keyframes ran");
         cells.update(&map);
         assert!(reported > 0);
+        // A map's chunks always fit the compact parts.
+        assert!(cells.chunks.values().all(|p| matches!(p, ChunkParts::Compact(_))));
+        assert!(cells.heap_bytes() > 0);
         let expected = reference_cells(&map);
         assert!(expected.len() > 50, "{} cells", expected.len());
         assert_eq!(cells.cells(), expected);

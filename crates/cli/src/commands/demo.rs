@@ -215,7 +215,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         chunks: map.chunk_count(),
         memory_mb: map.memory_bytes() as f64 / 1e6,
         map_memory: MapMemoryReport::new(map, &mesh),
-        process_memory: ProcessMemoryReport::new(pipeline.mesh_store_memory()),
+        process_memory: ProcessMemoryReport::new(pipeline.mesh_store_memory(), pipeline.semantic_map_bytes()),
         mesh_vertices: mesh.vertex_count(),
         mesh_triangles: mesh.triangle_count(),
     };
