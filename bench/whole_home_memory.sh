@@ -4,11 +4,11 @@
 # resident peak (`/usr/bin/time`), the map's and the live mesh's bytes at the end (report.json)
 # and whether the written meshes are the same bytes (or differ only in their normals, and by
 # how much); writes the table as JSON.
-# Usage: [SEMANTICS=on] bench/whole_home_memory.sh [DATASET] [BUDGET]   (default: synth-flat:1 700M; the
+# Usage: [SEMANTICS=incremental] bench/whole_home_memory.sh [DATASET] [BUDGET]   (default: synth-flat:1 700M; the
 #   first two minutes are synth-flat:1:120s)
 # Environment: SEMRECON_BIN (default target/release/semrecon, built if missing); BASELINE_BIN,
 #   a second binary to run beside it (e.g. an older build kept in /tmp); SEMANTICS (off by
-#   default; `on` labels the scan too and adds the semantic map's bytes); OUT (default a
+#   default; `incremental`, the default of `run`, labels the scan too and adds the semantic map's bytes); OUT (default a
 #   temporary folder; the meshes are about 1 GB each for the whole flat).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -19,6 +19,7 @@ bin=${SEMRECON_BIN:-target/release/semrecon}
 [ -x "$bin" ] || cargo build --release -p semrecon
 command -v /usr/bin/time >/dev/null || { echo "needs /usr/bin/time (apt install time)" >&2; exit 1; }
 out=${OUT:-$(mktemp -d)}
+mkdir -p "$out"
 [ -n "${OUT:-}" ] || trap 'rm -rf "$out"' EXIT
 names=(current)
 bins=("$bin")

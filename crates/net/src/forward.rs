@@ -187,6 +187,11 @@ pub(crate) struct Workspace<T> {
 }
 
 impl<T> Workspace<T> {
+    /// Every tensor of the workspace.
+    pub(crate) fn tensors(&self) -> impl Iterator<Item = &T> {
+        self.enc.iter().chain(&self.dec).chain([&self.a, &self.g, &self.logits])
+    }
+
     /// Empty tensors for a network of `levels` levels.
     ///
     /// # Errors

@@ -146,6 +146,18 @@ impl Segmenter {
         })
     }
 
+    /// Frees the CPU engine's work buffers (activations of the largest input so far, which only
+    /// grow: tens of megabytes after a whole home's passes) while no input is coming; the next
+    /// call allocates them again. Outputs do not change.
+    pub fn release_workspace(&mut self) {
+        self.cpu_ws = None;
+    }
+
+    /// Heap bytes of the CPU engine's work buffers.
+    pub fn workspace_bytes(&self) -> usize {
+        self.cpu_ws.as_ref().map_or(0, |ws| ws.tensors().map(|t| t.capacity() * std::mem::size_of::<f32>()).sum())
+    }
+
     /// Runs the convolutions with `kernel` from now on (the chunked one by default).
     pub fn set_kernel(&mut self, kernel: ConvKernel) {
         self.kernel = kernel;

@@ -87,6 +87,11 @@ fn deterministic_for_one_and_two_threads_and_reusable() {
             net.segment(&coords[..coords.len() / 2], &feats[..coords.len() / 2 * 3]).unwrap();
             let b = net.segment(&coords, &feats).unwrap();
             assert_eq!(a, b);
+            // Released, the workspace is made again with the same outputs.
+            assert!(net.workspace_bytes() > 0);
+            net.release_workspace();
+            assert_eq!(net.workspace_bytes(), 0);
+            assert_eq!(net.segment(&coords, &feats).unwrap(), a);
             a
         })
     };

@@ -97,9 +97,17 @@ pub(crate) fn run_job(net: &mut Segmenter, job: Job) -> Result<JobResult> {
     Ok(JobResult { keys, probs, colors, network_voxels: coords.len(), total_ms: t.elapsed().as_secs_f64() * 1e3 })
 }
 
+/// What the front end asks of the back-end thread.
+enum Request {
+    /// A pass to run; its result comes back on the results channel.
+    Pass(Job),
+    /// Free the network's work buffers (no result): the scan is over.
+    ReleaseWorkspace,
+}
+
 /// The back-end thread and its two channels.
 pub(crate) struct Backend {
-    jobs: Option<Sender<Job>>,
+    jobs: Option<Sender<Request>>,
     results: Receiver<Result<JobResult>>,
     handle: Option<JoinHandle<()>>,
 }
@@ -107,7 +115,7 @@ pub(crate) struct Backend {
 impl Backend {
     /// Starts the thread, which owns `net`, and its pool.
     pub fn start(mut net: Segmenter) -> Result<Self> {
-        let (job_tx, job_rx) = channel::<Job>();
+        let (job_tx, job_rx) = channel::<Request>();
         let (res_tx, res_rx) = channel::<Result<JobResult>>();
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(rayon::current_num_threads())
@@ -119,9 +127,17 @@ impl Backend {
             .name("semantic back end".into())
             .spawn(move || {
                 lower_priority();
-                for job in job_rx {
-                    if res_tx.send(pool.install(|| run_job(&mut net, job))).is_err() {
-                        break;
+                for request in job_rx {
+                    match request {
+                        Request::Pass(job) => {
+                            if res_tx.send(pool.install(|| run_job(&mut net, job))).is_err() {
+                                break;
+                            }
+                        }
+                        Request::ReleaseWorkspace => {
+                            net.release_workspace();
+                            crate::freed_memory::return_to_os();
+                        }
                     }
                 }
             })
@@ -131,10 +147,20 @@ impl Backend {
 
     /// Hands a job to the thread.
     pub fn submit(&self, job: Job) -> Result<()> {
+        self.send(Request::Pass(job))
+    }
+
+    /// Asks the thread to free the network's work buffers once the job in hand is done (the
+    /// end of a scan; a later job allocates them again).
+    pub fn release_workspace(&self) -> Result<()> {
+        self.send(Request::ReleaseWorkspace)
+    }
+
+    fn send(&self, request: Request) -> Result<()> {
         self.jobs
             .as_ref()
             .ok_or_else(|| PipelineError::Backend("already stopped".into()))?
-            .send(job)
+            .send(request)
             .map_err(|_| PipelineError::Backend("the thread has exited".into()))
     }
 

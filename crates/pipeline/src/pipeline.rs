@@ -170,6 +170,8 @@ pub struct Pipeline {
     /// while the emptied store has not been refilled: [`Pipeline::mesh`] then meshes the map
     /// afresh.
     handed_over: Option<MeshStoreMemory>,
+    /// The semantic map's heap bytes when [`Pipeline::finish`] released its surface cells.
+    semantic_bytes_at_finish: Option<usize>,
 }
 
 impl std::fmt::Debug for Pipeline {
@@ -260,6 +262,7 @@ impl Pipeline {
             grouped,
             warnings: Vec::new(),
             handed_over: None,
+            semantic_bytes_at_finish: None,
         })
     }
 
@@ -284,6 +287,8 @@ impl Pipeline {
             });
         }
         frame.validate().map_err(|message| PipelineError::InvalidFrame { index: frame.index, message })?;
+        // A stream that goes on after `finish`: the semantic map is live again.
+        self.semantic_bytes_at_finish = None;
         self.frames += 1;
         if self.config.semantics.realtime {
             self.poll_semantics();
@@ -674,6 +679,18 @@ impl Pipeline {
             self.times.record("map compaction", t.elapsed());
             self.add_map_warnings(out.warnings);
         }
+        // The labels are made: the surface cells' sums (a whole home's semantic map is about
+        // a hundred megabytes) are not needed beside the final mesh; a later keyframe reads
+        // them back from the map.
+        self.semantic_bytes_at_finish = self.semantic_map_bytes();
+        // The network's work buffers too (tens of megabytes after a whole home's passes).
+        let released = self.semantics.as_mut().map(|s| {
+            s.cells.release();
+            s.backend.release_workspace()
+        });
+        if let Some(Err(e)) = released {
+            self.warnings.push(format!("semantic back end: {e}"));
+        }
         // The whole mesh takes the live mesh's memory: each chunk mesh is freed once copied,
         // and the freed pages go back to the system as they add up, so that a whole home's
         // peak holds one of the two (half a gigabyte packed, nearly one whole), not both.
@@ -767,8 +784,11 @@ impl Pipeline {
     /// Heap bytes of the semantic map beside the TSDF map: the surface cells with their
     /// per-chunk sums and the labels' evidence (`None` with semantics off). The network's
     /// weights and work buffers are not counted.
+    ///
+    /// After [`Pipeline::finish`], which releases the surface cells: as they were then.
     pub fn semantic_map_bytes(&self) -> Option<usize> {
-        self.semantics.as_ref().map(|s| s.cells.heap_bytes() + s.labels.heap_bytes())
+        self.semantic_bytes_at_finish
+            .or_else(|| self.semantics.as_ref().map(|s| s.cells.heap_bytes() + s.labels.heap_bytes()))
     }
 
     /// How far the live mesh lagged under [`crate::PipelineConfig::mesh_budget`]: the chunks

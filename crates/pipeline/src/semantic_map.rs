@@ -219,6 +219,21 @@ impl SurfaceCells {
         self.ordered.iter().filter_map(|k| self.cells.get(k).map(|s| (*k, s)))
     }
 
+    /// Frees the cells' sums and the per-chunk parts (most of the semantic map's memory) while
+    /// no update needs them, e.g. at the end of a scan while the final mesh is assembled beside
+    /// the map. Only the surface point count each cell was last reported with stays, so that
+    /// [`SurfaceCells::take_changed_cells`] still reports only real changes. The next
+    /// [`SurfaceCells::update`] reads every chunk of the map again, and its exact integer sums
+    /// come out the same as if nothing had been released.
+    pub fn release(&mut self) {
+        self.revision = 0;
+        self.known_chunks = HashSet::default();
+        self.chunks = HashMap::default();
+        self.cells = HashMap::default();
+        self.ordered = Vec::new();
+        self.pending = HashSet::default();
+    }
+
     /// Heap bytes held: the hash tables at their capacity (a control byte an entry), the
     /// chunks' parts and the ordered keys. What the cells cost beside the TSDF map; most of it
     /// is the per-chunk parts.
@@ -718,6 +733,28 @@ mod tests {
         cells.update_with(&map, true);
         assert!(!cells.has_pending());
         assert_eq!(cells.cells(), reference_cells(&map));
+    }
+
+    /// Released cells are empty; the next update reads the whole map again and gives the same
+    /// cells, and reports no change where the surface did not change.
+    #[test]
+    fn released_cells_come_back_the_same() {
+        let mut cells = None;
+        let map = fuse_scan(5, 9, |map| {
+            cells.get_or_insert_with(|| SurfaceCells::new(0.05, rule(map))).update(map);
+        });
+        let mut cells = cells.expect("keyframes ran");
+        cells.update(&map);
+        cells.take_changed_cells(0.0);
+        let before = cells.cells();
+        let bytes = cells.heap_bytes();
+        cells.release();
+        assert!(cells.is_empty() && cells.cells().is_empty());
+        assert!(cells.heap_bytes() * 4 < bytes, "{} of {bytes} bytes kept", cells.heap_bytes());
+        assert!(!cells.update(&map).is_empty());
+        assert_eq!(cells.cells(), before);
+        assert!(cells.take_changed_cells(0.0).is_empty());
+        assert!(cells.update(&map).is_empty());
     }
 
     #[test]

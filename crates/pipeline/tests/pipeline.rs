@@ -173,9 +173,30 @@ fn a_mesh_budget_delays_keyframe_meshes_but_not_the_final_one() {
     assert_eq!(p.mesh(), again, "meshed afresh after the second finish");
     // With semantics the complete mesh is labelled too.
     let budgeted = PipelineConfig { mesh_budget: std::num::NonZeroUsize::new(8), ..config(SemanticMode::default()) };
-    let (_, mesh) = run(&frames, budgeted, Some(tiny_net(6)));
-    let labelled = mesh.vertex_labels.iter().filter(|&&l| l != UNLABELED).count();
-    assert!(labelled * 100 >= mesh.vertex_count() * 99, "{labelled} of {} vertices labelled", mesh.vertex_count());
+    let (mut p, mesh) = run(&frames, budgeted, Some(tiny_net(6)));
+    let labelled = |mesh: &semrecon_data::LabeledMesh| mesh.vertex_labels.iter().filter(|&&l| l != UNLABELED).count();
+    assert!(
+        labelled(&mesh) * 100 >= mesh.vertex_count() * 99,
+        "{} of {} vertices labelled",
+        labelled(&mesh),
+        mesh.vertex_count()
+    );
+    // `finish` released the surface cells' sums but not the labels, and reports the semantic
+    // map's size as it was; frames after it bring the cells back from the map.
+    assert_eq!(p.mesh().vertex_labels, mesh.vertex_labels, "labels after finish");
+    let at_finish = p.semantic_map_bytes().expect("semantics on");
+    assert!(at_finish > 0);
+    for f in &frames[..6] {
+        p.push_frame(f).expect("frame after finish");
+    }
+    let again = p.finish().expect("finish again");
+    assert!(
+        labelled(&again) * 100 >= again.vertex_count() * 99,
+        "{} of {} labelled",
+        labelled(&again),
+        again.vertex_count()
+    );
+    assert!(p.semantic_map_bytes().is_some_and(|b| b * 2 > at_finish), "the cells came back");
 }
 
 #[test]
