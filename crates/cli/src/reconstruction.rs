@@ -126,9 +126,9 @@ pub struct ReconArgs {
     /// the camera returns; the output is the same. A budget below what the chunks near the
     /// camera need is raised, with a warning, and report.json says so. The rest of the process
     /// comes on top of it: the live mesh, and at the end the whole mesh, and the semantic map
-    /// (report.json's `process_memory` says what the live mesh and the resident peak were). A
-    /// generated 5-minute home of five rooms peaks at 1.93 GB with 350M and semantics, 2.25 GB
-    /// with 700M. Default: no budget.
+    /// (report.json's `process_memory` says what the live mesh, the semantic map and the
+    /// resident peak were). A generated 5-minute home of five rooms peaks at 2.13 GB with 700M
+    /// and semantics (1.95 GB without). Default: no budget.
     #[arg(long, value_parser = crate::cli_values::parse_bytes)]
     pub max_memory: Option<usize>,
     /// Chunks that no frame changed for this many frames are packed in memory (lossless but

@@ -240,13 +240,13 @@ impl SurfaceCells {
     /// is the per-chunk parts.
     pub fn heap_bytes(&self) -> usize {
         let parts: usize = self.chunks.values().map(ChunkParts::heap_bytes).sum();
-        table_bytes(&self.known_chunks)
+        set_bytes(&self.known_chunks)
             + table_bytes(&self.chunks)
             + parts
             + table_bytes(&self.cells)
             + self.ordered.capacity() * std::mem::size_of::<CellKey>()
             + table_bytes(&self.seen)
-            + table_bytes(&self.pending)
+            + set_bytes(&self.pending)
     }
 
     /// Whether cell `key` has surface.
@@ -601,36 +601,15 @@ impl SurfaceCells {
     }
 }
 
-/// Heap bytes of a hash table (map or set) at its capacity: an entry and a control byte a slot
-/// (hashbrown's layout; its slack beyond the capacity is not counted).
-pub(crate) fn table_bytes<T: TableEntries>(table: &T) -> usize {
-    table.slots() * (table.entry_size() + 1)
+/// Heap bytes of a hash map at its capacity: an entry and a control byte a slot (hashbrown's
+/// layout; its slack beyond the capacity is not counted).
+pub(crate) fn table_bytes<K, V, S>(table: &HashMap<K, V, S>) -> usize {
+    table.capacity() * (std::mem::size_of::<(K, V)>() + 1)
 }
 
-/// Hash tables whose heap [`table_bytes`] estimates.
-pub(crate) trait TableEntries {
-    /// Entries the table has room for.
-    fn slots(&self) -> usize;
-    /// Bytes of one entry.
-    fn entry_size(&self) -> usize;
-}
-
-impl<K, V, S> TableEntries for HashMap<K, V, S> {
-    fn slots(&self) -> usize {
-        self.capacity()
-    }
-    fn entry_size(&self) -> usize {
-        std::mem::size_of::<(K, V)>()
-    }
-}
-
-impl<K, S> TableEntries for HashSet<K, S> {
-    fn slots(&self) -> usize {
-        self.capacity()
-    }
-    fn entry_size(&self) -> usize {
-        std::mem::size_of::<K>()
-    }
+/// [`table_bytes`] of a hash set.
+fn set_bytes<K, S>(set: &HashSet<K, S>) -> usize {
+    set.capacity() * (std::mem::size_of::<K>() + 1)
 }
 
 /// `x.floor() as i32` without the library call `floor` is on x86-64 before SSE4.1 (this runs
