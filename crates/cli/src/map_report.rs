@@ -7,7 +7,7 @@
 //! square metre, while the chunk count depends on how the band crosses the chunk grid.
 
 use semrecon_data::LabeledMesh;
-use semrecon_recon::TsdfMap;
+use semrecon_recon::{MapMemory, TsdfMap};
 use serde::Serialize;
 
 /// The `map_memory` object of `report.json`.
@@ -28,6 +28,9 @@ pub struct MapMemoryReport {
     pub cache_bytes: usize,
     /// Bytes of spilled chunks in the spill file.
     pub spilled_bytes: usize,
+    /// Bytes in memory once the scan's end had spilled every packed chunk (with a budget:
+    /// nothing reads the map while the final mesh is assembled); `null` without a budget.
+    pub bytes_in_memory_after_finish: Option<usize>,
     /// Area of the final mesh, square metres.
     pub surface_m2: f64,
     /// `bytes_in_memory / surface_m2`.
@@ -51,9 +54,9 @@ pub fn mesh_area_m2(mesh: &LabeledMesh) -> f64 {
 }
 
 impl MapMemoryReport {
-    /// The report of `map`, whose final mesh is `mesh`.
-    pub fn new(map: &TsdfMap, mesh: &LabeledMesh) -> Self {
-        let m = map.memory();
+    /// The report of `map`, whose memory at the end of the scan was `m` (the pipeline's
+    /// [`semrecon_pipeline::Pipeline::map_memory`]) and whose final mesh is `mesh`.
+    pub fn new(map: &TsdfMap, m: MapMemory, mesh: &LabeledMesh) -> Self {
         let surface_m2 = mesh_area_m2(mesh);
         let budget = map.memory_budget();
         Self {
@@ -67,6 +70,7 @@ impl MapMemoryReport {
             record_bytes: m.record_bytes,
             cache_bytes: m.cache_bytes,
             spilled_bytes: m.spilled_bytes,
+            bytes_in_memory_after_finish: budget.map(|_| map.memory().in_memory()),
             surface_m2,
             bytes_per_m2: (surface_m2 > 0.0).then(|| m.in_memory() as f64 / surface_m2),
             budget_bytes: budget.map(|b| b.0),
@@ -96,6 +100,9 @@ impl MapMemoryReport {
             line += &format!("; budget {:.0} MB", mb(b));
             if let Some(r) = self.budget_raised_to {
                 line += &format!(", raised to {:.0} MB", mb(r));
+            }
+            if let Some(after) = self.bytes_in_memory_after_finish {
+                line += &format!(", {:.0} MB in memory once spilled for the final mesh", mb(after));
             }
         }
         line

@@ -123,12 +123,13 @@ pub struct ReconArgs {
     pub min_chunk_move_voxels: Option<f32>,
     /// Memory the TSDF map may use, e.g. 512M or 2G: past it the coldest chunks (packed, far
     /// from the camera) are written to a spill file in the output folder and read back when
-    /// the camera returns; the output is the same. A budget below what the chunks near the
-    /// camera need is raised, with a warning, and report.json says so. The rest of the process
-    /// comes on top of it: the live mesh, and at the end the whole mesh, and the semantic map
-    /// (report.json's `process_memory` says what the live mesh, the semantic map and the
-    /// resident peak were). A generated 5-minute home of five rooms peaks at 2.13 GB with 700M
-    /// and semantics (1.95 GB without). Default: no budget.
+    /// the camera returns; the output is the same. At the end of the scan every packed chunk
+    /// goes to the spill file, so that the map does not sit beside the final mesh. A budget
+    /// below what the chunks near the camera need is raised, with a warning, and report.json
+    /// says so. The rest of the process comes on top of it: the live mesh, and at the end the
+    /// whole mesh, and the semantic map (report.json's `process_memory` says what the live
+    /// mesh, the semantic map and the resident peak were). A generated 5-minute home of five
+    /// rooms peaks at 1.94-1.96 GB with 700M and semantics. Default: no budget.
     #[arg(long, value_parser = crate::cli_values::parse_bytes)]
     pub max_memory: Option<usize>,
     /// Chunks that no frame changed for this many frames are packed in memory (lossless but

@@ -126,7 +126,8 @@ fn run_records_the_up_direction_in_its_meshes() {
     assert!(floor.abs() < 0.05, "floor at {floor} m");
 }
 
-/// `--max-memory` spills packed chunks and changes no output byte of packing alone, and with
+/// `--max-memory` spills packed chunks (during the scan past the budget, at its end all of
+/// them) and changes no output byte of packing alone, and with
 /// `--packed-distance-step 0` none of the plain map's; a budget below the chunks in view is
 /// raised and said so in report.json; the spill file does not outlive the run.
 #[test]
@@ -150,7 +151,11 @@ fn run_within_a_memory_budget_writes_the_same_mesh() {
     assert!(m["budget_raised_to"].as_u64().is_some_and(|r| r > 1024), "{m}");
     assert!(m["surface_m2"].as_f64().is_some_and(|a| a > 0.1) && m["bytes_per_m2"].is_number(), "{m}");
     assert!(m["packed_chunks"].as_u64().unwrap_or(0) + m["spilled_chunks"].as_u64().unwrap_or(0) > 0, "{m}");
+    // At the end the whole packed map went to the spill file, before the mesh was assembled.
+    let (before, after) = (m["bytes_in_memory"].as_u64(), m["bytes_in_memory_after_finish"].as_u64());
+    assert!(before.zip(after).is_some_and(|(b, a)| a <= b), "{m}");
     assert_eq!(read_report(&plain)["map_memory"]["packed_chunks"], 0);
+    assert!(read_report(&plain)["map_memory"]["bytes_in_memory_after_finish"].is_null());
     assert!(String::from_utf8_lossy(&out.stdout).contains("raised to"), "summary line");
     let left: Vec<_> = std::fs::read_dir(&budget).expect("dir").flatten().map(|e| e.file_name()).collect();
     assert!(!left.iter().any(|n| n.to_string_lossy().ends_with(".spill")), "{left:?}");

@@ -78,6 +78,13 @@ impl LabelStore {
         }
     }
 
+    /// Settles the classes now (the segment vote and the merge of small islands, cached until
+    /// the evidence changes), so that the vote's working memory comes and goes at a moment
+    /// of the caller's choosing rather than inside the first label lookup.
+    pub fn settle(&self) {
+        self.classes();
+    }
+
     /// Forgets the labels of the cells for which `keep` is false (cells that lost their
     /// surface: early noise that later observations carved away).
     pub fn retain(&mut self, mut keep: impl FnMut(CellKey) -> bool) {

@@ -20,7 +20,7 @@ use glam::{Affine3A, Vec3};
 use semrecon_data::{class::UNLABELED, Frame, Intrinsics, LabeledMesh, SemanticClass, Trajectory};
 use semrecon_net::Segmenter;
 use semrecon_recon::{
-    GroupedFusion, IncrementalMesher, KeyframeIndex, LostReason, MeshStoreMemory, RemeshTolerance, Tracker,
+    GroupedFusion, IncrementalMesher, KeyframeIndex, LostReason, MapMemory, MeshStoreMemory, RemeshTolerance, Tracker,
     TrackerConfig, TrackingStatus, TsdfMap,
 };
 use serde::Serialize;
@@ -172,6 +172,9 @@ pub struct Pipeline {
     handed_over: Option<MeshStoreMemory>,
     /// The semantic map's heap bytes when [`Pipeline::finish`] released its surface cells.
     semantic_bytes_at_finish: Option<usize>,
+    /// The map's memory at the end of the scan, before [`Pipeline::finish`] spilled it (with
+    /// a budget) for the final mesh's assembly.
+    map_memory_at_finish: Option<MapMemory>,
 }
 
 impl std::fmt::Debug for Pipeline {
@@ -263,6 +266,7 @@ impl Pipeline {
             warnings: Vec::new(),
             handed_over: None,
             semantic_bytes_at_finish: None,
+            map_memory_at_finish: None,
         })
     }
 
@@ -289,6 +293,7 @@ impl Pipeline {
         frame.validate().map_err(|message| PipelineError::InvalidFrame { index: frame.index, message })?;
         // A stream that goes on after `finish`: the semantic map is live again.
         self.semantic_bytes_at_finish = None;
+        self.map_memory_at_finish = None;
         self.frames += 1;
         if self.config.semantics.realtime {
             self.poll_semantics();
@@ -675,13 +680,27 @@ impl Pipeline {
             let t = Instant::now();
             let last = self.last_fused_index.min(u32::MAX as usize) as u32;
             self.map.release_caches();
-            let out = self.map.compact(last, self.config.memory.cold_after_frames);
+            let mut out = self.map.compact(last, self.config.memory.cold_after_frames);
+            // With a budget, the whole packed map goes to the spill file, not only what is
+            // over the budget: nothing reads it while the mesh is assembled, whose peak would
+            // otherwise hold the map and the whole mesh at once (a home: 0.65 + 0.9 GB). A
+            // scan that goes on reads the chunks back as the camera meets them.
+            self.map_memory_at_finish = Some(self.map.memory());
+            let spilled = self.map.spill_packed();
+            out.warnings.extend(spilled.warnings);
+            if spilled.spilled > 0 {
+                crate::freed_memory::return_to_os();
+            }
             self.times.record("map compaction", t.elapsed());
             self.add_map_warnings(out.warnings);
         }
-        // The labels are made: the surface cells' sums (a whole home's semantic map is about
-        // a hundred megabytes) are not needed beside the final mesh; a later keyframe reads
-        // them back from the map.
+        // The labels are made: the cells' classes are settled (the vote's working memory,
+        // a hundred megabytes for a whole home, is freed before the mesh is assembled, not
+        // beside it), and the surface cells' sums (about as much) are not needed beside the
+        // final mesh; a later keyframe reads them back from the map.
+        if let Some(s) = &self.semantics {
+            s.labels.settle();
+        }
         self.semantic_bytes_at_finish = self.semantic_map_bytes();
         // The network's work buffers too (tens of megabytes after a whole home's passes).
         let released = self.semantics.as_mut().map(|s| {
@@ -779,6 +798,14 @@ impl Pipeline {
     /// After [`Pipeline::finish`]: as it was when the final mesh took it over.
     pub fn mesh_store_memory(&self) -> MeshStoreMemory {
         self.handed_over.unwrap_or_else(|| self.mesher.memory())
+    }
+
+    /// Where the map's bytes are ([`TsdfMap::memory`]). After [`Pipeline::finish`]: as they
+    /// were at the end of the scan, before a memory budget sent the whole packed map to the
+    /// spill file for the final mesh's assembly ([`TsdfMap::spill_packed`]; the map itself
+    /// then says what is in memory now).
+    pub fn map_memory(&self) -> MapMemory {
+        self.map_memory_at_finish.unwrap_or_else(|| self.map.memory())
     }
 
     /// Heap bytes of the semantic map beside the TSDF map: the surface cells with their

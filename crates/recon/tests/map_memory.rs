@@ -122,6 +122,54 @@ fn coarse_far_distances_move_only_far_voxels_and_spilling_adds_nothing() {
     }
 }
 
+/// Spilling every packed chunk (what the pipeline does at the end of a scan with a budget)
+/// leaves only the plain chunks and the records in memory, and the map reads the same: its
+/// voxels, and fusion and meshing that go on afterwards.
+#[test]
+fn spilling_every_packed_chunk_keeps_the_map_and_what_follows() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (voxels, mesh, mut map) = run(Memory::Spilled(usize::MAX, &dir.path().join("all.spill")), 2);
+    let before = map.memory();
+    assert!(before.packed_chunks > 0 && before.spilled_chunks == 0, "{before:?}");
+    let out = map.spill_packed();
+    let after = map.memory();
+    assert_eq!(out.spilled, before.packed_chunks, "{out:?}");
+    assert!(out.warnings.is_empty(), "{:?}", out.warnings);
+    assert_eq!((after.packed_chunks, after.spilled_chunks), (0, before.packed_chunks), "{after:?}");
+    assert_eq!(after.hot_chunks, before.hot_chunks);
+    assert!(after.in_memory() < before.in_memory(), "{before:?} -> {after:?}");
+    let read: Vec<Vec<Voxel>> =
+        map.sorted_keys().iter().map(|&k| map.chunk(k).expect("allocated").voxels().collect()).collect();
+    assert!(read == voxels);
+    // A second call finds nothing left to move.
+    assert_eq!(map.spill_packed().spilled, 0);
+    // The scan goes on: fusion reads the spilled chunks it needs back, as after any spill.
+    let mut plain = TsdfMap::new(*map.config()).expect("valid");
+    let k = small_camera();
+    let mut mesher = IncrementalMesher::new();
+    for (i, pose) in there_and_back(16).into_iter().enumerate() {
+        plain.integrate(&scene::render(k, pose, i), pose).expect("fusion");
+    }
+    let pose = scene::trajectory(3)[2];
+    let frame = scene::render(k, pose, 99);
+    plain.integrate(&frame, pose).expect("fusion");
+    map.integrate(&frame, pose).expect("fusion after the spill");
+    mesher.update(&map);
+    let mut plain_mesher = IncrementalMesher::new();
+    plain_mesher.update(&plain);
+    assert!(mesher.mesh() == plain_mesher.mesh() && mesh.triangle_count() > 0);
+}
+
+/// Without a budget there is no spill file: nothing moves.
+#[test]
+fn spilling_without_a_budget_moves_nothing() {
+    let (_, _, mut map) = run(Memory::Packed, 1);
+    let before = map.memory();
+    assert!(before.packed_chunks > 0);
+    assert_eq!(map.spill_packed().spilled, 0);
+    assert_eq!(map.memory(), before);
+}
+
 #[test]
 fn a_budget_below_the_chunks_in_view_is_raised_with_a_warning() {
     let dir = tempfile::tempdir().expect("temp dir");

@@ -356,7 +356,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
         semantic_relabels: pipeline.relabelled_passes(),
         skipped_keyframes: pipeline.skipped_keyframes(),
         labelled_vertices: labelled_share(&mesh),
-        memory_mb: map.memory_bytes() as f64 / 1e6,
+        memory_mb: pipeline.map_memory().in_memory() as f64 / 1e6,
         chunks: map.chunk_count(),
         mesh_vertices: mesh.vertex_count(),
         mesh_triangles: mesh.triangle_count(),

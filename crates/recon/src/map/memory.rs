@@ -193,7 +193,7 @@ impl TsdfMap {
     /// Spills packed chunks, coldest neighbourhood first, until the map fits `budget`.
     fn spill_over(&mut self, budget: usize, now: u32, cold_after: u32, out: &mut Compaction) {
         let Some(file) = self.memory.spill.clone() else { return };
-        let mut excess = self.memory().in_memory().saturating_sub(budget);
+        let excess = self.memory().in_memory().saturating_sub(budget);
         if excess == 0 || self.memory.spill_error.is_some() {
             return;
         }
@@ -215,7 +215,55 @@ impl TsdfMap {
             })
             .collect();
         candidates.sort_unstable();
-        for (_, _, slot) in candidates {
+        let excess = self.spill_slots(&file, candidates.into_iter().map(|c| c.2), excess, out);
+        if excess > 0 && self.memory.spill_error.is_none() {
+            // What is left is near the camera or recently fused: the budget must hold it.
+            // Reported at its largest; said again only when the need grows.
+            let needed = self.memory().in_memory();
+            if self.memory.raised_to.is_none_or(|r| needed > r) {
+                self.memory.raised_to = Some(needed);
+                out.warnings.push(format!(
+                    "map memory budget of {budget} bytes is smaller than the chunks near the camera need; raised to {needed} bytes"
+                ));
+            }
+        }
+    }
+
+    /// Spills every packed chunk still in memory, however recently it changed, in key
+    /// order: for a moment when nothing will read the map and its memory is wanted elsewhere
+    /// (the end of a scan, while the final mesh is assembled from the live mesh). Plain
+    /// chunks stay as they are (packing them would round their far distances); a spilled
+    /// chunk comes back at its next read, as always. Without a budget (no spill file), or
+    /// once spilling has failed, nothing moves.
+    pub fn spill_packed(&mut self) -> Compaction {
+        let mut out = Compaction::default();
+        let Some(file) = self.memory.spill.clone() else { return out };
+        if self.memory.spill_error.is_some() {
+            return out;
+        }
+        let mut slots: Vec<((i32, i32, i32), u32)> = self
+            .chunks
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| matches!(&c.voxels, VoxelStore::Cold(v) if matches!(v.packed, Packed::Memory(_))))
+            .map(|(slot, c)| (key_order(c.key), slot as u32))
+            .collect();
+        slots.sort_unstable();
+        self.spill_slots(&file, slots.into_iter().map(|s| s.1), usize::MAX, &mut out);
+        out
+    }
+
+    /// Writes the packed chunks at `slots` to `file`, in order, until `excess` bytes have
+    /// left memory; returns what is left of `excess`. A write error stops spilling for good
+    /// (a warning; the chunks stay packed in memory).
+    fn spill_slots(
+        &mut self,
+        file: &Arc<SpillFile>,
+        slots: impl Iterator<Item = u32>,
+        mut excess: usize,
+        out: &mut Compaction,
+    ) -> usize {
+        for slot in slots {
             if excess == 0 {
                 break;
             }
@@ -233,21 +281,11 @@ impl TsdfMap {
                     let message = format!("{e}; spilling stopped, the map stays in memory");
                     self.memory.spill_error = Some(message.clone());
                     out.warnings.push(message);
-                    return;
+                    break;
                 }
             }
         }
-        if excess > 0 {
-            // What is left is near the camera or recently fused: the budget must hold it.
-            // Reported at its largest; said again only when the need grows.
-            let needed = self.memory().in_memory();
-            if self.memory.raised_to.is_none_or(|r| needed > r) {
-                self.memory.raised_to = Some(needed);
-                out.warnings.push(format!(
-                    "map memory budget of {budget} bytes is smaller than the chunks near the camera need; raised to {needed} bytes"
-                ));
-            }
-        }
+        excess
     }
 
     /// Reads back into memory (packed) the spilled chunks at `keys` and around them (their
