@@ -102,7 +102,7 @@ impl Default for TsdfConfig {
             packed_exact_band_voxels: 3.0,
             behind_band: 1.0,
             far_group_beyond_m: 2.0,
-            far_group_frames: 3,
+            far_group_frames: 4,
         }
     }
 }
