@@ -183,6 +183,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let input_s = scan.len() as f64 / scan.frame_rate();
     let front_s = pipeline.front_end_seconds();
     let map = pipeline.map();
+    let map_memory = MapMemoryReport::new(map, pipeline.map_memory(), &mesh);
     let report = Report {
         scene: scene.clone(),
         frames: scan.len(),
@@ -213,8 +214,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         realtime_factor: input_s / front_s.max(1e-9),
         stages: stages_json(&times),
         chunks: map.chunk_count(),
-        memory_mb: pipeline.map_memory().in_memory() as f64 / 1e6,
-        map_memory: MapMemoryReport::new(map, pipeline.map_memory(), &mesh),
+        memory_mb: map_memory.bytes_in_memory as f64 / 1e6,
+        map_memory,
         process_memory: ProcessMemoryReport::new(pipeline.mesh_store_memory(), pipeline.semantic_map_bytes()),
         mesh_vertices: mesh.vertex_count(),
         mesh_triangles: mesh.triangle_count(),

@@ -344,6 +344,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let input_s = processed as f64 / source.frame_rate();
     let pipeline_s = pipeline.front_end_seconds();
     let map = pipeline.map();
+    let map_memory = MapMemoryReport::new(map, pipeline.map_memory(), &mesh);
     let report = Report {
         dataset: source.name(),
         first_frame: range.start,
@@ -374,8 +375,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         skipped_keyframes: pipeline.skipped_keyframes(),
         labelled_vertices: labelled_share(&mesh),
         up: pipeline.up().map(UpJson::from),
-        memory_mb: pipeline.map_memory().in_memory() as f64 / 1e6,
-        map_memory: MapMemoryReport::new(map, pipeline.map_memory(), &mesh),
+        memory_mb: map_memory.bytes_in_memory as f64 / 1e6,
+        map_memory,
         process_memory: ProcessMemoryReport::new(pipeline.mesh_store_memory(), pipeline.semantic_map_bytes()),
         chunks: map.chunk_count(),
         mesh_vertices: mesh.vertex_count(),

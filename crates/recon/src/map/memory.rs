@@ -202,7 +202,7 @@ impl TsdfMap {
             .chunks
             .par_iter()
             .enumerate()
-            .filter(|(_, c)| matches!(&c.voxels, VoxelStore::Cold(v) if matches!(v.packed, Packed::Memory(_))))
+            .filter(|(_, c)| c.voxels.is_packed_in_memory())
             .filter_map(|(slot, c)| {
                 let mut latest = c.last_changed();
                 for o in neighbourhood() {
@@ -245,7 +245,7 @@ impl TsdfMap {
             .chunks
             .iter()
             .enumerate()
-            .filter(|(_, c)| matches!(&c.voxels, VoxelStore::Cold(v) if matches!(v.packed, Packed::Memory(_))))
+            .filter(|(_, c)| c.voxels.is_packed_in_memory())
             .map(|(slot, c)| (key_order(c.key), slot as u32))
             .collect();
         slots.sort_unstable();

@@ -92,6 +92,11 @@ impl VoxelStore {
         matches!(self, Self::Cold(_))
     }
 
+    /// Whether the voxels are packed and the packed bytes in memory (what spilling can move).
+    pub(crate) fn is_packed_in_memory(&self) -> bool {
+        matches!(self, Self::Cold(c) if matches!(c.packed, Packed::Memory(_)))
+    }
+
     /// Whether the packed bytes are in the spill file.
     pub(crate) fn is_spilled(&self) -> bool {
         matches!(self, Self::Cold(c) if matches!(c.packed, Packed::Spilled(..)))
