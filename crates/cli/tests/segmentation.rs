@@ -295,6 +295,15 @@ fn eval_seg_reports_the_table_and_json_keys() {
     // mIoU is the mean of the defined per-class values.
     let defined: Vec<f64> = per_class.values().filter_map(serde_json::Value::as_f64).collect();
     assert!((defined.iter().sum::<f64>() / defined.len() as f64 - miou).abs() < 1e-9);
+    // The confusion matrix: 13 truth rows of 14 columns (the last: out of range), summing to
+    // the labelled voxels, its diagonal to the accuracy.
+    let confusion: Vec<Vec<u64>> = serde_json::from_value(v["confusion"].clone()).expect("confusion");
+    assert_eq!(confusion.len(), 13);
+    assert!(confusion.iter().all(|row| row.len() == 14));
+    let counted: u64 = confusion.iter().flatten().sum();
+    let right: u64 = (0..13).map(|i| confusion[i][i]).sum();
+    assert!(counted > 0 && counted <= v["voxels"].as_u64().expect("voxels"), "{v}");
+    assert!((right as f64 / counted as f64 - accuracy).abs() < 1e-9, "{v}");
 
     // The reconstructions of make-scans are valid evaluation data too.
     let scans = dir.path().join("scans");

@@ -97,6 +97,9 @@ struct SegReport {
     structure_ms_per_room: f64,
     rooms: usize,
     voxels: usize,
+    /// Voxel counts over all rooms, `confusion[truth][prediction]` in class-id order (the
+    /// last column: predictions outside the classes): where each class's errors go.
+    confusion: Vec<Vec<u64>>,
     per_room: Vec<RoomRow>,
 }
 
@@ -167,6 +170,7 @@ pub fn run(args: SegArgs) -> anyhow::Result<()> {
         structure_ms_per_room: per_room.iter().map(|r| r.structure_ms).sum::<f64>() / per_room.len() as f64,
         rooms: per_room.len(),
         voxels: per_room.iter().map(|r| r.voxels).sum(),
+        confusion: (0..classes).map(|t| (0..=classes).map(|p| total.count(t, p)).collect()).collect(),
         per_room,
     };
 
