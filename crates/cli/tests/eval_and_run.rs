@@ -59,6 +59,7 @@ fn run_reconstructs_a_few_synthetic_frames() {
     let report = read_report(&out_dir);
     assert_eq!(report["frames"], 5);
     assert_eq!(report["lost_frames"], 0);
+    assert!(report["colour_fallback_frames"].as_u64().is_some_and(|n| n <= 5), "{report}");
     assert!(report["realtime_factor"].as_f64().expect("number") > 0.0);
     assert!(report["chunks"].as_u64().expect("number") > 0);
     assert!(report["memory_mb"].as_f64().expect("number") > 0.0);

@@ -98,6 +98,13 @@ pub trait FrameSource: Send + Sync {
     fn intrinsics(&self) -> Intrinsics;
     /// Whether frames carry ground-truth poses.
     fn has_ground_truth(&self) -> bool;
+    /// Whether each frame's colour is registered to its depth (the same camera, or resampled
+    /// onto the depth grid through both cameras' intrinsics), so that a pixel's colour and
+    /// depth see the same point: what the tracker's colour term needs. True unless the
+    /// format is known to pair them loosely (7-Scenes).
+    fn color_registered(&self) -> bool {
+        true
+    }
     /// Nominal frame rate in Hz (30 where the dataset does not say).
     fn frame_rate(&self) -> f64 {
         30.0

@@ -208,6 +208,8 @@ fn seven_scenes_writer_round_trip() {
     assert_eq!(src.len(), 3);
     assert_eq!(src.intrinsics(), k);
     assert!(src.has_ground_truth());
+    // The layout carries no calibration between its colour and depth cameras.
+    assert!(!src.color_registered());
     for f in &frames {
         let g = src.frame(f.index).expect("read");
         for (a, b) in f.depth.iter().zip(&g.depth) {

@@ -26,6 +26,9 @@ pub enum UpSource {
     Planes,
     /// The cameras' average up alone (too few horizontal surfaces yet).
     CameraPrior,
+    /// Perpendicular to the walls: the horizontal surfaces were too few to trust, and the
+    /// vertical ones face at least two different ways.
+    Walls,
 }
 
 /// One surface sample for the estimate: a position, a unit normal (or zero) and a weight.
@@ -112,7 +115,7 @@ pub const HANDHELD_HEIGHT_M: f32 = 1.4;
 /// less than 3 % of the surface weight is horizontal.
 pub fn estimate_up(samples: &[SurfaceSample], prior: Vec3, cameras: &[Vec3]) -> UpEstimate {
     let first = estimate_up_from_cone(samples, prior, cameras, 35.0);
-    if first.source == UpSource::Planes {
+    if first.source == UpSource::Planes && first.horizontal_share >= WIDE_CONE_MIN_SHARE {
         return first;
     }
     // A camera that looks 35-40 degrees down without panning much puts its prior just beyond
@@ -121,13 +124,74 @@ pub fn estimate_up(samples: &[SurfaceSample], prior: Vec3, cameras: &[Vec3]) -> 
     // Taken only when a good share of the surface is then horizontal (half of it in that
     // scan): a few per cent is sloped or scattered surface the wider cone also lets in (demo
     // seed 16: 3 % at 17 degrees off, against 4.5 from the prior, and 94.8 -> 48.4 % mIoU).
-    let wide = estimate_up_from_cone(samples, prior, cameras, 50.0);
-    if wide.source == UpSource::Planes && wide.horizontal_share >= WIDE_CONE_MIN_SHARE {
-        wide
-    } else {
-        first
+    if first.source != UpSource::Planes {
+        let wide = estimate_up_from_cone(samples, prior, cameras, 50.0);
+        if wide.source == UpSource::Planes && wide.horizontal_share >= WIDE_CONE_MIN_SHARE {
+            return wide;
+        }
+    }
+    // Little horizontal surface: a camera that has looked at walls and furniture sides
+    // from above, its prior pitched with it. Demo seed 16 (a column and a door, 3-4 % of
+    // the surface horizontal) had its up 17 degrees off from the prior and from the few
+    // sloped surfaces alike, and its labels collapsed (94.8 -> 32 % mIoU) whenever the
+    // last pass took either. Walls, which such views are full of, are perpendicular to up:
+    // when they face two different ways they pin it (docs/model.md, "Up from the walls").
+    // Their normals are noisier than a floor's (furniture sides, slanted backs), so they
+    // overrule the estimate only where they disagree with it: demo seed 36's first passes
+    // found up 0.2 degrees off from 5-13 % of horizontal surface, and the walls' 0.5-2.4
+    // cost it 9 points of mIoU.
+    match walls_up(samples, first.up) {
+        Some(up) if up.dot(first.up) < WALLS_OVERRULE_DEG.to_radians().cos() => {
+            estimate_for(samples, up, cameras, UpSource::Walls)
+        }
+        _ => first,
     }
 }
+
+/// How far the walls' up must lie from the estimate of the scarce horizontal surfaces (or
+/// the cameras' prior) to replace it, degrees.
+const WALLS_OVERRULE_DEG: f32 = 5.0;
+
+/// Up as the direction perpendicular to the walls, refined from `start`: the least
+/// eigenvector of the scatter of the normals within [`WALL_BAND_DEG`] of horizontal, re-chosen
+/// three times; `None` when those normals hold less than half the surface weight, do not face
+/// two clearly different ways (a single wall leaves up free within its plane), or lead more
+/// than [`WALL_BAND_DEG`] away from `start`.
+fn walls_up(samples: &[SurfaceSample], start: Vec3) -> Option<Vec3> {
+    let total: f32 = samples.iter().map(|s| s.weight).sum();
+    let band = WALL_BAND_DEG.to_radians().sin();
+    let mut up = start.try_normalize()?;
+    for _ in 0..3 {
+        let mut scatter = nalgebra::Matrix3::<f64>::zeros();
+        let mut weight = 0.0f32;
+        for s in samples.iter().filter(|s| s.normal.dot(up).abs() <= band) {
+            let n = s.normal.as_dvec3();
+            let n = nalgebra::Vector3::new(n.x, n.y, n.z);
+            scatter += n * n.transpose() * f64::from(s.weight);
+            weight += s.weight;
+        }
+        if !(weight >= 0.5 * total && weight > 0.0) {
+            return None;
+        }
+        let eigen = scatter.symmetric_eigen();
+        let mut order = [0usize, 1, 2];
+        order.sort_by(|&a, &b| eigen.eigenvalues[a].total_cmp(&eigen.eigenvalues[b]));
+        let [least, middle, most] = order.map(|i| eigen.eigenvalues[i]);
+        // Two ways faced: the middle spread is a real share of the largest; a clear null
+        // direction: the least is small beside the middle.
+        if !(middle >= 0.1 * most && least <= 0.05 * middle) {
+            return None;
+        }
+        let v = eigen.eigenvectors.column(order[0]);
+        let next = Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32).try_normalize()?;
+        up = if next.dot(start) < 0.0 { -next } else { next };
+    }
+    (up.dot(start.normalize()) >= WALL_BAND_DEG.to_radians().cos()).then_some(up)
+}
+
+/// How far from horizontal a normal may lean and still count as a wall's, degrees; also the
+/// most the walls' up may lie from the estimate it refines.
+const WALL_BAND_DEG: f32 = 25.0;
 
 /// Smallest horizontal share of the surface for [`estimate_up`]'s wider second try.
 const WIDE_CONE_MIN_SHARE: f32 = 0.15;
@@ -178,14 +242,19 @@ fn estimate_up_from_cone(samples: &[SurfaceSample], prior: Vec3, cameras: &[Vec3
 
 /// The estimate for a known up direction: only the floor is looked for.
 pub fn given_up(samples: &[SurfaceSample], up: Vec3, cameras: &[Vec3]) -> UpEstimate {
-    let up = up.normalize_or(Vec3::Z);
+    estimate_for(samples, up.normalize_or(Vec3::Z), cameras, UpSource::Given)
+}
+
+/// The estimate for the unit direction `up` from `source`: the floor under it and the share
+/// of the surface that is horizontal (within 15 degrees).
+fn estimate_for(samples: &[SurfaceSample], up: Vec3, cameras: &[Vec3], source: UpSource) -> UpEstimate {
     let cos15 = 15f32.to_radians().cos();
     let total: f32 = samples.iter().map(|s| s.weight).sum();
     let horizontal: f32 = samples.iter().filter(|s| s.normal.dot(up).abs() >= cos15).map(|s| s.weight).sum();
     UpEstimate {
         up,
         floor_height: floor_height(samples, up, cameras),
-        source: UpSource::Given,
+        source,
         horizontal_share: if total > 0.0 { horizontal / total } else { 0.0 },
     }
 }
@@ -375,6 +444,43 @@ mod tests {
         // No normals or no cameras: no estimate.
         assert!(mesh_up(&positions, &[], &poses).is_none());
         assert!(mesh_up(&positions, &normals, &[]).is_none());
+    }
+
+    /// Demo seed 16's view, made up: two walls at a corner and a column's four faces, all
+    /// vertical, and 3 % of sloped surface whose normals lean 17 degrees, as the camera prior
+    /// does. The horizontal evidence is too thin to trust; the walls give up to within a
+    /// degree. A single wall (one way faced) leaves up to the other rules.
+    #[test]
+    fn walls_facing_two_ways_give_up_when_horizontal_surface_is_scarce() {
+        let map_from_world = glam::Quat::from_rotation_x(-1.7) * glam::Quat::from_rotation_z(0.3);
+        let true_up = map_from_world * Vec3::Z;
+        let tilt = glam::Quat::from_rotation_x(17f32.to_radians());
+        let mut samples = Vec::new();
+        let mut push = |p: Vec3, n: Vec3| {
+            samples.push(SurfaceSample { position: map_from_world * p, normal: map_from_world * n, weight: 1.0 });
+        };
+        for i in 0..40 {
+            for j in 0..25 {
+                let (a, b) = (i as f32 * 0.1, j as f32 * 0.1);
+                push(Vec3::new(a, 0.0, b), Vec3::Y);
+                push(Vec3::new(0.0, a, b), Vec3::X);
+                if i < 4 {
+                    push(Vec3::new(2.0 + a, 2.0, b), -Vec3::Y);
+                    push(Vec3::new(2.0, 2.0 + a, b), -Vec3::X);
+                }
+            }
+        }
+        for i in 0..70 {
+            push(Vec3::new(1.0 + i as f32 * 0.01, 1.0, 0.9), tilt * Vec3::Z);
+        }
+        let prior = map_from_world * (tilt * Vec3::Z);
+        let e = estimate_up(&samples, prior, &[map_from_world * Vec3::new(1.0, 1.0, 1.5)]);
+        assert_eq!(e.source, UpSource::Walls);
+        assert!(e.angle_to_deg(true_up) < 1.0, "{} deg", e.angle_to_deg(true_up));
+        // One wall only: up is free within its plane, so the walls say nothing.
+        let one_wall: Vec<SurfaceSample> =
+            samples.iter().filter(|s| s.normal.dot(map_from_world * Vec3::Y) > 0.99).copied().collect();
+        assert_ne!(estimate_up(&one_wall, prior, &[]).source, UpSource::Walls);
     }
 
     #[test]

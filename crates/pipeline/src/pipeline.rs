@@ -145,6 +145,9 @@ pub struct Pipeline {
     /// Keyframe thumbnails for relocalisation after a lost frame.
     keyframe_index: KeyframeIndex,
     relocalised: usize,
+    /// Frames the tracker aligned again with colour (depth alone left them poorly
+    /// conditioned).
+    colour_fallbacks: usize,
     /// Consecutive lost frames so far.
     lost_streak: usize,
     trajectory: Trajectory,
@@ -250,6 +253,7 @@ impl Pipeline {
             tracker: None,
             keyframe_index: KeyframeIndex::new(),
             relocalised: 0,
+            colour_fallbacks: 0,
             lost_streak: 0,
             trajectory: Trajectory::default(),
             times: StageTimes::default(),
@@ -337,6 +341,7 @@ impl Pipeline {
                 if r.keyframe {
                     self.keyframe_index.add(frame, r.world_from_camera);
                 }
+                self.colour_fallbacks += usize::from(r.colour_fallback);
                 tracking = Some((r.condition, r.camera_hessian));
                 match r.status {
                     TrackingStatus::Lost(reason) => (FrameStatus::Lost(reason), None),
@@ -835,6 +840,13 @@ impl Pipeline {
     /// counted in [`Pipeline::frame_counts`]'s fused frames).
     pub fn relocalised_frames(&self) -> usize {
         self.relocalised
+    }
+
+    /// Frames the tracker aligned a second time with its colour term because depth alone
+    /// left the alignment poorly conditioned (a bare wall, a door, a corridor:
+    /// `TrackerConfig::degenerate_photometric_weight`), tracked or not.
+    pub fn colour_fallback_frames(&self) -> usize {
+        self.colour_fallbacks
     }
 
     /// Semantic passes applied so far, in order.

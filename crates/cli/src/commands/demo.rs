@@ -70,6 +70,9 @@ struct Report {
     lost_frames: usize,
     /// Fused frames whose pose relocalisation recovered after tracking failed.
     relocalised_frames: usize,
+    /// Frames the tracker aligned again with colour because depth alone left them poorly
+    /// conditioned (`--degenerate-photometric-weight`).
+    colour_fallback_frames: usize,
     ate_rmse_m: Option<f64>,
     mesh_accuracy_mm: Option<f64>,
     mesh_completeness_mm: Option<f64>,
@@ -111,7 +114,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let command_start = Instant::now();
     anyhow::ensure!(args.frames > 0, "--frames must be at least 1");
     prepare_output_dir(&args.out)?;
-    let mut config = pipeline_config(&args.recon, &args.semantics, false, None)?;
+    let mut config = pipeline_config(&args.recon, &args.semantics, false, None, true)?;
     spill_in(&mut config, &args.out);
     let mut scan_config = SyntheticScanConfig::new(args.seed);
     scan_config.frames = args.frames;
@@ -191,6 +194,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         poses: args.recon.poses.describe(),
         lost_frames: lost,
         relocalised_frames: pipeline.relocalised_frames(),
+        colour_fallback_frames: pipeline.colour_fallback_frames(),
         ate_rmse_m,
         mesh_accuracy_mm: mesh_errors.as_ref().map(|e| e.accuracy_mean_m * 1e3),
         mesh_completeness_mm: mesh_errors.as_ref().map(|e| e.completeness_mean_m * 1e3),
@@ -231,8 +235,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         front_s, input_s, report.realtime_factor
     );
     println!(
-        "poses: {}; {} of {} frames lost, {} relocalised",
-        report.poses, report.lost_frames, report.frames, report.relocalised_frames
+        "poses: {}; {} of {} frames lost, {} relocalised, {} aligned again with colour",
+        report.poses, report.lost_frames, report.frames, report.relocalised_frames, report.colour_fallback_frames
     );
     let mm = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.1} mm"));
     println!(

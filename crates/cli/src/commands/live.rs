@@ -124,6 +124,9 @@ struct Report {
     /// Frames the camera could not deliver (damaged).
     skipped_frames: usize,
     relocalised_frames: usize,
+    /// Frames the tracker aligned again with colour because depth alone left them poorly
+    /// conditioned (`--degenerate-photometric-weight`).
+    colour_fallback_frames: usize,
     /// Longest a frame waited for the pipeline, ms (about one frame period at most).
     max_wait_ms: f64,
     frame_period_ms: f64,
@@ -206,7 +209,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     // From the start: Ctrl-C while the camera opens still finishes with (empty) outputs.
     let caught = interrupt::install();
     let camera = open_camera(&args)?;
-    let config = pipeline_config(&args.recon, &args.semantics, true, None)?;
+    let config = pipeline_config(&args.recon, &args.semantics, true, None, true)?;
     let (net, network) = load_network(&args.semantics, &crate::device::DeviceArgs::default())?;
     let k = camera.intrinsics();
     let frame_rate = camera.frame_rate();
@@ -343,6 +346,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
         lost_frames: lost,
         skipped_frames: stats.skipped,
         relocalised_frames: pipeline.relocalised_frames(),
+        colour_fallback_frames: pipeline.colour_fallback_frames(),
         max_wait_ms: stats.max_wait.as_secs_f64() * 1e3,
         frame_period_ms: period * 1e3,
         realtime_factor: if busy.is_zero() { 0.0 } else { stats.taken as f64 * period / busy.as_secs_f64() },

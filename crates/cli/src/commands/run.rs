@@ -155,6 +155,9 @@ struct Report {
     lost_frames: usize,
     /// Fused frames whose pose relocalisation recovered after tracking failed.
     relocalised_frames: usize,
+    /// Frames the tracker aligned again with colour because depth alone left them poorly
+    /// conditioned (`--degenerate-photometric-weight`).
+    colour_fallback_frames: usize,
     failed_loads: usize,
     /// The run stopped before the end of the frame range (the dataset ended early).
     stopped_early_at: Option<usize>,
@@ -212,7 +215,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         DatasetSpec::SevenScenes(dir) if source.has_ground_truth() => dataset_up(Some(dir))?,
         _ => None,
     };
-    let mut config = pipeline_config(&args.recon, &args.semantics, args.realtime, up)?;
+    let mut config = pipeline_config(&args.recon, &args.semantics, args.realtime, up, source.color_registered())?;
     spill_in(&mut config, &args.out);
     let (net, network) = load_network(&args.semantics, &args.device)?;
     let k = source.intrinsics();
@@ -352,6 +355,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         fused_frames: fused,
         lost_frames: lost,
         relocalised_frames: pipeline.relocalised_frames(),
+        colour_fallback_frames: pipeline.colour_fallback_frames(),
         failed_loads,
         stopped_early_at,
         voxel_size_m: args.recon.voxel,
@@ -392,8 +396,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     print_table(&times);
     println!();
     println!(
-        "frames {} (fused {}, lost {}, relocalised {}), poses: {}",
-        report.frames, report.fused_frames, report.lost_frames, report.relocalised_frames, report.poses
+        "frames {} (fused {}, lost {}, relocalised {}, aligned again with colour {}), poses: {}",
+        report.frames,
+        report.fused_frames,
+        report.lost_frames,
+        report.relocalised_frames,
+        report.colour_fallback_frames,
+        report.poses
     );
     if let Some(at) = stopped_early_at {
         println!("the dataset ended early: stopped at frame {at} after {MAX_CONSECUTIVE_FAILED_LOADS} failed loads");

@@ -120,6 +120,13 @@ impl FrameSource for SevenScenes {
         self.has_ground_truth
     }
 
+    /// 7-Scenes pairs its Kinect's colour and depth without registering them (the layout
+    /// carries no calibration between the two cameras): a colour term would pull the pose
+    /// by the cameras' offset.
+    fn color_registered(&self) -> bool {
+        false
+    }
+
     fn frame(&self, index: usize) -> Result<Frame> {
         let entry = super::frame_entry(&self.frames, index, self)?;
         let depth_path = &entry.depth;
