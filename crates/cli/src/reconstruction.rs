@@ -565,3 +565,34 @@ pub fn loop_closure_summary(json: &serde_json::Value) -> String {
         json["stopped"].as_str().map_or(String::new(), |s| format!(" ({s})"))
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(clap::Parser)]
+    struct Options {
+        #[command(flatten)]
+        recon: ReconArgs,
+        #[command(flatten)]
+        semantics: SemanticArgs,
+    }
+
+    /// The colour fallback's weight: 0.1 by default where colour is registered to depth, 0
+    /// where it is not (7-Scenes), and what the user gives either way.
+    #[test]
+    fn the_colour_fallback_follows_the_sources_registration_unless_given() {
+        use clap::Parser;
+        let weight = |args: &[&str], registered: bool| {
+            let o = Options::parse_from(std::iter::once("semrecon").chain(args.iter().copied()));
+            pipeline_config(&o.recon, &o.semantics, false, None, registered)
+                .expect("config")
+                .tracker
+                .degenerate_photometric_weight
+        };
+        assert_eq!(weight(&[], true), DEFAULT_DEGENERATE_PHOTOMETRIC_WEIGHT);
+        assert_eq!(weight(&[], false), 0.0);
+        assert_eq!(weight(&["--degenerate-photometric-weight", "0.3"], false), 0.3);
+        assert_eq!(weight(&["--degenerate-photometric-weight", "0"], true), 0.0);
+    }
+}
