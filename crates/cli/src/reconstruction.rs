@@ -222,13 +222,6 @@ pub enum SemanticsMode {
     Off,
 }
 
-/// The colour term's weight for poorly conditioned frames where colour is registered to
-/// depth ([`ReconArgs::degenerate_photometric_weight`]). Session 34, demo seeds 1-40: the
-/// five scans whose tracking slid along a door or a bare wall (ATE 21-382 mm) came back to
-/// 3.6-125 mm; seven others moved by 0.2-5 mm (seed 16: 2.8 -> 7.9), the rest are the same
-/// bits (docs/benchmarks_log.md, "Session 34").
-pub const DEFAULT_DEGENERATE_PHOTOMETRIC_WEIGHT: f32 = 0.1;
-
 /// The pipeline configuration of the options; `up` is the map's up direction when known;
 /// `color_registered`: whether the source's colour is registered to its depth (which sets
 /// the colour fallback's default weight).
@@ -261,11 +254,9 @@ pub fn pipeline_config(
         tracker: TrackerConfig {
             keyframe_interval: recon.keyframe_every,
             photometric_weight: recon.photometric_weight,
-            degenerate_photometric_weight: recon.degenerate_photometric_weight.unwrap_or(if color_registered {
-                DEFAULT_DEGENERATE_PHOTOMETRIC_WEIGHT
-            } else {
-                0.0
-            }),
+            degenerate_photometric_weight: recon
+                .degenerate_photometric_weight
+                .unwrap_or_else(|| TrackerConfig::colour_fallback_weight(color_registered)),
             ..TrackerConfig::default()
         },
         poses: match recon.poses {
@@ -590,7 +581,7 @@ mod tests {
                 .tracker
                 .degenerate_photometric_weight
         };
-        assert_eq!(weight(&[], true), DEFAULT_DEGENERATE_PHOTOMETRIC_WEIGHT);
+        assert_eq!(weight(&[], true), 0.1);
         assert_eq!(weight(&[], false), 0.0);
         assert_eq!(weight(&["--degenerate-photometric-weight", "0.3"], false), 0.3);
         assert_eq!(weight(&["--degenerate-photometric-weight", "0"], true), 0.0);

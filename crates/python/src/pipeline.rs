@@ -234,7 +234,7 @@ impl Pipeline {
         intrinsics, *, voxel_size = 0.005, semantics = None, model = None, keyframe_every = 10,
         truncation = 10.0, max_depth = None, poses = "track", mesh_budget = None, realtime = false,
         up = None, context = 1.0, min_label_island = 0.06, structure = "segments", photometric_weight = 0.0,
-        degenerate_photometric_weight = 0.1, min_mesh_weight = None, min_mesh_piece = None, frame_rate = 30.0
+        degenerate_photometric_weight = None, min_mesh_weight = None, min_mesh_piece = None, frame_rate = 30.0
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -254,7 +254,7 @@ impl Pipeline {
         min_label_island: f32,
         structure: &str,
         photometric_weight: f32,
-        degenerate_photometric_weight: f32,
+        degenerate_photometric_weight: Option<f32>,
         min_mesh_weight: Option<f32>,
         min_mesh_piece: Option<usize>,
         frame_rate: f64,
@@ -295,7 +295,9 @@ impl Pipeline {
             tracker: TrackerConfig {
                 keyframe_interval: keyframe_every,
                 photometric_weight,
-                degenerate_photometric_weight,
+                // Frames pushed from Python come from cameras that register colour to depth.
+                degenerate_photometric_weight: degenerate_photometric_weight
+                    .unwrap_or_else(|| TrackerConfig::colour_fallback_weight(true)),
                 ..TrackerConfig::default()
             },
             poses,

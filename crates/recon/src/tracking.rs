@@ -189,6 +189,21 @@ impl Default for TrackerConfig {
 }
 
 impl TrackerConfig {
+    /// The colour fallback's weight ([`TrackerConfig::degenerate_photometric_weight`]) for a
+    /// source whose colour is, or is not, registered to its depth: 0.1, or 0 (a colour term
+    /// on unregistered colour would pull the pose by the two cameras' offset). The
+    /// library's own default stays 0; the CLI and the Python package start from this.
+    /// Session 34, demo seeds 1-40: the five scans whose tracking slid along a door or a bare
+    /// wall (ATE 21-382 mm) came back to 3.6-125 mm; seven others moved by 0.2-5 mm (seed 16:
+    /// 2.8 -> 7.9), the rest are the same bits (docs/benchmarks_log.md, "Session 34").
+    pub fn colour_fallback_weight(color_registered: bool) -> f32 {
+        if color_registered {
+            0.1
+        } else {
+            0.0
+        }
+    }
+
     /// Checks every field against its documented range.
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(ReconError::InvalidConfig(m));

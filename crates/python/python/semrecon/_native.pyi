@@ -200,8 +200,8 @@ class Pipeline:
             and colour, as ``semrecon segment``) or "none" (each 5 cm cell its own class).
         photometric_weight: weight of the colour term in tracking (0: depth only).
         degenerate_photometric_weight: weight of the colour term only for frames that depth
-            alone leaves poorly conditioned (a bare wall, a door); 0: off. Default 0.1, as the CLI
-            for colour registered to depth; give 0 for frames whose colour is not (7-Scenes).
+            alone leaves poorly conditioned (a bare wall, a door); 0: off. Default (None): 0.1, as
+            the CLI for colour registered to depth; give 0 for frames whose colour is not (7-Scenes).
         min_mesh_weight, min_mesh_piece: meshing thresholds (defaults as the CLI).
         frame_rate: Hz, for timestamps of frames pushed without one.
 
@@ -226,7 +226,7 @@ class Pipeline:
         min_label_island: float = 0.06,
         structure: Literal["segments", "none"] = "segments",
         photometric_weight: float = 0.0,
-        degenerate_photometric_weight: float = 0.1,
+        degenerate_photometric_weight: Optional[float] = None,
         min_mesh_weight: Optional[float] = None,
         min_mesh_piece: Optional[int] = None,
         frame_rate: float = 30.0,
