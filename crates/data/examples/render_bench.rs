@@ -55,6 +55,7 @@ fn synthetic_room() -> (LabeledMesh, RoomLayout) {
         ceiling_height: 2.8,
         obstacles: Vec::new(),
         interest_points: Vec::new(),
+        tall_obstacles: Vec::new(),
     };
     add_box(&mut mesh, Vec3::ZERO, Vec3::new(7.0, 5.0, 2.8), 50, [180, 170, 160], 2);
     for i in 0..24 {

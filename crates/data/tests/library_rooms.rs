@@ -74,6 +74,7 @@ fn check_room(r: &LibraryRoom, what: &str) {
         ceiling_height: h,
         obstacles: r.room.obstacles.clone(),
         interest_points: r.room.interest_points.clone(),
+        tall_obstacles: Vec::new(),
     };
     ScanPlan::new(layout, 7).poses(90).unwrap_or_else(|e| panic!("{what}: no scan path: {e}"));
 }

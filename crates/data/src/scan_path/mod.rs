@@ -2,8 +2,11 @@
 //! RGB-D scans whose motion looks like a person scanning: walking a loop through free space
 //! at 0.3-0.5 m/s, eye height with a slight bob, gaze drifting between walls and furniture
 //! (sometimes down at tables and the floor, sometimes up), small smooth hand jitter, and
-//! back to the start pose at the end so that loop closure can be tested. Speeds stay within
-//! what frame-to-frame tracking at 30 fps handles (below 40 degrees/s).
+//! back to the start pose at the end so that loop closure can be tested. The gaze does not
+//! face a wall or tall furniture from closer than 0.6 m (the sensor sees nothing within
+//! 0.4 m): where it would, it turns to the nearest direction that sees further, across the
+//! room rather than over the wall in front of it. Speeds stay within what frame-to-frame
+//! tracking at 30 fps handles (below 40 degrees/s).
 //!
 //! The walk: a clearance grid of the floor (distance to walls and obstacle footprints,
 //! `grid`), waypoints on an ellipse around the room centre snapped into free space, shortest
@@ -42,6 +45,44 @@ pub struct RoomLayout {
     pub obstacles: Vec<(Vec2, Vec2)>,
     /// Points worth looking at (furniture, wall features); may be empty.
     pub interest_points: Vec<Vec3>,
+    /// Footprints of what rises above the camera (walls between rooms; usually also among
+    /// `obstacles`): what the gaze keeps [`ScanPlan::min_view_distance`] from, besides the
+    /// floor rectangle's sides. Lower furniture is looked over, not dodged.
+    #[serde(default)]
+    pub tall_obstacles: Vec<(Vec2, Vec2)>,
+}
+
+/// Height above the floor from which a thing counts as tall for the gaze (see
+/// [`RoomLayout::find_tall_obstacles`]), metres: a ray 20-50 degrees below the horizon from a
+/// 1.45 m eye has come down to 1.0-1.25 m after 0.6 m, so what stays under 1 m is looked over.
+pub const TALL_OBSTACLE_TOP: f32 = 1.0;
+
+impl RoomLayout {
+    /// Adds to [`Self::tall_obstacles`] every obstacle whose footprint (grown by a centimetre,
+    /// so that a box's corners count) holds a vertex of `mesh` more than `min_top` above the
+    /// floor, leaving out the room's shell (ceiling, floor, walls, beams, windows and boards,
+    /// whose vertices may fall inside a footprint against a wall). A mesh without
+    /// vertex labels counts every vertex.
+    pub fn find_tall_obstacles(&mut self, mesh: &LabeledMesh, min_top: f32) {
+        use crate::class::SemanticClass as C;
+        // Doors count: a door standing open into the room is a leaf the height of a person.
+        let shell = [C::Ceiling, C::Floor, C::Wall, C::Beam, C::Window, C::Board].map(|c| c.id());
+        let labelled = mesh.vertex_labels.len() == mesh.positions.len();
+        let grow = Vec2::splat(0.01);
+        let mut tall = vec![false; self.obstacles.len()];
+        for (v, p) in mesh.positions.iter().enumerate() {
+            if p.z - self.floor_z <= min_top || (labelled && shell.contains(&mesh.vertex_labels[v])) {
+                continue;
+            }
+            let q = p.truncate();
+            for (k, (lo, hi)) in self.obstacles.iter().enumerate() {
+                if !tall[k] && q.cmpge(*lo - grow).all() && q.cmple(*hi + grow).all() {
+                    tall[k] = true;
+                }
+            }
+        }
+        self.tall_obstacles.extend(self.obstacles.iter().zip(tall).filter(|(_, t)| *t).map(|(o, _)| *o));
+    }
 }
 
 /// Parameters of a generated scan; [`ScanPlan::poses`] makes the trajectory.
@@ -76,6 +117,14 @@ pub struct ScanPlan {
     /// camera is in (see the `walk` module).
     #[serde(default)]
     pub rooms: Vec<(Vec2, Vec2)>,
+    /// Nearest a surface may come along the camera's optical axis, metres (0 = no limit):
+    /// where the gaze would face a wall or tall furniture closer than this, now or a second
+    /// later, it turns to the nearest direction that sees further (see [`Self::view_ranges`]).
+    /// A walk with little clearance (a flat's doorways and corridors) otherwise stares at a
+    /// wall from inside the depth sensor's minimum range, and a scan with no depth for
+    /// seconds is not what a person scanning a room records.
+    #[serde(default)]
+    pub min_view_distance: f32,
 }
 
 /// Steepest gaze below the horizon, radians (50 degrees).
@@ -85,6 +134,15 @@ const MAX_PITCH_UP: f32 = 20.0 * std::f32::consts::PI / 180.0;
 
 /// Steepest gaze above the horizon with a vertical sweep, radians (55 degrees).
 const MAX_SWEPT_PITCH_UP: f32 = 55.0 * std::f32::consts::PI / 180.0;
+
+/// [`ScanPlan::min_view_distance`] of a new plan, metres: half again the sensor model's
+/// 0.4 m minimum range, so that the centre of the image has depth with room to spare.
+pub const DEFAULT_MIN_VIEW_DISTANCE: f32 = 0.6;
+
+/// Fastest the gaze turns away from a surface it faces too closely, as a multiple of
+/// [`ScanPlan::max_turn_rate_deg`] (22 -> 35 degrees/s by default, still below the 40
+/// degrees/s frame-to-frame tracking handles).
+const DODGE_TURN_FACTOR: f32 = 1.6;
 
 /// Floor grid resolution of the planner, metres.
 const CELL: f32 = 0.05;
@@ -104,6 +162,7 @@ impl ScanPlan {
             jitter: 1.0,
             vertical_sweep_deg: 0.0,
             rooms: Vec::new(),
+            min_view_distance: DEFAULT_MIN_VIEW_DISTANCE,
         }
     }
 
@@ -135,11 +194,25 @@ impl ScanPlan {
                 ceiling_height: height,
                 obstacles: Vec::new(),
                 interest_points,
+                tall_obstacles: Vec::new(),
             },
             seed,
         );
         plan.clearance = plan.clearance.min(0.25 * half.x.min(half.y));
         Ok(plan)
+    }
+
+    /// How far each `world_from_camera` pose sees along its optical axis in the planner's
+    /// model of the room (the floor rectangle's sides and the tall obstacles' footprints as
+    /// full-height boxes, the floor and the ceiling), up to `max_range` metres: what
+    /// [`Self::min_view_distance`] bounds from below.
+    pub fn view_ranges(&self, poses: &[Affine3A], max_range: f32) -> Vec<f32> {
+        let grid = self.view_grid();
+        let (floor, ceiling) = (self.room.floor_z, self.room.floor_z + self.room.ceiling_height);
+        poses
+            .iter()
+            .map(|p| grid.view_range(p.translation.into(), p.matrix3.z_axis.into(), floor, ceiling, max_range))
+            .collect()
     }
 
     /// `n` `world_from_camera` poses (camera x right, y down, z forward) at
@@ -154,6 +227,9 @@ impl ScanPlan {
         if !(self.frame_rate > 0.0 && self.walking_speed > 0.0 && self.max_turn_rate_deg > 0.0) {
             return bad("frame rate, walking speed and turn rate must be positive".into());
         }
+        if !(self.min_view_distance >= 0.0 && self.min_view_distance <= 5.0) {
+            return bad(format!("minimum view distance {} m is outside 0..=5", self.min_view_distance));
+        }
         if !(0.0..=60.0).contains(&self.vertical_sweep_deg) {
             return bad(format!("vertical sweep {} degrees is outside 0..=60", self.vertical_sweep_deg));
         }
@@ -163,6 +239,7 @@ impl ScanPlan {
         let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
         let grid = ClearanceGrid::new(room);
         let path = self.walk(&grid)?;
+        let view_grid = self.view_grid();
         let duration = n as f32 / self.frame_rate;
         let dt = 1.0 / self.frame_rate;
         let times: Vec<f32> = (0..n).map(|i| if n > 1 { i as f32 / (n - 1) as f32 } else { 0.0 }).collect();
@@ -240,10 +317,22 @@ impl ScanPlan {
                 let nod = nod_height * if wave > 0.0 { wave } else { 0.5 * wave };
                 want.y = (want.y + nod).clamp(-MAX_PITCH_DOWN, MAX_SWEPT_PITCH_UP);
             }
-            let next = match yaw_pitch.last() {
+            let ahead = eye[(i + self.frame_rate as usize).min(n - 1)];
+            let prev = yaw_pitch.last().copied();
+            if self.min_view_distance > 0.0 {
+                want = self.clear_gaze(&view_grid, [eye[i], ahead], want, prev.unwrap_or(want));
+            }
+            let next = match prev {
                 None => want,
-                Some(&prev) => {
-                    let delta = Vec2::new(wrap_angle(want.x - prev.x), want.y - prev.y);
+                Some(prev) => {
+                    // Turn away faster from a surface the camera faces too closely.
+                    let blocked = self.min_view_distance > 0.0
+                        && self.sees(&view_grid, eye[i], prev) < self.min_view_distance;
+                    let max_step = if blocked { max_step * DODGE_TURN_FACTOR } else { max_step };
+                    let mut delta = Vec2::new(wrap_angle(want.x - prev.x), want.y - prev.y);
+                    if self.min_view_distance > 0.0 {
+                        delta.x = self.clear_turn(&view_grid, eye[i], prev, delta);
+                    }
                     let len = delta.length();
                     prev + if len > max_step { delta * (max_step / len) } else { delta }
                 }
@@ -278,6 +367,83 @@ impl ScanPlan {
                 Affine3A::from_mat3_translation(rotation, eye[i] + jitter_t.at(u))
             })
             .collect())
+    }
+
+    /// The floor grid of what the camera cannot see over: the floor rectangle's sides and
+    /// the tall obstacles.
+    fn view_grid(&self) -> ClearanceGrid {
+        ClearanceGrid::new(&RoomLayout { obstacles: self.room.tall_obstacles.clone(), ..self.room.clone() })
+    }
+
+    /// How far the camera at `eye` sees with the gaze `yaw_pitch` (radians), in the
+    /// planner's model of the room.
+    fn sees(&self, grid: &ClearanceGrid, eye: Vec3, yaw_pitch: Vec2) -> f32 {
+        let [yaw, pitch] = yaw_pitch.to_array();
+        let forward = Vec3::new(pitch.cos() * yaw.cos(), pitch.cos() * yaw.sin(), pitch.sin());
+        let floor = self.room.floor_z;
+        grid.view_range(eye, forward, floor, floor + self.room.ceiling_height, 2.0 * self.min_view_distance)
+    }
+
+    /// `want` if it sees at least [`Self::min_view_distance`] from every one of `eyes`,
+    /// otherwise the yaw nearest to it (in 10 degree steps, ties going to the side the gaze
+    /// `prev` is on, so that the dodge does not flicker) that does; where none does (a
+    /// narrow passage), the yaw that sees furthest.
+    fn clear_gaze(&self, grid: &ClearanceGrid, eyes: [Vec3; 2], want: Vec2, prev: Vec2) -> Vec2 {
+        let range = |yp: Vec2| eyes.iter().map(|&e| self.sees(grid, e, yp)).fold(f32::INFINITY, f32::min);
+        if range(want) >= self.min_view_distance {
+            return want;
+        }
+        let step = 10f32.to_radians();
+        let mut best_clear: Option<(f32, Vec2)> = None;
+        let mut furthest = (range(want), want);
+        for k in 1..=18 {
+            for side in [1.0f32, -1.0] {
+                let candidate = Vec2::new(wrap_angle(want.x + side * k as f32 * step), want.y);
+                let r = range(candidate);
+                if r >= self.min_view_distance {
+                    let cost = k as f32 * step + 0.5 * wrap_angle(candidate.x - prev.x).abs();
+                    if best_clear.is_none_or(|(c, _)| cost < c) {
+                        best_clear = Some((cost, candidate));
+                    }
+                } else if r > furthest.0 {
+                    furthest = (r, candidate);
+                }
+            }
+        }
+        best_clear.map_or(furthest.1, |(_, c)| c)
+    }
+
+    /// The yaw turn from the gaze `prev` by `delta` (yaw within +-pi, pitch) the short way
+    /// round, or the long way where that faces fewer surfaces closer than
+    /// [`Self::min_view_distance`] on the way: someone walking along a wall who turns from
+    /// one side to the other looks across the room, not over the wall in front of their nose.
+    fn clear_turn(&self, grid: &ClearanceGrid, eye: Vec3, prev: Vec2, delta: Vec2) -> f32 {
+        let step = 10f32.to_radians();
+        // Cost of a way: its length in 10 degree steps, and three more for each step that
+        // faces a near surface.
+        let cost = |yaw_turn: f32, stop_at_first: bool| -> (f32, usize) {
+            let steps = (yaw_turn.abs() / step).ceil().max(1.0) as usize;
+            let mut blocked = 0;
+            for k in 1..=steps {
+                let u = k as f32 / steps as f32;
+                if self.sees(grid, eye, prev + Vec2::new(yaw_turn, delta.y) * u) < self.min_view_distance {
+                    blocked += 1;
+                    if stop_at_first {
+                        break;
+                    }
+                }
+            }
+            (steps as f32 + 3.0 * blocked as f32, blocked)
+        };
+        if delta.x.abs() < step || cost(delta.x, true).1 == 0 {
+            return delta.x;
+        }
+        let long = delta.x - TAU.copysign(delta.x);
+        if cost(long, false).0 < cost(delta.x, false).0 {
+            long
+        } else {
+            delta.x
+        }
     }
 
     /// Gaze targets: (start time, point), each held for a few seconds; the last is the
@@ -473,6 +639,7 @@ impl PeriodicNoise {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::f32::consts::SQRT_2;
 
     fn office() -> RoomLayout {
         RoomLayout {
@@ -487,6 +654,7 @@ mod tests {
                 Vec3::new(6.0, 1.0, 1.5),
                 Vec3::new(0.0, 1.0, 1.2),
             ],
+            tall_obstacles: Vec::new(),
         }
     }
 
@@ -597,10 +765,42 @@ mod tests {
             ceiling_height: 2.5,
             obstacles: Vec::new(),
             interest_points: Vec::new(),
+            tall_obstacles: Vec::new(),
         };
         let plan = ScanPlan::new(room, 4);
         let poses = plan.poses(300).expect("plan");
         check_plausible(&plan, &poses);
+    }
+
+    #[test]
+    fn view_ranges_meet_walls_tall_obstacles_floor_and_ceiling() {
+        let mut room = office();
+        room.tall_obstacles = vec![(Vec2::new(3.0, 0.0), Vec2::new(3.1, 1.0))];
+        let plan = ScanPlan::new(room, 0);
+        let look = |eye: Vec3, forward: Vec3| {
+            let forward = forward.normalize();
+            let right = forward.cross(Vec3::Z).normalize();
+            Affine3A::from_mat3_translation(Mat3::from_cols(right, forward.cross(right), forward), eye)
+        };
+        let eye = Vec3::new(1.0, 0.5, 1.5);
+        let poses = [
+            // Level at the x = 0 wall, 1 m away.
+            look(eye, Vec3::NEG_X),
+            // Level at the tall obstacle, 2 m away (the low obstacles are looked over).
+            look(eye, Vec3::X),
+            // 45 degrees down along +y: the floor 1.5 / sin(45) away, before the far wall.
+            look(eye, Vec3::new(0.0, 1.0, -1.0)),
+            // 45 degrees up: the ceiling (2.7 m) 1.2 / sin(45) away.
+            look(eye, Vec3::new(0.0, 1.0, 1.0)),
+            // Straight along +y to the far wall (y = 5), cut at the range asked for.
+            look(eye, Vec3::Y),
+        ];
+        let got = plan.view_ranges(&poses, 4.0);
+        let want = [1.0, 2.0, 1.5 * SQRT_2, 1.2 * SQRT_2, 4.0];
+        for (g, w) in got.iter().zip(want) {
+            // Half-cell steps on a 5 cm grid, read from the nearest cell.
+            assert!((g - w).abs() < 0.06, "got {got:?}, want {want:?}");
+        }
     }
 
     #[test]

@@ -204,6 +204,7 @@ fn scan_paths_find_their_way_through_every_kind() {
                 ceiling_height: r.ceiling_height,
                 obstacles: r.obstacles.clone(),
                 interest_points: r.interest_points.clone(),
+                tall_obstacles: Vec::new(),
             };
             let plan = crate::scan_path::ScanPlan::new(layout, seed);
             plan.poses(60).unwrap_or_else(|e| panic!("{kind} {seed}: {e}"));
