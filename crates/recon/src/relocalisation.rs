@@ -193,7 +193,8 @@ impl Tracker {
     /// Tries to recover a lost track: aligns `frame` to `map` from the poses of the (up to)
     /// `attempts` keyframes of `index` that look most like it, and keeps the first alignment
     /// that passes the quality checks of [`Tracker::track`] (the pose-jump check then bounds
-    /// the distance from that keyframe). On success the tracker continues from the recovered
+    /// the distance from that keyframe) and that depth alone conditions well (scaled
+    /// condition at least [`crate::TrackerConfig::degenerate_condition`]). On success the tracker continues from the recovered
     /// pose and the result (status [`TrackingStatus::Tracked`]) says whether to fuse;
     /// otherwise the tracker is unchanged and `None` comes back.
     ///
@@ -217,7 +218,12 @@ impl Tracker {
             let mut attempt = self.clone();
             attempt.restart_at(keyframe.world_from_camera, Some(keyframe.depth_image(w, h)));
             let result = attempt.track(frame, map)?;
-            if result.status == TrackingStatus::Tracked {
+            // Depth alone must pin the pose down: along a corridor or across a bare wall the
+            // frame fits the map in many places, and the first keyframe tried would win (a
+            // generated flat's hall: 5.1 m along the corridor, and the rest of the walk
+            // fused there). Such a frame waits for a view with more to hold on to.
+            let well_posed = !result.colour_fallback && result.condition >= self.config().degenerate_condition;
+            if result.status == TrackingStatus::Tracked && well_posed {
                 *self = attempt;
                 return Ok(Some(result));
             }

@@ -388,6 +388,38 @@ fn colour_takes_over_where_a_bare_wall_leaves_depth_blind() {
     assert_eq!(plain, adaptive);
 }
 
+/// A view of a bare wall fits the map anywhere along the wall: tracking may carry such a
+/// frame on from the last pose (the slide at the prediction), but relocalisation, which has
+/// no last pose to trust, refuses it rather than put the camera at whichever keyframe it
+/// tries first (a generated flat's hall put a lost camera 5.1 m along its corridor).
+#[test]
+fn a_lost_view_of_a_bare_wall_is_not_relocalised() {
+    let k = semrecon_data::Intrinsics::new(80, 60, 70.0, 70.0, 39.5, 29.5).expect("camera");
+    let wall = Frame::from_depth(k, vec![1.5; 80 * 60]);
+    let along = |x: f32| Affine3A::from_translation(Vec3::new(x, 0.0, 0.0));
+    let mut map = TsdfMap::new(TsdfConfig { truncation_voxels: 10.0, ..TsdfConfig::default() }).expect("config");
+    let mut index = KeyframeIndex::new();
+    for x in [0.0, 0.3, 0.6] {
+        map.integrate(&wall, along(x)).expect("fusion");
+        index.add(&wall, along(x));
+    }
+    // From a keyframe's pose the frame is "tracked", its slide unconstrained.
+    let mut from_keyframe = Tracker::with_initial_pose(config(), along(0.3)).expect("tracker");
+    from_keyframe.track(&wall, &map).expect("first frame");
+    let r = from_keyframe.track(&wall, &map).expect("valid frame");
+    assert_eq!(r.status, TrackingStatus::Tracked, "{r:?}");
+    assert!(r.condition < config().degenerate_condition, "{r:?}");
+    // Lost (no depth), then the wall again: no relocalisation.
+    let mut tracker = Tracker::with_initial_pose(config(), along(0.0)).expect("tracker");
+    tracker.track(&wall, &map).expect("first frame");
+    let blind = Frame::from_depth(k, vec![0.0; 80 * 60]);
+    assert!(matches!(tracker.track(&blind, &map).expect("valid frame").status, TrackingStatus::Lost(_)));
+    assert!(!index.candidates(&wall, 3).is_empty(), "the wall's keyframes are candidates");
+    let before = tracker.clone();
+    assert!(tracker.relocalise(&wall, &map, &index, 3).expect("valid frame").is_none());
+    assert_eq!(tracker.pose(), before.pose());
+}
+
 /// After a jump to a place seen earlier, tracking from the last pose fails, and
 /// relocalisation from the keyframes finds the place again.
 #[test]
