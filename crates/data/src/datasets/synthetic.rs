@@ -105,18 +105,23 @@ mod tests {
     use crate::frame::FrameSource;
 
     #[test]
-    fn a_single_rooms_walk_keeps_its_distance_from_the_walls_without_dodging() {
-        // The gaze's minimum view distance acts only where a walk passes walls closely (a
-        // flat's 0.25 m); a single room's 0.4 m clearance never brings the camera that close,
-        // so the demo's scans (and every figure measured on them) are what they were before
-        // the rule: the same poses with and without it.
-        for seed in 1..=10 {
+    fn a_single_rooms_walk_rarely_needs_the_minimum_view_distance() {
+        // The gaze's minimum view distance is for walks that pass walls closely (a flat's
+        // 0.25 m of clearance); a single room's 0.4 m keeps the camera far enough from its
+        // walls, and only once from tall furniture: the demo's scans (seeds 1-10) and all but
+        // one of the seeds its settings are chosen on (11-40; seed 25) are the same poses
+        // with and without the rule, so the figures measured on them stand.
+        let mut changed = Vec::new();
+        for seed in 1..=40 {
             let room = generate_room(&RoomConfig { seed, style: None });
             let with = room_scan_plan(&room, seed, 30.0);
             let mut without = with.clone();
             without.min_view_distance = 0.0;
-            assert_eq!(with.poses(300).expect("walk"), without.poses(300).expect("walk"), "seed {seed}");
+            if with.poses(300).expect("walk") != without.poses(300).expect("walk") {
+                changed.push(seed);
+            }
         }
+        assert_eq!(changed, vec![25]);
     }
 
     #[test]
