@@ -6,7 +6,7 @@
 use crate::error::Result;
 use crate::render::RenderedScan;
 use crate::scan_path::{RoomLayout, ScanPlan, TALL_OBSTACLE_TOP};
-use crate::synth::{generate_flat, FlatConfig, SyntheticFlat};
+use crate::synth::{generate_flat, FlatConfig, FlatKind, SyntheticFlat};
 
 use super::synthetic::SyntheticScanConfig;
 
@@ -41,6 +41,11 @@ pub fn flat_scan_plan(flat: &SyntheticFlat, seed: u64, frame_rate: f64) -> ScanP
     plan.frame_rate = frame_rate as f32;
     plan.clearance = FLAT_CLEARANCE;
     plan.rooms = flat.rooms.iter().map(|r| (r.floor_min, r.floor_max)).collect();
+    // The two-room loop scans keep their walk as it was (loop closure's tests and figures
+    // are pinned to their frames); the homes' walks keep their distance from walls.
+    if flat.kind == FlatKind::TwoRooms {
+        plan.min_view_distance = 0.0;
+    }
     plan
 }
 
@@ -65,7 +70,6 @@ mod tests {
 
     use super::*;
     use crate::frame::FrameSource;
-    use crate::synth::FlatKind;
 
     /// Rooms visited, in order of first visit, and whether every position is walkable and
     /// keeps its distance from walls and furniture.
