@@ -157,7 +157,11 @@ mod tests {
             let poses = plan.poses(9000).expect("walk");
             let ranges = plan.view_ranges(&poses, 5.0);
             let near = ranges.iter().filter(|&&r| r < 0.45).count();
-            assert!(near * 100 < ranges.len(), "seed {seed}: {near} of {} poses face a wall within 0.45 m", ranges.len());
+            assert!(
+                near * 100 < ranges.len(),
+                "seed {seed}: {near} of {} poses face a wall within 0.45 m",
+                ranges.len()
+            );
             let mut run = 0;
             for (i, &r) in ranges.iter().enumerate() {
                 run = if r < 0.4 { run + 1 } else { 0 };

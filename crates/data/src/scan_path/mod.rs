@@ -326,8 +326,8 @@ impl ScanPlan {
                 None => want,
                 Some(prev) => {
                     // Turn away faster from a surface the camera faces too closely.
-                    let blocked = self.min_view_distance > 0.0
-                        && self.sees(&view_grid, eye[i], prev) < self.min_view_distance;
+                    let blocked =
+                        self.min_view_distance > 0.0 && self.sees(&view_grid, eye[i], prev) < self.min_view_distance;
                     let max_step = if blocked { max_step * DODGE_TURN_FACTOR } else { max_step };
                     let mut delta = Vec2::new(wrap_angle(want.x - prev.x), want.y - prev.y);
                     if self.min_view_distance > 0.0 {
