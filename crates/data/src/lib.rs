@@ -18,6 +18,7 @@ pub mod datasets;
 pub mod depth_image;
 pub mod error;
 pub mod frame;
+pub mod home_class;
 pub mod library;
 pub mod live;
 pub mod mesh;
@@ -39,6 +40,7 @@ pub use class::SemanticClass;
 pub use datasets::{open_dataset, DatasetSpec};
 pub use error::{DataError, Result};
 pub use frame::{Frame, FrameSource};
+pub use home_class::{HomeClass, LabelSet};
 pub use mesh::LabeledMesh;
 pub use ply::{
     read_ply, read_ply_with_gravity, write_ply, write_ply_recoloured, write_ply_with_gravity, MeshGravity, PlyEncoding,

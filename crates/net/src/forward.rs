@@ -148,6 +148,13 @@ impl Params<Vec<f32>> {
     }
 }
 
+impl Params<Vec<f32>> {
+    /// The class head's folded batch norm: `(scale, shift)`, `[C_0]` each.
+    pub(crate) fn head_bn_parts(&self) -> (&[f32], &[f32]) {
+        self.head_bn.split_at(self.head_bn.len() / 2)
+    }
+}
+
 impl<T> Params<T> {
     /// Every tensor through `f` (an engine's upload: the weights made resident once).
     pub(crate) fn map<U, E>(&self, f: &mut impl FnMut(&T) -> Result<U, E>) -> Result<Params<U>, E> {
@@ -225,16 +232,20 @@ pub(crate) enum Readout {
     Logits,
     /// Only the class of every voxel (an argmax on the engine: `1 / classes` of the bytes).
     Labels,
+    /// The class scores and the finest decoder features the head reads (before its batch
+    /// norm), for a second head ([`crate::home_head`]).
+    LogitsAndDecoder,
 }
 
 /// The result of a forward: the part [`Readout`] asked for, the other empty.
 ///
 /// # Shapes
-/// `logits`: `[n, classes]`; `labels`: `[n]`.
+/// `logits`: `[n, classes]`; `labels`: `[n]`; `decoder`: `[n, C_0]`.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Scores {
     pub(crate) logits: Vec<f32>,
     pub(crate) labels: Vec<u32>,
+    pub(crate) decoder: Vec<f32>,
 }
 
 /// The input of one forward on one engine: layers and interpolation tables per level, as the
@@ -318,7 +329,12 @@ where
     engine.conv(levels[0].point, d0, c(0), Some(&p.head_bn), &p.head_w, k, &mut ws.logits, false)?;
     engine.add_bias(&mut ws.logits, n(0), &p.head_b, k)?;
     Ok(match readout {
-        Readout::Logits => Scores { logits: engine.download(&ws.logits, n(0) * k)?, labels: Vec::new() },
-        Readout::Labels => Scores { logits: Vec::new(), labels: engine.argmax_rows(&ws.logits, n(0), k)? },
+        Readout::Logits => Scores { logits: engine.download(&ws.logits, n(0) * k)?, ..Scores::default() },
+        Readout::Labels => Scores { labels: engine.argmax_rows(&ws.logits, n(0), k)?, ..Scores::default() },
+        Readout::LogitsAndDecoder => Scores {
+            logits: engine.download(&ws.logits, n(0) * k)?,
+            labels: Vec::new(),
+            decoder: engine.download(d0, n(0) * c(0))?,
+        },
     })
 }

@@ -26,6 +26,7 @@ use crate::config::NetConfig;
 use crate::error::{NetError, Result};
 use crate::forward::{forward, LevelLayers, Params, Prepared, Readout, Scores, Workspace};
 use crate::geometry::NetGeometry;
+use crate::home_head::{HomeHead, HOME_HEAD_PREFIX};
 use crate::model::LevelStats;
 use crate::table_geometry::TableGeometry;
 use crate::weights::Weights;
@@ -90,6 +91,10 @@ pub struct PointScores {
     pub logits: Vec<f32>,
     /// The voxel of every input point.
     pub point_to_voxel: Vec<u32>,
+    /// The activations the class head reads (after its batch norm and ReLU), `[v, C_0]`,
+    /// for the second head ([`crate::home_head`]); empty unless asked for
+    /// ([`Segmenter::segment_points_with_features`]).
+    pub head_features: Vec<f32>,
 }
 
 /// The network ready for inference: folded weights, a chunk configuration and the engines'
@@ -109,6 +114,8 @@ pub struct Segmenter {
     gpu_geometry: GpuGeometry,
     stats: Vec<LevelStats>,
     timing: Timing,
+    /// The second label set's head, when the weights file has one.
+    home_head: Option<HomeHead>,
 }
 
 /// The network's tensors on one device: weights uploaded once, activations kept.
@@ -132,9 +139,22 @@ impl Segmenter {
         config.validate()?;
         weights.check(&config)?;
         let params = Params::fold(&weights, &config)?;
+        let home_head = HomeHead::from_weights(&weights)?;
+        if let Some(h) = &home_head {
+            let want = HomeHead::input_width(config.channels(0), config.classes);
+            if h.inputs() != want {
+                return Err(NetError::TensorShape {
+                    file: weights.source().to_string(),
+                    tensor: format!("{HOME_HEAD_PREFIX}hidden.weight"),
+                    expected: vec![want, h.hidden()],
+                    got: vec![h.inputs(), h.hidden()],
+                });
+            }
+        }
         Ok(Self {
             config,
             params,
+            home_head,
             chunk: ChunkConfig::default(),
             kernel: ConvKernel::Chunked,
             cpu_ws: None,
@@ -144,6 +164,17 @@ impl Segmenter {
             stats: Vec::new(),
             timing: Timing::default(),
         })
+    }
+
+    /// The home head ([`crate::home_head`]: ScanNet's 20 classes and the ceiling) stored with
+    /// the weights, if any.
+    pub fn home_head(&self) -> Option<&HomeHead> {
+        self.home_head.as_ref()
+    }
+
+    /// Sets or removes the home head (training it, comparing heads).
+    pub fn set_home_head(&mut self, head: Option<HomeHead>) {
+        self.home_head = head;
     }
 
     /// Frees the CPU engine's work buffers (activations of the largest input so far, which only
@@ -290,7 +321,34 @@ impl Segmenter {
         let v = self.voxelize_points(points, colors)?;
         let (coords, features) = v.tensor.into_parts();
         let logits = self.forward_sorted(coords.clone(), &features, Readout::Logits)?.logits;
-        Ok(PointScores { coords, features, logits, point_to_voxel: v.point_to_voxel })
+        Ok(PointScores { coords, features, logits, point_to_voxel: v.point_to_voxel, head_features: Vec::new() })
+    }
+
+    /// [`segment_points_scores`](Self::segment_points_scores), also reading back what the
+    /// class head sees of each voxel (`head_features`): the input of a second head.
+    ///
+    /// # Shapes
+    /// As [`segment_points_scores`](Self::segment_points_scores); `head_features`:
+    /// `[v, C_0]`.
+    ///
+    /// # Errors
+    /// As [`segment_points`](Self::segment_points).
+    pub fn segment_points_with_features(&mut self, points: &[[f32; 3]], colors: &[[u8; 3]]) -> Result<PointScores> {
+        let v = self.voxelize_points(points, colors)?;
+        let (coords, features) = v.tensor.into_parts();
+        let scores = self.forward_sorted(coords.clone(), &features, Readout::LogitsAndDecoder)?;
+        let head_features = self.head_activations(&scores.decoder);
+        Ok(PointScores { coords, features, logits: scores.logits, point_to_voxel: v.point_to_voxel, head_features })
+    }
+
+    /// `relu(bn(x))` of the class head's folded batch norm, row by row.
+    ///
+    /// # Shapes
+    /// `decoder`: `[v, C_0]`; result `[v, C_0]`.
+    fn head_activations(&self, decoder: &[f32]) -> Vec<f32> {
+        let (scale, shift) = self.params.head_bn_parts();
+        let c = scale.len();
+        decoder.iter().enumerate().map(|(i, &x)| (x * scale[i % c] + shift[i % c]).max(0.0)).collect()
     }
 
     /// Class scores of the voxels of a prebuilt geometry (for callers that keep the geometry

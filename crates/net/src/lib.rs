@@ -42,6 +42,8 @@ pub mod dataset;
 pub mod error;
 mod forward;
 pub mod geometry;
+pub mod home_head;
+pub mod home_head_training;
 pub mod inference;
 pub mod metrics;
 pub mod model;

@@ -142,7 +142,7 @@ impl Weights {
         }
         if self.tensors.len() != specs.len() {
             let known: std::collections::HashSet<&str> = specs.iter().map(|s| s.name.as_str()).collect();
-            if let Some(extra) = self.tensors.keys().find(|k| !known.contains(k.as_str())) {
+            if let Some(extra) = self.tensors.keys().find(|k| !known.contains(k.as_str()) && !is_optional_head(k)) {
                 return Err(NetError::UnexpectedTensor { file: self.source.clone(), tensor: extra.clone() });
             }
         }
@@ -240,13 +240,19 @@ impl Weights {
                     got: view.shape().to_vec(),
                 });
             }
-            let raw = view.data();
-            let data: Vec<f32> = match view.dtype() {
-                Dtype::F16 => raw.chunks_exact(2).map(|b| f16::from_le_bytes([b[0], b[1]]).to_f32()).collect(),
-                Dtype::F32 => raw.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect(),
-                other => return Err(NetError::TensorDtype { file, tensor: spec.name, dtype: format!("{other:?}") }),
-            };
+            let data = tensor_values(&file, &spec.name, view.dtype(), view.data())?;
             tensors.insert(spec.name, Tensor { shape: spec.shape, data });
+        }
+        // The optional second head (`crate::home_head`), whatever its shapes: the head checks
+        // them when it is built.
+        let mut optional: Vec<&str> = st.names().into_iter().filter(|n| is_optional_head(n)).collect();
+        optional.sort_unstable();
+        for name in optional {
+            let view = st
+                .tensor(name)
+                .map_err(|e| NetError::WeightFile { file: file.clone(), message: format!("tensor `{name}`: {e}") })?;
+            let data = tensor_values(&file, name, view.dtype(), view.data())?;
+            tensors.insert(name.to_string(), Tensor { shape: view.shape().to_vec(), data });
         }
         if st.len() != tensors.len() {
             if let Some(extra) = st.names().into_iter().find(|n| !tensors.contains_key(*n)) {
@@ -255,6 +261,27 @@ impl Weights {
         }
         Ok(Self { tensors, source: file })
     }
+}
+
+/// Whether `name` belongs to an optional head that a weights file may carry beside the
+/// network's own tensors (the home head, `crate::home_head`).
+fn is_optional_head(name: &str) -> bool {
+    name.starts_with(crate::home_head::HOME_HEAD_PREFIX)
+}
+
+/// A tensor's values as `f32` from its raw little-endian `f16` or `f32` bytes.
+fn tensor_values(file: &str, name: &str, dtype: Dtype, raw: &[u8]) -> Result<Vec<f32>> {
+    Ok(match dtype {
+        Dtype::F16 => raw.chunks_exact(2).map(|b| f16::from_le_bytes([b[0], b[1]]).to_f32()).collect(),
+        Dtype::F32 => raw.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect(),
+        other => {
+            return Err(NetError::TensorDtype {
+                file: file.to_string(),
+                tensor: name.to_string(),
+                dtype: format!("{other:?}"),
+            })
+        }
+    })
 }
 
 /// The configuration in the metadata of the safetensors `bytes` read from `path`.

@@ -8,7 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use semrecon_data::class::UNLABELED;
-use semrecon_data::SemanticClass;
+use semrecon_data::{HomeClass, LabelSet, SemanticClass};
 
 use crate::error::{PhysicsError, Result};
 
@@ -28,11 +28,20 @@ pub struct Material {
     pub friction: f32,
 }
 
-/// Materials of the 13 classes plus one for unlabelled surfaces.
+/// Materials of the 13 S3DIS classes, of the 21 home classes ([`HomeClass`]), and one for
+/// unlabelled surfaces; [`MaterialTable::label`] reads the set chosen with
+/// [`MaterialTable::with_label_set`] (S3DIS by default).
 #[derive(Debug, Clone, PartialEq)]
 pub struct MaterialTable {
     classes: [Material; SemanticClass::COUNT],
+    home: [Material; HomeClass::COUNT],
     unlabelled: Material,
+    label_set: LabelSet,
+}
+
+/// A home class's key in the TOML file: its name with `_` for a space (`shower_curtain`).
+fn home_key(c: HomeClass) -> String {
+    c.name().replace(' ', "_")
 }
 
 impl Default for MaterialTable {
@@ -92,8 +101,20 @@ impl MaterialTable {
                             parse_material(v, out.classes[class.id() as usize], &key, path)?;
                     }
                 }
+                "home" => {
+                    let table = value.as_table().ok_or_else(|| key_err("home", "must be a table".into()))?;
+                    for (class_name, v) in table {
+                        let key = format!("home.{class_name}");
+                        let class =
+                            HomeClass::ALL.into_iter().find(|c| home_key(*c) == *class_name).ok_or_else(|| {
+                                let names: Vec<_> = HomeClass::ALL.iter().map(|c| home_key(*c)).collect();
+                                key_err(&key, format!("unknown home class (known: {})", names.join(", ")))
+                            })?;
+                        out.home[class.id() as usize] = parse_material(v, out.home[class.id() as usize], &key, path)?;
+                    }
+                }
                 other => {
-                    return Err(key_err(other, "unknown table (expected `unlabelled` or `classes`)".into()));
+                    return Err(key_err(other, "unknown table (expected `unlabelled`, `classes` or `home`)".into()));
                 }
             }
         }
@@ -110,9 +131,39 @@ impl MaterialTable {
         self.unlabelled
     }
 
-    /// Material of a label id (0..13; anything else, such as [`UNLABELED`], is unlabelled).
+    /// Material of a home class.
+    pub fn home_class(&self, class: HomeClass) -> Material {
+        self.home[class.id() as usize]
+    }
+
+    /// The same materials, reading labels as `set` ([`MaterialTable::label`]).
+    pub fn with_label_set(mut self, set: LabelSet) -> Self {
+        self.label_set = set;
+        self
+    }
+
+    /// The label set [`MaterialTable::label`] reads.
+    pub fn label_set(&self) -> LabelSet {
+        self.label_set
+    }
+
+    /// Material of a label id of the table's label set (0..13 for S3DIS, 0..21 for home;
+    /// anything else, such as [`UNLABELED`], is unlabelled).
     pub fn label(&self, label: u8) -> Material {
-        self.classes.get(label as usize).copied().unwrap_or(self.unlabelled)
+        let table: &[Material] = match self.label_set {
+            LabelSet::S3dis => &self.classes,
+            LabelSet::Home => &self.home,
+        };
+        table.get(label as usize).copied().unwrap_or(self.unlabelled)
+    }
+
+    /// Name of a label id of the table's label set in contact reports: the class name or
+    /// [`UNLABELLED_NAME`].
+    pub fn label_name(&self, label: u8) -> &'static str {
+        if label == UNLABELED {
+            return UNLABELLED_NAME;
+        }
+        self.label_set.class_name(label).unwrap_or(UNLABELLED_NAME)
     }
 
     /// Sets the material of a class (values are not checked; use the TOML path for user input).
@@ -130,21 +181,21 @@ impl MaterialTable {
         for c in SemanticClass::ALL {
             push(&format!("classes.{}", c.name()), self.class(c));
         }
+        for c in HomeClass::ALL {
+            push(&format!("home.{}", home_key(c)), self.home_class(c));
+        }
         s
     }
 }
 
-/// Name of a label id in contact reports: the class name or [`UNLABELLED_NAME`].
-pub fn label_name(label: u8) -> &'static str {
-    if label == UNLABELED {
-        return UNLABELLED_NAME;
-    }
-    SemanticClass::from_id(label).map(|c| c.name()).unwrap_or(UNLABELLED_NAME)
-}
-
 fn base_fallback() -> MaterialTable {
     let neutral = Material { restitution: 0.5, friction: 0.5 };
-    MaterialTable { classes: [neutral; SemanticClass::COUNT], unlabelled: neutral }
+    MaterialTable {
+        classes: [neutral; SemanticClass::COUNT],
+        home: [neutral; HomeClass::COUNT],
+        unlabelled: neutral,
+        label_set: LabelSet::S3dis,
+    }
 }
 
 fn parse_material(value: &toml::Value, mut material: Material, key: &str, path: &Path) -> Result<Material> {
@@ -195,6 +246,15 @@ mod tests {
         for c in SemanticClass::ALL {
             assert!(classes.contains_key(c.name()), "{} missing from materials.toml", c.name());
         }
+        let home = root["home"].as_table().expect("home table");
+        for c in HomeClass::ALL {
+            assert!(home.contains_key(&home_key(c)), "home.{} missing from materials.toml", home_key(c));
+        }
+        let home_table = parsed.clone().with_label_set(LabelSet::Home);
+        assert!(home_table.label(HomeClass::Bed.id()).restitution < 0.3);
+        assert!(home_table.label(HomeClass::Toilet.id()).restitution >= 0.8);
+        assert_eq!(home_table.label(HomeClass::Ceiling.id()), parsed.class(SemanticClass::Ceiling));
+        assert_eq!(home_table.label(21), parsed.unlabelled());
         assert_eq!(parsed, MaterialTable::defaults());
         let sofa = parsed.class(SemanticClass::Sofa);
         let floor = parsed.class(SemanticClass::Floor);
@@ -245,8 +305,15 @@ mod tests {
 
     #[test]
     fn label_names() {
-        assert_eq!(label_name(10), "sofa");
-        assert_eq!(label_name(UNLABELED), UNLABELLED_NAME);
-        assert_eq!(label_name(77), UNLABELLED_NAME);
+        let t = MaterialTable::defaults();
+        assert_eq!(t.label_name(10), "sofa");
+        assert_eq!(t.label_name(UNLABELED), UNLABELLED_NAME);
+        assert_eq!(t.label_name(77), UNLABELLED_NAME);
+        let home = t.with_label_set(LabelSet::Home);
+        assert_eq!(home.label_name(3), "bed");
+        assert_eq!(home.label_name(15), "shower curtain");
+        assert!(parse("[home.shower_curtain]\nfriction = 2\n").is_ok());
+        let e = parse("[home.shower]\nfriction = 2\n").expect_err("unknown").to_string();
+        assert!(e.contains("home.shower") && e.contains("unknown home class"), "{e}");
     }
 }

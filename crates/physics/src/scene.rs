@@ -40,7 +40,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::collision_mesh::{CollisionMesh, CollisionMeshConfig, CollisionRegion, RegionKey};
 use crate::error::{PhysicsError, Result};
-use crate::materials::{label_name, MaterialTable};
+use crate::materials::MaterialTable;
 
 /// Standard gravity, m/s^2, along the opposite of [`SceneConfig::up`].
 pub const GRAVITY: f32 = 9.81;
@@ -445,7 +445,7 @@ impl ArScene {
                         ball.record.contacts.push(Contact {
                             time,
                             position: hit.point.to_array(),
-                            class: label_name(hit.label).to_string(),
+                            class: self.materials.label_name(hit.label).to_string(),
                             restitution: m.restitution,
                             friction: m.friction,
                         });

@@ -28,6 +28,10 @@ pub struct ArArgs {
     /// Materials per class (TOML); the shipped defaults when absent.
     #[arg(long)]
     materials: Option<PathBuf>,
+    /// Label set of the mesh's `label` property: s3dis (as `run` and `demo` write) or home
+    /// (`segment --labels home`); picks the `[classes.*]` or `[home.*]` materials.
+    #[arg(long, default_value = "s3dis", value_parser = crate::commands::segment::parse_label_set)]
+    labels: semrecon_data::LabelSet,
     /// At most this many frames.
     #[arg(long, default_value_t = 300)]
     frames: usize,
@@ -55,7 +59,8 @@ pub fn run(args: ArArgs) -> anyhow::Result<()> {
     let materials = match &args.materials {
         Some(p) => MaterialTable::load(p)?,
         None => MaterialTable::defaults(),
-    };
+    }
+    .with_label_set(args.labels);
     let options = ArOptions {
         max_frames: args.frames,
         speed: args.speed,

@@ -23,7 +23,7 @@ use std::time::Instant;
 use anyhow::Context;
 use glam::Vec3;
 use semrecon_data::ply::{mesh_from_ply, Column, PlyFile, PlyFormat, Property, PropertyData};
-use semrecon_data::{LabeledMesh, PlyEncoding};
+use semrecon_data::{LabelSet, LabeledMesh, PlyEncoding};
 use semrecon_net::dataset::points_per_m2;
 use semrecon_net::structure::{
     refine, BeamFaceParams, PlaneParams, Refinement, SegmentParams, StructureConfig, StructureMode,
@@ -37,7 +37,8 @@ pub struct SegmentArgs {
     /// Input point cloud or mesh (PLY: x y z, optional red green blue, optional faces).
     #[arg(long)]
     input: PathBuf,
-    /// Output PLY: the input with a `label` vertex property (0..12).
+    /// Output PLY: the input with a `label` vertex property (0..12, or 0..20 with `--labels
+    /// home`).
     #[arg(long)]
     out: PathBuf,
     /// Model file (safetensors); default: the shipped model (see `SEMRECON_MODEL`).
@@ -52,10 +53,20 @@ pub struct SegmentArgs {
     /// `live` and `demo`), else z.
     #[arg(long, value_parser = parse_up, allow_hyphen_values = true)]
     up: Option<Up>,
+    /// Label set written: s3dis (the 13 S3DIS classes) or home (ScanNet's 20 classes, ids in
+    /// the ScanNet benchmark's order, and the ceiling as 20: beds, cabinets, counters,
+    /// toilets... where S3DIS says clutter; needs a model with the home head, as shipped).
+    #[arg(long, default_value = "s3dis", value_parser = parse_label_set)]
+    labels: LabelSet,
     #[command(flatten)]
     structure: StructureArgs,
     #[command(flatten)]
     device: crate::device::DeviceArgs,
+}
+
+/// Parses `s3dis|home` (`scannet20` for `home`).
+pub fn parse_label_set(s: &str) -> Result<LabelSet, String> {
+    s.parse()
 }
 
 /// The structure and test-time augmentation options of `segment` and `eval seg`.
@@ -270,6 +281,7 @@ pub fn label_vertices(
     net: &mut Segmenter,
     mesh: &LabeledMesh,
     options: &StructureArgs,
+    label_set: LabelSet,
 ) -> anyhow::Result<(Vec<u8>, Refinement, f64, f64)> {
     let n = mesh.positions.len();
     if n == 0 {
@@ -286,12 +298,35 @@ pub fn label_vertices(
         colors.extend_from_slice(&samples.colors);
     }
     let t = Instant::now();
-    let scores = net.segment_points_scores(&points, &colors)?;
+    let (mut scores, home_head) = match label_set {
+        LabelSet::S3dis => (net.segment_points_scores(&points, &colors)?, None),
+        LabelSet::Home => {
+            let head = net.home_head().cloned().with_context(|| {
+                format!("--labels home: the model ({}) has no home head (the shipped model has one)", net.config().name)
+            })?;
+            (net.segment_points_with_features(&points, &colors)?, Some(head))
+        }
+    };
     let first_s = t.elapsed().as_secs_f64();
+    let logits = if home_head.is_some() { scores.logits.clone() } else { std::mem::take(&mut scores.logits) };
     let (refinement, network_s, structure_s) =
-        voxel_labels(net, &scores.coords, &scores.features, Some(scores.logits), options)?;
+        voxel_labels(net, &scores.coords, &scores.features, Some(logits), options)?;
     let network_s = first_s + network_s;
-    let labels = scores.point_to_voxel[..n].iter().map(|&r| refinement.labels[r as usize]).collect();
+    let voxel_labels = match home_head {
+        None => refinement.labels.clone(),
+        Some(head) => {
+            let t = Instant::now();
+            let (k, voxel) = (net.config().classes, net.config().voxel_size);
+            let home = semrecon_net::home_head::label_voxels(&head, &scores, &refinement.labels, k, voxel)?;
+            return Ok((
+                scores.point_to_voxel[..n].iter().map(|&r| home[r as usize]).collect(),
+                refinement,
+                network_s,
+                structure_s + t.elapsed().as_secs_f64(),
+            ));
+        }
+    };
+    let labels = scores.point_to_voxel[..n].iter().map(|&r| voxel_labels[r as usize]).collect();
     Ok((labels, refinement, network_s, structure_s))
 }
 
@@ -333,7 +368,7 @@ pub fn run(args: SegmentArgs) -> anyhow::Result<()> {
         *p = up.to_z_up(*p);
     }
     let t = Instant::now();
-    let (labels, refinement, network_s, structure_s) = label_vertices(&mut net, &mesh, &args.structure)
+    let (labels, refinement, network_s, structure_s) = label_vertices(&mut net, &mesh, &args.structure, args.labels)
         .with_context(|| format!("segmenting {} with {}", args.input.display(), net.config().summary()))?;
     let segment_s = t.elapsed().as_secs_f64();
 
@@ -348,7 +383,8 @@ pub fn run(args: SegmentArgs) -> anyhow::Result<()> {
     let encoding = if ply.format == PlyFormat::Ascii { PlyEncoding::Ascii } else { PlyEncoding::BinaryLittleEndian };
     ply.write(&args.out, encoding)?;
 
-    let mut counts = [0usize; 13];
+    let names: Vec<&str> = (0..args.labels.count() as u8).filter_map(|l| args.labels.class_name(l)).collect();
+    let mut counts = vec![0usize; names.len()];
     for &l in &labels {
         if let Some(c) = counts.get_mut(l as usize) {
             *c += 1;
@@ -365,11 +401,11 @@ pub fn run(args: SegmentArgs) -> anyhow::Result<()> {
         read_s * 1e3,
         args.out.display()
     );
-    let summary: Vec<String> = semrecon_data::SemanticClass::ALL
+    let summary: Vec<String> = names
         .iter()
         .zip(counts)
         .filter(|(_, n)| *n > 0)
-        .map(|(c, n)| format!("{} {:.1}%", c.name(), 100.0 * n as f64 / labels.len().max(1) as f64))
+        .map(|(c, n)| format!("{c} {:.1}%", 100.0 * n as f64 / labels.len().max(1) as f64))
         .collect();
     if !summary.is_empty() {
         println!("classes: {}", summary.join(", "));

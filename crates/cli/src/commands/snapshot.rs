@@ -12,7 +12,7 @@ use anyhow::{bail, Context};
 use glam::{Affine3A, Mat3A, Quat, Vec3};
 use semrecon_data::class::UNLABELED;
 use semrecon_data::depth_image::write_color_png;
-use semrecon_data::{read_ply_with_gravity, Intrinsics, LabeledMesh, PreparedMesh, Renderer, SemanticClass};
+use semrecon_data::{read_ply_with_gravity, Intrinsics, LabelSet, LabeledMesh, PreparedMesh, Renderer};
 
 /// Arguments of `semrecon snapshot`.
 #[derive(clap::Args)]
@@ -25,6 +25,10 @@ pub struct SnapshotArgs {
     /// Colour by semantic class (the `label` property) instead of vertex colour.
     #[arg(long)]
     classes: bool,
+    /// Label set of the `label` property with `--classes`: s3dis, or home (`segment --labels
+    /// home`: ScanNet's 20 classes and the ceiling, in ScanNet's colours).
+    #[arg(long, default_value = "s3dis", value_parser = crate::commands::segment::parse_label_set)]
+    labels: LabelSet,
     /// Drop everything above this height (z, metres) — e.g. the ceiling — to see inside a room.
     #[arg(long, allow_hyphen_values = true)]
     cut_above: Option<f32>,
@@ -64,8 +68,10 @@ pub fn run(args: SnapshotArgs) -> anyhow::Result<()> {
         if labels.iter().all(|&l| l == UNLABELED) {
             bail!("{}: the mesh has no `label` property to colour by", args.mesh.display());
         }
-        mesh.colors = labels.iter().map(|&l| SemanticClass::from_id(l).map_or([0, 0, 0], |c| c.color())).collect();
-        println!("classes (share of vertices): {}", class_shares(&labels));
+        let set = args.labels;
+        mesh.colors =
+            labels.iter().map(|&l| if (l as usize) < set.count() { set.color(l) } else { [0, 0, 0] }).collect();
+        println!("classes (share of vertices): {}", class_shares(&labels, set));
     }
     if let Some(up) = args.up.or(gravity.map(|g| g.up)) {
         let up = up.normalize_or_zero();
@@ -131,18 +137,20 @@ pub fn run(args: SnapshotArgs) -> anyhow::Result<()> {
 }
 
 /// `name share%` of every class present, largest first, then the unlabelled share.
-fn class_shares(labels: &[u8]) -> String {
+fn class_shares(labels: &[u8], set: LabelSet) -> String {
     let mut counts = [0usize; 256];
     for &l in labels {
         counts[l as usize] += 1;
     }
     let total = labels.len().max(1) as f64;
-    let mut present: Vec<(usize, SemanticClass)> =
-        SemanticClass::ALL.iter().map(|&c| (counts[c.id() as usize], c)).filter(|(n, _)| *n > 0).collect();
-    present.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.id().cmp(&b.1.id())));
+    let mut present: Vec<(usize, u8, &str)> = (0..set.count() as u8)
+        .filter_map(|l| set.class_name(l).map(|name| (counts[l as usize], l, name)))
+        .filter(|(n, _, _)| *n > 0)
+        .collect();
+    present.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
     let mut parts: Vec<String> =
-        present.iter().map(|(n, c)| format!("{} {:.1}%", c.name(), 100.0 * *n as f64 / total)).collect();
-    let other = labels.len() - present.iter().map(|(n, _)| n).sum::<usize>();
+        present.iter().map(|(n, _, name)| format!("{name} {:.1}%", 100.0 * *n as f64 / total)).collect();
+    let other = labels.len() - present.iter().map(|(n, _, _)| n).sum::<usize>();
     if other > 0 {
         parts.push(format!("unlabelled {:.1}%", 100.0 * other as f64 / total));
     }

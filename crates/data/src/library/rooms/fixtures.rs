@@ -9,7 +9,9 @@ use rand::Rng;
 use super::categories::{is_ceiling_lamp, is_curtain, is_radiator, is_wall_lamp, is_wall_socket, is_whiteboard};
 use super::pieces::yaw_facing;
 use super::placement::ALL_WALLS;
-use super::{Home, HomeRoomKind, ModelSource};
+use super::{Home, HomeRoomKind, HomeSpan, ModelSource};
+use crate::class::UNLABELED;
+use crate::home_class::HomeClass;
 use crate::synth::clutter::{self, WallItem};
 use crate::synth::furniture::{self, BoardKind};
 use crate::synth::layout::footprint;
@@ -31,7 +33,11 @@ impl<'a, S: ModelSource + ?Sized> Home<'a, S> {
         self.b.place(wall.start.extend(0.0), wall.yaw);
         let kind = if self.rng.random_bool(0.12) && w < 0.5 { WallItem::Clock } else { WallItem::Picture };
         let (w, h) = if kind == WallItem::Clock { (0.3, 0.3) } else { (w, h) };
+        let start = self.b.mesh.positions.len() as u32;
         clutter::wall_item(&mut self.b, &mut self.rng, &self.pal, kind, s, zc, w, h);
+        let label = if kind == WallItem::Picture { HomeClass::Picture.id() } else { UNLABELED };
+        let end = self.b.mesh.positions.len() as u32;
+        self.home_spans.push(HomeSpan { vertices: start..end, label, counter_top: false });
         self.layout.reserve_wall(k, s0, s1, z0, z1);
         self.layout.interest.push(wall.point(s, 0.0).extend(zc));
         true

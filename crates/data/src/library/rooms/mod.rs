@@ -49,7 +49,9 @@ use rand_chacha::ChaCha8Rng;
 
 use self::pieces::Piece;
 use super::{FurnitureLibrary, LibraryModel, Split};
+use crate::class::SemanticClass;
 use crate::error::{DataError, Result};
+use crate::home_class::HomeClass;
 use crate::mesh::LabeledMesh;
 use crate::synth::layout::Layout;
 use crate::synth::palette::{uniform, Palette};
@@ -189,6 +191,59 @@ pub struct LibraryRoom {
     pub kind: HomeRoomKind,
     /// Ids of the catalogue models placed in the room, sorted, each once.
     pub model_ids: Vec<String>,
+    /// Per vertex of `room.mesh`, its class in the home label set
+    /// ([`crate::home_class::HomeClass`] ids, [`crate::class::UNLABELED`] where ScanNet
+    /// scores nothing), from each model's fine category.
+    pub home_labels: Vec<u8>,
+}
+
+/// The vertices one placed piece added to the room's mesh, with its home class.
+#[derive(Debug, Clone)]
+struct HomeSpan {
+    vertices: std::ops::Range<u32>,
+    /// Home class id, or `UNLABELED`.
+    label: u8,
+    /// A kitchen cabinet: its top faces are the counter (ScanNet labels a kitchen row's
+    /// worktop `counter` and the doors below it `cabinet`).
+    counter_top: bool,
+}
+
+/// Height within which an upward face of a kitchen cabinet counts as its worktop (metres).
+const COUNTER_TOP_BAND: f32 = 0.04;
+
+/// The home class of every vertex: the shell's from its S3DIS class, each piece's from its
+/// span (its own shell-class vertices, such as a door model's frame labelled wall, kept).
+fn home_vertex_labels(mesh: &LabeledMesh, spans: &[HomeSpan]) -> Vec<u8> {
+    let from_s3dis = |l: u8| {
+        SemanticClass::from_id(l).and_then(HomeClass::from_s3dis).map_or(crate::class::UNLABELED, HomeClass::id)
+    };
+    let mut labels: Vec<u8> = mesh.vertex_labels.iter().map(|&l| from_s3dis(l)).collect();
+    for span in spans {
+        let range = span.vertices.start as usize..(span.vertices.end as usize).min(labels.len());
+        let top = range.clone().map(|v| mesh.positions[v].z).fold(f32::NEG_INFINITY, f32::max);
+        for v in range {
+            let shell = matches!(
+                SemanticClass::from_id(mesh.vertex_labels[v]),
+                Some(
+                    SemanticClass::Ceiling
+                        | SemanticClass::Floor
+                        | SemanticClass::Wall
+                        | SemanticClass::Beam
+                        | SemanticClass::Column
+                )
+            );
+            if shell {
+                continue;
+            }
+            let up = mesh.normals.get(v).is_some_and(|n| n.z > 0.9);
+            labels[v] = if span.counter_top && up && mesh.positions[v].z >= top - COUNTER_TOP_BAND {
+                HomeClass::Counter.id()
+            } else {
+                span.label
+            };
+        }
+    }
+    labels
 }
 
 /// Most triangles a room gets: decoration that would go over is left out.
@@ -244,12 +299,14 @@ pub fn generate_library_room_detailed(
         lights: Vec::new(),
         extras_rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0x4255_4C4B_4845_4144),
         finish_rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0x5741_4C4C_4649_4E31),
+        home_spans: Vec::new(),
     };
     home.build()?;
-    let Home { b, layout, used, .. } = home;
+    let Home { b, layout, used, home_spans, .. } = home;
     let mut mesh = b.finish();
     // Normals of library meshes that came without them.
     fill_missing_normals(&mut mesh);
+    let home_labels = home_vertex_labels(&mesh, &home_spans);
     mesh.validate().map_err(|e| DataError::InvalidArgument(format!("generated room mesh is invalid: {e}")))?;
     let room = SyntheticRoom {
         style: kind.synth_style(),
@@ -260,7 +317,7 @@ pub fn generate_library_room_detailed(
         obstacles: layout.obstacles.iter().map(|r| (r.min, r.max)).collect(),
         interest_points: layout.interest,
     };
-    Ok(LibraryRoom { room, kind, model_ids: used.into_iter().collect() })
+    Ok(LibraryRoom { room, kind, model_ids: used.into_iter().collect(), home_labels })
 }
 
 /// A room being generated: where its models come from, the random state, the mesh and the
@@ -284,6 +341,8 @@ struct Home<'a, S: ModelSource + ?Sized> {
     extras_rng: ChaCha8Rng,
     /// The random stream of the wall finishes (session 18), for the same reason.
     finish_rng: ChaCha8Rng,
+    /// The vertices of each placed piece and its home class.
+    home_spans: Vec<HomeSpan>,
 }
 
 impl<'a, S: ModelSource + ?Sized> Home<'a, S> {

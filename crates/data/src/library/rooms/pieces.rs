@@ -13,7 +13,9 @@ use rand::Rng;
 
 use super::categories::is;
 use super::materials::to_u8;
-use super::{Home, ModelSource, MAX_TRIANGLES};
+use super::{Home, HomeSpan, ModelSource, MAX_TRIANGLES};
+use crate::class::UNLABELED;
+use crate::home_class::{home_class_of_fine, HomeClass};
 use crate::library::LibraryModel;
 use crate::mesh::LabeledMesh;
 use crate::synth::clutter::{self, FloorItem};
@@ -159,6 +161,15 @@ impl<'a, S: ModelSource + ?Sized> Home<'a, S> {
                 let class = model.class;
                 let m = &mut self.b.mesh;
                 let base = m.positions.len() as u32;
+                let home = match home_class_of_fine(&model.fine) {
+                    Some(mapping) => mapping.label(),
+                    None => UNLABELED,
+                };
+                self.home_spans.push(HomeSpan {
+                    vertices: base..base + src.positions.len() as u32,
+                    label: home,
+                    counter_top: model.fine == "kitchen_cabinet",
+                });
                 for (i, q) in src.positions.iter().enumerate() {
                     m.positions.push(xf.transform_point3((*q - origin) * scale));
                     m.colors.push(paint.apply(src.colors.get(i).copied().unwrap_or([180, 180, 180])));
@@ -179,6 +190,7 @@ impl<'a, S: ModelSource + ?Sized> Home<'a, S> {
                     return false;
                 }
                 let s = p.size * scale;
+                let start = self.b.mesh.positions.len() as u32;
                 // Procedural furniture faces local +y.
                 self.b.place(center.extend(z), yaw + PI);
                 let (b, rng, pal) = (&mut self.b, &mut self.rng, &self.pal);
@@ -196,6 +208,17 @@ impl<'a, S: ModelSource + ?Sized> Home<'a, S> {
                     Proc::Plant => clutter::floor_item(b, rng, pal, FloorItem::Plant, s.x, s.y, s.z),
                     Proc::Lamp => clutter::floor_item(b, rng, pal, FloorItem::Lamp, s.x, s.y, s.z),
                 }
+                let label = match *kind {
+                    Proc::Table => HomeClass::Table.id(),
+                    Proc::Desk => HomeClass::Desk.id(),
+                    Proc::Chair(_) => HomeClass::Chair.id(),
+                    Proc::Sofa => HomeClass::Sofa.id(),
+                    Proc::Bookcase => HomeClass::Bookshelf.id(),
+                    Proc::Cabinet => HomeClass::Cabinet.id(),
+                    Proc::Plant | Proc::Lamp => UNLABELED,
+                };
+                let end = self.b.mesh.positions.len() as u32;
+                self.home_spans.push(HomeSpan { vertices: start..end, label, counter_top: false });
                 true
             }
         }

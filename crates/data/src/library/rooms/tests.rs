@@ -291,3 +291,34 @@ fn colour_helpers_round_trip() {
     let front = rot(Vec2::new(0.0, -1.0), yaw_facing(Vec2::new(1.0, 0.0)));
     assert!((front - Vec2::X).length() < 1e-5);
 }
+
+#[test]
+fn home_labels_follow_each_models_fine_category() {
+    use crate::class::UNLABELED;
+    use crate::home_class::HomeClass;
+    let lib = BoxLibrary::new();
+    let mut seen = BTreeSet::new();
+    for (i, kind) in HomeRoomKind::ALL.into_iter().enumerate() {
+        let r = room(&lib, 40 + i as u64, kind, Split::Train);
+        let m = &r.room.mesh;
+        assert_eq!(r.home_labels.len(), m.positions.len(), "{kind}");
+        for (v, (&home, &s3dis)) in r.home_labels.iter().zip(&m.vertex_labels).enumerate() {
+            let s3dis = SemanticClass::from_id(s3dis).unwrap_or(SemanticClass::Clutter);
+            match s3dis {
+                // The shell keeps its class.
+                SemanticClass::Ceiling | SemanticClass::Floor | SemanticClass::Wall => {
+                    assert_eq!(HomeClass::from_id(home), HomeClass::from_s3dis(s3dis), "{kind} vertex {v}")
+                }
+                SemanticClass::Beam | SemanticClass::Column => assert_eq!(home, HomeClass::Wall.id()),
+                _ => {}
+            }
+            assert!(home == UNLABELED || (home as usize) < HomeClass::COUNT);
+            seen.insert(home);
+        }
+    }
+    // Beds, cabinets (wardrobes), tables, chairs, sofas and counters from the box catalogue.
+    for c in [HomeClass::Bed, HomeClass::Cabinet, HomeClass::Table, HomeClass::Chair, HomeClass::Sofa] {
+        assert!(seen.contains(&c.id()), "{c} never labelled: {seen:?}");
+    }
+    assert!(seen.contains(&UNLABELED), "nightstands and lamps are unscored");
+}

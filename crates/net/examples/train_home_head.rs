@@ -1,0 +1,244 @@
+//! Fits the home head (ScanNet's 20 classes and the ceiling, `semrecon_net::home_head`) on
+//! the frozen shipped network, from homes and offices furnished with the furniture catalogues
+//! (needs Debian's `sweethome3d-furniture`), and scores it on rooms of held-out models.
+//!
+//! ```text
+//! cargo run --release -p semrecon-net --example train_home_head -- \
+//!     [--train 0..300] [--val 0..40] [--hidden 64] [--epochs 12] [--model IN] [--out OUT]
+//! ```
+//!
+//! Training rooms are `synth-lib` seeds of the training models, validation rooms seeds of the
+//! held-out models (a whole catalogue and a tenth of the others: furniture the head never
+//! saw). Each room's surface is sampled as for the S3DIS head's training, labelled with the
+//! home classes of its models' fine categories, run through the network once, and every voxel
+//! whose home label is an object class becomes a row. With `--out`, the weights of `--model`
+//! (default the shipped s20) are written there with the head added (`f16`).
+//!
+//! Prints, for the validation rooms, the pooled IoU per home class with the head and with
+//! the S3DIS head's classes mapped alone (clutter as other furniture), and writes the same as
+//! JSON beside `--out` (or to `home_head_eval.json`).
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use semrecon_data::class::UNLABELED;
+use semrecon_data::home_class::HomeClass;
+use semrecon_data::library::rooms::{generate_library_room_detailed, LibraryRoomConfig};
+use semrecon_data::library::{FurnitureLibrary, Split};
+use semrecon_data::LabeledMesh;
+use semrecon_net::dataset::points_per_m2;
+use semrecon_net::home_head::{floor_level, head_inputs, object_index, shell_class, HomeHead};
+use semrecon_net::home_head_training::{fit_home_head, FitConfig};
+use semrecon_net::surface::sample_surface;
+use semrecon_net::{shipped, Segmenter, Weights};
+
+/// One room's voxels: head inputs, S3DIS prediction and home truth.
+struct RoomVoxels {
+    inputs: Vec<f32>,
+    s3dis: Vec<u8>,
+    truth: Vec<u8>,
+}
+
+fn parse_range(s: &str) -> Result<std::ops::Range<u64>, Box<dyn std::error::Error>> {
+    let (a, b) = s.split_once("..").ok_or_else(|| format!("range A..B expected, got {s:?}"))?;
+    Ok(a.parse()?..b.parse()?)
+}
+
+/// The room's mesh with every triangle labelled by the home class its corners agree on
+/// (the most common of the three).
+fn home_mesh(mesh: &LabeledMesh, home: &[u8]) -> LabeledMesh {
+    let mut m = mesh.clone();
+    m.vertex_labels = home.to_vec();
+    m.triangle_labels = mesh
+        .triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| home[i as usize]);
+            if b == c {
+                b
+            } else {
+                a
+            }
+        })
+        .collect();
+    m
+}
+
+fn room_voxels(
+    net: &mut Segmenter,
+    lib: &FurnitureLibrary,
+    seed: u64,
+    split: Split,
+) -> Result<RoomVoxels, Box<dyn std::error::Error>> {
+    let config = LibraryRoomConfig { seed, kind: None, split };
+    let room = generate_library_room_detailed(&config, lib)?;
+    let voxel = net.config().voxel_size;
+    let density = points_per_m2(voxel);
+    let cloud = sample_surface(&room.room.mesh, density, seed);
+    let truth_cloud = sample_surface(&home_mesh(&room.room.mesh, &room.home_labels), density, seed);
+    assert_eq!(cloud.positions, truth_cloud.positions, "the same seed samples the same points");
+    let points: Vec<[f32; 3]> = cloud.positions.iter().map(|p| p.to_array()).collect();
+    let scores = net.segment_points_with_features(&points, &cloud.colors)?;
+    let k = net.config().classes;
+    let v = scores.coords.len();
+    let s3dis: Vec<u8> = (0..v)
+        .map(|r| {
+            let row = &scores.logits[r * k..(r + 1) * k];
+            (0..k).fold(0, |b, c| if row[c] > row[b] { c } else { b }) as u8
+        })
+        .collect();
+    // Majority of the points' home labels per voxel (unscored points count as a label).
+    let mut votes: Vec<BTreeMap<u8, u32>> = vec![BTreeMap::new(); v];
+    for (p, &r) in scores.point_to_voxel.iter().enumerate() {
+        *votes[r as usize].entry(truth_cloud.labels[p]).or_default() += 1;
+    }
+    let truth = votes
+        .iter()
+        .map(|m| m.iter().max_by_key(|(l, c)| (**c, std::cmp::Reverse(**l))).map_or(UNLABELED, |(l, _)| *l))
+        .collect();
+    let floor = floor_level(&scores.coords, &s3dis);
+    let inputs = head_inputs(&scores.coords, &scores.head_features, &scores.logits, k, voxel, floor)?;
+    Ok(RoomVoxels { inputs, s3dis, truth })
+}
+
+/// Pooled confusion over the home classes: `[truth][prediction]`.
+type Confusion = Vec<[u64; HomeClass::COUNT]>;
+
+fn add(conf: &mut Confusion, truth: &[u8], pred: &[u8]) {
+    for (&t, &p) in truth.iter().zip(pred) {
+        if (t as usize) < HomeClass::COUNT && (p as usize) < HomeClass::COUNT {
+            conf[t as usize][p as usize] += 1;
+        }
+    }
+}
+
+fn ious(conf: &Confusion) -> Vec<Option<f64>> {
+    (0..HomeClass::COUNT)
+        .map(|c| {
+            let tp = conf[c][c];
+            let fn_: u64 = conf[c].iter().sum::<u64>() - tp;
+            let fp: u64 = (0..HomeClass::COUNT).map(|t| conf[t][c]).sum::<u64>() - tp;
+            (conf[c].iter().sum::<u64>() > 0).then(|| tp as f64 / (tp + fn_ + fp).max(1) as f64)
+        })
+        .collect()
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let mut train = 0..300u64;
+    let mut val = 0..40u64;
+    let mut fit = FitConfig::default();
+    let mut model: Option<PathBuf> = None;
+    let mut out: Option<PathBuf> = None;
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut i = 0;
+    while i < args.len() {
+        let value = args.get(i + 1).ok_or_else(|| format!("{} needs a value", args[i]))?;
+        match args[i].as_str() {
+            "--train" => train = parse_range(value)?,
+            "--val" => val = parse_range(value)?,
+            "--hidden" => fit.hidden = value.parse()?,
+            "--epochs" => fit.epochs = value.parse()?,
+            "--model" => model = Some(value.into()),
+            "--out" => out = Some(value.into()),
+            other => return Err(format!("unknown argument {other}").into()),
+        }
+        i += 2;
+    }
+    let model_path = model.unwrap_or_else(shipped::default_model_path);
+    let mut net = shipped::load(&model_path, None)?;
+    let lib = FurnitureLibrary::open_default()?;
+    let t = Instant::now();
+    let mut rows = Vec::new();
+    let mut targets = Vec::new();
+    for seed in train.clone() {
+        let r = room_voxels(&mut net, &lib, seed, Split::Train)?;
+        let w = r.inputs.len() / r.truth.len().max(1);
+        for (v, &l) in r.truth.iter().enumerate() {
+            if let Some(o) = object_index(l) {
+                rows.extend_from_slice(&r.inputs[v * w..(v + 1) * w]);
+                targets.push(o as u8);
+            }
+        }
+        if seed % 25 == 0 {
+            eprintln!("room {seed}: {} rows so far, {:.0} s", targets.len(), t.elapsed().as_secs_f64());
+        }
+    }
+    let width = HomeHead::input_width(net.config().channels(0), net.config().classes);
+    eprintln!(
+        "{} rows of {width} inputs from {} rooms in {:.0} s",
+        targets.len(),
+        train.end - train.start,
+        t.elapsed().as_secs_f64()
+    );
+    let t = Instant::now();
+    let head = fit_home_head(&rows, &targets, width, &fit)?;
+    eprintln!("fitted in {:.1} s", t.elapsed().as_secs_f64());
+    let head = {
+        // Evaluate what will be shipped: the f16-rounded head.
+        let w = Weights::from_tensors(head.tensors().into_iter().collect()).rounded_to_f16();
+        HomeHead::from_weights(&w)?.ok_or("no head")?
+    };
+
+    let mut with_head: Confusion = vec![[0; HomeClass::COUNT]; HomeClass::COUNT];
+    let mut mapped: Confusion = vec![[0; HomeClass::COUNT]; HomeClass::COUNT];
+    for seed in val.clone() {
+        let r = room_voxels(&mut net, &lib, seed, Split::HeldOut)?;
+        let pred = head.home_labels(&r.inputs, &r.s3dis)?;
+        add(&mut with_head, &r.truth, &pred);
+        let alone: Vec<u8> = r
+            .s3dis
+            .iter()
+            .map(|&l| {
+                shell_class(l)
+                    .or_else(|| semrecon_data::SemanticClass::from_id(l).and_then(HomeClass::from_s3dis))
+                    .unwrap_or(HomeClass::OtherFurniture)
+                    .id()
+            })
+            .collect();
+        add(&mut mapped, &r.truth, &alone);
+    }
+    let (a, b) = (ious(&with_head), ious(&mapped));
+    println!("{:<16} {:>9} {:>9} {:>10}", "class", "head", "S3DIS", "voxels");
+    let mut json = serde_json::Map::new();
+    let (mut sum_a, mut sum_b, mut n) = (0.0, 0.0, 0);
+    for c in HomeClass::ALL {
+        let i = c.id() as usize;
+        let count: u64 = with_head[i].iter().sum();
+        let f = |x: Option<f64>| x.map_or("-".to_string(), |v| format!("{:.1}", v * 100.0));
+        println!("{:<16} {:>9} {:>9} {:>10}", c.name(), f(a[i]), f(b[i]), count);
+        if let (Some(x), Some(y)) = (a[i], b[i]) {
+            if c != HomeClass::Ceiling {
+                sum_a += x;
+                sum_b += y;
+                n += 1;
+            }
+        }
+        json.insert(c.name().into(), serde_json::json!({"iou_head": a[i], "iou_s3dis_mapped": b[i], "voxels": count}));
+    }
+    let (ma, mb) = (sum_a / n.max(1) as f64, sum_b / n.max(1) as f64);
+    println!(
+        "mIoU over the {n} ScanNet classes present: head {:.1} %, S3DIS head mapped {:.1} %",
+        ma * 100.0,
+        mb * 100.0
+    );
+    let summary = serde_json::json!({
+        "train_seeds": [train.start, train.end], "val_seeds_held_out": [val.start, val.end],
+        "rows": targets.len(), "hidden": fit.hidden, "epochs": fit.epochs,
+        "miou_head": ma, "miou_s3dis_mapped": mb, "classes": json,
+    });
+    let json_path = out.as_ref().map_or(PathBuf::from("home_head_eval.json"), |o| o.with_extension("eval.json"));
+    std::fs::write(&json_path, serde_json::to_string_pretty(&summary)?)?;
+    eprintln!("wrote {}", json_path.display());
+
+    if let Some(out) = out {
+        let config = Weights::read_config(&model_path)?.ok_or("the model file stores no configuration")?;
+        let mut weights = Weights::load(&model_path, &config)?;
+        for (name, tensor) in head.tensors() {
+            weights.tensors_mut().insert(name, tensor);
+        }
+        weights.save(&out, &config)?;
+        eprintln!("wrote {} (the network of {} with the home head)", out.display(), model_path.display());
+    }
+    Ok(())
+}
