@@ -431,3 +431,53 @@ fn the_real_s3dis_fragment_meets_its_target_with_the_shipped_model() {
         assert!(iou >= 0.5, "{class}: {iou} IoU ({})", v["per_class"]);
     }
 }
+
+#[test]
+fn segment_writes_home_labels_with_a_home_head_and_says_when_the_model_has_none() {
+    use semrecon_net::home_head::{HomeHead, OBJECTS};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let model = tiny_model(dir.path());
+    let input = dir.path().join("room.ply");
+    let mesh = room_ply(&input, |p| p, true);
+    let out = dir.path().join("home.ply");
+    let o = semrecon(&["segment", "--input", s(&input), "--out", s(&out), "--model", s(&model), "--labels", "home"]);
+    assert_clean_failure(&o, &["--labels home", "no home head"]);
+    assert!(!out.exists(), "no output on failure");
+    let o = semrecon(&["segment", "--input", s(&input), "--out", s(&out), "--model", s(&model), "--labels", "cats"]);
+    assert_clean_failure(&o, &["expected s3dis or home"]);
+
+    // The tiny model with a random home head.
+    let inputs = HomeHead::input_width(tiny().channels(0), tiny().classes);
+    let hidden = 5;
+    let v = |n: usize, k: f32| (0..n).map(|i| ((i as f32 * k).sin()) * 0.5).collect::<Vec<f32>>();
+    let head = HomeHead::new(
+        inputs,
+        hidden,
+        v(inputs * hidden, 0.7),
+        v(hidden, 1.3),
+        v(hidden * OBJECTS, 0.9),
+        v(OBJECTS, 2.1),
+    )
+    .expect("head");
+    let mut w = Weights::load(&model, &tiny()).expect("load");
+    for (name, t) in head.tensors() {
+        w.tensors_mut().insert(name, t);
+    }
+    let with_head = dir.path().join("tiny_home.safetensors");
+    w.save(&with_head, &tiny()).expect("save");
+    let o =
+        semrecon(&["segment", "--input", s(&input), "--out", s(&out), "--model", s(&with_head), "--labels", "home"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let labels = labels_of(&out);
+    assert_eq!(labels.len(), mesh.positions.len());
+    assert!(labels.iter().all(|&l| (l as usize) < semrecon_data::HomeClass::COUNT), "labels out of range");
+    // The S3DIS labels of the same model are unchanged by the head it carries.
+    let (a, b) = (dir.path().join("a.ply"), dir.path().join("b.ply"));
+    assert!(semrecon(&["segment", "--input", s(&input), "--out", s(&a), "--model", s(&model)]).status.success());
+    assert!(semrecon(&["segment", "--input", s(&input), "--out", s(&b), "--model", s(&with_head)]).status.success());
+    assert_eq!(labels_of(&a), labels_of(&b));
+    // snapshot draws them in the home colours.
+    let png = dir.path().join("home.png");
+    let o = semrecon(&["snapshot", s(&out), "--out", s(&png), "--classes", "--labels", "home", "--width", "160"]);
+    assert!(o.status.success() && png.exists(), "{}", stderr(&o));
+}
