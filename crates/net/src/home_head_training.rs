@@ -4,15 +4,21 @@
 //! Written by hand rather than with burn (the `train` feature): the head is one hidden layer
 //! over a few hundred thousand rows and fits in seconds, where burn's build alone takes about
 //! ten minutes on two cores; the gradient is checked against finite differences in the tests.
-//! Single-threaded, so the fitted head is the same bits on any machine thread count.
+//! Each batch's gradient is summed over fixed slices in a fixed order, so the fitted head is
+//! the same bits for any thread count.
 
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
+use rayon::prelude::*;
 
 use crate::error::{NetError, Result};
 use crate::home_head::{HomeHead, OBJECTS};
+
+/// Rows per parallel slice of a batch (fixed, so that the sum's order never depends on the
+/// thread count).
+const GRADIENT_SLICE: usize = 64;
 
 /// Settings of a fit.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -80,12 +86,26 @@ pub fn fit_home_head(rows: &[f32], targets: &[u8], inputs: usize, config: &FitCo
         order.shuffle(&mut rng);
         let lr = if epoch * 3 >= config.epochs * 2 { config.learning_rate * 0.5 } else { config.learning_rate };
         for batch in order.chunks(config.batch.max(1)) {
+            // Fixed slices of the batch in parallel, summed in their order: the same bits for
+            // any number of threads.
+            let parts: Vec<(MlpParams, f32)> = batch
+                .par_chunks(GRADIENT_SLICE)
+                .map(|slice| {
+                    let mut g = p.zeros();
+                    let mut total = 0.0;
+                    for &r in slice {
+                        let w = weights[targets[r] as usize];
+                        total += w;
+                        p.accumulate_gradient(&rows[r * inputs..(r + 1) * inputs], targets[r] as usize, w, &mut g);
+                    }
+                    (g, total)
+                })
+                .collect();
             grad.clear();
             let mut total = 0.0;
-            for &r in batch {
-                let w = weights[targets[r] as usize];
-                total += w;
-                p.accumulate_gradient(&rows[r * inputs..(r + 1) * inputs], targets[r] as usize, w, &mut grad);
+            for (g, t) in &parts {
+                grad.add(g);
+                total += t;
             }
             grad.scale(1.0 / total.max(1e-6));
             grad.add_decay(&p, config.weight_decay);
@@ -133,6 +153,15 @@ impl MlpParams {
     fn clear(&mut self) {
         for part in self.parts_mut() {
             part.fill(0.0);
+        }
+    }
+
+    fn add(&mut self, other: &MlpParams) {
+        let theirs = [&other.w1, &other.b1, &other.w2, &other.b2];
+        for (mine, theirs) in self.parts_mut().into_iter().zip(theirs) {
+            for (a, b) in mine.iter_mut().zip(theirs) {
+                *a += b;
+            }
         }
     }
 

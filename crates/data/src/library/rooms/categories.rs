@@ -105,11 +105,11 @@ pub(super) fn is_kitchen_lower(m: &LibraryModel) -> bool {
         && m.size.y >= 0.45
         && m.size.y <= 0.8
         && m.size.x <= 1.3
-        && (is(m, &["cabinet", "oven", "washing_machine"]) || (is(m, &["sink"]) && is_kitchen(m)))
+        && (is(m, &["cabinet", "kitchen_cabinet", "oven", "washing_machine"]) || (is(m, &["sink"]) && is_kitchen(m)))
 }
 
 pub(super) fn is_kitchen_upper(m: &LibraryModel) -> bool {
-    is(m, &["cabinet"]) && m.elevation >= 1.2 && m.size.y <= 0.6 && m.size.z <= 1.0
+    is(m, &["cabinet", "kitchen_cabinet"]) && m.elevation >= 1.2 && m.size.y <= 0.6 && m.size.z <= 1.0
 }
 
 pub(super) fn is_fridge(m: &LibraryModel) -> bool {

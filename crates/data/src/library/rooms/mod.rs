@@ -211,36 +211,58 @@ struct HomeSpan {
 /// Height within which an upward face of a kitchen cabinet counts as its worktop (metres).
 const COUNTER_TOP_BAND: f32 = 0.04;
 
+/// Highest worktop (metres above the floor): the tops of wall cabinets above it are not.
+const COUNTER_TOP_MAX: f32 = 1.25;
+
 /// The home class of every vertex: the shell's from its S3DIS class, each piece's from its
-/// span (its own shell-class vertices, such as a door model's frame labelled wall, kept).
+/// span (its own shell-class vertices, such as a door model's frame labelled wall, kept), and
+/// a kitchen cabinet's worktop (upward faces at its top) counter.
 fn home_vertex_labels(mesh: &LabeledMesh, spans: &[HomeSpan]) -> Vec<u8> {
     let from_s3dis = |l: u8| {
         SemanticClass::from_id(l).and_then(HomeClass::from_s3dis).map_or(crate::class::UNLABELED, HomeClass::id)
     };
+    let is_shell = |l: u8| {
+        matches!(
+            SemanticClass::from_id(l),
+            Some(
+                SemanticClass::Ceiling
+                    | SemanticClass::Floor
+                    | SemanticClass::Wall
+                    | SemanticClass::Beam
+                    | SemanticClass::Column
+            )
+        )
+    };
     let mut labels: Vec<u8> = mesh.vertex_labels.iter().map(|&l| from_s3dis(l)).collect();
+    let mut tops = Vec::with_capacity(spans.len());
     for span in spans {
         let range = span.vertices.start as usize..(span.vertices.end as usize).min(labels.len());
-        let top = range.clone().map(|v| mesh.positions[v].z).fold(f32::NEG_INFINITY, f32::max);
+        tops.push(range.clone().map(|v| mesh.positions[v].z).fold(f32::NEG_INFINITY, f32::max));
         for v in range {
-            let shell = matches!(
-                SemanticClass::from_id(mesh.vertex_labels[v]),
-                Some(
-                    SemanticClass::Ceiling
-                        | SemanticClass::Floor
-                        | SemanticClass::Wall
-                        | SemanticClass::Beam
-                        | SemanticClass::Column
-                )
-            );
-            if shell {
-                continue;
+            if !is_shell(mesh.vertex_labels[v]) {
+                labels[v] = span.label;
             }
-            let up = mesh.normals.get(v).is_some_and(|n| n.z > 0.9);
-            labels[v] = if span.counter_top && up && mesh.positions[v].z >= top - COUNTER_TOP_BAND {
-                HomeClass::Counter.id()
-            } else {
-                span.label
-            };
+        }
+    }
+    // Worktops by face: library meshes share vertices between a top and its sides, so a
+    // vertex normal does not say which way a face looks.
+    let mut counter = Vec::new();
+    for t in &mesh.triangles {
+        let first = t[0];
+        let s = spans.partition_point(|s| s.vertices.end <= first);
+        if !spans.get(s).is_some_and(|s| s.counter_top && s.vertices.contains(&first)) {
+            continue;
+        }
+        let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+        let up = (b - a).cross(c - a).normalize_or_zero().z > 0.9;
+        // Upper cabinets' tops are not worktops.
+        if up && tops[s] <= COUNTER_TOP_MAX && a.z.min(b.z).min(c.z) >= tops[s] - COUNTER_TOP_BAND {
+            counter.extend(t.iter().copied());
+        }
+    }
+    for v in counter {
+        if !is_shell(mesh.vertex_labels[v as usize]) {
+            labels[v as usize] = HomeClass::Counter.id();
         }
     }
     labels
