@@ -16,6 +16,7 @@
 //! backbone is frozen: the head is fitted on features of rooms furnished from the furniture
 //! catalogues (`examples/train_home_head.rs`), so adding it changes no S3DIS label.
 
+use rayon::prelude::*;
 use semrecon_data::class::{SemanticClass, UNLABELED};
 use semrecon_data::home_class::HomeClass;
 use semrecon_sparse::Coord;
@@ -196,7 +197,7 @@ impl HomeHead {
             )));
         }
         Ok(s3dis_labels
-            .iter()
+            .par_iter()
             .enumerate()
             .map(|(v, &l)| match shell_class(l) {
                 Some(c) => c.id(),
