@@ -314,7 +314,7 @@ pub fn head_inputs(
     if v == 0 {
         return Ok(Vec::new());
     }
-    if head_features.len() % v != 0 || logits.len() != v * classes {
+    if !head_features.len().is_multiple_of(v) || logits.len() != v * classes {
         return Err(NetError::InvalidInput(format!(
             "{} head features and {} logits for {v} voxels of {classes} classes",
             head_features.len(),
