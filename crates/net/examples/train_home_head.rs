@@ -5,7 +5,7 @@
 //! ```text
 //! cargo run --release -p semrecon-net --example train_home_head -- \
 //!     [--train 0..400] [--val 100000..100060] [--stride 4] [--hidden 64] [--epochs 12] \
-//!     [--model IN] [--out OUT]
+//!     [--model IN] [--out OUT] [--evaluate-only]
 //! ```
 //!
 //! Training rooms are `synth-lib` seeds of the training models; validation rooms are other
@@ -16,7 +16,8 @@
 //! whose home label is an object class becomes a row (every `--stride`-th voxel). With `--out`, the weights of `--model`
 //! (default the shipped s20) are written there with the head added (`f16`).
 //!
-//! Prints, for the validation rooms, the pooled IoU per home class with the head and with
+//! `--evaluate-only` scores the head that `--model` carries without fitting one. Prints, for
+//! the validation rooms, the pooled IoU per home class with the head and with
 //! the S3DIS head's classes mapped alone (clutter as other furniture), and writes the same as
 //! JSON beside `--out` (or to `home_head_eval.json`).
 
@@ -32,13 +33,19 @@ use semrecon_data::LabeledMesh;
 use semrecon_net::dataset::points_per_m2;
 use semrecon_net::home_head::{floor_level, head_inputs, object_index, shell_class, HomeHead};
 use semrecon_net::home_head_training::{fit_home_head, FitConfig};
+use semrecon_net::structure::{
+    refine, softmax_rows, BeamFaceParams, PlaneParams, SegmentParams, StructureConfig, StructureMode,
+};
 use semrecon_net::surface::sample_surface;
 use semrecon_net::{shipped, Segmenter, Weights};
 
-/// One room's voxels: head inputs, S3DIS prediction and home truth.
+/// One room's voxels: head inputs, S3DIS prediction (the network's, and after the structure
+/// step as `semrecon segment` runs it, with its segments) and home truth.
 struct RoomVoxels {
     inputs: Vec<f32>,
     s3dis: Vec<u8>,
+    refined: Vec<u8>,
+    segment: Vec<u32>,
     truth: Vec<u8>,
 }
 
@@ -72,6 +79,7 @@ fn room_voxels(
     lib: &FurnitureLibrary,
     seed: u64,
     split: Split,
+    with_structure: bool,
 ) -> Result<RoomVoxels, Box<dyn std::error::Error>> {
     let config = LibraryRoomConfig { seed, kind: None, split };
     let room = generate_library_room_detailed(&config, lib)?;
@@ -101,7 +109,21 @@ fn room_voxels(
         .collect();
     let floor = floor_level(&scores.coords, &s3dis);
     let inputs = head_inputs(&scores.coords, &scores.head_features, &scores.logits, k, voxel, floor)?;
-    Ok(RoomVoxels { inputs, s3dis, truth })
+    let (refined, segment) = if with_structure {
+        let mut probs = scores.logits.clone();
+        softmax_rows(&mut probs, k);
+        let config = StructureConfig {
+            mode: StructureMode::Segments,
+            segments: SegmentParams::default(),
+            planes: PlaneParams::default(),
+            beam_faces: Some(BeamFaceParams::default()),
+        };
+        let r = refine(&scores.coords, &scores.features, &probs, k, voxel, &config)?;
+        (r.labels, r.segment)
+    } else {
+        (Vec::new(), Vec::new())
+    };
+    Ok(RoomVoxels { inputs, s3dis, refined, segment, truth })
 }
 
 /// Pooled confusion over the home classes: `[truth][prediction]`.
@@ -155,6 +177,56 @@ fn print_table(name: &str, with_head: &Confusion, mapped: &Confusion) -> serde_j
     serde_json::json!({"miou_head": ma, "miou_s3dis_mapped": mb, "scannet_classes_present": n, "classes": json})
 }
 
+/// Scores `head` on the validation rooms of both splits; writes the JSON beside `out`.
+fn evaluate(
+    net: &mut Segmenter,
+    lib: &FurnitureLibrary,
+    head: &HomeHead,
+    val: std::ops::Range<u64>,
+    out: Option<&std::path::Path>,
+    info: serde_json::Value,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let mut report = serde_json::Map::new();
+    for (split, name) in [(Split::Train, "unseen_rooms_training_furniture"), (Split::HeldOut, "unseen_furniture")] {
+        let mut with_head: Confusion = vec![[0; HomeClass::COUNT]; HomeClass::COUNT];
+        let mut voted: Confusion = vec![[0; HomeClass::COUNT]; HomeClass::COUNT];
+        let mut mapped: Confusion = vec![[0; HomeClass::COUNT]; HomeClass::COUNT];
+        for seed in val.clone() {
+            let r = room_voxels(net, lib, seed, split, true)?;
+            let pred = head.home_labels(&r.inputs, &r.s3dis)?;
+            add(&mut with_head, &r.truth, &pred);
+            // What `semrecon segment --labels home` does: the structure step's S3DIS labels,
+            // the head voted over its segments.
+            let pred = head.home_labels_voted(&r.inputs, &r.refined, Some(&r.segment))?;
+            add(&mut voted, &r.truth, &pred);
+            let alone: Vec<u8> = r
+                .refined
+                .iter()
+                .map(|&l| {
+                    shell_class(l)
+                        .or_else(|| semrecon_data::SemanticClass::from_id(l).and_then(HomeClass::from_s3dis))
+                        .unwrap_or(HomeClass::OtherFurniture)
+                        .id()
+                })
+                .collect();
+            add(&mut mapped, &r.truth, &alone);
+        }
+        report.insert(name.into(), print_table(name, &with_head, &mapped));
+        report.insert(
+            format!("{name}_structure_and_vote"),
+            print_table(&format!("{name}, structure step and segment vote"), &voted, &mapped),
+        );
+    }
+    let mut summary = info;
+    summary["val_seeds"] = serde_json::json!([val.start, val.end]);
+    summary["sets"] = serde_json::Value::Object(report);
+    let json_path = out.map_or(PathBuf::from("home_head_eval.json"), |o| o.with_extension("eval.json"));
+    std::fs::write(&json_path, serde_json::to_string_pretty(&summary)?)?;
+    eprintln!("wrote {}", json_path.display());
+
+    Ok(())
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut train = 0..400u64;
     let mut val = 100_000..100_060u64;
@@ -162,9 +234,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut model: Option<PathBuf> = None;
     let mut out: Option<PathBuf> = None;
     let mut stride = 4usize;
+    let mut evaluate_only = false;
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut i = 0;
     while i < args.len() {
+        if args[i] == "--evaluate-only" {
+            evaluate_only = true;
+            i += 1;
+            continue;
+        }
         let value = args.get(i + 1).ok_or_else(|| format!("{} needs a value", args[i]))?;
         match args[i].as_str() {
             "--train" => train = parse_range(value)?,
@@ -181,11 +259,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let model_path = model.unwrap_or_else(shipped::default_model_path);
     let mut net = shipped::load(&model_path, None)?;
     let lib = FurnitureLibrary::open_default()?;
+    if evaluate_only {
+        let head = net.home_head().cloned().ok_or("--evaluate-only: the model has no home head")?;
+        return evaluate(
+            &mut net,
+            &lib,
+            &head,
+            val,
+            None,
+            serde_json::json!({"model": model_path.display().to_string()}),
+        );
+    }
     let t = Instant::now();
     let mut rows = Vec::new();
     let mut targets = Vec::new();
     for seed in train.clone() {
-        let r = room_voxels(&mut net, &lib, seed, Split::Train)?;
+        let r = room_voxels(&mut net, &lib, seed, Split::Train, false)?;
         let w = r.inputs.len() / r.truth.len().max(1);
         for (v, &l) in r.truth.iter().enumerate().step_by(stride) {
             if let Some(o) = object_index(l) {
@@ -213,36 +302,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         HomeHead::from_weights(&w)?.ok_or("no head")?
     };
 
-    let mut report = serde_json::Map::new();
-    for (split, name) in [(Split::Train, "unseen_rooms_training_furniture"), (Split::HeldOut, "unseen_furniture")] {
-        let mut with_head: Confusion = vec![[0; HomeClass::COUNT]; HomeClass::COUNT];
-        let mut mapped: Confusion = vec![[0; HomeClass::COUNT]; HomeClass::COUNT];
-        for seed in val.clone() {
-            let r = room_voxels(&mut net, &lib, seed, split)?;
-            let pred = head.home_labels(&r.inputs, &r.s3dis)?;
-            add(&mut with_head, &r.truth, &pred);
-            let alone: Vec<u8> = r
-                .s3dis
-                .iter()
-                .map(|&l| {
-                    shell_class(l)
-                        .or_else(|| semrecon_data::SemanticClass::from_id(l).and_then(HomeClass::from_s3dis))
-                        .unwrap_or(HomeClass::OtherFurniture)
-                        .id()
-                })
-                .collect();
-            add(&mut mapped, &r.truth, &alone);
-        }
-        report.insert(name.into(), print_table(name, &with_head, &mapped));
-    }
-    let summary = serde_json::json!({
-        "train_seeds": [train.start, train.end], "val_seeds": [val.start, val.end],
-        "rows": targets.len(), "row_stride": stride, "hidden": fit.hidden, "epochs": fit.epochs,
-        "sets": report,
+    let info = serde_json::json!({
+        "train_seeds": [train.start, train.end], "rows": targets.len(), "row_stride": stride,
+        "hidden": fit.hidden, "epochs": fit.epochs,
     });
-    let json_path = out.as_ref().map_or(PathBuf::from("home_head_eval.json"), |o| o.with_extension("eval.json"));
-    std::fs::write(&json_path, serde_json::to_string_pretty(&summary)?)?;
-    eprintln!("wrote {}", json_path.display());
+    evaluate(&mut net, &lib, &head, val, out.as_deref(), info)?;
 
     if let Some(out) = out {
         let config = Weights::read_config(&model_path)?.ok_or("the model file stores no configuration")?;

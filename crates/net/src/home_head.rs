@@ -188,13 +188,30 @@ impl HomeHead {
     /// # Errors
     /// [`NetError::InvalidInput`] when the lengths do not agree.
     pub fn home_labels(&self, inputs: &[f32], s3dis_labels: &[u8]) -> Result<Vec<u8>> {
-        if inputs.len() != s3dis_labels.len() * self.inputs {
+        self.home_labels_voted(inputs, s3dis_labels, None)
+    }
+
+    /// [`home_labels`](Self::home_labels), the head's object probabilities summed over each
+    /// segment of `segment` (the structure step's geometric segments: one label per surface
+    /// patch, as the S3DIS labels get) when given.
+    ///
+    /// # Shapes
+    /// As [`home_labels`](Self::home_labels); `segment`: `[v]` segment ids.
+    ///
+    /// # Errors
+    /// [`NetError::InvalidInput`] when the lengths do not agree.
+    pub fn home_labels_voted(&self, inputs: &[f32], s3dis_labels: &[u8], segment: Option<&[u32]>) -> Result<Vec<u8>> {
+        if inputs.len() != s3dis_labels.len() * self.inputs || segment.is_some_and(|s| s.len() != s3dis_labels.len()) {
             return Err(NetError::InvalidInput(format!(
-                "{} head inputs for {} voxels of {} values",
+                "{} head inputs and {} segment ids for {} voxels of {} values",
                 inputs.len(),
+                segment.map_or(0, <[u32]>::len),
                 s3dis_labels.len(),
                 self.inputs
             )));
+        }
+        if let Some(segment) = segment {
+            return Ok(self.vote(inputs, s3dis_labels, segment));
         }
         Ok(s3dis_labels
             .par_iter()
@@ -215,8 +232,8 @@ impl HomeHead {
 
 /// The home class of every voxel of a forward pass that read the head features
 /// ([`crate::Segmenter::segment_points_with_features`]), given the voxels' S3DIS labels
-/// (the network's, or after the structure step): the floor found from those labels, then
-/// [`HomeHead::home_labels`].
+/// (the network's, or after the structure step) and, to vote over, the structure step's
+/// segments: the floor found from those labels, then [`HomeHead::home_labels_voted`].
 ///
 /// # Shapes
 /// `s3dis_labels`: `[v]` for the `v` voxels of `scores`; result `[v]` [`HomeClass`] ids.
@@ -227,6 +244,7 @@ pub fn label_voxels(
     head: &HomeHead,
     scores: &crate::PointScores,
     s3dis_labels: &[u8],
+    segment: Option<&[u32]>,
     classes: usize,
     voxel_size: f32,
 ) -> Result<Vec<u8>> {
@@ -242,7 +260,48 @@ pub fn label_voxels(
     }
     let floor = floor_level(&scores.coords, s3dis_labels);
     let inputs = head_inputs(&scores.coords, &scores.head_features, &scores.logits, classes, voxel_size, floor)?;
-    head.home_labels(&inputs, s3dis_labels)
+    head.home_labels_voted(&inputs, s3dis_labels, segment)
+}
+
+impl HomeHead {
+    /// The segment vote: per segment, the softmax of the head's scores summed over its object
+    /// voxels; each object voxel takes its allowed class of highest sum.
+    fn vote(&self, inputs: &[f32], s3dis_labels: &[u8], segment: &[u32]) -> Vec<u8> {
+        let n = s3dis_labels.len();
+        let probs: Vec<[f32; OBJECTS]> = (0..n)
+            .into_par_iter()
+            .map(|v| {
+                if shell_class(s3dis_labels[v]).is_some() {
+                    return [0.0; OBJECTS];
+                }
+                let s = self.scores(&inputs[v * self.inputs..(v + 1) * self.inputs]);
+                let max = s.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+                let mut p = s.map(|x| (x - max).exp());
+                let sum: f32 = p.iter().sum();
+                p.iter_mut().for_each(|x| *x /= sum);
+                p
+            })
+            .collect();
+        let segments = segment.iter().map(|&s| s as usize + 1).max().unwrap_or(0);
+        // Summed in voxel order: the same bits for any thread count.
+        let mut sums = vec![[0f32; OBJECTS]; segments];
+        for (v, p) in probs.iter().enumerate() {
+            for (a, b) in sums[segment[v] as usize].iter_mut().zip(p) {
+                *a += b;
+            }
+        }
+        (0..n)
+            .map(|v| match shell_class(s3dis_labels[v]) {
+                Some(c) => c.id(),
+                None => {
+                    let sum = &sums[segment[v] as usize];
+                    let allowed = allowed_objects(s3dis_labels[v]);
+                    let best = allowed.iter().copied().fold(allowed[0], |b, k| if sum[k] > sum[b] { k } else { b });
+                    HomeClass::OBJECTS[best].id()
+                }
+            })
+            .collect()
+    }
 }
 
 /// Indices into [`HomeClass::OBJECTS`] of the classes the head may give a voxel the S3DIS
@@ -400,6 +459,24 @@ mod tests {
         assert!(HomeClass::from_id(labels[1]).unwrap().is_object());
         assert_eq!(labels[2], HomeClass::Ceiling.id());
         assert!(head.home_labels(&rows, &[0, 1]).is_err());
+    }
+
+    #[test]
+    fn the_vote_gives_each_segment_one_object_class() {
+        let head = random_head(4, 6, 11);
+        let rows: Vec<f32> = (0..4 * 6).map(|i| ((i * 7) % 5) as f32 * 0.4 - 0.8).collect();
+        let clutter = SemanticClass::Clutter.id();
+        let s3dis = [clutter, clutter, clutter, SemanticClass::Wall.id(), clutter, clutter];
+        let segment = [0, 0, 0, 0, 1, 1];
+        let voted = head.home_labels_voted(&rows, &s3dis, Some(&segment)).unwrap();
+        assert_eq!(voted[0], voted[1]);
+        assert_eq!(voted[1], voted[2]);
+        assert_eq!(voted[3], HomeClass::Wall.id());
+        assert_eq!(voted[4], voted[5]);
+        // One voxel per segment: the vote is the head's own choice.
+        let alone = head.home_labels_voted(&rows, &s3dis, Some(&[0, 1, 2, 3, 4, 5])).unwrap();
+        assert_eq!(alone, head.home_labels(&rows, &s3dis).unwrap());
+        assert!(head.home_labels_voted(&rows, &s3dis, Some(&[0, 1])).is_err());
     }
 
     #[test]

@@ -317,7 +317,8 @@ pub fn label_vertices(
         Some(head) => {
             let t = Instant::now();
             let (k, voxel) = (net.config().classes, net.config().voxel_size);
-            let home = semrecon_net::home_head::label_voxels(&head, &scores, &refinement.labels, k, voxel)?;
+            let segment = (!refinement.segment.is_empty()).then_some(refinement.segment.as_slice());
+            let home = semrecon_net::home_head::label_voxels(&head, &scores, &refinement.labels, segment, k, voxel)?;
             return Ok((
                 scores.point_to_voxel[..n].iter().map(|&r| home[r as usize]).collect(),
                 refinement,

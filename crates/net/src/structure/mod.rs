@@ -180,6 +180,9 @@ pub struct Refinement {
     pub labels: Vec<u8>,
     /// Number of segments (0 when the vote did not run).
     pub segments: usize,
+    /// The segment of every voxel (empty when the vote did not run): what a second label set
+    /// can vote over too ([`crate::home_head::label_voxels`]).
+    pub segment: Vec<u32>,
     /// Height of the floor plane (metres, voxel centres), when one was found and used.
     pub floor_z: Option<f32>,
     /// Height of the ceiling plane, when one was found and used.
@@ -310,6 +313,7 @@ pub fn refine(
     let t = Instant::now();
     let p: &[f32] = probs_used.as_deref().unwrap_or(probs);
     let mut segments = 0;
+    let mut segment_of = Vec::new();
     let mut beam_face_voxels = 0;
     let mut labels = if mode.segments() {
         let edges = voxel_edges(&neighbours, &normals, features, config.segments.color_weight);
@@ -323,6 +327,7 @@ pub fn refine(
                     beam_faces(coords, &neighbours, &normals, &segment, &mut voted, voxel_size, wall, beam, params);
             }
         }
+        segment_of = segment;
         voted
     } else {
         argmax_rows(p, classes)
@@ -347,7 +352,7 @@ pub fn refine(
     }
     timing.segments = t.elapsed();
     let changed = labels.iter().zip(&network).filter(|(a, b)| a != b).count();
-    Ok(Refinement { labels, segments, floor_z, ceiling_z, changed, beam_face_voxels, timing })
+    Ok(Refinement { labels, segments, segment: segment_of, floor_z, ceiling_z, changed, beam_face_voxels, timing })
 }
 
 #[cfg(test)]
