@@ -34,7 +34,7 @@ use semrecon_net::dataset::points_per_m2;
 use semrecon_net::home_head::{floor_level, head_inputs, object_index, shell_class, HomeHead};
 use semrecon_net::home_head_training::{fit_home_head, FitConfig};
 use semrecon_net::structure::{
-    refine, softmax_rows, BeamFaceParams, PlaneParams, SegmentParams, StructureConfig, StructureMode,
+    argmax_rows, refine, softmax_rows, BeamFaceParams, PlaneParams, SegmentParams, StructureConfig, StructureMode,
 };
 use semrecon_net::surface::sample_surface;
 use semrecon_net::{shipped, Segmenter, Weights};
@@ -92,12 +92,7 @@ fn room_voxels(
     let scores = net.segment_points_with_features(&points, &cloud.colors)?;
     let k = net.config().classes;
     let v = scores.coords.len();
-    let s3dis: Vec<u8> = (0..v)
-        .map(|r| {
-            let row = &scores.logits[r * k..(r + 1) * k];
-            (0..k).fold(0, |b, c| if row[c] > row[b] { c } else { b }) as u8
-        })
-        .collect();
+    let s3dis = argmax_rows(&scores.logits, k);
     // Majority of the points' home labels per voxel (unscored points count as a label).
     let mut votes: Vec<BTreeMap<u8, u32>> = vec![BTreeMap::new(); v];
     for (p, &r) in scores.point_to_voxel.iter().enumerate() {

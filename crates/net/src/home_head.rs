@@ -22,6 +22,7 @@ use semrecon_data::home_class::HomeClass;
 use semrecon_sparse::Coord;
 
 use crate::error::{NetError, Result};
+use crate::structure::softmax_rows;
 use crate::weights::{Tensor, Weights};
 
 /// Prefix of the home head's tensors in a weights file.
@@ -274,11 +275,8 @@ impl HomeHead {
                 if shell_class(s3dis_labels[v]).is_some() {
                     return [0.0; OBJECTS];
                 }
-                let s = self.scores(&inputs[v * self.inputs..(v + 1) * self.inputs]);
-                let max = s.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-                let mut p = s.map(|x| (x - max).exp());
-                let sum: f32 = p.iter().sum();
-                p.iter_mut().for_each(|x| *x /= sum);
+                let mut p = self.scores(&inputs[v * self.inputs..(v + 1) * self.inputs]);
+                softmax_rows(&mut p, OBJECTS);
                 p
             })
             .collect();
@@ -382,13 +380,12 @@ pub fn head_inputs(
     }
     let c = head_features.len() / v;
     let width = HomeHead::input_width(c, classes);
+    let mut probs = logits.to_vec();
+    softmax_rows(&mut probs, classes);
     let mut out = Vec::with_capacity(v * width);
     for (i, coord) in coords.iter().enumerate() {
         out.extend_from_slice(&head_features[i * c..(i + 1) * c]);
-        let row = &logits[i * classes..(i + 1) * classes];
-        let max = row.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-        let sum: f32 = row.iter().map(|&x| (x - max).exp()).sum();
-        out.extend(row.iter().map(|&x| (x - max).exp() / sum));
+        out.extend_from_slice(&probs[i * classes..(i + 1) * classes]);
         let height = ((coord[2] as f32 + 0.5 - floor_level) * voxel_size).clamp(HEIGHT_RANGE.0, HEIGHT_RANGE.1);
         out.push(height);
     }

@@ -312,22 +312,18 @@ pub fn label_vertices(
     let (refinement, network_s, structure_s) =
         voxel_labels(net, &scores.coords, &scores.features, Some(logits), options)?;
     let network_s = first_s + network_s;
-    let voxel_labels = match home_head {
-        None => refinement.labels.clone(),
+    let per_vertex =
+        |voxel: &[u8]| -> Vec<u8> { scores.point_to_voxel[..n].iter().map(|&r| voxel[r as usize]).collect() };
+    let (labels, structure_s) = match home_head {
+        None => (per_vertex(&refinement.labels), structure_s),
         Some(head) => {
             let t = Instant::now();
             let (k, voxel) = (net.config().classes, net.config().voxel_size);
             let segment = (!refinement.segment.is_empty()).then_some(refinement.segment.as_slice());
             let home = semrecon_net::home_head::label_voxels(&head, &scores, &refinement.labels, segment, k, voxel)?;
-            return Ok((
-                scores.point_to_voxel[..n].iter().map(|&r| home[r as usize]).collect(),
-                refinement,
-                network_s,
-                structure_s + t.elapsed().as_secs_f64(),
-            ));
+            (per_vertex(&home), structure_s + t.elapsed().as_secs_f64())
         }
     };
-    let labels = scores.point_to_voxel[..n].iter().map(|&r| voxel_labels[r as usize]).collect();
     Ok((labels, refinement, network_s, structure_s))
 }
 
