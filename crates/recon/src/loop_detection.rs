@@ -40,6 +40,7 @@
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 
 use glam::{DAffine3, DVec3, Vec3};
+use rayon::prelude::*;
 use semrecon_data::{Frame, Intrinsics};
 
 use crate::linalg::{cholesky_solve, symmetric_eigen};
@@ -280,14 +281,20 @@ impl LoopDetector {
                 scored.push((d, old));
             }
         }
-        let mut verdicts = Vec::new();
-        for (appearance, old) in self.best_spaced(scored, c.candidates) {
-            let prediction = poses[old].inverse() * *pose_new;
-            if let Some(mut v) = self.verify(old, new, prediction) {
-                v.appearance = appearance;
-                verdicts.push(v);
-            }
-        }
+        // The candidates are aligned side by side: each alignment depends on its pair only,
+        // and the verdicts keep the candidates' order, so the result is the same for any
+        // thread count (the loop ICP is most of a keyframe's detection time).
+        let mut verdicts: Vec<LoopVerdict> = self
+            .best_spaced(scored, c.candidates)
+            .into_par_iter()
+            .filter_map(|(appearance, old)| {
+                let prediction = poses[old].inverse() * *pose_new;
+                self.verify(old, new, prediction).map(|mut v| {
+                    v.appearance = appearance;
+                    v
+                })
+            })
+            .collect();
         if c.feature_candidates > 0 && !verdicts.iter().any(LoopVerdict::accepted) {
             verdicts.extend(self.detect_by_features(new, poses, last));
         }
@@ -308,32 +315,32 @@ impl LoopDetector {
         let scored: Vec<(f32, usize)> = (0..=last)
             .filter_map(|old| Some((query.thumbnail.distance(&self.keyframes.get(old)?.thumbnail)?, old)))
             .collect();
-        let mut verdicts = Vec::new();
-        for (appearance, old) in self.best_spaced(scored, c.feature_candidates) {
-            let kf = &self.keyframes[old];
-            let matches = features::match_features(&query.features, &kf.features);
-            let seed = (old as u64) << 32 | new as u64;
-            let Some(found) = features::ransac(&query.features, &kf.features, &matches, seed) else { continue };
-            let Some(mut v) = self.verify_with_bound(old, new, found.old_from_new, (f32::INFINITY, f32::INFINITY))
-            else {
-                continue;
-            };
-            v.appearance = appearance;
-            v.feature_inliers = found.inliers;
-            // The drift this loop corrects: its alignment against the poses' prediction.
-            let predicted = poses[old].inverse() * poses[new];
-            v.correction = pose_distance(&predicted, &v.old_from_new);
-            let bound = c.feature_max_correction;
-            if v.accepted() && !(v.correction.0 <= bound.0 as f64 && v.correction.1 <= bound.1 as f64) {
-                v.rejection = Some(LoopRejection::LargeCorrection);
-            }
-            let accepted = v.accepted();
-            verdicts.push(v);
-            if accepted {
-                break;
-            }
-        }
-        verdicts
+        // Side by side as in `detect` (a RANSAC seed per pair: the same verdicts for any
+        // thread count); the verdicts after the first accepted one are dropped, as if the
+        // candidates had been tried one by one and stopped there.
+        let tried: Vec<LoopVerdict> = self
+            .best_spaced(scored, c.feature_candidates)
+            .into_par_iter()
+            .filter_map(|(appearance, old)| {
+                let kf = &self.keyframes[old];
+                let matches = features::match_features(&query.features, &kf.features);
+                let seed = (old as u64) << 32 | new as u64;
+                let found = features::ransac(&query.features, &kf.features, &matches, seed)?;
+                let mut v = self.verify_with_bound(old, new, found.old_from_new, (f32::INFINITY, f32::INFINITY))?;
+                v.appearance = appearance;
+                v.feature_inliers = found.inliers;
+                // The drift this loop corrects: its alignment against the poses' prediction.
+                let predicted = poses[old].inverse() * poses[new];
+                v.correction = pose_distance(&predicted, &v.old_from_new);
+                let bound = c.feature_max_correction;
+                if v.accepted() && !(v.correction.0 <= bound.0 as f64 && v.correction.1 <= bound.1 as f64) {
+                    v.rejection = Some(LoopRejection::LargeCorrection);
+                }
+                Some(v)
+            })
+            .collect();
+        let kept = tried.iter().position(LoopVerdict::accepted).map_or(tried.len(), |i| i + 1);
+        tried.into_iter().take(kept).collect()
     }
 
     /// The `limit` best `(appearance, keyframe)` pairs of `scored` (smallest distance first,
@@ -442,11 +449,14 @@ impl LoopDetector {
     fn pinned_down(&self, src: &KeyframeCloud, dst: &KeyframeCloud, estimate: &DAffine3, h: &[[f64; 6]; 6]) -> bool {
         let c = &self.config;
         let Some(weakest) = weakest_translation(h) else { return false };
-        [1.0, -1.0].into_iter().all(|side| {
+        let comes_back = |side: f64| {
             let start = DAffine3::from_translation(weakest * (side * c.basin_shift as f64)) * *estimate;
             let end = self.align(src, dst, start);
             pose_distance(&end, estimate).0 <= c.basin_tolerance as f64
-        })
+        };
+        // The two sides are independent alignments: side by side.
+        let (plus, minus) = rayon::join(|| comes_back(1.0), || comes_back(-1.0));
+        plus && minus
     }
 }
 
@@ -543,11 +553,18 @@ fn icp_sums(src: &CloudLevel, dst: &CloudLevel, dst_from_src: &DAffine3, gate: f
         let nd = dn.as_dvec3();
         let rot = qd.cross(nd);
         let j = [nd.x, nd.y, nd.z, rot.x, rot.y, rot.z];
+        // The upper triangle only (the matrix is symmetric): 21 products a point, not 36.
         for a in 0..6 {
-            s.g[a] += weight * j[a] * res;
-            for b in 0..6 {
-                s.h[a][b] += weight * j[a] * j[b];
+            let wj = weight * j[a];
+            s.g[a] += wj * res;
+            for b in a..6 {
+                s.h[a][b] += wj * j[b];
             }
+        }
+    }
+    for a in 1..6 {
+        for b in 0..a {
+            s.h[a][b] = s.h[b][a];
         }
     }
     s
