@@ -29,6 +29,30 @@ fn rmse(a: &[Affine3A], b: &[Affine3A]) -> f64 {
     (sum / a.len() as f64).sqrt()
 }
 
+/// The scan's frames with depth in the frame store's unit, so that the store holds exactly
+/// what was fused.
+fn frames_in_store_units(scan: &impl FrameSource) -> Vec<Frame> {
+    (0..scan.len())
+        .map(|i| {
+            let mut f = scan.frame(i).expect("frame");
+            f.depth.iter_mut().for_each(|d| *d = (*d * DEPTH_UNITS_PER_M).round() / DEPTH_UNITS_PER_M);
+            f
+        })
+        .collect()
+}
+
+/// The furnished library room of `seed` (textured furniture: enough corners for features);
+/// an error without the furniture package (a room that cannot be generated fails the test).
+fn furnished_room(seed: u64) -> std::result::Result<semrecon_data::synth::SyntheticRoom, String> {
+    let library = semrecon_data::library::FurnitureLibrary::open_default().map_err(|e| e.to_string())?;
+    let room = semrecon_data::library::rooms::generate_library_room_detailed(
+        &semrecon_data::library::rooms::LibraryRoomConfig::new(seed),
+        &library,
+    )
+    .expect("room");
+    Ok(room.room)
+}
+
 #[test]
 fn a_drifting_loop_is_closed_and_the_map_follows() {
     close_a_drifting_loop(1, LoopClosureConfig::default());
@@ -84,19 +108,13 @@ fn the_shadow_swaps_at_the_same_keyframe_for_any_thread_count() {
 /// odometry, then takes them all once a looser odometry fits every loop.
 #[test]
 fn a_large_drift_in_a_furnished_room() {
-    let library = match semrecon_data::library::FurnitureLibrary::open_default() {
-        Ok(l) => l,
+    let room = match furnished_room(1) {
+        Ok(room) => room,
         Err(e) => {
             eprintln!("skipped: {e}");
             return;
         }
     };
-    let room = semrecon_data::library::rooms::generate_library_room_detailed(
-        &semrecon_data::library::rooms::LibraryRoomConfig::new(1),
-        &library,
-    )
-    .expect("room")
-    .room;
     close_a_drifting_loop_in(1, LoopClosureConfig::default(), 4.0, Some(room));
 }
 
@@ -133,14 +151,7 @@ fn close_a_drifting_loop_in(
     };
     // Drift growing along the scan: 0.25 mm and 0.006 degrees per frame (7.5 cm and 1.7
     // degrees by the end), about the first camera.
-    let frames: Vec<Frame> = (0..scan.len())
-        .map(|i| {
-            let mut f = scan.frame(i).expect("frame");
-            // Depth in the store's unit, so that the store holds exactly what was fused.
-            f.depth.iter_mut().for_each(|d| *d = (*d * DEPTH_UNITS_PER_M).round() / DEPTH_UNITS_PER_M);
-            f
-        })
-        .collect();
+    let frames = frames_in_store_units(&scan);
     let truth: Vec<Affine3A> = frames.iter().map(|f| f.world_from_camera.expect("pose")).collect();
     let origin = Vec3::from(truth[0].translation);
     let drifted: Vec<Affine3A> = truth
@@ -322,14 +333,7 @@ fn loops_weigh_less_as_their_residual_grows() {
 /// for features and is used when the furniture package is absent.
 #[test]
 fn twin_rooms_close_no_loop_between_them() {
-    let room = semrecon_data::library::FurnitureLibrary::open_default().ok().and_then(|library| {
-        semrecon_data::library::rooms::generate_library_room_detailed(
-            &semrecon_data::library::rooms::LibraryRoomConfig::new(1),
-            &library,
-        )
-        .ok()
-        .map(|r| r.room)
-    });
+    let room = furnished_room(1).ok();
     let furnished = room.is_some();
     let mut config = SyntheticScanConfig::new(1);
     config.frames = 300;
@@ -339,13 +343,7 @@ fn twin_rooms_close_no_loop_between_them() {
         None => synthetic_scan(&config).expect("scan").1,
     };
     let twin_offset = Vec3::new(4.0, 0.0, 0.0);
-    let first: Vec<Frame> = (0..scan.len())
-        .map(|i| {
-            let mut f = scan.frame(i).expect("frame");
-            f.depth.iter_mut().for_each(|d| *d = (*d * DEPTH_UNITS_PER_M).round() / DEPTH_UNITS_PER_M);
-            f
-        })
-        .collect();
+    let first = frames_in_store_units(&scan);
     let n = first.len();
     let frames: Vec<(Frame, Affine3A)> = first
         .iter()
