@@ -246,24 +246,34 @@ impl TsdfMap {
     }
 
     /// [`TsdfMap::integrate_chunks`] with each observation weighing `weight` times its usual
-    /// weight (still capped by [`TsdfConfig::max_weight`]): one frame standing for `weight`
-    /// similar ones, as when loop closure re-fuses every n-th stored frame. `weight` 1 gives
-    /// the same bits as [`TsdfMap::integrate_chunks`].
+    /// weight (still capped by [`TsdfConfig::max_weight`]) and standing for the frames
+    /// `frames` (recorded in the chunks it changes, [`crate::Chunk::frames`]): one frame, or
+    /// an average of several, standing for `weight` similar ones, as when far surfaces are
+    /// fused from groups of frames or loop closure re-fuses runs of stored frames. `weight` 1
+    /// and `frames` the frame's own index give the same bits as
+    /// [`TsdfMap::integrate_chunks`].
     ///
     /// # Errors
-    /// [`ReconError::InvalidConfig`] when `weight` is not finite and positive; what
-    /// [`TsdfMap::integrate_chunks`] returns.
+    /// [`ReconError::InvalidConfig`] when `weight` is not finite and positive or `frames` is
+    /// empty; what [`TsdfMap::integrate_chunks`] returns.
     pub fn integrate_chunks_weighted(
         &mut self,
         frame: &Frame,
         world_from_camera: Affine3A,
         keys: &[ChunkKey],
         weight: f32,
+        frames: std::ops::RangeInclusive<usize>,
     ) -> Result<IntegrationStats> {
         if !(weight.is_finite() && weight > 0.0) {
             return Err(ReconError::InvalidConfig(format!("observation weight {weight} must be finite and positive")));
         }
-        self.integrate_chunks_with(kernel(), frame, world_from_camera, keys, weight)
+        if frames.is_empty() {
+            return Err(ReconError::InvalidConfig(format!(
+                "the frames an observation stands for, {frames:?}, are none"
+            )));
+        }
+        let span = (frame_id(*frames.start()), frame_id(*frames.end()));
+        self.integrate_chunks_spanning(kernel(), frame, world_from_camera, keys, weight, span)
     }
 
     /// [`TsdfMap::integrate_chunks`] with the given kernel (tests compare the kernels).
@@ -274,6 +284,21 @@ impl TsdfMap {
         world_from_camera: Affine3A,
         keys: &[ChunkKey],
         obs_weight: f32,
+    ) -> Result<IntegrationStats> {
+        let id = frame_id(frame.index);
+        self.integrate_chunks_spanning(kernel, frame, world_from_camera, keys, obs_weight, (id, id))
+    }
+
+    /// The integration itself: the observation weighs `obs_weight` and stands for the frames
+    /// `span` (inclusive).
+    fn integrate_chunks_spanning(
+        &mut self,
+        kernel: Kernel,
+        frame: &Frame,
+        world_from_camera: Affine3A,
+        keys: &[ChunkKey],
+        obs_weight: f32,
+        span: (u32, u32),
     ) -> Result<IntegrationStats> {
         check_frame(frame, &world_from_camera)?;
         // The intrinsics kernels form pixel indices in f32, exact below 2^24 pixels only, and
@@ -297,7 +322,6 @@ impl TsdfMap {
         let fixed = view.band.min_relative >= 1.0;
         let revision = self.next_revision;
         self.next_revision += 1;
-        let frame_id = frame.index.min(u32::MAX as usize) as u32;
         // The per-chunk bookkeeping happens in the tasks too: done afterwards in one loop it
         // would chase every chunk's record and frame list again, on one thread.
         // `targets` and `outcomes` are in slab order, like the sorted `slots`.
@@ -307,13 +331,13 @@ impl TsdfMap {
             .map(|(chunk, &slot)| {
                 let is_new = slot as usize >= old_len;
                 let out = integrate_chunk_with(kernel, chunk, &view, fixed);
-                chunk.touched = chunk.touched.max(frame_id);
+                chunk.touched = chunk.touched.max(span.1);
                 // A new chunk without a voxel in the band is freed below: no bookkeeping.
                 let kept = !is_new || out.near;
                 if out.updated > 0 && kept {
                     chunk.dirty = true;
                     chunk.revision = revision;
-                    chunk.frames.push(frame_id);
+                    chunk.frames.push_span(span.0, span.1);
                 }
                 out
             })
@@ -337,6 +361,12 @@ impl TsdfMap {
         self.free(to_free);
         Ok(stats)
     }
+}
+
+/// A frame index as chunks record it (saturating: a stream past 2^32 frames records its
+/// last frames as one).
+fn frame_id(index: usize) -> u32 {
+    index.min(u32::MAX as usize) as u32
 }
 
 /// `slots` (positions in a slab of `len` chunks, any order, repeats allowed) sorted and

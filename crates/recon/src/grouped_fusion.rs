@@ -25,8 +25,8 @@
 //!
 //! Near chunks are fused from every frame as before, so close-range detail and the tracker's
 //! model are unchanged. Everything is per pixel and per chunk in a fixed order: the same bits
-//! for any thread count. Loop closure re-fuses stored frames one by one, so the pipeline
-//! groups frames only without it.
+//! for any thread count. A far pass records every frame of its group in the chunks it
+//! changes, so that a loop closure's re-integration re-fuses them all there.
 
 use glam::{Affine3A, Vec3};
 use rayon::prelude::*;
@@ -34,7 +34,7 @@ use semrecon_data::{Frame, Intrinsics};
 
 use crate::error::Result;
 use crate::fusion::IntegrationStats;
-use crate::map::{depth_noise, ChunkKey, TsdfMap, CHUNK_SIDE};
+use crate::map::{depth_noise, ChunkKey, TsdfConfig, TsdfMap, CHUNK_SIDE};
 
 /// Largest gap in frame indices between consecutive frames of a group: a stream that skipped
 /// frames (a lost frame, a subsampled clip) groups across a short gap, not across seconds.
@@ -140,10 +140,26 @@ impl GroupedFusion {
         frame: &Frame,
         world_from_camera: Affine3A,
     ) -> Result<IntegrationStats> {
-        if !self.is_on() {
-            return map.integrate(frame, world_from_camera);
-        }
         let keys = map.select_chunks(frame, world_from_camera)?;
+        self.integrate_selected(map, frame, world_from_camera, keys)
+    }
+
+    /// [`GroupedFusion::integrate`] with the frame's chunk selection made already
+    /// ([`TsdfMap::select_chunks`]): every chunk this frame changes, now or with its group,
+    /// is among `keys` (a loop closure's shadow copies them first).
+    ///
+    /// # Errors
+    /// As [`GroupedFusion::integrate`].
+    pub fn integrate_selected(
+        &mut self,
+        map: &mut TsdfMap,
+        frame: &Frame,
+        world_from_camera: Affine3A,
+        keys: Vec<ChunkKey>,
+    ) -> Result<IntegrationStats> {
+        if !self.is_on() {
+            return map.integrate_chunks(frame, world_from_camera, &keys);
+        }
         let (near, far) = split_by_depth(map, &keys, world_from_camera, self.beyond_m);
         let mut stats = IntegrationStats::default();
         // A group broken by a gap in the stream, or by another camera, is fused frame by frame.
@@ -195,34 +211,20 @@ impl GroupedFusion {
         // its surface by more than the band (or the clamp behind it).
         let reach = CHUNK_SIDE as f32 * config.voxel_size;
         let from_depth = self.beyond_m - reach - config.behind_band * truncation;
-        let camera_from_world = world_from_camera.inverse();
-        let others: Vec<(&[f32], Affine3A)> =
-            held.iter().map(|h| (h.depth.as_slice(), camera_from_world * h.world_from_camera)).collect();
-        let (depth, paired, candidates) = grouped_depth(
-            &frame.depth,
-            &others,
-            &frame.intrinsics,
-            // Two observations of one surface differ by the noise of both, sqrt(2) sigma:
-            // 4.5 sigma keeps all but a few in ten thousand of them (the band, capped at the
-            // truncation, would drop a fifth far away), and still parts surfaces that are
-            // decimetres apart at 4 m.
-            |z| (4.5 * depth_noise(z)).max(2.0 * config.voxel_size),
-            (config.min_depth, config.max_depth),
-            from_depth,
-        );
+        let others: Vec<(&[f32], Affine3A)> = held.iter().map(|h| (h.depth.as_slice(), h.world_from_camera)).collect();
+        let averaged = averaged_frame(&config, frame, world_from_camera, &others, from_depth, others.len());
         self.stats.groups += 1;
-        self.stats.paired_pixels += paired;
-        self.stats.candidate_pixels += candidates;
-        let averaged = Frame {
-            index: frame.index,
-            timestamp: frame.timestamp,
-            depth,
-            color: frame.color.clone(),
-            intrinsics: frame.intrinsics,
-            world_from_camera: frame.world_from_camera,
-            labels: None,
-        };
-        stats += map.integrate_chunks_weighted(&averaged, world_from_camera, &far, self.frames as f32)?;
+        self.stats.paired_pixels += averaged.paired;
+        self.stats.candidate_pixels += averaged.candidates;
+        // The chunks record the whole group: a re-integration re-fuses every frame of it.
+        let first = held.first().map_or(frame.index, |h| h.index);
+        stats += map.integrate_chunks_weighted(
+            &averaged.frame,
+            world_from_camera,
+            &far,
+            self.frames as f32,
+            first..=frame.index,
+        )?;
         Ok(stats)
     }
 
@@ -249,6 +251,68 @@ impl GroupedFusion {
     pub fn is_holding(&self) -> bool {
         !self.held.is_empty()
     }
+
+    /// Forgets the held frames without fusing their far chunks: for when those chunks were
+    /// fused from the frames elsewhere, as a loop closure's re-integration does when it hands
+    /// its map over (it fused every frame since its start whole, at the corrected poses).
+    pub fn discard_held(&mut self) {
+        self.held.clear();
+    }
+}
+
+/// A frame whose depth is averaged with other frames' ([`averaged_frame`]).
+#[derive(Debug, Clone)]
+pub struct AveragedFrame {
+    /// The frame, its depth replaced by the average (0 where a pixel is left out).
+    pub frame: Frame,
+    /// Pixels that found a partner in every other frame (the averaged ones).
+    pub paired: usize,
+    /// Valid pixels from the given depth on.
+    pub candidates: usize,
+}
+
+/// `frame`'s depth averaged, pixel by pixel, with `others`' observations of the same surface
+/// points ([`grouped_depth`], with the sensor's noise as the tolerance and the map's depth
+/// range): one image that, fused at the frames' count as its weight, gives the update of all
+/// of them. `others` holds each other frame's depth (same intrinsics as `frame`) and
+/// `world_from_camera`; pixels nearer than `from_depth` are left out.
+///
+/// # Shapes
+/// Every depth `height * width` metres of `frame.intrinsics`, row-major.
+pub fn averaged_frame(
+    config: &TsdfConfig,
+    frame: &Frame,
+    world_from_camera: Affine3A,
+    others: &[(&[f32], Affine3A)],
+    from_depth: f32,
+    min_partners: usize,
+) -> AveragedFrame {
+    let camera_from_world = world_from_camera.inverse();
+    let others: Vec<(&[f32], Affine3A)> =
+        others.iter().map(|&(depth, world_from_other)| (depth, camera_from_world * world_from_other)).collect();
+    let (depth, paired, candidates) = grouped_depth_partial(
+        &frame.depth,
+        &others,
+        &frame.intrinsics,
+        // Two observations of one surface differ by the noise of both, sqrt(2) sigma:
+        // 4.5 sigma keeps all but a few in ten thousand of them (the band, capped at the
+        // truncation, would drop a fifth far away), and still parts surfaces that are
+        // decimetres apart at 4 m.
+        |z| (4.5 * depth_noise(z)).max(2.0 * config.voxel_size),
+        (config.min_depth, config.max_depth),
+        from_depth,
+        min_partners,
+    );
+    let frame = Frame {
+        index: frame.index,
+        timestamp: frame.timestamp,
+        depth,
+        color: frame.color.clone(),
+        intrinsics: frame.intrinsics,
+        world_from_camera: frame.world_from_camera,
+        labels: None,
+    };
+    AveragedFrame { frame, paired, candidates }
 }
 
 /// `keys` split into chunks whose centre is at most `beyond_m` along the camera's axis and
@@ -292,11 +356,30 @@ pub fn grouped_depth(
     range: (f32, f32),
     from_depth: f32,
 ) -> (Vec<f32>, usize, usize) {
-    grouped_depth_with(current, others, k, tolerance, range, from_depth, true)
+    grouped_depth_with(current, others, k, tolerance, range, from_depth, others.len(), true)
 }
 
-/// [`grouped_depth`], eight pixels at a time (`lanes`) or one by one: the same operations in
-/// the same order either way (tested bit for bit).
+/// [`grouped_depth`] keeping every pixel with a partner in at least `min_partners` of the
+/// other frames (all of them: [`grouped_depth`]), averaged over the frames that have one.
+/// The paired count returned is of pixels averaged with every other frame.
+///
+/// # Shapes
+/// As [`grouped_depth`].
+pub fn grouped_depth_partial(
+    current: &[f32],
+    others: &[(&[f32], Affine3A)],
+    k: &Intrinsics,
+    tolerance: impl Fn(f32) -> f32 + Sync,
+    range: (f32, f32),
+    from_depth: f32,
+    min_partners: usize,
+) -> (Vec<f32>, usize, usize) {
+    grouped_depth_with(current, others, k, tolerance, range, from_depth, min_partners.min(others.len()), true)
+}
+
+/// [`grouped_depth_partial`], eight pixels at a time (`lanes`) or one by one: the same
+/// operations in the same order either way (tested bit for bit).
+#[allow(clippy::too_many_arguments)]
 fn grouped_depth_with(
     current: &[f32],
     others: &[(&[f32], Affine3A)],
@@ -304,10 +387,20 @@ fn grouped_depth_with(
     tolerance: impl Fn(f32) -> f32 + Sync,
     range: (f32, f32),
     from_depth: f32,
+    min_partners: usize,
     lanes: bool,
 ) -> (Vec<f32>, usize, usize) {
     let (w, h) = (k.width as usize, k.height as usize);
-    let g = Geometry { k: *k, w, h, inv_fx: 1.0 / k.fx, inv_fy: 1.0 / k.fy, range, from: from_depth.max(range.0) };
+    let g = Geometry {
+        k: *k,
+        w,
+        h,
+        inv_fx: 1.0 / k.fx,
+        inv_fy: 1.0 / k.fy,
+        range,
+        from: from_depth.max(range.0),
+        min_partners,
+    };
     let warps: Vec<Warp> = others
         .iter()
         .map(|&(depth, current_from_other)| {
@@ -323,7 +416,6 @@ fn grouped_depth_with(
             }
         })
         .collect();
-    let scale = 1.0 / (warps.len() + 1) as f32;
     let mut out = vec![0.0f32; w * h];
     let (paired, candidates) = out
         .par_chunks_mut(w)
@@ -341,7 +433,7 @@ fn grouped_depth_with(
             if lanes {
                 while u + 8 <= w {
                     let (pn, pc) =
-                        pixels8(&g, &warps, &row_rays, &tolerance, u, &depth_row[u..u + 8], &mut row[u..u + 8], scale);
+                        pixels8(&g, &warps, &row_rays, &tolerance, u, &depth_row[u..u + 8], &mut row[u..u + 8]);
                     n += pn;
                     c += pc;
                     u += 8;
@@ -353,13 +445,13 @@ fn grouped_depth_with(
                     continue;
                 }
                 c += 1;
-                if let Some(sum) = pixel(&g, &warps, &row_rays, &tolerance, u, d) {
-                    // Only pixels every held frame saw are averaged: filling the others with
-                    // the frames that did, at the group's weight, cost 0.2-0.5 mm of mesh
-                    // accuracy on rendered scans for under a point of completeness
+                if let Some((sum, count)) = pixel(&g, &warps, &row_rays, &tolerance, u, d) {
+                    // Far grouping averages only pixels every held frame saw: filling the
+                    // others with the frames that did, at the group's weight, cost 0.2-0.5 mm
+                    // of mesh accuracy on rendered scans for under a point of completeness
                     // (docs/fusion.md).
-                    row[u] = sum * scale;
-                    n += 1;
+                    row[u] = sum * (1.0 / count);
+                    n += (count as usize == warps.len() + 1) as usize;
                 }
             }
             (n, c)
@@ -378,6 +470,8 @@ struct Geometry {
     range: (f32, f32),
     /// Pixels nearer than this are left out.
     from: f32,
+    /// Other frames that must pair a pixel for it to be kept.
+    min_partners: usize,
 }
 
 /// One other frame, seen from the current camera: a current pixel's point seen from it is
@@ -392,8 +486,9 @@ struct Warp<'a> {
     back_tz: f32,
 }
 
-/// The sum of pixel `u`'s depth `d` and every other frame's depth of the same surface point,
-/// or `None` where some other frame has no partner for it.
+/// The sum of pixel `u`'s depth `d` and the other frames' depths of the same surface point,
+/// with their count (`d` included), or `None` where fewer than `g.min_partners` other frames
+/// have a partner for it.
 fn pixel(
     g: &Geometry,
     warps: &[Warp],
@@ -401,57 +496,70 @@ fn pixel(
     tolerance: &impl Fn(f32) -> f32,
     u: usize,
     d: f32,
-) -> Option<f32> {
+) -> Option<(f32, f32)> {
     let (w, k) = (g.w, &g.k);
     let valid = |z: f32| z >= g.range.0 && z <= g.range.1;
-    let mut sum = d;
+    let (mut sum, mut count) = (d, 1.0f32);
+    let mut missed = 0;
     for (wp, row_ray) in warps.iter().zip(row_rays) {
-        let seen = (*row_ray + wp.step_u * u as f32) * d + wp.translation;
-        if !valid(seen.z) {
-            return None;
-        }
-        let inv_z = 1.0 / seen.z;
-        let (px, py) = (k.fx * seen.x * inv_z + k.cx, k.fy * seen.y * inv_z + k.cy);
-        // Truncation is the floor for the non-negative coordinates kept (the baseline target
-        // has no rounding instruction: `floor` is a call).
-        if !(px >= 0.0 && py >= 0.0 && px < (w - 1) as f32 && py < (g.h - 1) as f32) {
-            return None;
-        }
-        let (iu, iv) = (px as usize, py as usize);
-        let (a, b) = (px - iu as f32, py - iv as f32);
-        let tol = tolerance(seen.z);
-        let i = iv * w + iu;
-        let corners = [
-            (wp.depth[i], (1.0 - a) * (1.0 - b)),
-            (wp.depth[i + 1], a * (1.0 - b)),
-            (wp.depth[i + w], (1.0 - a) * b),
-            (wp.depth[i + w + 1], a * b),
-        ];
-        // Corners on another surface (across an edge) are left out.
-        let (mut acc, mut weight) = (0.0f32, 0.0f32);
-        for (z, wz) in corners {
-            if valid(z) && (z - seen.z).abs() <= tol {
-                acc += z * wz;
-                weight += wz;
+        let partner = (|| {
+            let seen = (*row_ray + wp.step_u * u as f32) * d + wp.translation;
+            if !valid(seen.z) {
+                return None;
+            }
+            let inv_z = 1.0 / seen.z;
+            let (px, py) = (k.fx * seen.x * inv_z + k.cx, k.fy * seen.y * inv_z + k.cy);
+            // Truncation is the floor for the non-negative coordinates kept (the baseline
+            // target has no rounding instruction: `floor` is a call).
+            if !(px >= 0.0 && py >= 0.0 && px < (w - 1) as f32 && py < (g.h - 1) as f32) {
+                return None;
+            }
+            let (iu, iv) = (px as usize, py as usize);
+            let (a, b) = (px - iu as f32, py - iv as f32);
+            let tol = tolerance(seen.z);
+            let i = iv * w + iu;
+            let corners = [
+                (wp.depth[i], (1.0 - a) * (1.0 - b)),
+                (wp.depth[i + 1], a * (1.0 - b)),
+                (wp.depth[i + w], (1.0 - a) * b),
+                (wp.depth[i + w + 1], a * b),
+            ];
+            // Corners on another surface (across an edge) are left out.
+            let (mut acc, mut weight) = (0.0f32, 0.0f32);
+            for (z, wz) in corners {
+                if valid(z) && (z - seen.z).abs() <= tol {
+                    acc += z * wz;
+                    weight += wz;
+                }
+            }
+            if weight < 0.25 {
+                return None;
+            }
+            let held = acc / weight;
+            let ray = Vec3::new((px - k.cx) * g.inv_fx, (py - k.cy) * g.inv_fy, 1.0);
+            let back = held * wp.back_z.dot(ray) + wp.back_tz;
+            valid(back).then_some(back)
+        })();
+        match partner {
+            Some(back) => {
+                sum += back;
+                count += 1.0;
+            }
+            None => {
+                missed += 1;
+                if warps.len() - missed < g.min_partners {
+                    return None;
+                }
             }
         }
-        if weight < 0.25 {
-            return None;
-        }
-        let held = acc / weight;
-        let ray = Vec3::new((px - k.cx) * g.inv_fx, (py - k.cy) * g.inv_fy, 1.0);
-        let back = held * wp.back_z.dot(ray) + wp.back_tz;
-        if !valid(back) {
-            return None;
-        }
-        sum += back;
     }
-    Some(sum)
+    Some((sum, count))
 }
 
 /// [`pixel`] for the eight pixels from `u0` (`depth`, `out`: eight each), lane by lane the
-/// same operations (no fused multiply-add), so the same bits; returns the averaged pixels and
-/// the candidates. The warp was a tenth of grouped fusion's time one pixel at a time.
+/// same operations (no fused multiply-add), so the same bits; returns the pixels averaged
+/// with every other frame and the candidates. The warp was a tenth of grouped fusion's time
+/// one pixel at a time.
 #[allow(clippy::too_many_arguments)]
 fn pixels8(
     g: &Geometry,
@@ -461,7 +569,6 @@ fn pixels8(
     u0: usize,
     depth: &[f32],
     out: &mut [f32],
-    scale: f32,
 ) -> (usize, usize) {
     use wide::f32x8;
     let splat = f32x8::splat;
@@ -476,22 +583,29 @@ fn pixels8(
     let uf = f32x8::new(std::array::from_fn(|l| (u0 + l) as f32));
     let (k, w) = (&g.k, g.w);
     let (wl, hl) = (splat((w - 1) as f32), splat((g.h - 1) as f32));
+    // Every other frame must pair a lane: a lane out stays out (and the lanes stop early).
+    let all = g.min_partners >= warps.len();
     let mut alive = candidate;
-    let mut sum = d;
+    let (mut sum, mut count) = (d, one);
     for (wp, rr) in warps.iter().zip(row_rays) {
+        let mut ok = alive;
         let sx = (splat(rr.x) + splat(wp.step_u.x) * uf) * d + splat(wp.translation.x);
         let sy = (splat(rr.y) + splat(wp.step_u.y) * uf) * d + splat(wp.translation.y);
         let sz = (splat(rr.z) + splat(wp.step_u.z) * uf) * d + splat(wp.translation.z);
-        alive &= sz.simd_ge(r0) & sz.simd_le(r1);
+        ok &= sz.simd_ge(r0) & sz.simd_le(r1);
         let inv_z = one / sz;
         let px = splat(k.fx) * sx * inv_z + splat(k.cx);
         let py = splat(k.fy) * sy * inv_z + splat(k.cy);
-        alive &= px.simd_ge(zero) & py.simd_ge(zero) & px.simd_lt(wl) & py.simd_lt(hl);
-        if alive.to_bitmask() == 0 {
-            break;
+        ok &= px.simd_ge(zero) & py.simd_ge(zero) & px.simd_lt(wl) & py.simd_lt(hl);
+        if ok.to_bitmask() == 0 {
+            if all {
+                alive = ok;
+                break;
+            }
+            continue;
         }
-        // Lanes already out keep harmless coordinates (pixel 0).
-        let (pxs, pys) = (alive.select(px, zero), alive.select(py, zero));
+        // Lanes out keep harmless coordinates (pixel 0).
+        let (pxs, pys) = (ok.select(px, zero), ok.select(py, zero));
         let (iu, iv) = (pxs.fast_trunc_int(), pys.fast_trunc_int());
         let (a, b) = (pxs - iu.round_float(), pys - iv.round_float());
         let szs = sz.to_array();
@@ -507,27 +621,33 @@ fn pixels8(
         ];
         let (mut acc, mut weight) = (zero, zero);
         for (z, wz) in corners {
-            let ok = z.simd_ge(r0) & z.simd_le(r1) & (z - sz).abs().simd_le(tol);
-            acc = ok.select(acc + z * wz, acc);
-            weight = ok.select(weight + wz, weight);
+            let near = z.simd_ge(r0) & z.simd_le(r1) & (z - sz).abs().simd_le(tol);
+            acc = near.select(acc + z * wz, acc);
+            weight = near.select(weight + wz, weight);
         }
-        alive &= weight.simd_ge(splat(0.25));
+        ok &= weight.simd_ge(splat(0.25));
         let held = acc / weight;
         let rx = (px - splat(k.cx)) * splat(g.inv_fx);
         let ry = (py - splat(k.cy)) * splat(g.inv_fy);
         let dot = splat(wp.back_z.x) * rx + splat(wp.back_z.y) * ry + splat(wp.back_z.z) * one;
         let back = held * dot + splat(wp.back_tz);
-        alive &= back.simd_ge(r0) & back.simd_le(r1);
-        sum += back;
+        ok &= back.simd_ge(r0) & back.simd_le(r1);
+        sum = ok.select(sum + back, sum);
+        count = ok.select(count + one, count);
+        if all {
+            alive = ok;
+        }
     }
-    let bits = alive.to_bitmask();
-    let averaged = (sum * splat(scale)).to_array();
+    let kept = if all { alive } else { candidate & count.simd_ge(splat((g.min_partners + 1) as f32)) };
+    let full = count.simd_eq(splat((warps.len() + 1) as f32)) & kept;
+    let bits = kept.to_bitmask();
+    let averaged = (sum * (one / count)).to_array();
     for (l, o) in out.iter_mut().enumerate() {
         if bits & (1 << l) != 0 {
             *o = averaged[l];
         }
     }
-    (bits.count_ones() as usize, candidates)
+    (full.to_bitmask().count_ones() as usize, candidates)
 }
 
 #[cfg(test)]
@@ -664,12 +784,29 @@ mod tests {
             let others: Vec<(&[f32], Affine3A)> =
                 if trial % 2 == 0 { vec![(&a, pa), (&b, pb)] } else { vec![(&a, pa)] };
             let tolerance = |z: f32| 0.01 + 0.02 * z * z;
-            let lanes = grouped_depth_with(&current, &others, &k, tolerance, (0.1, 5.0), 0.3 * trial as f32, true);
-            let single = grouped_depth_with(&current, &others, &k, tolerance, (0.1, 5.0), 0.3 * trial as f32, false);
-            assert!(lanes.1 > 0, "trial {trial}: nothing averaged");
-            assert_eq!((lanes.1, lanes.2), (single.1, single.2), "trial {trial}");
             let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-            assert_eq!(bits(&lanes.0), bits(&single.0), "trial {trial}");
+            let from = 0.3 * trial as f32;
+            let mut kept_before = usize::MAX;
+            for need in (0..=others.len()).rev() {
+                let lanes = grouped_depth_with(&current, &others, &k, tolerance, (0.1, 5.0), from, need, true);
+                let single = grouped_depth_with(&current, &others, &k, tolerance, (0.1, 5.0), from, need, false);
+                assert!(lanes.1 > 0, "trial {trial}, {need} partners: nothing averaged");
+                assert_eq!((lanes.1, lanes.2), (single.1, single.2), "trial {trial}, {need} partners");
+                assert_eq!(bits(&lanes.0), bits(&single.0), "trial {trial}, {need} partners");
+                // Fewer partners needed keep more pixels; every partner needed is `grouped_depth`.
+                let kept = lanes.0.iter().filter(|d| **d > 0.0).count();
+                if need == others.len() {
+                    let full = grouped_depth(&current, &others, &k, tolerance, (0.1, 5.0), from);
+                    assert_eq!(bits(&full.0), bits(&lanes.0), "trial {trial}");
+                    assert_eq!(kept, full.1, "trial {trial}");
+                } else {
+                    assert!(kept > kept_before, "trial {trial}, {need} partners: {kept} kept");
+                }
+                if need == 0 {
+                    assert_eq!(kept, lanes.2, "trial {trial}: every candidate kept with no partner needed");
+                }
+                kept_before = kept;
+            }
         }
     }
 

@@ -38,7 +38,7 @@ pub mod tracking;
 
 pub use error::{ReconError, Result};
 pub use fusion::{depth_weight, IntegrationStats};
-pub use grouped_fusion::{GroupedFusion, GroupingStats};
+pub use grouped_fusion::{averaged_frame, AveragedFrame, GroupedFusion, GroupingStats};
 pub use loop_detection::{LoopConfig, LoopDetector, LoopRejection, LoopVerdict};
 pub use map::{
     Chunk, ChunkKey, Compaction, MapMemory, PackError, SpillError, SpillFile, TsdfConfig, TsdfMap, Voxel, CHUNK_SIDE,

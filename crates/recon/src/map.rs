@@ -236,12 +236,28 @@ impl FrameRuns {
     /// Records `frame` (inclusive runs; repeated or consecutive indices extend the last run).
     #[inline]
     pub fn push(&mut self, frame: u32) {
+        self.push_span(frame, frame);
+    }
+
+    /// Records the frames `first..=last` (one observation standing for several frames, as
+    /// when an average of consecutive frames is fused): runs the span overlaps or touches at
+    /// the end of the list merge with it.
+    #[inline]
+    pub fn push_span(&mut self, first: u32, last: u32) {
+        let (mut first, mut last) = (first.min(last), first.max(last));
         let mut n = self.len as usize;
-        if let Some(last) = self.runs[..n].last_mut() {
-            if frame >= last.0 && frame <= last.1.saturating_add(1) {
-                last.1 = last.1.max(frame);
+        if let Some(end) = self.runs[..n].last_mut() {
+            if first >= end.0 && first <= end.1.saturating_add(1) {
+                end.1 = end.1.max(last);
                 return;
             }
+        }
+        // A span reaching back over the last runs (rare: recording is in capture order)
+        // absorbs them, so the runs stay disjoint.
+        while n > 0 && first <= self.runs[n - 1].1.saturating_add(1) && last.saturating_add(1) >= self.runs[n - 1].0 {
+            first = first.min(self.runs[n - 1].0);
+            last = last.max(self.runs[n - 1].1);
+            n -= 1;
         }
         if n == Self::MAX_RUNS {
             // Merge the closest neighbours (first such pair on ties: deterministic).
@@ -253,7 +269,7 @@ impl FrameRuns {
             runs.copy_within(i + 2..n, i + 1);
             n -= 1;
         }
-        self.runs[n] = (frame, frame);
+        self.runs[n] = (first, last);
         self.len = (n + 1) as u8;
     }
 
@@ -707,6 +723,28 @@ mod tests {
         assert_eq!(r.runs(), &[(0, 3), (7, 8), (20, 20)]);
         assert!(r.contains(8) && !r.contains(5));
         assert_eq!(r.frames().count(), 7);
+    }
+
+    #[test]
+    fn frame_spans_merge_with_the_runs_they_touch() {
+        let mut r = FrameRuns::default();
+        r.push(3);
+        r.push_span(0, 3);
+        assert_eq!(r.runs(), &[(0, 3)]);
+        r.push(7);
+        r.push_span(5, 8);
+        assert_eq!(r.runs(), &[(0, 3), (5, 8)]);
+        r.push_span(9, 12);
+        assert_eq!(r.runs(), &[(0, 3), (5, 12)]);
+        r.push(20);
+        r.push_span(4, 21);
+        assert_eq!(r.runs(), &[(0, 21)]);
+        // The same as pushing the frames one by one.
+        let mut one_by_one = FrameRuns::default();
+        for f in 0..=21 {
+            one_by_one.push(f);
+        }
+        assert_eq!(r, one_by_one);
     }
 
     #[test]

@@ -20,6 +20,16 @@ fn accuracy_mm(truth: &LabeledMesh, mesh: &LabeledMesh) -> f64 {
         * 1e3
 }
 
+/// The fraction of `truth`'s surface (points 1 cm apart) within 1 cm of `mesh`. The scans
+/// see part of the room, so this compares maps of one scan, not a map with the room.
+fn completeness(truth: &LabeledMesh, mesh: &LabeledMesh) -> f64 {
+    let config = MeshEvalConfig { sample_spacing_m: 0.01, ..MeshEvalConfig::default() };
+    let index = SurfaceIndex::new(mesh, &config, "mesh").expect("index");
+    let samples = semrecon_eval::sample_surface(truth, 0.01, 2_000_000, 1).expect("samples");
+    let near = index.distances(&samples.points).into_iter().filter(|d| *d <= 0.01).count();
+    near as f64 / samples.points.len().max(1) as f64
+}
+
 fn rmse(a: &[Affine3A], b: &[Affine3A]) -> f64 {
     let sum: f64 = a
         .iter()
@@ -55,7 +65,14 @@ fn furnished_room(seed: u64) -> std::result::Result<semrecon_data::synth::Synthe
 
 #[test]
 fn a_drifting_loop_is_closed_and_the_map_follows() {
-    close_a_drifting_loop(1, LoopClosureConfig::default());
+    close_a_drifting_loop(1, LoopClosureConfig::default(), true);
+}
+
+/// Re-fused frame by frame (no runs averaged): the map is then what fusing afresh at the
+/// corrected poses gives.
+#[test]
+fn a_drifting_loop_re_fused_frame_by_frame() {
+    close_a_drifting_loop(1, LoopClosureConfig { reintegration_stride: 1, ..LoopClosureConfig::default() }, false);
 }
 
 /// The same, re-integrating at once (no shadow): as exact.
@@ -63,16 +80,13 @@ fn a_drifting_loop_is_closed_and_the_map_follows() {
 fn a_drifting_loop_re_integrated_at_once() {
     close_a_drifting_loop(
         1,
-        LoopClosureConfig { reintegration_frames_per_keyframe: 0, ..LoopClosureConfig::default() },
+        LoopClosureConfig {
+            reintegration_frames_per_keyframe: 0,
+            reintegration_stride: 1,
+            ..LoopClosureConfig::default()
+        },
+        false,
     );
-}
-
-/// Re-fused from every fourth stored frame, weighing four: within half again of the exact
-/// re-fusion (3.27 against 2.25 mm on seed 1: fewer frames' noise averaged, and the frames
-/// between miss what only they saw), far better than the drifted map (33 mm).
-#[test]
-fn a_drifting_loop_re_fused_from_a_subsample() {
-    close_a_drifting_loop(1, LoopClosureConfig { reintegration_stride: 4, ..LoopClosureConfig::default() });
 }
 
 /// The shadow swaps in at the same keyframes and the map has the same bits with 1, 2 and 4
@@ -90,7 +104,7 @@ fn the_shadow_swaps_at_the_same_keyframe_for_any_thread_count() {
                 reintegration_frames_per_keyframe: 40,
                 ..LoopClosureConfig::default()
             };
-            pool.install(|| close_a_drifting_loop(1, config))
+            pool.install(|| close_a_drifting_loop(1, config, true))
         })
         .collect();
     assert!(runs[0].1.iter().any(|(start, swap)| swap > start), "no re-integration was spread: {:?}", runs[0].1);
@@ -115,7 +129,7 @@ fn a_large_drift_in_a_furnished_room() {
             return;
         }
     };
-    close_a_drifting_loop_in(1, LoopClosureConfig::default(), 4.0, Some(room));
+    close_a_drifting_loop_in(1, LoopClosureConfig::default(), 4.0, Some(room), true);
 }
 
 /// The same on more scans (about 25 s each): `cargo test --release -p semrecon-pipeline --lib
@@ -124,14 +138,19 @@ fn a_large_drift_in_a_furnished_room() {
 #[ignore]
 fn more_drifting_loops() {
     for seed in 2..=5 {
-        close_a_drifting_loop(seed, LoopClosureConfig::default());
+        close_a_drifting_loop(seed, LoopClosureConfig::default(), true);
     }
 }
 
-/// Runs the scan with loop closure configured by `lc_config`; returns the final mesh's vertex
-/// bits and each re-integration's (start, swap) frames.
-fn close_a_drifting_loop(seed: u64, lc_config: LoopClosureConfig) -> (Vec<[u32; 3]>, Vec<(usize, usize)>) {
-    close_a_drifting_loop_in(seed, lc_config, 1.0, None)
+/// Runs the scan with loop closure configured by `lc_config`, live fusion grouping far
+/// surfaces (`grouped`, the pipeline's default) or fusing frames whole; returns the final
+/// mesh's vertex bits and each re-integration's (start, swap) frames.
+fn close_a_drifting_loop(
+    seed: u64,
+    lc_config: LoopClosureConfig,
+    grouped: bool,
+) -> (Vec<[u32; 3]>, Vec<(usize, usize)>) {
+    close_a_drifting_loop_in(seed, lc_config, 1.0, None, grouped)
 }
 
 /// [`close_a_drifting_loop`] with the injected drift times `scale`, in `room` (the generated
@@ -141,6 +160,7 @@ fn close_a_drifting_loop_in(
     lc_config: LoopClosureConfig,
     scale: f32,
     room: Option<semrecon_data::synth::SyntheticRoom>,
+    grouped: bool,
 ) -> (Vec<[u32; 3]>, Vec<(usize, usize)>) {
     let mut config = SyntheticScanConfig::new(seed);
     config.frames = 300;
@@ -170,6 +190,11 @@ fn close_a_drifting_loop_in(
     let budget = lc_config.reintegration_frames_per_keyframe;
     let stride = lc_config.reintegration_stride;
     let mut lc = LoopClosure::new(lc_config, frames[0].intrinsics);
+    let mut grouping = if grouped {
+        GroupedFusion::new(tsdf.far_group_beyond_m, tsdf.far_group_frames)
+    } else {
+        GroupedFusion::new(0.0, 1)
+    };
     // `correction`: how the tracker's frame moved with the map (the tracker gives the drifted
     // pose in the map frame); `estimate`: the pipeline's trajectory (optimised where
     // corrected).
@@ -178,21 +203,25 @@ fn close_a_drifting_loop_in(
     let mut warnings = Vec::new();
     for (i, f) in frames.iter().enumerate() {
         let pose = correction * drifted[i];
-        lc.fuse_live(&mut map, f, pose).expect("fusion");
+        lc.fuse_live(&mut map, &mut grouping, f, pose).expect("fusion");
         estimate.push(pose);
         let keyframe = (i + 1) % KEYFRAME_EVERY == 0;
         lc.add_frame(f, pose, keyframe).expect("stored");
         if !keyframe && lc.is_rebuilding() {
-            lc.frame_follow(&mut map, f.index).expect("re-integration");
+            lc.frame_follow(&mut map, &mut grouping, f.index).expect("re-integration");
         }
         if keyframe {
             if let Some(update) = lc.close_loops(f.index, &mut warnings) {
                 lc.record_correction(update.record);
                 estimate = update.poses;
             }
-            let mut followed = vec![lc.keyframe_follow(&mut map, f.index).expect("re-integration")];
-            if i + 1 == frames.len() && lc.is_behind() {
-                followed.push(Some(lc.follow(&mut map, f.index).expect("re-integration")));
+            let mut followed = vec![lc.keyframe_follow(&mut map, &mut grouping, f.index).expect("re-integration")];
+            if i + 1 == frames.len() {
+                // The end of the scan, as `Pipeline::finish`: held frames, then the map.
+                grouping.flush(&mut map).expect("fusion");
+                if lc.is_behind() {
+                    followed.push(Some(lc.follow(&mut map, &mut grouping, f.index).expect("re-integration")));
+                }
             }
             for (corrected_from_old, estimates) in followed.into_iter().flatten() {
                 correction = corrected_from_old * correction;
@@ -216,18 +245,36 @@ fn close_a_drifting_loop_in(
         for (f, p) in frames.iter().zip(poses) {
             m.integrate(f, *p).expect("fusion");
         }
-        accuracy_mm(&room.mesh, &extract_mesh(&m))
+        extract_mesh(&m)
     };
     let mesh = extract_mesh(&map);
     let followed = accuracy_mm(&room.mesh, &mesh);
-    let (fresh, drifting) = (fuse_all(&map_poses), fuse_all(&drifted));
+    let fresh_mesh = fuse_all(&map_poses);
+    let (fresh, drifting) = (accuracy_mm(&room.mesh, &fresh_mesh), accuracy_mm(&room.mesh, &fuse_all(&drifted)));
+    // How much of the room the re-integrated map has, against the map fused afresh.
+    let (complete, complete_fresh) = (completeness(&room.mesh, &mesh), completeness(&room.mesh, &fresh_mesh));
+    let chunk_fusions: usize = lc.report.reintegrations.iter().map(|r| r.refused_chunks).sum();
+    for r in &lc.report.reintegrations {
+        eprintln!(
+            "  re-integration {}..{}: {} runs averaged ({:.1} % of their pixels), {} frame by frame",
+            r.started_at,
+            r.frame,
+            r.averaged_runs,
+            r.averaged_pixel_fraction * 100.0,
+            r.unaveraged_runs
+        );
+    }
     eprintln!(
-        "seed {seed}, budget {budget}, stride {stride}: ATE {:.1} mm drifted, {:.1} mm after; mesh accuracy {followed:.2} mm re-integrated, {fresh:.2} mm fused afresh, {drifting:.2} mm drifted; {} corrections, {} re-integrations",
+        "seed {seed}, budget {budget}, stride {stride}: ATE {:.1} mm drifted, {:.1} mm after; mesh accuracy {followed:.2} mm re-integrated, {fresh:.2} mm fused afresh, {drifting:.2} mm drifted; completeness {:.2} % re-integrated, {:.2} % fused afresh; {} corrections, {} re-integrations, {chunk_fusions} chunk integrations",
         before * 1e3,
         after * 1e3,
+        complete * 100.0,
+        complete_fresh * 100.0,
         lc.report.corrections.len(),
         lc.report.reintegrations.len()
     );
+    // Runs of frames averaged leave out the pixels no other frame of the run confirms.
+    assert!(complete >= complete_fresh * 0.96, "completeness {complete} re-integrated, {complete_fresh} fused afresh");
     // Exact re-fusion matches fusing afresh; a subsample averages fewer frames' noise.
     let slack = if stride == 1 { (1.05, 0.05) } else { (1.5, 0.1) };
     assert!(followed <= fresh * slack.0 + slack.1, "re-integrated {followed} mm, fused afresh {fresh} mm");
@@ -361,8 +408,9 @@ fn twin_rooms_close_no_loop_between_them() {
     let mut warnings = Vec::new();
     let truth: Vec<Affine3A> = frames.iter().map(|(_, p)| *p).collect();
     let mut estimate = truth.clone();
+    let mut grouping = GroupedFusion::new(tsdf.far_group_beyond_m, tsdf.far_group_frames);
     for (i, (f, pose)) in frames.iter().enumerate() {
-        lc.fuse_live(&mut map, f, *pose).expect("fusion");
+        lc.fuse_live(&mut map, &mut grouping, f, *pose).expect("fusion");
         let keyframe = (i + 1) % KEYFRAME_EVERY == 0;
         lc.add_frame(f, *pose, keyframe).expect("stored");
         if keyframe {
