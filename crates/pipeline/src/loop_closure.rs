@@ -33,8 +33,7 @@ use semrecon_recon::pose_graph::{
     adjoint, alignment_information, isotropic_information, odometry_information, pose_distance, pull_back, Mat6,
 };
 use semrecon_recon::{
-    EdgeKind, GroupedFusion, IntegrationStats, LoopConfig, LoopDetector, LoopVerdict, PoseEdge, PoseGraph,
-    PoseGraphConfig, TsdfMap,
+    EdgeKind, IntegrationStats, LoopConfig, LoopDetector, LoopVerdict, PoseEdge, PoseGraph, PoseGraphConfig, TsdfMap,
 };
 use serde::Serialize;
 
@@ -446,24 +445,16 @@ impl LoopClosure {
         &self.tracked
     }
 
-    /// Fuses a tracked frame into the live map through `grouped` (far surfaces from groups of
-    /// frames, as without loop closure), first letting a re-integration in progress copy the
-    /// chunks the frame is about to change: its whole selection, which holds every chunk its
-    /// group's far pass changes later as well.
-    pub fn fuse_live(
-        &mut self,
-        map: &mut TsdfMap,
-        grouped: &mut GroupedFusion,
-        frame: &Frame,
-        pose: Affine3A,
-    ) -> Result<IntegrationStats> {
+    /// Fuses a tracked frame into the live map (what [`TsdfMap::integrate`] does), first
+    /// letting a re-integration in progress copy the chunks the frame is about to change.
+    pub fn fuse_live(&mut self, map: &mut TsdfMap, frame: &Frame, pose: Affine3A) -> Result<IntegrationStats> {
         let keys = map.select_chunks(frame, pose)?;
         self.live_chunks += keys.len();
         self.live_frames += 1;
         if let Some(shadow) = self.shadow.as_mut() {
             shadow.before_live_fusion(map, &keys);
         }
-        Ok(grouped.integrate_selected(map, frame, pose, keys)?)
+        Ok(map.integrate_chunks(frame, pose, &keys)?)
     }
 
     /// Records a fused frame at its tracked pose; a keyframe (`keyframe`, and always the
@@ -754,36 +745,27 @@ impl LoopClosure {
     /// correction (at once when the budget is 0). When one completes, `map` is its result and
     /// this returns the move of the last frame's map pose (`corrected_from_old`, for the
     /// tracker) and every frame's pose estimate (the corrected trajectory).
-    ///
-    /// `grouped` is the live fusion's grouping: a re-integration starts after its held frames
-    /// are fused (the plan reads the map with every fused frame in it) and, when it completes,
-    /// the frames held then are dropped (the shadow fused them whole, at the corrected poses).
-    pub fn keyframe_follow(
-        &mut self,
-        map: &mut TsdfMap,
-        grouped: &mut GroupedFusion,
-        frame: usize,
-    ) -> Result<Option<(Affine3A, Vec<Affine3A>)>> {
+    pub fn keyframe_follow(&mut self, map: &mut TsdfMap, frame: usize) -> Result<Option<(Affine3A, Vec<Affine3A>)>> {
         let due = self.follow_due();
         if self.shadow.is_none() {
             if !due {
                 return Ok(None);
             }
             if self.config.reintegration_frames_per_keyframe == 0 {
-                return self.follow_now(map, grouped, frame, false).map(Some);
+                return self.follow_now(map, frame, false).map(Some);
             }
-            if !self.start(map, grouped, frame)? {
+            if !self.start(map, frame) {
                 return Ok(None);
             }
         }
-        self.advance(map, grouped, frame, Some(self.frame_budget()), false, true)
+        self.advance(map, frame, Some(self.frame_budget()), false, true)
     }
 
     /// At a fused frame that is not a keyframe, while a re-integration is in progress: fuses
     /// this frame's share of it into the shadow (the swap waits for a keyframe). Spreading
     /// over frames rather than keyframes keeps each stall to about two frame fusions.
-    pub fn frame_follow(&mut self, map: &mut TsdfMap, grouped: &mut GroupedFusion, frame: usize) -> Result<()> {
-        self.advance(map, grouped, frame, Some(self.frame_budget()), false, false).map(|_| ())
+    pub fn frame_follow(&mut self, map: &mut TsdfMap, frame: usize) -> Result<()> {
+        self.advance(map, frame, Some(self.frame_budget()), false, false).map(|_| ())
     }
 
     /// Chunk integrations per fused frame: `reintegration_frames_per_keyframe` frames' worth
@@ -801,25 +783,22 @@ impl LoopClosure {
 
     /// Plans the map's following of the current estimates and starts a shadow for it;
     /// false (and the correction counted as skipped) when it moves no chunk far enough.
-    fn start(&mut self, map: &mut TsdfMap, grouped: &mut GroupedFusion, frame: usize) -> Result<bool> {
+    fn start(&mut self, map: &TsdfMap, frame: usize) -> bool {
         self.behind = false;
         self.keyframes_since_follow = 0;
         let t = std::time::Instant::now();
-        // Held frames' far chunks go into the map first: the plan re-fuses the frames a
-        // chunk records, and the shadow claims only what live frames change after its start.
-        grouped.flush(map)?;
         let tau = self.config.min_chunk_move_voxels * map.config().voxel_size;
         let plan = plan::plan(map, &self.frames, &self.estimates(), tau);
         if plan.is_empty() {
             self.report.skipped_reintegrations += 1;
-            return Ok(false);
+            return false;
         }
         let mut shadow = Shadow::start(map, plan, frame, self.config.reintegration_stride);
         shadow.start_ms = t.elapsed().as_secs_f64() * 1e3;
         shadow.plan_ms = shadow.start_ms;
         shadow.ms += shadow.start_ms;
         self.shadow = Some(shadow);
-        Ok(true)
+        true
     }
 
     /// Fuses up to `budget` frames (all: `None`) into the shadow in progress and swaps it in
@@ -827,7 +806,6 @@ impl LoopClosure {
     fn advance(
         &mut self,
         map: &mut TsdfMap,
-        grouped: &mut GroupedFusion,
         frame: usize,
         budget: Option<usize>,
         at_end: bool,
@@ -862,9 +840,6 @@ impl LoopClosure {
             },
         });
         shadow.swap_into(map);
-        // Frames held since the start were fused whole into the shadow: nothing of them is
-        // left to fuse, and their poses are the old ones.
-        grouped.discard_held();
         let corrected_from_old = self.adopt(&poses);
         Ok(Some((corrected_from_old, self.estimates())))
     }
@@ -886,33 +861,22 @@ impl LoopClosure {
     /// a later correction moved further (the end of a scan; every correction when the
     /// per-keyframe budget is 0). Returns what [`LoopClosure::keyframe_follow`] does. Nothing
     /// moves when loop closure stopped (the store is gone).
-    pub fn follow(
-        &mut self,
-        map: &mut TsdfMap,
-        grouped: &mut GroupedFusion,
-        frame: usize,
-    ) -> Result<(Affine3A, Vec<Affine3A>)> {
-        self.follow_now(map, grouped, frame, true)
+    pub fn follow(&mut self, map: &mut TsdfMap, frame: usize) -> Result<(Affine3A, Vec<Affine3A>)> {
+        self.follow_now(map, frame, true)
     }
 
-    fn follow_now(
-        &mut self,
-        map: &mut TsdfMap,
-        grouped: &mut GroupedFusion,
-        frame: usize,
-        at_end: bool,
-    ) -> Result<(Affine3A, Vec<Affine3A>)> {
+    fn follow_now(&mut self, map: &mut TsdfMap, frame: usize, at_end: bool) -> Result<(Affine3A, Vec<Affine3A>)> {
         let mut corrected_from_old = Affine3A::IDENTITY;
         if self.behind {
             // A correction came after the shadow's start: one re-integration from the live
             // map (which holds every frame where the map says) covers both, for less work
             // than completing the shadow and then rebuilding what the later correction moved.
             self.shadow = None;
-        } else if let Some((c, _)) = self.advance(map, grouped, frame, None, at_end, true)? {
+        } else if let Some((c, _)) = self.advance(map, frame, None, at_end, true)? {
             corrected_from_old = c;
         }
-        if self.behind && self.start(map, grouped, frame)? {
-            if let Some((c, _)) = self.advance(map, grouped, frame, None, at_end, true)? {
+        if self.behind && self.start(map, frame) {
+            if let Some((c, _)) = self.advance(map, frame, None, at_end, true)? {
                 corrected_from_old = c * corrected_from_old;
             }
         }

@@ -240,9 +240,11 @@ impl Pipeline {
             IncrementalMesher::with_config(config.mesh, RemeshTolerance::EXACT)?.with_budget(config.mesh_budget);
         let loop_closure = (config.poses == PoseMode::Track && config.loop_closure.enabled)
             .then(|| LoopClosure::new(config.loop_closure.clone(), intrinsics));
-        // With loop closure too: far chunks record every frame of their group, which a
-        // re-integration re-fuses (since session 38; before, loop closure fused frames whole).
-        let grouped = GroupedFusion::new(config.tsdf.far_group_beyond_m, config.tsdf.far_group_frames);
+        let grouped = if loop_closure.is_some() {
+            GroupedFusion::new(0.0, 1)
+        } else {
+            GroupedFusion::new(config.tsdf.far_group_beyond_m, config.tsdf.far_group_frames)
+        };
         Ok(Self {
             config,
             intrinsics,
@@ -361,7 +363,7 @@ impl Pipeline {
         let t = Instant::now();
         match &mut self.loop_closure {
             // A re-integration in progress copies the chunks the frame changes, first.
-            Some(lc) if lc.is_running() => lc.fuse_live(&mut self.map, &mut self.grouped, frame, pose)?,
+            Some(lc) if lc.is_running() => lc.fuse_live(&mut self.map, frame, pose)?,
             _ => self.grouped.integrate(&mut self.map, frame, pose)?,
         };
         self.times.record("fusion", t.elapsed());
@@ -399,7 +401,7 @@ impl Pipeline {
             if lc.is_rebuilding() {
                 // The re-integration in progress goes on at every frame; it swaps at keyframes.
                 let t = Instant::now();
-                lc.frame_follow(&mut self.map, &mut self.grouped, frame.index)?;
+                lc.frame_follow(&mut self.map, frame.index)?;
                 self.times.record("map re-integration", t.elapsed());
             }
             return Ok(());
@@ -419,7 +421,7 @@ impl Pipeline {
         }
         let t = Instant::now();
         let rebuilding = lc.is_rebuilding();
-        let followed = lc.keyframe_follow(&mut self.map, &mut self.grouped, frame.index)?;
+        let followed = lc.keyframe_follow(&mut self.map, frame.index)?;
         if rebuilding || lc.is_rebuilding() || followed.is_some() {
             // Per keyframe: the share of a re-integration it did (spread over keyframes).
             self.times.record("map re-integration", t.elapsed());
@@ -434,7 +436,7 @@ impl Pipeline {
     fn follow_poses(&mut self, frame: usize) -> Result<()> {
         let Some(lc) = &mut self.loop_closure else { return Ok(()) };
         let t = Instant::now();
-        let followed = lc.follow(&mut self.map, &mut self.grouped, frame)?;
+        let followed = lc.follow(&mut self.map, frame)?;
         // Apart from the keyframes' shares: what was still pending at the end of the scan.
         self.times.record("final map re-integration", t.elapsed());
         self.adopt_follow(followed);

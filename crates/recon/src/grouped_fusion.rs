@@ -26,7 +26,9 @@
 //! Near chunks are fused from every frame as before, so close-range detail and the tracker's
 //! model are unchanged. Everything is per pixel and per chunk in a fixed order: the same bits
 //! for any thread count. A far pass records every frame of its group in the chunks it
-//! changes, so that a loop closure's re-integration re-fuses them all there.
+//! changes. Loop closure re-fuses stored frames one by one, so the pipeline groups frames
+//! only without it (grouping with it inherits a tracking failure on one generated scan,
+//! docs/loop_closure.md, "Session 38").
 
 use glam::{Affine3A, Vec3};
 use rayon::prelude::*;
@@ -140,26 +142,10 @@ impl GroupedFusion {
         frame: &Frame,
         world_from_camera: Affine3A,
     ) -> Result<IntegrationStats> {
-        let keys = map.select_chunks(frame, world_from_camera)?;
-        self.integrate_selected(map, frame, world_from_camera, keys)
-    }
-
-    /// [`GroupedFusion::integrate`] with the frame's chunk selection made already
-    /// ([`TsdfMap::select_chunks`]): every chunk this frame changes, now or with its group,
-    /// is among `keys` (a loop closure's shadow copies them first).
-    ///
-    /// # Errors
-    /// As [`GroupedFusion::integrate`].
-    pub fn integrate_selected(
-        &mut self,
-        map: &mut TsdfMap,
-        frame: &Frame,
-        world_from_camera: Affine3A,
-        keys: Vec<ChunkKey>,
-    ) -> Result<IntegrationStats> {
         if !self.is_on() {
-            return map.integrate_chunks(frame, world_from_camera, &keys);
+            return map.integrate(frame, world_from_camera);
         }
+        let keys = map.select_chunks(frame, world_from_camera)?;
         let (near, far) = split_by_depth(map, &keys, world_from_camera, self.beyond_m);
         let mut stats = IntegrationStats::default();
         // A group broken by a gap in the stream, or by another camera, is fused frame by frame.
@@ -250,13 +236,6 @@ impl GroupedFusion {
     /// Whether frames are held, their far chunks not fused yet.
     pub fn is_holding(&self) -> bool {
         !self.held.is_empty()
-    }
-
-    /// Forgets the held frames without fusing their far chunks: for when those chunks were
-    /// fused from the frames elsewhere, as a loop closure's re-integration does when it hands
-    /// its map over (it fused every frame since its start whole, at the corrected poses).
-    pub fn discard_held(&mut self) {
-        self.held.clear();
     }
 }
 

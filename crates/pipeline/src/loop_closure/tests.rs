@@ -65,14 +65,14 @@ fn furnished_room(seed: u64) -> std::result::Result<semrecon_data::synth::Synthe
 
 #[test]
 fn a_drifting_loop_is_closed_and_the_map_follows() {
-    close_a_drifting_loop(1, LoopClosureConfig::default(), true);
+    close_a_drifting_loop(1, LoopClosureConfig::default());
 }
 
 /// Re-fused frame by frame (no runs averaged): the map is then what fusing afresh at the
 /// corrected poses gives.
 #[test]
 fn a_drifting_loop_re_fused_frame_by_frame() {
-    close_a_drifting_loop(1, LoopClosureConfig { reintegration_stride: 1, ..LoopClosureConfig::default() }, false);
+    close_a_drifting_loop(1, LoopClosureConfig { reintegration_stride: 1, ..LoopClosureConfig::default() });
 }
 
 /// The same, re-integrating at once (no shadow): as exact.
@@ -85,7 +85,6 @@ fn a_drifting_loop_re_integrated_at_once() {
             reintegration_stride: 1,
             ..LoopClosureConfig::default()
         },
-        false,
     );
 }
 
@@ -104,7 +103,7 @@ fn the_shadow_swaps_at_the_same_keyframe_for_any_thread_count() {
                 reintegration_frames_per_keyframe: 40,
                 ..LoopClosureConfig::default()
             };
-            pool.install(|| close_a_drifting_loop(1, config, true))
+            pool.install(|| close_a_drifting_loop(1, config))
         })
         .collect();
     assert!(runs[0].1.iter().any(|(start, swap)| swap > start), "no re-integration was spread: {:?}", runs[0].1);
@@ -129,7 +128,7 @@ fn a_large_drift_in_a_furnished_room() {
             return;
         }
     };
-    close_a_drifting_loop_in(1, LoopClosureConfig::default(), 4.0, Some(room), true);
+    close_a_drifting_loop_in(1, LoopClosureConfig::default(), 4.0, Some(room));
 }
 
 /// The same on more scans (about 25 s each): `cargo test --release -p semrecon-pipeline --lib
@@ -138,19 +137,14 @@ fn a_large_drift_in_a_furnished_room() {
 #[ignore]
 fn more_drifting_loops() {
     for seed in 2..=5 {
-        close_a_drifting_loop(seed, LoopClosureConfig::default(), true);
+        close_a_drifting_loop(seed, LoopClosureConfig::default());
     }
 }
 
-/// Runs the scan with loop closure configured by `lc_config`, live fusion grouping far
-/// surfaces (`grouped`, the pipeline's default) or fusing frames whole; returns the final
-/// mesh's vertex bits and each re-integration's (start, swap) frames.
-fn close_a_drifting_loop(
-    seed: u64,
-    lc_config: LoopClosureConfig,
-    grouped: bool,
-) -> (Vec<[u32; 3]>, Vec<(usize, usize)>) {
-    close_a_drifting_loop_in(seed, lc_config, 1.0, None, grouped)
+/// Runs the scan with loop closure configured by `lc_config`; returns the final mesh's vertex
+/// bits and each re-integration's (start, swap) frames.
+fn close_a_drifting_loop(seed: u64, lc_config: LoopClosureConfig) -> (Vec<[u32; 3]>, Vec<(usize, usize)>) {
+    close_a_drifting_loop_in(seed, lc_config, 1.0, None)
 }
 
 /// [`close_a_drifting_loop`] with the injected drift times `scale`, in `room` (the generated
@@ -160,7 +154,6 @@ fn close_a_drifting_loop_in(
     lc_config: LoopClosureConfig,
     scale: f32,
     room: Option<semrecon_data::synth::SyntheticRoom>,
-    grouped: bool,
 ) -> (Vec<[u32; 3]>, Vec<(usize, usize)>) {
     let mut config = SyntheticScanConfig::new(seed);
     config.frames = 300;
@@ -190,11 +183,6 @@ fn close_a_drifting_loop_in(
     let budget = lc_config.reintegration_frames_per_keyframe;
     let stride = lc_config.reintegration_stride;
     let mut lc = LoopClosure::new(lc_config, frames[0].intrinsics);
-    let mut grouping = if grouped {
-        GroupedFusion::new(tsdf.far_group_beyond_m, tsdf.far_group_frames)
-    } else {
-        GroupedFusion::new(0.0, 1)
-    };
     // `correction`: how the tracker's frame moved with the map (the tracker gives the drifted
     // pose in the map frame); `estimate`: the pipeline's trajectory (optimised where
     // corrected).
@@ -203,25 +191,21 @@ fn close_a_drifting_loop_in(
     let mut warnings = Vec::new();
     for (i, f) in frames.iter().enumerate() {
         let pose = correction * drifted[i];
-        lc.fuse_live(&mut map, &mut grouping, f, pose).expect("fusion");
+        lc.fuse_live(&mut map, f, pose).expect("fusion");
         estimate.push(pose);
         let keyframe = (i + 1) % KEYFRAME_EVERY == 0;
         lc.add_frame(f, pose, keyframe).expect("stored");
         if !keyframe && lc.is_rebuilding() {
-            lc.frame_follow(&mut map, &mut grouping, f.index).expect("re-integration");
+            lc.frame_follow(&mut map, f.index).expect("re-integration");
         }
         if keyframe {
             if let Some(update) = lc.close_loops(f.index, &mut warnings) {
                 lc.record_correction(update.record);
                 estimate = update.poses;
             }
-            let mut followed = vec![lc.keyframe_follow(&mut map, &mut grouping, f.index).expect("re-integration")];
-            if i + 1 == frames.len() {
-                // The end of the scan, as `Pipeline::finish`: held frames, then the map.
-                grouping.flush(&mut map).expect("fusion");
-                if lc.is_behind() {
-                    followed.push(Some(lc.follow(&mut map, &mut grouping, f.index).expect("re-integration")));
-                }
+            let mut followed = vec![lc.keyframe_follow(&mut map, f.index).expect("re-integration")];
+            if i + 1 == frames.len() && lc.is_behind() {
+                followed.push(Some(lc.follow(&mut map, f.index).expect("re-integration")));
             }
             for (corrected_from_old, estimates) in followed.into_iter().flatten() {
                 correction = corrected_from_old * correction;
@@ -408,9 +392,8 @@ fn twin_rooms_close_no_loop_between_them() {
     let mut warnings = Vec::new();
     let truth: Vec<Affine3A> = frames.iter().map(|(_, p)| *p).collect();
     let mut estimate = truth.clone();
-    let mut grouping = GroupedFusion::new(tsdf.far_group_beyond_m, tsdf.far_group_frames);
     for (i, (f, pose)) in frames.iter().enumerate() {
-        lc.fuse_live(&mut map, &mut grouping, f, *pose).expect("fusion");
+        lc.fuse_live(&mut map, f, *pose).expect("fusion");
         let keyframe = (i + 1) % KEYFRAME_EVERY == 0;
         lc.add_frame(f, *pose, keyframe).expect("stored");
         if keyframe {
