@@ -242,7 +242,8 @@ impl TsdfMap {
         world_from_camera: Affine3A,
         keys: &[ChunkKey],
     ) -> Result<IntegrationStats> {
-        self.integrate_chunks_with(kernel(), frame, world_from_camera, keys, 1.0)
+        let id = frame_id(frame.index);
+        self.integrate_chunks_with(kernel(), frame, world_from_camera, keys, 1.0, (id, id))
     }
 
     /// [`TsdfMap::integrate_chunks`] with each observation weighing `weight` times its usual
@@ -273,25 +274,12 @@ impl TsdfMap {
             )));
         }
         let span = (frame_id(*frames.start()), frame_id(*frames.end()));
-        self.integrate_chunks_spanning(kernel(), frame, world_from_camera, keys, weight, span)
+        self.integrate_chunks_with(kernel(), frame, world_from_camera, keys, weight, span)
     }
 
-    /// [`TsdfMap::integrate_chunks`] with the given kernel (tests compare the kernels).
+    /// The integration with the given kernel (tests compare the kernels): the observation
+    /// weighs `obs_weight` and stands for the frames `span` (inclusive).
     fn integrate_chunks_with(
-        &mut self,
-        kernel: Kernel,
-        frame: &Frame,
-        world_from_camera: Affine3A,
-        keys: &[ChunkKey],
-        obs_weight: f32,
-    ) -> Result<IntegrationStats> {
-        let id = frame_id(frame.index);
-        self.integrate_chunks_spanning(kernel, frame, world_from_camera, keys, obs_weight, (id, id))
-    }
-
-    /// The integration itself: the observation weighs `obs_weight` and stands for the frames
-    /// `span` (inclusive).
-    fn integrate_chunks_spanning(
         &mut self,
         kernel: Kernel,
         frame: &Frame,

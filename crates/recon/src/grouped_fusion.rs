@@ -269,7 +269,7 @@ pub fn averaged_frame(
     let camera_from_world = world_from_camera.inverse();
     let others: Vec<(&[f32], Affine3A)> =
         others.iter().map(|&(depth, world_from_other)| (depth, camera_from_world * world_from_other)).collect();
-    let (depth, paired, candidates) = grouped_depth_partial(
+    let (depth, paired, candidates) = grouped_depth(
         &frame.depth,
         &others,
         &frame.intrinsics,
@@ -324,27 +324,14 @@ fn split_by_depth(
 /// when they carry at least a quarter of the weight: a sensor's scattered dropouts would
 /// otherwise leave a fifth of the pixels unpaired.
 ///
+/// `min_partners` is how many of the other frames must pair a pixel for it to be kept
+/// (`others.len()` or more: every one); a kept pixel is averaged over the frames that pair
+/// it. The paired count returned is of pixels averaged with every other frame.
+///
 /// # Shapes
 /// `current` and every other depth: `height * width` metres, row-major, of `k`'s size; the
 /// result the same.
 pub fn grouped_depth(
-    current: &[f32],
-    others: &[(&[f32], Affine3A)],
-    k: &Intrinsics,
-    tolerance: impl Fn(f32) -> f32 + Sync,
-    range: (f32, f32),
-    from_depth: f32,
-) -> (Vec<f32>, usize, usize) {
-    grouped_depth_with(current, others, k, tolerance, range, from_depth, others.len(), true)
-}
-
-/// [`grouped_depth`] keeping every pixel with a partner in at least `min_partners` of the
-/// other frames (all of them: [`grouped_depth`]), averaged over the frames that have one.
-/// The paired count returned is of pixels averaged with every other frame.
-///
-/// # Shapes
-/// As [`grouped_depth`].
-pub fn grouped_depth_partial(
     current: &[f32],
     others: &[(&[f32], Affine3A)],
     k: &Intrinsics,
@@ -356,7 +343,7 @@ pub fn grouped_depth_partial(
     grouped_depth_with(current, others, k, tolerance, range, from_depth, min_partners.min(others.len()), true)
 }
 
-/// [`grouped_depth_partial`], eight pixels at a time (`lanes`) or one by one: the same
+/// [`grouped_depth`], eight pixels at a time (`lanes`) or one by one: the same
 /// operations in the same order either way (tested bit for bit).
 #[allow(clippy::too_many_arguments)]
 fn grouped_depth_with(
@@ -674,7 +661,7 @@ mod tests {
         let current = plane_depth(&k, nc, cc);
         let current_from_previous = current_from_world * previous_from_world.inverse();
         let (avg, paired, _) =
-            grouped_depth(&current, &[(&previous, current_from_previous)], &k, |_| 0.05, (0.1, 10.0), 0.0);
+            grouped_depth(&current, &[(&previous, current_from_previous)], &k, |_| 0.05, (0.1, 10.0), 0.0, 1);
         assert!(paired > k.pixel_count() * 3 / 4, "{paired} of {} paired", k.pixel_count());
         let mut worst = 0.0f32;
         for (a, c) in avg.iter().zip(&current) {
@@ -701,7 +688,7 @@ mod tests {
         let truth: Vec<f32> = (0..n).map(|i| if i % 64 < 16 { 1.5 } else { 3.0 }).collect();
         let a: Vec<f32> = truth.iter().map(|t| t + noise()).collect();
         let b: Vec<f32> = truth.iter().map(|t| t + noise()).collect();
-        let (avg, _, _) = grouped_depth(&a, &[(&b, Affine3A::IDENTITY)], &k, |_| 0.1, (0.1, 10.0), 0.0);
+        let (avg, _, _) = grouped_depth(&a, &[(&b, Affine3A::IDENTITY)], &k, |_| 0.1, (0.1, 10.0), 0.0, 1);
         let err = |img: &[f32]| {
             let e: Vec<f32> =
                 img.iter().zip(&truth).filter(|(v, _)| **v > 0.0).map(|(v, t)| (v - t) * (v - t)).collect();
@@ -775,7 +762,7 @@ mod tests {
                 // Fewer partners needed keep more pixels; every partner needed is `grouped_depth`.
                 let kept = lanes.0.iter().filter(|d| **d > 0.0).count();
                 if need == others.len() {
-                    let full = grouped_depth(&current, &others, &k, tolerance, (0.1, 5.0), from);
+                    let full = grouped_depth(&current, &others, &k, tolerance, (0.1, 5.0), from, usize::MAX);
                     assert_eq!(bits(&full.0), bits(&lanes.0), "trial {trial}");
                     assert_eq!(kept, full.1, "trial {trial}");
                 } else {

@@ -202,7 +202,8 @@ fn check_kernel_against_scalar(kernel: Kernel, config: TsdfConfig, frames: usize
             };
             scalar_integrate(&mut spec[entry].1, key, &view);
         }
-        map.integrate_chunks_with(kernel, &frame, pose, &keys, obs_weight).expect("fusion");
+        let id = frame_id(frame.index);
+        map.integrate_chunks_with(kernel, &frame, pose, &keys, obs_weight, (id, id)).expect("fusion");
         // The map frees new chunks that got nothing within the band; so does the spec.
         spec.retain(|(k, _)| map.chunk(*k).is_some());
     }
@@ -325,7 +326,7 @@ fn last_pixel_colour_is_fused_by_every_kernel() {
         // Stride 1: the default stride of 2 would not sample the last (odd) pixel.
         let mut map = TsdfMap::new(TsdfConfig { selection_stride: 1, ..TsdfConfig::default() }).expect("valid");
         let keys = map.select_chunks(&frame, Affine3A::IDENTITY).expect("select");
-        map.integrate_chunks_with(kernel, &frame, Affine3A::IDENTITY, &keys, 1.0).expect("fusion");
+        map.integrate_chunks_with(kernel, &frame, Affine3A::IDENTITY, &keys, 1.0, (0, 0)).expect("fusion");
         let mut seen: Vec<[u8; 3]> =
             map.chunks().flat_map(|c| c.voxels()).filter(|v| v.color_count > 0).map(|v| v.color()).collect();
         assert!(!seen.is_empty(), "{kernel:?}: no voxel took a colour");
