@@ -115,7 +115,14 @@ pub struct TrackerConfig {
     /// Lost when the RMS point-to-plane residual of the inliers, normalised to 1 m depth
     /// (divided by depth squared, as depth noise grows), exceeds this many metres.
     pub max_residual: f32,
-    /// Lost when the estimate is further than this many metres from the prediction.
+    /// Lost when the estimate is further than this many metres from the prediction, per
+    /// frame since the last tracked one (a frame after a dropped or lost one may be that much
+    /// further). 0.05: a handheld camera departs from constant velocity by at most 1-2 cm a
+    /// frame at 30 fps (7-Scenes redkitchen 16 mm, TUM fr2/desk 6 mm, the generated walks
+    /// 17 mm); past that the alignment has slid along surfaces that barely hold it, and the
+    /// constant-velocity prediction would carry the slide on from frame to frame (a
+    /// generated two-room loop slid 0.4-2 m in four frames with 0.15, the bound before
+    /// session 39; docs/benchmarks_log.md, "Session 39").
     pub max_translation_jump: f32,
     /// Lost when the estimate turns more than this many radians away from the prediction.
     pub max_rotation_jump: f32,
@@ -176,7 +183,7 @@ impl Default for TrackerConfig {
             min_inlier_ratio: 0.5,
             min_overlap: 0.2,
             max_residual: 0.01,
-            max_translation_jump: 0.15,
+            max_translation_jump: 0.05,
             max_rotation_jump: 20f32.to_radians(),
             min_condition: 1e-4,
             min_constrained: 3,
@@ -501,6 +508,8 @@ pub struct Tracker {
     velocity: Affine3A,
     /// Depth of the last tracked frame at the model resolution (march start bound).
     last_depth: Option<Vec<f32>>,
+    /// Source index of the last tracked frame: the jump bound grows with the frames since.
+    last_index: Option<usize>,
     tracked: usize,
     keyframes: Vec<Keyframe>,
     cache: Option<CachedModel>,
@@ -535,6 +544,7 @@ impl Tracker {
             last: None,
             velocity: Affine3A::IDENTITY,
             last_depth: None,
+            last_index: None,
             tracked: 0,
             keyframes: Vec::new(),
             cache: None,
@@ -650,13 +660,17 @@ impl Tracker {
         let jump_r = Quat::from_mat3a(&jump.matrix3).to_axis_angle().1;
         let jump_r = jump_r.min(std::f32::consts::TAU - jump_r);
         result.world_from_camera = reference * estimate;
+        // Frames since the last tracked one (dropped by a live camera, or lost): each may
+        // add a frame's worth of departure from the prediction. Bounded, so that a source
+        // with arbitrary indices cannot switch the test off.
+        let frames_since = self.last_index.map_or(1, |i| frame.index.saturating_sub(i).clamp(1, 10)) as f32;
         result.status = if singular || constrained < c.min_constrained {
             TrackingStatus::Lost(LostReason::Degenerate)
         } else if result.inlier_ratio < c.min_inlier_ratio || overlap_ratio < c.min_overlap {
             TrackingStatus::Lost(LostReason::FewInliers)
         } else if !((stats.sq_normalised / stats.inliers.max(1) as f64).sqrt() <= c.max_residual as f64) {
             TrackingStatus::Lost(LostReason::LargeResidual)
-        } else if !(jump_t <= c.max_translation_jump
+        } else if !(jump_t <= c.max_translation_jump * frames_since
             && jump_r <= c.max_rotation_jump
             && result.world_from_camera.is_finite())
         {
@@ -702,6 +716,7 @@ impl Tracker {
     /// Records an accepted frame: pose, keyframe, march-start depth.
     fn accept(&mut self, frame: &Frame, result: &mut TrackingResult, model_level: &Level) {
         self.last = Some(result.world_from_camera);
+        self.last_index = Some(frame.index);
         if let Some(cache) = &mut self.cache {
             cache.age += 1;
         }

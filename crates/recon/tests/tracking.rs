@@ -4,7 +4,7 @@
 use glam::{Affine3A, Vec3};
 use semrecon_data::datasets::{synthetic_scan, SyntheticScanConfig};
 use semrecon_data::{Frame, FrameSource, SensorModel};
-use semrecon_recon::{raycast, KeyframeIndex, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
+use semrecon_recon::{raycast, KeyframeIndex, LostReason, Tracker, TrackerConfig, TrackingStatus, TsdfConfig, TsdfMap};
 
 /// `frames` frames of synthetic scan `seed` at 320x240.
 fn scan(seed: u64, frames: usize, ideal: bool) -> Vec<Frame> {
@@ -211,6 +211,33 @@ fn jumps_and_empty_frames_are_lost_and_leave_the_map_intact() {
         assert!(err < 0.01, "frame {}: {err} m off", f.index);
         map.integrate(f, r.world_from_camera).expect("fusion");
     }
+}
+
+/// A frame far from the constant-velocity prediction is lost when it claims to follow the
+/// last tracked frame (an alignment that slid), and tracked when its index says the frames
+/// in between were dropped: the jump bound grows with the frames since the last tracked one.
+#[test]
+fn the_jump_bound_grows_with_the_frames_since_the_last_tracked() {
+    let frames = scan(3, 24, true);
+    let mut map = TsdfMap::new(TsdfConfig::default()).expect("config");
+    let mut tracker = Tracker::with_initial_pose(config(), gt(&frames[0])).expect("tracker");
+    for f in &frames[..12] {
+        let r = tracker.track(f, &map).expect("valid frame");
+        assert!(r.should_fuse(), "frame {}: {:?}", f.index, r.status);
+        map.integrate(f, r.world_from_camera).expect("fusion");
+    }
+    let ahead = &frames[23];
+    let moved = (Vec3::from(gt(ahead).translation) - Vec3::from(gt(&frames[11]).translation)).length();
+    let bound = config().max_translation_jump;
+    assert!(moved > 1.5 * bound, "the scan moves {moved} m in 12 frames: too little to test a {bound} m bound");
+    let mut as_next = ahead.clone();
+    as_next.index = 12;
+    let r = tracker.track(&as_next, &map).expect("valid frame");
+    assert_eq!(r.status, TrackingStatus::Lost(LostReason::PoseJump), "{moved} m in one frame");
+    let r = tracker.track(ahead, &map).expect("valid frame");
+    assert_eq!(r.status, TrackingStatus::Tracked, "{moved} m in 12 frames");
+    let err = (Vec3::from(r.world_from_camera.translation) - Vec3::from(gt(ahead).translation)).length();
+    assert!(err < 0.01, "{err} m off after 12 frames");
 }
 
 #[test]
