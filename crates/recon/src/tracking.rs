@@ -33,7 +33,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use glam::{Affine3A, Mat3, Quat, Vec2, Vec3};
+use glam::{Affine3A, Mat3, Mat3A, Quat, Vec2, Vec3};
 use rayon::prelude::*;
 use semrecon_data::{Frame, Intrinsics};
 use wide::f32x8;
@@ -626,8 +626,15 @@ impl Tracker {
             return finish(result);
         }
 
-        // reference_from_current, predicted with constant velocity.
-        let prediction = reference.inverse() * last * self.velocity;
+        // Frames since the last tracked one (dropped by a live camera, or lost), bounded so
+        // that a source with arbitrary indices cannot switch the jump test off.
+        let frames_since = self.last_index.map_or(1, |i| frame.index.saturating_sub(i).clamp(1, 10));
+        // reference_from_current, predicted with constant velocity (per frame) over them.
+        let mut step = self.velocity;
+        for _ in 1..frames_since {
+            step = step * self.velocity;
+        }
+        let prediction = reference.inverse() * last * step;
         let (mut estimate, mut stats, mut singular) = align(&pyramid, &model, prediction, &c);
         let mut conditioned = conditioning(&stats.symmetric(), c.min_condition);
         let fallback = c.photometric_weight <= 0.0 && c.degenerate_photometric_weight > 0.0 && !frame.color.is_empty();
@@ -660,17 +667,17 @@ impl Tracker {
         let jump_r = Quat::from_mat3a(&jump.matrix3).to_axis_angle().1;
         let jump_r = jump_r.min(std::f32::consts::TAU - jump_r);
         result.world_from_camera = reference * estimate;
-        // Frames since the last tracked one (dropped by a live camera, or lost): each may
-        // add a frame's worth of departure from the prediction. Bounded, so that a source
-        // with arbitrary indices cannot switch the test off.
-        let frames_since = self.last_index.map_or(1, |i| frame.index.saturating_sub(i).clamp(1, 10)) as f32;
+        // Each frame since the last tracked one may add a frame's worth of departure from the
+        // prediction. After a restart at a keyframe's pose (relocalisation), which is not
+        // where the camera last was, three frames' worth: the 15 cm of the bound before.
+        let jump_frames = if self.last_index.is_some() { frames_since as f32 } else { 3.0 };
         result.status = if singular || constrained < c.min_constrained {
             TrackingStatus::Lost(LostReason::Degenerate)
         } else if result.inlier_ratio < c.min_inlier_ratio || overlap_ratio < c.min_overlap {
             TrackingStatus::Lost(LostReason::FewInliers)
         } else if !((stats.sq_normalised / stats.inliers.max(1) as f64).sqrt() <= c.max_residual as f64) {
             TrackingStatus::Lost(LostReason::LargeResidual)
-        } else if !(jump_t <= c.max_translation_jump * frames_since
+        } else if !(jump_t <= c.max_translation_jump * jump_frames
             && jump_r <= c.max_rotation_jump
             && result.world_from_camera.is_finite())
         {
@@ -679,7 +686,7 @@ impl Tracker {
             TrackingStatus::Tracked
         };
         if result.should_fuse() {
-            self.velocity = orthonormalised(last.inverse() * result.world_from_camera);
+            self.velocity = per_frame(orthonormalised(last.inverse() * result.world_from_camera), frames_since);
             self.accept(frame, &mut result, &pyramid[model_level]);
         } else {
             result.world_from_camera = last;
@@ -711,6 +718,7 @@ impl Tracker {
         self.velocity = Affine3A::IDENTITY;
         self.cache = None;
         self.last_depth = start_depth;
+        self.last_index = None;
     }
 
     /// Records an accepted frame: pose, keyframe, march-start depth.
@@ -809,6 +817,28 @@ fn align(pyramid: &[Level], model: &Model, prediction: Affine3A, c: &TrackerConf
         }
     }
     (estimate, stats, singular)
+}
+
+/// One frame's share of `motion`, a rigid motion over `frames` frames: the constant
+/// velocity that, applied `frames` times, gives `motion` (the rotation's angle divided by
+/// `frames`, and the translation that the repeated steps sum to `motion`'s). `motion`
+/// itself for one frame.
+fn per_frame(motion: Affine3A, frames: usize) -> Affine3A {
+    if frames <= 1 {
+        return motion;
+    }
+    let (axis, angle) = Quat::from_mat3a(&motion.matrix3).to_axis_angle();
+    let rotation = Mat3A::from_quat(Quat::from_axis_angle(axis, angle / frames as f32));
+    // Steps (R, u) compose to (R^k, (I + R + ... + R^(k-1)) u): solve that sum for u. It is
+    // invertible for any turn below a full one over the frames (a camera turns degrees).
+    let mut sum = Mat3A::IDENTITY;
+    let mut power = Mat3A::IDENTITY;
+    for _ in 1..frames {
+        power = rotation * power;
+        sum += power;
+    }
+    let step = sum.inverse() * motion.translation;
+    Affine3A { matrix3: rotation, translation: step }
 }
 
 /// The model's intensity image and its central-difference gradient.
