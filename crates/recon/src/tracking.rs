@@ -349,6 +349,10 @@ pub struct TrackingResult {
     pub raycast_ms: f64,
     /// Wall time of the whole call, milliseconds.
     pub total_ms: f64,
+    /// How far the alignment's estimate lies from the constant-velocity prediction, metres
+    /// (0 when nothing was aligned); a frame is lost as a [`LostReason::PoseJump`] past
+    /// [`TrackerConfig::max_translation_jump`] per frame since the last tracked one.
+    pub departure_m: f32,
 }
 
 impl TrackingResult {
@@ -598,6 +602,7 @@ impl Tracker {
             colour_fallback: false,
             raycast_ms: 0.0,
             total_ms: 0.0,
+            departure_m: 0.0,
         };
         let finish = |mut r: TrackingResult| {
             r.total_ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -664,6 +669,7 @@ impl Tracker {
         result.camera_hessian = camera_hessian(&stats.symmetric(), estimate);
         let jump = prediction.inverse() * estimate;
         let jump_t = Vec3::from(jump.translation).length();
+        result.departure_m = jump_t;
         let jump_r = Quat::from_mat3a(&jump.matrix3).to_axis_angle().1;
         let jump_r = jump_r.min(std::f32::consts::TAU - jump_r);
         result.world_from_camera = reference * estimate;
