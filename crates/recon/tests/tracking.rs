@@ -176,17 +176,24 @@ fn map_state(map: &TsdfMap) -> MapState {
         .collect()
 }
 
-#[test]
-fn jumps_and_empty_frames_are_lost_and_leave_the_map_intact() {
-    let frames = scan(3, 16, true);
-    let elsewhere = scan(11, 1, true).remove(0);
+/// A tracker and map after tracking and fusing `frames` from the first one's true pose;
+/// every frame must be fused.
+fn track_first(frames: &[Frame]) -> (Tracker, TsdfMap) {
     let mut map = TsdfMap::new(TsdfConfig::default()).expect("config");
     let mut tracker = Tracker::with_initial_pose(config(), gt(&frames[0])).expect("tracker");
-    for f in &frames[..12] {
+    for f in frames {
         let r = tracker.track(f, &map).expect("valid frame");
         assert!(r.should_fuse(), "frame {}: {:?}", f.index, r.status);
         map.integrate(f, r.world_from_camera).expect("fusion");
     }
+    (tracker, map)
+}
+
+#[test]
+fn jumps_and_empty_frames_are_lost_and_leave_the_map_intact() {
+    let frames = scan(3, 16, true);
+    let elsewhere = scan(11, 1, true).remove(0);
+    let (mut tracker, mut map) = track_first(&frames[..12]);
     let before = map_state(&map);
     let last = tracker.pose().expect("tracking");
     let mut empty = frames[12].clone();
@@ -219,13 +226,7 @@ fn jumps_and_empty_frames_are_lost_and_leave_the_map_intact() {
 #[test]
 fn the_jump_bound_grows_with_the_frames_since_the_last_tracked() {
     let frames = scan(3, 24, true);
-    let mut map = TsdfMap::new(TsdfConfig::default()).expect("config");
-    let mut tracker = Tracker::with_initial_pose(config(), gt(&frames[0])).expect("tracker");
-    for f in &frames[..12] {
-        let r = tracker.track(f, &map).expect("valid frame");
-        assert!(r.should_fuse(), "frame {}: {:?}", f.index, r.status);
-        map.integrate(f, r.world_from_camera).expect("fusion");
-    }
+    let (mut tracker, map) = track_first(&frames[..12]);
     let ahead = &frames[23];
     let moved = (Vec3::from(gt(ahead).translation) - Vec3::from(gt(&frames[11]).translation)).length();
     let bound = config().max_translation_jump;
