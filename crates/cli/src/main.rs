@@ -27,6 +27,8 @@ enum Command {
     Ar(commands::ar::ArArgs),
     /// Benchmarks (table + JSON): rendering, sparse convolution, the network.
     Bench(commands::bench::BenchArgs),
+    /// Measure a depth camera's radial depth bias from a scan with walls or floor in view (JSON for `run --depth-calibration`).
+    CalibrateDepth(commands::calibrate_depth::CalibrateDepthArgs),
     /// Run the whole pipeline on a built-in synthetic scene and write the outputs.
     Demo(commands::demo::DemoArgs),
     /// Evaluate against ground truth: trajectory (ATE, RPE), mesh (accuracy, completeness, F-score) or segmentation (IoU).
@@ -60,6 +62,7 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Ar(args) => commands::ar::run(args),
         Command::Bench(args) => commands::bench::run(args),
+        Command::CalibrateDepth(args) => commands::calibrate_depth::run(args),
         Command::Demo(args) => commands::demo::run(args),
         Command::Eval(args) => commands::eval::run(args),
         Command::Info(args) => commands::info::run(args),

@@ -34,6 +34,7 @@ fn every_subcommand_has_help() {
         "bench",
         "segment",
         "make-scans",
+        "calibrate-depth",
     ] {
         assert!(stdout(&top).contains(cmd), "`{cmd}` missing from --help");
         let o = semrecon(&[cmd, "--help"]);

@@ -15,6 +15,7 @@ pub mod atomic_file;
 pub mod camera;
 pub mod class;
 pub mod datasets;
+pub mod depth_calibration;
 pub mod depth_image;
 pub mod error;
 pub mod frame;

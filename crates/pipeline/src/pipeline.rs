@@ -41,9 +41,6 @@ const RELOCALISATION_ATTEMPTS: usize = 2;
 /// streak lasts until the camera returns near a keyframe, and trying on every frame would
 /// triple the cost of each lost frame for a recovery a frame or two earlier.
 const RELOCALISATION_EVERY: usize = 3;
-/// A frame lost as a pose jump no further from its prediction than this many frames' worth
-/// of the tracker's bound (15 cm by default) waits a frame before relocalisation is tried.
-const SMALL_JUMP_FRAMES: f32 = 3.0;
 
 /// Stages the front end runs, and its waits for the back end (their sum is
 /// [`Pipeline::front_end_seconds`]).
@@ -336,7 +333,7 @@ impl Pipeline {
                     // `synth-loop:3:noisy`, relocalised 10 cm off, six frames in a row, where
                     // tracking had it within 3 cm a frame later: ATE 88.5 mm against 143.3).
                     let small_jump = r.status == TrackingStatus::Lost(LostReason::PoseJump)
-                        && r.departure_m <= SMALL_JUMP_FRAMES * tracker.config().max_translation_jump;
+                        && r.departure_m <= TrackerConfig::WIDE_JUMP_FRAMES * tracker.config().max_translation_jump;
                     let wait = usize::from(small_jump);
                     let attempt =
                         self.lost_streak >= wait && (self.lost_streak - wait).is_multiple_of(RELOCALISATION_EVERY);

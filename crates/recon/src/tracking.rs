@@ -196,6 +196,14 @@ impl Default for TrackerConfig {
 }
 
 impl TrackerConfig {
+    /// Frames' worth of [`TrackerConfig::max_translation_jump`] that a departure from the
+    /// prediction may take where the prediction is known to be poor: the first frame after a
+    /// restart at a keyframe's pose (relocalisation puts the camera near, not at, where it
+    /// is), and, for the pipeline, the largest pose jump still treated as a small one (the
+    /// frame after it is tracked before relocalisation is tried). 3: the 15 cm of the bound
+    /// before session 39.
+    pub const WIDE_JUMP_FRAMES: f32 = 3.0;
+
     /// The colour fallback's weight ([`TrackerConfig::degenerate_photometric_weight`]) for a
     /// source whose colour is, or is not, registered to its depth: 0.1, or 0 (a colour term
     /// on unregistered colour would pull the pose by the two cameras' offset). The
@@ -637,7 +645,7 @@ impl Tracker {
         // reference_from_current, predicted with constant velocity (per frame) over them.
         let mut step = self.velocity;
         for _ in 1..frames_since {
-            step = step * self.velocity;
+            step *= self.velocity;
         }
         let prediction = reference.inverse() * last * step;
         let (mut estimate, mut stats, mut singular) = align(&pyramid, &model, prediction, &c);
@@ -676,7 +684,7 @@ impl Tracker {
         // Each frame since the last tracked one may add a frame's worth of departure from the
         // prediction. After a restart at a keyframe's pose (relocalisation), which is not
         // where the camera last was, three frames' worth: the 15 cm of the bound before.
-        let jump_frames = if self.last_index.is_some() { frames_since as f32 } else { 3.0 };
+        let jump_frames = if self.last_index.is_some() { frames_since as f32 } else { TrackerConfig::WIDE_JUMP_FRAMES };
         result.status = if singular || constrained < c.min_constrained {
             TrackingStatus::Lost(LostReason::Degenerate)
         } else if result.inlier_ratio < c.min_inlier_ratio || overlap_ratio < c.min_overlap {

@@ -23,6 +23,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use semrecon_data::atomic_file::write_atomic;
 use semrecon_data::datasets::{synthetic_scan, Oni, RealSenseBag, SyntheticScanConfig};
+use semrecon_data::depth_calibration::{CalibratedCamera, DepthCalibration};
 use semrecon_data::live::{LiveCamera, OpenNiLive, Replay};
 use semrecon_data::openni::OniCamera;
 use semrecon_data::Trajectory;
@@ -71,6 +72,10 @@ pub struct LiveArgs {
     /// Finish after this many seconds.
     #[arg(long)]
     seconds: Option<f64>,
+    /// The camera's depth calibration (`semrecon calibrate-depth` on a recording of it): its
+    /// radial depth bias is divided out of every frame.
+    #[arg(long, value_name = "FILE")]
+    depth_calibration: Option<PathBuf>,
     #[command(flatten)]
     recon: ReconArgs,
     #[command(flatten)]
@@ -209,6 +214,15 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     // From the start: Ctrl-C while the camera opens still finishes with (empty) outputs.
     let caught = interrupt::install();
     let camera = open_camera(&args)?;
+    let camera: Box<dyn LiveCamera> = match &args.depth_calibration {
+        None => camera,
+        Some(path) => {
+            let calibration = DepthCalibration::load(path)?;
+            Box::new(
+                CalibratedCamera::new(camera, calibration).with_context(|| format!("applying {}", path.display()))?,
+            )
+        }
+    };
     let config = pipeline_config(&args.recon, &args.semantics, true, None, true)?;
     let (net, network) = load_network(&args.semantics, &crate::device::DeviceArgs::default())?;
     let k = camera.intrinsics();

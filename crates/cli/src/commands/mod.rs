@@ -3,6 +3,7 @@
 pub mod ar;
 pub mod bench;
 pub mod bench_net;
+pub mod calibrate_depth;
 pub mod demo;
 pub mod eval;
 pub mod eval_seg;

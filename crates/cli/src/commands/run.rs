@@ -63,6 +63,10 @@ pub struct RunArgs {
     /// Frames to process as A..B (B excluded; either end may be left out): all by default.
     #[arg(long, value_parser = parse_frame_range)]
     frames: Option<FrameRange>,
+    /// The camera's depth calibration (`semrecon calibrate-depth`): its radial depth bias is
+    /// divided out of every frame before tracking and fusion.
+    #[arg(long, value_name = "FILE")]
+    depth_calibration: Option<PathBuf>,
     #[command(flatten)]
     recon: ReconArgs,
     #[command(flatten)]
@@ -88,8 +92,11 @@ pub struct FrameRange {
 }
 
 impl FrameRange {
+    /// Every frame.
+    pub(crate) const ALL: FrameRange = FrameRange { start: 0, end: None };
+
     /// The frame indices of a source with `len` frames, or why there are none.
-    fn resolve(self, len: usize) -> anyhow::Result<Range<usize>> {
+    pub(crate) fn resolve(self, len: usize) -> anyhow::Result<Range<usize>> {
         let end = self.end.unwrap_or(len).min(len);
         anyhow::ensure!(
             self.start < end,
@@ -207,6 +214,7 @@ struct Report {
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
     prepare_output_dir(&args.out)?;
     let source = open_dataset(&args.dataset).with_context(|| format!("opening {}", args.dataset))?;
+    let source = crate::commands::calibrate_depth::with_calibration(source, args.depth_calibration.as_deref())?;
     anyhow::ensure!(!source.is_empty(), "{} has no frames", source.name());
     let range = args.frames.unwrap_or(FrameRange { start: 0, end: None }).resolve(source.len())?;
     // A dataset's gravity is in its world frame: the map is in it when tracking starts at the
