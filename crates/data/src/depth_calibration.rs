@@ -96,6 +96,17 @@ impl DepthCalibration {
         Ok(())
     }
 
+    /// Errors unless the camera `name` with intrinsics `k` gives images of the calibrated size.
+    pub fn check_size(&self, name: &str, k: Intrinsics) -> Result<()> {
+        if k.width == self.width && k.height == self.height {
+            return Ok(());
+        }
+        Err(DataError::InvalidArgument(format!(
+            "the depth calibration (measured on {}) is for {}x{} depth images, {name} has {}x{}",
+            self.measured_on, self.width, self.height, k.width, k.height
+        )))
+    }
+
     /// The factor measured depth carries at pixel `(x, y)` of a `width` x `height` image:
     /// `1 + radial ρ²`.
     pub fn factor(radial: f64, x: usize, y: usize, width: u32, height: u32) -> f64 {
@@ -145,18 +156,7 @@ pub struct CalibratedSource {
 impl CalibratedSource {
     /// Wraps `inner`; errors when its images are not of the calibrated size.
     pub fn new(inner: Box<dyn FrameSource>, calibration: DepthCalibration) -> Result<Self> {
-        let k: Intrinsics = inner.intrinsics();
-        if k.width != calibration.width || k.height != calibration.height {
-            return Err(DataError::InvalidArgument(format!(
-                "the depth calibration (measured on {}) is for {}x{} depth images, {} has {}x{}",
-                calibration.measured_on,
-                calibration.width,
-                calibration.height,
-                inner.name(),
-                k.width,
-                k.height
-            )));
-        }
+        calibration.check_size(&inner.name(), inner.intrinsics())?;
         let correction = Arc::new(calibration.correction_image());
         Ok(Self { inner, calibration, correction })
     }
@@ -206,18 +206,7 @@ pub struct CalibratedCamera {
 impl CalibratedCamera {
     /// Wraps `inner`; errors when its images are not of the calibrated size.
     pub fn new(inner: Box<dyn LiveCamera>, calibration: DepthCalibration) -> Result<Self> {
-        let k = inner.intrinsics();
-        if k.width != calibration.width || k.height != calibration.height {
-            return Err(DataError::InvalidArgument(format!(
-                "the depth calibration (measured on {}) is for {}x{} depth images, {} has {}x{}",
-                calibration.measured_on,
-                calibration.width,
-                calibration.height,
-                inner.name(),
-                k.width,
-                k.height
-            )));
-        }
+        calibration.check_size(&inner.name(), inner.intrinsics())?;
         let correction = calibration.correction_image();
         Ok(Self { inner, calibration, correction })
     }
