@@ -22,7 +22,6 @@
 pub mod estimate;
 
 use std::path::Path;
-use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
@@ -146,19 +145,46 @@ impl DepthCalibration {
     }
 }
 
+/// A calibration with its per-pixel correction image, for one camera's stream: what both
+/// wrappers below apply to every frame.
+struct Corrector {
+    calibration: DepthCalibration,
+    image: Vec<f32>,
+}
+
+impl Corrector {
+    /// Errors when the camera `name` with intrinsics `k` is not of the calibrated size.
+    fn new(calibration: DepthCalibration, name: &str, k: Intrinsics) -> Result<Self> {
+        calibration.check_size(name, k)?;
+        let image = calibration.correction_image();
+        Ok(Self { calibration, image })
+    }
+
+    fn apply(&self, frame: &mut Frame) -> Result<()> {
+        self.calibration.correct_with(&self.image, frame)
+    }
+
+    /// The source's notes with one saying what the correction does.
+    fn notes(&self, mut notes: Vec<String>) -> Vec<String> {
+        notes.push(format!(
+            "depth divided by 1 + {:.5} r^2 (calibration measured on {})",
+            self.calibration.radial, self.calibration.measured_on
+        ));
+        notes
+    }
+}
+
 /// A frame source whose depth goes through a [`DepthCalibration`].
 pub struct CalibratedSource {
     inner: Box<dyn FrameSource>,
-    calibration: DepthCalibration,
-    correction: Arc<Vec<f32>>,
+    corrector: Corrector,
 }
 
 impl CalibratedSource {
     /// Wraps `inner`; errors when its images are not of the calibrated size.
     pub fn new(inner: Box<dyn FrameSource>, calibration: DepthCalibration) -> Result<Self> {
-        calibration.check_size(&inner.name(), inner.intrinsics())?;
-        let correction = Arc::new(calibration.correction_image());
-        Ok(Self { inner, calibration, correction })
+        let corrector = Corrector::new(calibration, &inner.name(), inner.intrinsics())?;
+        Ok(Self { inner, corrector })
     }
 }
 
@@ -183,32 +209,25 @@ impl FrameSource for CalibratedSource {
     }
     fn frame(&self, index: usize) -> Result<Frame> {
         let mut frame = self.inner.frame(index)?;
-        self.calibration.correct_with(&self.correction, &mut frame)?;
+        self.corrector.apply(&mut frame)?;
         Ok(frame)
     }
     fn notes(&self) -> Vec<String> {
-        let mut notes = self.inner.notes();
-        notes.push(format!(
-            "depth divided by 1 + {:.5} r^2 (calibration measured on {})",
-            self.calibration.radial, self.calibration.measured_on
-        ));
-        notes
+        self.corrector.notes(self.inner.notes())
     }
 }
 
 /// A live camera whose depth goes through a [`DepthCalibration`].
 pub struct CalibratedCamera {
     inner: Box<dyn LiveCamera>,
-    calibration: DepthCalibration,
-    correction: Vec<f32>,
+    corrector: Corrector,
 }
 
 impl CalibratedCamera {
     /// Wraps `inner`; errors when its images are not of the calibrated size.
     pub fn new(inner: Box<dyn LiveCamera>, calibration: DepthCalibration) -> Result<Self> {
-        calibration.check_size(&inner.name(), inner.intrinsics())?;
-        let correction = calibration.correction_image();
-        Ok(Self { inner, calibration, correction })
+        let corrector = Corrector::new(calibration, &inner.name(), inner.intrinsics())?;
+        Ok(Self { inner, corrector })
     }
 }
 
@@ -226,16 +245,11 @@ impl LiveCamera for CalibratedCamera {
         self.inner.expected_frames()
     }
     fn notes(&self) -> Vec<String> {
-        let mut notes = self.inner.notes();
-        notes.push(format!(
-            "depth divided by 1 + {:.5} r^2 (calibration measured on {})",
-            self.calibration.radial, self.calibration.measured_on
-        ));
-        notes
+        self.corrector.notes(self.inner.notes())
     }
     fn next_event(&mut self) -> CameraEvent {
         match self.inner.next_event() {
-            CameraEvent::Frame(mut frame) => match self.calibration.correct_with(&self.correction, &mut frame) {
+            CameraEvent::Frame(mut frame) => match self.corrector.apply(&mut frame) {
                 Ok(()) => CameraEvent::Frame(frame),
                 // A frame of another size than the stream's: skipped, as a damaged one is.
                 Err(e) => CameraEvent::Skipped(e.to_string()),
