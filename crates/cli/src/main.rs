@@ -12,6 +12,7 @@ mod process_memory;
 mod progress;
 mod reconstruction;
 mod timing;
+mod tracking_log;
 
 /// Live semantic 3D perception from RGB-D streams, on the CPU.
 #[derive(Parser)]

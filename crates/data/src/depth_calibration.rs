@@ -260,6 +260,7 @@ impl LiveCamera for CalibratedCamera {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use crate::sensor::{DepthBias, SensorModel};

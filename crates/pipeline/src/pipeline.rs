@@ -21,7 +21,7 @@ use semrecon_data::{class::UNLABELED, Frame, Intrinsics, LabeledMesh, SemanticCl
 use semrecon_net::Segmenter;
 use semrecon_recon::{
     GroupedFusion, IncrementalMesher, KeyframeIndex, LostReason, MapMemory, MeshStoreMemory, RemeshTolerance, Tracker,
-    TrackerConfig, TrackingStatus, TsdfMap,
+    TrackerConfig, TrackingResult, TrackingStatus, TsdfMap,
 };
 use serde::Serialize;
 
@@ -86,6 +86,10 @@ pub struct FrameResult {
     pub keyframe: bool,
     /// Whether a semantic pass was started at this frame.
     pub semantic_pass: bool,
+    /// What the tracker measured of the frame (conditioning, departure from the motion
+    /// prediction, inliers): `None` with ground-truth poses. For diagnosing where a scan
+    /// drifted (`semrecon run` writes it to `tracking.csv`).
+    pub tracking: Option<TrackingResult>,
 }
 
 /// One semantic pass, for reports and benchmarks.
@@ -305,7 +309,7 @@ impl Pipeline {
         let t = Instant::now();
         // What the tracker measured of this frame (its conditioning and normal matrix), for
         // the odometry edges of loop closure.
-        let mut tracking: Option<(f64, [[f64; 6]; 6])> = None;
+        let mut tracking: Option<TrackingResult> = None;
         let (status, pose) = match self.config.poses {
             PoseMode::GroundTruth => match frame.world_from_camera {
                 Some(p) => (if self.fused == 0 { FrameStatus::Initialized } else { FrameStatus::Fused }, Some(p)),
@@ -352,7 +356,7 @@ impl Pipeline {
                     self.keyframe_index.add(frame, r.world_from_camera);
                 }
                 self.colour_fallbacks += usize::from(r.colour_fallback);
-                tracking = Some((r.condition, r.camera_hessian));
+                tracking = Some(r);
                 match r.status {
                     TrackingStatus::Lost(reason) => (FrameStatus::Lost(reason), None),
                     TrackingStatus::Initialized => (FrameStatus::Initialized, Some(r.world_from_camera)),
@@ -365,7 +369,8 @@ impl Pipeline {
             }
         };
         self.times.record("tracking", t.elapsed());
-        let mut result = FrameResult { index: frame.index, status, pose: None, keyframe: false, semantic_pass: false };
+        let mut result =
+            FrameResult { index: frame.index, status, pose: None, keyframe: false, semantic_pass: false, tracking };
         let Some(pose) = pose else {
             self.lost += 1;
             return Ok(result);
@@ -387,7 +392,7 @@ impl Pipeline {
             s.stale = true;
         }
         let keyframe = self.fused.is_multiple_of(self.config.keyframe_every);
-        self.global_optimisation(frame, pose, keyframe, tracking)?;
+        self.global_optimisation(frame, pose, keyframe, tracking.map(|r| (r.condition, r.camera_hessian)))?;
         if keyframe {
             result.keyframe = true;
             self.remesh();

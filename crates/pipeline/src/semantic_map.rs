@@ -274,7 +274,6 @@ impl SurfaceCells {
     /// [`SurfaceCells::update`]; with `flush`, every chunk waiting for its turn
     /// ([`SurfaceCells::with_refresh_every`]) is read too.
     pub fn update_with(&mut self, map: &TsdfMap, flush: bool) -> Vec<ChunkKey> {
-        let t0 = std::time::Instant::now();
         let mut changed_chunks = Vec::new();
         let mut revised = 0;
         let mut revision = self.revision;
@@ -324,10 +323,6 @@ impl SurfaceCells {
         } else {
             sort_dedup(&mut reread);
         }
-        let t_par = std::time::Instant::now();
-        if std::env::var_os("SNAP_DEBUG").is_some() {
-            eprintln!("  prep {:.1}", (t_par - t0).as_secs_f64() * 1e3);
-        }
         // The per-chunk sums in parallel, each worker over runs of neighbouring chunks, asking
         // for the next chunk's voxels while it reads one; only merging them is serial.
         let this = &*self;
@@ -348,7 +343,6 @@ impl SurfaceCells {
                 })
             })
             .collect();
-        let t_cells = std::time::Instant::now();
         let mut changed = Vec::with_capacity(reread.len());
         // Cells that gained or lost their entry: the only keys whose place in `ordered` changes.
         let mut appeared_or_gone = Vec::new();
@@ -371,20 +365,7 @@ impl SurfaceCells {
             }
             changed.push(*key);
         }
-        let t_merge = std::time::Instant::now();
         self.reorder(appeared_or_gone);
-        if std::env::var_os("SNAP_DEBUG").is_some() {
-            eprintln!(
-                "  read {} pending {} with-sums {} changed {} par {:.1} par+merge {:.1} sort {:.1}",
-                reread.len(),
-                self.pending.len(),
-                reread.iter().filter(|k| self.chunks.contains_key(*k)).count(),
-                changed.len(),
-                (t_cells - t_par).as_secs_f64() * 1e3,
-                (t_merge - t_par).as_secs_f64() * 1e3,
-                t_merge.elapsed().as_secs_f64() * 1e3
-            );
-        }
         changed
     }
 

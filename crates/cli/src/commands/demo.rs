@@ -144,6 +144,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let mut sensor_times = semrecon_pipeline::StageTimes::default();
     let mut gt = Trajectory::default();
     let mut lost = 0;
+    let mut tracking_log = crate::tracking_log::TrackingLog::default();
     let bar = progress_bar(scan.len() as u64, "scanning");
     let start = Instant::now();
     for i in 0..scan.len() {
@@ -153,6 +154,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         let truth = frame.world_from_camera.context("synthetic frames carry their pose")?;
         gt.push(frame.timestamp, truth);
         let r = pipeline.push_frame(&frame)?;
+        tracking_log.record(&r);
         if matches!(r.status, FrameStatus::Lost(_) | FrameStatus::NoPose) {
             lost += 1;
         }
@@ -167,6 +169,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     // map's estimate says.
     let gravity = semrecon_data::MeshGravity { up: glam::Vec3::Z, floor_height: Some(0.0) };
     write_outputs(&args.out, &mesh, pipeline.trajectory(), Some(gravity))?;
+    tracking_log.write(&args.out)?;
     write_ply(args.out.join("ground_truth.ply"), &room.mesh, PlyEncoding::BinaryLittleEndian)?;
     let mut times = pipeline.timings().clone();
     times.merge(&sensor_times);
@@ -268,6 +271,6 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     for w in pipeline.warnings() {
         eprintln!("warning: {w}");
     }
-    println!("wrote {}/{{mesh.ply, semantic.ply, ground_truth.ply, trajectory.txt, report.json}}", args.out.display());
+    println!("wrote {}/{{mesh.ply, semantic.ply, ground_truth.ply, trajectory.txt, tracking.csv, report.json}}", args.out.display());
     Ok(())
 }

@@ -252,6 +252,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
 
     let mut other_times = semrecon_pipeline::StageTimes::default();
     let mut gt = Trajectory::default();
+    let mut tracking_log = crate::tracking_log::TrackingLog::default();
     let mut lost = 0usize;
     let mut warnings = 0usize;
     let mut window = RateWindow { samples: VecDeque::new() };
@@ -283,7 +284,11 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
             gt.push(frame.timestamp, pose);
         }
         let t = Instant::now();
-        match pipeline.push_frame(&frame) {
+        let pushed = pipeline.push_frame(&frame);
+        if let Ok(r) = &pushed {
+            tracking_log.record(r);
+        }
+        match pushed {
             Ok(r) => match r.status {
                 FrameStatus::Lost(reason) => {
                     warn(format!("frame {} skipped: tracking lost ({reason:?})", frame.index));
@@ -337,6 +342,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
         warn(format!("camera frame skipped: {why}"));
     }
     let (mesh, wall_s) = finish_session(&mut pipeline, live.as_mut(), start, warnings, &args.out)?;
+    tracking_log.write(&args.out)?;
     let fused = pipeline.frame_counts().1;
     let ate_rmse_m = (gt.len() > 1 && pipeline.trajectory().len() > 1)
         .then(|| evaluate_trajectory(&gt, pipeline.trajectory(), &TrajectoryEvalConfig::default()).ok())
@@ -414,7 +420,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     if let Some(ate) = ate_rmse_m {
         println!("ATE rmse {ate:.4} m against the simulated camera's true poses");
     }
-    println!("wrote {}/{{mesh.ply, semantic.ply, trajectory.txt, report.json}}", args.out.display());
+    println!("wrote {}/{{mesh.ply, semantic.ply, trajectory.txt, tracking.csv, report.json}}", args.out.display());
     if let Some(live) = live {
         if args.serve.serve_exit || stop == Stop::Interrupted {
             live.server.stop();

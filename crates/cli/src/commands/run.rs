@@ -251,6 +251,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let mut warnings = 0usize;
     let mut max_lag_s: Option<f64> = None;
     let mut first_timestamp: Option<f64> = None;
+    let mut tracking_log = crate::tracking_log::TrackingLog::default();
     let bar = progress_bar(range.len() as u64, "run");
     let mut warn = |message: String| {
         warnings += 1;
@@ -294,7 +295,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 std::thread::sleep(wait);
             }
         }
-        match pipeline.push_frame(&frame) {
+        let pushed = pipeline.push_frame(&frame);
+        if let Ok(r) = &pushed {
+            tracking_log.record(r);
+        }
+        match pushed {
             Ok(r) => match r.status {
                 FrameStatus::Lost(reason) => {
                     warn(format!("frame {i} skipped: tracking lost ({reason:?})"));
@@ -327,6 +332,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     }
     bar.finish_and_clear();
     let (mesh, wall_s) = finish_session(&mut pipeline, live.as_mut(), start, warnings, &args.out)?;
+    tracking_log.write(&args.out)?;
     let fused = pipeline.frame_counts().1;
     let ate_rmse_m = if source.has_ground_truth() && !pipeline.trajectory().is_empty() {
         match evaluate_trajectory(&gt, pipeline.trajectory(), &TrajectoryEvalConfig::default()) {
@@ -447,7 +453,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(acc) = mesh_accuracy_mm {
         println!("mesh accuracy {acc:.1} mm (mean vertex distance to the generated room)");
     }
-    println!("wrote {}/{{mesh.ply, semantic.ply, trajectory.txt, report.json}}", args.out.display());
+    println!("wrote {}/{{mesh.ply, semantic.ply, trajectory.txt, tracking.csv, report.json}}", args.out.display());
     if let Some(live) = live {
         if args.serve.serve_exit {
             live.server.stop();

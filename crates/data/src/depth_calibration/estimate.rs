@@ -46,6 +46,11 @@ pub struct EstimateConfig {
     pub min_frames: usize,
     /// The frames' estimates may disagree by at most this robust spread (1.4826 × MAD).
     pub max_spread: f64,
+    /// A pixel enters the fit only when every sampled pixel within this many samples of it
+    /// is on the plane too (0: no such test): the rim of a plane's region is where other
+    /// surfaces pass within the band (the floor where it meets a wall, a box's foot), and
+    /// they sit mostly at large radii, where they pull the bowl flat.
+    pub rim_samples: usize,
 }
 
 impl Default for EstimateConfig {
@@ -60,6 +65,7 @@ impl Default for EstimateConfig {
             max_standard_error: 0.001,
             min_frames: 5,
             max_spread: 0.002,
+            rim_samples: 2,
         }
     }
 }
@@ -73,7 +79,7 @@ pub struct PlaneEstimate {
     pub radial: f64,
     /// Its standard error (from the fit's residuals).
     pub standard_error: f64,
-    /// Share of the valid samples on the plane.
+    /// Share of the valid samples on the plane (its rim included).
     pub plane_fraction: f64,
     /// Standard deviation of the inliers' ρ².
     pub radius_spread: f64,
@@ -96,6 +102,8 @@ struct Sample {
     y: f64,
     rho2: f64,
     w: f64,
+    /// Index in the grid of sampled pixels.
+    cell: usize,
 }
 
 /// The largest plane of one depth image (metres, row-major, 0 = missing) and the radial
@@ -115,14 +123,15 @@ pub fn estimate_frame(
     let half_diagonal = (cx * cx + cy * cy).sqrt();
     let (near, far) = config.depth_range;
     let step = config.pixel_step.max(1);
-    let mut samples = Vec::with_capacity((w / step + 1) * (h / step + 1));
-    for py in (0..h).step_by(step) {
-        for px in (0..w).step_by(step) {
+    let (grid_w, grid_h) = (w.div_ceil(step), h.div_ceil(step));
+    let mut samples = Vec::with_capacity(grid_w * grid_h);
+    for (gy, py) in (0..h).step_by(step).enumerate() {
+        for (gx, px) in (0..w).step_by(step).enumerate() {
             let d = depth[py * w + px] as f64;
             // Measured depth is only a loose gate here (the plane's depth decides below).
             if d.is_finite() && d > 0.5 * near && d < 1.5 * far {
                 let (x, y) = ((px as f64 - cx) / half_diagonal, (py as f64 - cy) / half_diagonal);
-                samples.push(Sample { x, y, rho2: x * x + y * y, w: 1.0 / d });
+                samples.push(Sample { x, y, rho2: x * x + y * y, w: 1.0 / d, cell: gy * grid_w + gx });
             }
         }
     }
@@ -160,17 +169,24 @@ pub fn estimate_frame(
             let p = m[0] * s.x + m[1] * s.y + m[2];
             (p, p - m[3] * s.rho2 * p)
         };
-        let inliers: Vec<(Sample, f64)> = samples
+        let on_plane: Vec<bool> = samples
             .iter()
-            .filter_map(|s| {
+            .map(|s| {
                 let (p, q) = predict(&model, s);
-                let keep = in_range(p)
+                in_range(p)
                     && match bound {
                         None => (s.w - q).abs() <= config.inlier_tolerance * p,
                         Some(b) => (s.w - q).abs() <= b,
-                    };
-                keep.then_some((*s, p))
+                    }
             })
+            .collect();
+        let on_count = on_plane.iter().filter(|&&o| o).count();
+        let interior = interior_cells(&samples, &on_plane, grid_w, grid_h, config.rim_samples);
+        let inliers: Vec<(Sample, f64)> = samples
+            .iter()
+            .zip(&on_plane)
+            .filter(|&(s, &on)| on && interior[s.cell])
+            .map(|(s, _)| (*s, predict(&model, s).0))
             .collect();
         if inliers.len() < 50 {
             return None;
@@ -203,11 +219,53 @@ pub fn estimate_frame(
             frame,
             radial: solution[3],
             standard_error: sigma * unit_k[3].max(0.0).sqrt(),
-            plane_fraction: n / samples.len() as f64,
+            plane_fraction: on_count as f64 / samples.len() as f64,
             radius_spread: var_rho2.sqrt(),
         });
     }
     fit
+}
+
+/// Which cells of the `grid_w` x `grid_h` sample grid lie `radius` cells or more inside the
+/// region of samples on the plane: a cell counts when every cell within `radius` (a square)
+/// holds a sample on the plane. Two passes of running counts (rows, then columns), so the
+/// cost does not grow with the radius.
+fn interior_cells(samples: &[Sample], on_plane: &[bool], grid_w: usize, grid_h: usize, radius: usize) -> Vec<bool> {
+    let mut on = vec![false; grid_w * grid_h];
+    for (s, &o) in samples.iter().zip(on_plane) {
+        on[s.cell] = o;
+    }
+    if radius == 0 {
+        return on;
+    }
+    // A window of 2r + 1 cells along a line is full when every cell of it inside the image
+    // is on: the image's border is no rim of the plane, and its corners carry most of the bowl.
+    let full_along = |values: &[bool]| -> Vec<bool> {
+        let n = values.len();
+        let mut prefix = vec![0usize; n + 1];
+        for (i, &v) in values.iter().enumerate() {
+            prefix[i + 1] = prefix[i] + usize::from(v);
+        }
+        (0..n)
+            .map(|i| {
+                let (lo, hi) = (i.saturating_sub(radius), (i + radius + 1).min(n));
+                prefix[hi] - prefix[lo] == hi - lo
+            })
+            .collect()
+    };
+    let mut rows = vec![false; grid_w * grid_h];
+    for y in 0..grid_h {
+        let line = full_along(&on[y * grid_w..(y + 1) * grid_w]);
+        rows[y * grid_w..(y + 1) * grid_w].copy_from_slice(&line);
+    }
+    let mut out = vec![false; grid_w * grid_h];
+    for x in 0..grid_w {
+        let column: Vec<bool> = (0..grid_h).map(|y| rows[y * grid_w + x]).collect();
+        for (y, full) in full_along(&column).into_iter().enumerate() {
+            out[y * grid_w + x] = full;
+        }
+    }
+    out
 }
 
 /// What [`calibrate`] found: the calibration, or why there is none, with every frame's
@@ -379,7 +437,7 @@ mod tests {
         let n = [tilt.sin(), 0.2 * tilt.cos(), tilt.cos()];
         let dist = 2.0;
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let gauss = Normal::new(0.0, 1.0).unwrap();
+        let gauss = Normal::new(0.0, 1.0).expect("a valid distribution");
         let mut depth = vec![0.0f32; w * h];
         for y in 0..h {
             for x in 0..w {
@@ -418,6 +476,58 @@ mod tests {
         assert!(estimate_frame(&vec![0.0; 160 * 120], 160, 120, 0, &config).is_none());
     }
 
+    /// A wall 2 m ahead, face on, and the floor 0.5 m below the camera meeting it in the
+    /// image's lower quarter, through a bias of `radial` and relative noise `noise`.
+    fn wall_and_floor(radial: f64, noise: f64, seed: u64) -> Vec<f32> {
+        let (w, h) = (160usize, 120usize);
+        let (fx, cy) = (140.0, 59.5);
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let gauss = Normal::new(0.0, 1.0).expect("a valid distribution");
+        let mut depth = vec![0.0f32; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let ray_y = (y as f64 - cy) / fx;
+                let floor = if ray_y > 0.0 { 0.5 / ray_y } else { f64::INFINITY };
+                let z = floor.min(2.0);
+                let factor = DepthCalibration::factor(radial, x, y, w as u32, h as u32);
+                depth[y * w + x] = (z * factor * (1.0 + noise * gauss.sample(&mut rng))) as f32;
+            }
+        }
+        depth
+    }
+
+    #[test]
+    fn a_wall_meeting_the_floor_gives_the_radial_coefficient() {
+        // Two surfaces crossing in the image: the floor's last centimetres before the wall lie
+        // within the band of the wall's plane, along the wall's foot.
+        let config = EstimateConfig { pixel_step: 2, ..EstimateConfig::default() };
+        let mut mean = 0.0;
+        for seed in 0..4 {
+            let depth = wall_and_floor(0.005, 0.004, seed);
+            let e = estimate_frame(&depth, 160, 120, 0, &config).expect("a plane");
+            assert!(e.counts(&config), "{e:?}");
+            mean += e.radial / 4.0;
+        }
+        assert!((mean - 0.005).abs() < 0.0003, "{mean}");
+    }
+
+    #[test]
+    fn interior_cells_leave_out_the_rim_but_not_the_image_border() {
+        // A 6x5 grid whose right two columns are off the plane.
+        let (gw, gh) = (6, 5);
+        let samples: Vec<Sample> =
+            (0..gw * gh).map(|cell| Sample { x: 0.0, y: 0.0, rho2: 0.0, w: 1.0, cell }).collect();
+        let on: Vec<bool> = (0..gw * gh).map(|c| c % gw < 4).collect();
+        let interior = interior_cells(&samples, &on, gw, gh, 1);
+        for y in 0..gh {
+            let row: Vec<bool> = (0..gw).map(|x| interior[y * gw + x]).collect();
+            // Columns 0-2 are interior (the image's left border is no rim), 3 touches the
+            // off columns, 4-5 are off.
+            assert_eq!(row, [true, true, true, false, false, false], "row {y}");
+        }
+        assert_eq!(interior_cells(&samples, &on, gw, gh, 0), on);
+    }
+
     #[test]
     fn the_weighted_median_follows_the_weights() {
         assert_eq!(weighted_median(&mut []), None);
@@ -431,7 +541,7 @@ mod tests {
         let m = [[4.0, 1.0, 0.5, 0.2], [1.0, 3.0, 0.3, 0.1], [0.5, 0.3, 2.0, 0.4], [0.2, 0.1, 0.4, 1.5]];
         let x = [1.0, -2.0, 0.5, 3.0];
         let r: [f64; 4] = std::array::from_fn(|i| (0..4).map(|j| m[i][j] * x[j]).sum());
-        let got = solve4(m, r).unwrap();
+        let got = solve4(m, r).expect("a regular system");
         for i in 0..4 {
             assert!((got[i] - x[i]).abs() < 1e-12);
         }

@@ -253,7 +253,7 @@ fn a_motion_over_frames_splits_into_equal_steps() {
         let step = per_frame(motion, frames);
         let mut total = Affine3A::IDENTITY;
         for _ in 0..frames {
-            total = total * step;
+            total *= step;
         }
         let apart = motion.inverse() * total;
         let moved = Vec3::from(apart.translation).length();
