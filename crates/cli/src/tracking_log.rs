@@ -18,7 +18,7 @@ pub struct TrackingLog {
 }
 
 /// The column names, first line of the file.
-const HEADER: &str = "frame,status,x_m,y_m,z_m,departure_m,condition,constrained,inlier_ratio,residual_rms_m,colour_fallback,keyframe\n";
+const HEADER: &str = "frame,status,x_m,y_m,z_m,departure_m,condition,translation_sigma_m,constrained,inlier_ratio,residual_rms_m,colour_fallback,keyframe\n";
 
 impl TrackingLog {
     /// Adds the row of one pushed frame; frames without a tracker's result (ground-truth
@@ -50,16 +50,17 @@ impl TrackingLog {
             Some(t) => {
                 let _ = write!(
                     self.rows,
-                    "{:.5},{:.3e},{},{:.4},{:.6},{}",
+                    "{:.5},{:.3e},{:.3e},{},{:.4},{:.6},{}",
                     t.departure_m,
                     t.condition,
+                    t.translation_sigma_m,
                     t.constrained,
                     t.inlier_ratio,
                     t.residual_rms,
                     u8::from(t.colour_fallback)
                 );
             }
-            None => self.rows.push_str(",,,,,"),
+            None => self.rows.push_str(",,,,,,"),
         }
         let _ = writeln!(self.rows, ",{}", u8::from(r.keyframe));
     }

@@ -48,6 +48,7 @@ mod avx2;
 mod normal_equations;
 mod pyramid;
 pub(crate) use normal_equations::conditioning;
+use normal_equations::translation_sigma;
 #[allow(clippy::wildcard_imports)]
 use normal_equations::*;
 #[allow(clippy::wildcard_imports)]
@@ -106,6 +107,15 @@ pub struct TrackerConfig {
     /// generated scans the condition's median is 1e-2 to 4e-2 a scan where depth tracks well,
     /// 2e-3 on the two that drift facing bare walls (seeds 14 and 19).
     pub degenerate_condition: f64,
+    /// The colour fallback applies too when the depth-only alignment leaves the camera's
+    /// position this uncertain (metres, the standard deviation along the least determined
+    /// axis, `TrackingResult::translation_sigma_m`), whatever the condition: a wall and a
+    /// ceiling meeting across the image hold no motion along their edge, and a board flush
+    /// with the wall is below the noise at 2.5 m, yet the scale-normalised condition looks
+    /// healthy (0.03-0.2) because it scales each axis to one. 0.8 mm: the demo's scans stay
+    /// at 0.35-0.68 mm; a generated two-room loop (`synth-loop:1:noisy`) reached 1.0-1.4 mm
+    /// where it slid sideways by 0.6 m (docs/benchmarks_log.md, "Session 41").
+    pub degenerate_translation_sigma: f64,
     /// Lost when fewer than this fraction of the frame pixels that land on the model lie
     /// within `max_distance` of it (the normal test is left out here, see
     /// [`TrackingResult::inlier_ratio`]).
@@ -180,6 +190,7 @@ impl Default for TrackerConfig {
             huber_photometric: 0.1,
             degenerate_photometric_weight: 0.0,
             degenerate_condition: 5e-3,
+            degenerate_translation_sigma: 0.0008,
             min_inlier_ratio: 0.5,
             min_overlap: 0.2,
             max_residual: 0.01,
@@ -252,6 +263,12 @@ impl TrackerConfig {
             return bad(format!(
                 "photometric weight for degenerate frames {} must be >= 0",
                 self.degenerate_photometric_weight
+            ));
+        }
+        if !(self.degenerate_translation_sigma > 0.0) {
+            return bad(format!(
+                "degenerate_translation_sigma {} must be > 0 (infinity: off)",
+                self.degenerate_translation_sigma
             ));
         }
         if !(0.0..1.0).contains(&self.degenerate_condition) {
@@ -337,6 +354,9 @@ pub struct TrackingResult {
     pub residual_rms: f32,
     /// Smallest over largest eigenvalue of the scale-normalised normal matrix.
     pub condition: f64,
+    /// Standard deviation of the estimated position along its least determined axis, metres,
+    /// from the normal matrix and the residuals (rotation free; see `translation_sigma`).
+    pub translation_sigma_m: f64,
     /// How many of the six motion directions the alignment constrained (6 normally; fewer
     /// when some were kept at the motion prediction, see
     /// [`TrackerConfig::min_constrained`]).
@@ -604,6 +624,7 @@ impl Tracker {
             inlier_ratio: 0.0,
             residual_rms: 0.0,
             condition: 0.0,
+            translation_sigma_m: f64::INFINITY,
             constrained: 0,
             camera_hessian: [[0.0; 6]; 6],
             keyframe: false,
@@ -624,6 +645,7 @@ impl Tracker {
             result.status = TrackingStatus::Initialized;
             result.inlier_ratio = 1.0;
             result.condition = 1.0;
+            result.translation_sigma_m = 0.0;
             result.constrained = 6;
             self.accept(frame, &mut result, &pyramid[model_level]);
             return finish(result);
@@ -651,7 +673,10 @@ impl Tracker {
         let (mut estimate, mut stats, mut singular) = align(&pyramid, &model, prediction, &c);
         let mut conditioned = conditioning(&stats.symmetric(), c.min_condition);
         let fallback = c.photometric_weight <= 0.0 && c.degenerate_photometric_weight > 0.0 && !frame.color.is_empty();
-        if fallback && !singular && conditioned.0 < c.degenerate_condition {
+        let residual_rms = (stats.sq_residual / stats.inliers.max(1) as f64).sqrt();
+        let weakly_held = conditioned.0 < c.degenerate_condition
+            || translation_sigma(&stats.symmetric(), residual_rms) > c.degenerate_translation_sigma;
+        if fallback && !singular && weakly_held {
             // Depth alone barely sees some motion: align again with colour.
             let colour = TrackerConfig { photometric_weight: c.degenerate_photometric_weight, ..c.clone() };
             add_intensity(&mut pyramid, frame);
@@ -673,6 +698,7 @@ impl Tracker {
         result.residual_rms = (stats.sq_residual / stats.inliers.max(1) as f64).sqrt() as f32;
         let (cond, constrained) = conditioned;
         result.condition = cond;
+        result.translation_sigma_m = translation_sigma(&stats.symmetric(), result.residual_rms as f64);
         result.constrained = constrained;
         result.camera_hessian = camera_hessian(&stats.symmetric(), estimate);
         let jump = prediction.inverse() * estimate;

@@ -524,6 +524,32 @@ pub(crate) fn conditioning(h: &[[f64; 6]; 6], min_condition: f64) -> (f64, usize
     (cond, constrained.min(6 - unconstrained_axes))
 }
 
+/// The standard deviation of the alignment's translation along its least determined axis,
+/// metres: `sigma² (h⁻¹)` restricted to translation (rotation left free, so a slide that a
+/// turn could explain counts as undetermined), its largest eigenvalue, for residuals of RMS
+/// `sigma`. Unlike a condition number this is absolute: it says whether the view holds the
+/// camera's position to a millimetre or lets it slide by centimetres within the noise (a
+/// wall and a ceiling meeting along the image's width hold nothing across it). Infinite for
+/// a singular `h`.
+pub(crate) fn translation_sigma(h: &[[f64; 6]; 6], sigma: f64) -> f64 {
+    let mut block = [[0.0f64; 3]; 3];
+    for i in 0..3 {
+        let mut unit = [0.0; 6];
+        unit[i] = 1.0;
+        let Some(column) = cholesky_solve(h, &unit) else { return f64::INFINITY };
+        for j in 0..3 {
+            block[j][i] = column[j];
+        }
+    }
+    let (vals, _) = symmetric_eigen(&block);
+    let largest = vals.iter().copied().fold(0.0f64, f64::max);
+    if largest.is_finite() {
+        sigma * largest.sqrt()
+    } else {
+        f64::INFINITY
+    }
+}
+
 /// One Gauss-Newton step: solves `h xi = neg_g`. A well-conditioned system is solved
 /// as it is; otherwise, when `config.min_constrained` allows it, only along the scaled
 /// eigen-directions that are constrained (eigenvalue at least `min_condition` times the

@@ -433,3 +433,56 @@ fn the_camera_frame_hessian_is_the_same_form_in_the_camera_frame() {
         assert!((expected - got).abs() <= 1e-3 * expected.abs(), "seed {seed}: {expected} vs {got}");
     }
 }
+
+/// The translation's uncertainty against its definition by the Schur complement: with
+/// rotation left free, the translation's information is `S = H_tt - H_tr H_rr⁻¹ H_rt`, and
+/// its worst standard deviation `sigma / sqrt(smallest eigenvalue of S)` (the smallest by
+/// bisection on the characteristic polynomial's sign through a plain 3x3 determinant).
+#[test]
+fn translation_sigma_matches_the_schur_complement() {
+    fn det3(m: &[[f64; 3]; 3]) -> f64 {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    }
+    fn inverse3(m: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+        let d = det3(m);
+        std::array::from_fn(|i| {
+            std::array::from_fn(|j| {
+                let (r, c) = ([(j + 1) % 3, (j + 2) % 3], [(i + 1) % 3, (i + 2) % 3]);
+                (m[r[0]][c[0]] * m[r[1]][c[1]] - m[r[0]][c[1]] * m[r[1]][c[0]]) / d
+            })
+        })
+    }
+    for seed in 0..6 {
+        // Seeds 3-5: translation along one axis barely seen.
+        let null = (seed >= 3).then_some([0.0, 1.0, 0.0, 0.0, 0.0, 0.0]);
+        let (mut h, _) = normal_system(seed, 200, null);
+        h[1][1] += 1e-3;
+        let block = |r: usize, c: usize| -> [[f64; 3]; 3] { std::array::from_fn(|i| std::array::from_fn(|j| h[r + i][c + j])) };
+        let (tt, tr, rr) = (block(0, 0), block(0, 3), block(3, 3));
+        let rr_inv = inverse3(&rr);
+        let s: [[f64; 3]; 3] = std::array::from_fn(|i| {
+            std::array::from_fn(|j| {
+                tt[i][j] - (0..3).map(|a| (0..3).map(|b| tr[i][a] * rr_inv[a][b] * tr[j][b]).sum::<f64>()).sum::<f64>()
+            })
+        });
+        // Smallest eigenvalue: the first root of det(S - x I) from 0 up.
+        let shifted = |x: f64| det3(&std::array::from_fn(|i| std::array::from_fn(|j| s[i][j] - if i == j { x } else { 0.0 })));
+        let (mut lo, mut hi) = (0.0, (0..3).map(|i| s[i][i]).fold(f64::INFINITY, f64::min));
+        for _ in 0..200 {
+            let mid = 0.5 * (lo + hi);
+            if shifted(mid) > 0.0 {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        let expected = 0.004 / lo.sqrt();
+        let got = translation_sigma(&h, 0.004);
+        assert!((got - expected).abs() <= 1e-6 * expected, "seed {seed}: {got} vs {expected}");
+        if seed >= 3 {
+            assert!(got > 0.004 / 0.1, "seed {seed}: the unseen axis is {got} uncertain");
+        }
+    }
+    assert!(translation_sigma(&[[0.0; 6]; 6], 0.004).is_infinite());
+}
