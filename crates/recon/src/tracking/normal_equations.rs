@@ -529,8 +529,9 @@ pub(crate) fn conditioning(h: &[[f64; 6]; 6], min_condition: f64) -> (f64, usize
 /// turn could explain counts as undetermined), its largest eigenvalue, for residuals of RMS
 /// `sigma`. Unlike a condition number this is absolute: it says whether the view holds the
 /// camera's position to a millimetre or lets it slide by centimetres within the noise (a
-/// wall and a ceiling meeting along the image's width hold nothing across it). Infinite for
-/// a singular `h`.
+/// wall and a ceiling meeting along the image's width hold nothing across it). A lower
+/// bound: noise in the normals lends every axis some information. Infinite for a singular
+/// `h`.
 pub(crate) fn translation_sigma(h: &[[f64; 6]; 6], sigma: f64) -> f64 {
     let mut block = [[0.0f64; 3]; 3];
     for i in 0..3 {

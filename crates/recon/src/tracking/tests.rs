@@ -486,3 +486,18 @@ fn translation_sigma_matches_the_schur_complement() {
     }
     assert!(translation_sigma(&[[0.0; 6]; 6], 0.004).is_infinite());
 }
+
+/// The colour fallback's departure trigger must be positive (infinity turns it off).
+#[test]
+fn the_fallback_departure_is_validated() {
+    assert!(TrackerConfig::default().validate().is_ok());
+    let off = TrackerConfig { degenerate_departure: f32::INFINITY, ..TrackerConfig::default() };
+    assert!(off.validate().is_ok());
+    for bad in [
+        TrackerConfig { degenerate_departure: -0.01, ..TrackerConfig::default() },
+        TrackerConfig { degenerate_departure: f32::NAN, ..TrackerConfig::default() },
+    ] {
+        let e = bad.validate().expect_err("refused").to_string();
+        assert!(e.contains("degenerate_"), "{e}");
+    }
+}
