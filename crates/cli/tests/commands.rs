@@ -180,7 +180,7 @@ fn demo_writes_its_outputs_and_measures_them() {
     let out = dir.path().join("demo");
     let o = semrecon(&["demo", "--out", out.to_str().expect("utf-8"), "--frames", "6", "--voxel", "0.02"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    for f in ["mesh.ply", "semantic.ply", "ground_truth.ply", "trajectory.txt", "report.json"] {
+    for f in ["mesh.ply", "semantic.ply", "ground_truth.ply", "trajectory.txt", "tracking.csv", "report.json"] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
     let report: serde_json::Value =
