@@ -84,8 +84,14 @@ mod tests {
     #[test]
     fn rows_have_every_column() {
         let mut log = TrackingLog::default();
-        let base =
-            FrameResult { index: 3, status: FrameStatus::NoPose, pose: None, keyframe: false, semantic_pass: false, tracking: None };
+        let base = FrameResult {
+            index: 3,
+            status: FrameStatus::NoPose,
+            pose: None,
+            keyframe: false,
+            semantic_pass: false,
+            tracking: None,
+        };
         log.record(&base);
         log.record(&FrameResult {
             index: 4,

@@ -271,6 +271,9 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     for w in pipeline.warnings() {
         eprintln!("warning: {w}");
     }
-    println!("wrote {}/{{mesh.ply, semantic.ply, ground_truth.ply, trajectory.txt, tracking.csv, report.json}}", args.out.display());
+    println!(
+        "wrote {}/{{mesh.ply, semantic.ply, ground_truth.ply, trajectory.txt, tracking.csv, report.json}}",
+        args.out.display()
+    );
     Ok(())
 }

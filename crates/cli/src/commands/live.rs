@@ -13,7 +13,7 @@
 //! many times faster than the camera the pipeline processes a frame, over the last second).
 //! Ctrl-C, the end of the stream, `--max-frames` or `--seconds` finish the session: the
 //! pipeline finishes with what it has and writes the outputs of `run` (`mesh.ply`,
-//! `semantic.ply`, `trajectory.txt`, `report.json`). A camera that fails (unplugged, a
+//! `semantic.ply`, `trajectory.txt`, `tracking.csv`, `report.json`). A camera that fails (unplugged, a
 //! recording cut short) ends the session the same way, with the reason in the report.
 
 use std::collections::VecDeque;

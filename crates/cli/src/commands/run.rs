@@ -1,8 +1,8 @@
 //! `semrecon run`: the live pipeline on a dataset, frame by frame: a pose for every frame
 //! (tracking, or the dataset's ground truth), TSDF fusion, incremental meshing and a semantic
 //! pass of the back end at every keyframe; writes `DIR/mesh.ply` (binary, with a vertex
-//! `label`), `DIR/semantic.ply` (class colours), `DIR/trajectory.txt` (TUM) and
-//! `DIR/report.json`, and prints the timing table in the layout of the paper's Table 5.
+//! `label`), `DIR/semantic.ply` (class colours), `DIR/trajectory.txt` (TUM),
+//! `DIR/tracking.csv` (what the tracker measured of each frame) and `DIR/report.json`, and prints the timing table in the layout of the paper's Table 5.
 //!
 //! With `--realtime` frames are fed at their capture rate (their timestamps): the front end
 //! never drops a frame, but it may fall behind (the report says by how much), and semantic

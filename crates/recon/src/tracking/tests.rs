@@ -458,7 +458,8 @@ fn translation_sigma_matches_the_schur_complement() {
         let null = (seed >= 3).then_some([0.0, 1.0, 0.0, 0.0, 0.0, 0.0]);
         let (mut h, _) = normal_system(seed, 200, null);
         h[1][1] += 1e-3;
-        let block = |r: usize, c: usize| -> [[f64; 3]; 3] { std::array::from_fn(|i| std::array::from_fn(|j| h[r + i][c + j])) };
+        let block =
+            |r: usize, c: usize| -> [[f64; 3]; 3] { std::array::from_fn(|i| std::array::from_fn(|j| h[r + i][c + j])) };
         let (tt, tr, rr) = (block(0, 0), block(0, 3), block(3, 3));
         let rr_inv = inverse3(&rr);
         let s: [[f64; 3]; 3] = std::array::from_fn(|i| {
@@ -467,7 +468,8 @@ fn translation_sigma_matches_the_schur_complement() {
             })
         });
         // Smallest eigenvalue: the first root of det(S - x I) from 0 up.
-        let shifted = |x: f64| det3(&std::array::from_fn(|i| std::array::from_fn(|j| s[i][j] - if i == j { x } else { 0.0 })));
+        let shifted =
+            |x: f64| det3(&std::array::from_fn(|i| std::array::from_fn(|j| s[i][j] - if i == j { x } else { 0.0 })));
         let (mut lo, mut hi) = (0.0, (0..3).map(|i| s[i][i]).fold(f64::INFINITY, f64::min));
         for _ in 0..200 {
             let mid = 0.5 * (lo + hi);
