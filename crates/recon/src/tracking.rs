@@ -48,7 +48,6 @@ mod avx2;
 mod normal_equations;
 mod pyramid;
 pub(crate) use normal_equations::conditioning;
-use normal_equations::translation_sigma;
 #[allow(clippy::wildcard_imports)]
 use normal_equations::*;
 #[allow(clippy::wildcard_imports)]
@@ -697,10 +696,11 @@ impl Tracker {
         let overlap_ratio = overlap as f32 / stats.sampled.max(1) as f32;
         result.residual_rms = (stats.sq_residual / stats.inliers.max(1) as f64).sqrt() as f32;
         let (cond, constrained) = conditioned;
+        let h = stats.symmetric();
         result.condition = cond;
-        result.translation_sigma_m = translation_sigma(&stats.symmetric(), result.residual_rms as f64);
+        result.translation_sigma_m = translation_sigma(&h, result.residual_rms as f64);
         result.constrained = constrained;
-        result.camera_hessian = camera_hessian(&stats.symmetric(), estimate);
+        result.camera_hessian = camera_hessian(&h, estimate);
         let jump = prediction.inverse() * estimate;
         let jump_t = Vec3::from(jump.translation).length();
         result.departure_m = jump_t;

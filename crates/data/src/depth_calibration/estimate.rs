@@ -431,28 +431,34 @@ mod tests {
     use super::*;
     use rand_distr::{Distribution, Normal};
 
-    /// A wall (plane `n·X = dist` in the camera frame) seen by a 160x120 camera, through a
-    /// bias of `radial` and relative noise `noise`, with a box in front covering part of it.
-    fn wall(radial: f64, noise: f64, tilt: f64, seed: u64) -> Vec<f32> {
+    /// A 160x120 depth image whose true depth at pixel (x, y) is `scene(x, y, ray)` (`ray` the
+    /// pixel's ray at z = 1), seen through a bias of `radial` and relative noise `noise`.
+    fn rendered(radial: f64, noise: f64, seed: u64, scene: impl Fn(usize, usize, [f64; 3]) -> f64) -> Vec<f32> {
         let (w, h) = (160usize, 120usize);
         let (fx, cx, cy) = (140.0, 79.5, 59.5);
-        let n = [tilt.sin(), 0.2 * tilt.cos(), tilt.cos()];
-        let dist = 2.0;
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let gauss = Normal::new(0.0, 1.0).expect("a valid distribution");
         let mut depth = vec![0.0f32; w * h];
         for y in 0..h {
             for x in 0..w {
-                let ray = [(x as f64 - cx) / fx, (y as f64 - cy) / fx, 1.0];
-                let mut z = dist / (n[0] * ray[0] + n[1] * ray[1] + n[2] * ray[2]);
-                if (60..100).contains(&x) && (70..110).contains(&y) {
-                    z = 1.2; // the box
-                }
+                let z = scene(x, y, [(x as f64 - cx) / fx, (y as f64 - cy) / fx, 1.0]);
                 let factor = DepthCalibration::factor(radial, x, y, w as u32, h as u32);
                 depth[y * w + x] = (z * factor * (1.0 + noise * gauss.sample(&mut rng))) as f32;
             }
         }
         depth
+    }
+
+    /// A wall (plane `n·X = 2` in the camera frame) with a box in front covering part of it.
+    fn wall(radial: f64, noise: f64, tilt: f64, seed: u64) -> Vec<f32> {
+        let n = [tilt.sin(), 0.2 * tilt.cos(), tilt.cos()];
+        rendered(radial, noise, seed, |x, y, ray| {
+            if (60..100).contains(&x) && (70..110).contains(&y) {
+                1.2 // the box
+            } else {
+                2.0 / (n[0] * ray[0] + n[1] * ray[1] + n[2] * ray[2])
+            }
+        })
     }
 
     #[test]
@@ -479,23 +485,9 @@ mod tests {
     }
 
     /// A wall 2 m ahead, face on, and the floor 0.5 m below the camera meeting it in the
-    /// image's lower quarter, through a bias of `radial` and relative noise `noise`.
+    /// image's lower quarter.
     fn wall_and_floor(radial: f64, noise: f64, seed: u64) -> Vec<f32> {
-        let (w, h) = (160usize, 120usize);
-        let (fx, cy) = (140.0, 59.5);
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let gauss = Normal::new(0.0, 1.0).expect("a valid distribution");
-        let mut depth = vec![0.0f32; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let ray_y = (y as f64 - cy) / fx;
-                let floor = if ray_y > 0.0 { 0.5 / ray_y } else { f64::INFINITY };
-                let z = floor.min(2.0);
-                let factor = DepthCalibration::factor(radial, x, y, w as u32, h as u32);
-                depth[y * w + x] = (z * factor * (1.0 + noise * gauss.sample(&mut rng))) as f32;
-            }
-        }
-        depth
+        rendered(radial, noise, seed, |_, _, ray| if ray[1] > 0.0 { (0.5 / ray[1]).min(2.0) } else { 2.0 })
     }
 
     #[test]
