@@ -71,6 +71,13 @@ pub struct ReconArgs {
     /// cameras), 0 for 7-Scenes, whose colour is not (docs/benchmarks_log.md, "Session 34").
     #[arg(long)]
     pub degenerate_photometric_weight: Option<f32>,
+    /// Smallest fraction of the surface in view that must lean (by 17 degrees) towards a
+    /// direction of translation for depth to hold the camera along it. Views below it (a wall
+    /// and a door with no floor, ceiling or shelf in sight leave the height unheld) are
+    /// aligned again with colour, or, without colour, keep the camera where it was along that
+    /// direction; 0 turns the check off (docs/benchmarks_log.md, "Session 42").
+    #[arg(long, default_value_t = 0.02)]
+    pub min_support: f32,
     /// Where poses come from: tracking, or the dataset's ground truth.
     #[arg(long, value_enum, default_value_t = PoseMode::Track)]
     pub poses: PoseMode,
@@ -258,6 +265,7 @@ pub fn pipeline_config(
             degenerate_photometric_weight: recon
                 .degenerate_photometric_weight
                 .unwrap_or_else(|| TrackerConfig::colour_fallback_weight(color_registered)),
+            min_support: recon.min_support,
             ..TrackerConfig::default()
         },
         poses: match recon.poses {

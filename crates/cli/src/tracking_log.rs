@@ -2,7 +2,7 @@
 //! `trajectory.txt` by `run` and `demo`, so that a scan that drifted can be read frame by
 //! frame: where the alignment left the motion prediction (`departure_m`), how well the view
 //! held the motion (`condition`, `constrained`) and how well it fitted (`inlier_ratio`,
-//! `residual_rms_m`). A drift seen in the ATE is found here as a run of large departures or
+//! `residual_rms_m`), and which directions no surface in view held (`support`, `unheld`). A drift seen in the ATE is found here as a run of large departures or
 //! small conditions.
 
 use std::fmt::Write as _;
@@ -18,7 +18,7 @@ pub struct TrackingLog {
 }
 
 /// The column names, first line of the file.
-const HEADER: &str = "frame,status,x_m,y_m,z_m,departure_m,condition,translation_sigma_m,constrained,inlier_ratio,residual_rms_m,colour_fallback,keyframe\n";
+const HEADER: &str = "frame,status,x_m,y_m,z_m,departure_m,condition,translation_sigma_m,constrained,inlier_ratio,residual_rms_m,colour_fallback,support,unheld,keyframe\n";
 
 impl TrackingLog {
     /// Adds the row of one pushed frame; frames without a tracker's result (ground-truth
@@ -50,17 +50,19 @@ impl TrackingLog {
             Some(t) => {
                 let _ = write!(
                     self.rows,
-                    "{:.5},{:.3e},{:.3e},{},{:.4},{:.6},{}",
+                    "{:.5},{:.3e},{:.3e},{},{:.4},{:.6},{},{:.4},{}",
                     t.departure_m,
                     t.condition,
                     t.translation_sigma_m,
                     t.constrained,
                     t.inlier_ratio,
                     t.residual_rms,
-                    u8::from(t.colour_fallback)
+                    u8::from(t.colour_fallback),
+                    t.support,
+                    t.unheld
                 );
             }
-            None => self.rows.push_str(",,,,,,"),
+            None => self.rows.push_str(",,,,,,,,"),
         }
         let _ = writeln!(self.rows, ",{}", u8::from(r.keyframe));
     }

@@ -47,11 +47,13 @@ use crate::raycast::{raycast_with, ModelView};
 mod avx2;
 mod normal_equations;
 mod pyramid;
+mod support;
 pub(crate) use normal_equations::conditioning;
 #[allow(clippy::wildcard_imports)]
 use normal_equations::*;
 #[allow(clippy::wildcard_imports)]
 use pyramid::*;
+use support::translation_support;
 
 /// Pyramid levels (0 = input resolution).
 pub const LEVELS: usize = 3;
@@ -97,7 +99,9 @@ pub struct TrackerConfig {
     /// poorly conditioned (0: off). With `photometric_weight` 0, each frame is aligned on
     /// depth first; when the scale-normalised normal matrix's condition is below
     /// `degenerate_condition` (a bare wall, a floor, a corridor: motions along the surface
-    /// are barely seen by depth), the frame is aligned again from the prediction with the
+    /// are barely seen by depth), the estimate departs from the prediction by more than
+    /// `degenerate_departure`, or a direction of translation lacks support (`min_support`),
+    /// the frame is aligned again from the prediction with the
     /// colour term at this weight, so only those frames pay for it (the term costs about four
     /// times a depth-only alignment). Only meaningful when colour is registered to depth.
     pub degenerate_photometric_weight: f32,
@@ -115,6 +119,18 @@ pub struct TrackerConfig {
     /// "Session 41"). It catches what the condition cannot: there the condition read
     /// 0.03-0.2, healthy, because noisy normals lend every axis some information.
     pub degenerate_departure: f32,
+    /// A surface point leans towards a direction when its normal's component along it is at
+    /// least this (0.3: 17 degrees, past the few degrees of a ray-cast model's noise).
+    pub support_tilt: f32,
+    /// A direction of translation along which fewer than this fraction of the model's
+    /// surface points lean ([`TrackerConfig::support_tilt`]) is unheld: the colour fallback
+    /// runs (where `degenerate_photometric_weight` allows), and a depth-only alignment keeps
+    /// the camera where it last was along it, rather than letting the normals' noise slide
+    /// it (the normal matrix's condition cannot tell: it reads 1e-2 there). 0 turns the check
+    /// off. 0.02: `synth-loop:3:noisy` slid 0.35 m up a wall beside a flush door with a
+    /// support of 0.1-1.7 % (ATE 169 -> 17.5 mm); rooms whose views show a floor, a shelf or
+    /// a lintel read 3-50 % (docs/benchmarks_log.md, "Session 42").
+    pub min_support: f32,
     /// Lost when fewer than this fraction of the frame pixels that land on the model lie
     /// within `max_distance` of it (the normal test is left out here, see
     /// [`TrackingResult::inlier_ratio`]).
@@ -190,6 +206,8 @@ impl Default for TrackerConfig {
             degenerate_photometric_weight: 0.0,
             degenerate_condition: 5e-3,
             degenerate_departure: 0.015,
+            support_tilt: 0.3,
+            min_support: 0.02,
             min_inlier_ratio: 0.5,
             min_overlap: 0.2,
             max_residual: 0.01,
@@ -266,6 +284,12 @@ impl TrackerConfig {
         }
         if !(self.degenerate_departure > 0.0) {
             return bad(format!("degenerate_departure {} must be > 0 (infinity: off)", self.degenerate_departure));
+        }
+        if !(self.support_tilt > 0.0 && self.support_tilt < 1.0) {
+            return bad(format!("support_tilt {} is outside 0..1 (exclusive)", self.support_tilt));
+        }
+        if !(0.0..1.0).contains(&self.min_support) {
+            return bad(format!("min_support {} is outside 0..1", self.min_support));
         }
         if !(0.0..1.0).contains(&self.degenerate_condition) {
             return bad(format!("degenerate_condition {} is outside 0..1", self.degenerate_condition));
@@ -381,6 +405,15 @@ pub struct TrackingResult {
     /// (0 when nothing was aligned); a frame is lost as a [`LostReason::PoseJump`] past
     /// [`TrackerConfig::max_translation_jump`] per frame since the last tracked one.
     pub departure_m: f32,
+    /// The smallest fraction of the model's surface points leaning towards any principal
+    /// direction of their normals by [`TrackerConfig::support_tilt`] (1 when nothing was
+    /// aligned): below [`TrackerConfig::min_support`] that direction of translation was
+    /// unheld.
+    pub support: f32,
+    /// How many directions of translation no surface in view held
+    /// ([`TrackerConfig::min_support`]): the colour fallback aligned them, or, without colour,
+    /// they stayed where the camera last was.
+    pub unheld: usize,
 }
 
 impl TrackingResult {
@@ -632,6 +665,8 @@ impl Tracker {
             raycast_ms: 0.0,
             total_ms: 0.0,
             departure_m: 0.0,
+            support: 1.0,
+            unheld: 0,
         };
         let finish = |mut r: TrackingResult| {
             r.total_ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -670,18 +705,32 @@ impl Tracker {
             step *= self.velocity;
         }
         let prediction = reference.inverse() * last * step;
-        let (mut estimate, mut stats, mut singular) = align(&pyramid, &model, prediction, &c);
+        // Directions of translation that no surface in view holds: a depth-only alignment
+        // keeps them where the camera last was (the motion model would carry a hand's bob
+        // on for as long as the view lasts), and the colour fallback runs where it can.
+        let support = translation_support(&model.view.normals, c.support_tilt, c.min_support);
+        let held_at = Vec3::from((reference.inverse() * last).translation);
+        let pins: Vec<Pin> = support.unheld().iter().map(|&e| Pin { direction: e, at: e.dot(held_at) }).collect();
+        result.support = support.weakest_fraction;
+        result.unheld = pins.len();
+        // With colour in every alignment, colour holds what depth does not.
+        let depth_pins: &[Pin] = if c.photometric_weight > 0.0 && !frame.color.is_empty() { &[] } else { &pins };
+        let (mut estimate, mut stats, mut singular) = align(&pyramid, &model, prediction, depth_pins, &c);
         let mut conditioned = conditioning(&stats.symmetric(), c.min_condition);
         let fallback = c.photometric_weight <= 0.0 && c.degenerate_photometric_weight > 0.0 && !frame.color.is_empty();
         let departure = Vec3::from((prediction.inverse() * estimate).translation).length();
-        let weakly_held = conditioned.0 < c.degenerate_condition || departure > c.degenerate_departure;
+        let weakly_held =
+            conditioned.0 < c.degenerate_condition || departure > c.degenerate_departure || !pins.is_empty();
         if fallback && !singular && weakly_held {
             // Depth alone barely sees some motion: align again with colour.
             let colour = TrackerConfig { photometric_weight: c.degenerate_photometric_weight, ..c.clone() };
             add_intensity(&mut pyramid, frame);
             let (intensity, gradient) = model_intensity(&model.view);
             let model = Model { view: Arc::clone(&model.view), intensity, gradient };
-            (estimate, stats, singular) = align(&pyramid, &model, prediction, &colour);
+            // Unpinned: on `synth-loop:3:noisy` frames 1100-1300 colour alone held the
+            // height to 1.1 mm (ATE), colour with the pins 5.7 mm, the pins alone 6.1 mm
+            // (they hold the camera still while it bobs by a centimetre).
+            (estimate, stats, singular) = align(&pyramid, &model, prediction, &[], &colour);
             conditioned = conditioning(&stats.symmetric(), c.min_condition);
             result.colour_fallback = true;
         }
@@ -818,7 +867,13 @@ fn luma(c: [u8; 3]) -> f32 {
 /// Gauss-Newton alignment of `pyramid` to `model` over the pyramid levels, coarse to fine,
 /// from `prediction` (reference_from_current): the estimate, the last iteration's sums and
 /// whether a step was singular.
-fn align(pyramid: &[Level], model: &Model, prediction: Affine3A, c: &TrackerConfig) -> (Affine3A, Normals, bool) {
+fn align(
+    pyramid: &[Level],
+    model: &Model,
+    prediction: Affine3A,
+    pins: &[Pin],
+    c: &TrackerConfig,
+) -> (Affine3A, Normals, bool) {
     let mut estimate = prediction;
     let mut stats = Normals::ZERO;
     let mut singular = false;
@@ -839,8 +894,9 @@ fn align(pyramid: &[Level], model: &Model, prediction: Affine3A, c: &TrackerConf
                 Some(p) => p.normal_equations(model, &estimate, max_distance, c),
                 None => normal_equations(data, pyramid.get(level + 1), model, &estimate, max_distance, stride, c),
             };
-            let h = stats.symmetric();
-            let neg_g = stats.g.map(|v| -v);
+            let mut h = stats.symmetric();
+            let mut neg_g = stats.g.map(|v| -v);
+            pin_translation(&mut h, &mut neg_g, pins, Vec3::from(estimate.translation));
             let Some(xi) = gauss_newton_step(&h, &neg_g, c) else {
                 singular = true;
                 break;
@@ -857,6 +913,41 @@ fn align(pyramid: &[Level], model: &Model, prediction: Affine3A, c: &TrackerConf
         }
     }
     (estimate, stats, singular)
+}
+
+/// A direction of translation held at a position: the estimate's translation
+/// (`reference_from_current`) keeps `direction · t = at`.
+#[derive(Debug, Clone, Copy)]
+struct Pin {
+    direction: Vec3,
+    at: f32,
+}
+
+/// How much stiffer a pin is than the stiffest direction of translation the surfaces hold:
+/// the pinned direction moves by a ten-thousandth of what a hold as stiff as the stiffest
+/// would move it (a millionth of what the normals' noise would, `support.rs`), and f64
+/// solves the system as well as without it.
+const PIN_STIFFNESS: f64 = 1e4;
+
+/// Adds each pin to one Gauss-Newton step's normal equations as a stiff quadratic prior on
+/// the translation step `υ` (entries 3..6 of the twist): `k (e · (t + υ) - at)²`. The left
+/// twist moves the translation by `υ` plus the rotation's turn of `t`, a few millimetres'
+/// lever at most over a frame; the prior leaves that out.
+fn pin_translation(h: &mut [[f64; 6]; 6], neg_g: &mut [f64; 6], pins: &[Pin], t: Vec3) {
+    if pins.is_empty() {
+        return;
+    }
+    let stiffness = PIN_STIFFNESS * (3..6).map(|i| h[i][i]).fold(0.0, f64::max).max(1e-12);
+    for pin in pins {
+        let e = pin.direction.to_array().map(f64::from);
+        let off = f64::from(pin.direction.dot(t) - pin.at);
+        for i in 0..3 {
+            for j in 0..3 {
+                h[3 + i][3 + j] += stiffness * e[i] * e[j];
+            }
+            neg_g[3 + i] -= stiffness * e[i] * off;
+        }
+    }
 }
 
 /// One frame's share of `motion`, a rigid motion over `frames` frames: the constant

@@ -61,6 +61,42 @@ fn a_degenerate_step_solves_the_constrained_part_and_leaves_the_rest() {
     }
 }
 
+/// A pinned direction of translation ends where it is pinned, and the rest of the step is
+/// the solve of the system with that direction fixed: for a pin along the vertical (the
+/// twist's entry 4), the 5x5 system without its row and column, with the fixed step's pull
+/// moved to the right-hand side.
+#[test]
+fn a_pinned_step_keeps_its_direction_and_solves_the_rest() {
+    let c = TrackerConfig::default();
+    for seed in 0..20u64 {
+        let (h, g) = normal_system(seed, 50, None);
+        let t = Vec3::new(0.01, -0.02 + 0.001 * seed as f32, 0.005);
+        let pin = Pin { direction: Vec3::Y, at: 0.003 };
+        let (mut hp, mut gp) = (h, g);
+        pin_translation(&mut hp, &mut gp, &[pin], t);
+        let xi = gauss_newton_step(&hp, &gp, &c).expect("a step");
+        let fixed = f64::from(pin.at - t.y);
+        let scale = xi.iter().chain(&[fixed]).map(|v| v.abs()).fold(0.0, f64::max);
+        assert!((xi[4] - fixed).abs() < 1e-4 * scale, "seed {seed}: {} against {fixed}", xi[4]);
+        let free = [0usize, 1, 2, 3, 5];
+        let reduced: [[f64; 5]; 5] = std::array::from_fn(|a| std::array::from_fn(|b| h[free[a]][free[b]]));
+        let rhs: [f64; 5] = std::array::from_fn(|a| g[free[a]] - h[free[a]][4] * fixed);
+        let expected = cholesky_solve(&reduced, &rhs).expect("the reduced system is positive definite");
+        for (a, &i) in free.iter().enumerate() {
+            assert!(
+                (xi[i] - expected[a]).abs() < 1e-3 * scale,
+                "seed {seed}: entry {i}: {} against {}",
+                xi[i],
+                expected[a]
+            );
+        }
+        // No pins: the plain step.
+        let (mut h0, mut g0) = (h, g);
+        pin_translation(&mut h0, &mut g0, &[], t);
+        assert_eq!((h0, g0), (h, g));
+    }
+}
+
 #[test]
 fn horn_alignment_removes_a_rigid_motion() {
     let pts: Vec<Vec3> = (0..20)
@@ -491,7 +527,7 @@ fn translation_sigma_matches_the_schur_complement() {
 
 /// The colour fallback's departure trigger must be positive (infinity turns it off).
 #[test]
-fn the_fallback_departure_is_validated() {
+fn the_fallback_departure_and_the_support_check_are_validated() {
     assert!(TrackerConfig::default().validate().is_ok());
     let off = TrackerConfig { degenerate_departure: f32::INFINITY, ..TrackerConfig::default() };
     assert!(off.validate().is_ok());
@@ -501,5 +537,16 @@ fn the_fallback_departure_is_validated() {
     ] {
         let e = bad.validate().expect_err("refused").to_string();
         assert!(e.contains("degenerate_"), "{e}");
+    }
+    let off = TrackerConfig { min_support: 0.0, ..TrackerConfig::default() };
+    assert!(off.validate().is_ok());
+    for bad in [
+        TrackerConfig { min_support: -0.1, ..TrackerConfig::default() },
+        TrackerConfig { min_support: f32::NAN, ..TrackerConfig::default() },
+        TrackerConfig { support_tilt: 0.0, ..TrackerConfig::default() },
+        TrackerConfig { support_tilt: 1.5, ..TrackerConfig::default() },
+    ] {
+        let e = bad.validate().expect_err("refused").to_string();
+        assert!(e.contains("support"), "{e}");
     }
 }
