@@ -708,7 +708,12 @@ impl Tracker {
         // Directions of translation that no surface in view holds: a depth-only alignment
         // keeps them where the camera last was (the motion model would carry a hand's bob
         // on for as long as the view lasts), and the colour fallback runs where it can.
-        let support = translation_support(&model.view.normals, c.support_tilt, c.min_support);
+        let support = translation_support(
+            &model.view.normals,
+            model.view.intrinsics.width as usize,
+            c.support_tilt,
+            c.min_support,
+        );
         let held_at = Vec3::from((reference.inverse() * last).translation);
         let pins: Vec<Pin> = support.unheld().iter().map(|&e| Pin { direction: e, at: e.dot(held_at) }).collect();
         result.support = support.weakest_fraction;
