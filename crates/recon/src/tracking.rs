@@ -128,8 +128,8 @@ pub struct TrackerConfig {
     /// the camera where it last was along it, rather than letting the normals' noise slide
     /// it (the normal matrix's condition cannot tell: it reads 1e-2 there). 0 turns the check
     /// off. 0.02: `synth-loop:3:noisy` slid 0.35 m up a wall beside a flush door with a
-    /// support of 0.1-1.7 % (ATE 169 -> 17.5 mm); rooms whose views show a floor, a shelf or
-    /// a lintel read 3-50 % (docs/benchmarks_log.md, "Session 42").
+    /// support of 0.1-1.7 % (ATE 169 -> 17.4 mm); 7-Scenes and TUM fr2/desk read 14 % and more
+    /// on every frame (docs/benchmarks_log.md, "Session 42").
     pub min_support: f32,
     /// Lost when fewer than this fraction of the frame pixels that land on the model lie
     /// within `max_distance` of it (the normal test is left out here, see
