@@ -480,8 +480,8 @@ pub fn vertex_accuracy_mm(gt: &LabeledMesh, mesh: &LabeledMesh) -> anyhow::Resul
     Ok(Some(sum / mesh.positions.len() as f64 * 1e3))
 }
 
-/// [`vertex_accuracy_mm`] of `mesh` moved by `gt_from_est` (a row-major 3x4 rigid transform,
-/// as [`semrecon_eval::TrajectoryErrors::gt_from_est`] gives it): the mesh's accuracy with
+/// [`vertex_accuracy_mm`] of `mesh` moved by `gt_from_est` (the ATE's alignment,
+/// [`semrecon_eval::TrajectoryErrors::gt_from_est_transform`]): the mesh's accuracy with
 /// the trajectory's rigid alignment taken out, as the ATE takes it out of the positions. A
 /// tracked map is rigidly off by what its first frames' small errors set (0.1-0.2 degrees on
 /// the generated loops, 5-10 mm at the far walls), which the plain accuracy counts as error
@@ -493,16 +493,13 @@ pub fn aligned_vertex_accuracy_mm(
     gt: &LabeledMesh,
     mesh: &LabeledMesh,
     trajectory: &[Vec3],
-    gt_from_est: &[[f64; 4]; 3],
+    gt_from_est: glam::DAffine3,
 ) -> anyhow::Result<Option<f64>> {
     if off_line_spread_m(trajectory) < MIN_ALIGNMENT_SPREAD_M {
         return Ok(None);
     }
-    let m = gt_from_est;
-    let column = |c: usize| glam::DVec3::new(m[0][c], m[1][c], m[2][c]);
-    let transform = glam::DAffine3::from_cols(column(0), column(1), column(2), column(3));
-    anyhow::ensure!(transform.is_finite(), "the trajectory's alignment is not finite");
-    let positions = mesh.positions.iter().map(|p| transform.transform_point3(p.as_dvec3()).as_vec3()).collect();
+    anyhow::ensure!(gt_from_est.is_finite(), "the trajectory's alignment is not finite");
+    let positions = mesh.positions.iter().map(|p| gt_from_est.transform_point3(p.as_dvec3()).as_vec3()).collect();
     vertex_accuracy_mm(gt, &LabeledMesh { positions, ..LabeledMesh::default() })
 }
 
@@ -668,21 +665,15 @@ mod tests {
             positions: truth.positions.iter().map(|p| est_from_gt.transform_point3(p.as_dvec3()).as_vec3()).collect(),
             ..truth.clone()
         };
-        let g = est_from_gt.inverse();
-        let (m, t) = (g.matrix3, g.translation);
-        let gt_from_est = [
-            [m.x_axis.x, m.y_axis.x, m.z_axis.x, t.x],
-            [m.x_axis.y, m.y_axis.y, m.z_axis.y, t.y],
-            [m.x_axis.z, m.y_axis.z, m.z_axis.z, t.z],
-        ];
+        let gt_from_est = est_from_gt.inverse();
         let walk: Vec<Vec3> =
             (0..40).map(|i| Vec3::new(2.0 + (i as f32 * 0.3).cos(), 2.0 + (i as f32 * 0.3).sin(), 1.5)).collect();
         let plain = vertex_accuracy_mm(&truth, &moved).expect("accuracy").expect("vertices");
         let aligned =
-            aligned_vertex_accuracy_mm(&truth, &moved, &walk, &gt_from_est).expect("accuracy").expect("spread");
+            aligned_vertex_accuracy_mm(&truth, &moved, &walk, gt_from_est).expect("accuracy").expect("spread");
         assert!(plain > 10.0 && aligned < 0.01, "plain {plain} mm, aligned {aligned} mm");
         let line: Vec<Vec3> = (0..40).map(|i| Vec3::new(0.01 * i as f32, 2.0, 1.5)).collect();
-        assert_eq!(aligned_vertex_accuracy_mm(&truth, &moved, &line, &gt_from_est).expect("accuracy"), None);
+        assert_eq!(aligned_vertex_accuracy_mm(&truth, &moved, &line, gt_from_est).expect("accuracy"), None);
     }
 
     #[derive(clap::Parser)]

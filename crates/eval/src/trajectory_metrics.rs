@@ -62,6 +62,16 @@ pub struct TrajectoryErrors {
     pub gt_from_est: [[f64; 4]; 3],
 }
 
+impl TrajectoryErrors {
+    /// [`TrajectoryErrors::gt_from_est`] as a transform: what moves anything built in the
+    /// estimate's world (a map, a mesh) where the ATE's alignment puts the trajectory.
+    pub fn gt_from_est_transform(&self) -> DAffine3 {
+        let m = &self.gt_from_est;
+        let column = |c: usize| DVec3::new(m[0][c], m[1][c], m[2][c]);
+        DAffine3::from_cols(column(0), column(1), column(2), column(3))
+    }
+}
+
 /// The rigid transform `gt_from_est` minimising `sum |gt_i - (R est_i + t)|^2` (no scale).
 ///
 /// Closed form (Horn 1987 / Umeyama 1991): with the centred point sets, the SVD of the
@@ -286,6 +296,12 @@ mod tests {
         // The alignment found is the inverse of the transform applied.
         let inv = world.inverse();
         assert!((e.gt_from_est[0][3] - f64::from(inv.translation.x)).abs() < 1e-5);
+        // As a transform it takes the moved trajectory back onto the original.
+        let back = e.gt_from_est_transform();
+        for (g, m) in gt.poses.iter().zip(&transformed(&gt, world).poses) {
+            let moved = back.transform_point3(Vec3::from(m.translation).as_dvec3());
+            assert!((moved - Vec3::from(g.translation).as_dvec3()).length() < 1e-4, "{moved} against {g:?}");
+        }
     }
 
     #[test]

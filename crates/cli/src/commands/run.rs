@@ -361,7 +361,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 (Some(e), PoseMode::Track) => {
                     let positions: Vec<glam::Vec3> =
                         pipeline.trajectory().poses.iter().map(|p| glam::Vec3::from(p.translation)).collect();
-                    aligned_vertex_accuracy_mm(&truth, &mesh, &positions, &e.gt_from_est)?
+                    aligned_vertex_accuracy_mm(&truth, &mesh, &positions, e.gt_from_est_transform())?
                 }
                 _ => None,
             };
