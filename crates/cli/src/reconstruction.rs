@@ -98,7 +98,7 @@ pub struct ReconArgs {
     /// Chunks more than this many metres from the camera (along its axis) are fused once per
     /// group of `--far-group-frames` consecutive frames, from the frames' depths averaged
     /// pixel by pixel: the same noise averaging for a fraction of the work. 0: every frame
-    /// whole. Off with `--loop-closure` (docs/fusion.md, "Far surfaces from groups of frames").
+    /// whole. With `--loop-closure`, frames fuse whole while a re-integration runs (docs/fusion.md, "Far surfaces from groups of frames").
     #[arg(long, default_value_t = TsdfConfig::default().far_group_beyond_m)]
     pub far_group_beyond: f32,
     /// Frames in a group of `--far-group-beyond` (2 to 8; 4 since session 33, 3 before: 3-4 %

@@ -457,6 +457,13 @@ impl LoopClosure {
         Ok(map.integrate_chunks(frame, pose, &keys)?)
     }
 
+    /// Counts a frame fused outside [`LoopClosure::fuse_live`] (grouped fusion while no
+    /// re-integration runs): `chunks` of its selection, for the re-integration's budget.
+    pub fn count_live(&mut self, chunks: usize) {
+        self.live_chunks += chunks;
+        self.live_frames += 1;
+    }
+
     /// Records a fused frame at its tracked pose; a keyframe (`keyframe`, and always the
     /// first frame) becomes a graph node with an odometry edge from the previous one.
     #[cfg(test)]

@@ -169,8 +169,9 @@ pub struct Pipeline {
     semantics: Option<Semantics>,
     /// Keyframe graph, loop detection and the frame store (tracking with loop closure on).
     loop_closure: Option<LoopClosure>,
-    /// Fusion of far chunks from groups of frames ([`TsdfConfig::far_group_beyond_m`]); off
-    /// with loop closure, which re-fuses stored frames one by one.
+    /// Fusion of far chunks from groups of frames ([`TsdfConfig::far_group_beyond_m`]); with
+    /// loop closure, flushed before a re-integration and bypassed while one runs (its shadow
+    /// follows frames fused whole).
     grouped: GroupedFusion,
     warnings: Vec<String>,
     /// The live mesh's store as it was when [`Pipeline::finish`] took the whole mesh from it,
@@ -244,11 +245,7 @@ impl Pipeline {
             IncrementalMesher::with_config(config.mesh, RemeshTolerance::EXACT)?.with_budget(config.mesh_budget);
         let loop_closure = (config.poses == PoseMode::Track && config.loop_closure.enabled)
             .then(|| LoopClosure::new(config.loop_closure.clone(), intrinsics));
-        let grouped = if loop_closure.is_some() {
-            GroupedFusion::new(0.0, 1)
-        } else {
-            GroupedFusion::new(config.tsdf.far_group_beyond_m, config.tsdf.far_group_frames)
-        };
+        let grouped = GroupedFusion::new(config.tsdf.far_group_beyond_m, config.tsdf.far_group_frames);
         Ok(Self {
             config,
             intrinsics,
@@ -377,8 +374,14 @@ impl Pipeline {
         };
         let t = Instant::now();
         match &mut self.loop_closure {
-            // A re-integration in progress copies the chunks the frame changes, first.
-            Some(lc) if lc.is_running() => lc.fuse_live(&mut self.map, frame, pose)?,
+            // A re-integration in progress copies the chunks the frame changes, first, and
+            // the frame is fused whole (the group was flushed when the re-integration began).
+            Some(lc) if lc.is_rebuilding() => lc.fuse_live(&mut self.map, frame, pose)?,
+            Some(lc) if lc.is_running() => {
+                let stats = self.grouped.integrate(&mut self.map, frame, pose)?;
+                lc.count_live(self.grouped.last_selection());
+                stats
+            }
             _ => self.grouped.integrate(&mut self.map, frame, pose)?,
         };
         self.times.record("fusion", t.elapsed());
@@ -436,6 +439,11 @@ impl Pipeline {
         }
         let t = Instant::now();
         let rebuilding = lc.is_rebuilding();
+        if !rebuilding && lc.is_behind() && self.grouped.is_holding() {
+            // A re-integration may start now: the map it copies and plans from holds every
+            // fused frame, and frames fuse whole (through its shadow) until it swaps.
+            self.grouped.flush(&mut self.map)?;
+        }
         let followed = lc.keyframe_follow(&mut self.map, frame.index)?;
         if rebuilding || lc.is_rebuilding() || followed.is_some() {
             // Per keyframe: the share of a re-integration it did (spread over keyframes).

@@ -26,9 +26,9 @@
 //! Near chunks are fused from every frame as before, so close-range detail and the tracker's
 //! model are unchanged. Everything is per pixel and per chunk in a fixed order: the same bits
 //! for any thread count. A far pass records every frame of its group in the chunks it
-//! changes. Loop closure re-fuses stored frames one by one, so the pipeline groups frames
-//! only without it (grouping with it inherits a tracking failure on one generated scan,
-//! docs/loop_closure.md, "Session 38").
+//! changes, so that loop closure's re-integration re-fuses them all where a correction moves
+//! the chunk. With loop closure the pipeline flushes the group before a re-integration starts
+//! and fuses frames whole while it runs (docs/loop_closure.md, "Session 43").
 
 use glam::{Affine3A, Vec3};
 use rayon::prelude::*;
@@ -49,6 +49,8 @@ pub struct GroupedFusion {
     frames: usize,
     held: Vec<Held>,
     stats: GroupingStats,
+    /// Chunks the last frame's view selected, near and far.
+    last_selection: usize,
 }
 
 /// A frame of a group before its last: fused near, waiting to be fused far.
@@ -111,7 +113,14 @@ impl GroupedFusion {
             frames: if on { frames.min(8) } else { 1 },
             held: Vec::new(),
             stats: GroupingStats::default(),
+            last_selection: 0,
         }
+    }
+
+    /// Chunks the last integrated frame's view selected, near and far (what fusing it whole
+    /// would have visited), whatever part of them it fused now.
+    pub fn last_selection(&self) -> usize {
+        self.last_selection
     }
 
     /// For a map's configuration ([`crate::TsdfConfig::far_group_beyond_m`],
@@ -143,9 +152,12 @@ impl GroupedFusion {
         world_from_camera: Affine3A,
     ) -> Result<IntegrationStats> {
         if !self.is_on() {
-            return map.integrate(frame, world_from_camera);
+            let stats = map.integrate(frame, world_from_camera)?;
+            self.last_selection = stats.visited_chunks;
+            return Ok(stats);
         }
         let keys = map.select_chunks(frame, world_from_camera)?;
+        self.last_selection = keys.len();
         let (near, far) = split_by_depth(map, &keys, world_from_camera, self.beyond_m);
         let mut stats = IntegrationStats::default();
         // A group broken by a gap in the stream, or by another camera, is fused frame by frame.
