@@ -23,6 +23,17 @@ fn config(loop_closure: bool) -> PipelineConfig {
     c
 }
 
+/// The same scan through a sensor with an uncalibrated radial depth bias: tracking drifts,
+/// so that the loop corrects the poses and the map follows.
+fn drifting_frames() -> Vec<Frame> {
+    let mut config = SyntheticScanConfig::new(2);
+    config.frames = 300;
+    config.intrinsics = config.intrinsics.scaled(320, 240);
+    config.sensor = semrecon_data::sensor::SensorModel::kinect_uncalibrated();
+    let (_room, scan) = synthetic_scan(&config).expect("scan");
+    (0..scan.len()).map(|i| scan.frame(i).expect("frame")).collect()
+}
+
 fn run(frames: &[Frame], config: PipelineConfig) -> (Pipeline, LabeledMesh) {
     let mut p = Pipeline::new(config, frames[0].intrinsics, None).expect("pipeline");
     for f in frames {
@@ -56,4 +67,49 @@ fn a_returning_scan_finds_its_loop_with_the_same_bits_for_any_thread_count() {
     let (on, _) = run(&frames[..60], config(true));
     assert_eq!(on.tracked_trajectory().expect("on").poses, on.trajectory().poses, "nothing to correct in 60 frames");
     assert_eq!(off.trajectory().poses, on.trajectory().poses);
+}
+
+/// Far surfaces grouped under loop closure (most of the room beyond 1 m here; a drifting
+/// scan whose every loop is a correction the map follows at once): the held
+/// group is flushed before a re-integration starts and frames fuse whole while it runs, with
+/// the same bits for any thread count, and the run is the grouped run without loop closure
+/// until the first correction.
+#[test]
+fn grouped_fusion_under_loop_closure_keeps_the_bits_for_any_thread_count() {
+    let frames = drifting_frames();
+    let grouped = |loop_closure: bool| {
+        let mut c = config(loop_closure);
+        c.tsdf.far_group_beyond_m = 1.0;
+        // Every loop's small disagreement with the drifted poses is a correction the map
+        // follows at once.
+        c.loop_closure.follow_every = 1;
+        c.loop_closure.min_loop_chi2 = 0.0;
+        c.loop_closure.min_move = 1e-4;
+        c.loop_closure.min_chunk_move_voxels = 0.05;
+        c
+    };
+    let runs: Vec<(Pipeline, LabeledMesh)> = [1, 2]
+        .iter()
+        .map(|&threads| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+            pool.install(|| run(&frames, grouped(true)))
+        })
+        .collect();
+    let report = runs[0].0.loop_closure().expect("on");
+    eprintln!(
+        "grouped under loop closure: {} loops accepted, {} corrections, {} re-integrations, {} skipped",
+        report.loops.iter().filter(|l| l.accepted).count(),
+        report.corrections.len(),
+        report.reintegrations.len(),
+        report.skipped_reintegrations
+    );
+    assert!(!report.reintegrations.is_empty(), "no re-integration ran: the flush before one is not exercised");
+    assert_eq!(runs[0].0.trajectory().poses, runs[1].0.trajectory().poses);
+    assert_eq!(runs[0].1.positions, runs[1].1.positions);
+    assert_eq!(runs[0].1.triangles, runs[1].1.triangles);
+    let (off, off_mesh) = run(&frames[..60], grouped(false));
+    let (on, on_mesh) = run(&frames[..60], grouped(true));
+    assert_eq!(on.tracked_trajectory().expect("on").poses, on.trajectory().poses, "nothing to correct in 60 frames");
+    assert_eq!(off.trajectory().poses, on.trajectory().poses);
+    assert_eq!(off_mesh.positions, on_mesh.positions);
 }
