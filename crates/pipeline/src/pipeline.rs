@@ -376,14 +376,16 @@ impl Pipeline {
         match &mut self.loop_closure {
             // A re-integration in progress copies the chunks the frame changes, first, and
             // the frame is fused whole (the group was flushed when the re-integration began).
-            Some(lc) if lc.is_rebuilding() => lc.fuse_live(&mut self.map, frame, pose)?,
-            Some(lc) if lc.is_running() => {
-                let stats = self.grouped.integrate(&mut self.map, frame, pose)?;
-                lc.count_live(self.grouped.last_selection());
-                stats
+            Some(lc) if lc.is_rebuilding() => {
+                lc.fuse_live(&mut self.map, frame, pose)?;
             }
-            _ => self.grouped.integrate(&mut self.map, frame, pose)?,
-        };
+            lc => {
+                self.grouped.integrate(&mut self.map, frame, pose)?;
+                if let Some(lc) = lc {
+                    lc.count_live(self.grouped.last_selection());
+                }
+            }
+        }
         self.times.record("fusion", t.elapsed());
         self.last_fused_index = frame.index;
         self.compact_map(frame.index);
