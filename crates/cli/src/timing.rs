@@ -8,7 +8,7 @@ pub use semrecon_pipeline::StageTimes;
 /// One row of the Table 5 layout: `(label, stage name in the timings)`.
 const TABLE5: [(&str, &str); 6] = [
     ("frame tracking (per frame)", "tracking"),
-    ("global pose optimisation (per keyframe)", "global pose optimisation"),
+    ("global pose optimisation (per keyframe, back end)", "global pose optimisation"),
     ("reconstruction: fusion (per frame)", "fusion"),
     ("reconstruction: meshing (per keyframe)", "meshing"),
     ("semantic snapshot (per keyframe, front end)", "semantic snapshot"),

@@ -187,7 +187,7 @@ const BACKEND_NICENESS: i32 = 10;
 /// Lowers the calling thread's scheduling priority (Linux gives each thread its own nice
 /// value); elsewhere, and where the call fails, the thread keeps its priority, which changes
 /// timings only.
-fn lower_priority() {
+pub(crate) fn lower_priority() {
     #[cfg(target_os = "linux")]
     {
         // SAFETY: `gettid` has no preconditions; `setpriority` on a thread id only reads its

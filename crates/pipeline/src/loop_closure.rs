@@ -20,8 +20,10 @@
 //! [`LoopClosureConfig::frame_store_mb`]; past it loop closure stops with a warning. Timings
 //! and memory in docs/loop_closure.md.
 //!
-//! Everything runs on the front end's thread, in a fixed order: the output is the same for
-//! any thread count. Detection and optimisation cost milliseconds at keyframes; the
+//! The loop search and the graph's optimisation run on a back-end thread (`search`), from
+//! one keyframe to the next: the front end takes a keyframe's result back at the next
+//! keyframe, a frame count, so the output is the same for any thread count. Everything else
+//! runs on the front end's thread, in a fixed order. The
 //! re-integration after a correction costs about a fusion per frame re-fused, so it is built
 //! in a shadow holding only the chunks it changes, a bounded amount at every frame, and
 //! swapped in at the keyframe it completes (`shadow`), instead of stalling the front end for
@@ -30,14 +32,15 @@
 use glam::{Affine3A, DAffine3};
 use semrecon_data::{Frame, Intrinsics, Trajectory};
 use semrecon_recon::pose_graph::{
-    adjoint, alignment_information, isotropic_information, odometry_information, pose_distance, pull_back, Mat6,
+    adjoint, isotropic_information, odometry_information, pose_distance, pull_back, Mat6,
 };
 use semrecon_recon::{
-    EdgeKind, IntegrationStats, LoopConfig, LoopDetector, LoopVerdict, PoseEdge, PoseGraph, PoseGraphConfig, TsdfMap,
+    EdgeKind, IntegrationStats, LoopConfig, LoopDetector, PoseEdge, PoseGraph, PoseGraphConfig, TsdfMap,
 };
 use serde::Serialize;
 
 use crate::error::{PipelineError, Result};
+use search::{GraphWork, SearchOutcome, SearchThread};
 use shadow::Shadow;
 
 /// Depth units of the frame store: metres times this (0.2 mm steps, up to 13 m).
@@ -239,8 +242,11 @@ pub struct LoopRecord {
 /// One correction of the poses and the map.
 #[derive(Debug, Clone, Serialize)]
 pub struct CorrectionRecord {
-    /// The frame at which it happened.
+    /// The frame at which the trajectory took it: the keyframe after the one whose loops
+    /// found it (the search runs on a back-end thread in between).
     pub frame: usize,
+    /// The frame of the keyframe whose loops found it.
+    pub found_at: usize,
     /// Keyframes in the graph.
     pub keyframes: usize,
     /// Loop edges in the graph (kept).
@@ -359,8 +365,20 @@ const MAX_ODOMETRY_SCALE: f64 = 8.0;
 pub(crate) struct LoopClosure {
     config: LoopClosureConfig,
     intrinsics: Intrinsics,
-    detector: LoopDetector,
+    /// The keyframe database; away (`None`) while a search has it.
+    detector: Option<LoopDetector>,
+    /// The pose graph as of the last search taken back (a search works on a copy).
     graph: PoseGraph,
+    /// The back-end thread of the searches, started at the first.
+    search_thread: Option<SearchThread>,
+    /// A search is out (handed over at the last keyframe).
+    searching: bool,
+    /// Keyframes not in the database yet: the next search adds them first.
+    new_keyframes: Vec<Frame>,
+    /// What the search taken back found, until the trajectory takes its correction.
+    found: Option<SearchOutcome>,
+    /// The back-end time of the search taken back last, ms.
+    search_ms: Option<f64>,
     /// Per graph node, the position of its frame in `frames`.
     node_frames: Vec<usize>,
     frames: Vec<StoredFrame>,
@@ -402,8 +420,13 @@ fn to_f32(p: DAffine3) -> Affine3A {
 impl LoopClosure {
     pub fn new(config: LoopClosureConfig, intrinsics: Intrinsics) -> Self {
         Self {
-            detector: LoopDetector::new(config.detector),
+            detector: Some(LoopDetector::new(config.detector)),
             graph: PoseGraph::new(),
+            search_thread: None,
+            searching: false,
+            new_keyframes: Vec::new(),
+            found: None,
+            search_ms: None,
             odometry_scale: 1.0,
             node_frames: Vec::new(),
             intrinsics,
@@ -482,6 +505,10 @@ impl LoopClosure {
         tracking: Option<(f64, Mat6)>,
     ) -> Result<()> {
         self.tracked.push(frame.timestamp, pose);
+        if keyframe {
+            // The graph this keyframe joins is the one the last search optimised.
+            self.take_search();
+        }
         if !self.is_running() {
             return Ok(());
         }
@@ -518,7 +545,9 @@ impl LoopClosure {
             // The node's frame and keyframe copy first: a failed edge below leaves a node
             // without odometry (the optimiser keeps it still), never an inconsistent store.
             self.node_frames.push(self.frames.len());
-            self.detector.add(frame);
+            // Its view joins the keyframe database on the search thread, before the search
+            // (building a keyframe's pyramid and features costs milliseconds).
+            self.new_keyframes.push(frame.clone());
             let weakest = self.weakest_tracking.take();
             if let Some(z) = odometry {
                 let (st, sr) = self.config.odometry_sigma;
@@ -584,144 +613,105 @@ impl LoopClosure {
         self.store_bytes = 0;
     }
 
-    /// At a keyframe: looks for loops of the newest node, adds the accepted ones, and
-    /// optimises when one disagrees with the poses. Returns the corrected frame poses when
-    /// the optimisation moved them; warnings for refused results.
+    /// Takes back the search handed to the back end at the previous keyframe, waiting for it
+    /// when it still runs: its graph (optimised, with the loops it accepted) replaces the
+    /// front end's copy, its loops join the report, and a correction it found waits for
+    /// [`LoopClosure::close_loops`] or [`LoopClosure::finish_search`]. Called at a keyframe
+    /// before it joins the graph (a frame count: the same bits for any thread count); nothing
+    /// when no search is out.
+    pub fn take_search(&mut self) {
+        if !self.searching {
+            return;
+        }
+        self.searching = false;
+        match self.search_thread.as_ref().and_then(SearchThread::wait) {
+            Some((work, outcome)) => {
+                let GraphWork { detector, graph, odometry_scale, .. } = *work;
+                self.detector = Some(detector);
+                self.graph = graph;
+                self.odometry_scale = odometry_scale;
+                self.report.odometry_scale = odometry_scale;
+                self.report.loops.extend(outcome.loops.iter().cloned());
+                self.search_ms = Some(outcome.ms);
+                self.found = Some(outcome);
+            }
+            None => {
+                self.search_thread = None;
+                self.stop("stopped: the loop search thread failed (a bug: please report it)".into());
+            }
+        }
+    }
+
+    /// The back-end time of the search taken back last (the search and the optimisation,
+    /// ms), once.
+    pub fn take_search_ms(&mut self) -> Option<f64> {
+        self.search_ms.take()
+    }
+
+    /// At a keyframe (after [`LoopClosure::add_frame_tracked`]): returns the correction that
+    /// the previous keyframe's search found, as every stored frame's corrected pose (frames
+    /// since move with their keyframe), and hands this keyframe's search to the back end
+    /// (`search`). Warnings for refused optimisations.
     pub fn close_loops(&mut self, frame_index: usize, warnings: &mut Vec<String>) -> Option<PoseUpdate> {
-        if !self.is_running() || self.graph.poses().len() < 2 {
-            return None;
+        self.take_search();
+        let update = self.adopt_found(frame_index, warnings);
+        if self.is_running() && self.graph.poses().len() >= 2 {
+            self.submit_search(frame_index);
         }
-        let new = self.graph.poses().len() - 1;
-        let verdicts: Vec<LoopVerdict> = self.detector.detect(new, self.graph.poses());
-        let mut worth_optimising = false;
-        let mut added = Vec::new();
-        for v in verdicts {
-            let mut record = LoopRecord {
-                new_frame: v.frames.1,
-                old_frame: v.frames.0,
-                accepted: v.accepted(),
-                rejection: v.rejection.map(|r| format!("{r:?}")),
-                overlap: v.overlap,
-                inlier_ratio: v.inlier_ratio,
-                residual_m: v.residual_rms,
-                correction_m: v.correction.0,
-                correction_deg: v.correction.1.to_degrees(),
-                feature_inliers: v.feature_inliers,
-                chi2_before: None,
-                edge: None,
-            };
-            if v.accepted() {
-                let (st, sr) = self.config.loop_sigmas(v.residual_rms);
-                let information = self
-                    .config
-                    .loop_information_from_alignment
-                    .then(|| alignment_information(&v.old_from_new, &v.hessian, st))
-                    .flatten()
-                    .unwrap_or_else(|| isotropic_information(st, sr));
-                match self.graph.add_edge(PoseEdge {
-                    from: v.old,
-                    to: v.new,
-                    from_from_to: v.old_from_new,
-                    information,
-                    kind: EdgeKind::Loop,
-                }) {
-                    Ok(e) => {
-                        let chi2 = self.graph.edge_chi2(e);
-                        worth_optimising |= chi2.is_some_and(|c| c > self.config.min_loop_chi2);
-                        record.chi2_before = chi2;
-                        record.edge = Some(e);
-                        added.push(e);
-                    }
-                    Err(e) => {
-                        record.accepted = false;
-                        record.rejection = Some(format!("{e}"));
-                    }
-                }
-            }
-            self.report.loops.push(record);
-        }
-        if !worth_optimising {
-            return None;
-        }
-        let before: Vec<DAffine3> = self.graph.poses().to_vec();
-        let t = std::time::Instant::now();
-        let result = self.graph.optimise(&self.config.graph);
-        let optimise_ms = t.elapsed().as_secs_f64() * 1e3;
-        let report = match result {
-            Ok(r) => r,
-            Err(e) => {
-                // The poses are kept; the new loops must not poison later optimisations.
-                for &edge in &added {
-                    self.graph.reject(edge);
-                }
-                warnings.push(format!("loop closure at frame {frame_index}: {e}; poses kept"));
-                return None;
-            }
-        };
-        let report = if added.iter().any(|&e| self.graph.is_rejected(e)) {
-            self.retry_with_looser_odometry().unwrap_or(report)
-        } else {
-            report
-        };
-        let moved = before.iter().zip(self.graph.poses()).any(|(a, b)| moved_by(a, b) > self.config.min_move);
-        if !moved {
-            return None;
-        }
-        let poses = self.estimates();
-        let loops = self
-            .graph
-            .edges()
-            .iter()
-            .enumerate()
-            .filter(|(i, e)| e.kind == EdgeKind::Loop && !self.graph.is_rejected(*i))
-            .count();
+        update
+    }
+
+    /// The end of a scan: waits for the search in flight and returns its correction, as
+    /// [`LoopClosure::close_loops`] does, without starting another.
+    pub fn finish_search(&mut self, frame_index: usize, warnings: &mut Vec<String>) -> Option<PoseUpdate> {
+        self.take_search();
+        self.adopt_found(frame_index, warnings)
+    }
+
+    fn adopt_found(&mut self, frame_index: usize, warnings: &mut Vec<String>) -> Option<PoseUpdate> {
+        let outcome = self.found.take()?;
+        warnings.extend(outcome.warnings);
+        // Stopped meanwhile: the store is gone, the map keeps its poses.
+        let correction = outcome.correction.filter(|_| self.is_running())?;
         Some(PoseUpdate {
-            poses,
+            poses: self.estimates(),
             record: CorrectionRecord {
                 frame: frame_index,
+                found_at: outcome.frame,
                 keyframes: self.graph.poses().len(),
-                loops,
-                iterations: report.iterations,
-                largest_move_m: report.largest_change.0,
-                largest_turn_deg: report.largest_change.1.to_degrees(),
-                optimise_ms,
+                loops: correction.loops,
+                iterations: correction.iterations,
+                largest_move_m: correction.largest_change.0,
+                largest_turn_deg: correction.largest_change.1.to_degrees(),
+                optimise_ms: correction.optimise_ms,
             },
         })
     }
 
-    /// When the optimiser refused loops: whether they agree with each other and with every
-    /// accepted loop once the odometry is trusted less (its standard deviations 2, then 4
-    /// times larger, up to [`MAX_ODOMETRY_SCALE`] times the configured ones). A tracker that
-    /// drifts centimetres between keyframes makes true loops look like outliers against the
-    /// configured millimetres; two or more loops (from different keyframe pairs) that all fit
-    /// once the odometry is looser are evidence of that drift, not of wrong loops, while a
-    /// lone loop stays refused. On success the graph keeps the looser odometry (for the edges
-    /// to come too) and its optimised poses; otherwise nothing changes.
-    fn retry_with_looser_odometry(&mut self) -> Option<semrecon_recon::pose_graph::OptimisationReport> {
-        let is_loop = |g: &PoseGraph, i: usize| g.edges()[i].kind == EdgeKind::Loop;
-        let refused: Vec<usize> =
-            (0..self.graph.edges().len()).filter(|&i| is_loop(&self.graph, i) && self.graph.is_rejected(i)).collect();
-        if refused.len() < 2 {
-            return None;
-        }
-        for k in [2.0, 4.0] {
-            if self.odometry_scale * k > MAX_ODOMETRY_SCALE {
-                break;
-            }
-            let mut g = self.graph.clone();
-            g.scale_information(EdgeKind::Odometry, 1.0 / (k * k));
-            for &e in &refused {
-                g.restore(e);
-            }
-            let Ok(report) = g.optimise(&self.config.graph) else { continue };
-            if (0..g.edges().len()).all(|i| !(is_loop(&g, i) && g.is_rejected(i))) {
-                self.graph = g;
-                self.odometry_scale *= k;
-                self.report.odometry_scale = self.odometry_scale;
-                return Some(report);
+    /// Hands the search of the newest keyframe to the back-end thread (started on first use).
+    fn submit_search(&mut self, frame_index: usize) {
+        if self.search_thread.is_none() {
+            match SearchThread::start(self.config.clone()) {
+                Ok(thread) => self.search_thread = Some(thread),
+                Err(e) => {
+                    self.stop(format!("stopped: {e}"));
+                    return;
+                }
             }
         }
-        None
+        let Some(detector) = self.detector.take() else { return };
+        let work = Box::new(GraphWork {
+            detector,
+            new_keyframes: std::mem::take(&mut self.new_keyframes),
+            graph: self.graph.clone(),
+            odometry_scale: self.odometry_scale,
+        });
+        if self.search_thread.as_ref().is_some_and(|t| t.submit(work, frame_index)) {
+            self.searching = true;
+        } else {
+            self.search_thread = None;
+            self.stop("stopped: the loop search thread failed (a bug: please report it)".into());
+        }
     }
 
     /// Records a correction adopted by the trajectory; the map is then behind it.
@@ -909,6 +899,7 @@ fn moved_by(a: &DAffine3, b: &DAffine3) -> f64 {
 }
 
 mod plan;
+mod search;
 mod shadow;
 
 #[cfg(test)]

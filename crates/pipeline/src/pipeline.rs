@@ -30,7 +30,7 @@ use crate::config::{PipelineConfig, PoseMode, SemanticMode};
 use crate::error::{PipelineError, Result};
 use crate::gravity::{camera_up_prior, estimate_up, given_up, UpEstimate};
 use crate::label_store::LabelStore;
-use crate::loop_closure::{LoopClosure, LoopClosureReport};
+use crate::loop_closure::{LoopClosure, LoopClosureReport, PoseUpdate};
 use crate::semantic_map::{SurfaceCells, CLASSES};
 use crate::surface_cells::SurfaceRule;
 use crate::timing::StageTimes;
@@ -48,7 +48,7 @@ pub const FRONT_END_STAGES: [&str; 10] = [
     "tracking",
     "fusion",
     "map compaction",
-    "global pose optimisation",
+    "loop closure",
     "map re-integration",
     "final map re-integration",
     "meshing",
@@ -56,6 +56,18 @@ pub const FRONT_END_STAGES: [&str; 10] = [
     "semantic snapshot",
     "semantic wait",
 ];
+
+/// The trajectory takes a loop closure's correction (every fused frame's corrected pose),
+/// and the map is then behind it.
+fn adopt_correction(lc: &mut LoopClosure, trajectory: &mut Trajectory, update: PoseUpdate, warnings: &mut Vec<String>) {
+    if update.poses.len() == trajectory.poses.len() {
+        lc.record_correction(update.record);
+        trajectory.poses = update.poses;
+    } else {
+        // Cannot happen while the store and the trajectory grow together.
+        warnings.push("loop closure: frame store out of step with the trajectory; correction skipped".into());
+    }
+}
 
 /// What happened to one frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -416,8 +428,20 @@ impl Pipeline {
         tracking: Option<(f64, [[f64; 6]; 6])>,
     ) -> Result<()> {
         let Some(lc) = &mut self.loop_closure else { return Ok(()) };
+        // The front end's part ("loop closure"): the frame's copy in the store; at a keyframe
+        // also the previous keyframe's search taken back from its thread (a wait only when
+        // it still runs), the correction it found, and this keyframe's search handed over.
+        // The search's own time is the back end's ("global pose optimisation").
+        let t = Instant::now();
+        if keyframe {
+            lc.take_search();
+            if let Some(ms) = lc.take_search_ms() {
+                self.times.record_ms("global pose optimisation", ms);
+            }
+        }
         lc.add_frame_tracked(frame, pose, keyframe, tracking)?;
         if !keyframe {
+            self.times.record("loop closure", t.elapsed());
             if lc.is_rebuilding() {
                 // The re-integration in progress goes on at every frame; it swaps at keyframes.
                 let t = Instant::now();
@@ -426,19 +450,11 @@ impl Pipeline {
             }
             return Ok(());
         }
-        let t = Instant::now();
         let update = lc.close_loops(frame.index, &mut self.warnings);
-        self.times.record("global pose optimisation", t.elapsed());
         if let Some(update) = update {
-            if update.poses.len() == self.trajectory.poses.len() {
-                lc.record_correction(update.record);
-                self.trajectory.poses = update.poses;
-            } else {
-                // Cannot happen while the store and the trajectory grow together.
-                self.warnings
-                    .push("loop closure: frame store out of step with the trajectory; correction skipped".into());
-            }
+            adopt_correction(lc, &mut self.trajectory, update, &mut self.warnings);
         }
+        self.times.record("loop closure", t.elapsed());
         let t = Instant::now();
         let rebuilding = lc.is_rebuilding();
         if !rebuilding && lc.is_behind() && self.grouped.is_holding() {
@@ -460,6 +476,19 @@ impl Pipeline {
     /// Makes the map follow the corrected trajectory now (re-fusing where frames moved).
     fn follow_poses(&mut self, frame: usize) -> Result<()> {
         let Some(lc) = &mut self.loop_closure else { return Ok(()) };
+        // The last keyframe's search first: its correction is part of what the map follows.
+        let t = Instant::now();
+        let update = lc.finish_search(frame, &mut self.warnings);
+        self.times.record("loop closure", t.elapsed());
+        if let Some(ms) = lc.take_search_ms() {
+            self.times.record_ms("global pose optimisation", ms);
+        }
+        if let Some(update) = update {
+            adopt_correction(lc, &mut self.trajectory, update, &mut self.warnings);
+        }
+        if !lc.is_behind() {
+            return Ok(());
+        }
         let t = Instant::now();
         let followed = lc.follow(&mut self.map, frame)?;
         // Apart from the keyframes' shares: what was still pending at the end of the scan.
@@ -669,7 +698,7 @@ impl Pipeline {
                 }
             }
         }
-        if self.loop_closure.as_ref().is_some_and(LoopClosure::is_behind) {
+        if self.loop_closure.is_some() {
             self.follow_poses(self.frames.saturating_sub(1))?;
         }
         if self.meshed_at != self.fused || self.mesher.pending_chunks() > 0 {

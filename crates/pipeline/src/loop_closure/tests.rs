@@ -199,7 +199,12 @@ fn close_a_drifting_loop_in(
             lc.frame_follow(&mut map, f.index).expect("re-integration");
         }
         if keyframe {
-            if let Some(update) = lc.close_loops(f.index, &mut warnings) {
+            // The last keyframe's own search comes back at the end of the scan.
+            let mut updates = vec![lc.close_loops(f.index, &mut warnings)];
+            if i + 1 == frames.len() {
+                updates.push(lc.finish_search(f.index, &mut warnings));
+            }
+            for update in updates.into_iter().flatten() {
                 lc.record_correction(update.record);
                 estimate = update.poses;
             }
@@ -402,6 +407,10 @@ fn twin_rooms_close_no_loop_between_them() {
                 estimate.splice(..update.poses.len(), update.poses);
             }
         }
+    }
+    if let Some(update) = lc.finish_search(frames.len() - 1, &mut warnings) {
+        lc.record_correction(update.record);
+        estimate.splice(..update.poses.len(), update.poses);
     }
     let report = lc.report();
     let twin_pairs: Vec<&LoopRecord> = report.loops.iter().filter(|l| (l.old_frame < n) != (l.new_frame < n)).collect();
