@@ -224,6 +224,12 @@ fn close_a_drifting_loop_in(
     assert!(warnings.is_empty(), "{warnings:?}");
     assert!(report.loops.iter().any(|l| l.accepted), "no loop accepted: {:#?}", report.loops);
     assert!(!lc.report.corrections.is_empty(), "no correction: {:#?}", report.loops);
+    // A search runs from one keyframe to the next: the trajectory takes its correction a
+    // keyframe after the one that found it (the last keyframe's at the end of the scan).
+    let last = frames.len() - 1;
+    for c in &lc.report.corrections {
+        assert!(c.found_at < c.frame || c.frame == last, "{c:?}");
+    }
     let (before, after) = (rmse(&drifted, &truth), rmse(&poses, &truth));
     assert!(after < before / 3.0, "ATE {before} m as drifted, {after} m after loop closure");
 
@@ -431,4 +437,33 @@ fn twin_rooms_close_no_loop_between_them() {
     // what the loops' own noise can move them).
     let moved = rmse(&estimate, &truth);
     assert!(moved < 0.005, "loop closure moved the true poses by {:.1} mm (RMS)", moved * 1e3);
+}
+
+/// The store's depth conversion against the plain rounding it replaces, on random depths
+/// from 0.1 mm to beyond the store's range, and on missing and non-finite ones.
+#[test]
+fn stored_depth_rounds_to_nearest_like_the_plain_conversion() {
+    let plain = |d: f32| {
+        if d > 0.0 && d.is_finite() {
+            (d * DEPTH_UNITS_PER_M).round().min(u16::MAX as f32) as u16
+        } else {
+            0
+        }
+    };
+    let mut state = 0x9e37_79b9_u32;
+    let mut depths: Vec<f32> = (0..200_000)
+        .map(|_| {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            1e-4 + (state as f32 / u32::MAX as f32) * 15.0
+        })
+        .collect();
+    // Exact halves of a unit, the range's end and beyond, and what is not a depth.
+    depths.extend((0..1000).map(|k| (k as f32 + 0.5) / DEPTH_UNITS_PER_M));
+    depths.extend([13.107, 13.1071, 100.0, 0.0, -1.0, f32::NAN, f32::INFINITY, f32::NEG_INFINITY]);
+    let stored = store_depth(&depths);
+    for (d, s) in depths.iter().zip(&stored) {
+        assert_eq!(*s, plain(*d), "depth {d}");
+    }
 }
