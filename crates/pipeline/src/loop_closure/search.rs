@@ -6,7 +6,7 @@
 //! and the map follow a correction found there. The search (a few candidate ICPs, about a
 //! millisecond each) and the optimisation (milliseconds, tens on a two-minute graph) then
 //! cost the front end nothing but the hand-over, unless the thread is still busy a keyframe
-//! later (a wait, timed as `loop closure wait`). Taking the result at a frame count, never at
+//! later (a wait, within the front end's `loop closure` stage). Taking the result at a frame count, never at
 //! a time, keeps the output the same for any thread count and any machine load: the search
 //! reads only what it was handed.
 //!
