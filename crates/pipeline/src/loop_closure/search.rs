@@ -6,9 +6,9 @@
 //! and the map follow a correction found there. The search (a few candidate ICPs, about a
 //! millisecond each) and the optimisation (milliseconds, tens on a two-minute graph) then
 //! cost the front end nothing but the hand-over, unless the thread is still busy a keyframe
-//! later (a wait, within the front end's `loop closure` stage). Taking the result at a frame count, never at
-//! a time, keeps the output the same for any thread count and any machine load: the search
-//! reads only what it was handed.
+//! later (a wait, within the front end's `loop closure` stage). Taking the result at a frame
+//! count, never at a time, keeps the output the same for any thread count and any machine
+//! load: the search reads only what it was handed.
 //!
 //! The thread runs its parallel parts in a pool of its own, as the semantic back end does:
 //! the front end may itself be a worker of a one-thread pool, and a search queued behind it
