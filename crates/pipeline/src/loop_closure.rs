@@ -316,6 +316,10 @@ pub struct LoopClosureReport {
     /// How many times the configured `odometry_sigma` the odometry's standard deviations
     /// ended at: above 1 when refused loops agreed once the odometry was trusted less.
     pub odometry_scale: f64,
+    /// Frames in the store (for re-integration) and the bytes they take.
+    pub stored_frames: usize,
+    /// See `stored_frames`.
+    pub frame_store_bytes: usize,
 }
 
 /// A fused frame kept for re-integration.
@@ -466,6 +470,8 @@ impl LoopClosure {
     pub fn report(&self) -> LoopClosureReport {
         let mut r = self.report.clone();
         r.keyframes = self.graph.poses().len();
+        r.stored_frames = self.frames.len();
+        r.frame_store_bytes = self.store_bytes;
         for l in &mut r.loops {
             if let Some(e) = l.edge {
                 if self.graph.is_rejected(e) {
@@ -601,7 +607,7 @@ impl LoopClosure {
         }
         if self.store_bytes > self.config.frame_store_mb << 20 {
             self.stop(format!(
-                "stopped at frame {}: the frame store reached {} MB (frame_store_mb)",
+                "stopped at frame {}: the frame store reached {} MB (`--frame-store`, `frame_store_mb`)",
                 frame.index, self.config.frame_store_mb
             ));
         }
