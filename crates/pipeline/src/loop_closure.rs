@@ -374,6 +374,9 @@ pub(crate) struct PoseUpdate {
     pub record: CorrectionRecord,
 }
 
+/// Why loop closure stops when its search thread is gone (a panic there).
+const SEARCH_THREAD_FAILED: &str = "stopped: the loop search thread failed (a bug: please report it)";
+
 /// Largest factor on the configured odometry standard deviations that agreeing loops may
 /// bring (5 mm a keyframe becomes at most 4 cm).
 const MAX_ODOMETRY_SCALE: f64 = 8.0;
@@ -382,14 +385,13 @@ const MAX_ODOMETRY_SCALE: f64 = 8.0;
 pub(crate) struct LoopClosure {
     config: LoopClosureConfig,
     intrinsics: Intrinsics,
-    /// The keyframe database; away (`None`) while a search has it.
+    /// The keyframe database; away (`None`) while a search has it, so a search is out when
+    /// it is away and the thread lives.
     detector: Option<LoopDetector>,
     /// The pose graph as of the last search taken back (a search works on a copy).
     graph: PoseGraph,
     /// The back-end thread of the searches, started at the first.
     search_thread: Option<SearchThread>,
-    /// A search is out (handed over at the last keyframe).
-    searching: bool,
     /// Keyframes not in the database yet: the next search adds them first.
     new_keyframes: Vec<Frame>,
     /// What the search taken back found, until the trajectory takes its correction.
@@ -440,7 +442,6 @@ impl LoopClosure {
             detector: Some(LoopDetector::new(config.detector)),
             graph: PoseGraph::new(),
             search_thread: None,
-            searching: false,
             new_keyframes: Vec::new(),
             found: None,
             search_ms: None,
@@ -629,10 +630,9 @@ impl LoopClosure {
     /// before it joins the graph (a frame count: the same bits for any thread count); nothing
     /// when no search is out.
     pub fn take_search(&mut self) {
-        if !self.searching {
+        if self.detector.is_some() || self.search_thread.is_none() {
             return;
         }
-        self.searching = false;
         match self.search_thread.as_ref().and_then(SearchThread::wait) {
             Some((work, outcome)) => {
                 let GraphWork { detector, graph, odometry_scale, .. } = *work;
@@ -646,7 +646,7 @@ impl LoopClosure {
             }
             None => {
                 self.search_thread = None;
-                self.stop("stopped: the loop search thread failed (a bug: please report it)".into());
+                self.stop(SEARCH_THREAD_FAILED.into());
             }
         }
     }
@@ -715,11 +715,9 @@ impl LoopClosure {
             graph: self.graph.clone(),
             odometry_scale: self.odometry_scale,
         });
-        if self.search_thread.as_ref().is_some_and(|t| t.submit(work, frame_index)) {
-            self.searching = true;
-        } else {
+        if !self.search_thread.as_ref().is_some_and(|t| t.submit(work, frame_index)) {
             self.search_thread = None;
-            self.stop("stopped: the loop search thread failed (a bug: please report it)".into());
+            self.stop(SEARCH_THREAD_FAILED.into());
         }
     }
 

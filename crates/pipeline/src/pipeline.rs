@@ -57,9 +57,20 @@ pub const FRONT_END_STAGES: [&str; 10] = [
     "semantic wait",
 ];
 
-/// The trajectory takes a loop closure's correction (every fused frame's corrected pose),
-/// and the map is then behind it.
-fn adopt_correction(lc: &mut LoopClosure, trajectory: &mut Trajectory, update: PoseUpdate, warnings: &mut Vec<String>) {
+/// After a loop search was taken back: its back-end time joins the timings, and the
+/// trajectory takes the correction it found (every fused frame's corrected pose); the map is
+/// then behind it.
+fn adopt_search(
+    lc: &mut LoopClosure,
+    update: Option<PoseUpdate>,
+    trajectory: &mut Trajectory,
+    times: &mut StageTimes,
+    warnings: &mut Vec<String>,
+) {
+    if let Some(ms) = lc.take_search_ms() {
+        times.record_ms("global pose optimisation", ms);
+    }
+    let Some(update) = update else { return };
     if update.poses.len() == trajectory.poses.len() {
         lc.record_correction(update.record);
         trajectory.poses = update.poses;
@@ -433,12 +444,6 @@ impl Pipeline {
         // it still runs), the correction it found, and this keyframe's search handed over.
         // The search's own time is the back end's ("global pose optimisation").
         let t = Instant::now();
-        if keyframe {
-            lc.take_search();
-            if let Some(ms) = lc.take_search_ms() {
-                self.times.record_ms("global pose optimisation", ms);
-            }
-        }
         lc.add_frame_tracked(frame, pose, keyframe, tracking)?;
         if !keyframe {
             self.times.record("loop closure", t.elapsed());
@@ -451,9 +456,7 @@ impl Pipeline {
             return Ok(());
         }
         let update = lc.close_loops(frame.index, &mut self.warnings);
-        if let Some(update) = update {
-            adopt_correction(lc, &mut self.trajectory, update, &mut self.warnings);
-        }
+        adopt_search(lc, update, &mut self.trajectory, &mut self.times, &mut self.warnings);
         self.times.record("loop closure", t.elapsed());
         let t = Instant::now();
         let rebuilding = lc.is_rebuilding();
@@ -479,13 +482,8 @@ impl Pipeline {
         // The last keyframe's search first: its correction is part of what the map follows.
         let t = Instant::now();
         let update = lc.finish_search(frame, &mut self.warnings);
+        adopt_search(lc, update, &mut self.trajectory, &mut self.times, &mut self.warnings);
         self.times.record("loop closure", t.elapsed());
-        if let Some(ms) = lc.take_search_ms() {
-            self.times.record_ms("global pose optimisation", ms);
-        }
-        if let Some(update) = update {
-            adopt_correction(lc, &mut self.trajectory, update, &mut self.warnings);
-        }
         if !lc.is_behind() {
             return Ok(());
         }
