@@ -132,8 +132,9 @@ pub struct ReconArgs {
     #[arg(long, requires = "loop_closure")]
     pub min_chunk_move_voxels: Option<f32>,
     /// With loop closure: memory for the frames it keeps to re-fuse the map, e.g. 8G (default
-    /// 4G: 2,730 frames at 640x480, 91 s at 30 Hz; past it loop closure stops with a
-    /// warning and the map keeps what it holds).
+    /// 4G: 2,730 frames at 640x480, 91 s at 30 Hz). Past it the store keeps every second
+    /// frame, then every fourth, ...: loop closure goes on over any length of scan, and the
+    /// map follows a correction from the frames kept (report.json: `store_stride`).
     #[arg(long, requires = "loop_closure", value_parser = crate::cli_values::parse_bytes)]
     pub frame_store: Option<usize>,
     /// Memory the TSDF map may use, e.g. 512M or 2G: past it the coldest chunks (packed, far
@@ -604,6 +605,7 @@ pub fn loop_closure_json(pipeline: &Pipeline, gt: Option<&Trajectory>) -> serde_
         "odometry_scale": report.odometry_scale,
         "stored_frames": report.stored_frames,
         "frame_store_mb": report.frame_store_bytes as f64 / 1e6,
+        "store_stride": report.store_stride,
         "ate_rmse_before_m": ate(before),
         "ate_rmse_after_m": ate(pipeline.trajectory()),
         "trajectory_before": rows(before),

@@ -184,6 +184,23 @@ impl Backend {
 #[cfg(target_os = "linux")]
 const BACKEND_NICENESS: i32 = 10;
 
+/// CPU time the calling thread has used, ms; `None` where the platform does not say. The
+/// back end's threads yield to the front end, so their wall time says how long a result
+/// takes to come back on a busy machine, and this what it costs.
+pub(crate) fn thread_cpu_ms() -> Option<f64> {
+    #[cfg(unix)]
+    {
+        let mut t = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+        // SAFETY: `clock_gettime` writes only the `timespec` it is given.
+        let ok = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut t) } == 0;
+        ok.then_some(t.tv_sec as f64 * 1e3 + t.tv_nsec as f64 * 1e-6)
+    }
+    #[cfg(not(unix))]
+    {
+        None
+    }
+}
+
 /// Lowers the calling thread's scheduling priority (Linux gives each thread its own nice
 /// value); elsewhere, and where the call fails, the thread keeps its priority, which changes
 /// timings only.

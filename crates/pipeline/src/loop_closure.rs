@@ -17,8 +17,9 @@
 //! meshing would then work on overlapping submaps, a larger change. The cost is a copy of
 //! every fused frame (1.5 MB at 640x480: depth as `u16` in units of 0.2 mm, the unit of
 //! TUM and a fifth of 7-Scenes' millimetre, and colour), bounded by
-//! [`LoopClosureConfig::frame_store_mb`]; past it loop closure stops with a warning. Timings
-//! and memory in docs/loop_closure.md.
+//! [`LoopClosureConfig::frame_store_mb`]; past it the store thins out to every second frame,
+//! then every fourth, ..., each kept frame standing for those after it, so that a scan of
+//! any length keeps its loop closure. Timings and memory in docs/loop_closure.md.
 //!
 //! The loop search and the graph's optimisation run on a back-end thread (`search`), from
 //! one keyframe to the next: the front end takes a keyframe's result back at the next
@@ -105,7 +106,8 @@ pub struct LoopClosureConfig {
     /// a voxel: below the quantisation of the surface, and the map follows a frame's
     /// correction only where the frame's view of the surface moved.
     pub min_chunk_move_voxels: f32,
-    /// Most megabytes of stored frames (1.5 MB each at 640x480); past it loop closure stops.
+    /// Most megabytes of stored frames (1.5 MB each at 640x480); past it the store keeps the
+    /// pixels of every second frame, then every fourth, ... (`LoopClosure::thin`).
     pub frame_store_mb: usize,
     /// The map follows corrected poses at most every this many keyframes (and at the end
     /// of the scan): a revisit finds a loop at keyframe after keyframe, and re-fusing the map
@@ -300,7 +302,7 @@ pub struct ReintegrationRecord {
 pub struct LoopClosureReport {
     /// Whether loop closure ran.
     pub enabled: bool,
-    /// Why it stopped, when it did (frame store full, ...).
+    /// Why it stopped, when it did (a failed search thread, a pose graph refused).
     pub stopped: Option<String>,
     /// Keyframes in the graph.
     pub keyframes: usize,
@@ -316,10 +318,14 @@ pub struct LoopClosureReport {
     /// How many times the configured `odometry_sigma` the odometry's standard deviations
     /// ended at: above 1 when refused loops agreed once the odometry was trusted less.
     pub odometry_scale: f64,
-    /// Frames in the store (for re-integration) and the bytes they take.
+    /// Frames in the store with their pixels (for re-integration) and the bytes the store
+    /// takes.
     pub stored_frames: usize,
     /// See `stored_frames`.
     pub frame_store_bytes: usize,
+    /// The store keeps the pixels of every this many fused frames: 1 until the store reached
+    /// [`LoopClosureConfig::frame_store_mb`], then 2, 4, ... (see `LoopClosure::thin`).
+    pub store_stride: usize,
 }
 
 /// A fused frame kept for re-integration.
@@ -332,24 +338,44 @@ struct StoredFrame {
     /// The pose the map holds the frame at (the tracked pose, or the corrected one once a
     /// correction moved it by more than [`LoopClosureConfig::min_move`]).
     map_pose: Affine3A,
+    /// Its depth and colour; `None` once the store has thinned it out (see
+    /// [`LoopClosure::thin`]): the frame then only keeps its place and pose.
+    pixels: Option<StoredPixels>,
+    /// Frames it stands for in a re-integration, itself included: the thinned-out frames
+    /// after it, up to the next frame with pixels (their observations weigh with its own).
+    stands_for: usize,
+    /// The capture index of the last frame it stands for.
+    last_index: usize,
+}
+
+/// A stored frame's depth (store units, [`DEPTH_UNITS_PER_M`]) and colour.
+struct StoredPixels {
     depth: Vec<u16>,
     color: Vec<[u8; 3]>,
 }
 
+impl StoredPixels {
+    fn bytes(&self) -> usize {
+        self.depth.len() * 2 + self.color.len() * 3
+    }
+}
+
 impl StoredFrame {
-    fn frame(&self, intrinsics: Intrinsics) -> Frame {
+    /// The frame as fused, or `None` when the store thinned its pixels out.
+    fn frame(&self, intrinsics: Intrinsics) -> Option<Frame> {
+        let pixels = self.pixels.as_ref()?;
         let mut f = Frame::from_depth(
             intrinsics,
-            self.depth.iter().map(|&d| if d == 0 { 0.0 } else { d as f32 / DEPTH_UNITS_PER_M }).collect(),
+            pixels.depth.iter().map(|&d| if d == 0 { 0.0 } else { d as f32 / DEPTH_UNITS_PER_M }).collect(),
         );
         f.index = self.index;
         f.timestamp = self.timestamp;
-        f.color.clone_from(&self.color);
-        f
+        f.color.clone_from(&pixels.color);
+        Some(f)
     }
 
     fn bytes(&self) -> usize {
-        self.depth.len() * 2 + self.color.len() * 3 + std::mem::size_of::<Self>()
+        self.pixels.as_ref().map_or(0, StoredPixels::bytes) + std::mem::size_of::<Self>()
     }
 }
 
@@ -397,11 +423,16 @@ pub(crate) struct LoopClosure {
     /// What the search taken back found, until the trajectory takes its correction.
     found: Option<SearchOutcome>,
     /// The back-end time of the search taken back last, ms.
-    search_ms: Option<f64>,
+    search_ms: Option<(f64, Option<f64>)>,
     /// Per graph node, the position of its frame in `frames`.
     node_frames: Vec<usize>,
     frames: Vec<StoredFrame>,
     store_bytes: usize,
+    /// The store keeps the pixels of the frames at multiples of this position (and, while a
+    /// re-integration runs, of every frame it has yet to fuse).
+    store_stride: usize,
+    /// The last stored frame with pixels: a frame stored without them is folded into it.
+    last_keeper: usize,
     report: LoopClosureReport,
     /// Poses of the fused frames as tracked, before any correction.
     tracked: Trajectory,
@@ -450,6 +481,8 @@ impl LoopClosure {
             intrinsics,
             frames: Vec::new(),
             store_bytes: 0,
+            store_stride: 1,
+            last_keeper: 0,
             report: LoopClosureReport { enabled: true, odometry_scale: 1.0, ..LoopClosureReport::default() },
             tracked: Trajectory::default(),
             behind: false,
@@ -471,8 +504,9 @@ impl LoopClosure {
     pub fn report(&self) -> LoopClosureReport {
         let mut r = self.report.clone();
         r.keyframes = self.graph.poses().len();
-        r.stored_frames = self.frames.len();
+        r.stored_frames = self.frames.iter().filter(|f| f.pixels.is_some()).count();
         r.frame_store_bytes = self.store_bytes;
+        r.store_stride = self.store_stride;
         for l in &mut r.loops {
             if let Some(e) = l.edge {
                 if self.graph.is_rejected(e) {
@@ -589,30 +623,88 @@ impl LoopClosure {
         }
         let node = self.graph.poses().len() - 1;
         let node_map_pose = self.node_frames.get(node).and_then(|&f| self.frames.get(f)).map_or(pose, |f| f.map_pose);
+        let position = self.frames.len();
+        // A shadow being built fuses every frame fused live meanwhile, so it needs their
+        // pixels whatever the stride; off the stride, no copy at all (the front end's cost).
+        let keep = self.shadow.is_some() || position.is_multiple_of(self.store_stride);
         let stored = StoredFrame {
             index: frame.index,
             timestamp: frame.timestamp,
             node,
             node_from_camera: to_f64(node_map_pose).inverse() * pose64,
             map_pose: pose,
-            depth: store_depth(&frame.depth),
-            color: frame.color.clone(),
+            pixels: keep.then(|| StoredPixels { depth: store_depth(&frame.depth), color: frame.color.clone() }),
+            stands_for: 1,
+            last_index: frame.index,
         };
         self.store_bytes += stored.bytes();
         // A frame fused live while a shadow is built joins it at its estimate, where the
         // shadow puts every frame it fuses.
         let planned = self.shadow.is_some().then(|| self.estimate(&stored));
         self.frames.push(stored);
+        if keep {
+            self.last_keeper = position;
+        } else {
+            self.fold(position, self.last_keeper);
+        }
         if let (Some(shadow), Some(pose)) = (self.shadow.as_mut(), planned) {
-            shadow.push_live_frame(self.frames.len() - 1, pose);
+            shadow.push_live_frame(position, pose);
         }
         if self.store_bytes > self.config.frame_store_mb << 20 {
-            self.stop(format!(
-                "stopped at frame {}: the frame store reached {} MB (`--frame-store`, `frame_store_mb`)",
-                frame.index, self.config.frame_store_mb
-            ));
+            self.thin();
         }
         Ok(())
+    }
+
+    /// Brings the store back within [`LoopClosureConfig::frame_store_mb`] by dropping the
+    /// pixels of the frames off the stride, doubling the stride until it fits: a long scan
+    /// keeps every second, then every fourth, ... frame, instead of loop closure stopping
+    /// when the store is full. A kept frame stands for the dropped ones after it (their
+    /// weight joins its own when the map follows a correction), so a rebuilt chunk weighs as
+    /// much as before and is fused from fewer, equally spaced views: at 30 Hz neighbouring
+    /// frames see nearly the same surface, and a re-integration already averages runs of four
+    /// ([`LoopClosureConfig::reintegration_stride`]). What a rebuilt chunk loses is what only
+    /// the dropped frames saw (the edge of a fast pan). Frames a re-integration in progress
+    /// has yet to fuse keep their pixels, and the stride does not grow while it runs: its
+    /// queue bounds what the store holds beyond the budget. Positions, not clocks, decide:
+    /// the same bits for any thread count.
+    fn thin(&mut self) {
+        let budget = self.config.frame_store_mb << 20;
+        let mut queued = vec![false; self.frames.len()];
+        if let Some(shadow) = &self.shadow {
+            for p in shadow.queued_frames() {
+                queued[p] = true;
+            }
+        }
+        loop {
+            let mut keeper = 0;
+            for (p, &queued) in queued.iter().enumerate() {
+                if self.frames[p].pixels.is_none() {
+                    continue;
+                }
+                if p.is_multiple_of(self.store_stride) || queued {
+                    keeper = p;
+                } else {
+                    self.store_bytes -= self.frames[p].pixels.take().map_or(0, |px| px.bytes());
+                    self.fold(p, keeper);
+                }
+            }
+            if self.store_bytes <= budget || self.shadow.is_some() || self.store_stride >= self.frames.len() {
+                break;
+            }
+            self.store_stride *= 2;
+        }
+        self.last_keeper = self.frames.iter().rposition(|f| f.pixels.is_some()).unwrap_or(0);
+    }
+
+    /// Folds frame `dropped`, whose pixels are gone, into `keeper` before it: the keeper
+    /// stands for it (and for what it stood for) in a re-integration.
+    fn fold(&mut self, dropped: usize, keeper: usize) {
+        let (stands_for, last_index) = (self.frames[dropped].stands_for, self.frames[dropped].last_index);
+        let k = &mut self.frames[keeper];
+        k.stands_for += stands_for;
+        k.last_index = k.last_index.max(last_index);
+        self.frames[dropped].stands_for = 0;
     }
 
     fn stop(&mut self, why: String) {
@@ -641,7 +733,7 @@ impl LoopClosure {
                 self.odometry_scale = odometry_scale;
                 self.report.odometry_scale = odometry_scale;
                 self.report.loops.extend(outcome.loops.iter().cloned());
-                self.search_ms = Some(outcome.ms);
+                self.search_ms = Some((outcome.ms, outcome.cpu_ms));
                 self.found = Some(outcome);
             }
             None => {
@@ -652,8 +744,8 @@ impl LoopClosure {
     }
 
     /// The back-end time of the search taken back last (the search and the optimisation,
-    /// ms), once.
-    pub fn take_search_ms(&mut self) -> Option<f64> {
+    /// ms: wall time on its thread, and CPU time where the platform says), once.
+    pub fn take_search_ms(&mut self) -> Option<(f64, Option<f64>)> {
         self.search_ms.take()
     }
 
@@ -797,7 +889,7 @@ impl LoopClosure {
             self.report.skipped_reintegrations += 1;
             return false;
         }
-        let mut shadow = Shadow::start(map, plan, frame, self.config.reintegration_stride);
+        let mut shadow = Shadow::start(map, plan, &self.frames, frame, self.config.reintegration_stride);
         shadow.start_ms = t.elapsed().as_secs_f64() * 1e3;
         shadow.plan_ms = shadow.start_ms;
         shadow.ms += shadow.start_ms;

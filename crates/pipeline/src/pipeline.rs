@@ -67,8 +67,11 @@ fn adopt_search(
     times: &mut StageTimes,
     warnings: &mut Vec<String>,
 ) {
-    if let Some(ms) = lc.take_search_ms() {
+    if let Some((ms, cpu_ms)) = lc.take_search_ms() {
         times.record_ms("global pose optimisation", ms);
+        if let Some(cpu_ms) = cpu_ms {
+            times.record_ms("global pose optimisation, CPU time (back end)", cpu_ms);
+        }
     }
     let Some(update) = update else { return };
     if update.poses.len() == trajectory.poses.len() {

@@ -66,6 +66,9 @@ pub(super) struct SearchOutcome {
     pub correction: Option<GraphCorrection>,
     /// The whole search's time, ms (on the thread).
     pub ms: f64,
+    /// The CPU time its pool's workers spent on it, ms (`None` where the platform does not
+    /// say): its cost, where `ms` includes the time it yielded to the front end.
+    pub cpu_ms: Option<f64>,
 }
 
 impl GraphWork {
@@ -242,8 +245,14 @@ impl SearchThread {
             .name("loop search".into())
             .spawn(move || {
                 crate::backend::lower_priority();
+                // Each worker's CPU time, summed: the search runs on the pool's workers.
+                let pool_cpu_ms = |pool: &rayon::ThreadPool| -> Option<f64> {
+                    pool.broadcast(|_| crate::backend::thread_cpu_ms()).into_iter().sum()
+                };
                 for (mut work, frame) in request_rx {
-                    let outcome = pool.install(|| work.search(&config, frame));
+                    let cpu_before = pool_cpu_ms(&pool);
+                    let mut outcome = pool.install(|| work.search(&config, frame));
+                    outcome.cpu_ms = pool_cpu_ms(&pool).zip(cpu_before).map(|(after, before)| after - before);
                     if response_tx.send((work, outcome)).is_err() {
                         break;
                     }

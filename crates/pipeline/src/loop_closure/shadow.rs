@@ -70,11 +70,13 @@ enum Origin {
     Absent,
 }
 
-/// One unit of the shadow's work: a stored frame to fuse.
+/// One unit of the shadow's work: stored frames to fuse as one (a run) or one by one.
 struct Work {
-    /// Position in the frame store.
-    frame: usize,
-    /// How many consecutive stored frames it stands for (its observations weigh that much).
+    /// Positions in the frame store, in capture order: frames with pixels, each following
+    /// the frames the previous one stands for (consecutive frames of the scan).
+    frames: Vec<usize>,
+    /// How many fused frames they stand for (their observations weigh that much): their
+    /// count, or more where the store thinned out frames between them.
     weight: usize,
     /// Fused live since the start: fused whole. Otherwise into the rebuilt and absent chunks
     /// only.
@@ -121,20 +123,30 @@ pub(super) struct Shadow {
 impl Shadow {
     /// Starts an empty shadow of `live` for `plan`.
     ///
-    /// With `stride` above 1, runs of up to `stride` consecutive stored frames are re-fused as
-    /// the average of their depths, weighing as much as the run ([`super::LoopClosureConfig::
-    /// reintegration_stride`]); frames fused live meanwhile are always fused one by one.
-    pub fn start(live: &TsdfMap, plan: Plan, started_at: usize, stride: usize) -> Self {
+    /// With `stride` above 1, runs of consecutive stored frames standing for up to `stride`
+    /// frames are re-fused as the average of their depths, weighing as much as the frames
+    /// they stand for ([`super::LoopClosureConfig::reintegration_stride`]); frames fused live
+    /// meanwhile are always fused one by one. Frames whose pixels the store thinned out are
+    /// skipped: the frame before them stands for them.
+    pub fn start(live: &TsdfMap, plan: Plan, frames: &[StoredFrame], started_at: usize, stride: usize) -> Self {
         let rebuilt = plan.rebuild.len();
         let origin = plan.rebuild.into_iter().map(|k| (k, Origin::Rebuilt)).collect();
         let mut queue: VecDeque<Work> = VecDeque::new();
-        let mut last = None;
+        // The position just past what the last queued frame stands for.
+        let mut next = None;
         for frame in plan.work {
-            match queue.back_mut() {
-                Some(w) if last == Some(frame.wrapping_sub(1)) && w.weight < stride.max(1) => w.weight += 1,
-                _ => queue.push_back(Work { frame, weight: 1, whole: false }),
+            let stands_for = frames[frame].stands_for;
+            if frames[frame].pixels.is_none() {
+                continue;
             }
-            last = Some(frame);
+            match queue.back_mut() {
+                Some(w) if next == Some(frame) && w.weight + stands_for <= stride.max(1) => {
+                    w.frames.push(frame);
+                    w.weight += stands_for;
+                }
+                _ => queue.push_back(Work { frames: vec![frame], weight: stands_for, whole: false }),
+            }
+            next = Some(frame + stands_for);
         }
         Self {
             map: live.empty_successor(REVISION_GAP),
@@ -193,7 +205,12 @@ impl Shadow {
         debug_assert_eq!(frame, self.poses.len());
         self.poses.push(pose);
         self.window_frames += 1;
-        self.queue.push_back(Work { frame, weight: 1, whole: true });
+        self.queue.push_back(Work { frames: vec![frame], weight: 1, whole: true });
+    }
+
+    /// Positions of the stored frames it has yet to fuse (the store keeps their pixels).
+    pub fn queued_frames(&self) -> impl Iterator<Item = usize> + '_ {
+        self.queue.iter().flat_map(|w| w.frames.iter().copied())
     }
 
     /// Whether it must complete now: the revision gap would run out (see [`REVISION_GAP`]).
@@ -218,7 +235,7 @@ impl Shadow {
         while budget.is_none_or(|b| spent < b) {
             let Some(work) = self.queue.pop_front() else { break };
             // A run's warp costs about a selection per frame of it.
-            let overhead = selection_cost * work.weight;
+            let overhead = selection_cost * work.frames.len();
             spent += self.fuse(live, frames, intrinsics, work)? + overhead;
         }
         let ms = t.elapsed().as_secs_f64() * 1e3;
@@ -229,23 +246,31 @@ impl Shadow {
 
     /// Fuses one unit of work at its planned poses; returns the chunks it was fused into.
     fn fuse(&mut self, live: &TsdfMap, frames: &[StoredFrame], intrinsics: Intrinsics, work: Work) -> Result<usize> {
-        if work.weight < 2 {
-            let frame = frames[work.frame].frame(intrinsics);
-            return self.fuse_frame(live, &frame, work.frame, work.whole, 1.0, frame.index..=frame.index);
+        // The queue holds frames with pixels only (the store keeps them while queued).
+        let run: Vec<(usize, Frame)> =
+            work.frames.iter().filter_map(|&p| frames[p].frame(intrinsics).map(|f| (p, f))).collect();
+        let weight_of = |p: usize| if work.whole { 1.0 } else { frames[p].stands_for as f32 };
+        let span_of = |p: usize| frames[p].index..=frames[p].last_index;
+        if run.len() < 2 {
+            let mut fused = 0;
+            for (p, frame) in &run {
+                fused += self.fuse_frame(live, frame, *p, work.whole, weight_of(*p), span_of(*p))?;
+            }
+            return Ok(fused);
         }
         // A run: its middle frame (the least parallax to the others) takes the average of the
         // run's depths, and is fused once weighing the run. Its pixels are averaged over the
         // frames that confirm them, and kept where at least `MIN_PARTNERS` do.
-        let run: Vec<Frame> = (work.frame..work.frame + work.weight).map(|p| frames[p].frame(intrinsics)).collect();
         let middle = run.len() / 2;
         let others: Vec<(&[f32], Affine3A)> = run
             .iter()
             .enumerate()
             .filter(|(i, _)| *i != middle)
-            .map(|(i, f)| (f.depth.as_slice(), self.poses[work.frame + i]))
+            .map(|(_, (p, f))| (f.depth.as_slice(), self.poses[*p]))
             .collect();
-        let pose = self.poses[work.frame + middle];
-        let averaged = averaged_frame(self.map.config(), &run[middle], pose, &others, 0.0, MIN_PARTNERS);
+        let (middle_position, middle_frame) = &run[middle];
+        let pose = self.poses[*middle_position];
+        let averaged = averaged_frame(self.map.config(), middle_frame, pose, &others, 0.0, MIN_PARTNERS);
         self.averaged_pixels += averaged.paired;
         self.candidate_pixels += averaged.candidates;
         if (averaged.paired as f64) < MIN_PAIRED_FRACTION * averaged.candidates as f64 {
@@ -253,14 +278,14 @@ impl Shadow {
             // its own, which is exact.
             self.unaveraged_runs += 1;
             let mut fused = 0;
-            for (i, f) in run.iter().enumerate() {
-                fused += self.fuse_frame(live, f, work.frame + i, false, 1.0, f.index..=f.index)?;
+            for (p, f) in &run {
+                fused += self.fuse_frame(live, f, *p, false, weight_of(*p), span_of(*p))?;
             }
             return Ok(fused);
         }
         self.averaged_runs += 1;
-        let span = run[0].index..=run[run.len() - 1].index;
-        self.fuse_frame(live, &averaged.frame, work.frame + middle, false, work.weight as f32, span)
+        let span = run[0].1.index..=frames[run[run.len() - 1].0].last_index;
+        self.fuse_frame(live, &averaged.frame, *middle_position, false, work.weight as f32, span)
     }
 
     /// Fuses `frame` (stored at `position`) at its planned pose, its observations weighing

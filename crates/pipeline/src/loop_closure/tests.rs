@@ -88,6 +88,14 @@ fn a_drifting_loop_re_integrated_at_once() {
     );
 }
 
+/// With a frame store that holds about a quarter of the scan: the store keeps every fourth
+/// frame, loop closure goes on, and the map follows from the frames kept, each weighing as
+/// much as the frames it stands for.
+#[test]
+fn a_drifting_loop_with_a_thinned_frame_store() {
+    close_a_drifting_loop(1, LoopClosureConfig { frame_store_mb: 30, ..LoopClosureConfig::default() });
+}
+
 /// The shadow swaps in at the same keyframes and the map has the same bits with 1, 2 and 4
 /// threads (40 frames per 10-frame keyframe: a re-integration spread over keyframes).
 #[test]
@@ -260,7 +268,8 @@ fn close_a_drifting_loop_in(
         );
     }
     eprintln!(
-        "seed {seed}, budget {budget}, stride {stride}: ATE {:.1} mm drifted, {:.1} mm after; mesh accuracy {followed:.2} mm re-integrated, {fresh:.2} mm fused afresh, {drifting:.2} mm drifted; completeness {:.2} % re-integrated, {:.2} % fused afresh; {} corrections, {} re-integrations, {chunk_fusions} chunk integrations",
+        "seed {seed}, budget {budget}, stride {stride}, store stride {}: ATE {:.1} mm drifted, {:.1} mm after; mesh accuracy {followed:.2} mm re-integrated, {fresh:.2} mm fused afresh, {drifting:.2} mm drifted; completeness {:.2} % re-integrated, {:.2} % fused afresh; {} corrections, {} re-integrations, {chunk_fusions} chunk integrations",
+        report.store_stride,
         before * 1e3,
         after * 1e3,
         complete * 100.0,
@@ -279,17 +288,43 @@ fn close_a_drifting_loop_in(
 }
 
 #[test]
-fn a_full_frame_store_stops_loop_closure_with_a_reason() {
-    let k = Intrinsics::new(64, 48, 60.0, 60.0, 31.5, 23.5).expect("camera");
-    let config = LoopClosureConfig { frame_store_mb: 0, ..LoopClosureConfig::default() };
+fn a_full_frame_store_thins_out_frames_instead_of_stopping() {
+    // 640x480 depth without colour: 0.6 MB a frame, so an 8 MB store holds 13.
+    let k = Intrinsics::new(640, 480, 525.0, 525.0, 319.5, 239.5).expect("camera");
+    let config = LoopClosureConfig { frame_store_mb: 8, ..LoopClosureConfig::default() };
     let mut lc = LoopClosure::new(config, k);
-    let f = Frame::from_depth(k, vec![1.0; 64 * 48]);
-    lc.add_frame(&f, Affine3A::IDENTITY, true).expect("stored");
-    assert!(!lc.is_running());
-    assert!(lc.report().stopped.is_some_and(|s| s.contains("frame store")));
-    assert!(lc.close_loops(0, &mut Vec::new()).is_none());
+    let frames = 43;
+    for i in 0..frames {
+        let mut f = Frame::from_depth(k, vec![1.0 + i as f32 * 0.01; 640 * 480]);
+        f.index = i;
+        lc.add_frame(&f, Affine3A::from_translation(Vec3::new(0.001 * i as f32, 0.0, 0.0)), i % 10 == 0)
+            .expect("stored");
+        assert!(lc.store_bytes <= 8 << 20, "frame {i}: {} bytes stored", lc.store_bytes);
+        // Every fused frame is stood for by exactly one frame with pixels: the last one at
+        // or before it, which stands for the frames up to the next one with pixels.
+        let kept: Vec<usize> = (0..lc.frames.len()).filter(|&p| lc.frames[p].pixels.is_some()).collect();
+        assert_eq!(kept[0], 0);
+        for (j, &p) in kept.iter().enumerate() {
+            let next = kept.get(j + 1).copied().unwrap_or(lc.frames.len());
+            assert_eq!(lc.frames[p].stands_for, next - p, "frame {i}: kept {kept:?}");
+            assert_eq!(lc.frames[p].last_index, next - 1);
+            assert_eq!(p % lc.store_stride, 0, "frame {i}: kept {kept:?}, stride {}", lc.store_stride);
+        }
+        assert!(lc.frames.iter().filter(|f| f.pixels.is_none()).all(|f| f.stands_for == 0));
+    }
+    assert!(lc.is_running());
+    let report = lc.report();
+    assert!(report.stopped.is_none());
+    assert_eq!(report.store_stride, 4);
+    assert_eq!(report.stored_frames, 11, "positions 0, 4, ..., 40");
+    // The kept frames read back as stored.
+    let f = lc.frames[16].frame(k).expect("pixels");
+    assert_eq!((f.index, f.depth[0]), (16, 1.16));
+    assert!(lc.frames[17].frame(k).is_none());
+
     // A non-finite pose is an error, not a panic.
     let mut lc = LoopClosure::new(LoopClosureConfig::default(), k);
+    let f = Frame::from_depth(k, vec![1.0; 640 * 480]);
     let nan = Affine3A::from_translation(Vec3::new(f32::NAN, 0.0, 0.0));
     assert!(lc.add_frame(&f, nan, true).is_err());
 }
