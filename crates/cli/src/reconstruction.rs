@@ -82,13 +82,23 @@ pub struct ReconArgs {
     #[arg(long, value_enum, default_value_t = PoseMode::Track)]
     pub poses: PoseMode,
     /// Close loops: find revisited places at keyframes, optimise the pose graph and re-fuse
-    /// the map's chunks that a correction moves by more than half a voxel (in a shadow of
-    /// those chunks, spread over frames, swapped in at a keyframe). Off by default: on
-    /// 7-Scenes a correction moves nearly every chunk, so the re-fusion's total work still
-    /// costs much of the real-time factor, and every fused frame is kept in memory
-    /// (docs/loop_closure.md).
-    #[arg(long)]
+    /// the map's chunks that a correction moves by more than half a voxel. On by default in
+    /// `run`; `demo` and `live` close loops only with this flag (a correction's re-fusion
+    /// costs much of the real-time factor when the map follows it live, docs/loop_closure.md).
+    #[arg(long, conflicts_with = "no_loop_closure")]
     pub loop_closure: bool,
+    /// No loop closure: the trajectory as tracked and the map as fused (`run` closes loops by
+    /// default; this is the comparison).
+    #[arg(long)]
+    pub no_loop_closure: bool,
+    /// With loop closure: when the map follows the corrected poses. `live`: during the scan
+    /// (the corrected chunks re-fused in a shadow, a bounded amount a keyframe, swapped in
+    /// when complete), for a live view and AR on the corrected map; `end`: once, when the scan
+    /// ends (the trajectory is corrected at once either way), for the least work. Default:
+    /// `end` in `run` (7-Scenes with semantics: RTF 1.59 against 1.13 with `live`, 2.0 without
+    /// loop closure), `live` in `demo` and `live`.
+    #[arg(long, value_enum, conflicts_with = "no_loop_closure")]
+    pub map_follows: Option<MapFollows>,
     /// Fusion clamps a depth measured up to this many bands behind a voxel to one band behind
     /// (1, the default: such depths are skipped). 1.5 treats the sensor's noise alike on both
     /// sides of the surface: 7-14 % better mesh accuracy on rendered scans, but a scan facing
@@ -109,33 +119,33 @@ pub struct ReconArgs {
     /// their depths averaged onto the run's middle frame and weighing as much as the run
     /// (4 by default; 1: every frame, exact). Cuts a re-integration's work 2-3 times at the
     /// same or better mesh accuracy, for 2-3 % of completeness (docs/loop_closure.md).
-    #[arg(long, requires = "loop_closure")]
+    #[arg(long, conflicts_with = "no_loop_closure")]
     pub reintegration_stride: Option<usize>,
     /// With loop closure: weigh loop edges by the shape of the loop alignment's Hessian
     /// (J^T J of the point-to-plane ICP) instead of one isotropic standard deviation (4 mm,
     /// 0.17 degree). Off by default: it closed less drift on rendered loops
     /// (docs/loop_closure.md).
-    #[arg(long, requires = "loop_closure")]
+    #[arg(long, conflicts_with = "no_loop_closure")]
     pub loop_information_from_alignment: bool,
     /// With loop closure: odometry edges take their information's shape from the tracking
     /// between their keyframes (the worst-conditioned frame's normal matrix), so that a stretch
     /// where depth barely constrained some motion takes more of a loop's correction.
-    #[arg(long, requires = "loop_closure")]
+    #[arg(long, conflicts_with = "no_loop_closure")]
     pub odometry_information_from_tracking: bool,
     /// With loop closure: a loop edge's standard deviations grow in proportion to its
     /// alignment's RMS residual past this many millimetres (default 3; 0: the same for every
     /// loop).
-    #[arg(long, requires = "loop_closure")]
+    #[arg(long, conflicts_with = "no_loop_closure")]
     pub loop_residual_reference_mm: Option<f64>,
     /// With loop closure: the map follows a correction only in chunks that a frame's pose
     /// change moves by more than this many voxels (default 0.5).
-    #[arg(long, requires = "loop_closure")]
+    #[arg(long, conflicts_with = "no_loop_closure")]
     pub min_chunk_move_voxels: Option<f32>,
     /// With loop closure: memory for the frames it keeps to re-fuse the map, e.g. 8G (default
     /// 4G: 2,730 frames at 640x480, 91 s at 30 Hz). Past it the store keeps every second
     /// frame, then every fourth, ...: loop closure goes on over any length of scan, and the
     /// map follows a correction from the frames kept (report.json: `store_stride`).
-    #[arg(long, requires = "loop_closure", value_parser = crate::cli_values::parse_bytes)]
+    #[arg(long, conflicts_with = "no_loop_closure", value_parser = crate::cli_values::parse_bytes)]
     pub frame_store: Option<usize>,
     /// Memory the TSDF map may use, e.g. 512M or 2G: past it the coldest chunks (packed, far
     /// from the camera) are written to a spill file in the output folder and read back when
@@ -163,6 +173,15 @@ pub struct ReconArgs {
     /// chunk about 15 % smaller (docs/benchmarks_log.md, "Session 22").
     #[arg(long, default_value_t = semrecon_recon::TsdfConfig::default().packed_far_step_voxels)]
     pub packed_distance_step: f32,
+}
+
+/// When the map follows loop closure's corrections (`--map-follows`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum MapFollows {
+    /// During the scan, every few keyframes.
+    Live,
+    /// Once, when the scan ends.
+    End,
 }
 
 /// Where the pose of each frame comes from.
@@ -238,13 +257,15 @@ pub enum SemanticsMode {
 
 /// The pipeline configuration of the options; `up` is the map's up direction when known;
 /// `color_registered`: whether the source's colour is registered to its depth (which sets
-/// the colour fallback's default weight).
+/// the colour fallback's default weight); `closes_loops`: whether the command closes loops
+/// without `--loop-closure` (and lets the map follow at the end of the scan).
 pub fn pipeline_config(
     recon: &ReconArgs,
     semantics: &SemanticArgs,
     realtime: bool,
     up: Option<Vec3>,
     color_registered: bool,
+    closes_loops: bool,
 ) -> anyhow::Result<PipelineConfig> {
     anyhow::ensure!(recon.keyframe_every > 0, "--keyframe-every must be at least 1");
     let mut tsdf = TsdfConfig::with_voxel_size(recon.voxel).with_context(|| format!("voxel size {} m", recon.voxel))?;
@@ -292,7 +313,12 @@ pub fn pipeline_config(
     config.semantics.segment_vote = semantics.structure == LiveStructure::Segments;
     anyhow::ensure!(semantics.surface_refresh > 0, "--surface-refresh must be at least 1");
     config.semantics.surface_refresh_keyframes = semantics.surface_refresh;
-    config.loop_closure.enabled = recon.loop_closure;
+    config.loop_closure.enabled = loop_closure_on(recon, closes_loops)?;
+    let follows = recon.map_follows.unwrap_or(if closes_loops { MapFollows::End } else { MapFollows::Live });
+    if follows == MapFollows::End {
+        // Never during the scan: `finish` brings the map to the final poses.
+        config.loop_closure.follow_every = usize::MAX;
+    }
     if let Some(bytes) = recon.frame_store {
         config.loop_closure.frame_store_mb = bytes.div_ceil(1 << 20);
     }
@@ -316,6 +342,31 @@ pub fn pipeline_config(
     config.tsdf.packed_far_step_voxels = recon.packed_distance_step;
     config.validate().context("pipeline options")?;
     Ok(config)
+}
+
+/// Whether loop closure runs: asked for (`--loop-closure`), or by the command's default
+/// (`closes_loops`) unless `--no-loop-closure`. A memory budget turns the default off (with a
+/// note: the re-integration cannot read spilled chunks yet); loop-closure options with loop
+/// closure off are refused rather than ignored.
+fn loop_closure_on(recon: &ReconArgs, closes_loops: bool) -> anyhow::Result<bool> {
+    let mut on = recon.loop_closure || (closes_loops && !recon.no_loop_closure);
+    if on && !recon.loop_closure && recon.max_memory.is_some() {
+        println!("note: no loop closure under --max-memory (its re-fusion cannot read spilled chunks yet)");
+        on = false;
+    }
+    let options = [
+        (recon.reintegration_stride.is_some(), "--reintegration-stride"),
+        (recon.loop_information_from_alignment, "--loop-information-from-alignment"),
+        (recon.odometry_information_from_tracking, "--odometry-information-from-tracking"),
+        (recon.loop_residual_reference_mm.is_some(), "--loop-residual-reference-mm"),
+        (recon.min_chunk_move_voxels.is_some(), "--min-chunk-move-voxels"),
+        (recon.frame_store.is_some(), "--frame-store"),
+        (recon.map_follows.is_some(), "--map-follows"),
+    ];
+    if let Some((_, name)) = options.iter().find(|(given, _)| *given).filter(|_| !on) {
+        anyhow::bail!("{name} is a loop-closure option, and loop closure is off here: add --loop-closure");
+    }
+    Ok(on)
 }
 
 /// Puts the map's spill file (used only under `--max-memory`) in the output folder `out`, as
@@ -606,6 +657,8 @@ pub fn loop_closure_json(pipeline: &Pipeline, gt: Option<&Trajectory>) -> serde_
         "stored_frames": report.stored_frames,
         "frame_store_mb": report.frame_store_bytes as f64 / 1e6,
         "store_stride": report.store_stride,
+        // The map follows the corrections live, or once at the end (`--map-follows`).
+        "map_follows": if pipeline.config().loop_closure.follow_every == usize::MAX { "end" } else { "live" },
         "ate_rmse_before_m": ate(before),
         "ate_rmse_after_m": ate(pipeline.trajectory()),
         "trajectory_before": rows(before),
@@ -616,16 +669,17 @@ pub fn loop_closure_json(pipeline: &Pipeline, gt: Option<&Trajectory>) -> serde_
 /// One line on loop closure from [`loop_closure_json`]'s object.
 pub fn loop_closure_summary(json: &serde_json::Value) -> String {
     if json.is_null() {
-        return "loop closure: off".into();
+        return "loop closure: off (`run` closes loops unless --no-loop-closure; `demo` and `live` with --loop-closure)".into();
     }
     let mm = |k: &str| json[k].as_f64().map_or("n/a".to_string(), |v| format!("{:.1} mm", v * 1e3));
     format!(
-        "loop closure: {} keyframes, {} loops accepted, {} rejected, {} pose corrections, {} map re-integrations; ATE {} as tracked, {} after{}",
+        "loop closure: {} keyframes, {} loops accepted, {} rejected, {} pose corrections, {} map re-integrations (the map following {}); ATE {} as tracked, {} after{}",
         json["keyframes"],
         json["loops_accepted"],
         json["loops_rejected"],
         json["corrections"].as_array().map_or(0, Vec::len),
         json["reintegrations"].as_array().map_or(0, Vec::len),
+        if json["map_follows"] == "end" { "at the end" } else { "live" },
         mm("ate_rmse_before_m"),
         mm("ate_rmse_after_m"),
         json["stopped"].as_str().map_or(String::new(), |s| format!(" ({s})"))
@@ -703,7 +757,7 @@ mod tests {
         use clap::Parser;
         let weight = |args: &[&str], registered: bool| {
             let o = Options::parse_from(std::iter::once("semrecon").chain(args.iter().copied()));
-            pipeline_config(&o.recon, &o.semantics, false, None, registered)
+            pipeline_config(&o.recon, &o.semantics, false, None, registered, false)
                 .expect("config")
                 .tracker
                 .degenerate_photometric_weight
@@ -712,5 +766,32 @@ mod tests {
         assert_eq!(weight(&[], false), 0.0);
         assert_eq!(weight(&["--degenerate-photometric-weight", "0.3"], false), 0.3);
         assert_eq!(weight(&["--degenerate-photometric-weight", "0"], true), 0.0);
+    }
+
+    /// `run` closes loops by default and lets the map follow at the end; `demo` and `live`
+    /// only with `--loop-closure`, the map following live; `--no-loop-closure` and a memory
+    /// budget turn the default off; a loop-closure option with loop closure off is refused.
+    #[test]
+    fn loop_closure_defaults_depend_on_the_command() {
+        use clap::Parser;
+        let config = |args: &[&str], closes_loops: bool| {
+            let o = Options::parse_from(std::iter::once("semrecon").chain(args.iter().copied()));
+            pipeline_config(&o.recon, &o.semantics, false, None, true, closes_loops)
+                .map(|c| (c.loop_closure.enabled, c.loop_closure.follow_every))
+        };
+        let end = usize::MAX;
+        let live = semrecon_pipeline::LoopClosureConfig::default().follow_every;
+        assert_eq!(config(&[], true).expect("run"), (true, end));
+        assert!(!config(&["--no-loop-closure"], true).expect("run").0);
+        assert_eq!(config(&["--map-follows", "live"], true).expect("run"), (true, live));
+        assert!(!config(&["--max-memory", "1G"], true).expect("run").0);
+        assert!(!config(&[], false).expect("demo").0);
+        assert_eq!(config(&["--loop-closure"], false).expect("demo"), (true, live));
+        assert_eq!(config(&["--loop-closure", "--map-follows", "end"], false).expect("demo"), (true, end));
+        let refused = config(&["--frame-store", "1G"], false).expect_err("no loop closure in demo");
+        assert!(refused.to_string().contains("--loop-closure"), "{refused}");
+        assert!(config(&["--loop-closure", "--max-memory", "1G"], true).is_err());
+        assert!(Options::try_parse_from(["semrecon", "--no-loop-closure", "--frame-store", "1G"]).is_err());
+        assert!(Options::try_parse_from(["semrecon", "--no-loop-closure", "--loop-closure"]).is_err());
     }
 }

@@ -240,11 +240,15 @@ fn run_rejects_bad_input_cleanly() {
     assert!(!out.status.success());
     let out = semrecon(&["run", "--dataset", "synth:1", "--frames", "0..2", "--voxel=-1", "--out", s(&out_dir)]);
     assert_clean_failure(&out, "voxel");
-    // A loop-closure option without loop closure would be silently ignored: refused instead.
-    let out = semrecon(&["run", "--dataset", "synth:1", "--odometry-information-from-tracking", "--out", s(&out_dir)]);
+    // A loop-closure option without loop closure would be silently ignored: refused instead
+    // (`run` closes loops unless told not to; `demo` only when told to).
+    let args = ["run", "--dataset", "synth:1", "--no-loop-closure", "--odometry-information-from-tracking"];
+    let out = semrecon(&[&args[..], &["--out", s(&out_dir)]].concat());
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "a usage error: {stderr}");
-    assert!(stderr.contains("--loop-closure"), "{stderr}");
+    assert!(stderr.contains("--no-loop-closure"), "{stderr}");
+    let out = semrecon(&["demo", "--frame-store", "1G", "--out", s(&out_dir)]);
+    assert_clean_failure(&out, "--loop-closure");
     assert!(!out_dir.join("report.json").exists());
 }
 

@@ -51,7 +51,8 @@ const DEPTH_UNITS_PER_M: f32 = 5000.0;
 #[derive(Debug, Clone, PartialEq)]
 pub struct LoopClosureConfig {
     /// On: keyframes and fused frames are kept, loops closed and the map re-fused
-    /// (`--loop-closure`). Off by default: on 7-Scenes a correction moves nearly every chunk,
+    /// (the CLI's `run` turns it on unless `--no-loop-closure`; `demo` and `live` with
+    /// `--loop-closure`). Off by default here: on 7-Scenes a correction moves nearly every chunk,
     /// so re-fusing after it costs about a whole pass over the stored frames (spread over
     /// frames now, but still a large part of the real-time factor), and the frame store costs
     /// 1.5 MB a frame, for 1-2 mm of ATE on 7-Scenes (docs/loop_closure.md).
@@ -110,7 +111,7 @@ pub struct LoopClosureConfig {
     /// pixels of every second frame, then every fourth, ... (`LoopClosure::thin`).
     pub frame_store_mb: usize,
     /// The map follows corrected poses at most every this many keyframes (and at the end
-    /// of the scan): a revisit finds a loop at keyframe after keyframe, and re-fusing the map
+    /// of the scan; `usize::MAX`: only at the end, the CLI's `--map-follows end`): a revisit finds a loop at keyframe after keyframe, and re-fusing the map
     /// for each costs seconds (7-Scenes: 19 re-integrations of the whole clip at 1, docs/
     /// loop_closure.md). Meanwhile the trajectory is corrected and the tracker stays in the
     /// map's frame.

@@ -114,7 +114,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let command_start = Instant::now();
     anyhow::ensure!(args.frames > 0, "--frames must be at least 1");
     prepare_output_dir(&args.out)?;
-    let mut config = pipeline_config(&args.recon, &args.semantics, false, None, true)?;
+    let mut config = pipeline_config(&args.recon, &args.semantics, false, None, true, false)?;
     spill_in(&mut config, &args.out);
     let mut scan_config = SyntheticScanConfig::new(args.seed);
     scan_config.frames = args.frames;

@@ -223,7 +223,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
             )
         }
     };
-    let config = pipeline_config(&args.recon, &args.semantics, true, None, true)?;
+    let config = pipeline_config(&args.recon, &args.semantics, true, None, true, false)?;
     let (net, network) = load_network(&args.semantics, &crate::device::DeviceArgs::default())?;
     let k = camera.intrinsics();
     let frame_rate = camera.frame_rate();

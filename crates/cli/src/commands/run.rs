@@ -228,7 +228,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         DatasetSpec::SevenScenes(dir) if source.has_ground_truth() => dataset_up(Some(dir))?,
         _ => None,
     };
-    let mut config = pipeline_config(&args.recon, &args.semantics, args.realtime, up, source.color_registered())?;
+    let mut config = pipeline_config(&args.recon, &args.semantics, args.realtime, up, source.color_registered(), true)?;
     spill_in(&mut config, &args.out);
     let (net, network) = load_network(&args.semantics, &args.device)?;
     let k = source.intrinsics();
