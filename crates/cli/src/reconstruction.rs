@@ -142,7 +142,7 @@ pub struct ReconArgs {
     #[arg(long, conflicts_with = "no_loop_closure")]
     pub min_chunk_move_voxels: Option<f32>,
     /// With loop closure: memory for the frames it keeps to re-fuse the map, e.g. 8G (default
-    /// 4G: 2,730 frames at 640x480, 91 s at 30 Hz). Past it the store keeps every second
+    /// 2G: 1,365 frames at 640x480, 45 s at 30 Hz). Past it the store keeps every second
     /// frame, then every fourth, ...: loop closure goes on over any length of scan, and the
     /// map follows a correction from the frames kept (report.json: `store_stride`).
     #[arg(long, conflicts_with = "no_loop_closure", value_parser = crate::cli_values::parse_bytes)]

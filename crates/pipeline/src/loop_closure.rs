@@ -108,7 +108,11 @@ pub struct LoopClosureConfig {
     /// correction only where the frame's view of the surface moved.
     pub min_chunk_move_voxels: f32,
     /// Most megabytes of stored frames (1.5 MB each at 640x480); past it the store keeps the
-    /// pixels of every second frame, then every fourth, ... (`LoopClosure::thin`).
+    /// pixels of every second frame, then every fourth, ... (`LoopClosure::thin`). 2 GB
+    /// (1,365 frames, 45 s at 30 Hz, before any thinning): with loop closure on by default in
+    /// `run`, the store is the largest part of its memory (a 5-minute walk through a
+    /// generated flat peaked at 9.5 GB with 4 GB of it); thinned to every eighth frame a scan
+    /// kept its ATE and mesh accuracy (docs/loop_closure.md, "Session 45").
     pub frame_store_mb: usize,
     /// The map follows corrected poses at most every this many keyframes (and at the end
     /// of the scan; `usize::MAX`: only at the end, the CLI's `--map-follows end`): a revisit finds a loop at keyframe after keyframe, and re-fusing the map
@@ -153,7 +157,7 @@ impl Default for LoopClosureConfig {
             min_loop_chi2: 6.0,
             min_move: 0.008,
             min_chunk_move_voxels: 0.5,
-            frame_store_mb: 4096,
+            frame_store_mb: 2048,
             follow_every: 10,
             reintegration_frames_per_keyframe: 20,
             reintegration_stride: 4,
@@ -404,6 +408,15 @@ pub(crate) struct PoseUpdate {
 /// Why loop closure stops when its search thread is gone (a panic there).
 const SEARCH_THREAD_FAILED: &str = "stopped: the loop search thread failed (a bug: please report it)";
 
+/// Factor on the odometry's standard deviations for an edge across a relocalisation: 5 mm
+/// and 0.23 degree become 0.5 m and 23 degrees, an edge that keeps the graph connected but
+/// holds nothing. Relocalisation puts the camera back from a keyframe's view after tracking
+/// was lost, centimetres off where it converges beside the truth; as odometry at the usual
+/// confidence, a loop that later measured that offset was spread over the whole trajectory
+/// before it (`synth-flat:1`, relocalised after 4,116 lost frames 13 cm off: ATE 11.9 mm as
+/// tracked, 34.9 mm after loop closure).
+const RELOCALISED_ODOMETRY_SCALE: f64 = 100.0;
+
 /// Largest factor on the configured odometry standard deviations that agreeing loops may
 /// bring (5 mm a keyframe becomes at most 4 cm).
 const MAX_ODOMETRY_SCALE: f64 = 8.0;
@@ -454,6 +467,9 @@ pub(crate) struct LoopClosure {
     /// re-integration budget is spread; and the store's size at the last keyframe.
     keyframe_interval: usize,
     frames_at_keyframe: usize,
+    /// A frame was relocalised since the last graph node: the next node is added at once,
+    /// its odometry edge loose ([`RELOCALISED_ODOMETRY_SCALE`]).
+    relocalised: bool,
     /// Since the last graph node, the tracked frame whose alignment was worst conditioned:
     /// its condition, map pose and camera-frame normal matrix (the odometry edge's shape
     /// with [`LoopClosureConfig::odometry_information_from_tracking`]).
@@ -494,6 +510,7 @@ impl LoopClosure {
             keyframe_interval: 10,
             frames_at_keyframe: 0,
             weakest_tracking: None,
+            relocalised: false,
             config,
         }
     }
@@ -549,6 +566,14 @@ impl LoopClosure {
         self.add_frame_tracked(frame, pose, keyframe, None)
     }
 
+    /// The next frame was relocalised (its pose found again from a keyframe after tracking
+    /// was lost): it becomes a graph node, joined to the one before by a loose edge
+    /// ([`RELOCALISED_ODOMETRY_SCALE`]), so that loops, not the relocalisation's pose, place
+    /// what comes after it relative to what came before.
+    pub fn mark_relocalised(&mut self) {
+        self.relocalised = true;
+    }
+
     /// [`LoopClosure::add_frame`] with what the tracker measured of the frame: the
     /// condition of its alignment and its camera-frame normal matrix
     /// ([`semrecon_recon::TrackingResult::camera_hessian`]).
@@ -560,8 +585,11 @@ impl LoopClosure {
         tracking: Option<(f64, Mat6)>,
     ) -> Result<()> {
         self.tracked.push(frame.timestamp, pose);
-        if keyframe {
-            // The graph this keyframe joins is the one the last search optimised.
+        let relocalised = std::mem::take(&mut self.relocalised);
+        let new_node = keyframe || relocalised || self.graph.poses().is_empty();
+        if new_node {
+            // The graph this node joins is the one the last search optimised (a relocalised
+            // frame between keyframes waits for the search out, if any: a rare stall).
             self.take_search();
         }
         if !self.is_running() {
@@ -587,7 +615,7 @@ impl LoopClosure {
             self.keyframe_interval = self.frames.len() + 1 - self.frames_at_keyframe;
             self.frames_at_keyframe = self.frames.len() + 1;
         }
-        if keyframe || self.graph.poses().is_empty() {
+        if new_node {
             // Odometry is measured in the map frame, where the tracker works: from the map
             // pose of the previous keyframe's frame (the graph's own estimate of it may have
             // moved by less than `min_move` since, without the map following).
@@ -606,7 +634,8 @@ impl LoopClosure {
             let weakest = self.weakest_tracking.take();
             if let Some(z) = odometry {
                 let (st, sr) = self.config.odometry_sigma;
-                let (st, sr) = (st * self.odometry_scale, sr * self.odometry_scale);
+                let scale = self.odometry_scale * if relocalised { RELOCALISED_ODOMETRY_SCALE } else { 1.0 };
+                let (st, sr) = (st * scale, sr * scale);
                 // The weakest frame's form, carried from its camera frame to the keyframe's.
                 let shaped = weakest
                     .filter(|_| self.config.odometry_information_from_tracking)

@@ -423,6 +423,9 @@ impl Pipeline {
             s.stale = true;
         }
         let keyframe = self.fused.is_multiple_of(self.config.keyframe_every);
+        if let (Some(lc), FrameStatus::Relocalised) = (&mut self.loop_closure, result.status) {
+            lc.mark_relocalised();
+        }
         self.global_optimisation(frame, pose, keyframe, tracking.map(|r| (r.condition, r.camera_hessian)))?;
         if keyframe {
             result.keyframe = true;

@@ -378,6 +378,28 @@ fn odometry_edges_take_the_shape_of_the_weakest_tracking() {
     assert_eq!(lc.graph.edges()[0].information, iso);
 }
 
+/// A relocalised frame becomes a graph node at once (between keyframes), joined to the node
+/// before it by a loose edge, and the next keyframe's edge is the usual one again.
+#[test]
+fn a_relocalised_frame_starts_a_node_with_a_loose_edge() {
+    let k = Intrinsics::new(64, 48, 60.0, 60.0, 31.5, 23.5).expect("camera");
+    let f = Frame::from_depth(k, vec![1.0; 64 * 48]);
+    let mut lc = LoopClosure::new(LoopClosureConfig::default(), k);
+    let at = |x: f32| Affine3A::from_translation(Vec3::X * x);
+    lc.add_frame(&f, at(0.0), true).expect("stored");
+    lc.add_frame(&f, at(0.01), false).expect("stored");
+    lc.mark_relocalised();
+    lc.add_frame(&f, at(0.5), false).expect("stored");
+    lc.add_frame(&f, at(0.51), true).expect("stored");
+    let edges = lc.graph.edges();
+    assert_eq!((lc.graph.poses().len(), edges.len()), (3, 2));
+    assert_eq!(lc.node_frames, vec![0, 2, 3]);
+    let (st, sr) = LoopClosureConfig::default().odometry_sigma;
+    let scale = RELOCALISED_ODOMETRY_SCALE;
+    assert_eq!(edges[0].information, isotropic_information(st * scale, sr * scale));
+    assert_eq!(edges[1].information, isotropic_information(st, sr));
+}
+
 /// A loop's sigmas grow with its residual past the reference, never shrink below
 /// `loop_sigma`, and stay `loop_sigma` when the weighting is off.
 #[test]
