@@ -855,6 +855,14 @@ impl LoopClosure {
         self.behind || self.shadow.is_some()
     }
 
+    /// Whether the next keyframe's [`LoopClosure::keyframe_follow`] starts the map's following
+    /// of a correction (never, when the map follows at the end of the scan).
+    pub fn follows_at_next_keyframe(&self) -> bool {
+        self.shadow.is_none()
+            && self.behind
+            && self.keyframes_since_follow.saturating_add(1) >= self.config.follow_every
+    }
+
     /// Called once per keyframe: whether the map should follow now.
     fn follow_due(&mut self) -> bool {
         self.keyframes_since_follow += 1;

@@ -466,9 +466,10 @@ impl Pipeline {
         self.times.record("loop closure", t.elapsed());
         let t = Instant::now();
         let rebuilding = lc.is_rebuilding();
-        if !rebuilding && lc.is_behind() && self.grouped.is_holding() {
-            // A re-integration may start now: the map it copies and plans from holds every
-            // fused frame, and frames fuse whole (through its shadow) until it swaps.
+        if lc.follows_at_next_keyframe() && self.grouped.is_holding() {
+            // A re-integration starts now: the map it copies and plans from holds every fused
+            // frame, and frames fuse whole (through its shadow) until it swaps. Not before it
+            // is due (a correction waiting for the end of the scan keeps the grouping).
             self.grouped.flush(&mut self.map)?;
         }
         let followed = lc.keyframe_follow(&mut self.map, frame.index)?;
