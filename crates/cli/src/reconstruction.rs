@@ -20,7 +20,7 @@ use semrecon_data::{write_ply_recoloured, LabeledMesh, MeshGravity, PlyEncoding,
 use semrecon_eval::{evaluate_trajectory, TrajectoryEvalConfig};
 use semrecon_eval::{MeshEvalConfig, SurfaceIndex, SurfaceLabeler};
 use semrecon_net::{shipped, ConfusionMatrix, NetConfig, Segmenter, Weights};
-use semrecon_pipeline::{Pipeline, PipelineConfig, SemanticMode, UpEstimate, DEFAULT_MESH_BUDGET};
+use semrecon_pipeline::{LoopClosureConfig, Pipeline, PipelineConfig, SemanticMode, UpEstimate, DEFAULT_MESH_BUDGET};
 use semrecon_recon::{MeshConfig, TrackerConfig, TsdfConfig};
 
 use crate::live_view::LiveView;
@@ -317,7 +317,7 @@ pub fn pipeline_config(
     let follows = recon.map_follows.unwrap_or(if closes_loops { MapFollows::End } else { MapFollows::Live });
     if follows == MapFollows::End {
         // Never during the scan: `finish` brings the map to the final poses.
-        config.loop_closure.follow_every = usize::MAX;
+        config.loop_closure.follow_every = LoopClosureConfig::FOLLOW_AT_END;
     }
     if let Some(bytes) = recon.frame_store {
         config.loop_closure.frame_store_mb = bytes.div_ceil(1 << 20);
@@ -658,7 +658,7 @@ pub fn loop_closure_json(pipeline: &Pipeline, gt: Option<&Trajectory>) -> serde_
         "frame_store_mb": report.frame_store_bytes as f64 / 1e6,
         "store_stride": report.store_stride,
         // The map follows the corrections live, or once at the end (`--map-follows`).
-        "map_follows": if pipeline.config().loop_closure.follow_every == usize::MAX { "end" } else { "live" },
+        "map_follows": if pipeline.config().loop_closure.follows_at_end() { "end" } else { "live" },
         "ate_rmse_before_m": ate(before),
         "ate_rmse_after_m": ate(pipeline.trajectory()),
         "trajectory_before": rows(before),
@@ -779,8 +779,8 @@ mod tests {
             pipeline_config(&o.recon, &o.semantics, false, None, true, closes_loops)
                 .map(|c| (c.loop_closure.enabled, c.loop_closure.follow_every))
         };
-        let end = usize::MAX;
-        let live = semrecon_pipeline::LoopClosureConfig::default().follow_every;
+        let end = LoopClosureConfig::FOLLOW_AT_END;
+        let live = LoopClosureConfig::default().follow_every;
         assert_eq!(config(&[], true).expect("run"), (true, end));
         assert!(!config(&["--no-loop-closure"], true).expect("run").0);
         assert_eq!(config(&["--map-follows", "live"], true).expect("run"), (true, live));

@@ -115,7 +115,8 @@ pub struct LoopClosureConfig {
     /// kept its ATE and mesh accuracy (docs/loop_closure.md, "Session 45").
     pub frame_store_mb: usize,
     /// The map follows corrected poses at most every this many keyframes (and at the end
-    /// of the scan; `usize::MAX`: only at the end, the CLI's `--map-follows end`): a revisit finds a loop at keyframe after keyframe, and re-fusing the map
+    /// of the scan; [`LoopClosureConfig::FOLLOW_AT_END`]: only there, the CLI's
+    /// `--map-follows end`): a revisit finds a loop at keyframe after keyframe, and re-fusing the map
     /// for each costs seconds (7-Scenes: 19 re-integrations of the whole clip at 1, docs/
     /// loop_closure.md). Meanwhile the trajectory is corrected and the tracker stays in the
     /// map's frame.
@@ -141,6 +142,17 @@ pub struct LoopClosureConfig {
     /// 45-46 s (docs/loop_closure.md). 1: every frame (the rebuilt chunks are then what
     /// fusing afresh at the corrected poses gives).
     pub reintegration_stride: usize,
+}
+
+impl LoopClosureConfig {
+    /// [`LoopClosureConfig::follow_every`] for a map that follows the corrections only at
+    /// the end of the scan.
+    pub const FOLLOW_AT_END: usize = usize::MAX;
+
+    /// Whether the map follows the corrections only at the end of the scan.
+    pub fn follows_at_end(&self) -> bool {
+        self.follow_every == Self::FOLLOW_AT_END
+    }
 }
 
 impl Default for LoopClosureConfig {
@@ -445,8 +457,6 @@ pub(crate) struct LoopClosure {
     /// The store keeps the pixels of the frames at multiples of this position (and, while a
     /// re-integration runs, of every frame it has yet to fuse).
     store_stride: usize,
-    /// The last stored frame with pixels: a frame stored without them is folded into it.
-    last_keeper: usize,
     report: LoopClosureReport,
     /// Poses of the fused frames as tracked, before any correction.
     tracked: Trajectory,
@@ -467,9 +477,6 @@ pub(crate) struct LoopClosure {
     /// re-integration budget is spread; and the store's size at the last keyframe.
     keyframe_interval: usize,
     frames_at_keyframe: usize,
-    /// A frame was relocalised since the last graph node: the next node is added at once,
-    /// its odometry edge loose ([`RELOCALISED_ODOMETRY_SCALE`]).
-    relocalised: bool,
     /// Since the last graph node, the tracked frame whose alignment was worst conditioned:
     /// its condition, map pose and camera-frame normal matrix (the odometry edge's shape
     /// with [`LoopClosureConfig::odometry_information_from_tracking`]).
@@ -499,7 +506,6 @@ impl LoopClosure {
             frames: Vec::new(),
             store_bytes: 0,
             store_stride: 1,
-            last_keeper: 0,
             report: LoopClosureReport { enabled: true, odometry_scale: 1.0, ..LoopClosureReport::default() },
             tracked: Trajectory::default(),
             behind: false,
@@ -510,7 +516,6 @@ impl LoopClosure {
             keyframe_interval: 10,
             frames_at_keyframe: 0,
             weakest_tracking: None,
-            relocalised: false,
             config,
         }
     }
@@ -563,29 +568,25 @@ impl LoopClosure {
     /// first frame) becomes a graph node with an odometry edge from the previous one.
     #[cfg(test)]
     pub fn add_frame(&mut self, frame: &Frame, pose: Affine3A, keyframe: bool) -> Result<()> {
-        self.add_frame_tracked(frame, pose, keyframe, None)
-    }
-
-    /// The next frame was relocalised (its pose found again from a keyframe after tracking
-    /// was lost): it becomes a graph node, joined to the one before by a loose edge
-    /// ([`RELOCALISED_ODOMETRY_SCALE`]), so that loops, not the relocalisation's pose, place
-    /// what comes after it relative to what came before.
-    pub fn mark_relocalised(&mut self) {
-        self.relocalised = true;
+        self.add_frame_tracked(frame, pose, keyframe, None, false)
     }
 
     /// [`LoopClosure::add_frame`] with what the tracker measured of the frame: the
     /// condition of its alignment and its camera-frame normal matrix
-    /// ([`semrecon_recon::TrackingResult::camera_hessian`]).
+    /// ([`semrecon_recon::TrackingResult::camera_hessian`]), and whether it was `relocalised`
+    /// (its pose found again from a keyframe after tracking was lost). A relocalised frame
+    /// becomes a graph node, joined to the one before by a loose edge
+    /// ([`RELOCALISED_ODOMETRY_SCALE`]), so that loops, not the relocalisation's pose, place
+    /// what comes after it relative to what came before.
     pub fn add_frame_tracked(
         &mut self,
         frame: &Frame,
         pose: Affine3A,
         keyframe: bool,
         tracking: Option<(f64, Mat6)>,
+        relocalised: bool,
     ) -> Result<()> {
         self.tracked.push(frame.timestamp, pose);
-        let relocalised = std::mem::take(&mut self.relocalised);
         let new_node = keyframe || relocalised || self.graph.poses().is_empty();
         if new_node {
             // The graph this node joins is the one the last search optimised (a relocalised
@@ -672,10 +673,11 @@ impl LoopClosure {
         // shadow puts every frame it fuses.
         let planned = self.shadow.is_some().then(|| self.estimate(&stored));
         self.frames.push(stored);
-        if keep {
-            self.last_keeper = position;
-        } else {
-            self.fold(position, self.last_keeper);
+        if !keep {
+            // Into the last frame with pixels, at most a stride back (position 0 always has
+            // them).
+            let keeper = self.frames.iter().rposition(|f| f.pixels.is_some()).unwrap_or(0);
+            self.fold(position, keeper);
         }
         if let (Some(shadow), Some(pose)) = (self.shadow.as_mut(), planned) {
             shadow.push_live_frame(position, pose);
@@ -724,7 +726,6 @@ impl LoopClosure {
             }
             self.store_stride *= 2;
         }
-        self.last_keeper = self.frames.iter().rposition(|f| f.pixels.is_some()).unwrap_or(0);
     }
 
     /// Folds frame `dropped`, whose pixels are gone, into `keeper` before it: the keeper
@@ -855,18 +856,22 @@ impl LoopClosure {
         self.behind || self.shadow.is_some()
     }
 
-    /// Whether the next keyframe's [`LoopClosure::keyframe_follow`] starts the map's following
-    /// of a correction (never, when the map follows at the end of the scan).
-    pub fn follows_at_next_keyframe(&self) -> bool {
-        self.shadow.is_none()
-            && self.behind
-            && self.keyframes_since_follow.saturating_add(1) >= self.config.follow_every
+    /// Whether this keyframe's [`LoopClosure::keyframe_follow`] (called next) starts the
+    /// map's following of a correction (never when the map follows at the end of the scan).
+    pub fn starts_following(&self) -> bool {
+        self.shadow.is_none() && self.due_after(self.keyframes_since_follow.saturating_add(1))
+    }
+
+    /// Whether the map is due to follow once `keyframes` keyframes have passed since it last
+    /// did.
+    fn due_after(&self, keyframes: usize) -> bool {
+        self.behind && keyframes >= self.config.follow_every
     }
 
     /// Called once per keyframe: whether the map should follow now.
     fn follow_due(&mut self) -> bool {
-        self.keyframes_since_follow += 1;
-        self.behind && self.keyframes_since_follow >= self.config.follow_every
+        self.keyframes_since_follow = self.keyframes_since_follow.saturating_add(1);
+        self.due_after(self.keyframes_since_follow)
     }
 
     /// Whether a re-integration is being built in a shadow.

@@ -423,10 +423,14 @@ impl Pipeline {
             s.stale = true;
         }
         let keyframe = self.fused.is_multiple_of(self.config.keyframe_every);
-        if let (Some(lc), FrameStatus::Relocalised) = (&mut self.loop_closure, result.status) {
-            lc.mark_relocalised();
-        }
-        self.global_optimisation(frame, pose, keyframe, tracking.map(|r| (r.condition, r.camera_hessian)))?;
+        let relocalised = result.status == FrameStatus::Relocalised;
+        self.global_optimisation(
+            frame,
+            pose,
+            keyframe,
+            tracking.map(|r| (r.condition, r.camera_hessian)),
+            relocalised,
+        )?;
         if keyframe {
             result.keyframe = true;
             self.remesh();
@@ -443,6 +447,7 @@ impl Pipeline {
         pose: Affine3A,
         keyframe: bool,
         tracking: Option<(f64, [[f64; 6]; 6])>,
+        relocalised: bool,
     ) -> Result<()> {
         let Some(lc) = &mut self.loop_closure else { return Ok(()) };
         // The front end's part ("loop closure"): the frame's copy in the store; at a keyframe
@@ -450,7 +455,7 @@ impl Pipeline {
         // it still runs), the correction it found, and this keyframe's search handed over.
         // The search's own time is the back end's ("global pose optimisation").
         let t = Instant::now();
-        lc.add_frame_tracked(frame, pose, keyframe, tracking)?;
+        lc.add_frame_tracked(frame, pose, keyframe, tracking, relocalised)?;
         if !keyframe {
             self.times.record("loop closure", t.elapsed());
             if lc.is_rebuilding() {
@@ -466,7 +471,7 @@ impl Pipeline {
         self.times.record("loop closure", t.elapsed());
         let t = Instant::now();
         let rebuilding = lc.is_rebuilding();
-        if lc.follows_at_next_keyframe() && self.grouped.is_holding() {
+        if lc.starts_following() && self.grouped.is_holding() {
             // A re-integration starts now: the map it copies and plans from holds every fused
             // frame, and frames fuse whole (through its shadow) until it swaps. Not before it
             // is due (a correction waiting for the end of the scan keeps the grouping).

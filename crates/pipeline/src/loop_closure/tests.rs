@@ -351,11 +351,11 @@ fn odometry_edges_take_the_shape_of_the_weakest_tracking() {
         let config =
             LoopClosureConfig { odometry_information_from_tracking: from_tracking, ..LoopClosureConfig::default() };
         let mut lc = LoopClosure::new(config, k);
-        lc.add_frame_tracked(&f, Affine3A::IDENTITY, true, Some((1e-2, firm))).expect("stored");
+        lc.add_frame_tracked(&f, Affine3A::IDENTITY, true, Some((1e-2, firm)), false).expect("stored");
         // The weak frame is the interval's worst; the keyframe is turned from it.
-        lc.add_frame_tracked(&f, Affine3A::from_translation(Vec3::X * 0.01), false, Some((1e-4, weak_x)))
+        lc.add_frame_tracked(&f, Affine3A::from_translation(Vec3::X * 0.01), false, Some((1e-4, weak_x)), false)
             .expect("stored");
-        lc.add_frame_tracked(&f, Affine3A::from_translation(Vec3::X * 0.02) * quarter, true, Some((1e-2, firm)))
+        lc.add_frame_tracked(&f, Affine3A::from_translation(Vec3::X * 0.02) * quarter, true, Some((1e-2, firm)), false)
             .expect("stored");
         lc.graph.edges()[0].information
     };
@@ -388,8 +388,7 @@ fn a_relocalised_frame_starts_a_node_with_a_loose_edge() {
     let at = |x: f32| Affine3A::from_translation(Vec3::X * x);
     lc.add_frame(&f, at(0.0), true).expect("stored");
     lc.add_frame(&f, at(0.01), false).expect("stored");
-    lc.mark_relocalised();
-    lc.add_frame(&f, at(0.5), false).expect("stored");
+    lc.add_frame_tracked(&f, at(0.5), false, None, true).expect("stored");
     lc.add_frame(&f, at(0.51), true).expect("stored");
     let edges = lc.graph.edges();
     assert_eq!((lc.graph.poses().len(), edges.len()), (3, 2));
